@@ -1,0 +1,171 @@
+"""Network weights as safetensors: save, load, apply to a graph, fp16, torch import."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import struct
+import tempfile
+
+import numpy as np
+from onnx import numpy_helper
+
+# How a PyTorch re-implementation of the networks names its parameters, mapped to our
+# initializer names. The torch modules this assumes (documented so that a trainer can
+# match them):
+#   classifier: stem = Conv2d(92, c0, 1); enc = ModuleList(4 x Bottleneck(conv1 1x1
+#     reduce, conv2 3x3, conv3 1x1 expand)); down = ModuleList(3 x Conv2d(k3, s2)),
+#     down[i] feeds enc[i+1]; dec = Sequential(Conv2d 1x1, ReLU, Conv2d 3x3, ReLU,
+#     Conv2d 1x1 -> 6). Optional "classifier." / "cls." / "module." prefixes.
+#   composition: mlp = Sequential(Linear(22, hidden), ReLU, Linear(hidden, 1));
+#     Linear [out, in] weights become 1x1 conv [out, in, 1, 1].
+TORCH_NAME_MAP = (
+    (r"stem\.(weight|bias)", "cls.stem.{0}"),
+    (r"enc\.(\d)\.conv1\.(weight|bias)", "cls.enc{0}.reduce.{1}"),
+    (r"enc\.(\d)\.conv2\.(weight|bias)", "cls.enc{0}.mid.{1}"),
+    (r"enc\.(\d)\.conv3\.(weight|bias)", "cls.enc{0}.expand.{1}"),
+    (r"down\.(\d)\.(weight|bias)", "cls.down{0+1}.{1}"),
+    (r"dec\.0\.(weight|bias)", "cls.dec.fuse.{0}"),
+    (r"dec\.2\.(weight|bias)", "cls.dec.conv.{0}"),
+    (r"dec\.4\.(weight|bias)", "cls.dec.out.{0}"),
+    (r"mlp\.0\.(weight|bias)", "comp.fc1.{0}"),
+    (r"mlp\.2\.(weight|bias)", "comp.fc2.{0}"),
+)
+_TORCH_PREFIXES = ("module.", "classifier.", "cls.", "composition.", "comp.")
+
+
+class WeightsError(ValueError):
+    pass
+
+
+def _is_weight(name):
+    # Resize scales are graph structure, not learned weights.
+    return not name.endswith(".scales")
+
+
+def model_weights(model) -> dict:
+    return {t.name: numpy_helper.to_array(t) for t in model.graph.initializer
+            if _is_weight(t.name)}
+
+
+def to_fp16(tensors: dict) -> dict:
+    """Float tensors cast to float16 (the fp16-storage engine path loads these)."""
+    return {k: v.astype(np.float16) if v.dtype.kind == "f" else v for k, v in tensors.items()}
+
+
+def save_weights(model_or_tensors, path, half=False):
+    """Write the learned tensors of one or more models (or a dict) to safetensors.
+
+    Accepts a ModelProto, a dict name -> array, or a list of either. Atomic."""
+    from safetensors.numpy import save_file
+    items = model_or_tensors if isinstance(model_or_tensors, (list, tuple)) else [model_or_tensors]
+    tensors = {}
+    for it in items:
+        tensors.update(it if isinstance(it, dict) else model_weights(it))
+    if half:
+        tensors = to_fp16(tensors)
+    tensors = {k: np.ascontiguousarray(v) for k, v in tensors.items()}
+    d = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(suffix=".safetensors.tmp", dir=d)
+    os.close(fd)
+    try:
+        save_file(tensors, tmp, metadata={"producer": "weights_tools",
+                                          "dtype": "float16" if half else "float32"})
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def _bf16_to_f32(raw):
+    return (np.frombuffer(raw, np.uint16).astype(np.uint32) << 16).view(np.float32)
+
+
+_ST_DTYPES = {"F64": np.float64, "F32": np.float32, "F16": np.float16, "I64": np.int64,
+              "I32": np.int32, "I16": np.int16, "I8": np.int8, "U8": np.uint8, "BOOL": np.bool_}
+
+
+def load_weights(path) -> dict:
+    """name -> numpy array. Reads the safetensors layout directly so that bf16 files
+    written by torch load too (as float32)."""
+    try:
+        with open(path, "rb") as f:
+            (n,) = struct.unpack("<Q", f.read(8))
+            if n > os.fstat(f.fileno()).st_size:
+                raise ValueError("header length exceeds the file size")
+            header = json.loads(f.read(n))
+            data = f.read()
+    except (OSError, struct.error, ValueError) as e:
+        raise WeightsError(f"{path}: not a readable safetensors file ({e})") from None
+    out = {}
+    for name, info in header.items():
+        if name == "__metadata__":
+            continue
+        a, b = info["data_offsets"]
+        raw, shape = data[a:b], info["shape"]
+        if info["dtype"] == "BF16":
+            arr = _bf16_to_f32(raw)
+        elif info["dtype"] in _ST_DTYPES:
+            arr = np.frombuffer(raw, _ST_DTYPES[info["dtype"]])
+        else:
+            raise WeightsError(f"{path}: tensor {name} has unsupported dtype {info['dtype']}")
+        out[name] = arr.reshape(shape).copy()
+    return out
+
+
+def apply_weights(model, tensors: dict, strict=False):
+    """Replace the model's initializers by same-named tensors (cast to the
+    initializer's dtype). Shapes must match; with strict, every learned initializer
+    must be given. Returns the names applied."""
+    applied = []
+    for i, t in enumerate(model.graph.initializer):
+        if t.name not in tensors:
+            continue
+        old = numpy_helper.to_array(t)
+        new = np.asarray(tensors[t.name])
+        if new.shape != old.shape:
+            raise WeightsError(f"{t.name}: shape {new.shape} does not match the graph's {old.shape}")
+        model.graph.initializer[i].CopyFrom(numpy_helper.from_array(new.astype(old.dtype), t.name))
+        applied.append(t.name)
+    if strict:
+        missing = sorted(set(model_weights(model)) - set(applied))
+        if missing:
+            raise WeightsError(f"no weights given for {', '.join(missing)}")
+    return applied
+
+
+def torch_to_onnx_name(name):
+    """Our initializer name for a torch parameter name, or None if not a network weight."""
+    for p in _TORCH_PREFIXES:
+        if name.startswith(p):
+            name = name[len(p):]
+    for pattern, template in TORCH_NAME_MAP:
+        m = re.fullmatch(pattern, name)
+        if m:
+            groups = list(m.groups())
+            # "{0+1}": torch down[i] is our down{i+1}.
+            return re.sub(r"\{(\d)(\+1)?\}",
+                          lambda r: str(int(groups[int(r.group(1))]) + 1) if r.group(2)
+                          else groups[int(r.group(1))], template)
+    return None
+
+
+def import_torch_state_dict(path, model, strict=True):
+    """Load a torch state dict saved as safetensors into `model` (in place) using
+    TORCH_NAME_MAP. Linear weights [out, in] become 1x1 conv weights. Tensors that do
+    not belong to this model (the other network, optimizer buffers such as BatchNorm
+    running stats) are ignored; with strict, every learned initializer of the model
+    must be covered. Returns the list of (torch name, onnx name) applied."""
+    src = load_weights(path)
+    shapes = {k: v.shape for k, v in model_weights(model).items()}
+    mapped, pairs = {}, []
+    for tname, arr in src.items():
+        oname = torch_to_onnx_name(tname)
+        if oname is None or oname not in shapes:
+            continue
+        if arr.ndim == 2 and len(shapes[oname]) == 4:
+            arr = arr.reshape(arr.shape + (1, 1))
+        mapped[oname] = arr
+        pairs.append((tname, oname))
+    apply_weights(model, mapped, strict=strict)
+    return pairs
