@@ -1,0 +1,82 @@
+"""Diff kernels against onnxruntime: the rows of `clss verify` and of the op tests."""
+from __future__ import annotations
+
+import time
+import traceback
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .device import Device
+from .ops.base import Case, compare, round_inputs
+from .ops.twin import run_ort
+
+
+@dataclass
+class Row:
+    op: str
+    variant: str
+    precision: str
+    max_abs: float
+    max_rel: float
+    ratio: float
+    tolerance: str
+    passed: bool
+    detail: str = ""
+    ms: float = 0.0
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def reference(case: Case, precision: str) -> list[np.ndarray]:
+    """onnxruntime on the twin, fed the inputs the engine stores (fp16-rounded in
+    half modes); for bit-exact ops the reference is then rounded like the storage."""
+    refs = run_ort(case.twin, round_inputs(case, precision))
+    if precision != "fp32" and case.exact:
+        refs = [r.astype(np.float16).astype(np.float32) if r.dtype.kind == "f" else r for r in refs]
+    return refs
+
+
+def check(case: Case, dev: Device, precision: str) -> Row:
+    t0 = time.perf_counter()
+    try:
+        refs = reference(case, precision)
+        outs = case.run(dev, precision, round_inputs(case, precision))
+    except Exception as e:  # a failing kernel is a FAIL row, not a crash of the whole run
+        last = traceback.format_exception_only(type(e), e)[-1].strip()
+        return Row(case.op, case.variant, precision, np.inf, np.inf, np.inf,
+                   str(case.tolerance(precision)), False, last[:2000])
+    ms = (time.perf_counter() - t0) * 1e3
+    if len(outs) != len(refs):
+        return Row(case.op, case.variant, precision, np.inf, np.inf, np.inf,
+                   str(case.tolerance(precision)), False,
+                   f"{len(outs)} outputs, reference has {len(refs)}", ms)
+    worst = None
+    for i, (o, r) in enumerate(zip(outs, refs)):
+        c = compare(o, r, case.tolerance(precision))
+        if len(outs) > 1 and c.detail:
+            c.detail = f"output {i}: {c.detail}"
+        if worst is None or (not c.passed and worst.passed) or (c.passed == worst.passed and c.ratio > worst.ratio):
+            worst = c
+    return Row(case.op, case.variant, precision, worst.max_abs, worst.max_rel, worst.ratio,
+               worst.tol, worst.passed, worst.detail, ms)
+
+
+def format_table(rows: list[Row]) -> str:
+    head = ("op", "variant", "prec", "max abs err", "max rel err", "tolerance", "err/tol", "result")
+    body = []
+    for r in rows:
+        ratio = f"{r.ratio:.0f} bad" if r.tolerance == "bit-exact" and r.ratio else (
+            "0" if r.tolerance == "bit-exact" else f"{r.ratio:.3f}")
+        body.append((r.op, r.variant, r.precision, f"{r.max_abs:.2e}", f"{r.max_rel:.2e}",
+                     r.tolerance, ratio, "PASS" if r.passed else "FAIL"))
+    widths = [max(len(str(x[i])) for x in [head] + body) for i in range(len(head))]
+    fmt = "  ".join(f"{{:{'<' if i < 3 or i == 5 else '>'}{w}}}" for i, w in enumerate(widths))
+    lines = [fmt.format(*head), fmt.format(*("-" * w for w in widths))]
+    lines += [fmt.format(*b) for b in body]
+    fails = [r for r in rows if not r.passed]
+    for r in fails:
+        if r.detail:
+            lines.append(f"FAIL {r.op}[{r.variant}] {r.precision}: {r.detail}")
+    return "\n".join(lines)

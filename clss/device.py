@@ -1,0 +1,259 @@
+"""OpenCL platform/device choice, capabilities, and the program cache.
+
+Choice order: an explicit spec (``--device``), then ``CLSS_DEVICE``, then
+``PYOPENCL_CTX`` (pyopencl's own convention, "platform:device" indices), then
+the PoCL CPU device, then the first device found. A spec is an index into
+`list_devices()` or a case-insensitive substring of "platform / device".
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+PRECISIONS = ("fp32", "fp16", "fp16-native")
+
+# -D options per precision; see kernels/common.h.
+_PRECISION_DEFINES = {"fp32": {}, "fp16": {"CLSS_FP16": 1}, "fp16-native": {"CLSS_FP16_NATIVE": 1}}
+
+
+class DeviceError(RuntimeError):
+    """No usable device, or a device lacks what was asked of it."""
+
+
+class KernelBuildError(RuntimeError):
+    """A kernel source failed to build; the message carries the build log."""
+
+
+def kernels_dir() -> Path:
+    """The .cl sources: the repo's kernels/ in a checkout, clss/kernels when installed."""
+    repo = Path(__file__).resolve().parent.parent / "kernels"
+    if (repo / "common.h").is_file():
+        return repo
+    installed = Path(__file__).resolve().parent / "kernels"
+    if (installed / "common.h").is_file():
+        return installed
+    raise DeviceError(f"kernel sources not found (looked in {repo} and {installed})")
+
+
+def storage_dtype(precision: str) -> np.dtype:
+    check_precision(precision)
+    return np.dtype(np.float32 if precision == "fp32" else np.float16)
+
+
+def check_precision(precision: str) -> None:
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+
+
+def list_devices() -> list[tuple[cl.Platform, cl.Device]]:
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as e:  # no ICD at all
+        raise DeviceError(f"no OpenCL platform found ({e}); install pocl-binary-distribution") from e
+    return [(p, d) for p in platforms for d in p.get_devices()]
+
+
+def describe(index: int, platform: cl.Platform, device: cl.Device) -> str:
+    return f"[{index}] {platform.name.strip()} / {device.name.strip()}"
+
+
+def _pick(spec: str | None) -> cl.Device:
+    found = list_devices()
+    if not found:
+        raise DeviceError("no OpenCL device found")
+    names = [f"{p.name.strip()} / {d.name.strip()}" for p, d in found]
+    if spec is None and os.environ.get("CLSS_DEVICE"):
+        spec = os.environ["CLSS_DEVICE"]
+    if spec is None and os.environ.get("PYOPENCL_CTX"):
+        plat, _, dev = os.environ["PYOPENCL_CTX"].partition(":")
+        try:
+            platform = cl.get_platforms()[int(plat or 0)]
+            return platform.get_devices()[int(dev or 0)]
+        except (ValueError, IndexError) as e:
+            raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} names no device") from e
+    if spec is None:
+        for (p, d), name in zip(found, names):
+            if "portable computing language" in p.name.lower():
+                return d
+        return found[0][1]
+    spec = str(spec).strip()
+    if spec.isdigit():
+        i = int(spec)
+        if i >= len(found):
+            raise DeviceError(f"device index {i} out of range; devices:\n  " + "\n  ".join(
+                describe(j, p, d) for j, (p, d) in enumerate(found)))
+        return found[i][1]
+    hits = [d for (p, d), name in zip(found, names) if spec.lower() in name.lower()]
+    if not hits:
+        raise DeviceError(f"no device matches {spec!r}; devices:\n  " + "\n  ".join(
+            describe(j, p, d) for j, (p, d) in enumerate(found)))
+    return hits[0]
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    platform: str
+    name: str
+    version: str
+    driver: str
+    compute_units: int
+    global_mem: int
+    max_alloc: int
+    fp16: bool
+
+    @classmethod
+    def of(cls, d: cl.Device) -> "DeviceInfo":
+        return cls(platform=d.platform.name.strip(), name=d.name.strip(), version=d.version.strip(),
+                   driver=d.driver_version.strip(), compute_units=d.max_compute_units,
+                   global_mem=d.global_mem_size, max_alloc=d.max_mem_alloc_size,
+                   fp16="cl_khr_fp16" in d.extensions.split())
+
+
+class Device:
+    """A context and an in-order profiling queue on one OpenCL device, plus a
+    program cache keyed by (source hash, build options)."""
+
+    def __init__(self, cl_device: cl.Device):
+        self.cl_device = cl_device
+        self.info = DeviceInfo.of(cl_device)
+        self.context = cl.Context([cl_device])
+        self.queue = cl.CommandQueue(
+            self.context, properties=cl.command_queue_properties.PROFILING_ENABLE)
+        self._programs: dict[tuple[str, str], cl.Program] = {}
+        self._kernels: dict[tuple[str, str, str], cl.Kernel] = {}
+        self._lock = threading.Lock()
+
+    def __repr__(self) -> str:
+        return f"<clss.Device {self.info.platform} / {self.info.name}>"
+
+    @property
+    def has_fp16(self) -> bool:
+        return self.info.fp16
+
+    def require(self, precision: str) -> None:
+        check_precision(precision)
+        if precision == "fp16-native" and not self.has_fp16:
+            raise DeviceError(
+                f"precision 'fp16-native' needs cl_khr_fp16, which {self.info.name} does not report; "
+                "use 'fp16' (half storage, float arithmetic) instead")
+
+    # -- programs ---------------------------------------------------------
+    @staticmethod
+    def source(stem: str) -> str:
+        """kernels/<stem>.cl with common.h inlined, so the hash covers both."""
+        d = kernels_dir()
+        path = d / f"{stem}.cl"
+        if not path.is_file():
+            raise KernelBuildError(f"no kernel source {path}")
+        common = (d / "common.h").read_text()
+        return path.read_text().replace('#include "common.h"', common, 1)
+
+    def program(self, stem: str, precision: str = "fp32", **defines) -> cl.Program:
+        self.require(precision)
+        opts = {**_PRECISION_DEFINES[precision], **defines}
+        options = " ".join(f"-D{k}={_define_value(v)}" for k, v in sorted(opts.items()))
+        # Extra compiler flags for every program, e.g. -cl-opt-disable under oclgrind
+        # (its uninitialised-value checker rejects LLVM's `freeze`, which the optimiser emits).
+        extra = os.environ.get("CLSS_BUILD_OPTIONS", "").strip()
+        if extra:
+            options = f"{options} {extra}"
+        src = self.source(stem)
+        key = (hashlib.sha1(src.encode()).hexdigest(), options)
+        prog = self._programs.get(key)
+        if prog is None:
+            with self._lock:
+                prog = self._programs.get(key)
+                if prog is None:
+                    prog = cl.Program(self.context, src)
+                    try:
+                        prog.build(options=options)
+                    except cl.RuntimeError as e:
+                        log = _build_log(prog, self.cl_device) or str(e)
+                        raise KernelBuildError(
+                            f"kernel source kernels/{stem}.cl failed to build on {self.info.name} "
+                            f"({self.info.driver}) with options '{options}':\n{log}") from None
+                    self._programs[key] = prog
+        return prog
+
+    def kernel(self, stem: str, name: str, precision: str = "fp32", **defines) -> cl.Kernel:
+        """A kernel object, cached; callers set all args on each launch."""
+        prog = self.program(stem, precision, **defines)
+        key = (id(prog), name, "")
+        k = self._kernels.get(key)
+        if k is None:
+            try:
+                k = getattr(prog, name)
+            except AttributeError:
+                raise KernelBuildError(f"kernels/{stem}.cl has no kernel named {name!r}") from None
+            self._kernels[key] = k
+        return k
+
+    # -- launches and arrays ----------------------------------------------
+    def launch(self, kernel: cl.Kernel, global_size, args, local_size=None, wait_for=None) -> cl.Event:
+        """Enqueue with the exact global size (kernels guard their own bounds)."""
+        gs = tuple(int(max(1, g)) for g in global_size)
+        kernel.set_args(*args)
+        return cl.enqueue_nd_range_kernel(self.queue, kernel, gs, local_size, wait_for=wait_for)
+
+    def empty(self, shape, precision: str = "fp32", dtype=None) -> cla.Array:
+        dt = np.dtype(dtype) if dtype is not None else storage_dtype(precision)
+        n = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+        if n > self.info.max_alloc:
+            raise DeviceError(f"tensor of shape {tuple(shape)} ({n / 2**20:.1f} MiB) exceeds the device's "
+                              f"max allocation ({self.info.max_alloc / 2**20:.0f} MiB)")
+        return cla.empty(self.queue, tuple(int(s) for s in shape), dt)
+
+    def to_device(self, a: np.ndarray, precision: str = "fp32") -> cla.Array:
+        """Host array to device: floats are stored in the precision's storage type,
+        other dtypes (indices, masks) as they are."""
+        a = np.asarray(a)
+        if a.dtype.kind == "f":
+            a = a.astype(storage_dtype(precision), copy=False)
+        return cla.to_device(self.queue, np.ascontiguousarray(a))
+
+    @staticmethod
+    def to_host(a: cla.Array) -> np.ndarray:
+        """Device array to host; float storage is returned as float32."""
+        h = a.get()
+        return h.astype(np.float32) if h.dtype == np.float16 else h
+
+
+def _define_value(v) -> str:
+    if isinstance(v, bool):
+        return str(int(v))
+    if isinstance(v, float):
+        return repr(v) + "f"
+    return str(v)
+
+
+def _build_log(prog: cl.Program, dev: cl.Device) -> str:
+    try:
+        return prog.get_build_info(dev, cl.program_build_info.LOG)
+    except cl.Error:
+        return ""
+
+
+_devices: dict[str | None, Device] = {}
+
+
+def get_device(spec=None) -> Device:
+    """The Device for a spec (see module doc); one instance per cl device."""
+    if isinstance(spec, Device):
+        return spec
+    key = None if spec is None else str(spec)
+    if key not in _devices:
+        d = _pick(key)
+        for existing in _devices.values():
+            if existing.cl_device == d:
+                _devices[key] = existing
+                break
+        else:
+            _devices[key] = Device(d)
+    return _devices[key]

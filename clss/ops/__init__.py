@@ -1,0 +1,53 @@
+"""Kernel families. Each module shares its stem with kernels/<stem>.cl and
+tests/test_ops_<stem>.py; see base.py for what a family module provides."""
+from __future__ import annotations
+
+import importlib
+
+from .base import (Case, Tolerance, Unsupported, ONNX_HANDLERS, DEFAULT_TOL, EXACT,
+                   compare, onnx_op, round_inputs)
+
+FAMILIES = (
+    "conv",
+    "space_to_depth",
+    "resize",
+    "zero_upsample",
+    "warp",
+    "scatter",
+    "mlp",
+    "pool",
+    "elementwise",
+)
+
+
+def family(name: str):
+    return importlib.import_module(f"{__name__}.{name}")
+
+
+def load_all() -> dict:
+    """Import every family so its ONNX handlers are registered. A family whose
+    module is absent (a partial checkout) is left out with a warning; any
+    other import error propagates."""
+    import warnings
+    mods = {}
+    for name in FAMILIES:
+        try:
+            mods[name] = family(name)
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{name}":
+                raise
+            warnings.warn(f"op family {name!r} is missing (clss/ops/{name}.py)")
+    return mods
+
+
+def all_cases(level: str = "quick", families=None) -> list[Case]:
+    mods = load_all()
+    out = []
+    for name in families or FAMILIES:
+        if name in mods:
+            out.extend(mods[name].cases(level))
+    return out
+
+
+__all__ = ["Case", "Tolerance", "Unsupported", "ONNX_HANDLERS", "DEFAULT_TOL", "EXACT",
+           "compare", "onnx_op", "round_inputs", "FAMILIES", "family", "load_all", "all_cases"]

@@ -1,0 +1,102 @@
+"""SpaceToDepth / DepthToSpace (kernels/space_to_depth.cl): bit-exact data movement."""
+from __future__ import annotations
+
+import numpy as np
+from onnx import helper
+
+from ..device import Device
+from .base import Case, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .twin import make_model, node_model
+
+MODES = ("DCR", "CRD")
+
+
+def _mode(mode: str) -> int:
+    if mode not in MODES:
+        raise ValueError(f"mode must be DCR or CRD, got {mode!r}")
+    return int(mode == "CRD")
+
+
+def space_to_depth(dev: Device, prec: str, x, block: int, mode: str = "DCR", out=None):
+    """[N,C,H*b,W*b] -> [N,C*b*b,H,W]. DCR is ONNX SpaceToDepth; CRD is pixel_unshuffle."""
+    check_storage("x", x, prec)
+    n, c, hh, ww = x.shape
+    if block < 1 or hh % block or ww % block:
+        raise ValueError(f"space_to_depth: input {x.shape} height/width not divisible by block {block}")
+    h, w = hh // block, ww // block
+    out = out if out is not None else dev.empty((n, c * block * block, h, w), prec)
+    k = dev.kernel("space_to_depth", "space_to_depth", prec, CRD=_mode(mode))
+    dev.launch(k, (w, h, n * c * block * block),
+               (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(block),
+                np.int32(n * c * block * block)))
+    return out
+
+
+def depth_to_space(dev: Device, prec: str, x, block: int, mode: str = "DCR", out=None):
+    """[N,C*b*b,H,W] -> [N,C,H*b,W*b]. DCR and CRD as ONNX DepthToSpace."""
+    check_storage("x", x, prec)
+    n, cbb, h, w = x.shape
+    if block < 1 or cbb % (block * block):
+        raise ValueError(f"depth_to_space: {cbb} channels not divisible by block^2 = {block * block}")
+    c = cbb // (block * block)
+    out = out if out is not None else dev.empty((n, c, h * block, w * block), prec)
+    k = dev.kernel("space_to_depth", "depth_to_space", prec, CRD=_mode(mode))
+    dev.launch(k, (w * block, h * block, n * c),
+               (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(block),
+                np.int32(n * c)))
+    return out
+
+
+# --- ONNX -----------------------------------------------------------------------
+
+@onnx_op("SpaceToDepth")
+def _onnx_s2d(dev, prec, attrs, inputs):
+    return [space_to_depth(dev, prec, inputs[0], int(attrs["blocksize"]))]
+
+
+@onnx_op("DepthToSpace")
+def _onnx_d2s(dev, prec, attrs, inputs):
+    mode = as_str(attrs.get("mode", "DCR"))
+    if mode not in MODES:
+        raise Unsupported(f"DepthToSpace mode {mode!r}")
+    return [depth_to_space(dev, prec, inputs[0], int(attrs["blocksize"]), mode)]
+
+
+def twin(direction: str, x: np.ndarray, block: int, mode: str):
+    """ONNX twin. SpaceToDepth has no CRD mode in ONNX: its twin is the
+    PixelUnshuffle pattern Reshape -> Transpose -> Reshape."""
+    if direction == "d2s":
+        return node_model("DepthToSpace", {"x": x}, blocksize=block, mode=mode)
+    if mode == "DCR":
+        return node_model("SpaceToDepth", {"x": x}, blocksize=block)
+    n, c, hh, ww = x.shape
+    h, w = hh // block, ww // block
+    shape1 = np.array([n, c, h, block, w, block], np.int64)
+    shape2 = np.array([n, c * block * block, h, w], np.int64)
+    nodes = [helper.make_node("Reshape", ["x", "s1"], ["t1"]),
+             helper.make_node("Transpose", ["t1"], ["t2"], perm=[0, 1, 3, 5, 2, 4]),
+             helper.make_node("Reshape", ["t2", "s2"], ["y0"])]
+    return make_model(nodes, {"x": x}, ["y0"], initializers={"s1": shape1, "s2": shape2})
+
+
+def cases(level: str = "quick") -> list[Case]:
+    shapes = [(1, 3, 2, 2, 2), (1, 23, 8, 12, 2), (2, 5, 7, 13, 3)]
+    if level == "tiny":
+        shapes = [shapes[0], shapes[2]]
+    elif level == "full":
+        shapes += [(1, 1, 1, 1, 1), (1, 7, 31, 27, 1), (2, 6, 10, 14, 4), (1, 17, 62, 54, 2)]
+    out = []
+    for n, c, h, w, b in shapes:
+        for mode in MODES:
+            g = rng("s2d", n, c, h, w, b, mode)
+            x = g.standard_normal((n, c, h * b, w * b)).astype(np.float32)
+            out.append(Case("space_to_depth", f"{mode} b{b} {n}x{c}x{h * b}x{w * b}", {"x": x},
+                            twin("s2d", x, b, mode),
+                            host_call(lambda dev, p, x, b=b, m=mode: space_to_depth(dev, p, x, b, m)),
+                            exact=True))
+            y = g.standard_normal((n, c * b * b, h, w)).astype(np.float32)
+            out.append(Case("depth_to_space", f"{mode} b{b} {n}x{c * b * b}x{h}x{w}", {"x": y},
+                            twin("d2s", y, b, mode),
+                            host_call(lambda dev, p, x, b=b, m=mode: depth_to_space(dev, p, x, b, m)),
+                            exact=True))
+    return out

@@ -1,0 +1,104 @@
+/* common.h: storage and compute types shared by every clss kernel.
+ *
+ * One source per operator; precision is chosen at build time with -D options,
+ * never by copying a kernel:
+ *
+ *   (none)            fp32: float storage, float arithmetic
+ *   -DCLSS_FP16       half storage (vload_half/vstore_half, core OpenCL 1.2),
+ *                     float arithmetic. Works on every device, PoCL included.
+ *   -DCLSS_FP16_NATIVE half storage and half arithmetic; needs cl_khr_fp16.
+ *
+ * Kernels use:
+ *   T            the storage element type of tensor buffers (__global T *)
+ *   TB           an unsigned integer of T's size: pure data movement copies
+ *                bits through it (bit-exact, NaN payloads kept, and no half
+ *                dereference, which OpenCL 1.2 allows only with cl_khr_fp16)
+ *   A, A4, A8    the arithmetic (accumulator) type and its vectors
+ *   LD(p, i)     load element i of p as A
+ *   ST(p, i, v)  store A v to element i of p (round-to-nearest-even in fp16)
+ *   LD4/LD8(p, i), ST4/ST8(p, i, v)  vector forms; i is an element offset, no
+ *                alignment needed beyond the element type.
+ *
+ * The clss host prepends this file to each source, so the kernels also build
+ * with a plain `#include "common.h"` and -I kernels/ in a vendor's own tools.
+ */
+#ifndef CLSS_COMMON_H
+#define CLSS_COMMON_H
+
+#if defined(CLSS_FP16_NATIVE)
+#pragma OPENCL EXTENSION cl_khr_fp16 : enable
+typedef half T;
+typedef ushort TB;
+typedef half A;
+typedef half4 A4;
+typedef half8 A8;
+#define LD(p, i) ((p)[(i)])
+#define ST(p, i, v) ((p)[(i)] = (half)(v))
+#define LD4(p, i) vload4(0, (p) + (i))
+#define LD8(p, i) vload8(0, (p) + (i))
+#define ST4(p, i, v) vstore4((v), 0, (p) + (i))
+#define ST8(p, i, v) vstore8((v), 0, (p) + (i))
+#define A_ZERO ((half)0.0h)
+#define CONVERT_A(x) ((half)(x))
+#define CONVERT_A4(x) convert_half4(x)
+#define CONVERT_A8(x) convert_half8(x)
+#elif defined(CLSS_FP16)
+typedef half T;
+typedef ushort TB;
+typedef float A;
+typedef float4 A4;
+typedef float8 A8;
+#define LD(p, i) vload_half((i), (p))
+#define ST(p, i, v) vstore_half_rte((v), (i), (p))
+#define LD4(p, i) vload_half4(0, (p) + (i))
+#define LD8(p, i) vload_half8(0, (p) + (i))
+#define ST4(p, i, v) vstore_half4_rte((v), 0, (p) + (i))
+#define ST8(p, i, v) vstore_half8_rte((v), 0, (p) + (i))
+#define A_ZERO 0.0f
+#define CONVERT_A(x) ((float)(x))
+#define CONVERT_A4(x) convert_float4(x)
+#define CONVERT_A8(x) convert_float8(x)
+#else
+typedef float T;
+typedef uint TB;
+typedef float A;
+typedef float4 A4;
+typedef float8 A8;
+#define LD(p, i) ((p)[(i)])
+#define ST(p, i, v) ((p)[(i)] = (v))
+#define LD4(p, i) vload4(0, (p) + (i))
+#define LD8(p, i) vload8(0, (p) + (i))
+#define ST4(p, i, v) vstore4((v), 0, (p) + (i))
+#define ST8(p, i, v) vstore8((v), 0, (p) + (i))
+#define A_ZERO 0.0f
+#define CONVERT_A(x) ((float)(x))
+#define CONVERT_A4(x) convert_float4(x)
+#define CONVERT_A8(x) convert_float8(x)
+#endif
+
+/* Fused activations, selected by -DACT=<n> where a kernel supports them.
+ * The host passes alpha (leaky_relu slope) as a float argument. */
+#define ACT_NONE 0
+#define ACT_RELU 1
+#define ACT_LEAKY_RELU 2
+#define ACT_SIGMOID 3
+#define ACT_TANH 4
+
+#ifndef ACT
+#define ACT ACT_NONE
+#endif
+
+/* Generic in the vector width: works for A, A4 and A8 alike. */
+#if ACT == ACT_RELU
+#define APPLY_ACT(x, alpha) fmax((x), (A)0)
+#elif ACT == ACT_LEAKY_RELU
+#define APPLY_ACT(x, alpha) select((x) * (A)(alpha), (x), (x) >= (A)0)
+#elif ACT == ACT_SIGMOID
+#define APPLY_ACT(x, alpha) ((A)1 / ((A)1 + exp(-(x))))
+#elif ACT == ACT_TANH
+#define APPLY_ACT(x, alpha) tanh(x)
+#else
+#define APPLY_ACT(x, alpha) (x)
+#endif
+
+#endif /* CLSS_COMMON_H */
