@@ -1,0 +1,1 @@
+"""clss benchmarks against onnxruntime."""
