@@ -1,0 +1,254 @@
+"""The CLSS frame input contract: validation and conventions (clss-frame.md section 1).
+
+Layout of one frame as the caller hands it in (render resolution h x w):
+
+    color     h x w x 3   float16/float32, linear (HDR or LDR), divided by `exposure`
+    depth     h x w       float16/float32 in [0, 1]; reversed-Z (near = 1) by default
+    motion    h x w x 2   render pixels, previous position = p + motion * motion_scale, +y down
+    jitter    2 floats    render pixels in [-0.5, 0.5]; sample (i, j) was taken at
+                          (j + 0.5 + jx, i + 0.5 + jy)
+    reactive  h x w       optional, in [0, 1]
+
+Non-finite policy: by default any NaN/Inf refuses the frame (FrameInputError naming the
+input, the count and the first bad pixel), because one NaN blended into the history
+stays there for every later frame.  `sanitize=True` instead replaces non-finite colour
+by 0, depth by the far plane, motion by 0 (static) and reactive by 0, and reports the
+counts under "sanitized".  Jitter is never sanitized: a wrong jitter silently blurs
+everything.  Out-of-range depth/reactive/jitter is always refused.  Negative colour is
+accepted and clamped to 0 by the transfer function.
+
+Internal conventions (`to_internal`, what the frame graphs consume): NCHW float32,
+colour / exposure, depth reversed-Z (near = 1, far = 0, so "nearest" is max and zero
+padding is "far"), motion multiplied by motion_scale (render pixels).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+ACCEPTED_DTYPES = (np.float16, np.float32)
+
+# SMPTE ST 2084 (PQ) constants, exact rationals from the standard.
+PQ_M1 = 2610.0 / 16384.0          # 0.1593017578125
+PQ_M2 = 2523.0 / 4096.0 * 128.0   # 78.84375
+PQ_C1 = 3424.0 / 4096.0           # 0.8359375
+PQ_C2 = 2413.0 / 4096.0 * 32.0    # 18.8515625
+PQ_C3 = 2392.0 / 4096.0 * 32.0    # 18.6875
+PQ_PEAK_NITS = 10000.0
+# Linear 1.0 = 100 nits (SDR reference white, ITU-R BT.2408 uses 203 for HDR graphics
+# white; 100 keeps LDR content in the well-resolved lower half of the PQ curve and
+# linear 100.0 at the PQ peak).  Values above 10000 nits clip.
+PQ_NITS = 100.0
+
+
+class FrameInputError(ValueError):
+    """A frame input that breaks the contract; the message names the input."""
+
+
+def output_size(h: int, w: int, scale) -> tuple[int, int]:
+    """(H, W) = (round(h*scale), round(w*scale)), halves rounded up (not to even)."""
+    s = float(scale)
+    if not math.isfinite(s) or s < 1.0:
+        raise FrameInputError(f"scale: expected a finite number >= 1, got {scale!r}")
+    if int(h) < 1 or int(w) < 1:
+        raise FrameInputError(f"render_size: expected positive sizes, got {h}x{w}")
+    return int(math.floor(h * s + 0.5)), int(math.floor(w * s + 0.5))
+
+
+def halton(index: int, base: int) -> float:
+    """Radical inverse of `index` in `base` (halton(0, b) = 0)."""
+    f, r, i = 1.0, 0.0, int(index)
+    while i > 0:
+        f /= base
+        r += f * (i % base)
+        i //= base
+    return r
+
+
+def jitter_phase_count(scale) -> int:
+    """ceil(8 * scale^2), the FSR2 phase count (32 at scale 2)."""
+    s = float(scale)
+    # The epsilon keeps 8*1.5^2 = 18.000000000000004-style float noise from adding a phase.
+    return int(math.ceil(8.0 * s * s - 1e-9))
+
+
+def jitter_sequence(scale) -> np.ndarray:
+    """[n, 2] float32 (jx, jy) in render pixels: Halton(2,3) from index 1, minus 0.5."""
+    n = jitter_phase_count(scale)
+    return np.array([(halton(i + 1, 2) - 0.5, halton(i + 1, 3) - 0.5) for i in range(n)],
+                    np.float32)
+
+
+def jitter_for_frame(frame_index: int, scale) -> np.ndarray:
+    seq = jitter_sequence(scale)
+    return seq[int(frame_index) % len(seq)]
+
+
+def pq_encode(linear, nits: float = PQ_NITS) -> np.ndarray:
+    """Linear (1.0 = `nits` cd/m^2) -> PQ code value in [0, 1]; negatives clamp to 0."""
+    y = np.clip(np.asarray(linear, np.float32) * np.float32(nits / PQ_PEAK_NITS), 0.0, 1.0)
+    ym = np.power(y, np.float32(PQ_M1))
+    return np.power((PQ_C1 + PQ_C2 * ym) / (1.0 + PQ_C3 * ym), np.float32(PQ_M2)).astype(np.float32)
+
+
+def pq_decode(encoded, nits: float = PQ_NITS) -> np.ndarray:
+    """PQ code value -> linear (1.0 = `nits`); the input is clamped to [0, 1] first."""
+    ep = np.power(np.clip(np.asarray(encoded, np.float32), 0.0, 1.0), np.float32(1.0 / PQ_M2))
+    y = np.power(np.maximum(ep - PQ_C1, 0.0) / (PQ_C2 - PQ_C3 * ep), np.float32(1.0 / PQ_M1))
+    return (y * np.float32(PQ_PEAK_NITS / nits)).astype(np.float32)
+
+
+def _fail(name, expected, got):
+    raise FrameInputError(f"{name}: expected {expected}, got {got}")
+
+
+def _check_array(name, a, shape_tail, hw):
+    if not isinstance(a, np.ndarray):
+        _fail(name, "a numpy array", type(a).__name__)
+    if a.dtype not in ACCEPTED_DTYPES:
+        _fail(name, "dtype float16 or float32", f"{a.dtype} (convert explicitly; integer "
+              "and float64 inputs are refused so a wrong unit cannot slip through)")
+    layout = "h x w" + "".join(f" x {c}" for c in shape_tail)
+    if hw is None:
+        _fail(name, f"a {layout} array", f"shape {a.shape}")
+    want = tuple(hw) + tuple(shape_tail)
+    got = a.shape
+    # Single-channel planes may come as h x w x 1.
+    if not shape_tail and a.ndim == 3 and a.shape[2] == 1:
+        got = a.shape[:2]
+    if tuple(got) != want:
+        _fail(name, f"shape {want} ({layout})", f"{a.shape}")
+    return a.reshape(want)
+
+
+def _where(mask):
+    """'(row=r, col=c[, channel=k])' of the first True in C order."""
+    idx = np.unravel_index(int(np.argmax(mask)), mask.shape)
+    s = f"row={idx[0]}, col={idx[1]}"
+    return s + (f", channel={idx[2]}" if len(idx) > 2 else "")
+
+
+def _nonfinite(name, a, sanitize, fill, report):
+    bad = ~np.isfinite(a)
+    n = int(bad.sum())
+    if n == 0:
+        return a
+    if not sanitize:
+        raise FrameInputError(
+            f"{name}: expected finite values, got {n} non-finite (NaN/Inf) of {a.size}; "
+            f"first at pixel ({_where(bad)}); pass sanitize=True to replace them")
+    a = a.copy()
+    a[bad] = fill
+    report[name] = n
+    return a
+
+
+def _range(name, a, lo, hi):
+    bad = (a < lo) | (a > hi)
+    n = int(bad.sum())
+    if n:
+        first = _where(bad)
+        v = float(a[np.unravel_index(int(np.argmax(bad)), bad.shape)])
+        raise FrameInputError(f"{name}: expected values in [{lo}, {hi}], got {n} outside; "
+                              f"first at pixel ({first}) = {v!r}")
+
+
+def validate_frame(color, depth, motion, jitter, reactive=None, *, render_size=None,
+                   sanitize: bool = False, depth_inverted: bool = True) -> dict:
+    """Check one frame against the contract; return float32 copies in the caller's layout.
+
+    Returns {"color", "depth", "motion", "jitter", "reactive" (None if not given),
+    "sanitized": {input: count replaced}}.  `render_size` = (h, w) when the caller
+    has fixed it; otherwise the colour's shape defines it.  `depth_inverted` only tells
+    sanitize where "far" is (0 when inverted, 1 otherwise).
+    """
+    if render_size is not None:
+        hw = (int(render_size[0]), int(render_size[1]))
+    elif isinstance(color, np.ndarray) and color.ndim == 3:
+        hw = color.shape[:2]
+    else:
+        hw = None
+    color = _check_array("color", color, (3,), hw)
+    depth = _check_array("depth", depth, (), hw)
+    motion = _check_array("motion", motion, (2,), hw)
+    if reactive is not None:
+        reactive = _check_array("reactive", reactive, (), hw)
+
+    try:
+        j = np.asarray(jitter, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        _fail("jitter", "2 floats (jx, jy) in render pixels", repr(jitter))
+    if j.shape != (2,):
+        _fail("jitter", "2 floats (jx, jy) in render pixels", f"{j.size} values")
+    if not np.all(np.isfinite(j)) or np.any(np.abs(j) > 0.5):
+        _fail("jitter", "2 finite floats in [-0.5, 0.5] render pixels", f"{j.tolist()}")
+
+    report = {}
+    out = {}
+    far = 0.0 if depth_inverted else 1.0
+    out["color"] = _nonfinite("color", color.astype(np.float32), sanitize, 0.0, report)
+    out["depth"] = _nonfinite("depth", depth.astype(np.float32), sanitize, far, report)
+    out["motion"] = _nonfinite("motion", motion.astype(np.float32), sanitize, 0.0, report)
+    _range("depth", out["depth"], 0.0, 1.0)
+    if reactive is not None:
+        r = _nonfinite("reactive", reactive.astype(np.float32), sanitize, 0.0, report)
+        _range("reactive", r, 0.0, 1.0)
+        out["reactive"] = r
+    else:
+        out["reactive"] = None
+    out["jitter"] = j.astype(np.float32)
+    out["sanitized"] = report
+    return out
+
+
+def check_motion_scale(motion_scale) -> np.ndarray:
+    m = np.asarray(motion_scale, np.float64).reshape(-1)
+    if m.shape != (2,) or not np.all(np.isfinite(m)):
+        _fail("motion_scale", "2 finite floats (sx, sy), e.g. (w, h) for UV motion or "
+              "(-1, -1) for the opposite sign", repr(motion_scale))
+    return m.astype(np.float32)
+
+
+def check_exposure(exposure) -> float:
+    e = float(exposure)
+    if not math.isfinite(e) or e <= 0.0:
+        _fail("exposure", "a finite number > 0", repr(exposure))
+    return e
+
+
+def to_reversed_z(depth: np.ndarray, depth_inverted: bool) -> np.ndarray:
+    """Internal depth is reversed-Z (near = 1, far = 0); standard Z becomes 1 - d."""
+    return depth if depth_inverted else (1.0 - depth).astype(np.float32)
+
+
+def apply_motion_scale(motion: np.ndarray, motion_scale) -> np.ndarray:
+    """Motion in render pixels pointing to the previous position (+y down)."""
+    m = check_motion_scale(motion_scale)
+    if np.all(m == 1.0):
+        return motion
+    return (motion * m).astype(np.float32)
+
+
+def to_internal(frame: dict, *, depth_inverted: bool = True, motion_scale=(1.0, 1.0),
+                exposure: float = 1.0) -> dict:
+    """validate_frame's dict -> NCHW float32 arrays in internal conventions.
+
+    Keys: color [1,3,h,w] (/ exposure), depth [1,1,h,w] (reversed-Z), motion [1,2,h,w]
+    (render pixels, scaled), jitter [2], reactive [1,1,h,w] (zeros when absent).
+    """
+    e = check_exposure(exposure)
+    color = frame["color"] if e == 1.0 else frame["color"] * np.float32(1.0 / e)
+    depth = to_reversed_z(frame["depth"], depth_inverted)
+    motion = apply_motion_scale(frame["motion"], motion_scale)
+    h, w = depth.shape
+    reactive = frame.get("reactive")
+    if reactive is None:
+        reactive = np.zeros((h, w), np.float32)
+    return {
+        "color": np.ascontiguousarray(color.transpose(2, 0, 1)[None], np.float32),
+        "depth": np.ascontiguousarray(depth[None, None], np.float32),
+        "motion": np.ascontiguousarray(motion.transpose(2, 0, 1)[None], np.float32),
+        "jitter": np.asarray(frame["jitter"], np.float32).reshape(2),
+        "reactive": np.ascontiguousarray(reactive[None, None], np.float32),
+    }

@@ -1,0 +1,559 @@
+"""The whole CLSS frame step as one ONNX graph, run by onnxruntime: the oracle.
+
+Every formula here is written down in clss/pipeline/reference.md (stage numbers match);
+the OpenCL frame path is checked against this graph.  State is explicit: the graph takes
+the history tensor [1,16,H,W] and returns the next one, nothing is hidden in the session.
+
+Graph inputs (internal conventions, see contract.to_internal):
+    color    [1,3,h,w]  linear / exposure        depth   [1,1,h,w] reversed-Z
+    motion   [1,2,h,w]  render pixels            jitter  [2] render pixels
+    reset    [1]        1.0 = camera cut         reactive [1,1,h,w] in [0,1]
+    history  [1,16,H,W] PQ colour 3, counter 1, colour min 3, max 3, logits 6
+Graph outputs: output [1,3,H,W] linear (/ exposure), history_out [1,16,H,W], and with
+debug=True the intermediate buffers listed in DEBUG_OUTPUTS.
+"""
+from __future__ import annotations
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
+
+from .contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
+                       output_size, to_internal, validate_frame)
+
+IR_VERSION = 10
+OPSET = 18
+HISTORY_CHANNELS = 16
+# Channel slices of the history tensor.
+H_COLOR, H_COUNTER, H_MIN, H_MAX, H_LOGITS = (slice(0, 3), slice(3, 4), slice(4, 7),
+                                               slice(7, 10), slice(10, 16))
+DEFAULT_CAP = {"rule": 4, "net": 32}
+DEPTH_THRESHOLD = 0.05
+SCATTER_WEIGHT_THRESHOLD = 0.01
+DEPTH_EPS = 1e-6
+# Dilation neighbour order (dx, dy), FSR2's: the centre first, so that on equal depths
+# (flat areas) a pixel keeps its own motion; the first maximum in this order wins.
+DILATE_OFFSETS = ((0, 0), (1, 0), (0, 1), (0, -1), (-1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1))
+MODES = ("rule", "net")
+
+DEBUG_OUTPUTS = {
+    # render resolution
+    "dbg_dilated_depth": "[1,1,h,w] stage 1 nearest depth of the 3x3 neighbourhood",
+    "dbg_dilated_motion": "[1,2,h,w] stage 1 motion of that neighbour (render px)",
+    "dbg_recon_depth": "[1,1,h,w] stage 2 reconstructed previous depth (0 = far)",
+    "dbg_depth_diff": "[1,1,h,w] stage 3 relative depth difference, > 0 = disocclusion",
+    # output resolution
+    "dbg_upsampled": "[1,3,H,W] stage 4 jitter-aware bicubic colour (PQ)",
+    "dbg_depth_hr": "[1,1,H,W] stage 4 bilinear dilated depth",
+    "dbg_motion_hr": "[1,2,H,W] stage 4 bilinear dilated motion (output px)",
+    "dbg_depth_diff_hr": "[1,1,H,W] stage 4 bilinear depth difference",
+    "dbg_reactive_hr": "[1,1,H,W] stage 4 bilinear reactive mask",
+    "dbg_valid": "[1,1,H,W] stage 5 1 = history usable (on-screen and no reset)",
+    "dbg_warped": "[1,16,H,W] stage 5 warped history, invalid pixels re-initialised",
+    "dbg_ghost": "[1,1,H,W] stage 7 1 = history rejected (counter reset)",
+    "dbg_counter": "[1,1,H,W] stage 7 new sample counter",
+    "dbg_w": "[1,1,H,W] stage 8 blend weight of the current frame",
+    "dbg_blend_history": "[1,3,H,W] stage 9 history colour entering the blend (PQ)",
+}
+DEBUG_OUTPUTS_RULE = {
+    "dbg_clamp_min": "[1,3,H,W] rule: bilinear 3x3 render-res neighbourhood min (PQ)",
+    "dbg_clamp_max": "[1,3,H,W] rule: bilinear 3x3 render-res neighbourhood max (PQ)",
+}
+DEBUG_OUTPUTS_NET = {
+    "dbg_cls_input": "[1,23,H,W] stage 6 classifier input, before padding",
+    "dbg_logits": "[1,6,H,W] stage 6 current logits after the bilinear x2 and crop",
+    "dbg_comp_input": "[1,22,H,W] stage 8 composition input",
+}
+
+
+class _Graph:
+    """Node list with generated names and deduplicated constants."""
+
+    def __init__(self, opset):
+        self.opset = opset
+        self.nodes, self.inits = [], []
+        self._n = 0
+        self._consts = {}
+
+    def _name(self, hint):
+        self._n += 1
+        return f"{hint}_{self._n}"
+
+    def op(self, op_type, *inputs, name=None, **attrs):
+        out = name or self._name(op_type.lower())
+        self.nodes.append(helper.make_node(op_type, list(inputs), [out], name=out, **attrs))
+        return out
+
+    def const(self, value, dtype=np.float32, hint="c"):
+        arr = np.asarray(value, dtype)
+        key = (arr.dtype.str, arr.shape, arr.tobytes())
+        if key not in self._consts:
+            name = self._name(hint)
+            self.inits.append(numpy_helper.from_array(arr, name))
+            self._consts[key] = name
+        return self._consts[key]
+
+    def i64(self, values):
+        return self.const(values, np.int64, "i")
+
+    # small vocabulary
+    def add(self, a, b): return self.op("Add", a, b)
+    def sub(self, a, b): return self.op("Sub", a, b)
+    def mul(self, a, b): return self.op("Mul", a, b)
+    def div(self, a, b): return self.op("Div", a, b)
+
+    def clip(self, x, lo, hi):
+        return self.op("Clip", x, self.const(lo), self.const(hi))
+
+    def slice(self, x, axis, start, end):
+        return self.op("Slice", x, self.i64([start]), self.i64([end]), self.i64([axis]))
+
+    def chan(self, x, s: slice):
+        return self.slice(x, 1, s.start, s.stop)
+
+    def concat(self, xs, axis=1, name=None):
+        return self.op("Concat", *xs, axis=axis, name=name)
+
+    def reshape(self, x, shape):
+        return self.op("Reshape", x, self.i64(shape))
+
+    def where(self, cond, a, b, name=None):
+        return self.op("Where", cond, a, b, name=name)
+
+    def normalised(self, u, n):
+        """GridSample align_corners=0 coordinate of pixel-index coordinate u: (2u+1)/n - 1."""
+        return self.sub(self.div(self.add(self.mul(u, self.const(2.0)), self.const(1.0)),
+                                 self.const(float(n))), self.const(1.0))
+
+    def grid_sample(self, x, grid, cubic):
+        if self.opset >= 20:
+            mode = "cubic" if cubic else "linear"
+        else:
+            mode = "bicubic" if cubic else "bilinear"
+        return self.op("GridSample", x, grid, mode=mode, padding_mode="border", align_corners=0)
+
+    def inline(self, model: onnx.ModelProto, prefix, inputs: dict, outputs: dict):
+        """Copy `model`'s nodes and initializers in, tensors renamed `prefix/...`;
+        `inputs`/`outputs` map the model's graph input/output names to ours."""
+        g = model.graph
+        init_names = {t.name for t in g.initializer}
+        rename = dict(inputs)
+        rename.update(outputs)
+
+        def r(n):
+            if n == "":
+                return n
+            return rename.get(n, f"{prefix}/{n}")
+
+        for t in g.initializer:
+            t2 = onnx.TensorProto()
+            t2.CopyFrom(t)
+            t2.name = r(t.name)
+            self.inits.append(t2)
+        for nd in g.node:
+            if nd.domain not in ("", "ai.onnx"):
+                raise ValueError(f"{prefix}: node {nd.name} uses domain {nd.domain!r}; only "
+                                 "the default ONNX domain can be inlined")
+            if any(a.type in (onnx.AttributeProto.GRAPH, onnx.AttributeProto.GRAPHS)
+                   for a in nd.attribute):
+                raise ValueError(f"{prefix}: node {nd.name} ({nd.op_type}) has a subgraph")
+            n2 = onnx.NodeProto()
+            n2.CopyFrom(nd)
+            n2.name = f"{prefix}/{nd.name or nd.op_type}"
+            del n2.input[:]
+            del n2.output[:]
+            n2.input.extend(r(i) for i in nd.input)
+            n2.output.extend(r(o) for o in nd.output)
+            self.nodes.append(n2)
+        missing = [n for n in list(inputs) if n not in
+                   {i.name for i in g.input if i.name not in init_names}]
+        if missing:
+            raise ValueError(f"{prefix}: model has no graph input named {missing}")
+
+
+def _model_opset(model):
+    if model is None:
+        return 0
+    return max((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), default=0)
+
+
+def _real_input(model, what, want_channels):
+    init_names = {t.name for t in model.graph.initializer}
+    ins = [i for i in model.graph.input if i.name not in init_names]
+    if len(ins) != 1 or len(model.graph.output) != 1:
+        raise ValueError(f"{what}: expected one input and one output, got "
+                         f"{[i.name for i in ins]} -> {[o.name for o in model.graph.output]}")
+    dims = [d.dim_value if d.HasField("dim_value") else None
+            for d in ins[0].type.tensor_type.shape.dim]
+    if len(dims) == 4 and dims[1] not in (None, want_channels):
+        raise ValueError(f"{what}: expected {want_channels} input channels, got {dims[1]}")
+    return ins[0].name, model.graph.output[0].name, dims
+
+
+def _check_static_hw(what, dims, hw):
+    if len(dims) == 4:
+        for got, want, axis in zip(dims[2:], hw, "HW"):
+            if got is not None and got != want:
+                raise ValueError(f"{what}: built for a fixed {axis} = {got}, the pipeline "
+                                 f"feeds {want} (build it with height/width None or {hw})")
+
+
+def _pad16(n):
+    return -(-n // 16) * 16
+
+
+def _pq_encode(g, x, nits):
+    y = g.clip(g.mul(x, g.const(nits / PQ_PEAK_NITS)), 0.0, 1.0)
+    ym = g.op("Pow", y, g.const(PQ_M1))
+    num = g.add(g.const(PQ_C1), g.mul(g.const(PQ_C2), ym))
+    den = g.add(g.const(1.0), g.mul(g.const(PQ_C3), ym))
+    return g.op("Pow", g.div(num, den), g.const(PQ_M2))
+
+
+def _pq_decode(g, e, nits, name):
+    ep = g.op("Pow", g.clip(e, 0.0, 1.0), g.const(1.0 / PQ_M2))
+    num = g.op("Max", g.sub(ep, g.const(PQ_C1)), g.const(0.0))
+    den = g.sub(g.const(PQ_C2), g.mul(g.const(PQ_C3), ep))
+    y = g.op("Pow", g.div(num, den), g.const(1.0 / PQ_M1))
+    return g.op("Mul", y, g.const(PQ_PEAK_NITS / nits), name=name)
+
+
+def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier=None,
+                      composition=None, cap=None, *, depth_threshold=DEPTH_THRESHOLD,
+                      hdr=True, nits=PQ_NITS, debug=False) -> onnx.ModelProto:
+    """One CLSS frame step as an ONNX model (see reference.md for every formula).
+
+    mode "rule": no networks, ghost = off-screen or reset or depth difference >
+    `depth_threshold`, w = 1/(1+counter), history clamped to the current 3x3
+    neighbourhood.  mode "net": `classifier` and `composition` (onnx.ModelProto from
+    weights_tools.networks) are inlined.  `render_size` = (h, w).  `cap`: counter cap
+    (default 4 for rule, 32 for net).  `hdr=False`: LDR in/out, no PQ (values clamped
+    to [0,1]).  `debug=True` adds the DEBUG_OUTPUTS(_RULE|_NET) graph outputs.
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
+    h, w = int(render_size[0]), int(render_size[1])
+    H, W = output_size(h, w, scale)
+    cap = float(DEFAULT_CAP[mode] if cap is None else cap)
+    if not cap >= 0:
+        raise ValueError(f"cap: expected a number >= 0, got {cap}")
+    if mode == "net":
+        if classifier is None or composition is None:
+            raise ValueError("mode 'net' needs both classifier and composition models")
+    opset = max(OPSET, _model_opset(classifier), _model_opset(composition))
+    if opset > 21:
+        raise ValueError(f"network opset {opset} > 21 (onnxruntime with IR 10)")
+    g = _Graph(opset)
+    dbg = {}
+
+    f32 = TensorProto.FLOAT
+    inputs = [helper.make_tensor_value_info("color", f32, [1, 3, h, w]),
+              helper.make_tensor_value_info("depth", f32, [1, 1, h, w]),
+              helper.make_tensor_value_info("motion", f32, [1, 2, h, w]),
+              helper.make_tensor_value_info("jitter", f32, [2]),
+              helper.make_tensor_value_info("reset", f32, [1]),
+              helper.make_tensor_value_info("reactive", f32, [1, 1, h, w]),
+              helper.make_tensor_value_info("history", f32, [1, HISTORY_CHANNELS, H, W])]
+
+    # Transfer function: everything below works on encoded colour.
+    if hdr:
+        X = _pq_encode(g, "color", nits)
+    else:
+        X = g.clip("color", 0.0, 1.0)
+
+    # ---- stage 1: dilate (render res) ----
+    pads = g.i64([0, 0, 1, 1, 0, 0, 1, 1])
+    # -1 is nearer to nothing: off-screen neighbours never win.
+    pd = g.op("Pad", "depth", pads, g.const(-1.0), mode="constant")
+    pm = g.op("Pad", "motion", pads, g.const(0.0), mode="constant")
+
+    def shifted(x, dx, dy):
+        return g.op("Slice", x, g.i64([1 + dy, 1 + dx]), g.i64([1 + dy + h, 1 + dx + w]),
+                    g.i64([2, 3]))
+
+    d9 = g.concat([shifted(pd, dx, dy) for dx, dy in DILATE_OFFSETS])            # [1,9,h,w]
+    m9 = g.concat([g.op("Unsqueeze", shifted(pm, dx, dy), g.i64([1]))
+                   for dx, dy in DILATE_OFFSETS])                                # [1,9,2,h,w]
+    nearest = g.op("ArgMax", d9, axis=1, keepdims=1, select_last_index=0)         # [1,1,h,w]
+    d_dil = g.op("GatherElements", d9, nearest, axis=1, name="dilated_depth")
+    idx5 = g.op("Expand", g.op("Unsqueeze", nearest, g.i64([2])), g.i64([1, 1, 2, h, w]))
+    m_dil = g.op("Squeeze", g.op("GatherElements", m9, idx5, axis=1), g.i64([1]),
+                 name="dilated_motion")                                          # [1,2,h,w]
+    dbg["dbg_dilated_depth"], dbg["dbg_dilated_motion"] = d_dil, m_dil
+
+    # ---- stage 2: reconstruct previous depth (scatter-max, reversed-Z) ----
+    jj = g.const(np.arange(w, dtype=np.float32).reshape(1, 1, 1, w), hint="jj")
+    ii = g.const(np.arange(h, dtype=np.float32).reshape(1, 1, h, 1), hint="ii")
+    ux = g.add(jj, g.chan(m_dil, slice(0, 1)))
+    uy = g.add(ii, g.chan(m_dil, slice(1, 2)))
+    x0, y0 = g.op("Floor", ux), g.op("Floor", uy)
+    fx, fy = g.sub(ux, x0), g.sub(uy, y0)
+    wx = (g.sub(g.const(1.0), fx), fx)
+    wy = (g.sub(g.const(1.0), fy), fy)
+    taps = []
+    for a, b in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        wk = g.mul(wx[a], wy[b])
+        xk = g.add(x0, g.const(float(a))) if a else x0
+        yk = g.add(y0, g.const(float(b))) if b else y0
+        on = g.op("And",
+                  g.op("And", g.op("GreaterOrEqual", xk, g.const(0.0)),
+                       g.op("LessOrEqual", xk, g.const(float(w - 1)))),
+                  g.op("And", g.op("GreaterOrEqual", yk, g.const(0.0)),
+                       g.op("LessOrEqual", yk, g.const(float(h - 1)))))
+        xi = g.op("Cast", g.clip(xk, 0.0, float(w - 1)), to=TensorProto.INT64)
+        yi = g.op("Cast", g.clip(yk, 0.0, float(h - 1)), to=TensorProto.INT64)
+        lin = g.add(g.mul(yi, g.i64(w)), xi)                                      # [1,1,h,w]
+        scat = g.op("And", on, g.op("Greater", wk, g.const(SCATTER_WEIGHT_THRESHOLD)))
+        # Refused taps go to one spare slot past the image, sliced off afterwards.
+        sidx = g.where(scat, lin, g.i64(h * w))
+        taps.append((wk, on, lin, sidx))
+    sidx = g.reshape(g.concat([t[3] for t in taps]), [-1])
+    upd = g.reshape(g.concat([d_dil] * 4), [-1])
+    recon = g.op("ScatterElements", g.const(np.zeros(h * w + 1, np.float32), hint="far"),
+                 sidx, upd, axis=0, reduction="max")
+    recon_img = g.reshape(g.slice(recon, 0, 0, h * w), [1, 1, h, w])
+    dbg["dbg_recon_depth"] = recon_img
+
+    # ---- stage 3: depth difference, bilinear of the reconstruction at p + motion ----
+    rs = None
+    for wk, on, lin, _ in taps:
+        v = g.mul(g.mul(g.op("Gather", recon, lin, axis=0), g.op("Cast", on, to=TensorProto.FLOAT)), wk)
+        rs = v if rs is None else g.add(rs, v)
+    dd = g.clip(g.div(g.sub(rs, d_dil), g.op("Max", rs, g.const(DEPTH_EPS))), -1.0, 1.0)
+    dd = g.op("Identity", dd, name="depth_diff")
+    dbg["dbg_depth_diff"] = dd
+
+    # ---- stage 4: upsample at output pixel centres, jitter-aware ----
+    jx, jy = g.slice("jitter", 0, 0, 1), g.slice("jitter", 0, 1, 2)
+    bx = ((np.arange(W, dtype=np.float64) + 0.5) * w / W - 0.5).astype(np.float32)
+    by = ((np.arange(H, dtype=np.float64) + 0.5) * h / H - 0.5).astype(np.float32)
+    gx = g.normalised(g.clip(g.sub(g.const(bx, hint="bx"), jx), 0.0, float(w - 1)), w)
+    gy = g.normalised(g.clip(g.sub(g.const(by, hint="by"), jy), 0.0, float(h - 1)), h)
+    shape_hw1 = g.i64([1, H, W, 1])
+    grid_up = g.concat([g.op("Expand", g.reshape(gx, [1, 1, W, 1]), shape_hw1),
+                        g.op("Expand", g.reshape(gy, [1, H, 1, 1]), shape_hw1)], axis=3)
+    up = g.clip(g.grid_sample(X, grid_up, cubic=True), 0.0, 1.0)
+    up = g.op("Identity", up, name="upsampled")
+    lr = [d_dil, m_dil, dd, "reactive"]
+    if mode == "rule":
+        # 3x3 neighbourhood box of the current frame; MaxPool pads with -inf, so the
+        # border neighbourhoods are just smaller.
+        nmax = g.op("MaxPool", X, kernel_shape=[3, 3], pads=[1, 1, 1, 1], strides=[1, 1])
+        nmin = g.op("Neg", g.op("MaxPool", g.op("Neg", X), kernel_shape=[3, 3],
+                                pads=[1, 1, 1, 1], strides=[1, 1]))
+        lr += [nmin, nmax]
+    aux = g.grid_sample(g.concat(lr), grid_up, cubic=False)
+    depth_hr = g.chan(aux, slice(0, 1))
+    motion_hr = g.mul(g.chan(aux, slice(1, 3)),
+                      g.const(np.array([W / w, H / h], np.float32).reshape(1, 2, 1, 1)))
+    dd_hr = g.chan(aux, slice(3, 4))
+    react_hr = g.chan(aux, slice(4, 5))
+    dbg.update(dbg_upsampled=up, dbg_depth_hr=depth_hr, dbg_motion_hr=motion_hr,
+               dbg_depth_diff_hr=dd_hr, dbg_reactive_hr=react_hr)
+
+    # ---- stage 5: warp the history at P + motion_hr ----
+    JJ = g.const(np.arange(W, dtype=np.float32).reshape(1, 1, 1, W), hint="JJ")
+    II = g.const(np.arange(H, dtype=np.float32).reshape(1, 1, H, 1), hint="II")
+    su = g.add(JJ, g.chan(motion_hr, slice(0, 1)))
+    sv = g.add(II, g.chan(motion_hr, slice(1, 2)))
+    off = g.op("Or",
+               g.op("Or", g.op("Less", su, g.const(-0.5)), g.op("Greater", su, g.const(W - 0.5))),
+               g.op("Or", g.op("Less", sv, g.const(-0.5)), g.op("Greater", sv, g.const(H - 0.5))))
+    no_reset = g.op("Less", "reset", g.const([0.5]))
+    valid = g.op("And", g.op("Not", off), g.reshape(no_reset, [1, 1, 1, 1]))
+    gxw = g.normalised(g.clip(su, 0.0, float(W - 1)), W)
+    gyw = g.normalised(g.clip(sv, 0.0, float(H - 1)), H)
+    grid_w = g.op("Transpose", g.concat([gxw, gyw]), perm=[0, 2, 3, 1])
+    hist_c = g.clip(g.grid_sample(g.chan("history", H_COLOR), grid_w, cubic=True), 0.0, 1.0)
+    hist_o = g.grid_sample(g.chan("history", slice(3, HISTORY_CHANNELS)), grid_w, cubic=False)
+    zero = g.const(0.0)
+    w_col = g.where(valid, hist_c, up)
+    w_cnt = g.where(valid, g.chan(hist_o, slice(0, 1)), zero)
+    w_min = g.where(valid, g.chan(hist_o, slice(1, 4)), up)
+    w_max = g.where(valid, g.chan(hist_o, slice(4, 7)), up)
+    w_log = g.where(valid, g.chan(hist_o, slice(7, 13)), zero)
+    dbg["dbg_valid"] = g.op("Cast", valid, to=TensorProto.FLOAT)
+    dbg["dbg_warped"] = g.concat([w_col, w_cnt, w_min, w_max, w_log])
+    one = g.const(1.0)
+
+    def inv_counter(c):
+        return g.div(one, g.add(one, c))
+
+    # ---- stage 6: classification ----
+    if mode == "net":
+        cls_in = g.concat([up, w_col, depth_hr, motion_hr, inv_counter(w_cnt), w_min, w_max,
+                           dd_hr, w_log])
+        dbg["dbg_cls_input"] = cls_in
+        H16, W16 = _pad16(H), _pad16(W)
+        cin, cout, dims = _real_input(classifier, "classifier", 23)
+        _check_static_hw("classifier", dims, (H16, W16))
+        x = cls_in
+        if (H16, W16) != (H, W):
+            x = g.op("Pad", cls_in, g.i64([0, 0, 0, 0, 0, 0, H16 - H, W16 - W]), mode="edge")
+        half = g._name("cls_logits_half")
+        g.inline(classifier, "classifier", {cin: x}, {cout: half})
+        full = g.op("Resize", half, "", g.const([1.0, 1.0, 2.0, 2.0]), mode="linear",
+                    coordinate_transformation_mode="half_pixel")
+        logits = full
+        if (H16, W16) != (H, W):
+            logits = g.op("Slice", full, g.i64([0, 0]), g.i64([H, W]), g.i64([2, 3]))
+        dbg["dbg_logits"] = logits
+        vis = g.op("ArgMax", g.chan(logits, slice(0, 3)), axis=1, keepdims=1,
+                   select_last_index=0)
+        reject = g.op("Equal", vis, g.i64(0))
+    else:
+        reject = g.op("Greater", dd_hr, g.const(float(depth_threshold)))
+    ghost = g.op("Or", reject, g.op("Not", valid))
+    dbg["dbg_ghost"] = g.op("Cast", ghost, to=TensorProto.FLOAT)
+
+    # ---- stage 7: auxiliary buffers ----
+    cnt = g.where(ghost, zero, g.op("Min", g.add(w_cnt, one), g.const(cap)), name="counter")
+    c_min = g.where(ghost, up, g.op("Min", w_min, up))
+    c_max = g.where(ghost, up, g.op("Max", w_max, up))
+    dbg["dbg_counter"] = cnt
+
+    # ---- stage 8: blend weight ----
+    if mode == "net":
+        comp_in = g.concat([up, w_col, depth_hr, motion_hr, inv_counter(cnt), c_min, c_max,
+                            logits])
+        dbg["dbg_comp_input"] = comp_in
+        ci, co, dims = _real_input(composition, "composition", 22)
+        _check_static_hw("composition", dims, (H, W))
+        wgt = g._name("comp_w")
+        g.inline(composition, "composition", {ci: comp_in}, {co: wgt})
+        blend_hist = w_col
+        new_logits = logits
+    else:
+        wgt = inv_counter(cnt)
+        c_lo = g.chan(aux, slice(5, 8))
+        c_hi = g.chan(aux, slice(8, 11))
+        dbg["dbg_clamp_min"], dbg["dbg_clamp_max"] = c_lo, c_hi
+        blend_hist = g.op("Min", g.op("Max", w_col, c_lo), c_hi)
+        new_logits = g.op("Expand", zero, g.i64([1, 6, H, W]))
+    wgt = g.op("Max", wgt, react_hr, name="w")
+    dbg["dbg_w"] = wgt
+    dbg["dbg_blend_history"] = blend_hist
+
+    # ---- stage 9: blend, decode ----
+    out = g.add(g.mul(wgt, up), g.mul(g.sub(one, wgt), blend_hist))
+    g.concat([out, cnt, c_min, c_max, new_logits], name="history_out")
+    if hdr:
+        _pq_decode(g, out, nits, name="output")
+    else:
+        g.op("Identity", out, name="output")
+
+    outputs = [helper.make_tensor_value_info("output", f32, [1, 3, H, W]),
+               helper.make_tensor_value_info("history_out", f32, [1, HISTORY_CHANNELS, H, W])]
+    if debug:
+        for name, t in dbg.items():
+            g.op("Identity", t, name=name)
+            outputs.append(helper.make_tensor_value_info(name, f32, None))
+    graph = helper.make_graph(g.nodes, f"clss_frame_{mode}", inputs, outputs,
+                              initializer=g.inits)
+    model = helper.make_model(graph, producer_name="clss.pipeline.oracle",
+                              opset_imports=[helper.make_opsetid("", opset)],
+                              doc_string=f"CLSS frame step, mode={mode}, render {h}x{w} -> "
+                                         f"{H}x{W}, cap={cap:g}, hdr={hdr}, nits={nits:g}")
+    model.ir_version = IR_VERSION
+    if debug:
+        _fill_output_shapes(model)
+    onnx.checker.check_model(model)
+    return model
+
+
+def _fill_output_shapes(model):
+    """Debug outputs are declared shapeless; copy the inferred shapes (the checker
+    wants a shape field)."""
+    inferred = onnx.shape_inference.infer_shapes(model)
+    known = {v.name: v for v in list(inferred.graph.value_info) + list(inferred.graph.output)}
+    for out in model.graph.output:
+        v = known.get(out.name)
+        if v is not None and v.type.tensor_type.HasField("shape"):
+            out.type.CopyFrom(v.type)
+        elif not out.type.tensor_type.HasField("shape"):
+            out.type.tensor_type.shape.SetInParent()
+
+
+def initial_history(output_hw) -> np.ndarray:
+    """A zero history; it is only ever read together with reset = 1."""
+    H, W = output_hw
+    return np.zeros((1, HISTORY_CHANNELS, H, W), np.float32)
+
+
+class OracleUpscaler:
+    """Frame-by-frame runner of the oracle graph with the state carried between calls.
+
+    `step` takes the contract's layout (h x w x 3 colour etc.), validates it, and returns
+    the linear output H x W x 3 float32 (times `exposure`).  The first step, and any
+    step after `reset()`, is a reset.  In mode "net" without models, the default seeded
+    weights_tools networks are built.
+    """
+
+    def __init__(self, render_size, scale=2.0, mode="rule", classifier=None, composition=None,
+                 *, cap=None, depth_threshold=DEPTH_THRESHOLD, depth_inverted=True,
+                 motion_scale=(1.0, 1.0), exposure=1.0, hdr=True, nits=PQ_NITS,
+                 sanitize=False, debug=False, session_options=None, providers=None):
+        import onnxruntime as ort
+
+        self.render_size = (int(render_size[0]), int(render_size[1]))
+        self.scale = float(scale)
+        self.output_size = output_size(*self.render_size, self.scale)
+        if mode == "net" and (classifier is None or composition is None):
+            from weights_tools.networks import build_classifier, build_composition
+            classifier = classifier or build_classifier()
+            composition = composition or build_composition()
+        self.mode = mode
+        self.depth_inverted = bool(depth_inverted)
+        self.motion_scale = motion_scale
+        self.exposure = float(exposure)
+        self.hdr = hdr
+        self.sanitize = sanitize
+        self.debug_enabled = debug
+        self.model = build_frame_graph(mode, self.render_size, self.scale, classifier,
+                                       composition, cap, depth_threshold=depth_threshold,
+                                       hdr=hdr, nits=nits, debug=debug)
+        self.session = ort.InferenceSession(self.model.SerializeToString(),
+                                            sess_options=session_options,
+                                            providers=providers or ["CPUExecutionProvider"])
+        self._outputs = [o.name for o in self.session.get_outputs()]
+        self._history = None
+        self.debug = {}
+        self.last_report = {}
+        self.frame_index = 0
+
+    @property
+    def state(self) -> dict:
+        """{"history": [1,16,H,W] float32 or None}; assignable (e.g. to replay)."""
+        return {"history": self._history}
+
+    @state.setter
+    def state(self, value):
+        hist = value.get("history") if isinstance(value, dict) else value
+        if hist is not None:
+            hist = np.asarray(hist, np.float32)
+            want = (1, HISTORY_CHANNELS) + self.output_size
+            if hist.shape != want:
+                raise ValueError(f"state history: expected shape {want}, got {hist.shape}")
+        self._history = hist
+
+    def reset(self):
+        self._history = None
+
+    def step(self, color, depth, motion, jitter, reset=False, reactive=None) -> np.ndarray:
+        frame = validate_frame(color, depth, motion, jitter, reactive,
+                               render_size=self.render_size, sanitize=self.sanitize,
+                               depth_inverted=self.depth_inverted)
+        self.last_report = frame["sanitized"]
+        feed = to_internal(frame, depth_inverted=self.depth_inverted,
+                           motion_scale=self.motion_scale, exposure=self.exposure)
+        first = self._history is None
+        feed["history"] = initial_history(self.output_size) if first else self._history
+        feed["reset"] = np.array([1.0 if (reset or first) else 0.0], np.float32)
+        res = dict(zip(self._outputs, self.session.run(self._outputs, feed)))
+        self._history = res.pop("history_out")
+        out = res.pop("output")
+        self.debug = res
+        self.frame_index += 1
+        if self.exposure != 1.0:
+            out = out * np.float32(self.exposure)
+        return np.ascontiguousarray(out[0].transpose(1, 2, 0))
