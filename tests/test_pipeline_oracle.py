@@ -519,3 +519,9 @@ def test_graph_is_plain_onnx():
     onnx.checker.check_model(m, full_check=True)
     with pytest.raises(ValueError, match="needs both"):
         O.build_frame_graph("net", (8, 8), 2.0)
+    from weights_tools.networks import build_classifier, build_composition
+    # A classifier built for a fixed size must match the padded output size (21x27 -> 48x64).
+    comp = build_composition(hidden=4)
+    O.build_frame_graph("net", (21, 27), 2.0, build_classifier((2, 2, 2, 2), height=48, width=64), comp)
+    with pytest.raises(ValueError, match="fixed H = 32"):
+        O.build_frame_graph("net", (21, 27), 2.0, build_classifier((2, 2, 2, 2), height=32, width=64), comp)
