@@ -1,0 +1,639 @@
+"""A built-in procedural animated scene, ray cast in numpy, with a supersampled reference.
+
+Made to exercise temporal supersampling: a tiled ground with thin grout lines and a
+finely striped path (texture aliasing), a fence of thin poles and sub-pixel wires
+receding into the distance (geometry aliasing), a bouncing striped ball that rotates, a
+sphere crossing the view and a rotating box (disocclusions, shading change from their
+shadows), an orbiting emissive lamp and specular highlights (HDR values well above 1),
+and a camera that moves sideways and forward.
+
+Conventions (clss-frame.md section 1):
+  * colour: linear HDR, one point sample per render pixel at the jittered position;
+  * depth: reversed-Z with an infinite far plane, ``depth = NEAR / z_view`` (near = 1,
+    sky = 0);
+  * motion: render pixels, ``prev = p + motion``, +y down, computed by reprojecting the
+    hit point with the previous frame's object transform and (unjittered) camera; the
+    jitter is not part of the motion (FSR2/DLSS convention);
+  * jitter: Halton(2,3) of length ceil(8 * scale^2), the sample of render pixel (i,j)
+    taken at (j + 0.5 + jx, i + 0.5 + jy);
+  * reference: output resolution, box filter over the pixel, stratified samples (spp
+    rounded up to a full gx x gy grid), each jittered inside its stratum.
+The camera frustum is fixed by the render size, so output pixel (u, v) and render pixel
+(u * w / W, v * h / H) look at the same point.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+NEAR = 0.1                      # reversed-Z near plane (scene units, metres)
+TAN_HALF_FOV = math.tan(math.radians(30.0))  # vertical field of view 60 degrees
+SUN_DIR = np.array([-0.45, 0.75, 0.48]) / np.linalg.norm([-0.45, 0.75, 0.48])
+SUN = np.array([1.7, 1.6, 1.45], np.float32)
+AMBIENT = np.array([0.16, 0.19, 0.26], np.float32)
+HORIZON = np.array([0.80, 0.86, 0.95], np.float32)
+ZENITH = np.array([0.22, 0.42, 0.85], np.float32)
+HAZE = 0.008                    # per metre: distant detail fades but still aliases
+
+_F = np.float32
+
+
+@dataclass
+class Frame:
+    """One rendered frame; ``reference`` is None when no reference was rendered."""
+    index: int
+    color: np.ndarray            # h x w x 3 float32, linear HDR
+    depth: np.ndarray            # h x w float32, reversed-Z
+    motion: np.ndarray           # h x w x 2 float32, render pixels, prev = p + motion
+    jitter: tuple                # (jx, jy) in render pixels
+    reset: bool = False
+    reference: np.ndarray | None = None   # H x W x 3 float32
+    meta: dict = field(default_factory=dict)
+
+    def __getitem__(self, key):
+        return getattr(self, key)
+
+
+def halton(index, base):
+    """Radical inverse of index (>= 1) in base."""
+    f, r = 1.0, 0.0
+    while index > 0:
+        f /= base
+        r += f * (index % base)
+        index //= base
+    return r
+
+
+def jitter_sequence_length(scale):
+    return int(math.ceil(8.0 * scale * scale - 1e-9))
+
+
+def halton_jitter(index, scale):
+    """(jx, jy) in [-0.5, 0.5) for frame `index`: Halton(2,3) starting at 1 (as FSR2),
+    cycling with length ceil(8 * scale^2)."""
+    k = index % jitter_sequence_length(scale) + 1
+    return (halton(k, 2) - 0.5, halton(k, 3) - 0.5)
+
+
+# ---------------------------------------------------------------- camera
+
+@dataclass
+class Camera:
+    pos: np.ndarray
+    right: np.ndarray
+    up: np.ndarray
+    fwd: np.ndarray
+    aspect: float                # width / height of the render frame
+
+    @staticmethod
+    def look_at(pos, target, aspect):
+        pos = np.asarray(pos, np.float64)
+        fwd = np.asarray(target, np.float64) - pos
+        fwd /= np.linalg.norm(fwd)
+        right = np.cross(fwd, [0.0, 1.0, 0.0])
+        right /= np.linalg.norm(right)
+        return Camera(pos, right, np.cross(right, fwd), fwd, aspect)
+
+    def rays(self, u, v, width, height):
+        """Directions (unnormalised, unit component along fwd, so the ray parameter is
+        the view depth) through continuous pixel positions u (right), v (down)."""
+        sx = ((2.0 / width) * u - 1.0) * _F(TAN_HALF_FOV * self.aspect)
+        sy = (1.0 - (2.0 / height) * v) * _F(TAN_HALF_FOV)
+        r, up, f = self.right.astype(_F), self.up.astype(_F), self.fwd.astype(_F)
+        return tuple(f[k] + sx * r[k] + sy * up[k] for k in range(3))
+
+    def project(self, px, py, pz, width, height):
+        """World points -> continuous pixel positions (u, v) and view depth z."""
+        rx, ry, rz = px - self.pos[0], py - self.pos[1], pz - self.pos[2]
+        z = rx * self.fwd[0] + ry * self.fwd[1] + rz * self.fwd[2]
+        x = (rx * self.right[0] + ry * self.right[1] + rz * self.right[2]) / z
+        y = (rx * self.up[0] + ry * self.up[1] + rz * self.up[2]) / z
+        u = (x / (TAN_HALF_FOV * self.aspect) + 1.0) * (0.5 * width)
+        v = (1.0 - y / TAN_HALF_FOV) * (0.5 * height)
+        return u, v, z
+
+
+def camera_at(t, aspect):
+    pos = (-1.3 + 0.075 * t, 1.35 + 0.12 * math.sin(0.21 * t), 6.2 - 0.06 * t)
+    target = (0.5 + 0.05 * t, -1.0 + 0.1 * math.sin(0.13 * t), -4.0)
+    return Camera.look_at(pos, target, aspect)
+
+
+# ---------------------------------------------------------------- primitives
+# Every primitive has: hit(o, d) -> ray parameter t (inf on miss) for arrays of ray
+# directions; corners() -> world points bounding it (screen-space culling);
+# surface(P, d) -> (normal, albedo) at gathered hit points; to_prev(P) -> where that
+# surface point was one frame earlier. The ground plane is not a primitive: it covers
+# most pixels, so it is shaded as whole image rows (see _ground).
+
+def _yaw(a):
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+class _Rigid:
+    """Transform (translation, yaw) of a primitive at the current and previous frame."""
+
+    def __init__(self, center, yaw=0.0, center_prev=None, yaw_prev=None):
+        self.c = np.asarray(center, np.float64)
+        self.R = _yaw(yaw)
+        self.cp = self.c if center_prev is None else np.asarray(center_prev, np.float64)
+        self.Rp = self.R if yaw_prev is None else _yaw(yaw_prev)
+
+    # Python floats keep float32 arrays float32 (numpy scalars would promote them).
+    def to_local(self, P):
+        c, R = self.c.tolist(), self.R.tolist()
+        q = [P[k] - c[k] for k in range(3)]
+        return tuple(R[0][k] * q[0] + R[1][k] * q[1] + R[2][k] * q[2] for k in range(3))
+
+    def dir_to_local(self, d):
+        R = self.R.tolist()
+        return tuple(R[0][k] * d[0] + R[1][k] * d[1] + R[2][k] * d[2] for k in range(3))
+
+    def to_world_prev(self, L):
+        c, R = self.cp.tolist(), self.Rp.tolist()
+        return tuple(R[k][0] * L[0] + R[k][1] * L[1] + R[k][2] * L[2] + c[k] for k in range(3))
+
+    def to_prev(self, P):
+        return self.to_world_prev(self.to_local(P))
+
+
+def _box_corners(c, h, R=np.eye(3)):
+    return np.array([c + R @ (np.asarray(h) * [sx, sy, sz])
+                     for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+
+
+class Sphere:
+    def __init__(self, rigid, radius, color, stripes=0, spec=(0.0, 1.0), emission=None):
+        self.rigid, self.r = rigid, radius
+        self.color = np.asarray(color, _F)
+        self.stripes, self.spec = stripes, spec
+        self.emission = None if emission is None else np.asarray(emission, _F)
+
+    def corners(self):
+        return _box_corners(self.rigid.c, (self.r,) * 3)
+
+    def shadow_corners(self, L):
+        """Ground points bounding this sphere's shadow along direction L."""
+        g = self.rigid.c - (self.rigid.c[1] / L[1]) * L
+        R = self.r / L[1]
+        return _box_corners(g * [1, 0, 1], (R, 0, R))
+
+    def hit(self, o, d):
+        oc = [float(o[k] - self.rigid.c[k]) for k in range(3)]
+        a = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+        b = d[0] * oc[0] + d[1] * oc[1] + d[2] * oc[2]
+        c = oc[0] ** 2 + oc[1] ** 2 + oc[2] ** 2 - self.r ** 2
+        disc = b * b - a * c
+        with np.errstate(invalid="ignore"):
+            t = (-b - np.sqrt(disc)) / a
+        return np.where((disc > 0) & (t > NEAR), t, _F(np.inf))
+
+    def surface(self, P, d):
+        c = self.rigid.c.tolist()
+        n = np.stack([(P[k] - c[k]) * (1 / self.r) for k in range(3)], -1)
+        albedo = np.broadcast_to(self.color, n.shape)
+        if self.stripes:
+            L = self.rigid.to_local(P)
+            ang = np.arctan2(L[2], L[0]) * (self.stripes / (2 * math.pi))
+            white = (ang - np.floor(ang)) < 0.5
+            albedo = np.where(white[:, None], np.array([0.85, 0.85, 0.8], _F), albedo)
+        return n, albedo
+
+    def occludes(self, P, L):
+        """Whether the ray from points P toward unit direction L hits the sphere."""
+        c = self.rigid.c.tolist()
+        oc = [P[k] - c[k] for k in range(3)]
+        b = oc[0] * L[0] + oc[1] * L[1] + oc[2] * L[2]
+        cc = oc[0] * oc[0] + oc[1] * oc[1] + oc[2] * oc[2] - self.r ** 2
+        return (b < 0) & (b * b > cc)
+
+    def to_prev(self, P):
+        return self.rigid.to_prev(P)
+
+
+class Box:
+    """Box turning about y, with fine horizontal stripes on its sides."""
+    spec = (0.15, 40.0)
+    emission = None
+
+    def __init__(self, rigid, half):
+        self.rigid, self.h = rigid, np.asarray(half, np.float64)
+
+    def corners(self):
+        return _box_corners(self.rigid.c, self.h, self.rigid.R)
+
+    def shadow_corners(self, L):
+        c = self.corners()
+        return c - (c[:, 1:2] / L[1]) * L
+
+    def _slabs(self, lo, ld):
+        tn = tf = None
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for k in range(3):
+                inv = 1.0 / ld[k]
+                t1 = (-self.h[k] - lo[k]) * inv
+                t2 = (self.h[k] - lo[k]) * inv
+                a, b = np.minimum(t1, t2), np.maximum(t1, t2)
+                tn = a if tn is None else np.maximum(tn, a)
+                tf = b if tf is None else np.minimum(tf, b)
+        return tn, tf
+
+    def hit(self, o, d):
+        lo = [_F(v) for v in self.rigid.to_local(o)]
+        tn, tf = self._slabs(lo, self.rigid.dir_to_local(d))
+        return np.where((tn <= tf) & (tn > NEAR), tn, _F(np.inf))
+
+    def surface(self, P, d):
+        loc = self.rigid.to_local(P)
+        L = np.stack(loc, -1) / self.h.astype(_F)
+        axis = np.argmax(np.abs(L), -1)
+        rows = np.arange(len(L))
+        nl = np.zeros_like(L)
+        nl[rows, axis] = np.sign(L[rows, axis])
+        n = nl @ self.rigid.R.T.astype(_F)
+        stripe = ((loc[1] * (1 / 0.08)) % 1.0 < 0.5) & (axis != 1)
+        albedo = np.where(stripe[:, None], np.array([0.9, 0.9, 0.9], _F),
+                          np.array([0.15, 0.35, 0.2], _F))
+        return n, albedo
+
+    def occludes(self, P, L):
+        lo = self.rigid.to_local(P)
+        ld = [_F(v) for v in self.rigid.dir_to_local(L)]
+        tn, tf = self._slabs(lo, ld)
+        return (tn <= tf) & (tf > 0)
+
+    def to_prev(self, P):
+        return self.rigid.to_prev(P)
+
+
+class Cylinder:
+    """Static open cylinder from `a` along an axis-aligned unit `axis` for `length`
+    (poles, wires)."""
+    spec = (0.3, 60.0)
+    emission = None
+
+    def __init__(self, a, axis, length, radius, color):
+        self.a = np.asarray(a, np.float64)
+        axis = np.asarray(axis, np.float64)
+        self.k = int(np.argmax(np.abs(axis)))
+        if np.count_nonzero(axis) != 1:
+            raise ValueError("Cylinder axis must be along x, y or z")
+        self.sign = float(np.sign(axis[self.k]))
+        self.ax = np.eye(3)[self.k] * self.sign
+        self.len, self.r = length, radius
+        self.color = np.asarray(color, _F)
+
+    def corners(self):
+        b = self.a + self.ax * self.len
+        return _box_corners((self.a + b) / 2, np.abs(b - self.a) / 2 + self.r)
+
+    def hit(self, o, d):
+        i, j = [m for m in range(3) if m != self.k]
+        oi, oj = float(o[i] - self.a[i]), float(o[j] - self.a[j])
+        di, dj = d[i], d[j]
+        A = di * di + dj * dj
+        B = di * oi + dj * oj
+        disc = B * B - A * (oi * oi + oj * oj - self.r ** 2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = (-B - np.sqrt(disc)) / A
+        s = (float(o[self.k] - self.a[self.k]) + t * d[self.k]) * self.sign
+        ok = (t > NEAR) & (s >= 0) & (s <= self.len)   # NaN t (disc < 0) fails t > NEAR
+        return np.where(ok, t, _F(np.inf))
+
+    def surface(self, P, d):
+        n = np.stack([P[m] - float(self.a[m]) for m in range(3)], -1)
+        n[:, self.k] = 0
+        n *= 1 / self.r
+        return n, np.broadcast_to(self.color, n.shape)
+
+    def to_prev(self, P):
+        return P
+
+
+class Grille:
+    """Static slatted panel in the plane z = z0 (alpha-tested): x in [x0, x1], y in
+    [0, height]; vertical slats `slat` wide every `period`, two horizontal rails."""
+    spec = (0.0, 1.0)
+    emission = None
+
+    def __init__(self, z0, x0, x1, height, period, slat, color):
+        self.z0, self.x0, self.x1, self.hgt = z0, x0, x1, height
+        self.period, self.slat = period, slat
+        self.color = np.asarray(color, _F)
+
+    def corners(self):
+        return _box_corners(((self.x0 + self.x1) / 2, self.hgt / 2, self.z0),
+                            ((self.x1 - self.x0) / 2, self.hgt / 2, 0.0))
+
+    def hit(self, o, d):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (self.z0 - float(o[2])) / d[2]
+        x = float(o[0]) + t * d[0]
+        y = float(o[1]) + t * d[1]
+        f = (x - self.x0) * (1 / self.period)
+        slat = (f - np.floor(f)) < self.slat / self.period
+        rail = (np.abs(y - 0.35) < 0.03) | (y > self.hgt - 0.06)
+        ok = (slat | rail) & (x >= self.x0) & (x <= self.x1) & (y >= 0) & (y <= self.hgt)
+        return np.where(ok & (t > NEAR), t, _F(np.inf))
+
+    def surface(self, P, d):
+        n = np.zeros((len(P[0]), 3), _F)
+        n[:, 2] = np.where(d[2] < 0, _F(1), _F(-1))
+        return n, np.broadcast_to(self.color, n.shape)
+
+    def to_prev(self, P):
+        return P
+
+
+def scene_at(t):
+    """Primitives at frame time t, with their transforms at t and t - 1."""
+    def ball(s):
+        return (0.3 + 1.3 * math.sin(0.12 * s), 0.5 + 1.1 * abs(math.sin(0.23 * s)), -1.4)
+
+    def mover(s):
+        return (-3.2 + 0.24 * s, 0.7, 0.6)
+
+    def lamp(s):
+        b = ball(s)
+        return (b[0] + 1.0 * math.cos(0.3 * s), b[1] + 0.35, b[2] + 1.0 * math.sin(0.3 * s))
+
+    prims = [Sphere(_Rigid(ball(t), 0.17 * t, ball(t - 1), 0.17 * (t - 1)), 0.5,
+                    (0.8, 0.12, 0.1), stripes=10, spec=(1.0, 250.0)),
+             Sphere(_Rigid(mover(t), 0, mover(t - 1), 0), 0.7, (0.12, 0.2, 0.7),
+                    spec=(0.8, 120.0)),
+             Sphere(_Rigid(lamp(t), 0, lamp(t - 1), 0), 0.12, (1, 1, 1),
+                    emission=(14.0, 11.0, 6.0)),
+             Box(_Rigid((-2.4, 0.6, -3.6), 0.08 * t, (-2.4, 0.6, -3.6), 0.08 * (t - 1)),
+                 (0.6, 0.6, 0.6)),
+             Grille(-6.0, -8.0, -0.7, 1.3, 0.2, 0.035, (0.16, 0.13, 0.11))]
+    wood, steel = (0.45, 0.33, 0.22), (0.5, 0.5, 0.55)
+    fx, z0, dz, n = 2.3, 4.5, 1.5, 26
+    for k in range(n):
+        prims.append(Cylinder((fx, 0.0, z0 - dz * k), (0, 1, 0), 1.45, 0.03, wood))
+    # Wires in chunks so that each chunk's screen rectangle stays small.
+    chunk = 5
+    for y in (0.55, 1.0, 1.4):
+        for k in range(0, n - 1, chunk):
+            L = dz * min(chunk, n - 1 - k)
+            prims.append(Cylinder((fx, y, z0 - dz * k), (0, 0, -1), L, 0.007, steel))
+    return prims
+
+
+# ---------------------------------------------------------------- tracing
+
+def _screen_rect(corners, cam, width, height, margin=2):
+    """Pixel rectangle (r0, r1, c0, c1) covering world points `corners`, or None when
+    off-screen. `margin` covers sample offsets up to +-1 pixel from the centre."""
+    u, v, z = cam.project(corners[:, 0], corners[:, 1], corners[:, 2], width, height)
+    if (z <= NEAR).all():
+        return None
+    if (z <= NEAR).any():
+        return 0, height, 0, width
+    c0 = max(int(math.floor(u.min())) - margin, 0)
+    c1 = min(int(math.ceil(u.max())) + margin, width)
+    r0 = max(int(math.floor(v.min())) - margin, 0)
+    r1 = min(int(math.ceil(v.max())) + margin, height)
+    if c0 >= c1 or r0 >= r1:
+        return None
+    return r0, r1, c0, c1
+
+
+class _View:
+    """One frame's primitives seen by one camera at one image size; screen rectangles
+    are computed once and shared by all sample passes."""
+
+    def __init__(self, prims, cam, width, height):
+        self.prims, self.cam, self.w, self.h = prims, cam, width, height
+        self.rects = [_screen_rect(p.corners(), cam, width, height) for p in prims]
+        L = SUN_DIR
+        self.casters = [(p, _screen_rect(p.shadow_corners(L), cam, width, height))
+                        for p in prims if hasattr(p, "shadow_corners") and p.emission is None]
+
+
+def _sky(d):
+    n2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    a = np.sqrt(np.sqrt(np.maximum(d[1], 0) ** 2 / n2))
+    return [HORIZON[k] + (ZENITH[k] - HORIZON[k]) * a for k in range(3)]
+
+
+# Ground texture: a 2 m x 2 m tile of 256 x 256 texels (0.78 cm), point sampled:
+# 1 m checker tiles with grout lines every 0.5 m. Class -> albedo in _GROUND_ALBEDO:
+# grout, dark tile, light tile, path stripe, path gap. The path (|x - 0.4| < 0.9) has
+# stripes of period 0.125 m along z.
+_TEX = 256
+_GROUND_ALBEDO = np.array([[0.08, 0.08, 0.08], [0.30, 0.29, 0.28], [0.52, 0.50, 0.48],
+                           [0.75, 0.55, 0.25], [0.12, 0.10, 0.09]], _F).T.copy()
+
+
+def _ground_texture():
+    i = np.arange(_TEX)
+    g = (i % (_TEX // 4) < 2) | (i % (_TEX // 4) >= _TEX // 4 - 2)   # grout, both edges
+    tile = 1 + ((i[:, None] // (_TEX // 2) + i[None, :] // (_TEX // 2)) % 2)
+    tile = np.where(g[:, None] | g[None, :], 0, tile).astype(np.uint8).ravel()
+    stripe = np.where(i % (_TEX // 16) < _TEX // 32, 3, 4).astype(np.uint8)
+    return tile, stripe
+
+
+_TILE_CLASS, _STRIPE_CLASS = _ground_texture()
+_BAND = 64   # rows per band: keeps the band's temporaries in cache
+
+
+def _ground(view, A, B, rows):
+    """Ground colour (3 planes) for image rows `rows` (a slice; all of them look below
+    the horizon), shadows included. A (3, w), B (3, h) are the separable ray terms."""
+    out = [np.empty((rows.stop - rows.start, len(A[0])), _F) for _ in range(3)]
+    for r in range(rows.start, rows.stop, _BAND):
+        band = slice(r, min(r + _BAND, rows.stop))
+        col = _ground_band(view, A, B, band)
+        for k in range(3):
+            out[k][r - rows.start:band.stop - rows.start] = col[k]
+    return out
+
+
+def _ground_band(view, A, B, rows):
+    o = view.cam.pos.tolist()
+    b = [B[k][rows, None] for k in range(3)]
+    t = -o[1] / b[1]                                     # per row
+    x = (o[0] + t * b[0]) + t * A[0]
+    z = (o[2] + t * b[2]) + t * A[2]
+    # float32 keeps 4 fractional bits at 2^20, enough to floor to whole texels.
+    scale, off = _F(_TEX / 2.0), _F(2 ** 20)
+    ix = (x * scale + off).astype(np.int32) & (_TEX - 1)
+    iz = (z * scale + off).astype(np.int32) & (_TEX - 1)
+    cls = np.where(np.abs(x - _F(0.4)) < 0.9, np.take(_STRIPE_CLASS, iz),
+                   np.take(_TILE_CLASS, (iz << 8) | ix))
+    fog = np.exp(t * -HAZE)
+    L = SUN_DIR.tolist()
+    out = [HORIZON[k] * (1 - fog) + np.take(_GROUND_ALBEDO[k], cls) * (
+        (SUN[k] * L[1] + AMBIENT[k]) * fog) for k in range(3)]
+    r0 = rows.start
+    for p, rect in view.casters:
+        if rect is None or rect[1] <= r0 or rect[0] >= rows.stop:
+            continue
+        a0, a1, c0, c1 = max(rect[0] - r0, 0), rect[1] - r0, rect[2], rect[3]
+        shadow = p.occludes((x[a0:a1, c0:c1], 0.0, z[a0:a1, c0:c1]), L)
+        if not shadow.any():
+            continue
+        f = fog[a0:a1]
+        for k in range(3):
+            dark = HORIZON[k] * (1 - f) + np.take(_GROUND_ALBEDO[k], cls[a0:a1, c0:c1]) * (
+                AMBIENT[k] * f)
+            sub = out[k][a0:a1, c0:c1]
+            sub[shadow] = dark[shadow]
+    return out
+
+
+def _shade(o, hits, d, t):
+    """Colour (N, 3) of the gathered hit points of several primitives at once, for
+    rays from o along d (3 arrays) at parameter t; `hits` lists (primitive, slice)."""
+    P = [o[j] + t * d[j] for j in range(3)]
+    parts = [p.surface([q[s] for q in P], [q[s] for q in d]) for p, s in hits]
+    n = np.concatenate([a for a, _ in parts])
+    albedo = np.concatenate([b for _, b in parts])
+    ks = np.concatenate([np.full(s.stop - s.start, p.spec[0], _F) for p, s in hits])
+    shin = np.concatenate([np.full(s.stop - s.start, p.spec[1], _F) for p, s in hits])
+    L = SUN_DIR.astype(_F)
+    ndl = np.maximum(n @ L, 0)
+    col = albedo * (ndl[:, None] * SUN + AMBIENT)
+    dn = np.stack(d, -1)
+    dn /= np.linalg.norm(dn, axis=-1, keepdims=True)
+    h = L - dn
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    col += (ks * np.maximum(np.sum(n * h, -1), 0) ** shin * (ndl > 0))[:, None] * SUN
+    for p, s in hits:
+        if p.emission is not None:
+            col[s] = p.emission
+    fog = np.exp(t * -HAZE)[:, None]
+    return HORIZON + (col - HORIZON) * fog
+
+
+def _trace(view, us, vs, prev_cam=None):
+    """Planar colour (3, h, w) for one sample per pixel taken at column positions
+    us (w,) and row positions vs (h,) (each within +-1 pixel of the pixel centre);
+    with prev_cam also view depth (h, w) and motion (h, w, 2).
+
+    Sample positions that vary per column and per row, not per pixel, make the ray
+    directions separable, d = A[:, col] + B[:, row], and the ground depth a function
+    of the row alone (the camera never rolls), which is what makes numpy fast here."""
+    cam, W, H = view.cam, view.w, view.h
+    o = cam.pos.tolist()
+    sx = ((2.0 / W) * us - 1.0) * _F(TAN_HALF_FOV * cam.aspect)
+    sy = (1.0 - (2.0 / H) * vs) * _F(TAN_HALF_FOV)
+    A = [(sx * _F(cam.right[k])).astype(_F) for k in range(3)]
+    B = [(_F(cam.fwd[k]) + sy * _F(cam.up[k])).astype(_F) for k in range(3)]
+    rg = int(np.argmax(B[1] < 0)) if (B[1] < 0).any() else H   # first ground row
+    with np.errstate(divide="ignore"):
+        trow = np.where(B[1] < 0, -o[1] / B[1], _F(np.inf)).astype(_F)
+    tbest = np.repeat(trow[:, None], W, 1)
+    ids = np.full((H, W), -1, np.int16)
+    for k, p in enumerate(view.prims):
+        rect = view.rects[k]
+        if rect is None:
+            continue
+        r0, r1, c0, c1 = rect
+        d = tuple(A[j][c0:c1] + B[j][r0:r1, None] for j in range(3))
+        t = p.hit(o, d)
+        tb, ib = tbest[r0:r1, c0:c1], ids[r0:r1, c0:c1]
+        closer = t < tb
+        tb[closer] = t[closer]
+        ib[closer] = k
+    color = np.empty((3, H, W), _F)
+    if rg > 0:
+        color[:, :rg] = _sky([A[j] + B[j][:rg, None] for j in range(3)])
+    if rg < H:
+        color[:, rg:] = _ground(view, A, B, slice(rg, H))
+    want_motion = prev_cam is not None
+    if want_motion:
+        far = np.where(np.isfinite(tbest), tbest, 1e7)
+        prev = [o[j] + far * (A[j] + B[j][:, None]).astype(np.float64) for j in range(3)]
+    sel, hits, n = [], [], 0
+    for k, p in enumerate(view.prims):
+        rect = view.rects[k]
+        if rect is None:
+            continue
+        r0, r1, c0, c1 = rect
+        rr, cc = np.nonzero(ids[r0:r1, c0:c1] == k)
+        if rr.size:
+            sel.append((rr + r0, cc + c0))
+            hits.append((p, slice(n, n + rr.size)))
+            n += rr.size
+    if hits:
+        rr = np.concatenate([a for a, _ in sel])
+        cc = np.concatenate([b for _, b in sel])
+        t = tbest[rr, cc]
+        dk = [A[j][cc] + B[j][rr] for j in range(3)]
+        color[:, rr, cc] = _shade(o, hits, dk, t).T
+        if want_motion:
+            for p, s in hits:
+                P = [o[j] + t[s].astype(np.float64) * dk[j][s] for j in range(3)]
+                Pp = p.to_prev(P)
+                for j in range(3):
+                    prev[j][rr[s], cc[s]] = Pp[j]
+    if not want_motion:
+        return color, None, None
+    up, vp, _ = prev_cam.project(prev[0], prev[1], prev[2], W, H)
+    motion = np.stack([up - us[None, :], vp - vs[:, None]], -1).astype(_F)
+    return color, tbest, motion
+
+
+# ---------------------------------------------------------------- frames
+
+def output_size(render_size, scale):
+    h, w = render_size
+    return int(round(h * scale)), int(round(w * scale))
+
+
+def render_frame(index, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):
+    """Frame `index` of the sequence (each frame is independent of the others)."""
+    h, w = render_size
+    H, W = output_size(render_size, scale)
+    aspect = w / h
+    prims = scene_at(float(index))
+    cam, prev_cam = camera_at(float(index), aspect), camera_at(index - 1.0, aspect)
+    jx, jy = halton_jitter(index, scale)
+    us = np.arange(w, dtype=_F) + _F(0.5 + jx)
+    vs = np.arange(h, dtype=_F) + _F(0.5 + jy)
+    color, z, motion = _trace(_View(prims, cam, w, h), us, vs, prev_cam)
+    with np.errstate(divide="ignore"):
+        depth = np.where(np.isfinite(z), _F(NEAR) / z, _F(0)).astype(_F)
+    ref = None
+    if spp_ref > 0:
+        ref = render_reference(_View(prims, cam, W, H), spp_ref,
+                               np.random.default_rng([seed, index]))
+    return Frame(index=index, color=np.ascontiguousarray(color.transpose(1, 2, 0)),
+                 depth=depth, motion=motion, jitter=(float(jx), float(jy)),
+                 reset=index == 0, reference=ref,
+                 meta={"scale": scale, "spp_ref": spp_ref, "near": NEAR})
+
+
+def render_reference(view, spp, rng):
+    """Box-filtered reference: gx x gy strata per pixel (gx * gy >= spp), one sample
+    in each at a random position inside the stratum. The random offset is drawn per
+    column (x) and per row (y) for each stratum (see _trace), which keeps the samples
+    stratified and breaks up the regular-grid moire."""
+    gx = int(math.ceil(math.sqrt(spp)))
+    gy = int(math.ceil(spp / gx))
+    H, W = view.h, view.w
+    cols, rows = np.arange(W, dtype=_F), np.arange(H, dtype=_F)
+    acc = np.zeros((3, H, W), _F)
+    for sy in range(gy):
+        for sx in range(gx):
+            us = cols + (sx + rng.random(W, _F)) * _F(1 / gx)
+            vs = rows + (sy + rng.random(H, _F)) * _F(1 / gy)
+            acc += _trace(view, us, vs)[0]
+    acc *= _F(1.0 / (gx * gy))
+    return np.ascontiguousarray(acc.transpose(1, 2, 0))
+
+
+def iter_sequence(n_frames=30, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):
+    for i in range(n_frames):
+        yield render_frame(i, render_size, scale, spp_ref, seed)
+
+
+def render_sequence(n_frames=30, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):
+    """List of `n_frames` Frames (`iter_sequence` holds one at a time). Frame 0 has
+    reset=True. Deterministic; the seed only moves the reference's sample positions."""
+    return list(iter_sequence(n_frames, render_size, scale, spp_ref, seed))
