@@ -1,0 +1,361 @@
+"""Pooling (kernels/pool.cl): MaxPool, AveragePool, GlobalAveragePool, GlobalMaxPool.
+
+NCHW with 1, 2 or 3 spatial dimensions (a 2-D tensor is pooled as depth 1).
+Max pooling selects stored values and is bit-exact; average pooling sums in
+float. Window geometry follows onnxruntime: output size
+floor/ceil((in + pad_begin + pad_end - ((k - 1) * dilation + 1)) / stride) + 1,
+in ceil mode a last window that would start in the end padding is dropped,
+and auto_pad SAME_* pads ceil(in / stride) outputs' worth (kernel without dilation).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..device import Device
+from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .twin import node_model
+
+AUTO_PADS = ("NOTSET", "VALID", "SAME_UPPER", "SAME_LOWER")
+# Elements one work-item reduces in the first pass of global pooling.
+GLOBAL_CHUNK = 2048
+
+
+def _per_dim(v, nd: int, default: int, name: str) -> list[int]:
+    if v is None:
+        return [default] * nd
+    if isinstance(v, (int, np.integer)):
+        return [int(v)] * nd
+    v = [int(x) for x in v]
+    if len(v) != nd:
+        raise ValueError(f"{name} has {len(v)} values for {nd} spatial dimensions")
+    return v
+
+
+def pool_geometry(in_sizes, kernel, stride=None, pads=None, dilation=None, ceil_mode=False,
+                  auto_pad="NOTSET"):
+    """Output sizes and (begin, end) pads per spatial dim, as onnxruntime computes them.
+
+    pads: ONNX order [x1_begin, x2_begin, ..., x1_end, x2_end, ...], or one int for all."""
+    nd = len(in_sizes)
+    k = _per_dim(kernel, nd, 1, "kernel")
+    s = _per_dim(stride, nd, 1, "stride")
+    d = _per_dim(dilation, nd, 1, "dilation")
+    if isinstance(pads, (int, np.integer)):
+        p = [int(pads)] * (2 * nd)
+    else:
+        p = [0] * (2 * nd) if pads is None else [int(x) for x in pads]
+    if len(p) != 2 * nd:
+        raise ValueError(f"pads needs {2 * nd} values (begins then ends), got {len(p)}")
+    if auto_pad not in AUTO_PADS:
+        raise ValueError(f"auto_pad must be one of {AUTO_PADS}, got {auto_pad!r}")
+    if min(k + s + d) < 1:
+        raise ValueError(f"kernel, stride and dilation must be >= 1: {k}, {s}, {d}")
+    outs, begins, ends = [], [], []
+    for i, n in enumerate(in_sizes):
+        if auto_pad == "VALID":
+            pb = pe = 0
+        elif auto_pad.startswith("SAME"):
+            need = max(0, (-(-n // s[i]) - 1) * s[i] + k[i] - n)
+            pb = need // 2 if auto_pad == "SAME_UPPER" else (need + 1) // 2
+            pe = need - pb
+        else:
+            pb, pe = p[i], p[nd + i]
+        span = n + pb + pe - ((k[i] - 1) * d[i] + 1)
+        if span < 0:
+            raise ValueError(f"pooling window {(k[i] - 1) * d[i] + 1} exceeds padded input "
+                             f"{n + pb + pe} in spatial dim {i}")
+        o = (-(-span // s[i]) if ceil_mode else span // s[i]) + 1
+        if ceil_mode and (o - 1) * s[i] >= n + pb:
+            o -= 1  # the last window would start in the end padding
+        outs.append(o)
+        begins.append(pb)
+        ends.append(pe)
+    return outs, begins, ends, k, s, d
+
+
+def _as3(v, fill):
+    return [fill] * (3 - len(v)) + list(v)
+
+
+def _pool(dev, prec, x, mode, kernel, stride, pads, dilation, ceil_mode, auto_pad,
+          count_include_pad=False, indices=False, column_major=False, out=None):
+    check_storage("x", x, prec)
+    if x.ndim not in (3, 4, 5):
+        raise ValueError(f"pooling needs [N, C, spatial...] with 1-3 spatial dims, got shape {x.shape}")
+    sp = list(x.shape[2:])
+    o, pb, pe, k, s, d = pool_geometry(sp, kernel, stride, pads, dilation, ceil_mode, auto_pad)
+    if column_major and len(sp) != 2:
+        raise ValueError("storage_order=1 (column-major indices) is defined for 2-D pooling only")
+    n, c = x.shape[:2]
+    out = out if out is not None else dev.empty((n, c, *o), prec)
+    idx = dev.empty((n, c, *o), dtype=np.int64) if indices else None
+    if out.size == 0:
+        return (out, idx) if indices else out
+    (ID, IH, IW), (OD, OH, OW) = _as3(sp, 1), _as3(o, 1)
+    K, S, D, P = _as3(k, 1), _as3(s, 1), _as3(d, 1), _as3(pb, 0)
+    E = [a + b for a, b in zip((ID, IH, IW), _as3(pe, 0))]
+    defines = dict(MODE=mode)
+    if mode == 1:
+        defines["COUNT_PAD"] = int(bool(count_include_pad))
+    if indices:
+        defines["INDICES"] = 1
+    kern = dev.kernel("pool", "pool", prec, **defines)
+    extra = (idx.data, np.int32(column_major)) if indices else ()
+    ints = [ID, IH, IW, OD, OH, OW, *K, *S, *P, *D, *E, n * c * OD]
+    dev.launch(kern, (OW, OH, n * c * OD), (x.data, out.data, *extra, *(np.int32(v) for v in ints)))
+    return (out, idx) if indices else out
+
+
+def max_pool(dev: Device, prec: str, x, kernel, stride=None, pads=None, dilation=None,
+             ceil_mode: bool = False, auto_pad: str = "NOTSET", return_indices: bool = False,
+             storage_order: int = 0, out=None):
+    """ONNX MaxPool. Padding never wins (it is -inf); ties keep the first maximum.
+    With return_indices, also the flat index into x of each maximum (int64, as ONNX
+    Indices; storage_order=1 numbers a 2-D plane column-major)."""
+    return _pool(dev, prec, x, 0, kernel, stride, pads, dilation, ceil_mode, auto_pad,
+                 indices=return_indices, column_major=bool(storage_order), out=out)
+
+
+def avg_pool(dev: Device, prec: str, x, kernel, stride=None, pads=None, dilation=None,
+             ceil_mode: bool = False, count_include_pad: bool = False, auto_pad: str = "NOTSET", out=None):
+    """ONNX AveragePool. count_include_pad divides by the taps inside the padded
+    extent (never the ceil-mode overhang), otherwise by the taps inside x."""
+    return _pool(dev, prec, x, 1, kernel, stride, pads, dilation, ceil_mode, auto_pad,
+                 count_include_pad=count_include_pad, out=out)
+
+
+def _global(dev, prec, x, mode, chunk, out):
+    check_storage("x", x, prec)
+    if x.ndim < 3:
+        raise ValueError(f"global pooling needs [N, C, spatial...], got shape {x.shape}")
+    n, c = x.shape[:2]
+    hw = int(np.prod(x.shape[2:]))
+    out = out if out is not None else dev.empty((n, c) + (1,) * (x.ndim - 2), prec)
+    nc = n * c
+    if nc == 0:
+        return out
+    if hw == 0:
+        raise ValueError(f"global pooling over an empty spatial extent {x.shape}")
+    chunk = int(chunk or GLOBAL_CHUNK)
+    nchunks = -(-hw // chunk)
+    count = np.float32(hw)
+    if nchunks == 1:
+        k = dev.kernel("pool", "global_pool_partial", prec, MODE=mode, CHUNK=chunk, FINAL=1)
+        dev.launch(k, (1, nc), (x.data, out.data, np.int32(hw), np.int32(1), np.int32(nc), count))
+        return out
+    part = dev.empty((nc, nchunks), dtype=np.float32)
+    k1 = dev.kernel("pool", "global_pool_partial", prec, MODE=mode, CHUNK=chunk)
+    dev.launch(k1, (nchunks, nc), (x.data, part.data, np.int32(hw), np.int32(nchunks), np.int32(nc), count))
+    k2 = dev.kernel("pool", "global_pool_final", prec, MODE=mode)
+    dev.launch(k2, (nc,), (part.data, out.data, np.int32(nchunks), np.int32(nc), count))
+    return out
+
+
+def global_avg_pool(dev: Device, prec: str, x, chunk: int | None = None, out=None):
+    """ONNX GlobalAveragePool: mean over all spatial dims, output [N, C, 1, ...].
+    Two passes when H*W exceeds `chunk`: chunk sums (8 lanes each), then a sum of chunks."""
+    return _global(dev, prec, x, 1, chunk, out)
+
+
+def global_max_pool(dev: Device, prec: str, x, chunk: int | None = None, out=None):
+    """ONNX GlobalMaxPool: max over all spatial dims (bit-exact)."""
+    return _global(dev, prec, x, 0, chunk, out)
+
+
+# --- ONNX -----------------------------------------------------------------------
+
+def _pool_attrs(attrs, nd):
+    if "kernel_shape" not in attrs:
+        raise Unsupported("pooling without kernel_shape")
+    auto_pad = as_str(attrs.get("auto_pad", "NOTSET"))
+    if auto_pad not in AUTO_PADS:
+        raise Unsupported(f"auto_pad {auto_pad!r}")
+    return dict(kernel=list(attrs["kernel_shape"]), stride=attrs.get("strides"),
+                pads=attrs.get("pads"), dilation=attrs.get("dilations"),
+                ceil_mode=bool(attrs.get("ceil_mode", 0)), auto_pad=auto_pad)
+
+
+def _spatial_ok(x):
+    if x.ndim not in (3, 4, 5):
+        raise Unsupported(f"pooling over {x.ndim - 2} spatial dims (1-3 supported)")
+
+
+@onnx_op("MaxPool")
+def _onnx_max_pool(dev, prec, attrs, inputs):
+    x = inputs[0]
+    _spatial_ok(x)
+    order = int(attrs.get("storage_order", 0))
+    if order and x.ndim != 4:
+        raise Unsupported("MaxPool storage_order=1 outside 2-D")
+    y, idx = max_pool(dev, prec, x, **_pool_attrs(attrs, x.ndim - 2), return_indices=True,
+                      storage_order=order)
+    return [y, idx]
+
+
+@onnx_op("AveragePool")
+def _onnx_avg_pool(dev, prec, attrs, inputs):
+    x = inputs[0]
+    _spatial_ok(x)
+    return [avg_pool(dev, prec, x, **_pool_attrs(attrs, x.ndim - 2),
+                     count_include_pad=bool(attrs.get("count_include_pad", 0)))]
+
+
+@onnx_op("GlobalAveragePool")
+def _onnx_gap(dev, prec, attrs, inputs):
+    return [global_avg_pool(dev, prec, inputs[0])]
+
+
+@onnx_op("GlobalMaxPool")
+def _onnx_gmp(dev, prec, attrs, inputs):
+    return [global_max_pool(dev, prec, inputs[0])]
+
+
+# --- conformance cases ----------------------------------------------------------
+
+# GlobalAveragePool is a long reduction and onnxruntime, the reference, sums in
+# another order. Measured against a float64 mean (tests/test_ops_pool.py): clss
+# stays within 3e-6*max|ref| up to 3840x2160, onnxruntime drifts to 2.5e-5 at
+# 1920x1080 on zero-mean data; the fp32 bound covers the larger of the two.
+GLOBAL_AVG_TOL = {"fp32": Tolerance(5e-5, 1e-4)}
+
+NODE_DEVIATIONS = {
+    "test_averagepool_2d_ceil_last_window_starts_on_pad":
+        "expected output stored rounded to 4 decimals (0.1511); clss and onnxruntime give 0.151056",
+}
+
+
+def _attrs_for_twin(kernel, stride, pads, dilation, ceil_mode, auto_pad, nd):
+    a = dict(kernel_shape=_per_dim(kernel, nd, 1, "kernel"))
+    if stride is not None:
+        a["strides"] = _per_dim(stride, nd, 1, "stride")
+    if dilation is not None:
+        a["dilations"] = _per_dim(dilation, nd, 1, "dilation")
+    if auto_pad != "NOTSET":
+        a["auto_pad"] = auto_pad
+    elif pads is not None:
+        a["pads"] = [int(pads)] * (2 * nd) if isinstance(pads, int) else list(pads)
+    if ceil_mode:
+        a["ceil_mode"] = 1
+    return a
+
+
+def max_pool_case(shape, kernel, stride=None, pads=None, dilation=None, ceil_mode=False,
+                  auto_pad="NOTSET", indices=False, tag=""):
+    g = rng("maxpool", shape, kernel, stride, pads, dilation, ceil_mode, auto_pad, indices)
+    x = g.standard_normal(shape).astype(np.float32)
+    nd = len(shape) - 2
+    twin = node_model("MaxPool", {"x": x}, n_outputs=2 if indices else 1,
+                      out_dtypes=[np.float32, np.int64] if indices else None,
+                      **_attrs_for_twin(kernel, stride, pads, dilation, ceil_mode, auto_pad, nd))
+
+    def fn(dev, p, x):
+        r = max_pool(dev, p, x, kernel, stride, pads, dilation, ceil_mode, auto_pad, return_indices=indices)
+        return list(r) if indices else r
+    variant = tag or _variant(shape, kernel, stride, pads, dilation, ceil_mode, auto_pad)
+    return Case("max_pool", variant + (" +indices" if indices else ""), {"x": x}, twin, host_call(fn),
+                exact=True)
+
+
+def avg_pool_case(shape, kernel, stride=None, pads=None, dilation=None, ceil_mode=False,
+                  count_include_pad=False, auto_pad="NOTSET", tag=""):
+    g = rng("avgpool", shape, kernel, stride, pads, dilation, ceil_mode, count_include_pad, auto_pad)
+    x = g.standard_normal(shape).astype(np.float32)
+    nd = len(shape) - 2
+    attrs = _attrs_for_twin(kernel, stride, pads, dilation, ceil_mode, auto_pad, nd)
+    if count_include_pad:
+        attrs["count_include_pad"] = 1
+    # AveragePool gained dilations in opset 19.
+    twin = node_model("AveragePool", {"x": x}, opset=19 if dilation is not None else 18, **attrs)
+    fn = host_call(lambda dev, p, x: avg_pool(dev, p, x, kernel, stride, pads, dilation, ceil_mode,
+                                              count_include_pad, auto_pad))
+    variant = tag or _variant(shape, kernel, stride, pads, dilation, ceil_mode, auto_pad)
+    return Case("avg_pool", variant + (" cip" if count_include_pad else ""), {"x": x}, twin, fn)
+
+
+def global_case(kind: str, shape, chunk=None):
+    g = rng("global", kind, shape, chunk)
+    # Post-activation-like data (mostly positive) keeps the mean away from zero,
+    # where a relative bound would measure cancellation instead of the kernel.
+    x = (g.standard_normal(shape) + 0.5).astype(np.float32)
+    op = "GlobalAveragePool" if kind == "avg" else "GlobalMaxPool"
+    fn = global_avg_pool if kind == "avg" else global_max_pool
+    variant = "x".join(map(str, shape)) + (f" chunk{chunk}" if chunk else "")
+    return Case(f"global_{kind}_pool", variant, {"x": x}, node_model(op, {"x": x}),
+                host_call(lambda dev, p, x: fn(dev, p, x, chunk=chunk)),
+                exact=kind == "max", tol=GLOBAL_AVG_TOL if kind == "avg" else {})
+
+
+def _variant(shape, kernel, stride, pads, dilation, ceil_mode, auto_pad):
+    parts = ["x".join(map(str, shape)), f"k{kernel}"]
+    if stride is not None:
+        parts.append(f"s{stride}")
+    if pads is not None and auto_pad == "NOTSET":
+        parts.append(f"p{pads}")
+    if dilation is not None:
+        parts.append(f"d{dilation}")
+    if ceil_mode:
+        parts.append("ceil")
+    if auto_pad != "NOTSET":
+        parts.append(auto_pad)
+    return " ".join(p.replace(" ", "") for p in parts)
+
+
+def cases(level: str = "quick") -> list[Case]:
+    if level == "tiny":
+        return [
+            max_pool_case((1, 3, 7, 9), 2, 2),
+            max_pool_case((1, 2, 7, 9), (3, 3), (2, 2), (1, 0, 1, 2), (2, 1), ceil_mode=True, indices=True),
+            avg_pool_case((1, 3, 7, 9), 3, 2, (1, 1, 2, 0)),
+            avg_pool_case((1, 2, 7, 9), 3, 2, 1, ceil_mode=True, count_include_pad=True),
+            global_case("avg", (1, 3, 5, 7)),
+            global_case("avg", (1, 2, 9, 13), chunk=32),
+            global_case("max", (1, 3, 5, 7)),
+            global_case("max", (1, 2, 9, 13), chunk=32),
+        ]
+    out = [
+        max_pool_case((2, 5, 16, 20), 2, 2),
+        max_pool_case((1, 3, 13, 7), 3, 1, 1),
+        max_pool_case((1, 3, 13, 7), 3, 2, (0, 1, 2, 1), ceil_mode=True, indices=True),
+        avg_pool_case((2, 5, 16, 20), 2, 2),
+        avg_pool_case((1, 3, 13, 7), 3, 2, (1, 1, 2, 0), count_include_pad=True),
+        avg_pool_case((1, 3, 13, 7), 3, 2, 1, ceil_mode=True),
+        global_case("avg", (2, 5, 16, 20)),
+        global_case("avg", (1, 3, 64, 72)),
+        global_case("max", (2, 5, 16, 20)),
+        global_case("max", (1, 3, 64, 72)),
+    ]
+    if level != "full":
+        return out
+    for shape in [(1, 1, 1, 1), (1, 3, 7, 13), (2, 17, 31, 27), (1, 23, 8, 8)]:
+        kmax = min(3, shape[2] + 2)
+        out += [max_pool_case(shape, (kmax, 2), (2, 1), 1),
+                avg_pool_case(shape, (kmax, 2), (2, 1), 1),
+                avg_pool_case(shape, (kmax, 2), (2, 1), 1, count_include_pad=True),
+                global_case("avg", shape), global_case("max", shape)]
+    out += [
+        max_pool_case((1, 5, 31, 27), 3, 2, (1, 0, 0, 1), dilation=2),
+        max_pool_case((1, 5, 31, 27), 3, 2, dilation=(2, 3), ceil_mode=True),
+        max_pool_case((2, 3, 7, 13), (2, 3), (3, 2), auto_pad="SAME_UPPER"),
+        max_pool_case((2, 3, 7, 13), (2, 3), (3, 2), auto_pad="SAME_LOWER"),
+        max_pool_case((2, 3, 7, 13), (2, 3), (3, 2), auto_pad="VALID"),
+        max_pool_case((2, 3, 7, 13), 3, 2, 1, indices=True),
+        max_pool_case((2, 3, 31), 3, 2, (1, 0)),
+        max_pool_case((1, 2, 5, 7, 6), 2, 2, ceil_mode=True),
+        avg_pool_case((1, 5, 31, 27), 3, 2, (1, 0, 0, 1), dilation=2),
+        avg_pool_case((1, 5, 31, 27), 3, 2, (1, 0, 0, 1), dilation=2, count_include_pad=True),
+        avg_pool_case((2, 3, 7, 13), (2, 3), (3, 2), auto_pad="SAME_UPPER"),
+        avg_pool_case((2, 3, 7, 13), (2, 3), (3, 2), auto_pad="SAME_LOWER", count_include_pad=True),
+        avg_pool_case((2, 3, 7, 13), (2, 3), (3, 2), auto_pad="VALID"),
+        avg_pool_case((1, 3, 10, 10), 3, 3, 1, ceil_mode=True, count_include_pad=True),
+        avg_pool_case((1, 3, 11, 11), 4, 3, 2, ceil_mode=True, count_include_pad=True),
+        avg_pool_case((2, 3, 31), 3, 2, (1, 0), count_include_pad=True),
+        avg_pool_case((1, 2, 5, 7, 6), 2, 2, 1, count_include_pad=True),
+        global_case("avg", (1, 2, 128, 128)),
+        global_case("avg", (1, 3, 45, 45), chunk=64),
+        global_case("avg", (2, 1, 3, 3000)),
+        global_case("max", (1, 3, 45, 45), chunk=64),
+        global_case("max", (2, 2, 3, 4, 5)),
+    ]
+    return out

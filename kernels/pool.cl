@@ -1,0 +1,169 @@
+/* Pooling: windowed max / average (1-3 spatial dims) and global max / average.
+ *
+ * Build options:
+ *   -DMODE=0     max (selects a stored value: bit-exact in every precision)
+ *   -DMODE=1     average (float accumulation; fp16-native accumulates in half)
+ *   -DCOUNT_PAD=1  average divides by the taps inside the padded extent
+ *                  [-pad_begin, in + pad_end) (ONNX count_include_pad=1);
+ *                  0 divides by the taps inside the input.
+ *   -DINDICES=1  max also writes the flat NCHW index of each maximum (int64)
+ *   -DCHUNK=n    global pooling: elements one work-item reduces in pass 1
+ *   -DFINAL=1    global pooling with a single chunk per row: pass 1 writes the
+ *                result directly and pass 2 is skipped
+ *
+ * A 2-D tensor is pooled as 3-D with depth 1, so one kernel serves
+ * MaxPool/AveragePool over 1, 2 and 3 spatial dimensions.
+ */
+#include "common.h"
+
+#ifndef MODE
+#define MODE 0
+#endif
+#ifndef COUNT_PAD
+#define COUNT_PAD 0
+#endif
+#ifndef INDICES
+#define INDICES 0
+#endif
+#ifndef CHUNK
+#define CHUNK 2048
+#endif
+#ifndef FINAL
+#define FINAL 0
+#endif
+
+/* First and last tap k in [0, K) with lo <= start + k*dil < hi; empty when k1 < k0.
+ * Counting taps in closed form keeps bounds checks out of the inner loops and
+ * makes the average's divisor a product of three per-axis counts. */
+inline int2 tap_range(int start, int K, int dil, int lo, int hi)
+{
+    const int k0 = start >= lo ? 0 : (lo - start + dil - 1) / dil;
+    const int k1 = start > hi - 1 ? -1 : min(K - 1, (hi - 1 - start) / dil);
+    return (int2)(k0, k1);
+}
+
+/* in: [NC, ID, IH, IW] -> out: [NC, OD, OH, OW]; NDRange (OW, OH, NC*OD).
+ * P* are the begin pads, E* = in + end pad (the padded extent, for COUNT_PAD). */
+__kernel void pool(__global const T *in, __global T *out,
+#if INDICES
+                   __global long *indices, int column_major,
+#endif
+                   int ID, int IH, int IW, int OD, int OH, int OW,
+                   int KD, int KH, int KW, int SD, int SH, int SW,
+                   int PD, int PH, int PW, int DD, int DH, int DW,
+                   int ED, int EH, int EW, int NCOD)
+{
+    const int ox = get_global_id(0), oy = get_global_id(1), z = get_global_id(2);
+    if (ox >= OW || oy >= OH || z >= NCOD) return;
+    const int nc = z / OD, od = z % OD;
+    const int d0 = od * SD - PD, h0 = oy * SH - PH, w0 = ox * SW - PW;
+    const int2 kd = tap_range(d0, KD, DD, 0, ID);
+    const int2 kh = tap_range(h0, KH, DH, 0, IH);
+    const int2 kw = tap_range(w0, KW, DW, 0, IW);
+    const long base = (long)nc * ID * IH * IW;
+    const long o = ((long)z * OH + oy) * OW + ox;
+#if MODE == 0
+    A m = (A)(-INFINITY);
+#if INDICES
+    long arg = -1;
+#endif
+    for (int i = kd.x; i <= kd.y; ++i) {
+        const int d = d0 + i * DD;
+        for (int j = kh.x; j <= kh.y; ++j) {
+            const int h = h0 + j * DH;
+            const long row = base + ((long)d * IH + h) * IW;
+            for (int k = kw.x; k <= kw.y; ++k) {
+                const int w = w0 + k * DW;
+                const A v = LD(in, row + w);
+                /* strict > keeps the first maximum, as onnxruntime does */
+                if (v > m) {
+                    m = v;
+#if INDICES
+                    arg = column_major ? base + (long)w * IH + h : row + w;
+#endif
+                }
+            }
+        }
+    }
+    ST(out, o, m);
+#if INDICES
+    indices[o] = arg;
+#endif
+#else
+    A s = A_ZERO;
+    for (int i = kd.x; i <= kd.y; ++i) {
+        const int d = d0 + i * DD;
+        for (int j = kh.x; j <= kh.y; ++j) {
+            const long row = base + ((long)d * IH + h0 + j * DH) * IW;
+            for (int k = kw.x; k <= kw.y; ++k)
+                s += LD(in, row + w0 + k * DW);
+        }
+    }
+#if COUNT_PAD
+    const int2 cd = tap_range(d0, KD, DD, -PD, ED);
+    const int2 ch = tap_range(h0, KH, DH, -PH, EH);
+    const int2 cw = tap_range(w0, KW, DW, -PW, EW);
+#else
+    const int2 cd = kd, ch = kh, cw = kw;
+#endif
+    const int count = (cd.y - cd.x + 1) * (ch.y - ch.x + 1) * (cw.y - cw.x + 1);
+    ST(out, o, s / (A)count);
+#endif
+}
+
+/* Global pooling, pass 1: one work-item reduces CHUNK contiguous elements of
+ * one row (NDRange (nchunks, NC)); eight lanes accumulate side by side, which
+ * is both the vector load and a first level of pairwise summation. */
+#if MODE == 0
+#define COMBINE(a, b) fmax((a), (b))
+#define INIT ((A)(-INFINITY))
+#else
+#define COMBINE(a, b) ((a) + (b))
+#define INIT A_ZERO
+#endif
+
+__kernel void global_pool_partial(__global const T *in,
+#if FINAL
+                                  __global T *out,
+#else
+                                  __global float *part,
+#endif
+                                  int HW, int nchunks, int NC, float count)
+{
+    const int chunk = get_global_id(0), nc = get_global_id(1);
+    if (chunk >= nchunks || nc >= NC) return;
+    const int lo = chunk * CHUNK, hi = min(HW, lo + CHUNK);
+    __global const T *p = in + (long)nc * HW;
+    A8 acc = (A8)INIT;
+    int i = lo;
+    for (; i + 8 <= hi; i += 8)
+        acc = COMBINE(acc, LD8(p, i));
+    A4 a4 = COMBINE(acc.lo, acc.hi);
+    A r = COMBINE(COMBINE(a4.x, a4.y), COMBINE(a4.z, a4.w));
+    for (; i < hi; ++i)
+        r = COMBINE(r, LD(p, i));
+#if FINAL
+#if MODE == 1
+    r = (A)((float)r / count);
+#endif
+    ST(out, nc, r);
+#else
+    part[(long)nc * nchunks + chunk] = (float)r;
+#endif
+}
+
+/* Global pooling, pass 2: one work-item per row combines its chunk results. */
+__kernel void global_pool_final(__global const float *part, __global T *out,
+                                int nchunks, int NC, float count)
+{
+    const int nc = get_global_id(0);
+    if (nc >= NC) return;
+    __global const float *p = part + (long)nc * nchunks;
+    A r = INIT;
+    for (int i = 0; i < nchunks; ++i)
+        r = COMBINE(r, (A)p[i]);
+#if MODE == 1
+    r = (A)((float)r / count);
+#endif
+    ST(out, nc, r);
+}

@@ -1,0 +1,94 @@
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from clss.ops import pool
+from conftest import PRECISIONS, assert_case
+
+CASES = pool.cases("full")
+
+
+@pytest.mark.parametrize("precision", PRECISIONS)
+@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
+def test_against_onnxruntime(case, precision, dev):
+    assert_case(case, dev, precision)
+
+
+@st.composite
+def windows(draw):
+    nd = draw(st.sampled_from([1, 2, 2, 3]))
+    k = [draw(st.integers(1, 4)) for _ in range(nd)]
+    d = [draw(st.integers(1, 3)) for _ in range(nd)]
+    s = [draw(st.integers(1, 3)) for _ in range(nd)]
+    # onnxruntime requires pads < kernel
+    p = [draw(st.integers(0, k[i % nd] - 1)) for i in range(2 * nd)]
+    sizes = [draw(st.integers((k[i] - 1) * d[i] + 1, (k[i] - 1) * d[i] + (9 if nd < 3 else 3))) for i in range(nd)]
+    return nd, k, d, s, p, sizes
+
+
+SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@SETTINGS
+@given(w=windows(), ceil=st.booleans(), cip=st.booleans(), avg=st.booleans(),
+       auto=st.sampled_from(["NOTSET", "NOTSET", "SAME_UPPER", "SAME_LOWER", "VALID"]))
+def test_window_parameters(w, ceil, cip, avg, auto, dev):
+    nd, k, d, s, p, sizes = w
+    if auto != "NOTSET":
+        ceil = False
+        d = [1] * nd  # SAME_* pads for the undilated kernel; onnxruntime and the spec differ with dilation
+        s = [min(a, b) for a, b in zip(s, k)]  # onnxruntime rejects the negative SAME pads of stride > kernel
+    shape = (2, 3, *sizes)
+    if avg:
+        case = pool.avg_pool_case(shape, k, s, p, d, ceil, cip, auto)
+    else:
+        case = pool.max_pool_case(shape, k, s, p, d, ceil, auto, indices=auto == "NOTSET")
+    assert_case(case, dev, "fp32")
+
+
+@pytest.mark.parametrize("shape", [(1, 3, 512, 512), (2, 2, 61, 4099)])
+def test_global_average_is_accurate_against_float64(shape, dev):
+    # The two-pass sum must stay far inside GLOBAL_AVG_TOL on its own (the tolerance
+    # against onnxruntime is set by onnxruntime's own summation error).
+    g = np.random.default_rng(1)
+    x = g.standard_normal(shape).astype(np.float32)
+    out = pool.global_avg_pool(dev, "fp32", dev.to_device(x)).get()
+    ref = x.astype(np.float64).mean(axis=(2, 3), keepdims=True)
+    assert np.abs(out - ref).max() <= 5e-6 * np.abs(ref).max()
+
+
+@pytest.mark.large
+def test_global_average_4k(dev):
+    x = np.random.default_rng(2).standard_normal((1, 1, 2160, 3840)).astype(np.float32)
+    out = pool.global_avg_pool(dev, "fp32", dev.to_device(x)).get()
+    ref = x.astype(np.float64).mean(axis=(2, 3), keepdims=True)
+    assert np.abs(out - ref).max() <= 5e-6 * np.abs(ref).max()
+
+
+def test_global_chunk_sizes_agree_exactly_for_max(dev):
+    x = np.random.default_rng(3).standard_normal((2, 3, 37, 41)).astype(np.float32)
+    xd = dev.to_device(x)
+    ref = x.max(axis=(2, 3), keepdims=True)
+    for chunk in (8, 13, 100, 4096):
+        assert np.array_equal(pool.global_max_pool(dev, "fp32", xd, chunk=chunk).get(), ref)
+
+
+def test_max_pool_returns_the_selected_bits(dev):
+    # Max pooling selects: -0.0 and subnormals come back with their bits.
+    x = np.full((1, 1, 2, 2), -1.0, np.float32)
+    x[0, 0, 0, 1] = -0.0
+    x[0, 0, 1, 0] = np.float32(1e-45)
+    y = pool.max_pool(dev, "fp32", dev.to_device(x), 1).get()
+    assert np.array_equal(y.view(np.uint32), x.view(np.uint32))
+
+
+def test_bad_arguments_raise(dev):
+    x = dev.to_device(np.zeros((1, 1, 3, 3), np.float32))
+    with pytest.raises(ValueError, match="exceeds padded input"):
+        pool.max_pool(dev, "fp32", x, 5)
+    with pytest.raises(ValueError, match="pads needs 4"):
+        pool.avg_pool(dev, "fp32", x, 2, pads=(1, 1))
+    with pytest.raises(ValueError, match="auto_pad"):
+        pool.avg_pool(dev, "fp32", x, 2, auto_pad="SAME")
+    with pytest.raises(TypeError, match="float16 storage"):
+        pool.global_avg_pool(dev, "fp16", x)
