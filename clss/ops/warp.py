@@ -1,0 +1,330 @@
+"""GridSample and the motion-vector warp (kernels/warp.cl).
+
+``grid_sample`` is ONNX GridSample (opset 16 and 20, 2-D) as onnxruntime's CPU kernel
+computes it: padding applies to every tap (onnxruntime >= 1.20 and PyTorch; the ONNX
+Python reference clamps the position first, which differs for bicubic + border),
+nearest rounds half to even. ``warp`` is the motion-vector form of the CLSS frame
+(clss-frame.md stage 5): GridSample, align_corners = 0, of the grid that a per-pixel
+motion field describes, computed in pixels so precision does not depend on image size.
+Grids and the derived coordinates stay float32 in every precision; data is in the
+storage precision; nearest copies bits.
+"""
+from __future__ import annotations
+
+import numpy as np
+from onnx import helper
+
+from ..device import Device
+from .base import Case, Tolerance, Unsupported, as_str, check_storage, onnx_op, rng
+from .twin import make_model, node_model
+
+MODES = ("nearest", "bilinear", "bicubic")
+PADDINGS = ("zeros", "border", "reflection")
+# ONNX opset 20 renamed the modes; both spellings are accepted everywhere.
+_MODE_ALIASES = {"nearest": 0, "bilinear": 1, "linear": 1, "bicubic": 2, "cubic": 2}
+_OPSET20_NAME = {"nearest": "nearest", "bilinear": "linear", "bicubic": "cubic"}
+# Channels per work-item: the taps and weights are computed once per output pixel and
+# reused for this many channels (the whole 16-channel CLSS history in one work-item).
+CHANNELS_PER_ITEM = 16
+
+
+def _mode(mode: str) -> int:
+    try:
+        return _MODE_ALIASES[mode]
+    except KeyError:
+        raise ValueError(f"mode must be one of {', '.join(_MODE_ALIASES)}, got {mode!r}") from None
+
+
+def _padding(padding: str) -> int:
+    if padding not in PADDINGS:
+        raise ValueError(f"padding must be one of {', '.join(PADDINGS)}, got {padding!r}")
+    return PADDINGS.index(padding)
+
+
+def _blocks(c: int, cpb: int | None) -> tuple[int, int]:
+    cpb = max(1, min(int(cpb or CHANNELS_PER_ITEM), max(c, 1)))
+    return cpb, -(-c // cpb)
+
+
+def grid_sample(dev: Device, prec: str, x, grid, mode: str = "bilinear", padding: str = "zeros",
+                align_corners: bool = False, *, cubic_channels: int = 0, out=None,
+                channels_per_item: int | None = None):
+    """x [N,C,Hi,Wi] (storage precision), grid [N,Ho,Wo,2] float32 (x, y in [-1, 1]) ->
+    [N,C,Ho,Wo]. ``cubic_channels=k`` samples channels [0, k) bicubic, the rest with ``mode``."""
+    check_storage("x", x, prec)
+    if grid.dtype != np.float32:
+        raise TypeError(f"grid: expected float32 (coordinates stay fp32 in every precision), got {grid.dtype}")
+    n, c, hi, wi = x.shape
+    if grid.ndim != 4 or grid.shape[0] != n or grid.shape[3] != 2:
+        raise ValueError(f"grid_sample: grid {grid.shape} does not match input {x.shape}; expected [N,Ho,Wo,2]")
+    ho, wo = grid.shape[1:3]
+    out = out if out is not None else dev.empty((n, c, ho, wo), prec)
+    if out.size == 0 or hi * wi == 0:
+        return _zero_fill(dev, out)
+    cpb, nblk = _blocks(c, channels_per_item)
+    k = dev.kernel("warp", "grid_sample", prec, MODE=_mode(mode), PAD=_padding(padding),
+                   ALIGN=int(bool(align_corners)), CUBIC_CHANNELS=int(cubic_channels))
+    dev.launch(k, (wo, ho, n * nblk),
+               (x.data, grid.data, out.data, *map(np.int32, (c, hi, wi, ho, wo, cpb, nblk, n))))
+    return out
+
+
+def warp(dev: Device, prec: str, x, motion, *, motion_scale=(1.0, 1.0), scale: float = 1.0,
+         mode: str = "bicubic", padding: str = "zeros", cubic_channels: int = 0, out=None,
+         channels_per_item: int | None = None):
+    """Backward warp of x [N,C,Hi,Wi] by a motion field [N,2,Ho,Wo] (storage precision) -> [N,C,Ho,Wo].
+
+    Output pixel (X, Y) reads x at pixel-index position (pixel i has its centre at i)
+        xs = (X + 0.5) * Wi / Wo - 0.5 + motion[n, 0, Y, X] * motion_scale[0] * scale
+        ys = (Y + 0.5) * Hi / Ho - 0.5 + motion[n, 1, Y, X] * motion_scale[1] * scale
+    i.e. xs = X + mx when the sizes agree and both scales are 1 (``prev = p + motion``).
+    ``motion_scale`` converts the renderer's units to its pixels (clss-frame.md), ``scale``
+    those pixels to x's (e.g. 2 for render-resolution motion applied to a 2x history).
+    Equals GridSample(x, grid, align_corners=0) with
+        grid[n, Y, X] = ((2X + 1) / Wo - 1 + 2 mx kx / Wi,  (2Y + 1) / Ho - 1 + 2 my ky / Hi),
+    (kx, ky) = motion_scale * scale (see ``twin_warp``). ``cubic_channels=k``: channels
+    [0, k) bicubic, the rest ``mode`` (the CLSS history: k = 3, mode bilinear)."""
+    check_storage("x", x, prec)
+    check_storage("motion", motion, prec)
+    n, c, hi, wi = x.shape
+    if motion.ndim != 4 or motion.shape[0] != n or motion.shape[1] != 2:
+        raise ValueError(f"warp: motion {motion.shape} does not match input {x.shape}; expected [N,2,Ho,Wo]")
+    ho, wo = motion.shape[2:]
+    out = out if out is not None else dev.empty((n, c, ho, wo), prec)
+    if out.size == 0 or hi * wi == 0:
+        return _zero_fill(dev, out)
+    cpb, nblk = _blocks(c, channels_per_item)
+    kx, ky = (float(s) * float(scale) for s in motion_scale)
+    k = dev.kernel("warp", "warp_motion", prec, MODE=_mode(mode), PAD=_padding(padding), ALIGN=0,
+                   CUBIC_CHANNELS=int(cubic_channels))
+    dev.launch(k, (wo, ho, n * nblk),
+               (x.data, motion.data, out.data, *map(np.int32, (c, hi, wi, ho, wo, cpb, nblk, n)),
+                np.float32(wi / wo), np.float32(hi / ho), np.float32(kx), np.float32(ky)))
+    return out
+
+
+def _zero_fill(dev, out):
+    if out.size:
+        out.fill(0)
+    return out
+
+
+# --- ONNX -----------------------------------------------------------------------
+
+NODE_DEVIATIONS = {
+    f"test_gridsample_volumetric_{m}_align_corners_{a}":
+        "5-D (volumetric) GridSample: the kernels are 2-D NCHW only"
+    for m in ("bilinear", "nearest") for a in (0, 1)
+}
+
+
+@onnx_op("GridSample")
+def _onnx_grid_sample(dev, prec, attrs, inputs):
+    x, grid = inputs[:2]
+    if x.ndim != 4:
+        raise Unsupported(f"{x.ndim - 2}-D GridSample (only 2-D)")
+    mode = as_str(attrs.get("mode", "linear"))
+    padding = as_str(attrs.get("padding_mode", "zeros"))
+    if mode not in _MODE_ALIASES:
+        raise Unsupported(f"GridSample mode {mode!r}")
+    if padding not in PADDINGS:
+        raise Unsupported(f"GridSample padding_mode {padding!r}")
+    if grid.dtype != np.float32:
+        grid = grid.astype(np.float32)
+    return [grid_sample(dev, prec, x, grid, mode, padding, bool(attrs.get("align_corners", 0)))]
+
+
+# --- twins ----------------------------------------------------------------------
+
+def twin_grid_sample(x, grid, mode, padding, align_corners, cubic_channels=0, opset=16):
+    """GridSample node (opset 16 names or opset 20 names); with cubic_channels, two
+    GridSamples on channel slices + Concat."""
+    name = (lambda m: m) if opset < 20 else (lambda m: _OPSET20_NAME[_canon(m)])
+    c = x.shape[1]
+    if not cubic_channels or _canon(mode) == "bicubic" or cubic_channels >= c:
+        m = "bicubic" if cubic_channels >= c > 0 else mode
+        return node_model("GridSample", {"x": x, "grid": grid}, opset=opset, mode=name(m),
+                          padding_mode=padding, align_corners=int(align_corners))
+    return make_model(_split_nodes("grid", mode, padding, align_corners, cubic_channels, name),
+                      {"x": x, "grid": grid}, ["y0"],
+                      initializers=_split_inits(c, cubic_channels), opset=opset)
+
+
+def twin_warp(x, motion, mode, padding, motion_scale=(1.0, 1.0), scale=1.0, cubic_channels=0):
+    """GridSample(align_corners=0) of base + Transpose(motion) * k: what ``warp`` computes."""
+    n, c, hi, wi = x.shape
+    ho, wo = motion.shape[2:]
+    kx, ky = (float(s) * float(scale) for s in motion_scale)
+    gx = (2.0 * np.arange(wo) + 1.0) / wo - 1.0
+    gy = (2.0 * np.arange(ho) + 1.0) / ho - 1.0
+    base = np.stack(np.broadcast_arrays(gx[None, :], gy[:, None]), -1)[None].astype(np.float32)
+    k = np.array([2.0 * kx / wi, 2.0 * ky / hi], np.float32)
+    nodes = [helper.make_node("Transpose", ["motion"], ["m_nhwc"], perm=[0, 2, 3, 1]),
+             helper.make_node("Mul", ["m_nhwc", "k"], ["offset"]),
+             helper.make_node("Add", ["base", "offset"], ["grid"])]
+    inits = {"base": base, "k": k}
+    if cubic_channels and _canon(mode) != "bicubic" and cubic_channels < c:
+        nodes += _split_nodes("grid", mode, padding, False, cubic_channels, lambda m: m)
+        inits.update(_split_inits(c, cubic_channels))
+    else:
+        m = "bicubic" if cubic_channels >= c > 0 else mode
+        nodes.append(helper.make_node("GridSample", ["x", "grid"], ["y0"], mode=m, padding_mode=padding,
+                                      align_corners=0))
+    return make_model(nodes, {"x": x, "motion": motion}, ["y0"], initializers=inits, opset=16)
+
+
+def _canon(mode):
+    return MODES[_mode(mode)]
+
+
+def _split_nodes(grid, mode, padding, align_corners, k, name):
+    return [helper.make_node("Slice", ["x", "s0", "s1", "ax"], ["x_cubic"]),
+            helper.make_node("Slice", ["x", "s1", "s2", "ax"], ["x_rest"]),
+            helper.make_node("GridSample", ["x_cubic", grid], ["y_cubic"], mode=name("bicubic"),
+                             padding_mode=padding, align_corners=int(align_corners)),
+            helper.make_node("GridSample", ["x_rest", grid], ["y_rest"], mode=name(mode),
+                             padding_mode=padding, align_corners=int(align_corners)),
+            helper.make_node("Concat", ["y_cubic", "y_rest"], ["y0"], axis=1)]
+
+
+def _split_inits(c, k):
+    return {"s0": np.array([0], np.int64), "s1": np.array([k], np.int64),
+            "s2": np.array([c], np.int64), "ax": np.array([1], np.int64)}
+
+
+# --- cases ----------------------------------------------------------------------
+
+def run_grid_sample(mode, padding, align_corners, cubic_channels=0):
+    """Case.run: the grid goes up as float32 in every precision."""
+    def run(dev, prec, inputs):
+        x = dev.to_device(inputs["x"], prec)
+        grid = dev.to_device(inputs["grid"].astype(np.float32), "fp32")
+        return [dev.to_host(grid_sample(dev, prec, x, grid, mode, padding, align_corners,
+                                        cubic_channels=cubic_channels))]
+    return run
+
+
+def run_warp(mode, padding, motion_scale=(1.0, 1.0), scale=1.0, cubic_channels=0):
+    def run(dev, prec, inputs):
+        x = dev.to_device(inputs["x"], prec)
+        m = dev.to_device(inputs["motion"], prec)
+        return [dev.to_host(warp(dev, prec, x, m, motion_scale=motion_scale, scale=scale, mode=mode,
+                                 padding=padding, cubic_channels=cubic_channels))]
+    return run
+
+
+def random_grid(g: np.random.Generator, n, ho, wo, reach=1.3) -> np.ndarray:
+    """Normalised positions up to ``reach`` (> 1 goes off-image), plus exact hits on the
+    borders and on the half-pixel ties that nearest mode must round to even."""
+    grid = g.uniform(-reach, reach, (n, ho, wo, 2)).astype(np.float32)
+    flat = grid.reshape(-1)
+    special = np.array([-1, 1, 0, -reach, reach], np.float32)
+    pick = g.random(flat.shape) < 0.1
+    flat[pick] = g.choice(special, int(pick.sum()))
+    return grid
+
+
+def _tol_fp32_coords(h, w):
+    # The twin forms grids in normalised units: a float32 rounding there (6e-8 of |g|) is
+    # W/2 times larger in pixels, and the output error is that times the data gradient.
+    return {"fp32": Tolerance(max(1e-5, 4e-7 * max(h, w)), 1e-4)}
+
+
+def grid_case(n, c, hi, wi, ho, wo, mode, padding, align_corners, *, opset=16, reach=1.3,
+              cubic_channels=0, ties=False):
+    g = rng("grid_sample", n, c, hi, wi, ho, wo, mode, padding, align_corners, reach, cubic_channels, ties)
+    x = g.standard_normal((n, c, hi, wi)).astype(np.float32)
+    grid = random_grid(g, n, ho, wo, reach)
+    if ties:
+        # Positions exactly on half-pixel ties (and integer pixels) in pixel-index space.
+        steps = g.integers(-4, 2 * max(hi, wi) + 4, (n, ho, wo, 2)) / 2.0
+        size = np.array([wi, hi], np.float64)
+        grid = (steps / (size - 1) * 2 - 1 if align_corners and min(hi, wi) > 1
+                else (2 * steps + 1) / size - 1).astype(np.float32)
+    name = "+".join(filter(None, [f"cubic{cubic_channels}" if cubic_channels else "", mode]))
+    variant = (f"{name} {padding} ac{int(align_corners)}{' ties' if ties else ''} "
+               f"{n}x{c}x{hi}x{wi}->{ho}x{wo}{' opset20' if opset >= 20 else ''}")
+    return Case("grid_sample", variant, {"x": x, "grid": grid},
+                twin_grid_sample(x, grid, mode, padding, align_corners, cubic_channels, opset),
+                run_grid_sample(mode, padding, align_corners, cubic_channels),
+                exact=(mode == "nearest" and not cubic_channels), no_round=("grid",))
+
+
+def motion_case(n, c, hi, wi, ho, wo, mode, padding, *, reach=3.0, motion_scale=(1.0, 1.0),
+                scale=1.0, cubic_channels=0):
+    g = rng("warp", n, c, hi, wi, ho, wo, mode, padding, reach, motion_scale, scale, cubic_channels)
+    x = g.standard_normal((n, c, hi, wi)).astype(np.float32)
+    motion = g.uniform(-reach, reach, (n, 2, ho, wo)).astype(np.float16).astype(np.float32)
+    if _canon(mode) == "nearest" and not cubic_channels:
+        motion = _away_from_ties(motion, hi, wi, ho, wo, motion_scale, scale)
+    name = "+".join(filter(None, [f"cubic{cubic_channels}" if cubic_channels else "", mode]))
+    variant = (f"{name} {padding} {n}x{c}x{hi}x{wi}->{ho}x{wo} ms{tuple(motion_scale)} s{scale}")
+    return Case("warp", variant, {"x": x, "motion": motion},
+                twin_warp(x, motion, mode, padding, motion_scale, scale, cubic_channels),
+                run_warp(mode, padding, motion_scale, scale, cubic_channels),
+                exact=(_canon(mode) == "nearest" and not cubic_channels), tol=_tol_fp32_coords(hi, wi))
+
+
+def _away_from_ties(motion, hi, wi, ho, wo, motion_scale, scale):
+    """Nudge motions whose source lands within 1e-3 pixel of a rounding tie: there the
+    twin's normalised grid and the kernel's pixel arithmetic may round apart."""
+    m = motion.astype(np.float64)
+    for axis, (size_in, size_out, ms) in enumerate(((wi, wo, motion_scale[0]), (hi, ho, motion_scale[1]))):
+        idx = np.arange(size_out)
+        base = (idx + 0.5) * size_in / size_out - 0.5
+        base = base[None, :] if axis == 0 else base[:, None]
+        src = base + m[:, axis] * ms * scale
+        frac = src - np.floor(src)
+        near = np.abs(frac - 0.5) < 1e-3
+        m[:, axis] = np.where(near, m[:, axis] + 0.125 / (ms * scale), m[:, axis])
+    return m.astype(np.float16).astype(np.float32)
+
+
+def cases(level: str = "quick") -> list[Case]:
+    out = []
+    if level == "tiny":
+        # Every build variant once, < 2000 output elements each (oclgrind).
+        for mode in MODES:
+            for padding in PADDINGS:
+                for ac in (0, 1):
+                    out.append(grid_case(1, 2, 5, 7, 3, 4, mode, padding, ac, reach=1.4))
+        out.append(grid_case(1, 1, 1, 1, 2, 3, "bicubic", "reflection", 1, reach=2.0))
+        out.append(motion_case(1, 5, 5, 7, 5, 7, "bilinear", "border", cubic_channels=3))
+        out.append(motion_case(2, 2, 4, 6, 8, 12, "bicubic", "zeros", scale=2.0))
+        return out
+    # quick: every mode and padding once in each coordinate convention, plus the pipeline's forms.
+    for i, mode in enumerate(MODES):
+        for j, padding in enumerate(PADDINGS):
+            ac = (i + j) % 2
+            out.append(grid_case(2, 3, 7, 13, 9, 11, mode, padding, ac, opset=16 + 4 * ((i + j) % 2)))
+    out.append(motion_case(1, 16, 17, 23, 17, 23, "bilinear", "border", cubic_channels=3))
+    out.append(motion_case(1, 3, 9, 12, 18, 24, "bicubic", "zeros", scale=2.0))
+    out.append(motion_case(1, 2, 7, 13, 7, 13, "nearest", "border"))
+    if level != "full":
+        return out
+    # full: odd shapes, channel counts, batch 2, both coordinate conventions for every
+    # variant, grids far off-image, ties, and the motion warp's unit conversions.
+    for mode in MODES:
+        for padding in PADDINGS:
+            for ac in (0, 1):
+                out.append(grid_case(2, 5, 31, 27, 13, 7, mode, padding, ac, reach=2.5))
+                out.append(grid_case(1, 23, 7, 13, 8, 8, mode, padding, ac, reach=1.05, opset=20))
+                out.append(grid_case(1, 1, 1, 1, 5, 3, mode, padding, ac, reach=3.0))
+            if mode == "nearest":
+                for ac in (0, 1):
+                    out.append(grid_case(1, 3, 7, 13, 9, 9, mode, padding, ac, ties=True))
+    for c in (1, 3, 5, 16, 23):
+        out.append(grid_case(1, c, 11, 9, 6, 10, "bicubic", "border", 0, cubic_channels=0))
+    out.append(grid_case(2, 16, 13, 17, 13, 17, "bilinear", "zeros", 0, cubic_channels=3))
+    out.append(grid_case(1, 23, 9, 9, 5, 5, "nearest", "reflection", 1, cubic_channels=3, opset=20))
+    for mode in MODES:
+        for padding in PADDINGS:
+            out.append(motion_case(2, 3, 31, 27, 31, 27, mode, padding, reach=5.0))
+    out.append(motion_case(2, 16, 29, 31, 29, 31, "bilinear", "border", cubic_channels=3, reach=6.0))
+    out.append(motion_case(1, 16, 13, 11, 13, 11, "bilinear", "zeros", cubic_channels=3))
+    out.append(motion_case(1, 5, 7, 13, 14, 26, "bicubic", "border", scale=2.0))
+    out.append(motion_case(1, 3, 12, 16, 8, 10, "bilinear", "zeros", motion_scale=(16.0, 12.0), reach=0.2))
+    out.append(motion_case(1, 3, 15, 19, 15, 19, "bicubic", "border", motion_scale=(-1.0, -1.0)))
+    out.append(motion_case(1, 1, 1, 1, 1, 1, "bicubic", "zeros", reach=0.7))
+    out.append(motion_case(1, 23, 9, 7, 9, 7, "nearest", "zeros", reach=4.0))
+    return out
