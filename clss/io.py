@@ -1,0 +1,576 @@
+"""Frame sequences in and out: EXR through OpenImageIO, tone-mapped PNG, jitter sidecars.
+
+Reading (`read_sequence`) accepts
+  * one multichannel EXR per frame: a directory, a glob (``shots/*.exr``) or a numbered
+    pattern (``shot.%04d.exr``, ``shot.####.exr``); colour, depth and motion are found
+    by channel name (`CHANNEL_CANDIDATES`) unless `channels=` names them;
+  * one file per buffer: ``{"color": "color.%04d.exr", "depth": "depth.%04d.exr",
+    "motion": "motion.%04d.exr"}`` (optionally "reference"); a directory holding
+    ``color.*.exr`` / ``depth.*.exr`` / ``motion.*.exr`` is recognised as this layout.
+Pixels outside an EXR's data window are 0; the data window is placed inside the display
+window. Jitter comes from a sidecar (``jitter.json`` or ``jitter.csv`` next to the
+frames), an explicit file or array, or the Halton(2,3) sequence (`jitter="halton"`
+with `scale`). No unit conversion happens here: motion and depth are returned as stored
+(the pipeline's `motion_scale` / `depth_inverted` describe them).
+
+Every failure to read raises `InputError` (a ValueError) naming the file, and the
+channel or buffer where one is at fault. Writes go to a temporary file in the same
+directory and are renamed into place, so frames already written stay valid.
+"""
+from __future__ import annotations
+
+import csv
+import glob
+import json
+import os
+import re
+import tempfile
+
+import numpy as np
+
+from .scene import Frame, halton_jitter
+
+try:
+    import OpenImageIO as oiio
+except ImportError:     # pragma: no cover - OpenImageIO is a hard dependency
+    oiio = None
+
+
+class InputError(ValueError):
+    """An input file is missing, unreadable, lacks a channel or has the wrong size."""
+
+
+# Channel names tried in order when `channels=` does not name them.
+CHANNEL_CANDIDATES = {
+    "color": [("R", "G", "B"), ("rgba.R", "rgba.G", "rgba.B"), ("color.R", "color.G", "color.B"),
+              ("Color.R", "Color.G", "Color.B"), ("beauty.R", "beauty.G", "beauty.B"),
+              ("Combined.R", "Combined.G", "Combined.B")],
+    "depth": [("Z",), ("depth.Z",), ("depth.R",), ("depth.V",), ("depth.Y",), ("Depth.Z",),
+              ("Depth.R",), ("D",), ("depth",), ("Depth",)],
+    "motion": [("mv.x", "mv.y"), ("mv.X", "mv.Y"), ("mv.R", "mv.G"),
+               ("velocity.R", "velocity.G"), ("velocity.x", "velocity.y"),
+               ("velocity.X", "velocity.Y"), ("motion.x", "motion.y"), ("motion.R", "motion.G"),
+               ("motion.X", "motion.Y"), ("MotionVector.R", "MotionVector.G"),
+               ("MotionVectors.R", "MotionVectors.G"), ("motionvector.x", "motionvector.y")],
+}
+# In a file that holds one buffer only, these generic names are accepted as well.
+SINGLE_BUFFER_CANDIDATES = {
+    "color": [("R", "G", "B")],
+    "depth": [("Z",), ("R",), ("Y",), ("V",)],
+    "motion": [("R", "G"), ("x", "y"), ("X", "Y"), ("u", "v"), ("U", "V")],
+    "reference": [("R", "G", "B")],
+}
+BUFFER_CHANNELS = {"color": 3, "depth": 1, "motion": 2, "reference": 3}
+SIDECARS = ("jitter.json", "jitter.csv")
+
+
+# ---------------------------------------------------------------- tone mapping
+
+def tonemap(linear, exposure=1.0):
+    """Linear HDR -> display values in [0, 1], float32: colour times `exposure`, the
+    ACES filmic curve as fitted by K. Narkowicz (2015), then the sRGB OETF. Used for
+    PNGs and for the image metrics. NaN and negative values become 0."""
+    x = np.nan_to_num(np.asarray(linear, np.float32) * np.float32(exposure), nan=0.0,
+                      posinf=1e4, neginf=0.0)
+    x = np.maximum(x, 0)
+    y = np.clip((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0, 1)
+    return np.where(y <= 0.0031308, 12.92 * y,
+                    1.055 * np.power(y, 1 / 2.4) - 0.055).astype(np.float32)
+
+
+# ---------------------------------------------------------------- writing
+
+def _require_oiio():
+    if oiio is None:
+        raise RuntimeError("OpenImageIO (python module OpenImageIO) is not installed")
+
+
+def _atomic_write(path, write):
+    """Call write(tmp_path) then rename onto path. The temporary name keeps the
+    extension, which is how OpenImageIO picks the format."""
+    path = os.fspath(path)
+    d, base = os.path.split(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    ext = os.path.splitext(base)[1]
+    fd, tmp = tempfile.mkstemp(prefix="." + base + ".", suffix=".tmp" + ext, dir=d)
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _write_oiio(path, pixels, fmt, names=None, channelformats=None):
+    def write(tmp):
+        h, w, c = pixels.shape
+        spec = oiio.ImageSpec(w, h, c, fmt)
+        if names is not None:
+            spec.channelnames = tuple(names)
+        if channelformats is not None:
+            spec.channelformats = tuple(oiio.TypeDesc(f) for f in channelformats)
+        if fmt in ("half", "float"):
+            spec.attribute("compression", "zip")
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise OSError(f"{path}: cannot create ({oiio.geterror()})")
+        try:
+            if not out.open(tmp, spec) or not out.write_image(pixels):
+                raise OSError(f"{path}: cannot write ({out.geterror()})")
+        finally:
+            out.close()
+    _atomic_write(path, write)
+
+
+def default_channel_names(n):
+    return {1: ["Y"], 2: ["x", "y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}.get(
+        n, [f"c{i}" for i in range(n)])
+
+
+def write_exr(path, image, half=True, channel_names=None):
+    """Write an h x w or h x w x c image as EXR. `half`: True/False for all channels,
+    or one bool per channel (e.g. half colour, float depth). Channel names default to
+    Y / x,y / R,G,B / R,G,B,A."""
+    _require_oiio()
+    a = np.asarray(image, np.float32)
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.ndim != 3:
+        raise ValueError(f"{path}: expected an h x w or h x w x c image, got shape {a.shape}")
+    c = a.shape[2]
+    names = list(channel_names) if channel_names is not None else default_channel_names(c)
+    if len(names) != c:
+        raise ValueError(f"{path}: {len(names)} channel names for {c} channels")
+    halves = [bool(half)] * c if isinstance(half, (bool, np.bool_, int)) else list(half)
+    if len(halves) != c:
+        raise ValueError(f"{path}: {len(halves)} half flags for {c} channels")
+    fmts = ["half" if h else "float" for h in halves]
+    _write_oiio(path, np.ascontiguousarray(a), "float" if "float" in fmts else "half",
+                names, fmts if len(set(fmts)) > 1 else None)
+
+
+def to_uint8(linear_rgb, exposure=1.0):
+    return (tonemap(linear_rgb, exposure) * 255 + 0.5).astype(np.uint8)
+
+
+def write_png(path, linear_rgb, exposure=1.0):
+    """8-bit sRGB PNG of a linear image (h x w or h x w x 3) through `tonemap`."""
+    _require_oiio()
+    a = np.asarray(linear_rgb, np.float32)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, -1)
+    if a.ndim != 3 or a.shape[2] not in (1, 3):
+        raise ValueError(f"{path}: expected h x w or h x w x 3, got shape {a.shape}")
+    _write_oiio(path, np.ascontiguousarray(to_uint8(a, exposure)), "uint8")
+
+
+def write_png_ldr(path, display_rgb):
+    """8-bit PNG of values already in display space [0, 1] (no tone mapping)."""
+    _require_oiio()
+    a = np.clip(np.nan_to_num(np.asarray(display_rgb, np.float32)), 0, 1)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, -1)
+    _write_oiio(path, np.ascontiguousarray((a * 255 + 0.5).astype(np.uint8)), "uint8")
+
+
+def write_sample_sequence(frames, directory, half=True):
+    """Write frames (clss.scene.Frame or dicts with color, depth, motion, jitter and
+    optionally reference) as ``frame.%04d.exr`` (R, G, B [half], Z, mv.x, mv.y [float]),
+    ``reference.%04d.exr`` and ``jitter.json``, which `read_sequence(directory)` reads
+    back. Returns the list of paths written."""
+    os.makedirs(directory, exist_ok=True)
+    paths, jit, numbers, resets, meta = [], [], [], [], {}
+    for pos, f in enumerate(frames):
+        n = int(f["index"]) if _has(f, "index") else pos
+        img = np.concatenate([f["color"], f["depth"][..., None], f["motion"]], -1)
+        p = os.path.join(directory, f"frame.{n:04d}.exr")
+        write_exr(p, img, half=[half] * 3 + [False] * 3,
+                  channel_names=["R", "G", "B", "Z", "mv.x", "mv.y"])
+        paths.append(p)
+        ref = f["reference"] if _has(f, "reference") else None
+        if ref is not None:
+            p = os.path.join(directory, f"reference.{n:04d}.exr")
+            write_exr(p, ref, half=half)
+            paths.append(p)
+        jit.append([float(f["jitter"][0]), float(f["jitter"][1])])
+        numbers.append(n)
+        if _has(f, "reset") and f["reset"]:
+            resets.append(n)
+        if _has(f, "meta") and f["meta"]:
+            meta = {k: v for k, v in f["meta"].items() if isinstance(v, (int, float, str))}
+    side = {"frames": numbers, "jitter": jit, "resets": resets,
+            "conventions": {"depth": "reversed-Z (near=1)",
+                            "motion": "render pixels, prev = p + motion, +y down",
+                            "jitter": "sample of pixel (i,j) at (j+0.5+jx, i+0.5+jy)"},
+            **meta}
+    p = os.path.join(directory, "jitter.json")
+    _atomic_write(p, lambda tmp: _dump_json(tmp, side))
+    paths.append(p)
+    return paths
+
+
+def _dump_json(path, obj):
+    with open(path, "w") as fh:
+        json.dump(obj, fh, indent=1)
+
+
+def _has(f, key):
+    if isinstance(f, dict):
+        return key in f
+    return hasattr(f, key)
+
+
+# ---------------------------------------------------------------- reading
+
+def read_exr(path):
+    """(pixels h x w x c float32 over the display window, channel names)."""
+    _require_oiio()
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError(f"{path}: no such file")
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        raise InputError(f"{path}: cannot read ({oiio.geterror()})")
+    try:
+        spec = inp.spec()
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        if data is None:
+            raise InputError(f"{path}: cannot read pixels ({inp.geterror()})")
+    finally:
+        inp.close()
+    data = np.asarray(data, np.float32).reshape(spec.height, spec.width, spec.nchannels)
+    names = list(spec.channelnames)
+    fw, fh = spec.full_width, spec.full_height
+    if (spec.x, spec.y, spec.width, spec.height) == (spec.full_x, spec.full_y, fw, fh):
+        return data, names
+    full = np.zeros((fh, fw, spec.nchannels), np.float32)
+    # Data window relative to the display window, clipped to it.
+    x0, y0 = spec.x - spec.full_x, spec.y - spec.full_y
+    cx0, cy0 = max(x0, 0), max(y0, 0)
+    cx1, cy1 = min(x0 + spec.width, fw), min(y0 + spec.height, fh)
+    if cx1 > cx0 and cy1 > cy0:
+        full[cy0:cy1, cx0:cx1] = data[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0]
+    return full, names
+
+
+def _as_names(spec):
+    if isinstance(spec, str):
+        return tuple(s.strip() for s in spec.split(","))
+    return tuple(spec)
+
+
+def _layer_candidates(names, n):
+    """Prefixed R,G,B (or R,G) layers, e.g. 'ViewLayer.Combined.' -> names."""
+    comps = ("R", "G", "B")[:n]
+    found = []
+    for nm in names:
+        if nm.endswith("." + comps[0]):
+            pre = nm[:-len(comps[0])]
+            if all(pre + c in names for c in comps):
+                found.append(tuple(pre + c for c in comps))
+    return found
+
+
+def _pick(path, names, buffer, channels, single):
+    """Channel names of `buffer` in a file with channel list `names`."""
+    n = BUFFER_CHANNELS[buffer]
+    if channels and buffer in channels:
+        want = _as_names(channels[buffer])
+        if len(want) != n:
+            raise InputError(f"{path}: channels[{buffer!r}] names {len(want)} channels, "
+                             f"{buffer} has {n}")
+        for c in want:
+            if c not in names:
+                raise InputError(f"{path}: channel {c!r} for {buffer} not found "
+                                 f"(file has {', '.join(names)})")
+        return want
+    cands = list(CHANNEL_CANDIDATES.get(buffer, []))
+    if single:
+        cands += SINGLE_BUFFER_CANDIDATES[buffer]
+    for c in cands:
+        if all(x in names for x in c):
+            return c
+    if buffer == "color":
+        layers = [c for c in _layer_candidates(names, 3)
+                  if re.search(r"combined|colou?r|beauty|rgba", c[0], re.I)]
+        if len(layers) == 1:
+            return layers[0]
+    if single and len(names) == n:
+        return tuple(names)
+    tried = "; ".join(",".join(c) for c in cands)
+    raise InputError(f"{path}: no {buffer} channel found (tried {tried}; file has "
+                     f"{', '.join(names)}); name it with channels={{{buffer!r}: ...}}")
+
+
+def _extract(path, data, names, buffer, channels, single):
+    sel = _pick(path, names, buffer, channels, single)
+    idx = [names.index(c) for c in sel]
+    out = data[..., idx]
+    return out[..., 0] if BUFFER_CHANNELS[buffer] == 1 else np.ascontiguousarray(out)
+
+
+def read_frame(path, channels=None, buffers=("color", "depth", "motion")):
+    """color, depth, motion (dict) from one multichannel EXR."""
+    data, names = read_exr(path)
+    return {b: _extract(path, data, names, b, channels, single=False) for b in buffers}
+
+
+_NUMBERED = re.compile(r"%0?(\d*)d|#+|\{frame(?::0?(\d+)d)?\}")
+
+
+def _pattern_files(pattern):
+    """Sorted [(frame number, path)] of a numbered pattern, a glob or a list of paths."""
+    if isinstance(pattern, (list, tuple)):
+        files = sorted(pattern)
+    else:
+        pattern = os.fspath(pattern)
+        m = _NUMBERED.search(pattern)
+        if m:
+            head, tail = pattern[:m.start()], pattern[m.end():]
+            rx = re.compile(re.escape(head) + r"(-?\d+)" + re.escape(tail) + "$")
+            out = []
+            for p in glob.glob(glob.escape(head) + "*" + glob.escape(tail)):
+                mm = rx.match(p)
+                if mm:
+                    out.append((int(mm.group(1)), p))
+            return sorted(out)
+        files = sorted(glob.glob(pattern))
+    out = []
+    for pos, p in enumerate(files):
+        nums = re.findall(r"(\d+)", os.path.basename(p))
+        out.append((int(nums[-1]) if nums else pos, p))
+    numbers = [n for n, _ in out]
+    if len(set(numbers)) != len(numbers):       # no usable numbering: file order
+        out = [(pos, p) for pos, (_, p) in enumerate(out)]
+    return sorted(out)
+
+
+def _detect_layout(directory):
+    """Per-buffer patterns if `directory` holds color.* / depth.* / motion.* EXRs,
+    else a glob of all EXRs in it."""
+    per = {}
+    for b, stems in (("color", ("color", "colour", "beauty")), ("depth", ("depth",)),
+                     ("motion", ("motion", "mv", "velocity")), ("reference", ("reference",))):
+        for s in stems:
+            hits = glob.glob(os.path.join(glob.escape(directory), s + "[._]*[0-9].exr"))
+            if hits:
+                per[b] = hits
+                break
+    if all(b in per for b in ("color", "depth", "motion")):
+        return {b: _ref_pattern(sorted(hits)[0]) for b, hits in per.items()}
+    refs = set(per.get("reference", []))
+    files = [p for p in glob.glob(os.path.join(glob.escape(directory), "*.exr")) if p not in refs]
+    if not files:
+        raise InputError(f"{directory}: no .exr files")
+    return sorted(files), (_ref_pattern(sorted(refs)[0]) if refs else None)
+
+
+def _ref_pattern(p):
+    """The numbered pattern of an example file: shot.0012.exr -> shot.%04d.exr."""
+    m = re.search(r"(\d+)(\.exr)$", p)
+    return p[:m.start(1)] + "%0" + str(len(m.group(1))) + "d" + m.group(2)
+
+
+def _read_jitter_file(path):
+    """(per-frame dict or list of (jx, jy), metadata dict) from a JSON or CSV sidecar."""
+    try:
+        if path.lower().endswith(".json"):
+            with open(path) as fh:
+                obj = json.load(fh)
+            meta = {}
+            if isinstance(obj, dict):
+                meta = {k: v for k, v in obj.items() if k not in ("jitter", "frames")}
+                jit = obj.get("jitter")
+                if jit is None:
+                    raise ValueError("no 'jitter' key")
+                frames = obj.get("frames")
+                if isinstance(jit, dict):
+                    return {int(k): tuple(map(float, v)) for k, v in jit.items()}, meta
+                pairs = [tuple(map(float, v)) for v in jit]
+                if frames is not None:
+                    return dict(zip((int(n) for n in frames), pairs)), meta
+                return pairs, meta
+            return [tuple(map(float, v)) for v in obj], meta
+        with open(path, newline="") as fh:
+            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+        if rows and not _is_number(rows[0][0]):
+            head = [c.strip().lower() for c in rows[0]]
+            rows = rows[1:]
+            if "frame" in head:
+                i, x, y = head.index("frame"), head.index("jx"), head.index("jy")
+                return {int(float(r[i])): (float(r[x]), float(r[y])) for r in rows}, {}
+            x, y = head.index("jx"), head.index("jy")
+            return [(float(r[x]), float(r[y])) for r in rows], {}
+        if rows and len(rows[0]) >= 3:
+            return {int(float(r[0])): (float(r[1]), float(r[2])) for r in rows}, {}
+        return [(float(r[0]), float(r[1])) for r in rows], {}
+    except (OSError, ValueError, KeyError, IndexError, TypeError) as e:
+        raise InputError(f"{path}: cannot read jitter ({e})") from None
+
+
+def _is_number(s):
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+class FrameSequence:
+    """Lazily read frames: len(), indexing and iteration give clss.scene.Frame with
+    meta {"frame": file number, "files": {buffer: path}} plus sidecar metadata."""
+
+    def __init__(self, entries, channels, jitter, resets, meta, single):
+        self._entries = entries            # [(number, {buffer: path})]
+        self._channels = channels
+        self._jitter = jitter              # list of (jx, jy), aligned with entries
+        self._resets = resets
+        self.meta = meta
+        self._single = single
+        self._size = None
+
+    def __len__(self):
+        return len(self._entries)
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+    @property
+    def frame_numbers(self):
+        return [n for n, _ in self._entries]
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        if i < 0:
+            i += len(self)
+        if not 0 <= i < len(self):
+            raise IndexError(i)
+        number, files = self._entries[i]
+        bufs, cache = {}, {}
+        for b in ("color", "depth", "motion", "reference"):
+            if b not in files:
+                continue
+            p = files[b]
+            if p not in cache:
+                cache[p] = read_exr(p)
+            data, names = cache[p]
+            single = self._single or b == "reference"
+            bufs[b] = _extract(p, data, names, b, self._channels, single)
+        h, w = bufs["color"].shape[:2]
+        for b in ("depth", "motion"):
+            if bufs[b].shape[:2] != (h, w):
+                raise InputError(f"{files[b]}: {b} is {bufs[b].shape[1]}x{bufs[b].shape[0]}, "
+                                 f"colour ({files['color']}) is {w}x{h}")
+        if self._size is None:
+            self._size = (h, w, files["color"])
+        elif self._size[:2] != (h, w):
+            raise InputError(f"{files['color']}: frame is {w}x{h}, the sequence's first "
+                             f"frame ({self._size[2]}) is {self._size[1]}x{self._size[0]}")
+        return Frame(index=i, color=bufs["color"], depth=bufs["depth"], motion=bufs["motion"],
+                     jitter=self._jitter[i], reset=(i == 0) or number in self._resets,
+                     reference=bufs.get("reference"),
+                     meta={"frame": number, "files": dict(files), **self.meta})
+
+
+def read_sequence(source, channels=None, jitter=None, scale=None, reference=None):
+    """Open a frame sequence (see the module docstring); frames are read on access.
+
+    source: directory, glob, numbered pattern, list of files, or {buffer: pattern} with
+      color, depth, motion (and optionally reference).
+    channels: {buffer: "A,B,C" or (names)} overriding the channel search.
+    jitter: None (sidecar jitter.json / jitter.csv beside the frames, else Halton when
+      `scale` is given), "halton" (needs scale), "zero", a path to a JSON/CSV sidecar,
+      or an (n, 2) array.
+    reference: optional numbered pattern of reference images (R, G, B).
+    """
+    single = isinstance(source, dict)
+    ref_pat = reference
+    if single:
+        pats = dict(source)
+    elif isinstance(source, (list, tuple)):
+        pats = {"frame": [os.fspath(p) for p in source]}
+    elif os.path.isdir(os.fspath(source)):
+        layout = _detect_layout(os.fspath(source))
+        if isinstance(layout, dict):
+            pats, single = layout, True
+        else:
+            pats = {"frame": layout[0]}
+            ref_pat = ref_pat or layout[1]
+    else:
+        pats = {"frame": os.fspath(source)}
+    if ref_pat is not None:
+        pats["reference"] = ref_pat
+    missing = [b for b in ("color", "depth", "motion") if single and b not in pats]
+    if missing:
+        raise InputError(f"per-buffer source lacks {', '.join(missing)}: {pats}")
+    listed = {b: dict(_pattern_files(p)) for b, p in pats.items()}
+    key = "color" if single else "frame"
+    if not listed[key]:
+        raise InputError(f"{pats[key]}: no files match")
+    entries = []
+    for n in sorted(listed[key]):
+        files = {}
+        for b, found in listed.items():
+            if n not in found:
+                if b == "reference":
+                    continue
+                raise InputError(f"{pats[b]}: no {b} file for frame {n} "
+                                 f"(have {listed[key][n]})")
+            if b == "frame":
+                files.update(color=found[n], depth=found[n], motion=found[n])
+            else:
+                files[b] = found[n]
+        entries.append((n, files))
+    numbers = [n for n, _ in entries]
+    first_dir = os.path.dirname(os.path.abspath(entries[0][1]["color"]))
+    jit, meta = _resolve_jitter(jitter, scale, numbers, first_dir)
+    resets = set(int(r) for r in meta.get("resets", []))
+    return FrameSequence(entries, channels, jit, resets, meta, single)
+
+
+def _resolve_jitter(jitter, scale, numbers, directory):
+    meta = {}
+    src = jitter
+    if jitter is None:
+        for name in SIDECARS:
+            p = os.path.join(directory, name)
+            if os.path.isfile(p):
+                src = p
+                break
+        else:
+            if scale is None:
+                raise InputError(f"{directory}: no jitter sidecar ({' or '.join(SIDECARS)}); "
+                                 "pass jitter= or scale= for the Halton sequence")
+            src = "halton"
+    if isinstance(src, str) and src == "halton":
+        if scale is None:
+            raise InputError("jitter='halton' needs scale=")
+        return [halton_jitter(i, scale) for i in range(len(numbers))], meta
+    if isinstance(src, str) and src == "zero":
+        return [(0.0, 0.0)] * len(numbers), meta
+    if isinstance(src, (str, os.PathLike)):
+        path = os.fspath(src)
+        table, meta = _read_jitter_file(path)
+        if isinstance(table, dict):
+            lost = [n for n in numbers if n not in table]
+            if lost:
+                raise InputError(f"{path}: no jitter for frame {lost[0]}")
+            out = [table[n] for n in numbers]
+        else:
+            if len(table) < len(numbers):
+                raise InputError(f"{path}: {len(table)} jitter values for {len(numbers)} frames")
+            out = list(table[:len(numbers)])
+    else:
+        arr = np.asarray(src, np.float64)
+        if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) < len(numbers):
+            raise InputError(f"jitter: expected an (n >= {len(numbers)}, 2) array, got {arr.shape}")
+        out = [tuple(map(float, r)) for r in arr[:len(numbers)]]
+        path = "jitter"
+    for n, (jx, jy) in zip(numbers, out):
+        if not (abs(jx) <= 0.5 and abs(jy) <= 0.5):
+            raise InputError(f"{path}: jitter of frame {n} ({jx}, {jy}) is outside [-0.5, 0.5]")
+    return [(float(a), float(b)) for a, b in out], meta
