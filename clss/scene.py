@@ -628,12 +628,26 @@ def render_reference(view, spp, rng):
     return np.ascontiguousarray(acc.transpose(1, 2, 0))
 
 
-def iter_sequence(n_frames=30, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):
-    for i in range(n_frames):
-        yield render_frame(i, render_size, scale, spp_ref, seed)
+def iter_sequence(n_frames=30, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0,
+                  workers=1):
+    """Frames one at a time, in order. `workers` > 1 renders that many frames ahead in
+    worker processes (frames are independent)."""
+    args = (render_size, scale, spp_ref, seed)
+    if workers <= 1 or n_frames <= 1:
+        for i in range(n_frames):
+            yield render_frame(i, *args)
+        return
+    from concurrent.futures import ProcessPoolExecutor
+    with ProcessPoolExecutor(min(workers, n_frames)) as pool:
+        pending = [pool.submit(render_frame, i, *args) for i in range(n_frames)]
+        for fut in pending:
+            yield fut.result()
 
 
-def render_sequence(n_frames=30, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):
+def render_sequence(n_frames=30, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0,
+                    workers=1):
     """List of `n_frames` Frames (`iter_sequence` holds one at a time). Frame 0 has
-    reset=True. Deterministic; the seed only moves the reference's sample positions."""
-    return list(iter_sequence(n_frames, render_size, scale, spp_ref, seed))
+    reset=True. Deterministic; the seed only moves the reference's sample positions.
+    The default (480x270 -> 960x540, 16 spp, 30 frames) takes about 20 s of one core;
+    `workers=2` splits it over two processes."""
+    return list(iter_sequence(n_frames, render_size, scale, spp_ref, seed, workers))

@@ -147,3 +147,10 @@ def test_default_size_frame_cost():
     assert f.reference.shape == (540, 960, 3)
     assert dt < 6.0, dt
     assert math.isfinite(float(f.reference.sum()))
+
+
+def test_workers_match_serial():
+    a = scene.render_sequence(3, (18, 32), 2, spp_ref=1)
+    b = scene.render_sequence(3, (18, 32), 2, spp_ref=1, workers=2)
+    for x, y in zip(a, b):
+        assert np.array_equal(x.color, y.color) and np.array_equal(x.reference, y.reference)
