@@ -103,7 +103,8 @@ def main(argv=None):
     b.add_argument("--widths", default=",".join(map(str, networks.DEFAULT_WIDTHS)),
                    help="classifier encoder widths c0,c1,c2,c3")
     b.add_argument("--mlp-hidden", type=int, default=networks.DEFAULT_MLP_HIDDEN)
-    b.add_argument("--height", type=int, help="fixed output height (multiple of 16); default symbolic")
+    b.add_argument("--height", type=int,
+                   help="fixed output height (multiple of 16); default symbolic")
     b.add_argument("--width", type=int, help="fixed output width (multiple of 16)")
     b.add_argument("--fp16", action="store_true", help="store the weights as float16")
     b.set_defaults(fn=cmd_build)

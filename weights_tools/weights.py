@@ -124,7 +124,8 @@ def apply_weights(model, tensors: dict, strict=False):
         old = numpy_helper.to_array(t)
         new = np.asarray(tensors[t.name])
         if new.shape != old.shape:
-            raise WeightsError(f"{t.name}: shape {new.shape} does not match the graph's {old.shape}")
+            raise WeightsError(f"{t.name}: shape {new.shape} does not match the graph's "
+                               f"{old.shape}")
         model.graph.initializer[i].CopyFrom(numpy_helper.from_array(new.astype(old.dtype), t.name))
         applied.append(t.name)
     if strict:
