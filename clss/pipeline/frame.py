@@ -1,0 +1,288 @@
+"""The CLSS frame step on an OpenCL device: buffers, launches and timings.
+
+`FrameStep` owns every device buffer of one render size and runs the fused kernels of
+kernels/frame.cl (formulas: reference.md) plus, in mode "net", the classification
+network through `clss.Model`. It works on device arrays only; clss.pipeline.Upscaler
+puts the caller-facing contract around it.
+
+Per frame (render res h x w, output res H x W, H16 x W16 the size padded to 16):
+
+    fill(recon, 0)
+    prepare       color, depth, motion, reactive -> X (encoded colour), lr stack, recon
+    depth_diff    recon -> lr[dd]
+    resolve       rule: X, lr, history -> history', output
+                  net:  X, lr, history -> classifier input (H16 x W16), aux
+    classifier    net: classifier input -> logits at H16/2 x W16/2   (clss.Model)
+    compose       net: logits, classifier input, aux, history -> history', output
+
+The history is double-buffered and swapped after a frame is accepted; the depth
+reconstruction is per-frame scratch (reference.md s3).
+"""
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+import onnx
+import pyopencl as cl
+import pyopencl.array as cla
+from onnx import numpy_helper
+
+from ..device import Device
+from .contract import PQ_NITS, PQ_PEAK_NITS, output_size
+from .oracle import DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS
+
+CLASSIFIER_CHANNELS = 23
+LR_CHANNELS = {"rule": 11, "net": 5}
+# flags[0] bits, as kernels/frame.cl
+FLAG_BITS = {1: ("color", "non-finite"), 2: ("depth", "non-finite"), 4: ("motion", "non-finite"),
+             8: ("reactive", "non-finite"), 16: ("depth", "outside [0, 1]"),
+             32: ("reactive", "outside [0, 1]")}
+NONFINITE_BITS = 15
+STAGES = ("prepare", "depth_diff", "resolve", "classifier", "compose")
+
+
+def pad16(n: int) -> int:
+    return -(-int(n) // 16) * 16
+
+
+def composition_weights(model: onnx.ModelProto):
+    """(w1 [hidden, 22], b1 [hidden], w2 [hidden], b2 [1]) float32 of a composition
+    network Conv1x1 -> Relu -> Conv1x1 -> Sigmoid (weights_tools.build_composition),
+    which `compose` evaluates per pixel inside the blend kernel."""
+    inits = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
+    ops = [n.op_type for n in model.graph.node]
+    if ops != ["Conv", "Relu", "Conv", "Sigmoid"]:
+        raise ValueError("composition: expected the two-layer MLP Conv(1x1) -> Relu -> Conv(1x1) "
+                         f"-> Sigmoid of weights_tools.build_composition, got {' -> '.join(ops)}")
+    c1, _, c2, _ = model.graph.node
+    try:
+        w1, w2 = inits[c1.input[1]], inits[c2.input[1]]
+        b1 = inits[c1.input[2]] if len(c1.input) > 2 and c1.input[2] else np.zeros(w1.shape[0])
+        b2 = inits[c2.input[2]] if len(c2.input) > 2 and c2.input[2] else np.zeros(1)
+    except KeyError as e:
+        raise ValueError(f"composition: weight {e} is not an initializer") from None
+    if w1.ndim != 4 or w1.shape[1:] != (22, 1, 1) or w2.shape != (1, w1.shape[0], 1, 1):
+        raise ValueError(f"composition: expected weights [hidden, 22, 1, 1] and [1, hidden, 1, 1], "
+                         f"got {list(w1.shape)} and {list(w2.shape)}")
+    f = np.float32
+    return (np.ascontiguousarray(w1.reshape(w1.shape[0], 22), f), np.ascontiguousarray(b1, f),
+            np.ascontiguousarray(w2.reshape(-1), f), np.ascontiguousarray(np.reshape(b2, 1), f))
+
+
+class ClassifierRunner:
+    """The classification network at the padded output size, on device arrays.
+
+    clss.Model runs it when it can; otherwise onnxruntime on the host does, as a
+    clearly labelled temporary fallback (`backend` says which)."""
+
+    def __init__(self, dev: Device, prec: str, model: onnx.ModelProto, shape, force=None):
+        self.dev, self.prec = dev, prec
+        self.input_name = model.graph.input[0].name
+        self.output_name = model.graph.output[0].name
+        self.shape = tuple(int(s) for s in shape)
+        self._model = None
+        self._session = None
+        err = None
+        if force != "onnxruntime":
+            try:
+                from ..model import Model
+                self._model = Model(model, device=dev, precision=prec,
+                                    input_shapes={self.input_name: list(self.shape)})
+                self.backend = "clss.Model"
+            except ImportError as e:
+                err = e
+            except Exception as e:      # a Model that cannot take this network yet
+                if force == "clss":
+                    raise
+                err = e
+        if self._model is None:
+            if force == "clss":
+                raise RuntimeError(f"clss.Model is not usable: {err}")
+            import onnxruntime as ort
+            m = onnx.ModelProto()
+            m.CopyFrom(model)
+            dims = m.graph.input[0].type.tensor_type.shape.dim
+            for d, s in zip(dims, self.shape):
+                d.Clear()
+                d.dim_value = s
+            so = ort.SessionOptions()
+            so.intra_op_num_threads = 2
+            self._session = ort.InferenceSession(m.SerializeToString(), sess_options=so,
+                                                 providers=["CPUExecutionProvider"])
+            self.backend = "onnxruntime (temporary fallback: clss.Model unavailable)"
+            if force is None:
+                warnings.warn(f"clss.pipeline: the classifier runs on onnxruntime on the host "
+                              f"(temporary fallback; clss.Model: {err})", RuntimeWarning, stacklevel=3)
+        self._out = None
+
+    def __call__(self, x: cla.Array) -> cla.Array:
+        if self._model is not None:
+            if self._out is None:
+                shape = self._model.output_shapes[self.output_name]
+                self._out = self.dev.empty(shape, self.prec)
+            # into a buffer of ours: no allocation per frame
+            return self._model.run_device({self.input_name: x},
+                                          out={self.output_name: self._out})[self.output_name]
+        host = self.dev.to_host(x).astype(np.float32)
+        (y,) = self._session.run([self.output_name], {self.input_name: host})
+        if self._out is None or self._out.shape != y.shape:
+            self._out = self.dev.empty(y.shape, self.prec)
+        self._out.set(np.ascontiguousarray(y.astype(self._out.dtype)))
+        return self._out
+
+
+class FrameStep:
+    """Device buffers and launches of one frame step at a fixed render size."""
+
+    def __init__(self, dev: Device, prec: str, mode: str, render_size, scale, *, hdr=True,
+                 nits=PQ_NITS, cap=None, depth_threshold=DEPTH_THRESHOLD, sanitize=False,
+                 classifier: onnx.ModelProto | None = None,
+                 composition: onnx.ModelProto | None = None, classifier_backend=None,
+                 profile=False):
+        self.dev, self.prec, self.mode = dev, prec, mode
+        self.h, self.w = (int(s) for s in render_size)
+        self.H, self.W = output_size(self.h, self.w, scale)
+        self.H16, self.W16 = pad16(self.H), pad16(self.W)
+        self.hdr, self.nits = bool(hdr), float(nits)
+        self.cap = float(DEFAULT_CAP[mode] if cap is None else cap)
+        self.depth_threshold = float(depth_threshold)
+        self.sanitize = bool(sanitize)
+        self.profile = bool(profile)
+        net = mode == "net"
+        defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize))
+        h, w, H, W = self.h, self.w, self.H, self.W
+        f32 = np.float32
+        e = dev.empty
+        # The caller-facing inputs (image layout, float32) for the host path.
+        self.in_color = e((h, w, 3), dtype=f32)
+        self.in_depth = e((h, w), dtype=f32)
+        self.in_motion = e((h, w, 2), dtype=f32)
+        self.in_reactive = e((h, w), dtype=f32)
+        self.recon = e((h * w,), dtype=np.uint32)
+        self.X = e((3, h, w), prec)
+        self.lr = e((LR_CHANNELS[mode], h, w), dtype=f32)
+        self.flags = e((8,), dtype=np.uint32)
+        self.history = [e((HISTORY_CHANNELS, H, W), prec), e((HISTORY_CHANNELS, H, W), prec)]
+        self.out = e((H, W, 3), dtype=f32)
+        self.bx = dev.to_device(((np.arange(W, dtype=np.float64) + 0.5) * w / W - 0.5).astype(f32))
+        self.by = dev.to_device(((np.arange(H, dtype=np.float64) + 0.5) * h / H - 0.5).astype(f32))
+        self.flags_host = np.zeros(8, np.uint32)
+        # blend weight, ghost, depth difference at output res, written when `debug`
+        self.debug = False
+        self.dbg = e((3, H, W), dtype=f32)
+        self.cur = 0
+        self.classifier = None
+        if net:
+            if classifier is None or composition is None:
+                raise ValueError("mode 'net' needs the classifier and composition networks")
+            w1, b1, w2, b2 = composition_weights(composition)
+            defines["HIDDEN"] = w1.shape[0]
+            self.mlp = [dev.to_device(a) for a in (w1, b1, w2, b2)]
+            self.cls_in = e((1, CLASSIFIER_CHANNELS, self.H16, self.W16), prec)
+            self.aux = e((3, H, W), prec)
+            self.classifier = ClassifierRunner(dev, prec, classifier, self.cls_in.shape,
+                                               force=classifier_backend)
+        self.k = {name: dev.kernel("frame", name, prec, **defines)
+                  for name in ("prepare", "depth_diff", "resolve") + (("compose",) if net else ())}
+        self.events: list[tuple[str, cl.Event]] = []
+        self.wall: dict[str, float] = {}
+
+    # -- one frame ------------------------------------------------------------
+    def run(self, color, depth, motion, reactive, jitter, reset, *, depth_inverted=True,
+            motion_scale=(1.0, 1.0), exposure=1.0, out=None):
+        """Enqueue one frame (device arrays in image layout, float32). Returns the event
+        of the flags read-back; the caller waits on it and calls `accepted()`."""
+        dev, q = self.dev, self.dev.queue
+        h, w, H, W = self.h, self.w, self.H, self.W
+        i32, f = np.int32, np.float32
+        out = self.out if out is None else out
+        hist, hist_out = self.history[self.cur], self.history[1 - self.cur]
+        ev = []
+        ev.append(("prepare", cl.enqueue_fill_buffer(q, self.recon.data, np.uint32(0), 0,
+                                                     self.recon.nbytes)))
+        ev.append(("prepare", cl.enqueue_fill_buffer(q, self.flags.data, np.uint32(0), 0,
+                                                     self.flags.nbytes)))
+        pq_scale = self.nits / PQ_PEAK_NITS
+        has_r = reactive is not None
+        ev.append(("prepare", dev.launch(self.k["prepare"], (w, h), (
+            color.data, depth.data, motion.data, (reactive if has_r else depth).data, i32(has_r),
+            i32(w), i32(h), i32(bool(depth_inverted)), f(motion_scale[0]), f(motion_scale[1]),
+            f(1.0 / exposure), f(pq_scale), self.recon.data, self.X.data, self.lr.data,
+            self.flags.data))))
+        flag_ev = cl.enqueue_copy(q, self.flags_host, self.flags.data, is_blocking=False)
+        ev.append(("depth_diff", dev.launch(self.k["depth_diff"], (w, h),
+                                            (self.recon.data, self.lr.data, i32(w), i32(h)))))
+        common = (self.X.data, self.lr.data, self.bx.data, self.by.data, f(jitter[0]),
+                  f(jitter[1]), i32(w), i32(h), i32(W), i32(H), f(W / w), f(H / h),
+                  i32(bool(reset)), hist.data)
+        inv_pq, expo = f(PQ_PEAK_NITS / self.nits), f(exposure)
+        if self.mode == "rule":
+            ev.append(("resolve", dev.launch(self.k["resolve"], (W, H), common + (
+                hist_out.data, out.data, self.flags.data, f(self.depth_threshold), f(self.cap),
+                inv_pq, expo, i32(self.debug), self.dbg.data))))
+        else:
+            ev.append(("resolve", dev.launch(self.k["resolve"], (self.W16, self.H16), common + (
+                self.cls_in.data, self.aux.data, self.flags.data, i32(self.W16), i32(self.H16)))))
+            if self.profile:
+                q.finish()
+                t0 = time.perf_counter()
+            logits = self.classifier(self.cls_in)
+            if self.profile:
+                q.finish()
+                self.wall["classifier"] = self.wall.get("classifier", 0.0) + (
+                    time.perf_counter() - t0) * 1e3
+            want = (1, 6, self.H16 // 2, self.W16 // 2)
+            if tuple(logits.shape) != want:
+                raise RuntimeError(f"classifier: expected logits of shape {want}, got "
+                                   f"{tuple(logits.shape)}")
+            ev.append(("compose", dev.launch(self.k["compose"], (W, H), (
+                self.cls_in.data, self.aux.data, logits.data, i32(W), i32(H), i32(self.W16),
+                i32(self.H16), *(a.data for a in self.mlp), hist.data, hist_out.data, out.data,
+                self.flags.data, f(self.cap), inv_pq, expo, i32(self.debug), self.dbg.data))))
+        if self.profile:
+            self.events.extend(ev)
+        self._last_out = out
+        return flag_ev
+
+    def verdict(self) -> tuple[list[tuple[str, str]], dict]:
+        """After the flags event: (refusals [(input, what)], sanitised {input: count})."""
+        bits = int(self.flags_host[0])
+        refuse_mask = 48 if self.sanitize else 63
+        refused = [FLAG_BITS[b] for b in sorted(FLAG_BITS) if bits & b & refuse_mask]
+        sanitized = {}
+        if self.sanitize:
+            for b, (name, _) in FLAG_BITS.items():
+                if b & NONFINITE_BITS and bits & b:
+                    sanitized[name] = int(self.flags_host[1 + {1: 0, 2: 1, 4: 2, 8: 3}[b]])
+        return refused, sanitized
+
+    def accept(self):
+        """The frame was accepted: the new history becomes the state."""
+        self.cur = 1 - self.cur
+
+    @property
+    def state(self) -> cla.Array:
+        return self.history[self.cur]
+
+    # -- timings ----------------------------------------------------------------
+    def stage_ms(self) -> dict[str, float]:
+        """Milliseconds per stage summed since the last call (OpenCL event times; the
+        classifier's wall time between two queue.finish())."""
+        tot = {}
+        for name, e in self.events:
+            e.wait()
+            tot[name] = tot.get(name, 0.0) + (e.profile.end - e.profile.start) * 1e-6
+        for name, v in self.wall.items():
+            tot[name] = tot.get(name, 0.0) + v
+        self.events.clear()
+        self.wall = {}
+        return {s: tot[s] for s in STAGES if s in tot}
+
+    def device_bytes(self) -> int:
+        arrays = [self.in_color, self.in_depth, self.in_motion, self.in_reactive, self.recon,
+                  self.X, self.lr, self.flags, self.out, self.dbg, self.bx, self.by, *self.history]
+        if self.mode == "net":
+            arrays += [self.cls_in, self.aux, *self.mlp]
+        return int(sum(a.nbytes for a in arrays))

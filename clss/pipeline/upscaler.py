@@ -1,0 +1,360 @@
+"""clss.Upscaler: CLSS temporal supersampling on an OpenCL device, frame by frame.
+
+    up = clss.Upscaler(scale=2.0, mode="net")          # or mode="rules"
+    for f in frames:
+        out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)   # H x W x 3
+
+Inputs follow the frame contract (contract.py, shared/design/clss-frame.md): colour
+h x w x 3 linear, depth h x w (reversed-Z by default), motion h x w x 2 in render pixels
+(prev = p + motion * motion_scale), jitter (jx, jy) in render pixels. The output is
+H x W x 3 float32 linear (H = round(h * scale)).
+
+Non-finite inputs: refused by default (FrameInputError naming the input, the count and
+the first bad pixel), and a refused frame leaves the state exactly as it was, a pending
+reset included; `sanitize=True` replaces them instead (colour 0, depth far, motion 0,
+reactive 0) and `last_report` says how many. The render size is fixed by the first
+frame; a frame of another size is accepted only with reset=True (a camera cut).
+
+`step_device` is the same step on pyopencl arrays (float32, image layout), so that an
+application that renders with OpenCL never copies through the host; every buffer, the
+16-channel history and the depth reconstruction stay on the device between frames.
+"""
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import onnx
+import pyopencl.array as cla
+
+from ..device import Device, get_device
+from .contract import (PQ_NITS, FrameInputError, check_exposure, check_motion_scale,
+                       output_size, validate_frame)
+from .frame import STAGES, FrameStep, pad16
+from .oracle import DEPTH_THRESHOLD, HISTORY_CHANNELS
+
+MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
+
+
+def load_networks(weights=None):
+    """(classifier, composition, trained) from `weights`:
+
+    None: the seeded weights_tools networks (untrained, trained = False);
+    a directory: classifier.onnx and composition.onnx if present (else the default
+      architectures), then weights.safetensors (or the only *.safetensors) applied;
+    a .safetensors file: applied to the default architectures (every tensor must fit).
+    """
+    from weights_tools.networks import build_classifier, build_composition
+    from weights_tools.weights import apply_weights, load_weights
+    if weights is None:
+        return build_classifier(), build_composition(), False
+    path = os.fspath(weights)
+    if os.path.isdir(path):
+        def net(name, build):
+            p = os.path.join(path, name)
+            return onnx.load(p) if os.path.isfile(p) else build()
+        cls = net("classifier.onnx", build_classifier)
+        comp = net("composition.onnx", build_composition)
+        st = os.path.join(path, "weights.safetensors")
+        if not os.path.isfile(st):
+            found = sorted(f for f in os.listdir(path) if f.endswith(".safetensors"))
+            st = os.path.join(path, found[0]) if len(found) == 1 else None
+        if st is None and not os.path.isfile(os.path.join(path, "classifier.onnx")):
+            raise ValueError(f"weights: {path} holds neither classifier.onnx nor a .safetensors "
+                             "file (write one with `python -m weights_tools build --out DIR`)")
+        if st is not None:
+            t = load_weights(st)
+            apply_weights(cls, t)
+            apply_weights(comp, t)
+        return cls, comp, True
+    if os.path.isfile(path) and path.endswith(".safetensors"):
+        t = load_weights(path)
+        cls, comp = build_classifier(), build_composition()
+        n = len(apply_weights(cls, t)) + len(apply_weights(comp, t))
+        if n == 0:
+            raise ValueError(f"weights: {path} has no tensor named like the networks' "
+                             "(cls.* / comp.*; see weights_tools.weights)")
+        return cls, comp, True
+    raise ValueError(f"weights: expected a directory or a .safetensors file, got {path!r}"
+                     + ("" if os.path.exists(path) else " (does not exist)"))
+
+
+def _check_classifier_size(model, H16, W16):
+    dims = model.graph.input[0].type.tensor_type.shape.dim
+    got = [d.dim_value if d.HasField("dim_value") else None for d in dims]
+    if len(got) == 4:
+        if got[1] not in (None, 23):
+            raise ValueError(f"classifier: expected 23 input channels, got {got[1]}")
+        for g, want, axis in zip(got[2:], (H16, W16), "HW"):
+            if g is not None and g != want:
+                raise ValueError(f"classifier: built for a fixed {axis} = {g}, this frame size "
+                                 f"needs {want} (output padded to 16); build it with symbolic "
+                                 "sizes (weights_tools build without --height/--width)")
+
+
+class Upscaler:
+    """CLSS temporal supersampling (see the module doc).
+
+    scale: output / render size (>= 1; 1.5, 2, 3, 4 ...). mode: "net" (classifier +
+    composition networks) or "rules" (depth test, neighbourhood clamp, 1/(1+n) blend).
+    weights: None (seeded, untrained networks), a directory or a .safetensors file (see
+    `load_networks`). device: a clss Device or a spec for clss.get_device. precision:
+    "fp32" or "fp16" (half storage of the history and network tensors). depth_inverted:
+    reversed-Z input (near = 1). motion_scale: converts motion to render pixels. hdr:
+    PQ-encoded internal colour (False: LDR in [0, 1] in and out). cap: sample-counter
+    cap (default 4 for rules, 32 for net).
+    Keyword-only: exposure (colour is divided by it on entry, multiplied on exit),
+    nits (linear 1.0 in cd/m2 for PQ), depth_threshold (rules), sanitize, classifier /
+    composition (onnx.ModelProto, instead of weights), profile (per-stage times),
+    debug (keep blend weight, ghost and depth difference for `debug_views`),
+    classifier_backend (None: clss.Model, else onnxruntime with a warning;
+    "clss" or "onnxruntime" to force one).
+    """
+
+    def __init__(self, scale=2.0, mode="net", weights=None, device=None, precision="fp32",
+                 depth_inverted=True, motion_scale=(1, 1), hdr=True, cap=None, *,
+                 exposure=1.0, nits=PQ_NITS, depth_threshold=DEPTH_THRESHOLD, sanitize=False,
+                 classifier=None, composition=None, profile=False, debug=False,
+                 classifier_backend=None):
+        if mode not in MODE_NAMES:
+            raise ValueError(f"mode: expected 'net' or 'rules', got {mode!r}")
+        self.mode = MODE_NAMES[mode]
+        try:
+            s = float(scale)
+        except (TypeError, ValueError):
+            raise ValueError(f"scale: expected a number >= 1, got {scale!r}") from None
+        if not math.isfinite(s) or s < 1.0 or s > 16.0:
+            raise ValueError(f"scale: expected a number in [1, 16], got {scale!r}")
+        self.scale = s
+        self.dev: Device = get_device(device)
+        if precision not in ("fp32", "fp16", "fp16-native"):
+            raise ValueError(f"precision: expected 'fp32' or 'fp16', got {precision!r}")
+        if precision == "fp16-native":
+            # frame.cl's arithmetic is float by design (PQ, coordinates); only storage halves.
+            raise ValueError("precision: the frame kernels support 'fp32' and 'fp16' "
+                             "(half storage, float arithmetic); 'fp16-native' is for clss.Model")
+        self.precision = precision
+        self.depth_inverted = bool(depth_inverted)
+        self.motion_scale = tuple(float(v) for v in check_motion_scale(motion_scale))
+        self.hdr = bool(hdr)
+        if cap is not None and not (isinstance(cap, (int, float)) and math.isfinite(cap) and cap >= 1):
+            raise ValueError(f"cap: expected a number >= 1 (samples), got {cap!r}")
+        self.cap = cap
+        self.exposure = check_exposure(exposure)
+        self.nits = float(nits)
+        if not (math.isfinite(self.nits) and self.nits > 0):
+            raise ValueError(f"nits: expected a number > 0, got {nits!r}")
+        self.depth_threshold = float(depth_threshold)
+        self.sanitize = bool(sanitize)
+        self.profile = bool(profile)
+        self.debug = bool(debug)
+        self.classifier_backend = classifier_backend
+        self.trained = None
+        self.classifier_model = self.composition_model = None
+        if self.mode == "net":
+            if (classifier is None) != (composition is None):
+                raise ValueError("give both classifier and composition, or neither")
+            if classifier is not None:
+                if weights is not None:
+                    raise ValueError("give weights or classifier/composition, not both")
+                self.classifier_model, self.composition_model = classifier, composition
+                self.trained = True
+            else:
+                self.classifier_model, self.composition_model, self.trained = load_networks(weights)
+        self._fs: FrameStep | None = None
+        self._pending_reset = True
+        self.frame_index = 0
+        self.last_report: dict = {}
+        self._totals: dict[str, float] = {}
+        self._timed_frames = 0
+
+    # -- sizes and state ----------------------------------------------------------
+    @property
+    def render_size(self):
+        return None if self._fs is None else (self._fs.h, self._fs.w)
+
+    @property
+    def output_size(self):
+        return None if self._fs is None else (self._fs.H, self._fs.W)
+
+    @property
+    def classifier_backend_name(self):
+        if self.mode != "net":
+            return None
+        return None if self._fs is None else self._fs.classifier.backend
+
+    def reset(self):
+        """The next frame starts afresh (a camera cut)."""
+        self._pending_reset = True
+
+    @property
+    def state(self) -> dict:
+        """{"history": [1,16,H,W] float32} (a host copy), or {"history": None} before the
+        first frame."""
+        if self._fs is None:
+            return {"history": None}
+        hist = self.dev.to_host(self._fs.state).astype(np.float32)
+        return {"history": hist.reshape((1, HISTORY_CHANNELS) + self.output_size)}
+
+    def device_bytes(self) -> int:
+        """Bytes of the device buffers this upscaler holds (the classifier's own aside)."""
+        return 0 if self._fs is None else self._fs.device_bytes()
+
+    def _frame_step(self, hw, reset):
+        if self._fs is not None and (self._fs.h, self._fs.w) == tuple(hw):
+            return self._fs
+        if self._fs is not None and not reset:
+            h, w = self._fs.h, self._fs.w
+            raise FrameInputError(
+                f"color: the frame is {hw[0]}x{hw[1]} (h x w) but this sequence renders at "
+                f"{h}x{w}; a new render size needs reset=True (a camera cut)")
+        h, w = int(hw[0]), int(hw[1])
+        if h < 1 or w < 1:
+            raise FrameInputError(f"color: expected a non-empty h x w x 3 frame, got {h}x{w}")
+        H, W = output_size(h, w, self.scale)
+        if self.mode == "net":
+            _check_classifier_size(self.classifier_model, pad16(H), pad16(W))
+        if self._fs is not None:
+            self._flush_timings()
+        self._fs = None         # release the old buffers first
+        self._fs = FrameStep(self.dev, self.precision, self.mode, (h, w), self.scale,
+                             hdr=self.hdr, nits=self.nits, cap=self.cap,
+                             depth_threshold=self.depth_threshold, sanitize=self.sanitize,
+                             classifier=self.classifier_model, composition=self.composition_model,
+                             classifier_backend=self.classifier_backend, profile=self.profile)
+        self._fs.debug = self.debug
+        self._pending_reset = True
+        return self._fs
+
+    # -- the host path ----------------------------------------------------------------
+    def step(self, color, depth, motion, jitter, reset=False, reactive=None) -> np.ndarray:
+        """One frame from host arrays; returns the H x W x 3 float32 linear output."""
+        hw = color.shape[:2] if isinstance(color, np.ndarray) and color.ndim == 3 else None
+        if hw is not None and self._fs is not None and not reset:
+            self._frame_step(hw, reset)         # a size change without reset: a clear error
+        frame = validate_frame(color, depth, motion, jitter, reactive,
+                               render_size=None if reset or self._fs is None else self.render_size,
+                               sanitize=self.sanitize, depth_inverted=self.depth_inverted)
+        fs = self._frame_step(frame["depth"].shape, reset)
+        fs.in_color.set(frame["color"])
+        fs.in_depth.set(frame["depth"])
+        fs.in_motion.set(frame["motion"])
+        reactive = None
+        if frame["reactive"] is not None:
+            fs.in_reactive.set(frame["reactive"])
+            reactive = fs.in_reactive
+        self._run(fs, fs.in_color, fs.in_depth, fs.in_motion, reactive, frame["jitter"], reset,
+                  None)
+        self.last_report = frame["sanitized"]
+        return fs.out.get()
+
+    # -- the device path -----------------------------------------------------------------
+    def step_device(self, color, depth, motion, jitter, reset=False, reactive=None, out=None):
+        """One frame from pyopencl arrays in image layout (float32; float16 is converted,
+        which allocates): color h x w x 3, depth h x w, motion h x w x 2, reactive h x w.
+        Returns the H x W x 3 float32 output on the device: `out` if given, else an
+        internal buffer that the next step overwrites."""
+        for name, a in (("color", color), ("depth", depth), ("motion", motion),
+                        ("reactive", reactive), ("out", out)):
+            if a is not None and not isinstance(a, cla.Array):
+                raise FrameInputError(f"{name}: expected a pyopencl.array.Array, got "
+                                      f"{type(a).__name__} (use step() for numpy arrays)")
+        if color.ndim != 3 or color.shape[2] != 3:
+            raise FrameInputError(f"color: expected shape (h, w, 3), got {color.shape}")
+        hw = color.shape[:2]
+        fs = self._frame_step(hw, reset)
+
+        def as_f32(name, a, tail):
+            want = tuple(hw) + tail
+            if a.shape != want and not (not tail and a.shape == want + (1,)):
+                raise FrameInputError(f"{name}: expected shape {want}, got {a.shape}")
+            if a.dtype == np.float16:
+                a = a.astype(np.float32)
+            elif a.dtype != np.float32:
+                raise FrameInputError(f"{name}: expected dtype float32 or float16, got {a.dtype}")
+            if not a.flags.c_contiguous or a.offset:
+                raise FrameInputError(f"{name}: expected a contiguous array at offset 0")
+            return a
+
+        color = as_f32("color", color, (3,))
+        depth = as_f32("depth", depth, ())
+        motion = as_f32("motion", motion, (2,))
+        if reactive is not None:
+            reactive = as_f32("reactive", reactive, ())
+        if out is not None and (out.shape != (fs.H, fs.W, 3) or out.dtype != np.float32):
+            raise FrameInputError(f"out: expected a float32 array of shape {(fs.H, fs.W, 3)}, got "
+                                  f"{out.dtype} {out.shape}")
+        j = _check_jitter(jitter)
+        self._run(fs, color, depth, motion, reactive, j, reset, out, device_inputs=True)
+        return out if out is not None else fs.out
+
+    # -- shared --------------------------------------------------------------------------
+    def _run(self, fs, color, depth, motion, reactive, jitter, reset, out, device_inputs=False):
+        use_reset = bool(reset) or self._pending_reset
+        ev = fs.run(color, depth, motion, reactive, jitter,
+                    use_reset, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
+                    exposure=self.exposure, out=out)
+        ev.wait()
+        refused, sanitized = fs.verdict()
+        if refused:
+            # The kernels already copied the history through; explain with the host check.
+            if device_inputs:
+                validate_frame(color.get(), depth.get(), motion.get(), jitter,
+                               None if reactive is None else reactive.get(),
+                               render_size=(fs.h, fs.w), sanitize=self.sanitize,
+                               depth_inverted=self.depth_inverted)
+            what = "; ".join(f"{n}: {w} values" for n, w in refused)
+            raise FrameInputError(f"frame refused ({what}); the history is unchanged")
+        fs.accept()
+        self._pending_reset = False
+        self.frame_index += 1
+        if device_inputs:
+            self.last_report = sanitized
+        if self.profile:
+            self._timed_frames += 1
+
+    # -- timings and debug views ---------------------------------------------------------
+    def _flush_timings(self):
+        if self._fs is not None and self.profile:
+            for k, v in self._fs.stage_ms().items():
+                self._totals[k] = self._totals.get(k, 0.0) + v
+
+    def stage_ms(self) -> dict[str, float]:
+        """Mean milliseconds per frame of each stage since construction (needs
+        profile=True): OpenCL event times, the classifier's wall time."""
+        if not self.profile:
+            raise RuntimeError("stage_ms needs Upscaler(..., profile=True)")
+        self._flush_timings()
+        n = max(self._timed_frames, 1)
+        return {k: self._totals[k] / n for k in STAGES if k in self._totals}
+
+    def debug_views(self) -> dict[str, np.ndarray]:
+        """Host copies from the last frame (needs debug=True): "blend_weight",
+        "ghost" (1 = history rejected), "depth_difference" (output res), "counter",
+        and in mode net "ghost_class" (0 visibility, 1 shading, 2 none) and
+        "alias_class" (0 geometry, 1 texture, 2 none), H x W each."""
+        if not self.debug:
+            raise RuntimeError("debug_views needs Upscaler(..., debug=True)")
+        if self._fs is None:
+            return {}
+        d = self._fs.dbg.get()
+        hist = self.state["history"][0]
+        views = {"blend_weight": d[0], "ghost": d[1], "depth_difference": d[2],
+                 "counter": hist[3]}
+        if self.mode == "net":
+            views["ghost_class"] = np.argmax(hist[10:13], 0).astype(np.float32)
+            views["alias_class"] = np.argmax(hist[13:16], 0).astype(np.float32)
+        return views
+
+
+def _check_jitter(jitter) -> np.ndarray:
+    try:
+        j = np.asarray(jitter, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise FrameInputError(f"jitter: expected 2 floats (jx, jy) in render pixels, got "
+                              f"{jitter!r}") from None
+    if j.shape != (2,) or not np.all(np.isfinite(j)) or np.any(np.abs(j) > 0.5):
+        raise FrameInputError(f"jitter: expected 2 finite floats in [-0.5, 0.5] render pixels, "
+                              f"got {j.tolist()}")
+    return j.astype(np.float32)

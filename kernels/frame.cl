@@ -1,0 +1,604 @@
+/* The CLSS frame step, fused (clss/pipeline/reference.md gives every formula; the
+ * section numbers below are its sections).
+ *
+ *   prepare      render res   entry conversions, validity flags, transfer function,
+ *                             dilation (s2), scatter of the previous depth (s3),
+ *                             rule mode: 3x3 colour box
+ *   depth_diff   render res   bilinear of the reconstructed depth -> dd (s4)
+ *   resolve      output res   jitter-aware upsampling (s5), the 16-channel history warp
+ *                             (s6); rule mode: ghost test, aux update, clamp and blend
+ *                             (s8, s9) in the same pass; net mode: the classifier input,
+ *                             padded to multiples of 16 by edge replication (s7)
+ *   compose      output res   net mode: logits x2 (s7), aux update (s8), composition
+ *                             MLP and blend (s9)
+ *
+ * Build options:
+ *   -DCLSS_FP16=1   half storage for the encoded colour, history, classifier input,
+ *                   aux and logits (common.h); coordinates, depth and the render-res
+ *                   stack stay float (they are positions and depth tests)
+ *   -DHDR=0|1       PQ transfer (1) or clamp to [0, 1] (LDR in, LDR out)
+ *   -DNET=0|1       resolve: rule mode (0) or classifier input (1)
+ *   -DSANITIZE=0|1  replace non-finite inputs instead of refusing the frame
+ *   -DHIDDEN=n      compose: hidden width of the composition MLP
+ *
+ * Buffers: inputs in image layout (colour h x w x 3, motion h x w x 2 interleaved,
+ * depth and reactive h x w), float. Planes ("NCHW") everywhere else. The output is
+ * h x w x 3 interleaved float, linear, as the caller wants it.
+ *
+ * Debug views (debug != 0): dbg gets 3 output-res planes: blend weight, ghost (history
+ * rejected), depth difference.
+ *
+ * Refused frames: `prepare` ORs what it finds into flags[0]; every later kernel reads
+ * it and, if the frame is refused, copies the history through unchanged, so one bad
+ * frame can never reach the state even though the host learns of it asynchronously.
+ *
+ * Every multiply-add is written in the oracle's (onnxruntime's) evaluation order and
+ * FP_CONTRACT is off, so that fp32 matches the oracle to rounding and the exact
+ * stages (dilation, scatter, validity, tap indices) match bit for bit.
+ */
+#include "common.h"
+#pragma OPENCL FP_CONTRACT OFF
+
+#ifndef HDR
+#define HDR 1
+#endif
+#ifndef NET
+#define NET 0
+#endif
+#ifndef SANITIZE
+#define SANITIZE 0
+#endif
+#ifndef HIDDEN
+#define HIDDEN 32
+#endif
+
+/* flags[0]: what was found (bits); flags[1..4]: non-finite element counts */
+#define F_COLOR_NONFINITE 1u
+#define F_DEPTH_NONFINITE 2u
+#define F_MOTION_NONFINITE 4u
+#define F_REACTIVE_NONFINITE 8u
+#define F_DEPTH_RANGE 16u
+#define F_REACTIVE_RANGE 32u
+#if SANITIZE
+#define F_REFUSE (F_DEPTH_RANGE | F_REACTIVE_RANGE)
+#else
+#define F_REFUSE 63u
+#endif
+
+/* render-res stack channels (the oracle's `aux` concat order) */
+#define L_DEPTH 0
+#define L_MX 1
+#define L_MY 2
+#define L_DD 3
+#define L_REACTIVE 4
+#define L_NMIN 5
+#define L_NMAX 8
+#define L_CHANNELS 11
+
+#define HIST 16
+#define CLS_IN 23
+
+/* SMPTE ST 2084 */
+#define PQ_M1 0.1593017578125f
+#define PQ_M2 78.84375f
+#define PQ_C1 0.8359375f
+#define PQ_C2 18.8515625f
+#define PQ_C3 18.6875f
+
+inline float encode(float x, float pq_scale)
+{
+#if HDR
+    const float y = clamp(x * pq_scale, 0.0f, 1.0f);
+    const float ym = pow(y, PQ_M1);
+    return pow((PQ_C1 + PQ_C2 * ym) / (1.0f + PQ_C3 * ym), PQ_M2);
+#else
+    return clamp(x, 0.0f, 1.0f);
+#endif
+}
+
+/* inv_pq_scale = 10000 / nits; the encoded value is clamped to [0, 1] first. */
+inline float decode(float e, float inv_pq_scale)
+{
+#if HDR
+    const float ep = pow(clamp(e, 0.0f, 1.0f), 1.0f / PQ_M2);
+    const float y = pow(fmax(ep - PQ_C1, 0.0f) / (PQ_C2 - PQ_C3 * ep), 1.0f / PQ_M1);
+    return y * inv_pq_scale;
+#else
+    return e;
+#endif
+}
+
+/* Entry conversions (reference.md s1), applied on every load so that neighbours read
+ * the same values as the centre. A non-finite value is either flagged (and the frame
+ * refused) or, with SANITIZE, replaced: colour 0, depth far, motion 0. */
+inline float ld_depth(__global const float *depth, int i, int inverted)
+{
+    float d = depth[i];
+#if SANITIZE
+    if (!isfinite(d)) return 0.0f;
+#endif
+    return inverted ? d : 1.0f - d;
+}
+
+inline float2 ld_motion(__global const float *motion, int i, float2 ms)
+{
+    float2 m = vload2(i, motion);
+#if SANITIZE
+    m = select(m, (float2)(0.0f), isfinite(m) == (int2)(0));
+#endif
+    return (ms.x == 1.0f && ms.y == 1.0f) ? m : m * ms;
+}
+
+inline float3 ld_color(__global const float *color, int i, float inv_exposure)
+{
+    float3 c = vload3(i, color);
+#if SANITIZE
+    c = select(c, (float3)(0.0f), isfinite(c) == (int3)(0));
+#endif
+    return inv_exposure == 1.0f ? c : c * inv_exposure;
+}
+
+/* Keys cubic weights (a = -0.75) for the taps at -1, 0, 1, 2 around fraction t, in
+ * onnxruntime's GsGetCubicCoeffs form. */
+inline float4 cubic_weights(float t)
+{
+    const float a = -0.75f;
+    const float x = fabs(t);
+    return (float4)(((a * (x + 1.0f) - 5.0f * a) * (x + 1.0f) + 8.0f * a) * (x + 1.0f) - 4.0f * a,
+                    ((a + 2.0f) * x - (a + 3.0f)) * x * x + 1.0f,
+                    ((a + 2.0f) * (1.0f - x) - (a + 3.0f)) * (1.0f - x) * (1.0f - x) + 1.0f,
+                    ((a * (2.0f - x) - 5.0f * a) * (2.0f - x) + 8.0f * a) * (2.0f - x) - 4.0f * a);
+}
+
+/* The oracle feeds GridSample the normalised coordinate (2u + 1) / n - 1, which
+ * onnxruntime maps back with ((g + 1) n - 1) / 2; doing the same round trip here puts
+ * every tap exactly where the oracle's is (the two can differ by an ulp of u). */
+inline float grid_round_trip(float u, int n)
+{
+    const float fn = (float)n;
+    const float g = (u * 2.0f + 1.0f) / fn - 1.0f;
+    return ((g + 1.0f) * fn - 1.0f) / 2.0f;
+}
+
+/* Taps and weights of one position, shared by every channel sampled there
+ * (border padding: taps clamp to the edge). */
+typedef struct {
+    int4 cx, ry;        /* bicubic columns and row offsets (row * width) */
+    float4 wx, wy;
+} Cubic;
+
+typedef struct {
+    int x1, x2, y1, y2; /* bilinear columns and row offsets */
+    float dx1, dx2, dy1, dy2;
+} Linear;
+
+inline int edge(float t, int n)
+{
+    return (int)fmin(fmax(t, 0.0f), (float)(n - 1));
+}
+
+inline Cubic cubic_at(float u, float v, int n, int m)
+{
+    Cubic c;
+    const float fx = floor(u), fy = floor(v);
+    c.cx = (int4)(edge(fx - 1.0f, n), edge(fx, n), edge(fx + 1.0f, n), edge(fx + 2.0f, n));
+    c.ry = (int4)(edge(fy - 1.0f, m), edge(fy, m), edge(fy + 1.0f, m), edge(fy + 2.0f, m)) * n;
+    c.wx = cubic_weights(u - fx);
+    c.wy = cubic_weights(v - fy);
+    return c;
+}
+
+inline Linear linear_at(float u, float v, int n, int m)
+{
+    Linear l;
+    const float fx = floor(u), fy = floor(v);
+    l.x1 = edge(fx, n);
+    l.x2 = edge(fx + 1.0f, n);
+    l.y1 = edge(fy, m) * n;
+    l.y2 = edge(fy + 1.0f, m) * n;
+    /* onnxruntime's weights: dx1 = x - x1, dx2 = x2 - x */
+    l.dx1 = u - fx;
+    l.dx2 = (fx + 1.0f) - u;
+    l.dy1 = v - fy;
+    l.dy2 = (fy + 1.0f) - v;
+    return l;
+}
+
+inline float cubic_T(__global const T *p, Cubic c)
+{
+#define ROW(k) (c.wx.s0 * LD(p, c.ry.s##k + c.cx.s0) + c.wx.s1 * LD(p, c.ry.s##k + c.cx.s1) + \
+                c.wx.s2 * LD(p, c.ry.s##k + c.cx.s2) + c.wx.s3 * LD(p, c.ry.s##k + c.cx.s3))
+    return c.wy.s0 * ROW(0) + c.wy.s1 * ROW(1) + c.wy.s2 * ROW(2) + c.wy.s3 * ROW(3);
+#undef ROW
+}
+
+inline float linear_T(__global const T *p, Linear l)
+{
+    return l.dy2 * (l.dx2 * LD(p, l.y1 + l.x1) + l.dx1 * LD(p, l.y1 + l.x2)) +
+           l.dy1 * (l.dx2 * LD(p, l.y2 + l.x1) + l.dx1 * LD(p, l.y2 + l.x2));
+}
+
+inline float linear_f(__global const float *p, Linear l)
+{
+    return l.dy2 * (l.dx2 * p[l.y1 + l.x1] + l.dx1 * p[l.y1 + l.x2]) +
+           l.dy1 * (l.dx2 * p[l.y2 + l.x1] + l.dx1 * p[l.y2 + l.x2]);
+}
+
+/* The 4 bilinear taps of p + motion for the depth reconstruction (reference.md s3):
+ * tap k = (a, b) in order (0,0) (1,0) (0,1) (1,1). */
+#define SCATTER_TAPS(j, i, m)                                             \
+    const float ux = (float)(j) + (m).x, uy = (float)(i) + (m).y;         \
+    const float x0 = floor(ux), y0 = floor(uy);                           \
+    const float fx = ux - x0, fy = uy - y0;                               \
+    const float wxs[2] = {1.0f - fx, fx}, wys[2] = {1.0f - fy, fy};
+
+/* Stage 1 (dilate) + stage 2 (scatter), rule mode's colour box, the encoded colour and
+ * the input checks, in one pass over the render-res inputs.
+ * recon: h*w uint, cleared to 0 (far) before this kernel; X: 3 planes T; lr: stack. */
+__kernel void prepare(__global const float *color, __global const float *depth,
+                      __global const float *motion, __global const float *reactive,
+                      int has_reactive, int w, int h, int depth_inverted, float msx, float msy,
+                      float inv_exposure, float pq_scale,
+                      __global uint *recon, __global T *X, __global float *lr,
+                      __global uint *flags)
+{
+    const int j = get_global_id(0), i = get_global_id(1);
+    if (j >= w || i >= h) return;
+    const int p = i * w + j, hw = w * h;
+    const float2 ms = (float2)(msx, msy);
+
+    /* input checks on this pixel's own values */
+    uint bad = 0;
+    const float3 c_raw = vload3(p, color);
+    const float d_raw = depth[p];
+    const float2 m_raw = vload2(p, motion);
+    if (any(isfinite(c_raw) == (int3)(0))) bad |= F_COLOR_NONFINITE;
+    if (!isfinite(d_raw)) bad |= F_DEPTH_NONFINITE;
+    else if (!(d_raw >= 0.0f && d_raw <= 1.0f)) bad |= F_DEPTH_RANGE;
+    if (any(isfinite(m_raw) == (int2)(0))) bad |= F_MOTION_NONFINITE;
+    float r = 0.0f;
+    if (has_reactive) {
+        r = reactive[p];
+        if (!isfinite(r)) {
+            bad |= F_REACTIVE_NONFINITE;
+#if SANITIZE
+            r = 0.0f;
+#endif
+        } else if (!(r >= 0.0f && r <= 1.0f)) {
+            bad |= F_REACTIVE_RANGE;
+        }
+    }
+    if (bad) {
+        atomic_or(flags, bad);
+        /* element counts, for the report of what SANITIZE replaced */
+        const int3 fc = isfinite(c_raw);
+        const int2 fm = isfinite(m_raw);
+        if (bad & F_COLOR_NONFINITE) atomic_add(flags + 1, (uint)((fc.x == 0) + (fc.y == 0) + (fc.z == 0)));
+        if (bad & F_DEPTH_NONFINITE) atomic_inc(flags + 2);
+        if (bad & F_MOTION_NONFINITE) atomic_add(flags + 3, (uint)((fm.x == 0) + (fm.y == 0)));
+        if (bad & F_REACTIVE_NONFINITE) atomic_inc(flags + 4);
+    }
+
+    /* s2: the first neighbour with the nearest (largest) depth, FSR2's order; the
+     * centre comes first so it wins ties. */
+    const int2 offs[9] = {(int2)(0, 0), (int2)(1, 0), (int2)(0, 1), (int2)(0, -1), (int2)(-1, 0),
+                          (int2)(-1, 1), (int2)(1, 1), (int2)(-1, -1), (int2)(1, -1)};
+    float best = ld_depth(depth, p, depth_inverted);
+    int bi = p;
+    for (int k = 1; k < 9; ++k) {
+        const int jj = j + offs[k].x, ii = i + offs[k].y;
+        if (jj < 0 || jj >= w || ii < 0 || ii >= h) continue;
+        const float d = ld_depth(depth, ii * w + jj, depth_inverted);
+        if (d > best) { best = d; bi = ii * w + jj; }
+    }
+    const float2 m = ld_motion(motion, bi, ms);
+    lr[L_DEPTH * hw + p] = best;
+    lr[L_MX * hw + p] = m.x;
+    lr[L_MY * hw + p] = m.y;
+    lr[L_REACTIVE * hw + p] = r;
+
+    /* s3: scatter-max of the dilated depth onto the previous frame's pixels. Depth is
+     * >= 0, so its float bits order like the floats; the sign bit is cleared so that
+     * -0.0 does not win over everything. */
+    {
+        SCATTER_TAPS(j, i, m)
+        const uint bits = as_uint(best) & 0x7fffffffu;
+        for (int b = 0; b < 2; ++b)
+            for (int a = 0; a < 2; ++a) {
+                const float wk = wxs[a] * wys[b];
+                const float xk = x0 + (float)a, yk = y0 + (float)b;
+                if (xk >= 0.0f && xk <= (float)(w - 1) && yk >= 0.0f && yk <= (float)(h - 1) &&
+                    wk > 0.01f)
+                    atomic_max(recon + (int)yk * w + (int)xk, bits);
+            }
+    }
+
+    /* transfer function */
+    const float3 c = ld_color(color, p, inv_exposure);
+    ST(X, p, encode(c.x, pq_scale));
+    ST(X, hw + p, encode(c.y, pq_scale));
+    ST(X, 2 * hw + p, encode(c.z, pq_scale));
+
+    /* Rule mode's clamp box: the transfer function is monotone, so the box of the
+     * encoded colours is the encoding of the box of the linear ones (2 encodes per
+     * channel instead of 9). */
+#if !NET
+    {
+        float3 lo = c, hi = c;
+        for (int dy = -1; dy <= 1; ++dy)
+            for (int dx = -1; dx <= 1; ++dx) {
+                const int jj = j + dx, ii = i + dy;
+                if (jj < 0 || jj >= w || ii < 0 || ii >= h) continue;
+                const float3 n = ld_color(color, ii * w + jj, inv_exposure);
+                lo = fmin(lo, n);
+                hi = fmax(hi, n);
+            }
+        lr[(L_NMIN + 0) * hw + p] = encode(lo.x, pq_scale);
+        lr[(L_NMIN + 1) * hw + p] = encode(lo.y, pq_scale);
+        lr[(L_NMIN + 2) * hw + p] = encode(lo.z, pq_scale);
+        lr[(L_NMAX + 0) * hw + p] = encode(hi.x, pq_scale);
+        lr[(L_NMAX + 1) * hw + p] = encode(hi.y, pq_scale);
+        lr[(L_NMAX + 2) * hw + p] = encode(hi.z, pq_scale);
+    }
+#endif
+}
+
+/* Stage 3: the reconstructed previous depth read bilinearly at p + motion (taps that
+ * were refused by the scatter are still read; off-screen taps read far). */
+__kernel void depth_diff(__global const uint *recon, __global float *lr, int w, int h)
+{
+    const int j = get_global_id(0), i = get_global_id(1);
+    if (j >= w || i >= h) return;
+    const int p = i * w + j, hw = w * h;
+    const float d = lr[L_DEPTH * hw + p];
+    const float2 m = (float2)(lr[L_MX * hw + p], lr[L_MY * hw + p]);
+    SCATTER_TAPS(j, i, m)
+    float rs = 0.0f;
+    for (int b = 0; b < 2; ++b)
+        for (int a = 0; a < 2; ++a) {
+            const float wk = wxs[a] * wys[b];
+            const float xk = x0 + (float)a, yk = y0 + (float)b;
+            const int on = xk >= 0.0f && xk <= (float)(w - 1) && yk >= 0.0f && yk <= (float)(h - 1);
+            const float rk = on ? as_float(recon[edge(yk, h) * w + edge(xk, w)]) : 0.0f;
+            rs = rs + rk * wk;
+        }
+    lr[L_DD * hw + p] = clamp((rs - d) / fmax(rs, 1e-6f), -1.0f, 1.0f);
+}
+
+/* What stage 4 and 5 give one output pixel. */
+typedef struct {
+    float up[3], col[3], mn[3], mx[3], lg[6];
+    float depth, mvx, mvy, dd, react, cnt;
+    int valid;
+#if !NET
+    float bmin[3], bmax[3];
+#endif
+} Gathered;
+
+/* Stages 4 and 5 at output pixel (I, J). bx, by: (J + 0.5) w / W - 0.5 per column and
+ * row (float64 on the host, rounded, as the oracle's constants). */
+inline Gathered gather(int I, int J, __global const T *X, __global const float *lr,
+                       __global const float *bx, __global const float *by, float jx, float jy,
+                       int w, int h, int W, int H, float sx, float sy, int reset,
+                       __global const T *hist)
+{
+    Gathered g;
+    const int hw = w * h, HW = W * H;
+    const float u = grid_round_trip(clamp(bx[J] - jx, 0.0f, (float)(w - 1)), w);
+    const float v = grid_round_trip(clamp(by[I] - jy, 0.0f, (float)(h - 1)), h);
+    const Cubic cb = cubic_at(u, v, w, h);
+    for (int c = 0; c < 3; ++c)
+        g.up[c] = clamp(cubic_T(X + c * hw, cb), 0.0f, 1.0f);
+    const Linear lb = linear_at(u, v, w, h);
+    g.depth = linear_f(lr + L_DEPTH * hw, lb);
+    g.mvx = linear_f(lr + L_MX * hw, lb) * sx;
+    g.mvy = linear_f(lr + L_MY * hw, lb) * sy;
+    g.dd = linear_f(lr + L_DD * hw, lb);
+    g.react = linear_f(lr + L_REACTIVE * hw, lb);
+#if !NET
+    for (int c = 0; c < 3; ++c) {
+        g.bmin[c] = linear_f(lr + (L_NMIN + c) * hw, lb);
+        g.bmax[c] = linear_f(lr + (L_NMAX + c) * hw, lb);
+    }
+#endif
+
+    /* s6: the history at P + motion; off-screen or reset pixels start afresh */
+    const float su = (float)J + g.mvx, sv = (float)I + g.mvy;
+    const int off = su < -0.5f || su > (float)W - 0.5f || sv < -0.5f || sv > (float)H - 0.5f;
+    g.valid = !off && !reset;
+    if (g.valid) {
+        const float uc = grid_round_trip(clamp(su, 0.0f, (float)(W - 1)), W);
+        const float vc = grid_round_trip(clamp(sv, 0.0f, (float)(H - 1)), H);
+        const Cubic ch = cubic_at(uc, vc, W, H);
+        for (int c = 0; c < 3; ++c)
+            g.col[c] = clamp(cubic_T(hist + c * HW, ch), 0.0f, 1.0f);
+        const Linear lh = linear_at(uc, vc, W, H);
+        g.cnt = linear_T(hist + 3 * HW, lh);
+        for (int c = 0; c < 3; ++c) {
+            g.mn[c] = linear_T(hist + (4 + c) * HW, lh);
+            g.mx[c] = linear_T(hist + (7 + c) * HW, lh);
+        }
+        for (int c = 0; c < 6; ++c)
+            g.lg[c] = linear_T(hist + (10 + c) * HW, lh);
+    } else {
+        for (int c = 0; c < 3; ++c)
+            g.col[c] = g.mn[c] = g.mx[c] = g.up[c];
+        g.cnt = 0.0f;
+        for (int c = 0; c < 6; ++c)
+            g.lg[c] = 0.0f;
+    }
+    return g;
+}
+
+inline void keep_history(__global const T *hist, __global T *hist_out, int q, int HW)
+{
+    __global const TB *src = (__global const TB *)hist;
+    __global TB *dst = (__global TB *)hist_out;
+    for (int c = 0; c < HIST; ++c)
+        dst[c * HW + q] = src[c * HW + q];
+}
+
+#if !NET
+/* Rule mode: stages 4-9 in one pass (reference.md s8, s9 "rule"). */
+__kernel void resolve(__global const T *X, __global const float *lr, __global const float *bx,
+                      __global const float *by, float jx, float jy, int w, int h, int W, int H,
+                      float sx, float sy, int reset, __global const T *hist,
+                      __global T *hist_out, __global float *out, __global const uint *flags,
+                      float depth_threshold, float cap, float inv_pq_scale, float exposure,
+                      int debug, __global float *dbg)
+{
+    const int J = get_global_id(0), I = get_global_id(1);
+    if (J >= W || I >= H) return;
+    const int HW = W * H, q = I * W + J;
+    if (flags[0] & F_REFUSE) {
+        keep_history(hist, hist_out, q, HW);
+        return;
+    }
+    Gathered g = gather(I, J, X, lr, bx, by, jx, jy, w, h, W, H, sx, sy, reset, hist);
+    const int ghost = g.dd > depth_threshold || !g.valid;
+    const float cnt = ghost ? 0.0f : fmin(g.cnt + 1.0f, cap);
+    const float wgt = fmax(1.0f / (1.0f + cnt), g.react);
+    for (int c = 0; c < 3; ++c) {
+        const float cmin = ghost ? g.up[c] : fmin(g.mn[c], g.up[c]);
+        const float cmax = ghost ? g.up[c] : fmax(g.mx[c], g.up[c]);
+        const float hc = fmin(fmax(g.col[c], g.bmin[c]), g.bmax[c]);
+        const float o = wgt * g.up[c] + (1.0f - wgt) * hc;
+        ST(hist_out, c * HW + q, o);
+        ST(hist_out, (4 + c) * HW + q, cmin);
+        ST(hist_out, (7 + c) * HW + q, cmax);
+        out[q * 3 + c] = decode(o, inv_pq_scale) * exposure;
+    }
+    ST(hist_out, 3 * HW + q, cnt);
+    for (int c = 0; c < 6; ++c)
+        ST(hist_out, (10 + c) * HW + q, 0.0f);
+    if (debug) {
+        dbg[q] = wgt;
+        dbg[HW + q] = (float)ghost;
+        dbg[2 * HW + q] = g.dd;
+    }
+}
+
+#else
+/* Net mode, stages 4-6: the classifier input at the padded size (W16, H16); pixels
+ * past (W, H) replicate the edge (ONNX Pad "edge"). aux (W x H, T): warped counter,
+ * valid, reactive, for `compose`. */
+__kernel void resolve(__global const T *X, __global const float *lr, __global const float *bx,
+                      __global const float *by, float jx, float jy, int w, int h, int W, int H,
+                      float sx, float sy, int reset, __global const T *hist,
+                      __global T *cls_in, __global T *aux, __global const uint *flags,
+                      int W16, int H16)
+{
+    const int J16 = get_global_id(0), I16 = get_global_id(1);
+    if (J16 >= W16 || I16 >= H16) return;
+    /* a refused frame only reaches compose's flag check; its inputs are never used */
+    if (flags[0] & F_REFUSE) return;
+    const int J = min(J16, W - 1), I = min(I16, H - 1);
+    Gathered g = gather(I, J, X, lr, bx, by, jx, jy, w, h, W, H, sx, sy, reset, hist);
+    const int P = W16 * H16, r = I16 * W16 + J16;
+    /* CLASSIFIER_INPUTS order (weights_tools.networks) */
+    for (int c = 0; c < 3; ++c) {
+        ST(cls_in, c * P + r, g.up[c]);
+        ST(cls_in, (3 + c) * P + r, g.col[c]);
+        ST(cls_in, (10 + c) * P + r, g.mn[c]);
+        ST(cls_in, (13 + c) * P + r, g.mx[c]);
+    }
+    ST(cls_in, 6 * P + r, g.depth);
+    ST(cls_in, 7 * P + r, g.mvx);
+    ST(cls_in, 8 * P + r, g.mvy);
+    ST(cls_in, 9 * P + r, 1.0f / (1.0f + g.cnt));
+    ST(cls_in, 16 * P + r, g.dd);
+    for (int c = 0; c < 6; ++c)
+        ST(cls_in, (17 + c) * P + r, g.lg[c]);
+    if (I16 == I && J16 == J) {
+        const int HW = W * H, q = I * W + J;
+        ST(aux, q, g.cnt);
+        ST(aux, HW + q, (float)g.valid);
+        ST(aux, 2 * HW + q, g.react);
+    }
+}
+
+/* Net mode, stages 6 (logits x2), 7, 8, 9 in one pass.
+ * logits: [6, H16/2, W16/2] T from the classifier; bilinear x2 (Resize linear,
+ * half_pixel) evaluated at (I, J) only, then cropped by construction.
+ * w1: [HIDDEN, 22], b1: [HIDDEN], w2: [HIDDEN], b2: [1] (the composition MLP). */
+__kernel void compose(__global const T *cls_in, __global const T *aux,
+                      __global const T *logits, int W, int H, int W16, int H16,
+                      __constant float *w1, __constant float *b1, __constant float *w2,
+                      __constant float *b2, __global const T *hist, __global T *hist_out,
+                      __global float *out, __global const uint *flags, float cap,
+                      float inv_pq_scale, float exposure, int debug, __global float *dbg)
+{
+    const int J = get_global_id(0), I = get_global_id(1);
+    if (J >= W || I >= H) return;
+    const int HW = W * H, q = I * W + J;
+    if (flags[0] & F_REFUSE) {
+        keep_history(hist, hist_out, q, HW);
+        return;
+    }
+    const int P = W16 * H16, r = I * W16 + J;
+    const int w2_ = W16 / 2, h2_ = H16 / 2, P2 = w2_ * h2_;
+
+    /* Resize linear half_pixel x2: source x = (J + 0.5) / 2 - 0.5, clamped */
+    const float lx = clamp(((float)J + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(w2_ - 1));
+    const float ly = clamp(((float)I + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(h2_ - 1));
+    const Linear ll = linear_at(lx, ly, w2_, h2_);
+    float lg[6];
+    for (int c = 0; c < 6; ++c)
+        lg[c] = linear_T(logits + c * P2, ll);
+
+    /* visibility ghosting = argmax of logits 0-2 is 0 (first index on ties) */
+    const int valid = LD(aux, HW + q) > 0.5f;
+    const int reject = lg[0] >= lg[1] && lg[0] >= lg[2];
+    const int ghost = reject || !valid;
+    const float wcnt = LD(aux, q);
+    const float cnt = ghost ? 0.0f : fmin(wcnt + 1.0f, cap);
+
+    float up[3], col[3], cmin[3], cmax[3];
+    for (int c = 0; c < 3; ++c) {
+        up[c] = LD(cls_in, c * P + r);
+        col[c] = LD(cls_in, (3 + c) * P + r);
+        const float mn = LD(cls_in, (10 + c) * P + r), mx = LD(cls_in, (13 + c) * P + r);
+        cmin[c] = ghost ? up[c] : fmin(mn, up[c]);
+        cmax[c] = ghost ? up[c] : fmax(mx, up[c]);
+    }
+
+    /* the composition MLP on COMPOSITION_INPUTS, in their order */
+    float x[22];
+    for (int c = 0; c < 3; ++c) {
+        x[c] = up[c];
+        x[3 + c] = col[c];
+        x[10 + c] = cmin[c];
+        x[13 + c] = cmax[c];
+    }
+    x[6] = LD(cls_in, 6 * P + r);
+    x[7] = LD(cls_in, 7 * P + r);
+    x[8] = LD(cls_in, 8 * P + r);
+    x[9] = 1.0f / (1.0f + cnt);
+    for (int c = 0; c < 6; ++c)
+        x[16 + c] = lg[c];
+    float z = b2[0];
+    for (int k = 0; k < HIDDEN; ++k) {
+        float a = b1[k];
+        for (int c = 0; c < 22; ++c)
+            a += w1[k * 22 + c] * x[c];
+        z += w2[k] * fmax(a, 0.0f);
+    }
+    const float wgt = fmax(1.0f / (1.0f + exp(-z)), LD(aux, 2 * HW + q));
+
+    for (int c = 0; c < 3; ++c) {
+        const float o = wgt * up[c] + (1.0f - wgt) * col[c];
+        ST(hist_out, c * HW + q, o);
+        ST(hist_out, (4 + c) * HW + q, cmin[c]);
+        ST(hist_out, (7 + c) * HW + q, cmax[c]);
+        out[q * 3 + c] = decode(o, inv_pq_scale) * exposure;
+    }
+    ST(hist_out, 3 * HW + q, cnt);
+    for (int c = 0; c < 6; ++c)
+        ST(hist_out, (10 + c) * HW + q, lg[c]);
+    if (debug) {
+        dbg[q] = wgt;
+        dbg[HW + q] = (float)ghost;
+        dbg[2 * HW + q] = LD(cls_in, 16 * P + r);
+    }
+}
+#endif
