@@ -1,0 +1,599 @@
+"""Bench cases: each kernel at the shapes the CLSS frame step uses, with its ONNX twin.
+
+A BenchCase names one workload; ``case.build(dev, prec, params)`` uploads seeded
+inputs and returns a Setup: the engine callable (enqueues on device arrays, returns
+device outputs), the twin and its feeds for onnxruntime, the tolerance for the
+one-time output check, and the compulsory bytes each side moves (inputs read once,
+outputs written once: the floor every implementation pays).
+
+Shapes come from the frame step at a render size and scale 2 (clss-frame.md):
+tier "540p" is 540x960 -> 1080x1920 (the default set), tier "1080p" is
+1080x1920 -> 2160x3840 (--full). The classifier runs on the output padded to a
+multiple of 16 (1088x1920 at 1080p), after SpaceToDepth(2) at 544x960; its conv
+layers are read from weights_tools.networks so they follow the network's widths.
+
+A family's cases appear once its module exists in clss/ops (they land one by one);
+network cases once clss/model.py exists, the frame step once clss.pipeline has an
+OpenCL Upscaler.
+"""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import onnx
+from onnx import helper
+
+from clss.device import Device, storage_dtype
+from clss.ops.base import DEFAULT_TOL, EXACT, Tolerance, rng
+from clss.ops.twin import make_model, node_model
+
+TIERS = {"540p": ((540, 960), 2.0), "1080p": ((1080, 1920), 2.0)}
+LEVEL_TIERS = {"quick": ("540p",), "default": ("540p",), "full": ("540p", "1080p")}
+# What each kind is judged against (the issue's targets) and which peak bounds it.
+KINDS = ("conv", "memory", "compute", "network", "frame")
+
+
+@dataclass
+class Setup:
+    run: Callable[[], list]          # enqueue the engine once; its device outputs
+    twin: onnx.ModelProto
+    feeds: dict                      # onnxruntime inputs (fp16-rounded in half modes)
+    tol: object                      # Tolerance or EXACT, for the output check
+    bytes: float                     # compulsory bytes the engine moves
+    ort_bytes: float                 # the same for onnxruntime (float32 tensors)
+    refs_round: bool = False         # round references to fp16 (bit-exact data movement)
+    release: Callable | None = None
+
+
+@dataclass
+class BenchCase:
+    name: str
+    family: str                      # clss/ops module (or "network", "frame")
+    kind: str                        # one of KINDS
+    tier: str
+    flops: float
+    build: Callable[[Device, str, dict], Setup]
+    quick: bool = False              # in the --quick subset
+    shape: str = ""
+    tunables: dict = field(default_factory=dict)   # param -> candidates, for clss tune
+    defaults: dict = field(default_factory=dict)   # the engine's defaults for those params
+    tune_op: str = ""                # tuning-database op name and key
+    tune_key: str = ""
+    precisions: tuple = ("fp32", "fp16", "fp16-native")
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} [{self.tier}]"
+
+
+# --- helpers ----------------------------------------------------------------------
+
+def pad16(n: int) -> int:
+    return -(-n // 16) * 16
+
+
+def _normal(key, shape, scale=1.0):
+    return (rng(*key).standard_normal(shape, dtype=np.float32) * np.float32(scale))
+
+
+def _rounded(a: np.ndarray, prec: str) -> np.ndarray:
+    if prec == "fp32" or a.dtype.kind != "f":
+        return a
+    return a.astype(np.float16).astype(np.float32)
+
+
+def _nbytes(shape, dtype) -> float:
+    return float(np.prod(shape, dtype=np.float64) * np.dtype(dtype).itemsize)
+
+
+def make_setup(dev: Device, prec: str, arrays: dict, twin_fn, engine, out_shapes, *,
+               fp32=(), exact=False, tol=None, ints=()) -> Setup:
+    """Upload `arrays` (storage precision; names in `fp32` stay float32, e.g. grids),
+    build the twin from the same values as the engine sees, and wrap
+    engine(dev_arrays) -> device output(s) as the Setup's run."""
+    host = {k: (v if k in fp32 else _rounded(v, prec)) for k, v in arrays.items()}
+    dev_arrays = {k: (dev.to_device(v, "fp32") if k in fp32 else dev.to_device(v, prec))
+                  for k, v in host.items()}
+    twin = twin_fn(host)
+    graph_inputs = {i.name for i in twin.graph.input}
+    feeds = {k: v for k, v in host.items() if k in graph_inputs}
+    inits = sum(_nbytes(t.dims, onnx.helper.tensor_dtype_to_np_dtype(t.data_type))
+                for t in twin.graph.initializer)
+    st = storage_dtype(prec)
+    out_eng = sum(_nbytes(s, st) for s in out_shapes)
+    out_ort = sum(_nbytes(s, np.float32) for s in out_shapes)
+    eng_bytes = sum(float(a.nbytes) for a in dev_arrays.values()) + out_eng
+    ort_bytes = sum(float(v.nbytes) for v in feeds.values()) + inits + out_ort
+
+    def run():
+        out = engine(dev_arrays)
+        return list(out) if isinstance(out, (list, tuple)) else [out]
+
+    if tol is None:
+        tol = EXACT if exact else DEFAULT_TOL[prec]
+    return Setup(run, twin, feeds, tol, eng_bytes, ort_bytes, refs_round=exact and prec != "fp32",
+                 release=dev_arrays.clear)
+
+
+def _shape(*dims) -> str:
+    return "x".join(str(int(d)) for d in dims)
+
+
+def _has(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ModuleNotFoundError:
+        return False
+
+
+def _family(name: str):
+    return importlib.import_module(f"clss.ops.{name}")
+
+
+# --- the classifier's layers ---------------------------------------------------------
+
+def classifier_layers(height: int, width: int) -> list[dict]:
+    """The conv layers of weights_tools' classifier for an output frame of
+    height x width (padded to 16), with their input shapes, seeded weights, and
+    the fused epilogue (ReLU, residual Add before the ReLU)."""
+    from weights_tools.networks import build_classifier
+    H, W = pad16(height), pad16(width)
+    m = build_classifier(height=H, width=W)
+    inferred = onnx.shape_inference.infer_shapes(m)
+    shapes = {v.name: tuple(d.dim_value for d in v.type.tensor_type.shape.dim)
+              for v in list(inferred.graph.value_info) + list(inferred.graph.input)}
+    inits = {t.name: onnx.numpy_helper.to_array(t) for t in m.graph.initializer}
+    consumers: dict[str, list] = {}
+    for n in m.graph.node:
+        for i in n.input:
+            consumers.setdefault(i, []).append(n)
+    layers = []
+    for n in m.graph.node:
+        if n.op_type != "Conv":
+            continue
+        a = {x.name: helper.get_attribute_value(x) for x in n.attribute}
+        w = inits[n.input[1]]
+        nxt = consumers.get(n.output[0], [])
+        act, residual = "none", False
+        if len(nxt) == 1 and nxt[0].op_type == "Relu":
+            act = "relu"
+        elif len(nxt) == 1 and nxt[0].op_type == "Add":
+            after = consumers.get(nxt[0].output[0], [])
+            residual = True
+            act = "relu" if len(after) == 1 and after[0].op_type == "Relu" else "none"
+        layers.append(dict(name=n.name, x_shape=shapes[n.input[0]], w=w, b=inits[n.input[2]],
+                           strides=tuple(a.get("strides", (1, 1))), pads=tuple(a.get("pads", (0,) * 4)),
+                           act=act, residual=residual))
+    return layers
+
+
+def _conv_out(x_shape, w, strides, pads):
+    n, _, h, wd = x_shape
+    kh, kw = w.shape[2:]
+    ho = (h + pads[0] + pads[2] - kh) // strides[0] + 1
+    wo = (wd + pads[1] + pads[3] - kw) // strides[1] + 1
+    return (n, w.shape[0], ho, wo)
+
+
+def conv_twin(x_name, w, b, strides, pads, act, residual, opset=18):
+    def fn(host):
+        nodes = [helper.make_node("Conv", [x_name, "w", "b"], ["c"], kernel_shape=list(w.shape[2:]),
+                                  strides=list(strides), pads=list(pads))]
+        y = "c"
+        if residual:
+            nodes.append(helper.make_node("Add", [y, "r"], ["s"]))
+            y = "s"
+        if act == "relu":
+            nodes.append(helper.make_node("Relu", [y], ["a"]))
+            y = "a"
+        nodes[-1].output[0] = "y0"
+        inputs = {x_name: host[x_name]} | ({"r": host["r"]} if residual else {})
+        return make_model(nodes, inputs, ["y0"], initializers={"w": host["w"], "b": host["b"]}, opset=opset)
+    return fn
+
+
+def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1", "cls.dec.fuse")):
+    (h, w), scale = TIERS[tier]
+    H, W = round(h * scale), round(w * scale)
+    conv = _family("conv")
+    out = []
+    for L in classifier_layers(H, W):
+        x_shape, wt, b = L["x_shape"], L["w"], L["b"]
+        o_shape = _conv_out(x_shape, wt, L["strides"], L["pads"])
+        cout, cin, kh, kw = wt.shape
+        flops = 2.0 * cout * cin * kh * kw * o_shape[2] * o_shape[3]
+        epi = "+".join(filter(None, ["add" if L["residual"] else "", L["act"] if L["act"] != "none" else ""]))
+        name = (f"conv {L['name']} {kh}x{kw}{'/s' + str(L['strides'][0]) if L['strides'][0] > 1 else ''} "
+                f"{cin}->{cout}{' ' + epi if epi else ''}")
+
+        def build(dev, prec, params, L=L, x_shape=x_shape, o_shape=o_shape):
+            arrays = {"x": np.maximum(_normal(("bench conv x", L["name"]), x_shape), 0),
+                      "w": L["w"], "b": L["b"]}
+            if L["residual"]:
+                arrays["r"] = _normal(("bench conv r", L["name"]), o_shape)
+
+            def engine(d):
+                # params is read on every run: the tuner changes it between candidates.
+                tuning = {k: v for k, v in params.items() if k in getattr(conv, "TUNING", {})}
+                return conv.conv2d(dev, prec, d["x"], d["w"], d["b"], strides=L["strides"], pads=L["pads"],
+                                   activation=L["act"], residual=d.get("r"),
+                                   **({"tuning": tuning} if tuning else {}))
+            # Long dot products: the reference's summation order differs (fp32: 9*C terms).
+            tol = {"fp32": Tolerance(1e-5, 1e-4), "fp16": Tolerance(2e-3, 2e-3)}.get(prec)
+            return make_setup(dev, prec, arrays, conv_twin("x", L["w"], L["b"], L["strides"], L["pads"],
+                                                            L["act"], L["residual"]),
+                              engine, [o_shape], tol=tol)
+        tunables = {"XV": (1, 2, 4), "CB": (1, 2, 4, 8)} if hasattr(conv, "TUNING") else {}
+        out.append(BenchCase(name, "conv", "conv", tier, flops, build,
+                             quick=L["name"] in quick_layers and tier == "540p",
+                             shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}",
+                             tunables=tunables, defaults=dict(getattr(conv, "TUNING", {})),
+                             tune_op="conv2d",
+                             tune_key=f"{_shape(*x_shape)}/{_shape(*wt.shape)}/s{L['strides'][0]}"))
+    return out
+
+
+# --- memory-bound families ----------------------------------------------------------
+
+def s2d_cases(tier):
+    (h, w), scale = TIERS[tier]
+    H, W = pad16(round(h * scale)), pad16(round(w * scale))
+    s2d = _family("space_to_depth")
+    x_shape, o_shape = (1, 23, H, W), (1, 92, H // 2, W // 2)
+
+    def build(dev, prec, params):
+        return make_setup(dev, prec, {"x": _normal(("bench s2d",), x_shape)},
+                          lambda host: node_model("SpaceToDepth", {"x": host["x"]}, blocksize=2),
+                          lambda d: s2d.space_to_depth(dev, prec, d["x"], 2), [o_shape], exact=True)
+    return [BenchCase("space_to_depth b2 23ch (classifier input)", "space_to_depth", "memory", tier, 0.0,
+                      build, quick=tier == "540p", shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}")]
+
+
+def _resize_flops(mode, out_elems):
+    return {"cubic": 32.0, "linear": 8.0, "nearest": 0.0}[mode] * out_elems
+
+
+def resize_cases(tier):
+    (h, w), scale = TIERS[tier]
+    H, W = round(h * scale), round(w * scale)
+    Hp, Wp = pad16(H), pad16(W)
+    rs = _family("resize")
+    specs = [  # name, input shape, scale, mode, quick
+        ("resize cubic colour", (1, 3, h, w), 2, "cubic", True),
+        ("resize linear motion+depth", (1, 3, h, w), 2, "linear", False),
+        ("resize linear logits x2", (1, 6, Hp // 2, Wp // 2), 2, "linear", False),
+        ("resize linear dec.up1 x2", (1, 32, Hp // 4, Wp // 4), 2, "linear", False),
+        ("resize linear dec.up2 x4", (1, 64, Hp // 8, Wp // 8), 4, "linear", False),
+        ("resize linear dec.up3 x8", (1, 128, Hp // 16, Wp // 16), 8, "linear", False),
+    ]
+    out = []
+    for name, x_shape, s, mode, quick in specs:
+        o_shape = x_shape[:2] + (x_shape[2] * s, x_shape[3] * s)
+        scales = np.array([1, 1, s, s], np.float32)
+
+        def build(dev, prec, params, x_shape=x_shape, o_shape=o_shape, s=s, mode=mode, scales=scales, name=name):
+            def twin(host):
+                return make_model([helper.make_node("Resize", ["x", "", "scales"], ["y0"], mode=mode,
+                                                    coordinate_transformation_mode="half_pixel",
+                                                    cubic_coeff_a=-0.75)],
+                                  {"x": host["x"]}, ["y0"], initializers={"scales": scales})
+            return make_setup(dev, prec, {"x": _normal(("bench resize", name), x_shape)}, twin,
+                              lambda d: rs.resize(dev, prec, d["x"], scales=(s, s), mode=mode,
+                                                  coord="half_pixel", cubic_a=-0.75),
+                              [o_shape])
+        out.append(BenchCase(name, "resize", "memory", tier, _resize_flops(mode, np.prod(o_shape)), build,
+                             quick=quick and tier == "540p", shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}"))
+    return out
+
+
+def smooth_motion(key, shape, amplitude=4.0):
+    """A motion field [1,2,H,W] in pixels: a smooth pan and swirl plus small noise,
+    so neighbouring pixels read neighbouring texels, as in a rendered frame."""
+    n, _, H, W = shape
+    yy, xx = np.meshgrid(np.linspace(0, 1, H, dtype=np.float32), np.linspace(0, 1, W, dtype=np.float32),
+                         indexing="ij")
+    mx = amplitude * (0.6 + 0.4 * np.sin(6.0 * yy + 2.0 * xx))
+    my = amplitude * 0.5 * np.cos(5.0 * xx - 3.0 * yy)
+    m = np.stack([mx, my])[None].astype(np.float32)
+    return m + 0.25 * rng(*key).standard_normal(m.shape, dtype=np.float32)
+
+
+def warp_cases(tier):
+    (h, w), scale = TIERS[tier]
+    H, W = round(h * scale), round(w * scale)
+    wp = _family("warp")
+    out = []
+    # Stage 5: the 16-channel history (colour bicubic, the rest bilinear) at output res,
+    # by the upsampled motion in output pixels.
+    x_shape, m_shape = (1, 16, H, W), (1, 2, H, W)
+
+    def build_hist(dev, prec, params):
+        arrays = {"x": _normal(("bench warp x",), x_shape), "motion": smooth_motion(("bench warp",), m_shape)}
+        return make_setup(dev, prec, arrays,
+                          lambda host: wp.twin_warp(host["x"], host["motion"], "bilinear", "border",
+                                                    cubic_channels=3),
+                          lambda d: wp.warp(dev, prec, d["x"], d["motion"], mode="bilinear", padding="border",
+                                            cubic_channels=3),
+                          [x_shape], tol=_warp_tol(prec, H, W))
+    out.append(BenchCase("warp history 16ch (3 bicubic + 13 bilinear)", "warp", "memory", tier,
+                         (3 * 32.0 + 13 * 8.0) * H * W, build_hist, quick=tier == "540p",
+                         shape=f"{_shape(*x_shape)}+motion"))
+
+    # Stage 4: jitter-aware bicubic upsample of the colour, as GridSample from render res.
+    c_shape = (1, 3, h, w)
+
+    def build_up(dev, prec, params):
+        gx = (2.0 * (np.arange(W) + 0.5) / W - 1.0 + 0.3 / w).astype(np.float32)
+        gy = (2.0 * (np.arange(H) + 0.5) / H - 1.0 - 0.2 / h).astype(np.float32)
+        grid = np.stack(np.broadcast_arrays(gx[None, :], gy[:, None]), -1)[None].astype(np.float32)
+        arrays = {"x": _normal(("bench gs x",), c_shape), "grid": grid}
+        return make_setup(dev, prec, arrays,
+                          lambda host: node_model("GridSample", {"x": host["x"], "grid": host["grid"]}, opset=16,
+                                                  mode="bicubic", padding_mode="border", align_corners=0),
+                          lambda d: wp.grid_sample(dev, prec, d["x"], d["grid"], "bicubic", "border", False),
+                          [(1, 3, H, W)], fp32=("grid",), tol=_warp_tol(prec, h, w))
+    out.append(BenchCase("grid_sample bicubic colour upsample", "warp", "memory", tier, 32.0 * 3 * H * W,
+                         build_up, shape=f"{_shape(*c_shape)}->{_shape(1, 3, H, W)}"))
+    return out
+
+
+def _warp_tol(prec, h, w):
+    # The twin forms normalised grids in float32; see clss/ops/warp.py.
+    if prec == "fp32":
+        return Tolerance(max(1e-5, 4e-7 * max(h, w)), 1e-4)
+    return DEFAULT_TOL[prec]
+
+
+def pool_cases(tier):
+    (h, w), _ = TIERS[tier]
+    pool = _family("pool")
+    out = []
+    for name, shape, quick in (("max_pool 3x3 depth dilation", (1, 1, h, w), True),
+                               ("max_pool 3x3 colour neighbourhood", (1, 3, h, w), False)):
+        def build(dev, prec, params, shape=shape, name=name):
+            return make_setup(dev, prec, {"x": _normal(("bench pool", name), shape)},
+                              lambda host: node_model("MaxPool", {"x": host["x"]}, kernel_shape=[3, 3],
+                                                      pads=[1, 1, 1, 1], strides=[1, 1]),
+                              lambda d: pool.max_pool(dev, prec, d["x"], (3, 3), (1, 1), (1, 1, 1, 1)),
+                              [shape], exact=True)
+        out.append(BenchCase(name, "pool", "memory", tier, 8.0 * np.prod(shape), build,
+                             quick=quick and tier == "540p", shape=_shape(*shape)))
+    return out
+
+
+# --- families reached through their ONNX handlers ------------------------------------
+
+def run_nodes(dev, prec, model: onnx.ModelProto, values: dict, consts: dict):
+    """Run a small graph node by node through the registered ONNX handlers:
+    a minimal executor for bench twins (clss.Model does this with fusion and
+    memory planning)."""
+    from clss.ops import ONNX_HANDLERS
+    from clss.ops.base import node_attrs
+    env = dict(values)
+    for node in model.graph.node:
+        h = ONNX_HANDLERS[node.op_type]
+        ins = []
+        for i, name in enumerate(node.input):
+            if not name:
+                ins.append(None)
+            elif i in h.const_inputs:
+                ins.append(consts[name] if name in consts else dev.to_host(env[name]))
+            else:
+                ins.append(env[name])
+        for name, v in zip(node.output, h.fn(dev, prec, node_attrs(node), ins)):
+            env[name] = v
+    return [env[o.name] for o in model.graph.output]
+
+
+def graph_case(name, family, kind, tier, flops, twin_fn, arrays_fn, out_shapes, *, quick=False,
+               shape="", exact=False, const_names=()):
+    """A case whose engine runs the twin's nodes through the ONNX handlers.
+    `const_names`: initializers handed to handlers as numpy (shape-like inputs)."""
+    def build(dev, prec, params):
+        arrays = arrays_fn()
+        holder = {}
+
+        def twin(host):
+            holder["m"] = twin_fn(host)
+            return holder["m"]
+
+        def engine(d):
+            m = holder["m"]
+            inits = {t.name: onnx.numpy_helper.to_array(t) for t in m.graph.initializer}
+            dev_inits = holder.setdefault("dev_inits", {k: dev.to_device(v, prec) if v.dtype.kind == "f"
+                                                        else dev.to_device(v) for k, v in inits.items()
+                                                        if k not in const_names})
+            return run_nodes(dev, prec, m, {**d, **dev_inits}, inits)
+        return make_setup(dev, prec, arrays, twin, engine, out_shapes, exact=exact)
+    return BenchCase(name, family, kind, tier, flops, build, quick=quick, shape=shape)
+
+
+def _handlers_for(model_ops) -> bool:
+    from clss.ops import ONNX_HANDLERS
+    return all(op in ONNX_HANDLERS for op in model_ops)
+
+
+def elementwise_cases(tier):
+    (h, w), scale = TIERS[tier]
+    H, W = round(h * scale), round(w * scale)
+    Hp, Wp = pad16(H), pad16(W)
+    out = []
+    if _handlers_for(["Add", "Relu"]):
+        s = (1, 16, Hp // 2, Wp // 2)
+        out.append(graph_case(
+            "add+relu residual enc0 16ch", "elementwise", "memory", tier, 2.0 * np.prod(s),
+            lambda host: make_model([helper.make_node("Add", ["a", "b"], ["t"]),
+                                     helper.make_node("Relu", ["t"], ["y0"])],
+                                    {"a": host["a"], "b": host["b"]}, ["y0"]),
+            lambda: {"a": _normal(("bench add a",), s), "b": _normal(("bench add b",), s)}, [s],
+            quick=tier == "540p", shape=_shape(*s)))
+    if _handlers_for(["Sub", "Mul", "Add"]):
+        s, ws = (1, 3, H, W), (1, 1, H, W)
+        out.append(graph_case(
+            "blend w*cur+(1-w)*hist 3ch", "elementwise", "memory", tier, 3.0 * np.prod(s),
+            lambda host: make_model([helper.make_node("Sub", ["cur", "hist"], ["d"]),
+                                     helper.make_node("Mul", ["wt", "d"], ["t"]),
+                                     helper.make_node("Add", ["hist", "t"], ["y0"])],
+                                    {"cur": host["cur"], "hist": host["hist"], "wt": host["wt"]}, ["y0"]),
+            lambda: {"cur": _normal(("bench blend c",), s), "hist": _normal(("bench blend h",), s),
+                     "wt": rng("bench blend w").uniform(0, 1, ws).astype(np.float32)}, [s],
+            shape=_shape(*s)))
+    if _handlers_for(["Concat"]):
+        parts = [("bicubic_color", 3), ("warped_color", 3), ("depth", 1), ("motion", 2), ("inv_counter", 1),
+                 ("color_min", 3), ("color_max", 3), ("depth_difference", 1), ("warped_logits", 6)]
+        s = (1, 23, H, W)
+        out.append(graph_case(
+            "concat classifier input 9->23ch", "elementwise", "memory", tier, 0.0,
+            lambda host: make_model([helper.make_node("Concat", [n for n, _ in parts], ["y0"], axis=1)],
+                                    {n: host[n] for n, _ in parts}, ["y0"]),
+            lambda: {n: _normal(("bench concat", n), (1, c, H, W)) for n, c in parts}, [s],
+            shape=_shape(*s), exact=True))
+    if _handlers_for(["Pad"]) and Hp != H:
+        s, so = (1, 23, H, W), (1, 23, Hp, Wp)
+        pads = np.array([0, 0, 0, 0, 0, 0, Hp - H, Wp - W], np.int64)
+        out.append(graph_case(
+            f"pad classifier input {H}->{Hp}", "elementwise", "memory", tier, 0.0,
+            lambda host: make_model([helper.make_node("Pad", ["x", "pads"], ["y0"], mode="edge")],
+                                    {"x": host["x"]}, ["y0"], initializers={"pads": pads}),
+            lambda: {"x": _normal(("bench pad",), s)}, [so], shape=f"{_shape(*s)}->{_shape(*so)}",
+            exact=True, const_names=("pads",)))
+    return out
+
+
+def scatter_cases(tier):
+    (h, w), _ = TIERS[tier]
+    if not _handlers_for(["ScatterElements"]):
+        return []
+    n = h * w
+
+    def arrays():
+        g = rng("bench scatter")
+        # Each pixel's 4 bilinear taps around p + motion (a smooth motion field).
+        m = smooth_motion(("bench scatter m",), (1, 2, h, w), 3.0)[0]
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        px, py = np.floor(xx + m[0]).astype(np.int64), np.floor(yy + m[1]).astype(np.int64)
+        idx = np.concatenate([np.clip(py + dy, 0, h - 1) * w + np.clip(px + dx, 0, w - 1)
+                              for dy in (0, 1) for dx in (0, 1)], axis=None)
+        upd = np.tile(g.uniform(0, 1, n).astype(np.float32), 4)
+        return {"data": np.zeros((1, n), np.float32), "indices": idx.reshape(1, -1),
+                "updates": upd.reshape(1, -1)}
+    return [graph_case("scatter max depth reconstruction (4 taps)", "scatter", "memory", tier, 4.0 * n,
+                       lambda host: node_model("ScatterElements", {"data": host["data"], "indices": host["indices"],
+                                                                   "updates": host["updates"]},
+                                               axis=1, reduction="max"),
+                       arrays, [(1, n)], shape=f"{h}x{w} x4 taps", exact=True)]
+
+
+def mlp_cases(tier):
+    (h, w), scale = TIERS[tier]
+    H, W = round(h * scale), round(w * scale)
+    mlp = _family("mlp")
+    from weights_tools.networks import build_composition
+    m = build_composition(height=H, width=W)
+    inits = {t.name: onnx.numpy_helper.to_array(t) for t in m.graph.initializer}
+    w1, b1 = inits["comp.fc1.weight"], inits["comp.fc1.bias"]
+    w2, b2 = inits["comp.fc2.weight"], inits["comp.fc2.bias"]
+    cin, hid = w1.shape[1], w1.shape[0]
+    x_shape = (1, cin, H, W)
+    flops = 2.0 * (cin * hid + hid * w2.shape[0]) * H * W
+    fn = getattr(mlp, "mlp", None)
+    if fn is None:
+        return []
+
+    def build(dev, prec, params):
+        def twin(host):
+            return make_model([helper.make_node("Conv", ["x", "w1", "b1"], ["h"], kernel_shape=[1, 1]),
+                               helper.make_node("Relu", ["h"], ["hr"]),
+                               helper.make_node("Conv", ["hr", "w2", "b2"], ["z"], kernel_shape=[1, 1]),
+                               helper.make_node("Sigmoid", ["z"], ["y0"])],
+                              {"x": host["x"]}, ["y0"],
+                              initializers={k: host[k] for k in ("w1", "b1", "w2", "b2")})
+        arrays = {"x": _normal(("bench mlp",), x_shape), "w1": w1, "b1": b1, "w2": w2, "b2": b2}
+        return make_setup(dev, prec, arrays, twin,
+                          lambda d: fn(dev, prec, d["x"], [(d["w1"], d["b1"], "relu"), (d["w2"], d["b2"], "sigmoid")]),
+                          [(1, w2.shape[0], H, W)])
+    return [BenchCase(f"mlp composition {cin}->{hid}->1 sigmoid", "mlp", "compute", tier, flops, build,
+                      quick=tier == "540p", shape=_shape(*x_shape))]
+
+
+FAMILY_CASES = {
+    "space_to_depth": s2d_cases,
+    "resize": resize_cases,
+    "warp": warp_cases,
+    "pool": pool_cases,
+    "conv": conv_cases,
+    "mlp": mlp_cases,
+    "elementwise": elementwise_cases,
+    "scatter": scatter_cases,
+}
+
+
+# --- networks and the frame step (optional) -------------------------------------------
+
+def network_cases(tier):
+    """The two CLSS networks through clss.Model, once clss/model.py exists."""
+    if not _has("clss.model"):
+        return []
+    from weights_tools.networks import build_classifier, build_composition, count_flops
+    from . import netcases
+    (h, w), scale = TIERS[tier]
+    H, W = round(h * scale), round(w * scale)
+    Hp, Wp = pad16(H), pad16(W)
+    cls = build_classifier(height=Hp, width=Wp)
+    comp = build_composition(height=H, width=W)
+    return [netcases.model_case("network classifier", cls, {"x": (1, 23, Hp, Wp)}, tier,
+                                count_flops(cls, Hp, Wp), quick=False),
+            netcases.model_case("network composition", comp, {"x": (1, 22, H, W)}, tier,
+                                count_flops(comp, H, W), quick=False)]
+
+
+def frame_cases(tier):
+    """The whole frame step (net and rule modes) against the oracle graph, once the
+    OpenCL pipeline exists."""
+    if not _has("clss.pipeline.frame"):
+        return []
+    from . import netcases
+    (h, w), scale = TIERS[tier]
+    return [netcases.frame_case(mode, (h, w), scale, tier) for mode in ("net", "rule")]
+
+
+# --- the suite ------------------------------------------------------------------------
+
+def all_cases(level: str = "default", log=None) -> tuple[list[BenchCase], list[tuple[str, str]]]:
+    """(cases, unavailable): the suite for a level, and (what, why) for the parts
+    that cannot be built yet (a family not landed, an API that failed)."""
+    if level not in LEVEL_TIERS:
+        raise ValueError(f"level must be one of {', '.join(LEVEL_TIERS)}")
+    from clss.ops import load_all
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mods = load_all()
+    cases, missing = [], []
+    for tier in LEVEL_TIERS[level]:
+        for fam, fn in FAMILY_CASES.items():
+            if fam not in mods:
+                if tier == LEVEL_TIERS[level][0]:
+                    missing.append((fam, f"clss/ops/{fam}.py not present yet"))
+                continue
+            try:
+                cases += fn(tier)
+            except Exception as e:   # a family whose API moved: report, keep benchmarking the rest
+                missing.append((f"{fam} [{tier}]", f"{type(e).__name__}: {e}"))
+        for what, fn, mod in (("networks", network_cases, "clss/model.py"),
+                              ("frame step", frame_cases, "clss/pipeline/frame.py")):
+            try:
+                got = fn(tier)
+            except Exception as e:
+                missing.append((f"{what} [{tier}]", f"{type(e).__name__}: {e}"))
+                continue
+            if not got and tier == LEVEL_TIERS[level][0]:
+                missing.append((what, f"{mod} not present yet"))
+            cases += got
+    if level == "quick":
+        cases = [c for c in cases if c.quick]
+    return cases, missing

@@ -1,0 +1,234 @@
+"""`clss bench` and `clss tune` (also `python -m bench`)."""
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import sys
+import time
+from pathlib import Path
+
+from clss.cli import DEVICE_HELP, register
+
+LEVEL_HELP = ("--quick: a small subset (about a minute); default: every kernel at the CLSS "
+              "540p -> 1080p shapes; --full: adds 1080p -> 2160p")
+
+
+def _level(a) -> str:
+    if a.quick and a.full:
+        raise SystemExit("clss bench: --quick and --full exclude each other")
+    return "quick" if a.quick else "full" if a.full else "default"
+
+
+def _precisions(dev, spec: str | None, level: str) -> list[str]:
+    if spec is None:
+        spec = "fp32" if level == "quick" else "all"
+    if spec == "all":
+        return ["fp32", "fp16"] + (["fp16-native"] if dev.has_fp16 else [])
+    out = [p.strip() for p in spec.split(",") if p.strip()]
+    for p in out:
+        dev.require(p)
+    return out
+
+
+def _select(cases, pattern: str | None):
+    if not pattern:
+        return cases
+    pats = [p.strip().lower() for p in pattern.split(",") if p.strip()]
+
+    def hit(c):
+        text = f"{c.name} {c.family} {c.kind} {c.tier}".lower()
+        return any(fnmatch.fnmatch(c.name.lower(), p) if any(ch in p for ch in "*?[") else p in text
+                   for p in pats)
+    return [c for c in cases if hit(c)]
+
+
+def _logger(bar):
+    def log(msg):
+        if hasattr(bar, "write"):
+            bar.write(msg, file=sys.stderr)
+        else:
+            print(msg, file=sys.stderr, flush=True)
+    return log
+
+
+def bench_main(argv=None) -> int:
+    p = argparse.ArgumentParser(
+        prog="clss bench",
+        description="Benchmark every clss kernel (and, once they exist, the CLSS networks and the whole "
+                    "frame step) against onnxruntime running the same ONNX twin on the CPU, in one process, "
+                    "alternating, after warm-up. Reports median and min wall time, OpenCL event time, GFLOP/s "
+                    "or GB/s, onnxruntime time / engine time, and the share of the device's measured peak "
+                    "(FMA and stream probes). " + LEVEL_HELP + ".",
+        epilog="examples:\n  clss bench --quick\n  clss bench --filter conv --precision fp32 --out out/bench\n"
+               "  clss bench --full --json full.json\n  clss bench --compare before.json after.json",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--quick", action="store_true", help="a small subset that finishes in about a minute")
+    p.add_argument("--full", action="store_true", help="also the 1080p -> 2160p shapes")
+    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--precision", "-p", default=None,
+                   help="fp32, fp16, fp16-native, a comma list, or all (default: fp32 with --quick, else all "
+                        "the device supports)")
+    p.add_argument("--filter", "-k", default=None,
+                   help="only cases whose name/family contains this (comma list; * ? [ make it a glob on the name)")
+    p.add_argument("--out", "-o", default="out/bench",
+                   help="directory for bench.json, bench.md and roofline.png (default: out/bench; '' for none)")
+    p.add_argument("--json", metavar="FILE", help="also write the JSON result here")
+    p.add_argument("--runs", type=int, default=None, help="timed runs per case (default: by a time budget, 3..15)")
+    p.add_argument("--budget", type=float, default=None, help="seconds of timed runs per case (default 4, quick 1.5)")
+    p.add_argument("--ort-threads", type=int, default=None, help="onnxruntime intra-op threads (default: cores)")
+    p.add_argument("--no-peak", action="store_true", help="skip the peak probes (no 'of peak' column)")
+    p.add_argument("--no-check", action="store_true", help="skip the one-time output check per case")
+    p.add_argument("--list", action="store_true", help="list the cases and exit")
+    p.add_argument("--compare", nargs=2, metavar=("A.json", "B.json"), help="compare two runs and exit")
+    a = p.parse_args(argv)
+
+    from . import report
+    if a.compare:
+        try:
+            docs = [report.load_json(f) for f in a.compare]
+        except (OSError, ValueError) as e:
+            print(f"clss bench: {e}", file=sys.stderr)
+            return 2
+        print(report.compare_docs(*docs))
+        return 0
+
+    from clss.device import DeviceError, get_device
+    from clss.progress import progress
+    from .cases import all_cases
+    from .peak import measure
+    from .runner import OrtRunner, Settings, run_case
+
+    level = _level(a)
+    try:
+        dev = get_device(a.device)
+        precs = _precisions(dev, a.precision, level)
+    except (DeviceError, ValueError) as e:
+        print(f"clss bench: {e}", file=sys.stderr)
+        return 2
+    cases, unavailable = all_cases(level)
+    cases = _select(cases, a.filter)
+    if a.list:
+        for c in cases:
+            print(f"{c.label:60s} {c.family:15s} {c.kind:8s} {c.shape}{'  (quick)' if c.quick else ''}")
+        for what, why in unavailable:
+            print(f"(not available) {what}: {why}")
+        return 0
+    settings = Settings(runs=a.runs, budget_s=a.budget or (1.5 if level == "quick" else 4.0),
+                        check=not a.no_check)
+    if level == "quick":
+        settings.max_runs = 7
+    if a.ort_threads:
+        settings.ort_threads = a.ort_threads
+    print(f"device: {dev.info.platform} / {dev.info.name} (driver {dev.info.driver}); {len(cases)} cases x "
+          f"{len(precs)} precision(s) [{', '.join(precs)}]; onnxruntime threads {settings.ort_threads}",
+          file=sys.stderr)
+    for what, why in unavailable:
+        print(f"not benchmarked: {what}: {why}", file=sys.stderr)
+    t0 = time.perf_counter()
+    peak = None
+    if not a.no_peak:
+        peak = measure(dev, quick=level == "quick", log=lambda m: print(m, file=sys.stderr))
+    ort = OrtRunner(settings.ort_threads)
+    rows = []
+    work = [(c, pr) for c in cases for pr in precs if pr in c.precisions]
+    bar = progress(work, desc="bench", unit="case")
+    log = _logger(bar)
+    for case, prec in bar:
+        row = run_case(case, dev, prec, settings, peak, ort)
+        rows.append(row)
+        if row.status == "ok" or row.status == "mismatch":
+            log(f"{case.label} {prec}: engine {row.engine_ms:.2f} ms (event {row.engine_event_ms:.2f}), "
+                f"ort {row.ort_ms:.2f} ms, {row.speedup_vs_ort:.2f}x, check {row.check}")
+        else:
+            log(f"{case.label} {prec}: {row.status}")
+    doc = report.document(rows, dev, peak, settings, level, unavailable,
+                          extra={"seconds": round(time.perf_counter() - t0, 1)})
+    print(report.format_table(rows))
+    if peak:
+        print("\n" + report.format_peak(peak))
+    print("\ntargets (540p -> 1080p, fp32):\n" + report.format_targets(doc["targets"]))
+    print(f"\n{len(rows)} rows in {doc['seconds']:.0f} s")
+    written = []
+    if a.out:
+        out = Path(a.out)
+        report.write_json(doc, out / "bench.json")
+        (out / "bench.md").write_text(report.markdown(doc))
+        written += [out / "bench.json", out / "bench.md"]
+        try:
+            report.roofline(doc, out / "roofline.png")
+            written.append(out / "roofline.png")
+        except Exception as e:   # a plot must not cost the numbers
+            print(f"clss bench: roofline plot failed: {e}", file=sys.stderr)
+    if a.json:
+        report.write_json(doc, a.json)
+        written.append(Path(a.json))
+    if written:
+        print("wrote " + ", ".join(str(w) for w in written))
+    bad = [r for r in rows if r.status != "ok"]
+    return 1 if bad else 0
+
+
+def tune_main(argv=None) -> int:
+    p = argparse.ArgumentParser(
+        prog="clss tune",
+        description="Search kernel tunables (register blocks, channels/pixels per work-item) and work-group "
+                    "sizes for the bench cases on this device; each candidate's output is checked against "
+                    "onnxruntime before it is timed; the fastest is stored in the tuning database "
+                    "($CLSS_TUNING_DB, default ~/.cache/clss/tuning.json), keyed by device name and driver "
+                    "version, where the engine looks it up.",
+        epilog="examples:\n  clss tune --quick\n  clss tune --filter conv --precision fp16\n"
+               "  clss tune --filter 'conv cls.stem*' --dry-run",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--quick", action="store_true", help="only the --quick bench cases")
+    p.add_argument("--full", action="store_true", help="also the 1080p -> 2160p shapes")
+    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--precision", "-p", default="fp32", help="fp32, fp16, fp16-native, a comma list, or all")
+    p.add_argument("--filter", "-k", default=None, help="as for clss bench")
+    p.add_argument("--runs", type=int, default=5, help="timed runs per candidate (median)")
+    p.add_argument("--max-candidates", type=int, default=48, help="cap on parameter combinations per case")
+    p.add_argument("--no-local", action="store_true", help="do not search work-group sizes")
+    p.add_argument("--all", action="store_true", help="also cases without tunables (work-group sizes only)")
+    p.add_argument("--db", default=None, help="tuning database file (default: $CLSS_TUNING_DB or ~/.cache/clss/tuning.json)")
+    p.add_argument("--dry-run", action="store_true", help="search and report, store nothing")
+    a = p.parse_args(argv)
+    from clss import tuning
+    from clss.device import DeviceError, get_device
+    from clss.progress import progress
+    from .cases import all_cases
+    from .tune import format_results, tune_case
+
+    level = _level(a)
+    try:
+        dev = get_device(a.device)
+        precs = _precisions(dev, a.precision, level)
+    except (DeviceError, ValueError) as e:
+        print(f"clss tune: {e}", file=sys.stderr)
+        return 2
+    cases, _ = all_cases(level)
+    cases = [c for c in _select(cases, a.filter) if c.tunables or a.all]
+    if not cases:
+        print("clss tune: no tunable cases selected (families that declare tunables: conv; --all for "
+              "work-group sizes of the rest)", file=sys.stderr)
+        return 2
+    db = Path(a.db) if a.db else tuning.db_path()
+    print(f"device: {dev.info.name} (driver {dev.info.driver}); {len(cases)} cases x {len(precs)} precision(s); "
+          f"database {db}{' (dry run)' if a.dry_run else ''}", file=sys.stderr)
+    results, failed = [], 0
+    work = [(c, pr) for c in cases for pr in precs if pr in c.precisions]
+    bar = progress(work, desc="tune", unit="case")
+    log = _logger(bar)
+    for case, prec in bar:
+        try:
+            results.append(tune_case(case, dev, prec, runs=a.runs, max_candidates=a.max_candidates,
+                                     search_local=not a.no_local, store=not a.dry_run, db=db, log=log))
+        except Exception as e:
+            failed += 1
+            log(f"{case.label} [{prec}]: {type(e).__name__}: {e}")
+    print(format_results(results))
+    stored = sum(len(r.stored) for r in results)
+    print(f"\n{stored} entries {'would be ' if a.dry_run else ''}stored in {db}")
+    return 1 if failed else 0
+
+
+register("bench", bench_main, "benchmark kernels/networks/frame step against onnxruntime (table, JSON, roofline)")
+register("tune", tune_main, "search work-group sizes and kernel tunables per device; store the best")

@@ -1,0 +1,329 @@
+"""What a bench run leaves behind: the terminal table, the JSON document, the
+markdown summary, the roofline PNG, the targets, and the comparison of two runs."""
+from __future__ import annotations
+
+import datetime
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+from .peak import Peak
+
+SCHEMA = "clss-bench/1"
+ROW_KEYS = ("name", "tier", "family", "kind", "precision", "shape", "status", "engine_ms", "engine_min_ms",
+            "engine_event_ms", "engine_event_min_ms", "ort_ms", "ort_min_ms", "speedup_vs_ort", "flops",
+            "bytes", "ort_bytes", "intensity", "gflops", "gbs", "ort_gflops", "ort_gbs", "bound",
+            "peak_share", "launches", "runs", "check", "max_err")
+
+# The issue's targets (benchmark figures, not test assertions), PoCL CPU, 540p -> 1080p.
+CONV_TARGET = 0.5          # every CLSS conv layer at >= 0.5x onnxruntime's speed
+MEMORY_TARGET = 0.60       # memory-bound kernels at >= 60% of the stream bandwidth
+FRAME_TARGET = 1.0         # the net-mode frame step at >= 1.0x onnxruntime
+MEMORY_FAMILIES = ("warp", "resize", "space_to_depth", "elementwise")
+
+
+# --- the document -------------------------------------------------------------------
+
+def _git(*args) -> str:
+    try:
+        root = Path(__file__).resolve().parent.parent
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True,
+                              timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _versions() -> dict:
+    out = {"python": platform.python_version()}
+    from importlib import metadata
+    for pkg in ("clss", "numpy", "pyopencl", "pocl-binary-distribution", "onnx", "onnxruntime", "matplotlib"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = None
+    if out.get("clss") is None:
+        import clss
+        out["clss"] = clss.__version__
+    return out
+
+
+def document(rows, dev, peak: Peak | None, settings, level: str, unavailable=(), extra=None) -> dict:
+    return {
+        "schema": SCHEMA,
+        "created": datetime.datetime.now().isoformat(timespec="seconds"),
+        "level": level,
+        "machine": {"hostname": platform.node(), "cpu": _cpu_model(), "cores": os.cpu_count(),
+                    "os": platform.platform(), "load_avg": _loadavg()},
+        "device": dev.info.__dict__ if dev is not None else None,
+        "driver": dev.info.driver if dev is not None else None,
+        "packages": _versions(),
+        "git": {"commit": _git("rev-parse", "HEAD"), "dirty": bool(_git("status", "--porcelain", "--untracked-files=no"))},
+        "settings": {k: v for k, v in vars(settings).items()} if settings is not None else {},
+        "command": " ".join(sys.argv),
+        "peak": peak.as_dict() if peak else None,
+        "unavailable": [{"what": w, "why": y} for w, y in unavailable],
+        "targets": targets(rows),
+        "rows": [_clean(r.as_dict() if hasattr(r, "as_dict") else dict(r)) for r in rows],
+        **(extra or {}),
+    }
+
+
+def _loadavg():
+    try:
+        return list(os.getloadavg())
+    except OSError:
+        return None
+
+
+def _clean(d: dict) -> dict:
+    """JSON has no NaN: missing numbers become null."""
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+
+def write_json(doc: dict, path) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(doc, indent=1, default=str))
+
+
+def load_json(path) -> dict:
+    doc = json.loads(Path(path).read_text())
+    if doc.get("schema") != SCHEMA:
+        raise ValueError(f"{path}: not a clss bench result (schema {doc.get('schema')!r}, expected {SCHEMA!r})")
+    return doc
+
+
+def _get(r, k):
+    v = r.get(k) if isinstance(r, dict) else getattr(r, k)
+    return float("nan") if v is None else v
+
+
+# --- targets ---------------------------------------------------------------------------
+
+def targets(rows) -> dict:
+    """Where each of the issue's three targets stands, from the 540p rows in fp32."""
+    rs = [r if isinstance(r, dict) else r.as_dict() for r in rows]
+    ok = [r for r in rs if r.get("status") == "ok" and r.get("tier") == "540p" and r.get("precision") == "fp32"]
+
+    def summary(sel, key, goal, lower_is_worse=True):
+        vals = [(r["name"], _get(r, key)) for r in sel if math.isfinite(_get(r, key))]
+        if not vals:
+            return {"goal": goal, "status": "not measured", "cases": 0}
+        worst = min(vals, key=lambda t: t[1])
+        met = [n for n, v in vals if v >= goal]
+        return {"goal": goal, "cases": len(vals), "met": len(met), "worst": {"name": worst[0], "value": worst[1]},
+                "status": "met" if len(met) == len(vals) else f"{len(met)}/{len(vals)} met",
+                "missed": sorted(((n, v) for n, v in vals if v < goal), key=lambda t: t[1])}
+    return {
+        "conv_vs_ort": summary([r for r in ok if r["kind"] == "conv"], "speedup_vs_ort", CONV_TARGET),
+        "memory_bandwidth_share": summary([r for r in ok if r["family"] in MEMORY_FAMILIES],
+                                          "peak_share", MEMORY_TARGET),
+        "frame_net_vs_ort": summary([r for r in ok if r["kind"] == "frame" and "net" in r["name"]],
+                                    "speedup_vs_ort", FRAME_TARGET),
+    }
+
+
+def format_targets(t: dict) -> str:
+    names = {"conv_vs_ort": f"1. every CLSS conv layer >= {CONV_TARGET}x onnxruntime",
+             "memory_bandwidth_share": f"2. memory-bound kernels >= {MEMORY_TARGET:.0%} of stream bandwidth",
+             "frame_net_vs_ort": f"3. net-mode frame step >= {FRAME_TARGET}x onnxruntime"}
+    lines = []
+    for k, label in names.items():
+        s = t.get(k, {})
+        if s.get("status") == "not measured" or not s:
+            lines.append(f"{label}: not measured")
+            continue
+        w = s["worst"]
+        fmt = (lambda v: f"{v:.0%}") if k == "memory_bandwidth_share" else (lambda v: f"{v:.2f}x")
+        lines.append(f"{label}: {s['status']} ({s['cases']} cases; worst {w['name']} at {fmt(w['value'])})")
+    return "\n".join(lines)
+
+
+# --- the terminal table --------------------------------------------------------------------
+
+def _f(v, fmt):
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+
+
+def format_table(rows) -> str:
+    head = ("case", "tier", "prec", "engine ms", "min", "event ms", "ort ms", "vs ort", "GFLOP/s", "GB/s",
+            "bound", "of peak", "check")
+    body = []
+    for r in rows:
+        r = r if isinstance(r, dict) else r.as_dict()
+        if r["status"].startswith("error"):
+            body.append((r["name"], r["tier"], r["precision"], *("-",) * 9, r["status"][:60]))
+            continue
+        body.append((r["name"], r["tier"], r["precision"], _f(r["engine_ms"], ".2f"), _f(r["engine_min_ms"], ".2f"),
+                     _f(r["engine_event_ms"], ".2f"), _f(r["ort_ms"], ".2f"), _f(r["speedup_vs_ort"], ".2f"),
+                     _f(r["gflops"], ".1f") if r["flops"] else "-", _f(r["gbs"], ".1f"), r["bound"] or "-",
+                     _f(r["peak_share"], ".0%"), r["check"] if r["check"] in ("pass", "skipped") else "FAIL"))
+    widths = [max(len(str(x[i])) for x in [head] + body) for i in range(len(head))]
+    fmt = "  ".join(f"{{:{'<' if i in (0, 1, 2, 10, 12) else '>'}{w}}}" for i, w in enumerate(widths))
+    lines = [fmt.format(*head), fmt.format(*("-" * w for w in widths))] + [fmt.format(*b) for b in body]
+    for r in rows:
+        r = r if isinstance(r, dict) else r.as_dict()
+        if r["check"].startswith("FAIL"):
+            lines.append(f"{r['name']} [{r['precision']}]: {r['check']}")
+    return "\n".join(lines)
+
+
+def format_peak(peak: Peak) -> str:
+    fma = ", ".join(f"{k} {v:.1f}" for k, v in peak.fma_gflops.items())
+    bw = ", ".join(f"{k} {v:.1f}" for k, v in peak.stream_gbs.items())
+    return (f"measured peak: FMA {peak.gflops:.1f} GFLOP/s ({fma}); stream {peak.gbs:.1f} GB/s ({bw}); "
+            f"ridge {peak.ridge:.2f} FLOP/byte")
+
+
+# --- markdown ------------------------------------------------------------------------------
+
+def markdown(doc: dict) -> str:
+    d, m, p = doc.get("device") or {}, doc["machine"], doc.get("peak")
+    out = [f"# clss bench ({doc['level']})", "",
+           f"- created {doc['created']}, commit `{doc['git']['commit'][:12]}`{' (dirty)' if doc['git']['dirty'] else ''}",
+           f"- machine: {m['cpu']}, {m['cores']} cores, load average at the end {m.get('load_avg')}",
+           f"- device: {d.get('platform')} / {d.get('name')}, driver {d.get('driver')}",
+           "- packages: " + ", ".join(f"{k} {v}" for k, v in doc["packages"].items() if v),
+           f"- onnxruntime: CPU execution provider, {doc['settings'].get('ort_threads')} intra-op threads"]
+    if p:
+        out.append(f"- {format_peak(Peak.from_dict(p))}")
+    out += ["", "## Targets", ""] + [f"- {line}" for line in format_targets(doc["targets"]).splitlines()]
+    out += ["", "## Results", "",
+            "engine and onnxruntime times are medians of wall time over the runs (min in brackets); "
+            "event = summed OpenCL kernel time; vs ort = onnxruntime time / engine time (> 1: engine faster); "
+            "of peak = share of the measured FMA peak (compute-bound) or stream bandwidth (memory-bound).", "",
+            "| case | tier | prec | engine ms | event ms | ort ms | vs ort | GFLOP/s | GB/s | bound | of peak | check |",
+            "|---|---|---|---:|---:|---:|---:|---:|---:|---|---:|---|"]
+    for r in doc["rows"]:
+        if r["status"].startswith("error"):
+            out.append(f"| {r['name']} | {r['tier']} | {r['precision']} | | | | | | | | | {r['status'][:80]} |")
+            continue
+        out.append(f"| {r['name']} | {r['tier']} | {r['precision']} | {_f(r['engine_ms'], '.2f')} "
+                   f"({_f(r['engine_min_ms'], '.2f')}) | {_f(r['engine_event_ms'], '.2f')} | "
+                   f"{_f(r['ort_ms'], '.2f')} ({_f(r['ort_min_ms'], '.2f')}) | {_f(r['speedup_vs_ort'], '.2f')} | "
+                   f"{_f(r['gflops'], '.1f') if r['flops'] else '-'} | {_f(r['gbs'], '.1f')} | {r['bound'] or '-'} | "
+                   f"{_f(r['peak_share'], '.0%')} | {r['check']} |")
+    slow = slowest(doc["rows"], 3)
+    if slow:
+        out += ["", "## Slowest relative to onnxruntime", ""]
+        out += [f"- {r['name']} [{r['tier']} {r['precision']}]: {r['speedup_vs_ort']:.2f}x "
+                f"({r['engine_ms']:.2f} ms vs {r['ort_ms']:.2f} ms; {r['bound']}-bound, "
+                f"{_f(r['peak_share'], '.0%')} of peak)" for r in slow]
+    if doc.get("unavailable"):
+        out += ["", "## Not benchmarked", ""] + [f"- {u['what']}: {u['why']}" for u in doc["unavailable"]]
+    return "\n".join(out) + "\n"
+
+
+def slowest(rows, n=3):
+    ok = [r for r in rows if r.get("status") == "ok" and r.get("speedup_vs_ort") is not None
+          and math.isfinite(r["speedup_vs_ort"])]
+    return sorted(ok, key=lambda r: r["speedup_vs_ort"])[:n]
+
+
+# --- roofline ---------------------------------------------------------------------------------
+
+def roofline(doc: dict, path) -> None:
+    """Left: the roofline (log-log GFLOP/s against FLOP/byte) with every kernel that
+    does arithmetic, engine filled and onnxruntime hollow. Right: achieved bandwidth
+    of every row against the stream peak (data movement has no FLOPs to place)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    p = doc.get("peak")
+    rows = [r for r in doc["rows"] if r["status"] == "ok" and r.get("engine_ms")]
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(15, 7), gridspec_kw={"width_ratios": [3, 2]})
+    flops_rows = [r for r in rows if r["flops"] and r["intensity"]]
+    if p:
+        peak = Peak.from_dict(p)
+        ai = np.logspace(-2, 3, 200)
+        ax.loglog(ai, np.minimum(peak.gflops, ai * peak.gbs), "k-", lw=2, label="measured roof")
+        for name, v in peak.fma_gflops.items():
+            ax.axhline(v, color="0.75", lw=0.8, ls=":")
+            ax.text(1.1e-2, v * 1.04, f"FMA {name}", fontsize=7, color="0.4")
+        ax.axvline(peak.ridge, color="0.8", lw=0.8)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fam_color = {}
+    for r in flops_rows:
+        c = fam_color.setdefault(r["family"], colors[len(fam_color) % len(colors)])
+        mk = "o" if r["precision"] == "fp32" else "s"
+        ax.loglog(r["intensity"], r["gflops"], mk, color=c, ms=6)
+        if r.get("ort_gflops") and r.get("ort_bytes"):
+            ax.loglog(r["flops"] / r["ort_bytes"], r["ort_gflops"], mk, mfc="none", color=c, ms=6)
+        ax.annotate(r["name"].split(" ", 1)[-1][:28], (r["intensity"], r["gflops"]), fontsize=6,
+                    xytext=(3, 2), textcoords="offset points")
+    for fam, c in fam_color.items():
+        ax.plot([], [], "o", color=c, label=fam)
+    ax.plot([], [], "o", color="0.3", mfc="none", label="onnxruntime (hollow)")
+    ax.plot([], [], "s", color="0.3", label="fp16 storage (square)")
+    ax.set_xlabel("arithmetic intensity (FLOP / compulsory byte)")
+    ax.set_ylabel("GFLOP/s")
+    ax.set_title(f"roofline: {doc['device']['name'] if doc.get('device') else ''}", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.grid(True, which="both", alpha=0.2)
+
+    labels = [f"{r['name'][:40]} [{r['precision']}]" for r in rows]
+    y = np.arange(len(rows))
+    bx.barh(y, [r["gbs"] or 0 for r in rows], color=["C0" if r["precision"] == "fp32" else "C1" for r in rows],
+            label="engine")
+    bx.scatter([r.get("ort_gbs") or 0 for r in rows], y, marker="|", color="k", s=60, label="onnxruntime")
+    if p:
+        gbs = Peak.from_dict(p).gbs
+        bx.axvline(gbs, color="k", lw=1.5, label=f"stream {gbs:.1f} GB/s")
+        bx.axvline(0.6 * gbs, color="k", lw=0.8, ls="--", label="60% target")
+    bx.set_yticks(y, labels, fontsize=6)
+    bx.invert_yaxis()
+    bx.set_xlabel("GB/s (compulsory bytes / median wall time)")
+    bx.legend(fontsize=7)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# --- comparison ------------------------------------------------------------------------------
+
+def compare_docs(a: dict, b: dict) -> str:
+    """Rows matched by (name, tier, precision): engine time before and after, the change,
+    and each run's ratio to onnxruntime (which also tells how noisy the machine was)."""
+    key = lambda r: (r["name"], r["tier"], r["precision"])
+    ra, rb = {key(r): r for r in a["rows"]}, {key(r): r for r in b["rows"]}
+    head = ("case", "tier", "prec", "A ms", "B ms", "change", "A vs ort", "B vs ort", "ort A/B")
+    body = []
+    for k in list(ra) + [k for k in rb if k not in ra]:
+        x, y = ra.get(k), rb.get(k)
+        if x is None or y is None:
+            body.append((*k, _f(_get(x or {}, "engine_ms"), ".2f") if x else "-",
+                         _f(_get(y or {}, "engine_ms"), ".2f") if y else "-", "only A" if y is None else "only B",
+                         "-", "-", "-"))
+            continue
+        ea, eb = _get(x, "engine_ms"), _get(y, "engine_ms")
+        ch = (eb / ea - 1) if math.isfinite(ea) and math.isfinite(eb) and ea > 0 else float("nan")
+        oa, ob = _get(x, "ort_ms"), _get(y, "ort_ms")
+        body.append((*k, _f(ea, ".2f"), _f(eb, ".2f"), "-" if not math.isfinite(ch) else f"{ch:+.1%}",
+                     _f(_get(x, "speedup_vs_ort"), ".2f"), _f(_get(y, "speedup_vs_ort"), ".2f"),
+                     _f(oa / ob if ob else float("nan"), ".2f")))
+    widths = [max(len(str(r[i])) for r in [head] + body) for i in range(len(head))]
+    fmt = "  ".join(f"{{:{'<' if i < 3 else '>'}{w}}}" for i, w in enumerate(widths))
+    lines = [f"A: {a['created']} {a['git']['commit'][:10]} {a['device']['name'] if a.get('device') else ''}",
+             f"B: {b['created']} {b['git']['commit'][:10]} {b['device']['name'] if b.get('device') else ''}",
+             "change = B engine time / A engine time - 1 (negative: B faster); "
+             "ort A/B far from 1 means the machine's load differed", "",
+             fmt.format(*head), fmt.format(*("-" * w for w in widths))]
+    lines += [fmt.format(*r) for r in body]
+    return "\n".join(lines)

@@ -1,0 +1,217 @@
+"""Timing: the engine and onnxruntime on the same case, in one process, alternating.
+
+Per case: build (upload seeded inputs, build the twin's session), warm up both
+(PoCL compiles and specialises kernels on their first launches; onnxruntime
+plans its arena), check the engine's output against onnxruntime's once, then
+alternate engine and onnxruntime runs so that drifting machine load hits both
+alike. Engine wall time covers enqueue to queue.finish(); engine event time is
+the sum of its kernels' profiled durations. Reported: median and minimum.
+"""
+from __future__ import annotations
+
+import gc
+import os
+import statistics
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from clss.device import Device
+from clss.ops.base import EXACT, compare
+
+from .capture import Capture
+from .cases import BenchCase, Setup
+from .peak import Peak
+
+
+@dataclass
+class Settings:
+    runs: int | None = None          # fixed number of timed runs; None: by time budget
+    min_runs: int = 3
+    max_runs: int = 15
+    budget_s: float = 4.0            # timed-loop budget per case (both sides together)
+    warmup: int = 2
+    ort_threads: int = field(default_factory=lambda: os.cpu_count() or 1)
+    check: bool = True
+
+
+@dataclass
+class Row:
+    name: str
+    tier: str
+    family: str
+    kind: str
+    precision: str
+    shape: str = ""
+    status: str = "ok"               # ok | error: ... | mismatch: ...
+    engine_ms: float = float("nan")          # median wall
+    engine_min_ms: float = float("nan")
+    engine_event_ms: float = float("nan")    # median of summed kernel event times
+    engine_event_min_ms: float = float("nan")
+    ort_ms: float = float("nan")
+    ort_min_ms: float = float("nan")
+    speedup_vs_ort: float = float("nan")     # ort_ms / engine_ms (> 1: the engine is faster)
+    flops: float = 0.0
+    bytes: float = 0.0
+    ort_bytes: float = 0.0
+    intensity: float = 0.0                   # FLOP / byte (engine bytes)
+    gflops: float = float("nan")             # engine, from median wall
+    gbs: float = float("nan")
+    ort_gflops: float = float("nan")
+    ort_gbs: float = float("nan")
+    bound: str = ""                          # compute | memory (by the measured ridge point)
+    peak_share: float = float("nan")         # of the bound's peak
+    launches: int = 0
+    runs: int = 0
+    check: str = ""                          # pass | FAIL ... | skipped
+    max_err: float = float("nan")
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+class OrtRunner:
+    """One onnxruntime session per twin: CPU execution provider, intra-op threads
+    = cores (settings), all graph optimisations, as a user would run it."""
+
+    def __init__(self, threads: int):
+        self.threads = threads
+
+    def session(self, model):
+        import onnxruntime as ort
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = self.threads
+        so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        so.log_severity_level = 3
+        return ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
+
+
+def _classify(row: Row, peak: Peak | None, kind: str) -> None:
+    if not np.isfinite(row.engine_ms) or row.engine_ms <= 0:
+        return
+    s = row.engine_ms * 1e-3
+    row.intensity = row.flops / row.bytes if row.bytes else 0.0
+    row.gflops = row.flops / s * 1e-9
+    row.gbs = row.bytes / s * 1e-9
+    if np.isfinite(row.ort_ms) and row.ort_ms > 0:
+        row.ort_gflops = row.flops / (row.ort_ms * 1e-3) * 1e-9
+        row.ort_gbs = row.ort_bytes / (row.ort_ms * 1e-3) * 1e-9
+    if peak is None:
+        return
+    # Memory-bound families are judged by bandwidth whatever their nominal FLOPs.
+    compute = kind in ("conv", "compute", "network") and row.intensity >= peak.ridge
+    row.bound = "compute" if compute else "memory"
+    row.peak_share = row.gflops / peak.gflops if compute else row.gbs / peak.gbs
+
+
+def check_outputs(outs, refs, tol, refs_round) -> tuple[str, float]:
+    if len(outs) != len(refs):
+        return f"FAIL: {len(outs)} outputs, reference has {len(refs)}", float("inf")
+    worst, detail = 0.0, ""
+    for i, (o, r) in enumerate(zip(outs, refs)):
+        if refs_round and r.dtype.kind == "f":
+            r = r.astype(np.float16).astype(np.float32)
+        c = compare(o.reshape(r.shape) if o.size == r.size else o, r, tol)
+        worst = max(worst, c.max_rel)
+        if not c.passed:
+            detail = f"FAIL: output {i}: {c.detail or 'out of tolerance'} (err/tol {c.ratio:.3g})"
+    return (detail or "pass"), worst
+
+
+def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: Peak | None,
+             ort: OrtRunner, params: dict | None = None) -> Row:
+    row = Row(case.name, case.tier, case.family, case.kind, prec, case.shape, flops=case.flops)
+    cap = Capture(dev)
+    setup: Setup | None = None
+    try:
+        setup = case.build(dev, prec, dict(params or {}))
+        row.bytes, row.ort_bytes = setup.bytes, setup.ort_bytes
+        sess = ort.session(setup.twin)
+        out_names = [o.name for o in sess.get_outputs()]
+
+        def engine_once():
+            cap.start_run()
+            t0 = time.perf_counter()
+            outs = setup.run()
+            dev.queue.finish()
+            return (time.perf_counter() - t0) * 1e3, cap.event_ms(), outs
+
+        def ort_once():
+            t0 = time.perf_counter()
+            res = sess.run(out_names, setup.feeds)
+            return (time.perf_counter() - t0) * 1e3, res
+
+        with cap.active():
+            first_ms = [engine_once()[0] for _ in range(max(1, settings.warmup))][-1]
+            _, _, outs = engine_once()
+            row.launches = len(cap.events)
+            o_ms = [ort_once()[0] for _ in range(max(1, settings.warmup))][-1]
+            if settings.check:
+                host = [dev.to_host(o) for o in outs]
+                refs = ort_once()[1]
+                row.check, row.max_err = check_outputs(host, refs, setup.tol, setup.refs_round)
+                del host, refs
+            else:
+                row.check = "skipped"
+            del outs
+            n = settings.runs or int(np.clip(settings.budget_s * 1e3 / max(first_ms + o_ms, 1e-3),
+                                             settings.min_runs, settings.max_runs))
+            e_wall, e_ev, o_wall = [], [], []
+            for _ in range(n):
+                w, ev, outs = engine_once()
+                del outs
+                e_wall.append(w)
+                e_ev.append(ev)
+                o_wall.append(ort_once()[0])
+        row.runs = n
+        row.engine_ms, row.engine_min_ms = statistics.median(e_wall), min(e_wall)
+        row.engine_event_ms, row.engine_event_min_ms = statistics.median(e_ev), min(e_ev)
+        row.ort_ms, row.ort_min_ms = statistics.median(o_wall), min(o_wall)
+        row.speedup_vs_ort = row.ort_ms / row.engine_ms
+        if row.check.startswith("FAIL"):
+            row.status = "mismatch"
+        _classify(row, peak, case.kind)
+    except Exception as e:
+        last = traceback.format_exception_only(type(e), e)[-1].strip()
+        row.status = f"error: {last[:500]}"
+    finally:
+        cap.release()
+        if setup is not None and setup.release:
+            setup.release()
+        del setup
+        gc.collect()
+    return row
+
+
+def reference_outputs(case: BenchCase, dev: Device, prec: str, ort: OrtRunner):
+    """(setup, reference outputs) for the tuner's candidate checks."""
+    setup = case.build(dev, prec, {})
+    sess = ort.session(setup.twin)
+    return setup, sess.run(None, setup.feeds)
+
+
+def time_engine(setup: Setup, dev: Device, runs: int, local_size=None) -> tuple[float, float, list]:
+    """(median wall ms, median event ms, first outputs as host arrays) of the engine alone."""
+    cap = Capture(dev)
+    cap.local_size = local_size
+    walls, evs, first = [], [], None
+    try:
+        with cap.active():
+            for i in range(runs + 1):
+                cap.start_run()
+                t0 = time.perf_counter()
+                outs = setup.run()
+                dev.queue.finish()
+                w = (time.perf_counter() - t0) * 1e3
+                ev = cap.event_ms()
+                if i == 0:
+                    first = [dev.to_host(o) for o in outs]
+                else:
+                    walls.append(w)
+                    evs.append(ev)
+                del outs
+        return statistics.median(walls), statistics.median(evs), first, list(cap.launches)
+    finally:
+        cap.release()

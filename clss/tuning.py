@@ -1,0 +1,161 @@
+"""The tuning database: the best kernel tunables found by `clss tune`, per device.
+
+A JSON file ($CLSS_TUNING_DB, else ~/.cache/clss/tuning.json):
+
+    {"version": 1,
+     "devices": {"<device name> | <driver version>": {
+         "<op>": {"<shape key>": {"params": {...}, "ms": 1.2, "default_ms": 1.5,
+                                  "tuned": "2025-01-01T00:00:00"}}}}}
+
+Ops ask with ``lookup(dev, op, key, defaults)`` and get the defaults with the
+stored values laid over them (only for names the defaults have, so a stale entry
+can never inject an option a kernel no longer knows). No file, no entry, or an
+unreadable file: the defaults. A family makes its tunables searchable by
+declaring ``TUNABLES = {op: {param: (candidate, ...)}}`` in its module; the
+tuner tries them through ``override``.
+
+Work-group sizes are kept as op ``local_size:<kernel name>``, keyed by the global
+size; ``local_size(dev, kernel_name, global_size)`` reads them back.
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+
+VERSION = 1
+_lock = threading.Lock()
+_cache: dict = {"path": None, "mtime": None, "data": None}
+_overrides: dict = {}                 # op -> params, while the tuner tries a candidate
+_seen: list | None = None             # (op, key, defaults) looked up, while recording
+
+
+def db_path() -> Path:
+    p = os.environ.get("CLSS_TUNING_DB")
+    return Path(p).expanduser() if p else Path.home() / ".cache" / "clss" / "tuning.json"
+
+
+def device_key(dev) -> str:
+    """'<device name> | <driver version>' for a Device, DeviceInfo or string."""
+    if isinstance(dev, str):
+        return dev
+    info = getattr(dev, "info", dev)
+    return f"{info.name} | {info.driver}"
+
+
+def shape_key(*parts) -> str:
+    """A readable key from shapes and scalars: shape_key((1, 16, 8, 8), 3) -> '1x16x8x8/3'."""
+    out = []
+    for p in parts:
+        if isinstance(p, (tuple, list)):
+            out.append("x".join(str(int(v)) for v in p))
+        else:
+            out.append(str(p))
+    return "/".join(out)
+
+
+def load(path: Path | None = None) -> dict:
+    """The whole database (cached; re-read when the file changes)."""
+    path = Path(path) if path else db_path()
+    try:
+        mtime = path.stat().st_mtime_ns
+    except OSError:
+        return {"version": VERSION, "devices": {}}
+    with _lock:
+        if _cache["path"] == path and _cache["mtime"] == mtime:
+            return _cache["data"]
+        try:
+            data = json.loads(path.read_text())
+            if not isinstance(data, dict) or not isinstance(data.get("devices"), dict):
+                raise ValueError("no 'devices' table")
+        except (OSError, ValueError) as e:
+            import warnings
+            warnings.warn(f"tuning database {path} unreadable ({e}); using defaults")
+            data = {"version": VERSION, "devices": {}}
+        _cache.update(path=path, mtime=mtime, data=data)
+        return data
+
+
+def entry(dev, op: str, key: str) -> dict | None:
+    return load().get("devices", {}).get(device_key(dev), {}).get(op, {}).get(key)
+
+
+def lookup(dev, op: str, key: str, defaults: dict) -> dict:
+    """The parameters to use for (op, key) on dev: defaults, overlaid with the
+    database entry's values for the same names (and with the tuner's candidate
+    while it runs one)."""
+    if _seen is not None:
+        _seen.append((op, key, dict(defaults)))
+    out = dict(defaults)
+    if op in _overrides:
+        out.update({k: v for k, v in _overrides[op].items() if k in defaults})
+        return out
+    e = entry(dev, op, key)
+    if e:
+        out.update({k: v for k, v in e.get("params", {}).items() if k in defaults})
+    return out
+
+
+def local_size(dev, kernel_name: str, global_size) -> tuple | None:
+    """The tuned work-group size for a kernel at a global size, or None (the
+    driver's choice). Only sizes that divide the global size are returned."""
+    gs = tuple(int(g) for g in global_size)
+    p = lookup(dev, f"local_size:{kernel_name}", shape_key(gs), {"local": None})["local"]
+    if not p:
+        return None
+    loc = tuple(int(v) for v in p)
+    if len(loc) != len(gs) or any(g % l for g, l in zip(gs, loc)):
+        return None
+    return loc
+
+
+def store(dev, op: str, key: str, params: dict, path: Path | None = None, **meta) -> None:
+    """Write one entry (atomically: a crash leaves the old file intact)."""
+    path = Path(path) if path else db_path()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = json.loads(json.dumps(load(path)))          # a private copy
+    data["version"] = VERSION
+    rec = {"params": dict(params), **meta,
+           "tuned": datetime.datetime.now().isoformat(timespec="seconds")}
+    data.setdefault("devices", {}).setdefault(device_key(dev), {}).setdefault(op, {})[key] = rec
+    tmp = path.with_suffix(path.suffix + f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=_jsonable))
+    os.replace(tmp, path)
+    with _lock:
+        _cache.update(path=None, mtime=None, data=None)
+
+
+def _jsonable(v):
+    if hasattr(v, "item"):
+        return v.item()
+    if isinstance(v, tuple):
+        return list(v)
+    raise TypeError(f"not JSON serialisable: {v!r}")
+
+
+@contextmanager
+def override(op: str, params: dict):
+    """lookup(…, op, …) returns `params` (over the defaults) inside the block."""
+    old = _overrides.get(op)
+    _overrides[op] = dict(params)
+    try:
+        yield
+    finally:
+        if old is None:
+            _overrides.pop(op, None)
+        else:
+            _overrides[op] = old
+
+
+@contextmanager
+def recording():
+    """Collects the (op, key, defaults) of every lookup inside the block."""
+    global _seen
+    old, _seen = _seen, []
+    try:
+        yield _seen
+    finally:
+        _seen = old
