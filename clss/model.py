@@ -1,0 +1,227 @@
+"""clss.Model: an ONNX graph run on an OpenCL device.
+
+Load: onnx checker -> opset 11..21 -> static shapes (``input_shapes`` for
+symbolic dims) -> size limits -> constant folding -> graph passes (Identity
+removal, PixelShuffle patterns, BatchNorm folding, MatMul/Gemm as 1x1 convs,
+Conv + activation (+ residual) fusion, 1x1 chains as one MLP kernel) -> a dry
+run of every node that lists every unsupported one in one error -> a memory
+plan that reuses intermediate buffers by liveness. Weights go to the device
+once, in the precision's storage type.
+
+    m = clss.Model("net.onnx", precision="fp16", input_shapes={"x": (1, 23, 64, 64)})
+    outs = m.run({"x": x})               # numpy in, float32 numpy out
+    douts = m.run_device({"x": x_dev})   # pyopencl arrays in and out, no host copies
+"""
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Mapping
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from .device import Device, get_device, storage_dtype
+from .model_exec import Executor
+from .model_graph import FLOAT_TYPES, InputError, ModelError, UnsupportedModelError, build
+from .model_passes import run_passes
+
+__all__ = ["Model", "ModelError", "InputError", "UnsupportedModelError"]
+
+
+class Model:
+    """An ONNX model loaded for one device and precision.
+
+    model: path, bytes or onnx.ModelProto. device: a clss Device, an index or
+    name substring (see `clss devices`), or None for the default. precision:
+    "fp32", "fp16" (half storage, float arithmetic) or "fp16-native".
+    input_shapes: {input name: shape} for inputs with symbolic dimensions
+    (a shape is a tuple or a string like "1x3x64x64")."""
+
+    def __init__(self, model, device=None, precision: str = "fp32", input_shapes: dict | None = None,
+                 *, fuse: bool = True):
+        from .ops import load_all
+        self.device: Device = get_device(device)
+        self.device.require(precision)
+        self.precision = precision
+        load_all()
+        storage = storage_dtype(precision)
+        graph, self.onnx_model, self.input_shapes = build(
+            model, input_shapes, max_alloc=self.device.info.max_alloc, storage_itemsize=storage.itemsize)
+        self.input_names = list(graph.inputs)
+        self.output_names = list(graph.outputs)
+        self.output_shapes = {t: tuple(graph.shapes[t]) for t in graph.outputs}
+        self._in_dtypes = {t: _host_dtype(graph.elem_types.get(t), graph.dtypes[t]) for t in graph.inputs}
+        self._out_dtypes = {t: _host_dtype(graph.elem_types.get(t), graph.dtypes.get(t, np.dtype("f4")))
+                            for t in graph.outputs}
+        self.pass_log = run_passes(graph, conv_fusion=fuse, mlp_fusion=fuse)
+        self.graph = graph
+        self._exec = Executor(graph, self.device, precision)
+        self._exec.trace()
+
+    # -- introspection ----------------------------------------------------------------
+    @property
+    def opset(self) -> int:
+        return self.graph.opset
+
+    @property
+    def plan(self):
+        """The memory plan (clss.model_plan.Plan): peak_bytes, buffers, ..."""
+        return self._exec.plan
+
+    def memory(self) -> dict:
+        """Device bytes: weights (constants uploaded once), intermediates (the
+        planned shared buffers: the peak), outputs (fresh per run), inputs."""
+        p = self._exec.plan
+        cached = sum(d.nbytes for _, d in self._exec.pdev.uploads.values())
+        st = storage_dtype(self.precision).itemsize
+        ins = sum(int(np.prod(s)) * (st if self._in_dtypes[t].kind == "f" else self._in_dtypes[t].itemsize)
+                  for t, s in self.input_shapes.items())
+        return {"weights_bytes": self._exec.weight_bytes + int(cached),
+                "intermediate_peak_bytes": p.peak_bytes, "intermediate_buffers": len(p.slots),
+                "intermediate_unshared_bytes": p.unshared_bytes, "output_bytes": p.output_bytes,
+                "unplanned_bytes": p.unplanned_bytes, "input_bytes": int(ins)}
+
+    def execution_ops(self) -> Counter:
+        """What runs, after the passes: fused forms spelled out (Conv+Add+relu, MLP(3))."""
+        c = Counter()
+        for n in self.graph.nodes:
+            c[_label(n)] += 1
+        return c
+
+    def __repr__(self) -> str:
+        return (f"<clss.Model {len(self.graph.nodes)} steps, inputs {self.input_shapes}, "
+                f"{self.precision} on {self.device.info.name}>")
+
+    # -- running ----------------------------------------------------------------------
+    def run(self, inputs: Mapping) -> dict:
+        """numpy arrays in (float32; float16 also accepted in the half precisions),
+        numpy arrays out (float outputs as float32)."""
+        feeds = self._check_host(inputs)
+        dev = self.device
+        douts = self._run(
+            {k: dev.to_device(v, self.precision) for k, v in feeds.items()}, None)
+        return {k: _to_host(v, self._out_dtypes[k]) for k, v in douts.items()}
+
+    def run_device(self, inputs: Mapping, out: Mapping | None = None) -> dict:
+        """pyopencl arrays in and out, on this model's device and queue: float
+        tensors in the precision's storage type (float32, or float16 in the half
+        precisions), C-contiguous, offset 0. Returns fresh output arrays per
+        call, or writes into ``out`` (name -> array) where given. Work is queued,
+        not waited for (the device queue is in order)."""
+        feeds = self._check_device(inputs)
+        if out is not None:
+            self._check_out(out)
+        return self._run(dict(feeds), out)
+
+    __call__ = run
+
+    def _run(self, env: dict, out: Mapping | None) -> dict:
+        res = self._exec.run(env)
+        if out:
+            q = self.device.queue
+            for k, a in out.items():
+                src = res[k]
+                if src.nbytes:
+                    cl.enqueue_copy(q, a.data, src.data, byte_count=src.nbytes)
+                res[k] = a
+        return res
+
+    # -- input checks -----------------------------------------------------------------
+    def _names(self, inputs: Mapping):
+        if not isinstance(inputs, Mapping):
+            raise InputError(f"inputs must be a dict name -> array; the model's inputs are "
+                             f"{', '.join(map(repr, self.input_names))}")
+        extra = [k for k in inputs if k not in self.input_names]
+        if extra:
+            raise InputError(f"unknown input {extra[0]!r}; the model's inputs are "
+                             f"{', '.join(map(repr, self.input_names))}")
+        missing = [k for k in self.input_names if k not in inputs]
+        if missing:
+            raise InputError(f"missing input {missing[0]!r} ({self._expect(missing[0])})")
+
+    def _expect(self, name: str, dtype=None) -> str:
+        dt = dtype or self._in_dtypes[name]
+        return f"expected {dt} array of shape {tuple(self.input_shapes[name])}"
+
+    def _check_host(self, inputs: Mapping) -> dict:
+        self._names(inputs)
+        feeds = {}
+        for name in self.input_names:
+            v = inputs[name]
+            if isinstance(v, cla.Array):
+                raise InputError(f"input {name!r} is a device array; use run_device() for those")
+            a = np.asarray(v)
+            want = self._in_dtypes[name]
+            ok = a.dtype == want or (want == np.float32 and a.dtype == np.float16
+                                     and self.precision != "fp32")
+            if not ok:
+                raise InputError(f"input {name!r}: {self._expect(name)}, got {a.dtype} array of shape "
+                                 f"{a.shape}")
+            if tuple(a.shape) != tuple(self.input_shapes[name]):
+                raise InputError(f"input {name!r}: {self._expect(name)}, got shape {a.shape}")
+            feeds[name] = a
+        return feeds
+
+    def _device_dtype(self, name):
+        want = self._in_dtypes[name]
+        return storage_dtype(self.precision) if want.kind == "f" else want
+
+    def _check_device(self, inputs: Mapping) -> dict:
+        self._names(inputs)
+        for name in self.input_names:
+            a = inputs[name]
+            want = self._device_dtype(name)
+            if not isinstance(a, cla.Array):
+                raise InputError(f"input {name!r}: run_device() takes pyopencl arrays "
+                                 f"({self._expect(name, want)}), got {type(a).__name__}; use run() "
+                                 "for numpy arrays")
+            self._check_array(f"input {name!r}", a, want, self.input_shapes[name])
+        return inputs
+
+    def _check_array(self, what, a, want, shape):
+        if a.dtype != want or tuple(a.shape) != tuple(shape):
+            raise InputError(f"{what}: expected {want} array of shape {tuple(shape)} "
+                             f"(precision {self.precision}), got {a.dtype} array of shape {a.shape}")
+        if a.offset != 0 or not a.flags.c_contiguous:
+            raise InputError(f"{what}: must be C-contiguous with offset 0 (copy it first)")
+        if a.context != self.device.context:
+            raise InputError(f"{what}: lives in another OpenCL context than the model's device "
+                             f"({self.device.info.name})")
+
+    def _check_out(self, out: Mapping) -> None:
+        for k, a in out.items():
+            if k not in self.output_names:
+                raise InputError(f"out names {k!r}, which is not an output; outputs are "
+                                 f"{', '.join(map(repr, self.output_names))}")
+            want = self._out_dtypes[k]
+            want = storage_dtype(self.precision) if want.kind == "f" else want
+            if not isinstance(a, cla.Array):
+                raise InputError(f"out[{k!r}] must be a pyopencl array")
+            self._check_array(f"out[{k!r}]", a, want, self.output_shapes[k])
+
+
+def _host_dtype(elem_type, fallback: np.dtype) -> np.dtype:
+    if elem_type in FLOAT_TYPES:
+        return np.dtype(np.float32)
+    return np.dtype(fallback)
+
+
+def _to_host(a: cla.Array, want: np.dtype) -> np.ndarray:
+    h = a.get()
+    return h.astype(want, copy=False) if h.dtype != want else h
+
+
+def _label(n) -> str:
+    if n.op == "clss.Conv":
+        s = "Conv"
+        if n.inputs[3]:
+            s += "+Add"
+        if n.attrs["activation"] != "none":
+            s += "+" + n.attrs["activation"]
+        return s
+    if n.op == "clss.MLP":
+        return f"MLP({len(n.attrs['layers'])} layers)"
+    if n.op == "clss.View":
+        return "view (no kernel)"
+    return n.op.replace("clss.", "")

@@ -1,0 +1,448 @@
+"""Running a static graph on the device: how each node is called, the load-time
+dry run that validates every node and records its allocations, and the
+planned runs that reuse buffers.
+
+Every node, ONNX op or internal "clss.*" op, runs through one calling
+convention: fn(dev, prec, attrs, inputs) -> list of device arrays (see
+clss/ops/base.py). Handlers allocate with dev.empty; the ``dev`` they get is a
+PlannedDevice, which during the dry run records those calls (and turns
+launches into no-ops) and during real runs hands back the planned buffers.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from .device import Device, storage_dtype
+from .model_graph import Graph, Node, UnsupportedModelError
+from .model_plan import Alloc, Plan, assign_slots, check_plan
+from .ops.base import ONNX_HANDLERS, OnnxHandler, Unsupported
+
+# --- internal ops -------------------------------------------------------------------
+
+INTERNAL: dict[str, OnnxHandler] = {}
+
+
+def internal_op(op_type: str, const_inputs=()):
+    def deco(fn):
+        INTERNAL[op_type] = OnnxHandler(op_type, fn, frozenset(const_inputs), "clss")
+        return fn
+    return deco
+
+
+def handler_for(op: str) -> OnnxHandler | None:
+    return INTERNAL.get(op) or ONNX_HANDLERS.get(op)
+
+
+@internal_op("clss.View")
+def _view(dev, prec, attrs, inputs):
+    """Reshape/Flatten/Squeeze/Unsqueeze and size-1 transposes: the same bytes
+    under a new shape (a view; the planner keeps the buffer alive for it)."""
+    return [inputs[0].reshape(tuple(attrs["shape"]))]
+
+
+@internal_op("clss.Copy")
+def _copy(dev, prec, attrs, inputs):
+    """A graph output that is another graph output, input or constant."""
+    x = inputs[0]
+    out = dev.empty(x.shape, prec, dtype=x.dtype)
+    if x.nbytes:
+        cl.enqueue_copy(dev.queue, out.data, x.data, byte_count=x.nbytes)
+    return [out]
+
+
+@internal_op("clss.SpaceToDepth")
+def _s2d(dev, prec, attrs, inputs):
+    """pixel_unshuffle (CRD), which ONNX SpaceToDepth (DCR only) cannot say."""
+    from .ops.space_to_depth import space_to_depth
+    return [space_to_depth(dev, prec, inputs[0], int(attrs["blocksize"]), attrs.get("mode", "DCR"))]
+
+
+def _family(name: str):
+    """A kernel family module, or Unsupported when this checkout lacks it (the
+    dry run then falls back to the unfused ONNX nodes)."""
+    import importlib
+    try:
+        return importlib.import_module(f"clss.ops.{name}")
+    except ModuleNotFoundError as e:
+        if e.name == f"clss.ops.{name}":
+            raise Unsupported(f"kernel family {name!r} is missing (clss/ops/{name}.py)") from None
+        raise
+
+
+@internal_op("clss.Conv")
+def _conv(dev, prec, attrs, inputs):
+    """Conv with its fused epilogue: act(conv(x, w) + b + residual)."""
+    conv = _family("conv")
+    x, w, b, r = (list(inputs) + [None] * 4)[:4]
+    return [conv.conv2d(dev, prec, x, w, b, strides=attrs["strides"], pads=attrs["pads"],
+                        dilations=attrs["dilations"], group=attrs["group"],
+                        activation=attrs["activation"], alpha=attrs["alpha"], residual=r)]
+
+
+@internal_op("clss.MLP")
+def _mlp(dev, prec, attrs, inputs):
+    """A chain of pointwise convolutions in one kernel (clss/ops/mlp.py)."""
+    mlp = _family("mlp")
+    return [mlp.mlp(dev, prec, inputs[0], attrs["layers"])]
+
+
+# --- the device the handlers see ----------------------------------------------------
+
+class PlannedDevice(Device):
+    """The model's Device as handlers see it. Shares the real device's context,
+    queue and program cache; intercepts allocation, uploads and (dry) launches."""
+
+    def __init__(self, base: Device):  # noqa: super().__init__ would make a new context
+        self.__dict__.update(base.__dict__)
+        self.base = base
+        self.dry = False
+        self.node = -1
+        self._cursor = 0
+        self._upload_cursor = 0
+        self.records: list[tuple] = []          # dry: (shape, dtype, array) per empty() call
+        self.planned: dict[tuple[int, int], tuple] = {}  # (node, call) -> (shape, dtype, array|None)
+        self.uploads: dict[tuple[int, int], tuple] = {}  # (node, call) -> (host, device)
+        self.unplanned = 0
+
+    def begin(self, node: int) -> None:
+        self.node, self._cursor, self._upload_cursor = node, 0, 0
+        self.records = []
+
+    def empty(self, shape, precision: str = "fp32", dtype=None):
+        dt = np.dtype(dtype) if dtype is not None else storage_dtype(precision)
+        shape = tuple(int(s) for s in shape)
+        if self.dry:
+            a = self.base.empty(shape, precision, dt)
+            self.records.append((shape, dt, a))
+            return a
+        key = (self.node, self._cursor)
+        self._cursor += 1
+        p = self.planned.get(key)
+        if p is not None and p[0] == shape and p[1] == dt:
+            return p[2] if p[2] is not None else self.base.empty(shape, precision, dt)
+        self.unplanned += 1
+        if self.unplanned == 1:
+            warnings.warn(f"node {self.node} allocated {shape} {dt} outside the load-time plan "
+                          "(a handler whose allocations differ between calls); running unplanned")
+        return self.base.empty(shape, precision, dt)
+
+    def to_device(self, a, precision: str = "fp32"):
+        """Handlers upload constant inputs (they arrive as numpy) on every call;
+        the same bytes at the same call site are uploaded once and kept."""
+        key = (self.node, self._upload_cursor)
+        self._upload_cursor += 1
+        a = np.asarray(a)
+        hit = self.uploads.get(key)
+        if hit is not None:
+            host, devarr = hit
+            if host is a or (host.shape == a.shape and host.dtype == a.dtype and np.array_equal(host, a)):
+                return devarr
+        devarr = self.base.to_device(a, precision)
+        self.uploads[key] = (a.copy(), devarr)
+        return devarr
+
+    def launch(self, kernel, global_size, args, local_size=None, wait_for=None):
+        if self.dry:
+            return cl.enqueue_marker(self.queue)
+        return self.base.launch(kernel, global_size, args, local_size, wait_for)
+
+
+# --- prepared nodes -----------------------------------------------------------------
+
+@dataclass
+class Step:
+    """A node ready to call: handler, and where each input comes from."""
+    node: Node
+    fn: object
+    sources: list              # per input: ("none",) | ("host", ndarray) | ("dev", name)
+    outputs: list[str]
+    expect: dict = field(default_factory=dict)   # output index -> planned buffer ptr (checked)
+    release: list = field(default_factory=list)  # tensors dead after this step
+
+
+def storage_ptr(a) -> int | None:
+    b = a.base_data
+    return None if b is None else b.int_ptr
+
+
+def _unsupported_reason(e: Exception) -> str:
+    if isinstance(e, Unsupported):
+        return str(e)
+    return f"{type(e).__name__}: {e}"
+
+
+class Executor:
+    """Validates, plans and runs a Graph on one device and precision."""
+
+    def __init__(self, graph: Graph, dev: Device, prec: str):
+        self.g = graph
+        self.base = dev
+        self.prec = prec
+        self.pdev = PlannedDevice(dev)
+        self.const_dev: dict[str, cla.Array] = {}   # constants used as device tensors
+        self.steps: list[Step] = []
+        self.plan = Plan()
+
+    # -- constants ------------------------------------------------------------------
+    def const_array(self, name: str) -> cla.Array:
+        a = self.const_dev.get(name)
+        if a is None:
+            a = self.base.to_device(self.g.consts[name], self.prec)
+            self.const_dev[name] = a
+        return a
+
+    @property
+    def weight_bytes(self) -> int:
+        return int(sum(a.nbytes for a in self.const_dev.values()))
+
+    # -- the dry run ----------------------------------------------------------------
+    def _step(self, node: Node) -> Step:
+        """Raises Unsupported when the node cannot be set up."""
+        h = handler_for(node.op)
+        if node.domain and not node.op.startswith("clss."):
+            raise Unsupported(f"custom domain {node.domain!r}: clss runs the default ONNX domain only")
+        if h is None:
+            raise Unsupported("no clss kernel for this op type")
+        g = self.g
+        for t in list(node.inputs) + list(node.outputs):
+            if t and t not in g.consts and g.dtypes.get(t) == np.float64:
+                raise Unsupported(f"tensor {t!r} is float64; clss kernels are float32/float16")
+        sources = []
+        for i, t in enumerate(node.inputs):
+            if not t:
+                sources.append(("none",))
+            elif i in h.const_inputs:
+                if t not in g.consts:
+                    raise Unsupported(f"input {i} ({t!r}) must be a constant (known at load); "
+                                      "here it depends on the graph's inputs")
+                sources.append(("host", g.consts[t]))
+            elif t in g.consts:
+                sources.append(("const", t))
+            else:
+                sources.append(("dev", t))
+        return Step(node, h.fn, sources, list(node.outputs))
+
+    def _inputs(self, step: Step, env: dict) -> list:
+        out = []
+        for s in step.sources:
+            k = s[0]
+            if k == "dev":
+                out.append(env[s[1]])
+            elif k == "host":
+                out.append(s[1])
+            elif k == "const":
+                out.append(self.const_array(s[1]))
+            else:
+                out.append(None)
+        return out
+
+    def _placeholder(self, t: str):
+        dt = self.g.dtypes[t]
+        return self.base.empty(self.g.shapes[t], self.prec, None if dt.kind == "f" else dt)
+
+    def trace(self) -> None:
+        """Call every node with launches disabled: collects every unsupported
+        node (fused ops that fail fall back to their parts), checks output
+        shapes, records allocations, then plans memory. Nothing is computed."""
+        g, pdev = self.g, self.pdev
+        work = list(g.nodes)
+        final: list[Node] = []
+        bad: list[tuple] = []
+        records: list[list] = []
+        outmap: list[list] = []
+        env: dict = {t: self._placeholder(t) for t in g.inputs}
+        remaining = _use_counts(work, g.outputs)
+        pdev.dry = True
+        try:
+            while work:
+                node = work.pop(0)
+                idx = len(final)
+                pdev.begin(idx)
+                try:
+                    step = self._step(node)
+                    ins = self._inputs(step, env)
+                    outs = list(step.fn(pdev, self.prec, node.attrs, ins))
+                    outs = self._check_outputs(node, outs)
+                except Exception as e:
+                    if not isinstance(e, (Unsupported, ValueError, NotImplementedError, TypeError,
+                                          KeyError, IndexError)):
+                        raise RuntimeError(f"node {node.name!r} ({node.source_ops}): "
+                                           f"{type(e).__name__}: {e}") from e
+                    if node.unfused:
+                        work[:0] = node.unfused
+                        remaining = _use_counts(work, g.outputs)
+                        continue
+                    for name, op in node.sources:
+                        bad.append((name, op, node.opset, _unsupported_reason(e)))
+                    step = None
+                    outs = [self._placeholder(t) if t else None for t in node.outputs]
+                final.append(node)
+                self.steps.append(step)
+                recs = list(pdev.records)
+                records.append(recs)
+                ins_ptrs = {}
+                for t in node.inputs:
+                    if t and t in env:
+                        p = storage_ptr(env[t])
+                        if p is not None:
+                            ins_ptrs.setdefault(p, t)
+                om = []
+                for o in outs:
+                    p = None if o is None else storage_ptr(o)
+                    hit = next((("alloc", j) for j, r in enumerate(recs)
+                                if p is not None and storage_ptr(r[2]) == p), None)
+                    if hit is None and p is not None and p in ins_ptrs:
+                        hit = ("alias", ins_ptrs[p])
+                    if hit is None:
+                        hit = ("foreign", 0 if o is None else o.nbytes)
+                    om.append(hit)
+                outmap.append(om)
+                for t, o in zip(node.outputs, outs):
+                    if t:
+                        env[t] = o
+                for t in node.inputs:
+                    if t and t in remaining:
+                        remaining[t] -= 1
+                        if remaining[t] <= 0:
+                            env.pop(t, None)
+                for t in node.outputs:
+                    if t and remaining.get(t, 0) <= 0:
+                        env.pop(t, None)
+                pdev.records = []
+        finally:
+            pdev.dry = False
+            env.clear()
+        g.nodes = final
+        if bad:
+            raise UnsupportedModelError(bad)
+        self._plan(records, outmap)
+
+    def _check_outputs(self, node: Node, outs: list) -> list:
+        g = self.g
+        if len(outs) < sum(1 for t in node.outputs if t):
+            used = [k for k, t in enumerate(node.outputs) if t and k >= len(outs)]
+            if used:
+                raise Unsupported(f"produces {len(outs)} output(s); the model uses output {used[0]}")
+        fixed = []
+        for t, o in zip(node.outputs, outs):
+            if not t:
+                fixed.append(o)
+                continue
+            want = tuple(g.shapes[t])
+            if tuple(o.shape) != want:
+                if int(np.prod(o.shape)) == int(np.prod(want)):
+                    o = o.reshape(want)
+                else:
+                    raise Unsupported(f"output {t!r} has shape {tuple(o.shape)}; ONNX shape inference "
+                                      f"says {want}")
+            fixed.append(o)
+        return fixed
+
+    # -- planning -------------------------------------------------------------------
+    def _plan(self, records, outmap) -> None:
+        g = self.g
+        n = len(g.nodes)
+        last: dict[str, int] = {}
+        for i, node in enumerate(g.nodes):
+            for t in node.inputs:
+                if t:
+                    last[t] = i
+        outputs = set(g.outputs)
+        root: dict[str, tuple | None] = {}
+        allocs: dict[tuple[int, int], Alloc] = {}
+        for i, recs in enumerate(records):
+            for j, (shape, dt, arr) in enumerate(recs):
+                nb = int(arr.nbytes)
+                allocs[(i, j)] = Alloc(i, j, shape, dt, nb, i, i, fresh=nb == 0)
+        unplanned = 0
+        for i, (node, om) in enumerate(zip(g.nodes, outmap)):
+            for t, m in zip(node.outputs, om):
+                if not t:
+                    continue
+                if m[0] == "alloc":
+                    root[t] = (i, m[1])
+                elif m[0] == "alias":
+                    root[t] = root.get(m[1])
+                else:
+                    root[t] = None
+                    unplanned += m[1]
+        for t, r in root.items():
+            if r is None:
+                continue
+            a = allocs[r]
+            if t in outputs:
+                a.fresh = True
+            a.end = max(a.end, last.get(t, a.start))
+        self.plan = Plan(allocs, assign_slots(list(allocs.values())), unplanned)
+        check_plan(list(allocs.values()))
+        self._materialise(outmap, last)
+
+    def _materialise(self, outmap, last) -> None:
+        """One buffer per slot; each pooled allocation an Array view into its slot."""
+        buffers = [cl.Buffer(self.base.context, cl.mem_flags.READ_WRITE, max(int(s), 1))
+                   for s in self.plan.slots]
+        planned = {}
+        for key, a in self.plan.allocs.items():
+            arr = None
+            if not a.fresh and a.slot is not None:
+                arr = cla.Array(self.base.queue, a.shape, a.dtype, data=buffers[a.slot])
+            planned[key] = (a.shape, a.dtype, arr)
+        self.pdev.planned = planned
+        self._buffers = buffers
+        # Where each pooled output must land: a handler that allocates differently
+        # at run time than in the dry run would break the liveness the plan rests on.
+        outputs = set(self.g.outputs)
+        for i, (step, om) in enumerate(zip(self.steps, outmap)):
+            step.expect = {k: storage_ptr(planned[(i, m[1])][2]) for k, m in enumerate(om)
+                           if m[0] == "alloc" and planned[(i, m[1])][2] is not None}
+            step.release = [t for t in set(step.node.inputs) if t and last.get(t) == i
+                            and t not in outputs]
+        # Constants the handlers take as device tensors are uploaded now, once.
+        for step in self.steps:
+            for s in step.sources:
+                if s[0] == "const":
+                    self.const_array(s[1])
+
+    # -- a run ----------------------------------------------------------------------
+    def run(self, env: dict) -> dict:
+        """env: graph input name -> device array. Returns every graph output."""
+        g, pdev, prec = self.g, self.pdev, self.prec
+        pdev.unplanned = 0
+        for i, step in enumerate(self.steps):
+            pdev.begin(i)
+            outs = step.fn(pdev, prec, step.node.attrs, self._inputs(step, env))
+            for k, (t, o) in enumerate(zip(step.outputs, outs)):
+                if not t:
+                    continue
+                want = g.shapes[t]
+                env[t] = o if tuple(o.shape) == tuple(want) else o.reshape(want)
+                p = step.expect.get(k)
+                if p is not None and storage_ptr(o) != p:
+                    raise RuntimeError(f"node {step.node.name!r} ({step.node.source_ops}) wrote output "
+                                       f"{t!r} outside its planned buffer: its handler allocates "
+                                       "differently from the load-time dry run")
+            for t in step.release:
+                env.pop(t, None)
+        res = {}
+        for t in g.outputs:
+            if t in env:
+                res[t] = env[t]
+            else:
+                res[t] = self.const_array(t)
+        return res
+
+
+def _use_counts(nodes: list[Node], outputs) -> dict[str, int]:
+    c: dict[str, int] = {}
+    for n in nodes:
+        for t in n.inputs:
+            if t:
+                c[t] = c.get(t, 0) + 1
+    for t in outputs:
+        c[t] = c.get(t, 0) + 10**9   # graph outputs stay
+    return c

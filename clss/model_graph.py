@@ -1,0 +1,451 @@
+"""ONNX file -> a static graph: checked, opset-validated, every shape resolved,
+constants folded. What clss.Model's passes and planner work on.
+
+Everything here happens on the host before any device allocation, so bad models
+(malformed, symbolic shapes without input_shapes, absurd tensor sizes) are
+refused with a message before the device is touched.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+import onnx
+from onnx import helper, numpy_helper
+
+MIN_OPSET, MAX_OPSET = 11, 21
+# Kernels index with 32-bit ints: a tensor past this many elements is refused.
+MAX_ELEMENTS = 2**31 - 1
+# Folding evaluates on the host; a folded constant past this is a model we refuse
+# rather than fill host memory with.
+MAX_FOLD_ELEMENTS = 2**26
+
+FLOAT_TYPES = (onnx.TensorProto.FLOAT, onnx.TensorProto.FLOAT16)
+
+
+class ModelError(ValueError):
+    """A model clss cannot load: malformed, unsupported opset, unresolved shapes."""
+
+
+class InputError(ValueError):
+    """A run's inputs do not match the model: name, shape or dtype."""
+
+
+class UnsupportedModelError(ModelError):
+    """One or more nodes clss cannot run; ``nodes`` lists (name, op_type, opset, reason)."""
+
+    def __init__(self, nodes: list[tuple[str, str, int, str]]):
+        self.nodes = nodes
+        lines = [f"  - {n!r} ({op}, opset {ver}): {why}" for n, op, ver, why in nodes]
+        super().__init__(f"{len(nodes)} node(s) of this model are not supported by clss:\n"
+                         + "\n".join(lines))
+
+
+@dataclass
+class Node:
+    """One operation. ``op`` is an ONNX op type (run by the registered handler)
+    or an internal "clss.*" op. ``sources`` names the ONNX nodes it stands for
+    ((name, op_type) pairs); ``unfused`` the nodes to fall back to when a fused
+    op turns out to be unsupported."""
+    op: str
+    inputs: list[str]
+    outputs: list[str]
+    attrs: dict
+    name: str
+    opset: int
+    domain: str = ""
+    sources: list = field(default_factory=list)
+    unfused: list | None = None
+
+    def __post_init__(self):
+        if not self.sources:
+            self.sources = [(self.name, self.op)]
+
+    @property
+    def source_ops(self) -> str:
+        return "+".join(op for _, op in self.sources)
+
+
+@dataclass
+class Graph:
+    nodes: list[Node]
+    inputs: list[str]           # runtime graph inputs, in model order
+    outputs: list[str]
+    shapes: dict[str, tuple]    # every tensor, static
+    dtypes: dict[str, np.dtype]
+    consts: dict[str, np.ndarray]
+    opset: int
+    elem_types: dict[str, int] = field(default_factory=dict)  # graph inputs/outputs, ONNX types
+    _counter: int = 0
+
+    def fresh(self, stem: str) -> str:
+        """A tensor name not used anywhere yet."""
+        while True:
+            self._counter += 1
+            name = f"{stem}__clss{self._counter}"
+            if name not in self.shapes and name not in self.consts:
+                return name
+
+    def consumers(self) -> dict[str, list[int]]:
+        use: dict[str, list[int]] = {}
+        for i, n in enumerate(self.nodes):
+            for t in n.inputs:
+                if t:
+                    use.setdefault(t, []).append(i)
+        return use
+
+    def producer(self) -> dict[str, int]:
+        return {t: i for i, n in enumerate(self.nodes) for t in n.outputs if t}
+
+    def add_const(self, stem: str, value: np.ndarray) -> str:
+        name = self.fresh(stem)
+        self.consts[name] = value
+        self.shapes[name] = tuple(value.shape)
+        self.dtypes[name] = value.dtype
+        return name
+
+
+# --- loading and validation -------------------------------------------------------
+
+def load_proto(model) -> onnx.ModelProto:
+    """A private copy of the model from a path, bytes or ModelProto."""
+    if isinstance(model, onnx.ModelProto):
+        m = onnx.ModelProto()
+        m.CopyFrom(model)
+        return m
+    if isinstance(model, (bytes, bytearray, memoryview)):
+        try:
+            return onnx.load_from_string(bytes(model))
+        except Exception as e:
+            raise ModelError(f"not an ONNX model: {e}") from None
+    if isinstance(model, (str, os.PathLike)):
+        path = os.fspath(model)
+        if not os.path.isfile(path):
+            raise ModelError(f"no such model file: {path}")
+        try:
+            return onnx.load(path)
+        except Exception as e:
+            raise ModelError(f"{path}: not an ONNX model: {e}") from None
+    raise TypeError(f"model must be a path, bytes or onnx.ModelProto, got {type(model).__name__}")
+
+
+def check(m: onnx.ModelProto) -> int:
+    """onnx's checker and the opset range; returns the default-domain opset."""
+    try:
+        onnx.checker.check_model(m)
+    except onnx.checker.ValidationError as e:
+        raise ModelError(f"malformed model (onnx checker): {e}") from None
+    opsets = {o.domain or "": o.version for o in m.opset_import}
+    opset = opsets.get("", opsets.get("ai.onnx"))
+    if opset is None:
+        raise ModelError("model imports no default-domain (ai.onnx) opset")
+    if not MIN_OPSET <= opset <= MAX_OPSET:
+        raise ModelError(f"model uses ONNX opset {opset}; clss supports opsets {MIN_OPSET} to {MAX_OPSET} "
+                         f"(onnx.version_converter.convert_version can move it into range)")
+    return opset
+
+
+def _dims(vi: onnx.ValueInfoProto):
+    t = vi.type.tensor_type
+    if not t.HasField("shape"):
+        return None
+    return [d.dim_value if d.HasField("dim_value") else (d.dim_param or "?") for d in t.shape.dim]
+
+
+def parse_shape(spec) -> tuple[int, ...]:
+    """(1, 3, 64, 64), [1, 3, 64, 64] or "1x3x64x64"."""
+    if isinstance(spec, str):
+        try:
+            return tuple(int(s) for s in spec.lower().replace(",", "x").split("x") if s.strip())
+        except ValueError:
+            raise ModelError(f"cannot parse shape {spec!r}; write it like 1x3x64x64") from None
+    return tuple(int(s) for s in spec)
+
+
+def resolve_inputs(m: onnx.ModelProto, input_shapes: dict | None) -> dict[str, tuple]:
+    """Concrete shape of every runtime input; writes them into the model."""
+    g = m.graph
+    inits = {t.name for t in g.initializer}
+    runtime = [i for i in g.input if i.name not in inits]
+    names = [i.name for i in runtime]
+    given = {k: parse_shape(v) for k, v in (input_shapes or {}).items()}
+    unknown = sorted(set(given) - set(names))
+    if unknown:
+        raise ModelError(f"input_shapes names {', '.join(map(repr, unknown))}, which the model does not "
+                         f"have; its inputs are {', '.join(map(repr, names))}")
+    out = {}
+    for vi in runtime:
+        if vi.type.WhichOneof("value") != "tensor_type":
+            raise ModelError(f"input {vi.name!r} is not a tensor; clss runs tensor inputs only")
+        dims = _dims(vi)
+        if vi.name in given:
+            shape = given[vi.name]
+            if dims is not None:
+                if len(dims) != len(shape):
+                    raise ModelError(f"input_shapes gives {vi.name!r} rank {len(shape)} {list(shape)}; "
+                                     f"the model declares rank {len(dims)} {dims}")
+                for ax, (d, s) in enumerate(zip(dims, shape)):
+                    if isinstance(d, int) and d != s:
+                        raise ModelError(f"input_shapes gives {vi.name!r} size {s} on axis {ax}; "
+                                         f"the model fixes it to {d} (shape {dims})")
+            if any(s < 0 for s in shape):
+                raise ModelError(f"input_shapes gives {vi.name!r} a negative size: {list(shape)}")
+        else:
+            if dims is None:
+                raise ModelError(f"input {vi.name!r} has no declared shape; pass "
+                                 f"input_shapes={{{vi.name!r}: (...)}} at load")
+            sym = [(ax, d) for ax, d in enumerate(dims) if not isinstance(d, int)]
+            if sym:
+                ax, d = sym[0]
+                raise ModelError(
+                    f"input {vi.name!r} has symbolic dimension {d!r} (axis {ax}) in shape {dims}; "
+                    f"clss resolves shapes at load: pass input_shapes={{{vi.name!r}: (...)}}, "
+                    f"e.g. clss.Model(path, input_shapes={{{vi.name!r}: "
+                    f"{tuple(x if isinstance(x, int) else 64 for x in dims)}}})")
+            shape = tuple(dims)
+        out[vi.name] = tuple(int(s) for s in shape)
+        tt = vi.type.tensor_type
+        tt.shape.Clear()
+        for s in shape:
+            tt.shape.dim.add().dim_value = int(s)
+    return out
+
+
+def _infer(m: onnx.ModelProto) -> onnx.ModelProto:
+    del m.graph.value_info[:]
+    try:
+        return onnx.shape_inference.infer_shapes(m, check_type=True, strict_mode=True, data_prop=True)
+    except Exception as e:  # InferenceError and friends
+        raise ModelError(f"shape inference failed: {e}") from None
+
+
+def _collect(m: onnx.ModelProto):
+    shapes, types = {}, {}
+    g = m.graph
+    for vi in list(g.input) + list(g.value_info) + list(g.output):
+        if vi.type.WhichOneof("value") != "tensor_type":
+            continue
+        tt = vi.type.tensor_type
+        if tt.elem_type:
+            types[vi.name] = tt.elem_type
+        dims = _dims(vi)
+        if dims is not None and all(isinstance(d, int) for d in dims):
+            shapes[vi.name] = tuple(dims)
+    for t in g.initializer:
+        shapes[t.name] = tuple(t.dims)
+        types[t.name] = t.data_type
+    return shapes, types
+
+
+def _np_dtype(elem_type: int) -> np.dtype:
+    return np.dtype(helper.tensor_dtype_to_np_dtype(elem_type))
+
+
+def _nbytes_limit(shape, dtype, name, what, max_alloc):
+    n = int(np.prod(shape, dtype=object)) if len(shape) else 1
+    if n > MAX_ELEMENTS:
+        raise ModelError(f"{what} {name!r} would have shape {list(shape)} = {n:,} elements; clss refuses "
+                         f"tensors over 2^31-1 elements (no allocation was made)")
+    size = n * dtype.itemsize
+    if max_alloc and size > max_alloc:
+        raise ModelError(f"{what} {name!r} of shape {list(shape)} needs {size / 2**20:,.1f} MiB, over the "
+                         f"device's max allocation {max_alloc / 2**20:,.0f} MiB (no allocation was made)")
+
+
+def check_sizes(shapes: dict, types: dict, max_alloc: int | None, storage_itemsize: int = 4,
+                producers: dict | None = None) -> None:
+    for name, shape in shapes.items():
+        et = types.get(name)
+        dt = np.dtype(np.float32) if et in FLOAT_TYPES or et is None else _np_dtype(et)
+        if dt.kind == "f":
+            dt = np.dtype(f"f{storage_itemsize}")
+        what = "tensor" if not producers or name not in producers else \
+            f"output of {producers[name]}; tensor"
+        _nbytes_limit(shape, dt, name, what, max_alloc)
+
+
+# --- constant folding -------------------------------------------------------------
+
+# Ops never folded: no inputs to be constant, or randomness, or subgraphs.
+NO_FOLD = {"RandomNormal", "RandomUniform", "RandomNormalLike", "RandomUniformLike", "Multinomial",
+           "Bernoulli", "If", "Loop", "Scan", "SequenceConstruct", "SequenceEmpty"}
+
+
+def _fold_guard(node, vals):
+    """Refuse folds whose host result would be absurd, judged from the inputs."""
+    op = node.op_type
+    n = None
+    if op == "ConstantOfShape":
+        n = int(np.prod(vals[0].astype(object))) if vals[0].size else 1
+    elif op == "Range":
+        start, limit, delta = (float(v) for v in vals[:3])
+        n = max(int(np.ceil((limit - start) / delta)), 0) if delta else MAX_ELEMENTS + 1
+    elif op == "Expand":
+        n = int(np.prod(np.broadcast_shapes(vals[0].shape, tuple(int(v) for v in vals[1])), dtype=object))
+    elif op == "Tile":
+        n = int(np.prod(np.array(vals[0].shape, dtype=object) * vals[1].astype(object)))
+    if n is not None and n > MAX_FOLD_ELEMENTS:
+        raise ModelError(f"node {node.name or op!r} ({op}) would fold to a constant of {n:,} elements; "
+                         "clss refuses it (no allocation was made)")
+
+
+def _evaluate(node: onnx.NodeProto, vals, opset: int) -> list[np.ndarray]:
+    from onnx.reference import ReferenceEvaluator
+    names = [f"i{k}" if t else "" for k, t in enumerate(node.input)]
+    n2 = onnx.NodeProto()
+    n2.CopyFrom(node)
+    del n2.input[:]
+    n2.input.extend(names)
+    feeds = {nm: v for nm, v in zip(names, vals) if nm}
+    try:
+        outs = ReferenceEvaluator(n2, opsets={"": opset}).run(None, feeds)
+    except Exception as e:
+        raise ModelError(f"constant folding of node {node.name or node.op_type!r} ({node.op_type}) "
+                         f"failed: {e}") from None
+    return [np.asarray(o) for o in outs]
+
+
+def fold_constants(m: onnx.ModelProto, shapes: dict, opset: int) -> bool:
+    """Replace nodes computable at load by initializers: Constant, Shape/Size of
+    static tensors, and any default-domain node whose inputs are all constant.
+    Returns whether anything changed."""
+    g = m.graph
+    consts: dict[str, np.ndarray] = {}
+    init_names = {t.name for t in g.initializer}
+    runtime_inputs = {i.name for i in g.input if i.name not in init_names}
+
+    def value(name):
+        if name not in consts:
+            t = next(t for t in g.initializer if t.name == name)
+            consts[name] = numpy_helper.to_array(t)
+        return consts[name]
+
+    keep, new_inits, changed = [], [], False
+    known = set(init_names)
+    for node in g.node:
+        outs = None
+        dom = node.domain or ""
+        if dom in ("", "ai.onnx"):
+            if node.op_type == "Constant":
+                outs = [_constant_value(node)]
+            elif node.op_type in ("Shape", "Size") and node.input[0] in shapes:
+                shape = shapes[node.input[0]]
+                if node.op_type == "Size":
+                    outs = [np.array(int(np.prod(shape)), np.int64)]
+                else:
+                    a = {x.name: helper.get_attribute_value(x) for x in node.attribute}
+                    r = len(shape)
+                    s = a.get("start", 0)
+                    e = a.get("end", r)
+                    s, e = (max(0, min(r, v + r if v < 0 else v)) for v in (s, e))
+                    outs = [np.array(shape[s:e], np.int64)]
+            elif (node.op_type not in NO_FOLD and len(node.input) > 0
+                  and all((not t) or t in known for t in node.input)
+                  and not any(t in runtime_inputs for t in node.input)):
+                vals = [value(t) if t else None for t in node.input]
+                _fold_guard(node, [v for v in vals if v is not None])
+                outs = _evaluate(node, vals, opset)
+        if outs is None:
+            keep.append(node)
+            continue
+        changed = True
+        for name, v in zip(node.output, outs):
+            if name:
+                consts[name] = v
+                known.add(name)
+                new_inits.append(numpy_helper.from_array(np.asarray(v), name))
+    if changed:
+        del g.node[:]
+        g.node.extend(keep)
+        g.initializer.extend(new_inits)
+        # Folded values that are also graph outputs stay outputs (as constants).
+    return changed
+
+
+def _constant_value(node: onnx.NodeProto) -> np.ndarray:
+    a = {x.name: x for x in node.attribute}
+    if "value" in a:
+        return numpy_helper.to_array(a["value"].t)
+    if "value_float" in a:
+        return np.array(a["value_float"].f, np.float32)
+    if "value_floats" in a:
+        return np.array(list(a["value_floats"].floats), np.float32)
+    if "value_int" in a:
+        return np.array(a["value_int"].i, np.int64)
+    if "value_ints" in a:
+        return np.array(list(a["value_ints"].ints), np.int64)
+    raise ModelError(f"Constant node {node.name!r}: unsupported value attribute {sorted(a)}")
+
+
+# --- the whole load ---------------------------------------------------------------
+
+def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
+          storage_itemsize: int = 4) -> tuple[Graph, onnx.ModelProto, dict]:
+    """Load, check, resolve shapes and fold. Returns the static Graph, the
+    shape-resolved ModelProto (before folding, for FLOP counting and `clss info`),
+    and the resolved input shapes."""
+    m = load_proto(model)
+    opset = check(m)
+    if m.functions:
+        try:
+            from onnx import inliner
+            m = inliner.inline_local_functions(m)
+        except Exception as e:
+            raise ModelError(f"could not inline the model's local functions: {e}") from None
+    in_shapes = resolve_inputs(m, input_shapes)
+    resolved = _infer(m)
+    producers = {t: f"{n.op_type} node {n.name!r}" for n in m.graph.node for t in n.output}
+    shapes, types = _collect(resolved)
+    check_sizes(shapes, types, max_alloc, storage_itemsize, producers)
+    original = resolved
+    work = onnx.ModelProto()
+    work.CopyFrom(resolved)
+    for _ in range(16):
+        if not fold_constants(work, shapes, opset):
+            break
+        work = _infer(work)
+        shapes, types = _collect(work)
+        check_sizes(shapes, types, max_alloc, storage_itemsize, producers)
+    return _to_graph(work, shapes, types, opset, in_shapes), original, in_shapes
+
+
+def _to_graph(m, shapes, types, opset, in_shapes) -> Graph:
+    g = m.graph
+    consts = {t.name: _host_const(numpy_helper.to_array(t)) for t in g.initializer}
+    init_names = set(consts)
+    inputs = [i.name for i in g.input if i.name not in init_names]
+    nodes = []
+    opsets = {o.domain or "": o.version for o in m.opset_import}
+    for k, n in enumerate(g.node):
+        name = n.name or f"#{k} {n.op_type}"
+        dom = n.domain if n.domain not in ("", "ai.onnx") else ""
+        nodes.append(Node(n.op_type, list(n.input), list(n.output),
+                          {a.name: helper.get_attribute_value(a) for a in n.attribute},
+                          name, opsets.get(dom, opset), dom))
+    for n in nodes:
+        for t in n.outputs:
+            if t and t not in shapes:
+                raise ModelError(f"could not resolve the shape of tensor {t!r} (output of {n.op} node "
+                                 f"{n.name!r}); clss needs every shape static at load")
+            if t and t not in types:
+                raise ModelError(f"could not resolve the element type of tensor {t!r} "
+                                 f"(output of {n.op} node {n.name!r})")
+    dtypes = {}
+    for t, et in types.items():
+        dtypes[t] = np.dtype(np.float32) if et in FLOAT_TYPES else _np_dtype(et)
+    for t, v in consts.items():
+        dtypes[t] = v.dtype
+        shapes[t] = tuple(v.shape)
+    elem_types = {t: types[t] for t in inputs + [o.name for o in g.output] if t in types}
+    return Graph(nodes, inputs, [o.name for o in g.output], dict(shapes), dtypes, consts, opset,
+                 elem_types)
+
+
+def _host_const(v: np.ndarray) -> np.ndarray:
+    """Float constants are handled as float32 on the host (fp16 storage is the
+    device's business); others as they are."""
+    v = np.asarray(v)
+    if v.dtype == np.float16:
+        return v.astype(np.float32)
+    return np.ascontiguousarray(v)

@@ -1,0 +1,632 @@
+"""Load-time graph rewrites on the static Graph (clss/model_graph.py).
+
+Each pass keeps the graph's meaning exactly (up to float rounding where
+weights are refolded) and every tensor's recorded shape. Order matters and is
+fixed in ``run_passes``: opset normalisation, Identity removal, pattern
+matching on Reshape/Transpose, then views, BatchNorm folding, MatMul/Gemm
+lowering, Conv canonicalisation and fusion, MLP chains, dead-node removal.
+Fused nodes keep the nodes they replace (``Node.unfused``) so the load-time
+dry run can fall back when a kernel refuses the fused form.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .model_graph import Graph, Node
+
+ACT_OPS = {"Relu": "relu", "LeakyRelu": "leaky_relu", "Sigmoid": "sigmoid", "Tanh": "tanh"}
+
+
+def run_passes(g: Graph, conv_fusion: bool = True, mlp_fusion: bool = True) -> list[str]:
+    """Apply every pass; returns a log of what each changed (for `clss info`)."""
+    log = []
+    for name, fn in PASSES:
+        if name.startswith("conv") and not conv_fusion:
+            continue
+        if name == "mlp" and not mlp_fusion:
+            continue
+        n = fn(g)
+        if n:
+            log.append(f"{name}: {n}")
+    return log
+
+
+# --- helpers ------------------------------------------------------------------------
+
+def _replace_uses(g: Graph, old: str, new: str) -> None:
+    for n in g.nodes:
+        n.inputs = [new if t == old else t for t in n.inputs]
+
+
+def _single_use(g: Graph, t: str, uses: dict) -> bool:
+    return len(uses.get(t, ())) == 1 and t not in g.outputs
+
+
+def _const(g: Graph, t: str):
+    return g.consts.get(t) if t else None
+
+
+def _view(g: Graph, x: str, shape, out: str | None = None, name: str = "", sources=None) -> tuple[Node, str]:
+    shape = tuple(int(s) for s in shape)
+    out = out or g.fresh(x)
+    g.shapes[out] = shape
+    g.dtypes[out] = g.dtypes[x]
+    return Node("clss.View", [x], [out], {"shape": shape}, name or f"view {x}", g.opset,
+                sources=sources or [(name or f"view {x}", "Reshape")]), out
+
+
+# --- opset normalisation ------------------------------------------------------------
+
+def normalise_opsets(g: Graph) -> int:
+    """Handlers implement the current (opset 13+) semantics; older forms are
+    rewritten: Softmax/LogSoftmax/Hardmax < 13 flatten to 2-D at ``axis``;
+    Split < 13 takes its sizes as an attribute."""
+    changed = 0
+    new_nodes = []
+    for n in g.nodes:
+        if n.op in ("Softmax", "LogSoftmax", "Hardmax") and n.opset < 13:
+            shape = g.shapes[n.inputs[0]]
+            r = len(shape)
+            axis = int(n.attrs.get("axis", 1))
+            axis = axis + r if axis < 0 else axis
+            n.attrs = {**n.attrs, "axis": -1}
+            if axis != r - 1 and r > 0:
+                rows = int(np.prod(shape[:axis], dtype=np.int64))
+                cols = int(np.prod(shape[axis:], dtype=np.int64))
+                v1, t1 = _view(g, n.inputs[0], (rows, cols), name=f"{n.name} (2-D)", sources=n.sources)
+                y = n.outputs[0]
+                t2 = g.fresh(y)
+                g.shapes[t2] = (rows, cols)
+                g.dtypes[t2] = g.dtypes[y]
+                v2, _ = _view(g, t2, shape, out=y, name=f"{n.name} (back)", sources=n.sources)
+                n.inputs = [t1]
+                n.outputs = [t2]
+                new_nodes += [v1, n, v2]
+                changed += 1
+                continue
+            changed += 1
+        elif n.op == "Split" and (len(n.inputs) < 2 or not n.inputs[1]):
+            # Sizes explicit from the resolved output shapes: the attribute form
+            # (< 13), and the equal split whose count is only the output count.
+            r = len(g.shapes[n.inputs[0]])
+            axis = int(n.attrs.get("axis", 0))
+            axis = axis + r if axis < 0 else axis
+            sizes = np.array(n.attrs.get("split", [g.shapes[t][axis] for t in n.outputs]), np.int64)
+            n.attrs = {k: v for k, v in n.attrs.items() if k not in ("split", "num_outputs")}
+            n.inputs = [n.inputs[0], g.add_const(f"{n.name}.split", sizes)]
+            changed += 1
+        new_nodes.append(n)
+    g.nodes = new_nodes
+    return changed
+
+
+# --- Identity, Dropout ---------------------------------------------------------------
+
+def remove_identities(g: Graph) -> int:
+    """Identity (and inference-mode Dropout) cost nothing: their consumers read
+    the input. A graph output that would be left without a producer of its own
+    gets a clss.Copy."""
+    changed = 0
+    inputs = set(g.inputs)
+    outputs = set(g.outputs)
+    for n in list(g.nodes):
+        if n.op == "Dropout":
+            tm = n.inputs[2] if len(n.inputs) > 2 else ""
+            if tm and (tm not in g.consts or bool(g.consts[tm])):
+                continue  # training mode: left for the unsupported list
+            if len(n.outputs) > 1 and n.outputs[1]:
+                g.consts[n.outputs[1]] = np.ones(g.shapes[n.outputs[1]], bool)
+            n.outputs = n.outputs[:1]
+            n.inputs = n.inputs[:1]
+        elif n.op != "Identity":
+            continue
+        x, y = n.inputs[0], n.outputs[0]
+        changed += 1
+        if x in g.consts and y not in g.consts:
+            g.consts[y] = g.consts[x]
+            g.nodes.remove(n)
+        elif y not in outputs:
+            g.nodes.remove(n)
+            _replace_uses(g, y, x)
+        elif x not in inputs and x not in outputs and x not in g.consts:
+            # The producer writes the output name directly.
+            g.nodes.remove(n)
+            for m in g.nodes:
+                m.outputs = [y if t == x else t for t in m.outputs]
+            _replace_uses(g, x, y)
+        else:
+            n.op = "clss.Copy"
+            n.attrs = {}
+    return changed
+
+
+# --- Reshape/Transpose patterns ------------------------------------------------------
+
+# (6-D intermediate layout, perm) -> (op, mode). Block size r, channels C, H, W:
+#   DepthToSpace CRD (pixel_shuffle):   [N,C,r,r,H,W] perm (0,1,4,2,5,3)
+#   DepthToSpace DCR (ONNX default):    [N,r,r,C,H,W] perm (0,3,4,1,5,2)
+#   SpaceToDepth CRD (pixel_unshuffle): [N,C,H,r,W,r] perm (0,1,3,5,2,4)
+#   SpaceToDepth DCR (ONNX):            [N,C,H,r,W,r] perm (0,3,5,1,2,4)
+_SHUFFLES = {(0, 1, 4, 2, 5, 3): ("DepthToSpace", "CRD"), (0, 3, 4, 1, 5, 2): ("DepthToSpace", "DCR"),
+             (0, 1, 3, 5, 2, 4): ("clss.SpaceToDepth", "CRD"), (0, 3, 5, 1, 2, 4): ("SpaceToDepth", "DCR")}
+
+
+def _shuffle_block(op, mode, x_shape, t1_shape, y_shape):
+    """The block size if the shapes are exactly that shuffle, else None."""
+    if len(x_shape) != 4 or len(t1_shape) != 6 or len(y_shape) != 4:
+        return None
+    n, c0, h0, w0 = x_shape
+    if op == "DepthToSpace":
+        r = t1_shape[2] if mode == "CRD" else t1_shape[1]
+        want_t1 = (n, c0 // (r * r), r, r, h0, w0) if mode == "CRD" else (n, r, r, c0 // (r * r), h0, w0)
+        want_y = (n, c0 // (r * r), h0 * r, w0 * r)
+        ok = r > 0 and c0 % (r * r) == 0
+    else:
+        r = t1_shape[3]
+        want_t1 = (n, c0, h0 // r, r, w0 // r, r) if r > 0 else None
+        want_y = (n, c0 * r * r, h0 // r, w0 // r) if r > 0 else None
+        ok = r > 0 and h0 % r == 0 and w0 % r == 0
+    if ok and tuple(t1_shape) == want_t1 and tuple(y_shape) == want_y:
+        return int(r)
+    return None
+
+
+def pixel_shuffle(g: Graph) -> int:
+    """Reshape -> Transpose -> Reshape spelling PixelShuffle/PixelUnshuffle
+    (either channel order) becomes one DepthToSpace/SpaceToDepth."""
+    changed = 0
+    while True:
+        uses = g.consumers()
+        prod = g.producer()
+        hit = None
+        for i, t in enumerate(g.nodes):
+            if t.op != "Transpose":
+                continue
+            perm = tuple(int(p) for p in t.attrs.get("perm", ()))
+            if perm not in _SHUFFLES:
+                continue
+            a, b = t.inputs[0], t.outputs[0]
+            if a not in prod or not _single_use(g, a, uses) or not _single_use(g, b, uses):
+                continue
+            r1 = g.nodes[prod[a]]
+            r2 = g.nodes[uses[b][0]]
+            if r1.op != "Reshape" or r2.op != "Reshape" or r1.inputs[0] in g.consts:
+                continue
+            op, mode = _SHUFFLES[perm]
+            x, y = r1.inputs[0], r2.outputs[0]
+            r = _shuffle_block(op, mode, g.shapes[x], g.shapes[a], g.shapes[y])
+            if r is None:
+                continue
+            hit = (r1, t, r2, op, mode, r, x, y)
+            break
+        if hit is None:
+            return changed
+        r1, t, r2, op, mode, r, x, y = hit
+        attrs = {"blocksize": r}
+        if op != "SpaceToDepth":
+            attrs["mode"] = mode
+        node = Node(op, [x], [y], attrs, r2.name, r2.opset,
+                    sources=r1.sources + t.sources + r2.sources)
+        k = g.nodes.index(r2)
+        g.nodes[k] = node
+        g.nodes.remove(r1)
+        g.nodes.remove(t)
+        changed += 1
+
+
+def lower_views(g: Graph) -> int:
+    """Reshape, Flatten, Squeeze, Unsqueeze (static shapes: the output shape is
+    known) and Transposes that only move size-1 axes are views of their input."""
+    changed = 0
+    for k, n in enumerate(g.nodes):
+        if n.op in ("Reshape", "Flatten", "Squeeze", "Unsqueeze"):
+            pass
+        elif n.op == "Transpose":
+            shape = g.shapes[n.inputs[0]]
+            perm = n.attrs.get("perm", list(range(len(shape)))[::-1])
+            moved = [p for p in perm if shape[p] != 1]
+            if moved != sorted(moved):
+                continue
+        else:
+            continue
+        x, y = n.inputs[0], n.outputs[0]
+        if x in g.consts:
+            continue
+        g.nodes[k] = Node("clss.View", [x], [y], {"shape": tuple(g.shapes[y])}, n.name, n.opset,
+                          sources=n.sources)
+        changed += 1
+    return changed
+
+
+# --- BatchNormalization ---------------------------------------------------------------
+
+def _bn_params(g: Graph, n: Node):
+    if len(n.outputs) > 1 and any(n.outputs[1:]):
+        return None
+    if n.attrs.get("training_mode", 0):
+        return None
+    vals = [_const(g, t) for t in n.inputs[1:5]]
+    if any(v is None for v in vals):
+        return None
+    scale, bias, mean, var = (v.astype(np.float64) for v in vals)
+    s = scale / np.sqrt(var + float(n.attrs.get("epsilon", 1e-5)))
+    return s, bias - mean * s
+
+
+def fold_batchnorm(g: Graph) -> int:
+    """BatchNormalization (inference) after a Conv/ConvTranspose with constant
+    weights is folded into them; elsewhere it becomes a depthwise 1x1 Conv."""
+    changed = 0
+    uses = g.consumers()
+    prod = g.producer()
+    for n in list(g.nodes):
+        if n.op != "BatchNormalization":
+            continue
+        p = _bn_params(g, n)
+        if p is None:
+            continue
+        s, sh = p
+        x = n.inputs[0]
+        c = prod.get(x)
+        conv = g.nodes[c] if c is not None else None
+        if (conv is not None and conv.op in ("Conv", "ConvTranspose") and _single_use(g, x, uses)
+                and _const(g, conv.inputs[1]) is not None
+                and (len(conv.inputs) < 3 or not conv.inputs[2] or _const(g, conv.inputs[2]) is not None)):
+            w = g.consts[conv.inputs[1]].astype(np.float64)
+            cout = s.shape[0]
+            b = (g.consts[conv.inputs[2]].astype(np.float64) if len(conv.inputs) > 2 and conv.inputs[2]
+                 else np.zeros(cout))
+            if conv.op == "Conv":
+                w2 = w * s.reshape((-1,) + (1,) * (w.ndim - 1))
+            else:
+                grp = int(conv.attrs.get("group", 1))
+                cin, cog = w.shape[:2]
+                w2 = (w.reshape((grp, cin // grp, cog) + w.shape[2:])
+                      * s.reshape((grp, 1, cog) + (1,) * (w.ndim - 2))).reshape(w.shape)
+            b2 = b * s + sh
+            conv.inputs = [conv.inputs[0], g.add_const(f"{conv.name}.weight_bn", w2.astype(np.float32)),
+                           g.add_const(f"{conv.name}.bias_bn", b2.astype(np.float32))]
+            conv.outputs = [n.outputs[0]]
+            conv.sources = conv.sources + n.sources
+            g.nodes.remove(n)
+            changed += 1
+            uses = g.consumers()
+            prod = g.producer()
+            continue
+        shape = g.shapes[x]
+        if not 2 <= len(shape) <= 4:
+            continue
+        cch = shape[1]
+        shape4 = tuple(shape) + (1,) * (4 - len(shape))
+        w = s.astype(np.float32).reshape(cch, 1, 1, 1)
+        b = sh.astype(np.float32)
+        conv_attrs = {"group": cch, "kernel_shape": [1, 1], "strides": [1, 1], "pads": [0, 0, 0, 0],
+                      "dilations": [1, 1]}
+        k = g.nodes.index(n)
+        wn, bn = g.add_const(f"{n.name}.weight", w), g.add_const(f"{n.name}.bias", b)
+        if len(shape) == 4:
+            g.nodes[k] = Node("Conv", [x, wn, bn], [n.outputs[0]], conv_attrs, n.name, n.opset,
+                              sources=n.sources)
+        else:
+            v1, t1 = _view(g, x, shape4, name=f"{n.name} (4-D)", sources=n.sources)
+            t2 = g.fresh(n.outputs[0])
+            g.shapes[t2], g.dtypes[t2] = shape4, g.dtypes[x]
+            conv = Node("Conv", [t1, wn, bn], [t2], conv_attrs, n.name, n.opset, sources=n.sources)
+            v2, _ = _view(g, t2, shape, out=n.outputs[0], name=f"{n.name} (back)", sources=n.sources)
+            g.nodes[k:k + 1] = [v1, conv, v2]
+        changed += 1
+        uses = g.consumers()
+        prod = g.producer()
+    return changed
+
+
+# --- MatMul / Gemm -----------------------------------------------------------------
+
+def _conv_node(g, name, opset, x, w, b, y, sources, group=1, residual=""):
+    attrs = {"strides": (1, 1), "pads": (0, 0, 0, 0), "dilations": (1, 1), "group": int(group),
+             "activation": "none", "alpha": 0.01}
+    return Node("clss.Conv", [x, w, b or "", residual], [y], attrs, name, opset, sources=sources)
+
+
+def lower_matmul(g: Graph) -> int:
+    """MatMul and Gemm as 1x1 convolutions.
+
+    With a constant right operand B [K,N] the rows of A are a batch of 1x1
+    images: x = A viewed [R,K,1,1], w = B^T [N,K,1,1] (Gemm's bias C per
+    column is the conv bias; a full [M,N] C is the fused residual). Otherwise
+    B [K,N] is viewed as one image [1,K,1,N] and A [M,K] as the weights
+    [M,K,1,1]: y[m,n] = sum_k A[m,k] B[k,n], batched over equal leading dims
+    with a grouped conv."""
+    changed = 0
+    for n in list(g.nodes):
+        if n.op not in ("MatMul", "Gemm"):
+            continue
+        rep = _lower_gemm(g, n) if n.op == "Gemm" else _lower_matmul(g, n)
+        if rep is None:
+            continue
+        k = g.nodes.index(n)
+        g.nodes[k:k + 1] = rep
+        changed += 1
+    return changed
+
+
+def _lower_matmul(g: Graph, n: Node):
+    a, b = n.inputs[:2]
+    y = n.outputs[0]
+    sa, sb, sy = g.shapes[a], g.shapes[b], g.shapes[y]
+    if len(sa) < 1 or len(sb) < 1 or g.dtypes[y].kind != "f":
+        return None
+    a2 = sa if len(sa) > 1 else (1,) + tuple(sa)
+    b2 = sb if len(sb) > 1 else tuple(sb) + (1,)
+    m, kk = a2[-2:]
+    k2, nn = b2[-2:]
+    if kk != k2:
+        return None
+    batch_a, batch_b = a2[:-2], b2[:-2]
+    ra = int(np.prod(batch_a, dtype=np.int64))
+    rb = int(np.prod(batch_b, dtype=np.int64))
+    out = []
+    bc = _const(g, b)
+    src = n.sources
+    if bc is not None and rb == 1:
+        wt = np.ascontiguousarray(bc.reshape(kk, nn).T.reshape(nn, kk, 1, 1)).astype(np.float32)
+        v1, xa = _view(g, a, (ra * m, kk, 1, 1), name=f"{n.name} (rows)", sources=src)
+        t = g.fresh(y)
+        g.shapes[t], g.dtypes[t] = (ra * m, nn, 1, 1), g.dtypes[y]
+        conv = _conv_node(g, n.name, n.opset, xa, g.add_const(f"{n.name}.weight", wt), "", t, src)
+        v2, _ = _view(g, t, sy, out=y, name=f"{n.name} (back)", sources=src)
+        return [v1, conv, v2]
+    if rb == 1:
+        # One image B [1,K,1,N]; all rows of A are output channels.
+        v1, xb = _view(g, b, (1, kk, 1, nn), name=f"{n.name} (B)", sources=src)
+        v2, wa = _view(g, a, (ra * m, kk, 1, 1), name=f"{n.name} (A)", sources=src)
+        t = g.fresh(y)
+        g.shapes[t], g.dtypes[t] = (1, ra * m, 1, nn), g.dtypes[y]
+        conv = _conv_node(g, n.name, n.opset, xb, wa, "", t, src)
+    elif ra == 1:
+        v1, xb = _view(g, b, (rb, kk, 1, nn), name=f"{n.name} (B)", sources=src)
+        v2, wa = _view(g, a, (m, kk, 1, 1), name=f"{n.name} (A)", sources=src)
+        t = g.fresh(y)
+        g.shapes[t], g.dtypes[t] = (rb, m, 1, nn), g.dtypes[y]
+        conv = _conv_node(g, n.name, n.opset, xb, wa, "", t, src)
+    elif tuple(batch_a) == tuple(batch_b):
+        v1, xb = _view(g, b, (1, rb * kk, 1, nn), name=f"{n.name} (B)", sources=src)
+        v2, wa = _view(g, a, (ra * m, kk, 1, 1), name=f"{n.name} (A)", sources=src)
+        t = g.fresh(y)
+        g.shapes[t], g.dtypes[t] = (1, ra * m, 1, nn), g.dtypes[y]
+        conv = _conv_node(g, n.name, n.opset, xb, wa, "", t, src, group=ra)
+    else:
+        return None
+    v3, _ = _view(g, t, sy, out=y, name=f"{n.name} (back)", sources=src)
+    out += [v1, v2, conv, v3]
+    return out
+
+
+def _lower_gemm(g: Graph, n: Node):
+    a, b = n.inputs[:2]
+    c = n.inputs[2] if len(n.inputs) > 2 else ""
+    y = n.outputs[0]
+    alpha = float(n.attrs.get("alpha", 1.0))
+    beta = float(n.attrs.get("beta", 1.0))
+    ta, tb = int(n.attrs.get("transA", 0)), int(n.attrs.get("transB", 0))
+    bc = _const(g, b)
+    if bc is None or ta:
+        return None   # left to a registered Gemm handler, if any
+    w = (bc.T if tb else bc).astype(np.float64) * alpha      # [K, N]
+    kk, nn = w.shape
+    m = g.shapes[a][0]
+    src = n.sources
+    bias, residual = "", ""
+    if c:
+        cc = _const(g, c)
+        if cc is not None:
+            cc = np.broadcast_to(cc.astype(np.float64) * beta, (m, nn)) if cc.ndim else \
+                np.full((m, nn), float(cc) * beta)
+            if np.all(cc == cc[:1]):
+                bias = g.add_const(f"{n.name}.bias", cc[0].astype(np.float32))
+            else:
+                residual = g.add_const(f"{n.name}.c", cc.reshape(m, nn, 1, 1).astype(np.float32))
+        elif beta == 1.0 and tuple(g.shapes[c]) == (m, nn):
+            rv, residual = _view(g, c, (m, nn, 1, 1), name=f"{n.name} (C)", sources=src)
+        else:
+            return None
+    out = []
+    if residual and residual not in g.consts:
+        out.append(rv)
+    v1, xa = _view(g, a, (m, kk, 1, 1), name=f"{n.name} (rows)", sources=src)
+    t = g.fresh(y)
+    g.shapes[t], g.dtypes[t] = (m, nn, 1, 1), g.dtypes[y]
+    wt = np.ascontiguousarray(w.T.reshape(nn, kk, 1, 1)).astype(np.float32)
+    conv = _conv_node(g, n.name, n.opset, xa, g.add_const(f"{n.name}.weight", wt), bias, t, src,
+                      residual=residual)
+    v2, _ = _view(g, t, (m, nn), out=y, name=f"{n.name} (back)", sources=src)
+    return out + [v1, conv, v2]
+
+
+# --- Conv canonical form and fusion ---------------------------------------------------
+
+def _same_pads(size, k, s, d, lower):
+    out = -(-size // s)
+    total = max(0, (out - 1) * s + (k - 1) * d + 1 - size)
+    small = total // 2
+    return (total - small, small) if lower else (small, total - small)
+
+
+def canonical_convs(g: Graph) -> int:
+    """ONNX Conv (1-D or 2-D) -> clss.Conv with explicit pads (auto_pad
+    resolved) and an activation slot; 1-D convolutions run as [N,C,1,L]."""
+    changed = 0
+    for n in list(g.nodes):
+        if n.op != "Conv":
+            continue
+        x, w = n.inputs[0], n.inputs[1]
+        b = n.inputs[2] if len(n.inputs) > 2 else ""
+        xs, ws, ys = g.shapes[x], g.shapes[w], g.shapes[n.outputs[0]]
+        nd = len(xs) - 2
+        if nd not in (1, 2) or len(ws) != nd + 2:
+            continue
+        ks = list(ws[2:])
+        strides = list(n.attrs.get("strides", [1] * nd))
+        dil = list(n.attrs.get("dilations", [1] * nd))
+        ap = n.attrs.get("auto_pad", b"NOTSET")
+        ap = ap.decode() if isinstance(ap, bytes) else str(ap)
+        if ap in ("SAME_UPPER", "SAME_LOWER"):
+            pp = [_same_pads(xs[2 + i], ks[i], strides[i], dil[i], ap == "SAME_LOWER") for i in range(nd)]
+            pads = [p[0] for p in pp] + [p[1] for p in pp]
+        elif ap == "VALID":
+            pads = [0] * (2 * nd)
+        else:
+            pads = list(n.attrs.get("pads", [0] * (2 * nd)))
+        if nd == 1:
+            strides, dil, pads = [1] + strides, [1] + dil, [0, pads[0], 0, pads[1]]
+        attrs = {"strides": tuple(strides), "pads": tuple(pads), "dilations": tuple(dil),
+                 "group": int(n.attrs.get("group", 1)), "activation": "none", "alpha": 0.01}
+        idx = g.nodes.index(n)
+        if nd == 2:
+            g.nodes[idx] = Node("clss.Conv", [x, w, b, ""], list(n.outputs), attrs, n.name, n.opset,
+                                sources=n.sources, unfused=[n])
+        else:
+            wc = _const(g, w)
+            if wc is None:
+                continue
+            v1, x4 = _view(g, x, (xs[0], xs[1], 1, xs[2]), name=f"{n.name} (2-D)", sources=n.sources)
+            w4 = g.add_const(f"{n.name}.weight2d", wc.reshape(ws[0], ws[1], 1, ws[2]))
+            y = n.outputs[0]
+            t = g.fresh(y)
+            g.shapes[t], g.dtypes[t] = (ys[0], ys[1], 1, ys[2]), g.dtypes[y]
+            conv = Node("clss.Conv", [x4, w4, b, ""], [t], attrs, n.name, n.opset, sources=n.sources)
+            v2, _ = _view(g, t, ys, out=y, name=f"{n.name} (back)", sources=n.sources)
+            # Falls back to the ONNX Conv handler on the same 2-D views.
+            conv.unfused = [Node("Conv", [x4, w4, b], [t],
+                                 {"strides": list(attrs["strides"]), "pads": list(attrs["pads"]),
+                                  "dilations": list(attrs["dilations"]), "group": attrs["group"]},
+                                 n.name, n.opset, sources=n.sources)]
+            g.nodes[idx:idx + 1] = [v1, conv, v2]
+        changed += 1
+    return changed
+
+
+def fuse_conv_epilogues(g: Graph) -> int:
+    """clss.Conv followed by Add (a residual of the output's shape) and/or an
+    activation (Relu, LeakyRelu, Sigmoid, Tanh) -> one clss.Conv."""
+    changed = 0
+    again = True
+    while again:
+        again = False
+        uses = g.consumers()
+        for n in g.nodes:
+            if n.op != "clss.Conv":
+                continue
+            y = n.outputs[0]
+            if not _single_use(g, y, uses):
+                continue
+            nxt = g.nodes[uses[y][0]]
+            attrs, inputs = dict(n.attrs), list(n.inputs)
+            if nxt.op in ACT_OPS and n.attrs["activation"] == "none":
+                attrs["activation"] = ACT_OPS[nxt.op]
+                attrs["alpha"] = float(nxt.attrs.get("alpha", 0.01))
+            elif (nxt.op == "Add" and not n.inputs[3] and n.attrs["activation"] == "none"
+                  and len(nxt.inputs) == 2 and nxt.inputs[0] != nxt.inputs[1]):
+                other = nxt.inputs[1] if nxt.inputs[0] == y else nxt.inputs[0]
+                if tuple(g.shapes[other]) != tuple(g.shapes[y]) or g.dtypes[other].kind != "f":
+                    continue
+                inputs[3] = other
+            else:
+                continue
+            fused = Node("clss.Conv", inputs, list(nxt.outputs), attrs, n.name, n.opset,
+                         sources=n.sources + nxt.sources, unfused=[n, nxt])
+            # The fused node runs where the consumer ran: every input is ready there.
+            g.nodes.remove(n)
+            g.nodes[g.nodes.index(nxt)] = fused
+            changed += 1
+            again = True
+            break
+    return changed
+
+
+def _is_pointwise(g: Graph, n: Node) -> bool:
+    if n.op != "clss.Conv" or n.inputs[3] or n.attrs["group"] != 1:
+        return False
+    ws = g.shapes[n.inputs[1]]
+    return (tuple(ws[2:]) == (1, 1) and tuple(n.attrs["strides"]) == (1, 1)
+            and not any(n.attrs["pads"]) and n.inputs[1] in g.consts
+            and (not n.inputs[2] or n.inputs[2] in g.consts))
+
+
+def fuse_mlp(g: Graph) -> int:
+    """Chains of pointwise (1x1, stride 1, no padding) convolutions, each with
+    its activation, feeding only the next: one clss.MLP, the intermediate
+    activations never leave registers."""
+    changed = 0
+    uses = g.consumers()
+    prod = g.producer()
+    i = 0
+    while i < len(g.nodes):
+        n = g.nodes[i]
+        if not _is_pointwise(g, n) or (n.inputs[0] in prod and _chain_link(g, g.nodes[prod[n.inputs[0]]],
+                                                                           n.inputs[0], uses)):
+            i += 1
+            continue
+        chain = [n]
+        while True:
+            y = chain[-1].outputs[0]
+            if not _single_use(g, y, uses):
+                break
+            nxt = g.nodes[uses[y][0]]
+            if not _is_pointwise(g, nxt) or nxt.inputs[0] != y:
+                break
+            chain.append(nxt)
+        if len(chain) < 2:
+            i += 1
+            continue
+        layers = []
+        for c in chain:
+            w = g.consts[c.inputs[1]]
+            b = g.consts[c.inputs[2]] if c.inputs[2] else None
+            layers.append((w.reshape(w.shape[0], w.shape[1]), b, c.attrs["activation"],
+                           float(c.attrs.get("alpha", 0.01))))
+        node = Node("clss.MLP", [chain[0].inputs[0]], list(chain[-1].outputs), {"layers": layers},
+                    chain[-1].name, chain[-1].opset,
+                    sources=[s for c in chain for s in c.sources], unfused=list(chain))
+        last = g.nodes.index(chain[-1])
+        g.nodes[last] = node
+        for c in chain[:-1]:
+            g.nodes.remove(c)
+        changed += 1
+        uses = g.consumers()
+        prod = g.producer()
+        i = 0
+    return changed
+
+
+def _chain_link(g, p, t, uses):
+    """p would have continued a chain into t (so t's consumer is not a chain head)."""
+    return _is_pointwise(g, p) and _single_use(g, t, uses)
+
+
+# --- cleanup -----------------------------------------------------------------------
+
+def remove_dead(g: Graph) -> int:
+    """Nodes none of whose outputs is read or is a graph output."""
+    changed = 0
+    while True:
+        uses = g.consumers()
+        live = [n for n in g.nodes if any(t and (t in uses or t in g.outputs) for t in n.outputs)]
+        if len(live) == len(g.nodes):
+            return changed
+        changed += len(g.nodes) - len(live)
+        g.nodes = live
+
+
+PASSES = [
+    ("opsets", normalise_opsets),
+    ("identity", remove_identities),
+    ("pixel_shuffle", pixel_shuffle),
+    ("views", lower_views),
+    ("batchnorm", fold_batchnorm),
+    ("matmul", lower_matmul),
+    ("conv_canonical", canonical_convs),
+    ("conv_epilogue", fuse_conv_epilogues),
+    ("mlp", fuse_mlp),
+    ("dead", remove_dead),
+]
