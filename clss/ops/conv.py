@@ -1,0 +1,434 @@
+"""Conv / ConvTranspose (kernels/conv.cl): direct NCHW convolution with fused
+bias, activation and residual add."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..device import Device
+from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .twin import make_model, node_model
+from onnx import helper
+
+ACTIVATIONS = {"none": 0, "relu": 1, "leaky_relu": 2, "sigmoid": 3, "tanh": 4}
+
+# Register block per work-item: XV A8 vectors along x (8*XV outputs) times CB
+# output channels. XV=2, CB=4 keeps 8 accumulators in flight (FMA latency x
+# throughput on AVX2) with 6 loads per 8 FMAs; see the report's timings.
+TUNING = {"XV": 2, "CB": 4, "LX": 8, "LZ": 16}
+
+_F_BIAS, _F_RES_BEFORE, _F_RES_AFTER = 1, 2, 4
+
+
+def _act(activation: str) -> int:
+    if activation not in ACTIVATIONS:
+        raise ValueError(f"activation must be one of {', '.join(ACTIVATIONS)}, got {activation!r}")
+    return ACTIVATIONS[activation]
+
+
+def _pair(v, name):
+    t = tuple(int(a) for a in (v if np.ndim(v) else (v, v)))
+    if len(t) != 2:
+        raise ValueError(f"{name} must have 2 values (y, x), got {v!r}")
+    return t
+
+
+def _pads(p):
+    t = tuple(int(a) for a in (p if np.ndim(p) else (p,) * 4))
+    if len(t) == 2:
+        t = (t[0], t[1], t[0], t[1])
+    if len(t) != 4:
+        raise ValueError(f"pads must be [top, left, bottom, right] (ONNX order), got {p!r}")
+    return t
+
+
+def _channel_block(cout_g: int, cb: int) -> int:
+    """Shrink the channel block for groups with few output channels (depthwise:
+    1), so work-items do not compute clamped duplicates."""
+    while cb > 1 and cb // 2 >= cout_g:
+        cb //= 2
+    return cb
+
+
+def _sizes(gs, nzin, t):
+    """Global and local size. A work-group spans LZ channel blocks of the same
+    pixels (dimension 2 walks channel blocks fastest), so the input window is
+    read from memory once and reused from cache by every channel block,
+    instead of the whole input streaming through once per channel block.
+    The global size is rounded up to whole groups; the kernel guards its bounds."""
+    lx = max(1, min(t["LX"], gs[0]))
+    lz = max(1, min(t["LZ"], nzin, gs[2]))
+    return tuple(-(-g // l) * l for g, l in zip(gs, (lx, 1, lz))), (lx, 1, lz)
+
+
+def _flags(b, residual, residual_before_act):
+    f = _F_BIAS if b is not None else 0
+    if residual is not None:
+        f |= _F_RES_BEFORE if residual_before_act else _F_RES_AFTER
+    return f
+
+
+def _check_common(x, w, b, residual, prec, out_shape, cout):
+    check_storage("x", x, prec)
+    check_storage("w", w, prec)
+    if b is not None:
+        check_storage("b", b, prec)
+        if b.shape != (cout,):
+            raise ValueError(f"bias shape {b.shape} != ({cout},)")
+    if residual is not None:
+        check_storage("residual", residual, prec)
+        if tuple(residual.shape) != tuple(out_shape):
+            raise ValueError(f"residual shape {residual.shape} != output shape {tuple(out_shape)}")
+
+
+def conv_output_size(size: int, k: int, stride: int, pad_total: int, dilation: int) -> int:
+    return (size + pad_total - ((k - 1) * dilation + 1)) // stride + 1
+
+
+def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 0, 0),
+           dilations=(1, 1), group: int = 1, activation: str = "none", alpha: float = 0.01,
+           residual=None, residual_before_act: bool = True, out=None, tuning=None):
+    """ONNX Conv on NCHW: x [N,Cin,H,W], w [Cout,Cin/group,kh,kw], b [Cout] or None;
+    pads [top,left,bottom,right]. Fused epilogue: y = act(conv + b + residual)
+    (residual_before_act, the ResNet pattern Conv -> Add -> Relu), or
+    y = act(conv + b) + residual. residual has the output's shape."""
+    n, cin, h, wd = x.shape
+    cout, cin_g, kh, kw = w.shape
+    sy, sx = _pair(strides, "strides")
+    dy, dx = _pair(dilations, "dilations")
+    pt, pl, pb, pr = _pads(pads)
+    if group < 1 or cin % group or cout % group or cin_g != cin // group:
+        raise ValueError(f"conv2d: input channels {cin}, weight {tuple(w.shape)} and group {group} disagree")
+    if min(sy, sx, dy, dx) < 1:
+        raise ValueError("conv2d: strides and dilations must be >= 1")
+    ho = conv_output_size(h, kh, sy, pt + pb, dy)
+    wo = conv_output_size(wd, kw, sx, pl + pr, dx)
+    if ho < 1 or wo < 1:
+        raise ValueError(f"conv2d: output would be {ho}x{wo} for input {h}x{wd}")
+    _check_common(x, w, b, residual, prec, (n, cout, ho, wo), cout)
+    out = out if out is not None else dev.empty((n, cout, ho, wo), prec)
+    # A pointwise conv with unit stride and no padding is a GEMM over flattened
+    # pixels: one row of H*W, so only the image's last block takes the edge path.
+    if kh == kw == 1 and sy == sx == 1 and pt == pl == pb == pr == 0:
+        h, wd, ho, wo = 1, h * wd, 1, ho * wo
+    t = {**TUNING, **(tuning or {})}
+    cout_g = cout // group
+    cb = _channel_block(cout_g, t["CB"])
+    xb = 8 * t["XV"]
+    ncb = -(-cout_g // cb)
+    k = dev.kernel("conv", "conv2d", prec, KH=kh, KW=kw, SX=sx,
+                   XV=t["XV"], CB=cb, ACT=_act(activation))
+    nz = n * group * ncb
+    gs, ls = _sizes((-(-wo // xb), ho, nz), ncb, t)
+    dev.launch(k, gs,
+               (x.data, w.data, None if b is None else b.data,
+                None if residual is None else residual.data, out.data,
+                np.int32(cin), np.int32(h), np.int32(wd), np.int32(cout), np.int32(ho), np.int32(wo),
+                np.int32(cin_g), np.int32(cout_g), np.int32(ncb), np.int32(group),
+                np.int32(sy), np.int32(pt), np.int32(pl), np.int32(dy), np.int32(dx),
+                np.int32(_flags(b, residual, residual_before_act)), np.float32(alpha), np.int32(nz)),
+               local_size=ls)
+    return out
+
+
+def conv_transpose_output_size(size: int, k: int, stride: int, pad_total: int, dilation: int,
+                               output_padding: int = 0) -> int:
+    return stride * (size - 1) + output_padding + (k - 1) * dilation + 1 - pad_total
+
+
+def conv_transpose2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 0, 0),
+                     dilations=(1, 1), group: int = 1, output_padding=(0, 0), activation: str = "none",
+                     alpha: float = 0.01, residual=None, residual_before_act: bool = True, out=None,
+                     tuning=None):
+    """ONNX ConvTranspose on NCHW: x [N,Cin,H,W], w [Cin,Cout/group,kh,kw], b [Cout] or None;
+    pads [top,left,bottom,right] (may be negative: extra output rows/columns that get only
+    the bias), output_padding (y, x). Output size per axis:
+    stride*(in-1) + output_padding + (k-1)*dilation + 1 - pad_begin - pad_end.
+    Epilogue as conv2d."""
+    n, cin, h, wd = x.shape
+    cin_w, cout_g, kh, kw = w.shape
+    sy, sx = _pair(strides, "strides")
+    dy, dx = _pair(dilations, "dilations")
+    oph, opw = _pair(output_padding, "output_padding")
+    pt, pl, pb, pr = _pads(pads)
+    if group < 1 or cin % group or cin_w != cin:
+        raise ValueError(f"conv_transpose2d: input channels {cin}, weight {tuple(w.shape)} and "
+                         f"group {group} disagree")
+    if min(sy, sx, dy, dx) < 1:
+        raise ValueError("conv_transpose2d: strides and dilations must be >= 1")
+    cout = cout_g * group
+    ho = conv_transpose_output_size(h, kh, sy, pt + pb, dy, oph)
+    wo = conv_transpose_output_size(wd, kw, sx, pl + pr, dx, opw)
+    if ho < 1 or wo < 1:
+        raise ValueError(f"conv_transpose2d: output would be {ho}x{wo} for input {h}x{wd}")
+    _check_common(x, w, b, residual, prec, (n, cout, ho, wo), cout)
+    out = out if out is not None else dev.empty((n, cout, ho, wo), prec)
+    t = {**TUNING, **(tuning or {})}
+    cb = _channel_block(cout_g, t["CB"])
+    xb = 8 * t["XV"]
+    ncb = -(-cout_g // cb)
+    k = dev.kernel("conv", "conv_transpose2d", prec, KH=kh, KW=kw, XV=t["XV"], CB=cb,
+                   ACT=_act(activation))
+    nz = n * group * ncb * sx
+    nt = -(-wo // sx)
+    gs, ls = _sizes((-(-nt // xb), ho, nz), ncb * sx, t)
+    dev.launch(k, gs,
+               (x.data, w.data, None if b is None else b.data,
+                None if residual is None else residual.data, out.data,
+                np.int32(cin), np.int32(h), np.int32(wd), np.int32(cout), np.int32(ho), np.int32(wo),
+                np.int32(cin // group), np.int32(cout_g), np.int32(ncb), np.int32(group),
+                np.int32(sy), np.int32(sx), np.int32(pt), np.int32(pl), np.int32(dy), np.int32(dx),
+                np.int32(_flags(b, residual, residual_before_act)), np.float32(alpha), np.int32(nz)),
+               local_size=ls)
+    return out
+
+
+# --- ONNX -----------------------------------------------------------------------
+
+def _spatial(attrs, name, default, x):
+    v = attrs.get(name)
+    if v is None:
+        return default
+    v = [int(a) for a in v]
+    if len(v) != len(default):
+        raise Unsupported(f"{name}={v} for a {x.ndim if hasattr(x, 'ndim') else len(x.shape)}-D input; "
+                          "only 2-D convolutions (NCHW) are covered")
+    return tuple(v)
+
+
+def _check_2d(op, x, w, attrs):
+    if len(x.shape) != 4 or len(w.shape) != 4:
+        raise Unsupported(f"{op} on {len(x.shape) - 2}-D data; only 2-D convolutions (NCHW) are covered")
+    ks = attrs.get("kernel_shape")
+    if ks is not None and tuple(int(k) for k in ks) != tuple(w.shape[2:]):
+        raise Unsupported(f"{op} kernel_shape {list(ks)} differs from the weight's {tuple(w.shape[2:])}")
+
+
+def same_pads(size, k, stride, dilation, mode):
+    """ONNX auto_pad SAME_UPPER/SAME_LOWER for Conv: output ceil(in/stride); the odd
+    padding element goes at the end (UPPER) or the beginning (LOWER)."""
+    out = -(-size // stride)
+    need = max(0, (out - 1) * stride + (k - 1) * dilation + 1 - size)
+    head = need // 2 if mode == "SAME_UPPER" else (need + 1) // 2
+    return head, need - head
+
+
+@onnx_op("Conv")
+def _onnx_conv(dev, prec, attrs, inputs):
+    x, w = inputs[0], inputs[1]
+    b = inputs[2] if len(inputs) > 2 else None
+    _check_2d("Conv", x, w, attrs)
+    strides = _spatial(attrs, "strides", (1, 1), x)
+    dil = _spatial(attrs, "dilations", (1, 1), x)
+    auto_pad = as_str(attrs.get("auto_pad", "NOTSET"))
+    if auto_pad in ("SAME_UPPER", "SAME_LOWER"):
+        (pt, pb), (pl, pr) = (same_pads(x.shape[2 + i], w.shape[2 + i], strides[i], dil[i], auto_pad)
+                              for i in range(2))
+        pads = (pt, pl, pb, pr)
+    elif auto_pad == "VALID":
+        pads = (0, 0, 0, 0)
+    elif auto_pad == "NOTSET":
+        pads = _spatial(attrs, "pads", (0, 0, 0, 0), x)
+    else:
+        raise Unsupported(f"Conv auto_pad {auto_pad!r}")
+    return [conv2d(dev, prec, x, w, b, strides=strides, pads=pads, dilations=dil,
+                   group=int(attrs.get("group", 1)))]
+
+
+def conv_transpose_pads(size, k, stride, dilation, output_padding, out_size, auto_pad):
+    """ONNX ConvTranspose pads for an explicit output size (output_shape, or
+    in*stride under auto_pad SAME_*): total = stride*(in-1) + output_padding +
+    (k-1)*dilation + 1 - out, split with the odd element at the beginning unless
+    auto_pad is SAME_UPPER."""
+    total = stride * (size - 1) + output_padding + (k - 1) * dilation + 1 - out_size
+    if auto_pad == "SAME_UPPER":
+        return total // 2, total - total // 2
+    return total - total // 2, total // 2
+
+
+@onnx_op("ConvTranspose")
+def _onnx_conv_transpose(dev, prec, attrs, inputs):
+    x, w = inputs[0], inputs[1]
+    b = inputs[2] if len(inputs) > 2 else None
+    _check_2d("ConvTranspose", x, w, attrs)
+    strides = _spatial(attrs, "strides", (1, 1), x)
+    dil = _spatial(attrs, "dilations", (1, 1), x)
+    opad = _spatial(attrs, "output_padding", (0, 0), x)
+    auto_pad = as_str(attrs.get("auto_pad", "NOTSET"))
+    if auto_pad not in ("NOTSET", "SAME_UPPER", "SAME_LOWER", "VALID"):
+        raise Unsupported(f"ConvTranspose auto_pad {auto_pad!r}")
+    out_shape = attrs.get("output_shape")
+    if out_shape is not None:
+        out_shape = [int(v) for v in out_shape][-2:]
+    elif auto_pad in ("SAME_UPPER", "SAME_LOWER"):
+        out_shape = [x.shape[2] * strides[0], x.shape[3] * strides[1]]
+    if out_shape is not None:
+        (pt, pb), (pl, pr) = (conv_transpose_pads(x.shape[2 + i], w.shape[2 + i], strides[i], dil[i],
+                                                  opad[i], out_shape[i], auto_pad) for i in range(2))
+        pads = (pt, pl, pb, pr)
+    elif auto_pad == "VALID":
+        pads = (0, 0, 0, 0)
+    else:
+        pads = _spatial(attrs, "pads", (0, 0, 0, 0), x)
+    return [conv_transpose2d(dev, prec, x, w, b, strides=strides, pads=pads, dilations=dil,
+                             group=int(attrs.get("group", 1)), output_padding=opad)]
+
+
+NODE_DEVIATIONS = {
+    "test_convtranspose_1d": "1-D ConvTranspose: the kernels cover 2-D (NCHW) convolutions only",
+    "test_convtranspose_3d": "3-D ConvTranspose: the kernels cover 2-D (NCHW) convolutions only",
+}
+
+
+# --- twins and cases ------------------------------------------------------------
+
+_ACT_NODES = {"relu": ("Relu", {}), "sigmoid": ("Sigmoid", {}), "tanh": ("Tanh", {})}
+
+
+def twin(op: str, inputs: dict, *, activation="none", alpha=0.01, residual_before_act=True, **attrs):
+    """ONNX twin of a fused conv: Conv/ConvTranspose -> [Add(r)] -> act -> [Add(r)].
+    inputs: x, w, optional b, optional r (residual)."""
+    names = ["x", "w"] + (["b"] if inputs.get("b") is not None else [])
+    nodes = [helper.make_node(op, names, ["c"], **attrs)]
+    cur = "c"
+    res = inputs.get("r") is not None
+    if res and residual_before_act:
+        nodes.append(helper.make_node("Add", [cur, "r"], ["s"]))
+        cur = "s"
+    if activation != "none":
+        if activation == "leaky_relu":
+            nodes.append(helper.make_node("LeakyRelu", [cur], ["a"], alpha=float(alpha)))
+        else:
+            nodes.append(helper.make_node(_ACT_NODES[activation][0], [cur], ["a"]))
+        cur = "a"
+    if res and not residual_before_act:
+        nodes.append(helper.make_node("Add", [cur, "r"], ["s2"]))
+        cur = "s2"
+    nodes.append(helper.make_node("Identity", [cur], ["y0"]))
+    return make_model(nodes, {k: v for k, v in inputs.items() if v is not None}, ["y0"])
+
+
+def make_case(op="conv", n=1, cin=3, h=7, w=13, cout=5, k=(3, 3), strides=(1, 1), pads=(1, 1, 1, 1),
+              dilations=(1, 1), group=1, output_padding=(0, 0), output_shape=None, bias=True,
+              activation="none", alpha=0.01, residual=None, tol=None) -> Case:
+    """One seeded conformance case. residual: None, "before" or "after" the activation.
+    output_shape (ConvTranspose): the twin states the output size and the pads follow
+    from it (negative where the output is larger than the natural one)."""
+    if output_shape is not None:
+        (pt, pb), (pl, pr) = (conv_transpose_pads((h, w)[i], k[i], strides[i], dilations[i],
+                                                  output_padding[i], output_shape[i], "NOTSET")
+                              for i in range(2))
+        pads = (pt, pl, pb, pr)
+    kh, kw = k
+    g = rng(op, n, cin, h, w, cout, k, strides, pads, dilations, group, output_padding, bias,
+            activation, residual)
+    x = g.standard_normal((n, cin, h, w)).astype(np.float32)
+    if op == "conv":
+        wt = g.standard_normal((cout, cin // group, kh, kw)).astype(np.float32)
+        ho = conv_output_size(h, kh, strides[0], pads[0] + pads[2], dilations[0])
+        wo = conv_output_size(w, kw, strides[1], pads[1] + pads[3], dilations[1])
+    else:
+        wt = g.standard_normal((cin, cout // group, kh, kw)).astype(np.float32)
+        ho = conv_transpose_output_size(h, kh, strides[0], pads[0] + pads[2], dilations[0], output_padding[0])
+        wo = conv_transpose_output_size(w, kw, strides[1], pads[1] + pads[3], dilations[1], output_padding[1])
+    # weights scaled like a trained layer's (fan-in), so outputs stay O(1)
+    wt *= np.float32(1.0 / np.sqrt(wt[0].size))
+    inputs = {"x": x, "w": wt}
+    if bias:
+        inputs["b"] = g.standard_normal(cout).astype(np.float32)
+    if residual:
+        inputs["r"] = g.standard_normal((n, cout, ho, wo)).astype(np.float32)
+    attrs = dict(strides=list(strides), pads=list(pads), dilations=list(dilations), group=group)
+    fn = conv2d
+    if op == "convT":
+        attrs["output_padding"] = list(output_padding)
+        if output_shape is not None:
+            del attrs["pads"]
+            attrs["output_shape"] = list(output_shape)
+        fn = conv_transpose2d
+    before = residual != "after"
+    model = twin("Conv" if op == "conv" else "ConvTranspose", inputs, activation=activation,
+                 alpha=alpha, residual_before_act=before, **attrs)
+    kwargs = dict(strides=strides, pads=pads, dilations=dilations, group=group, activation=activation,
+                  alpha=alpha, residual_before_act=before)
+    if op == "convT":
+        kwargs["output_padding"] = output_padding
+
+    def run(dev, prec, x, w, b=None, r=None):
+        return fn(dev, prec, x, w, b, residual=r, **kwargs)
+
+    desc = (f"{n}x{cin}x{h}x{w}->{cout} k{kh}x{kw} s{strides[0]}{strides[1]} p{''.join(map(str, pads))}"
+            f" d{dilations[0]}{dilations[1]} g{group}"
+            + (f" op{output_padding[0]}{output_padding[1]}" if op == "convT" else "")
+            + ("" if bias else " nobias") + (f" {activation}" if activation != "none" else "")
+            + (f" res-{residual}" if residual else ""))
+    return Case("Conv" if op == "conv" else "ConvTranspose", desc, inputs, model, host_call(run),
+                tol=tol or {})
+
+
+def cases(level: str = "quick") -> list[Case]:
+    C = make_case
+    # tiny: every kernel variant (KH/KW, SX 1/2/gather, channel block 1/2/4, each
+    # activation, residual before/after, bias or not, the vector and the edge
+    # path, conv and transposed) on shapes of <= ~1000 outputs, for oclgrind.
+    tiny = [
+        C(cin=3, h=5, w=40, cout=3, activation="relu"),                          # inside + edge blocks
+        C(cin=5, h=6, w=7, cout=3, k=(1, 1), pads=(0, 0, 0, 0), activation="leaky_relu", alpha=0.2,
+          residual="before"),                                                    # 1x1 flattened
+        C(cin=4, h=9, w=21, cout=4, strides=(2, 2), pads=(0, 1, 2, 1), dilations=(2, 2), group=4,
+          activation="sigmoid"),                                                 # depthwise, SX=2
+        C(n=2, cin=2, h=8, w=11, cout=3, k=(5, 5), strides=(3, 3), pads=(2, 2, 2, 2), bias=False,
+          activation="tanh"),                                                    # gather stride, batch
+        C(cin=4, h=7, w=9, cout=6, k=(7, 7), pads=(3, 3, 3, 3), group=2, residual="after",
+          activation="relu"),                                                    # CB=2 per group... 3
+        C("convT", cin=3, h=4, w=9, cout=2, strides=(2, 2), pads=(1, 1, 1, 1), output_padding=(1, 1),
+          activation="relu"),
+        C("convT", cin=4, h=3, w=5, cout=4, k=(4, 4), strides=(2, 2), pads=(1, 1, 1, 1), group=4,
+          residual="before"),
+        C("convT", cin=2, h=4, w=19, cout=3, k=(3, 3), strides=(1, 1), pads=(0, 2, 1, 0),
+          dilations=(2, 2), bias=False, activation="leaky_relu", residual="after"),
+    ]
+    if level == "tiny":
+        return tiny
+    quick = tiny + [
+        C(cin=16, h=12, w=37, cout=16, activation="relu", residual="before"),
+        C(cin=17, h=9, w=33, cout=23, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1)),
+        C(cin=24, h=10, w=20, cout=24, k=(3, 3), group=24, activation="relu"),
+        C(cin=23, h=11, w=29, cout=17, k=(1, 1), pads=(0, 0, 0, 0), activation="sigmoid"),
+        C("convT", cin=16, h=9, w=13, cout=8, k=(2, 2), strides=(2, 2), pads=(0, 0, 0, 0), activation="relu"),
+    ]
+    if level == "quick":
+        return quick
+    full = []
+    for h, w in ((1, 1), (7, 13), (31, 27)):
+        for k in (1, 3, 5, 7):
+            p = k // 2
+            full.append(C(cin=5, h=h, w=w, cout=3, k=(k, k), pads=(p, p, p, p)))
+            full.append(C(n=2, cin=3, h=h, w=w, cout=17, k=(k, k), pads=(p, p, p, p), activation="relu",
+                          residual="before"))
+    for act in ACTIVATIONS:
+        full.append(C(cin=5, h=7, w=13, cout=23, activation=act, alpha=0.1))
+        full.append(C("convT", cin=5, h=7, w=13, cout=3, strides=(2, 2), pads=(1, 1, 1, 1),
+                      output_padding=(1, 1), activation=act, alpha=0.1))
+    full += [
+        C(cin=6, h=31, w=27, cout=9, group=3, strides=(2, 2), pads=(0, 1, 2, 1), activation="leaky_relu"),
+        C(cin=6, h=31, w=27, cout=6, group=2, dilations=(2, 2), pads=(2, 2, 2, 2), residual="after",
+          activation="tanh"),
+        C(cin=17, h=31, w=27, cout=17, group=17, k=(5, 5), pads=(2, 2, 2, 2), activation="relu"),
+        C(cin=8, h=31, w=27, cout=16, group=8, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1)),  # multiplier 2
+        C(n=2, cin=3, h=31, w=27, cout=5, k=(3, 5), strides=(1, 2), pads=(1, 2, 0, 1), dilations=(2, 1)),
+        C(cin=5, h=31, w=27, cout=3, k=(7, 7), strides=(4, 4), pads=(3, 0, 0, 3)),
+        C(cin=64, h=9, w=37, cout=32, k=(3, 3), pads=(1, 1, 1, 1), activation="relu",
+          residual="before"),                                                    # K = 576
+        C(cin=64, h=16, w=40, cout=64, k=(1, 1), pads=(0, 0, 0, 0)),
+        C(cin=3, h=32, w=32, cout=24, k=(3, 3), strides=(2, 2), pads=(0, 0, 1, 1)),
+        C("convT", n=2, cin=8, h=7, w=13, cout=4, k=(2, 2), strides=(2, 2), pads=(0, 0, 0, 0)),
+        C("convT", cin=6, h=9, w=11, cout=6, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1), group=6,
+          output_padding=(1, 1)),
+        C("convT", cin=6, h=9, w=11, cout=4, k=(3, 3), strides=(3, 2), pads=(0, 1, 2, 0), group=2,
+          dilations=(1, 2), output_padding=(2, 1), residual="after", activation="relu"),
+        C("convT", cin=32, h=17, w=31, cout=16, k=(4, 4), strides=(2, 2), pads=(1, 1, 1, 1),
+          activation="relu"),
+        C("convT", cin=5, h=1, w=1, cout=3, k=(3, 3), strides=(2, 2)),
+        C("convT", cin=3, h=5, w=6, cout=2, k=(3, 3), strides=(2, 2), output_shape=(12, 12)),
+    ]
+    return quick + full

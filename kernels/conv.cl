@@ -1,0 +1,312 @@
+/* conv2d / conv_transpose2d, NCHW, direct (no im2col buffer), float accumulation
+ * in fp32 and fp16 storage modes.
+ *
+ * Each work-item computes a register block of XB = 8*XV contiguous output x
+ * positions times CB output channels of one output row: XV*CB A8 accumulators.
+ * Per kernel tap it loads XV input vectors and CB weights (scalars, broadcast),
+ * so every input load feeds CB multiply-adds and every weight load XB of them.
+ *
+ * Build options:
+ *   -DKH=, -DKW=   kernel height/width (compile time so the tap loops unroll)
+ *   -DSX=          conv2d x stride: 1 and 2 load rows as vectors, others gather
+ *   -DXV=1|2       A8 vectors along x per work-item (tunable)
+ *   -DCB=1..8      output channels per work-item (tunable; the host lowers it
+ *                  for groups with few output channels, e.g. depthwise)
+ *   -DACT=         fused activation (common.h); alpha is a kernel argument
+ *
+ * Runtime flags (arg `flags`): bias present; residual added before the
+ * activation (ResNet's relu(conv(x) + r)); residual added after it.
+ *
+ * Edges: a work-item whose input window along x lies wholly inside the row
+ * takes the vector path; others (the first/last block of a padded row, the
+ * tail block of a width not a multiple of XB) load through `ld8_guarded`,
+ * which never reads outside the row. Rows outside the image are skipped.
+ * Output channels past the group's end reuse the last valid channel's weights
+ * (so no load leaves the weight tensor) and are not stored.
+ */
+#include "common.h"
+
+#ifndef KH
+#define KH 3
+#endif
+#ifndef KW
+#define KW 3
+#endif
+#ifndef SX
+#define SX 1
+#endif
+#ifndef XV
+#define XV 1
+#endif
+#ifndef CB
+#define CB 8
+#endif
+#if XV != 1 && XV != 2
+#error "XV must be 1 or 2"
+#endif
+#if CB < 1 || CB > 8
+#error "CB must be in 1..8"
+#endif
+
+#define XB (8 * XV)
+#define KK (KH * KW)
+
+#define F_BIAS 1
+#define F_RES_BEFORE 2
+#define F_RES_AFTER 4
+
+/* Loads and stores without builtin calls in the hot loops. PoCL 3.0
+ * (pocl-binary-distribution) links its kernel library, built for haswell,
+ * into kernels built for the host CPU, and LLVM does not inline across that
+ * mismatch: each vload8/vload_half/mad/min becomes an out-of-line call, and a
+ * call makes every live vector register (all caller-saved) spill. Clang's
+ * vector extensions express the same accesses as plain loads and stores
+ * (element-aligned, like vloadn); other compilers get the common.h macros. */
+#if defined(__clang__) && !defined(CLSS_NO_CLANG_VECTORS)
+#if defined(CLSS_FP16)
+typedef half Th1 __attribute__((ext_vector_type(1)));
+typedef half Th8 __attribute__((ext_vector_type(8), aligned(2)));
+typedef float Ta1 __attribute__((ext_vector_type(1)));
+#define FLD(p, i) (__builtin_convertvector(*(__global const Th1 *)((p) + (i)), Ta1).x)
+#define FLD8(p, i) __builtin_convertvector(*(__global const Th8 *)((p) + (i)), A8)
+#define FST8(p, i, v) (*(__global Th8 *)((p) + (i)) = __builtin_convertvector((A8)(v), Th8))
+#define FST(p, i, v) (*(__global Th1 *)((p) + (i)) = __builtin_convertvector((Ta1)(v), Th1))
+#else
+typedef T Tv8 __attribute__((ext_vector_type(8), aligned(sizeof(T))));
+#define FLD(p, i) ((A)(p)[(i)])
+#define FLD8(p, i) ((A8)(*(__global const Tv8 *)((p) + (i))))
+#define FST8(p, i, v) (*(__global Tv8 *)((p) + (i)) = (v))
+#define FST(p, i, v) ((p)[(i)] = (T)(v))
+#endif
+#else
+#define FLD LD
+#define FLD8 LD8
+#define FST8 ST8
+#define FST ST
+#endif
+
+#define IMIN(a, b) ((a) < (b) ? (a) : (b))
+#define IMAX(a, b) ((a) > (b) ? (a) : (b))
+
+/* Inputs ix + (0..7)*s of a row, zero where outside [0, W), never reading
+ * outside it. Vectors wholly inside (most of an edge work-item's loads
+ * too) take one vector load; the others go element by element. */
+inline A8 ld8_guarded(__global const T *row, int ix, int W, int s)
+{
+    if (s == 1 && ix >= 0 && ix + 8 <= W)
+        return FLD8(row, ix);
+    union { A8 v; A e[8]; } u;
+    for (int e = 0; e < 8; ++e) {
+        const int p = ix + e * s;
+        const A t = FLD(row, IMIN(IMAX(p, 0), W - 1));
+        u.e[e] = (p >= 0 && p < W) ? t : A_ZERO;
+    }
+    return u.v;
+}
+
+/* Inputs ix, ix+s, ..., ix+7s of a row known to be in bounds
+ * (for s == 2: ix..ix+15 in bounds). s is a literal at every call site. */
+inline A8 ld8_inside(__global const T *row, int ix, int s)
+{
+    if (s == 1)
+        return FLD8(row, ix);
+    if (s == 2) {
+        const A8 a = FLD8(row, ix), b = FLD8(row, ix + 8);
+        return (A8)(a.even, b.even);
+    }
+    return (A8)(FLD(row, ix), FLD(row, ix + s), FLD(row, ix + 2 * s), FLD(row, ix + 3 * s),
+                FLD(row, ix + 4 * s), FLD(row, ix + 5 * s), FLD(row, ix + 6 * s), FLD(row, ix + 7 * s));
+}
+
+/* Bias, residual and activation, in the order the flags ask for. */
+inline A8 epilogue(A8 v, A b, A8 r, int flags, float alpha)
+{
+    v += b;
+    if (flags & F_RES_BEFORE)
+        v += r;
+    v = APPLY_ACT(v, alpha);
+    if (flags & F_RES_AFTER)
+        v += r;
+    return v;
+}
+
+/* Load/store n <= 8 outputs spaced os apart; the full contiguous case is one
+ * vector access, the rest go element by element and stay inside the tensor. */
+inline A8 ld_out8(__global const T *p, long o, int os, int n)
+{
+    if (os == 1 && n == 8)
+        return FLD8(p, o);
+    union { A8 v; A e[8]; } u;
+    for (int e = 0; e < 8; ++e)
+        u.e[e] = FLD(p, o + (long)IMIN(e, n - 1) * os);
+    return u.v;
+}
+
+inline void st_out8(__global T *p, long o, int os, int n, A8 v)
+{
+    if (os == 1 && n == 8) {
+        FST8(p, o, v);
+        return;
+    }
+    union { A8 v; A e[8]; } u;
+    u.v = v;
+    for (int e = 0; e < n; ++e)
+        FST(p, o + (long)e * os, u.e[e]);
+}
+
+/* One kernel tap for all CB channels: XV input vectors times CB weights
+ * (a*b + c: OpenCL contracts it to an FMA where the device has one). */
+#define TAP(LOAD, woff)                                                        \
+    {                                                                          \
+        A8 xv[XV];                                                             \
+        for (int v_ = 0; v_ < XV; ++v_)                                        \
+            xv[v_] = LOAD(v_);                                                 \
+        _Pragma("unroll") for (int j_ = 0; j_ < CB; ++j_) {                    \
+            const A wj = FLD(wc, wo[j_] + (woff));                             \
+            _Pragma("unroll") for (int v_ = 0; v_ < XV; ++v_)                  \
+                acc[j_][v_] += wj * xv[v_];                                    \
+        }                                                                      \
+    }
+
+/* Store the block: CB channels (nco valid) x XB positions (nx valid) spaced os. */
+#define STORE_BLOCK(OUT_OFF, OS, NX)                                           \
+    for (int j = 0; j < CB; ++j) {                                             \
+        if (j >= nco)                                                          \
+            break;                                                             \
+        const int co = co0 + j;                                                \
+        const A b = (flags & F_BIAS) ? FLD(bias, co) : A_ZERO;                 \
+        for (int v = 0; v < XV; ++v) {                                         \
+            const int n_ = IMIN(8, (NX) - 8 * v);                              \
+            if (n_ <= 0)                                                       \
+                break;                                                         \
+            const long o = (OUT_OFF) + ((long)co * Ho + oy) * Wo + (long)(8 * v) * (OS); \
+            A8 r = (A8)A_ZERO;                                                 \
+            if (flags & (F_RES_BEFORE | F_RES_AFTER))                          \
+                r = ld_out8(res, o, (OS), n_);                                 \
+            st_out8(y, o, (OS), n_, epilogue(acc[j][v], b, r, flags, alpha));  \
+        }                                                                      \
+    }
+
+/* x: [N, Cin, H, W]; w: [Cout, Cin/groups, KH, KW]; y, res: [N, Cout, Ho, Wo].
+ * NDRange: (ceil(Wo / XB), Ho, N * groups * ncb) with ncb = ceil((Cout/groups) / CB). */
+__kernel void conv2d(__global const T *x, __global const T *w, __global const T *bias,
+                     __global const T *res, __global T *y,
+                     int Cin, int H, int W, int Cout, int Ho, int Wo,
+                     int Cin_g, int Cout_g, int ncb, int groups,
+                     int sy, int pt, int pl, int dy, int dx,
+                     int flags, float alpha, int nz)
+{
+    const int xb = get_global_id(0), oy = get_global_id(1), z = get_global_id(2);
+    if (xb * XB >= Wo || oy >= Ho || z >= nz)
+        return;
+    const int cb = z % ncb, g = (z / ncb) % groups, n = z / (ncb * groups);
+    const int nco = IMIN(CB, Cout_g - cb * CB);
+    const int co0 = g * Cout_g + cb * CB;
+    const int Kc = Cin_g * KK;
+    int wo[CB];
+    for (int j = 0; j < CB; ++j)
+        wo[j] = (co0 + IMIN(j, nco - 1)) * Kc;
+
+    const int ox0 = xb * XB, ix0 = ox0 * SX - pl, iy0 = oy * sy - pt;
+    const int span = (SX == 2 ? 2 * XB : (XB - 1) * SX + 1) + (KW - 1) * dx;
+    const int inside = ix0 >= 0 && ix0 + span <= W;
+
+    A8 acc[CB][XV];
+    for (int j = 0; j < CB; ++j)
+        for (int v = 0; v < XV; ++v)
+            acc[j][v] = (A8)A_ZERO;
+
+    const __global T *xg = x + ((long)n * Cin + (long)g * Cin_g) * H * W;
+    const int ky0 = iy0 < 0 ? (-iy0 + dy - 1) / dy : 0;           /* first row inside */
+    const int ky1 = IMIN(KH, (H - iy0 + dy - 1) / dy);            /* one past the last */
+/* Rows outer, input channels inner: the inner loop runs Cin_g times (long,
+ * well predicted) with all KW taps unrolled in its body. */
+#define CONV_LOOP(LOAD)                                                        \
+    for (int ky = ky0; ky < ky1; ++ky) {                                       \
+        const __global T *row = xg + (long)(iy0 + ky * dy) * W;                \
+        const __global T *wc = w + ky * KW;                                    \
+        for (int ci = 0; ci < Cin_g; ++ci, row += (long)H * W, wc += KK) {     \
+            _Pragma("unroll") for (int kx = 0; kx < KW; ++kx)                  \
+                TAP(LOAD, kx)                                                  \
+        }                                                                      \
+    }
+#define LOAD_INSIDE(v_) ld8_inside(row, ix0 + kx * dx + 8 * SX * (v_), SX)
+#define LOAD_GUARDED(v_) ld8_guarded(row, ix0 + kx * dx + 8 * SX * (v_), W, SX)
+    if (inside) {
+        CONV_LOOP(LOAD_INSIDE)
+    } else {
+        CONV_LOOP(LOAD_GUARDED)
+    }
+    STORE_BLOCK((long)n * Cout * Ho * Wo + ox0, 1, Wo - ox0)
+}
+
+/* ConvTranspose as a gather over output phases: along x, the outputs
+ * ox = px + sx*t of one phase px see a fixed set of taps kx (those with
+ * (px + pl - kx*dx) divisible by sx), each reading inputs ix = (px + pl -
+ * kx*dx)/sx + t, contiguous in t. A work-item takes XB consecutive t of one
+ * phase, so its input loads are vectors and its stores are spaced sx apart.
+ * Rows: each output row finds its taps ky by the same divisibility.
+ *
+ * x: [N, Cin, H, W]; w: [Cin, Cout/groups, KH, KW]; y, res: [N, Cout, Ho, Wo].
+ * NDRange: (ceil(ceil(Wo/sx) / XB), Ho, N * groups * ncb * sx). */
+__kernel void conv_transpose2d(__global const T *x, __global const T *w, __global const T *bias,
+                               __global const T *res, __global T *y,
+                               int Cin, int H, int W, int Cout, int Ho, int Wo,
+                               int Cin_g, int Cout_g, int ncb, int groups,
+                               int sy, int sx, int pt, int pl, int dy, int dx,
+                               int flags, float alpha, int nz)
+{
+    const int xb = get_global_id(0), oy = get_global_id(1), zz = get_global_id(2);
+    if (oy >= Ho || zz >= nz)
+        return;
+    const int px = zz % sx, z = zz / sx;
+    const int nt = (Wo - px + sx - 1) / sx;        /* outputs of this phase */
+    const int t0 = xb * XB;
+    if (t0 >= nt)
+        return;
+    const int cb = z % ncb, g = (z / ncb) % groups, n = z / (ncb * groups);
+    const int nco = IMIN(CB, Cout_g - cb * CB);
+    const int co0 = g * Cout_g + cb * CB;
+    int wo[CB];
+    for (int j = 0; j < CB; ++j)
+        wo[j] = ((g * Cin_g) * Cout_g + cb * CB + IMIN(j, nco - 1)) * KK;
+
+    /* Taps along x that this phase sees, and whether all their loads are inside. */
+    int ixk[KW];
+    int inside = 1;
+    for (int kx = 0; kx < KW; ++kx) {
+        const int num = px + pl - kx * dx;
+        ixk[kx] = num % sx ? INT_MIN : num / sx + t0;
+        if (ixk[kx] != INT_MIN && (ixk[kx] < 0 || ixk[kx] + XB > W))
+            inside = 0;
+    }
+
+    A8 acc[CB][XV];
+    for (int j = 0; j < CB; ++j)
+        for (int v = 0; v < XV; ++v)
+            acc[j][v] = (A8)A_ZERO;
+
+    const __global T *xg = x + ((long)n * Cin + (long)g * Cin_g) * H * W;
+#define CONVT_LOOP(LOAD)                                                       \
+    for (int ky = 0; ky < KH; ++ky) {                                          \
+        const int num = oy + pt - ky * dy;                                     \
+        if (num < 0 || num % sy || num / sy >= H)                              \
+            continue;                                                          \
+        const long iy = num / sy;                                              \
+        for (int ci = 0; ci < Cin_g; ++ci) {                                   \
+            const __global T *row = xg + ((long)ci * H + iy) * W;              \
+            const __global T *wc = w + ci * Cout_g * KK;                       \
+            _Pragma("unroll") for (int kx = 0; kx < KW; ++kx)                  \
+                if (ixk[kx] != INT_MIN)                                        \
+                    TAP(LOAD, ky * KW + kx)                                    \
+        }                                                                      \
+    }
+#define LOADT_INSIDE(v_) FLD8(row, ixk[kx] + 8 * (v_))
+#define LOADT_GUARDED(v_) ld8_guarded(row, ixk[kx] + 8 * (v_), W, 1)
+    if (inside) {
+        CONVT_LOOP(LOADT_INSIDE)
+    } else {
+        CONVT_LOOP(LOADT_GUARDED)
+    }
+    STORE_BLOCK((long)n * Cout * Ho * Wo + px + (long)t0 * sx, sx, nt - t0)
+}
