@@ -31,7 +31,9 @@ from clss.device import Device, storage_dtype
 from clss.ops.base import DEFAULT_TOL, EXACT, Tolerance, rng
 from clss.ops.twin import make_model, node_model
 
-TIERS = {"540p": ((540, 960), 2.0), "1080p": ((1080, 1920), 2.0)}
+TIERS = {"540p": ((540, 960), 2.0), "1080p": ((1080, 1920), 2.0),
+         # a smoke test of the bench itself (tests, --tiny): every case, numbers meaningless
+         "tiny": ((16, 32), 2.0)}
 LEVEL_TIERS = {"quick": ("540p",), "default": ("540p",), "full": ("540p", "1080p")}
 # What each kind is judged against (the issue's targets) and which peak bounds it.
 KINDS = ("conv", "memory", "compute", "network", "frame")
@@ -47,6 +49,9 @@ class Setup:
     ort_bytes: float                 # the same for onnxruntime (float32 tensors)
     refs_round: bool = False         # round references to fp16 (bit-exact data movement)
     release: Callable | None = None
+    post: Callable | None = None     # host outputs -> the twin's layout, for the check
+    out_index: int | None = None     # check only this twin output (others are state)
+    note: str = ""
 
 
 @dataclass
@@ -229,7 +234,7 @@ def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1",
                               engine, [o_shape], tol=tol)
         tunables = {"XV": (1, 2, 4), "CB": (1, 2, 4, 8)} if hasattr(conv, "TUNING") else {}
         out.append(BenchCase(name, "conv", "conv", tier, flops, build,
-                             quick=L["name"] in quick_layers and tier == "540p",
+                             quick=L["name"] in quick_layers,
                              shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}",
                              tunables=tunables, defaults=dict(getattr(conv, "TUNING", {})),
                              tune_op="conv2d",
@@ -250,7 +255,7 @@ def s2d_cases(tier):
                           lambda host: node_model("SpaceToDepth", {"x": host["x"]}, blocksize=2),
                           lambda d: s2d.space_to_depth(dev, prec, d["x"], 2), [o_shape], exact=True)
     return [BenchCase("space_to_depth b2 23ch (classifier input)", "space_to_depth", "memory", tier, 0.0,
-                      build, quick=tier == "540p", shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}")]
+                      build, quick=True, shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}")]
 
 
 def _resize_flops(mode, out_elems):
@@ -286,7 +291,7 @@ def resize_cases(tier):
                                                   coord="half_pixel", cubic_a=-0.75),
                               [o_shape])
         out.append(BenchCase(name, "resize", "memory", tier, _resize_flops(mode, np.prod(o_shape)), build,
-                             quick=quick and tier == "540p", shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}"))
+                             quick=quick, shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}"))
     return out
 
 
@@ -320,7 +325,7 @@ def warp_cases(tier):
                                             cubic_channels=3),
                           [x_shape], tol=_warp_tol(prec, H, W))
     out.append(BenchCase("warp history 16ch (3 bicubic + 13 bilinear)", "warp", "memory", tier,
-                         (3 * 32.0 + 13 * 8.0) * H * W, build_hist, quick=tier == "540p",
+                         (3 * 32.0 + 13 * 8.0) * H * W, build_hist, quick=True,
                          shape=f"{_shape(*x_shape)}+motion"))
 
     # Stage 4: jitter-aware bicubic upsample of the colour, as GridSample from render res.
@@ -361,7 +366,7 @@ def pool_cases(tier):
                               lambda d: pool.max_pool(dev, prec, d["x"], (3, 3), (1, 1), (1, 1, 1, 1)),
                               [shape], exact=True)
         out.append(BenchCase(name, "pool", "memory", tier, 8.0 * np.prod(shape), build,
-                             quick=quick and tier == "540p", shape=_shape(*shape)))
+                             quick=quick, shape=_shape(*shape)))
     return out
 
 
@@ -430,7 +435,7 @@ def elementwise_cases(tier):
                                      helper.make_node("Relu", ["t"], ["y0"])],
                                     {"a": host["a"], "b": host["b"]}, ["y0"]),
             lambda: {"a": _normal(("bench add a",), s), "b": _normal(("bench add b",), s)}, [s],
-            quick=tier == "540p", shape=_shape(*s)))
+            quick=True, shape=_shape(*s)))
     if _handlers_for(["Sub", "Mul", "Add"]):
         s, ws = (1, 3, H, W), (1, 1, H, W)
         out.append(graph_case(
@@ -517,7 +522,7 @@ def mlp_cases(tier):
                           lambda d: fn(dev, prec, d["x"], [(d["w1"], d["b1"], "relu"), (d["w2"], d["b2"], "sigmoid")]),
                           [(1, w2.shape[0], H, W)])
     return [BenchCase(f"mlp composition {cin}->{hid}->1 sigmoid", "mlp", "compute", tier, flops, build,
-                      quick=tier == "540p", shape=_shape(*x_shape))]
+                      quick=True, shape=_shape(*x_shape))]
 
 
 FAMILY_CASES = {
@@ -563,21 +568,23 @@ def frame_cases(tier):
 
 # --- the suite ------------------------------------------------------------------------
 
-def all_cases(level: str = "default", log=None) -> tuple[list[BenchCase], list[tuple[str, str]]]:
-    """(cases, unavailable): the suite for a level, and (what, why) for the parts
-    that cannot be built yet (a family not landed, an API that failed)."""
+def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list[tuple[str, str]]]:
+    """(cases, unavailable): the suite for a level ("quick", "default", "full"), and
+    (what, why) for the parts that cannot be built yet (a family not landed, an API
+    that failed). `tiers` replaces the level's shape tiers (e.g. ("tiny",))."""
     if level not in LEVEL_TIERS:
         raise ValueError(f"level must be one of {', '.join(LEVEL_TIERS)}")
+    tiers = tuple(tiers or LEVEL_TIERS[level])
     from clss.ops import load_all
     import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mods = load_all()
     cases, missing = [], []
-    for tier in LEVEL_TIERS[level]:
+    for tier in tiers:
         for fam, fn in FAMILY_CASES.items():
             if fam not in mods:
-                if tier == LEVEL_TIERS[level][0]:
+                if tier == tiers[0]:
                     missing.append((fam, f"clss/ops/{fam}.py not present yet"))
                 continue
             try:
@@ -591,7 +598,7 @@ def all_cases(level: str = "default", log=None) -> tuple[list[BenchCase], list[t
             except Exception as e:
                 missing.append((f"{what} [{tier}]", f"{type(e).__name__}: {e}"))
                 continue
-            if not got and tier == LEVEL_TIERS[level][0]:
+            if not got and tier == tiers[0]:
                 missing.append((what, f"{mod} not present yet"))
             cases += got
     if level == "quick":

@@ -113,21 +113,24 @@ def stream_gbs(dev: Device, kind: str = "triad", mib: int = 128, target_s: float
     return accesses * n4 * 16 / best * 1e-9
 
 
-def measure(dev: Device, quick: bool = False, log=None) -> Peak:
+def measure(dev: Device, quick: bool = False, log=None, target_s: float | None = None,
+            mib: int | None = None) -> Peak:
     """The probe set: FMA chains of float, float4, float8, float16 (best over the
-    chain counts); stream copy and triad."""
+    chain counts); stream copy and triad. `target_s` and `mib` shrink it for smoke
+    tests (a stream array must exceed the last-level cache to mean anything)."""
     t0 = time.perf_counter()
-    target = 0.1 if quick else 0.3
+    target = target_s or (0.1 if quick else 0.3)
+    repeats = 2 if quick or target_s else 3
     p = Peak()
     for vw in FMA_WIDTHS:
         name = WIDTH_NAMES[vw]
-        p.fma_gflops[name] = max(fma_gflops(dev, vw, target_s=target, repeats=2 if quick else 3, chains=ch)
+        p.fma_gflops[name] = max(fma_gflops(dev, vw, target_s=target, repeats=repeats, chains=ch)
                                  for ch in FMA_CHAINS)
         if log:
             log(f"peak: FMA {name:7s} {p.fma_gflops[name]:8.1f} GFLOP/s")
     for kind in ("copy", "triad"):
-        p.stream_gbs[kind] = stream_gbs(dev, kind, mib=64 if quick else 128, target_s=target * 2,
-                                        repeats=2 if quick else 3)
+        p.stream_gbs[kind] = stream_gbs(dev, kind, mib=mib or (64 if quick else 128), target_s=target * 2,
+                                        repeats=repeats)
         if log:
             log(f"peak: stream {kind:5s} {p.stream_gbs[kind]:8.1f} GB/s")
     p.seconds = time.perf_counter() - t0

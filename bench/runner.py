@@ -67,6 +67,7 @@ class Row:
     runs: int = 0
     check: str = ""                          # pass | FAIL ... | skipped
     max_err: float = float("nan")
+    note: str = ""
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -101,7 +102,7 @@ def _classify(row: Row, peak: Peak | None, kind: str) -> None:
     if peak is None:
         return
     # Memory-bound families are judged by bandwidth whatever their nominal FLOPs.
-    compute = kind in ("conv", "compute", "network") and row.intensity >= peak.ridge
+    compute = kind in ("conv", "compute", "network", "frame") and row.intensity >= peak.ridge
     row.bound = "compute" if compute else "memory"
     row.peak_share = row.gflops / peak.gflops if compute else row.gbs / peak.gbs
 
@@ -118,6 +119,15 @@ def check_outputs(outs, refs, tol, refs_round) -> tuple[str, float]:
         if not c.passed:
             detail = f"FAIL: output {i}: {c.detail or 'out of tolerance'} (err/tol {c.ratio:.3g})"
     return (detail or "pass"), worst
+
+
+def check_setup(setup: Setup, host: list, refs: list) -> tuple[str, float]:
+    """The engine's host outputs against onnxruntime's, in the twin's layout."""
+    if setup.post:
+        host = setup.post(host)
+    if setup.out_index is not None:
+        refs = [refs[setup.out_index]]
+    return check_outputs(host, refs, setup.tol, setup.refs_round)
 
 
 def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: Peak | None,
@@ -143,19 +153,20 @@ def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: 
             res = sess.run(out_names, setup.feeds)
             return (time.perf_counter() - t0) * 1e3, res
 
+        row.note = setup.note
         with cap.active():
-            first_ms = [engine_once()[0] for _ in range(max(1, settings.warmup))][-1]
+            # The first run is checked (stateful cases, the frame step, start from a reset there).
             _, _, outs = engine_once()
+            host = [dev.to_host(o) for o in outs] if settings.check else None
+            del outs
+            first_ms = [engine_once()[0] for _ in range(max(1, settings.warmup))][-1]
             row.launches = len(cap.events)
             o_ms = [ort_once()[0] for _ in range(max(1, settings.warmup))][-1]
             if settings.check:
-                host = [dev.to_host(o) for o in outs]
-                refs = ort_once()[1]
-                row.check, row.max_err = check_outputs(host, refs, setup.tol, setup.refs_round)
-                del host, refs
+                row.check, row.max_err = check_setup(setup, host, ort_once()[1])
+                del host
             else:
                 row.check = "skipped"
-            del outs
             n = settings.runs or int(np.clip(settings.budget_s * 1e3 / max(first_ms + o_ms, 1e-3),
                                              settings.min_runs, settings.max_runs))
             e_wall, e_ev, o_wall = [], [], []
@@ -185,15 +196,9 @@ def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: 
     return row
 
 
-def reference_outputs(case: BenchCase, dev: Device, prec: str, ort: OrtRunner):
-    """(setup, reference outputs) for the tuner's candidate checks."""
-    setup = case.build(dev, prec, {})
-    sess = ort.session(setup.twin)
-    return setup, sess.run(None, setup.feeds)
-
-
 def time_engine(setup: Setup, dev: Device, runs: int, local_size=None) -> tuple[float, float, list]:
-    """(median wall ms, median event ms, first outputs as host arrays) of the engine alone."""
+    """(median wall ms, median event ms, first run's outputs as host arrays, launches)
+    of the engine alone; `local_size` is forced on every launch it divides."""
     cap = Capture(dev)
     cap.local_size = local_size
     walls, evs, first = [], [], None

@@ -22,7 +22,7 @@ from clss import tuning
 from clss.device import Device
 
 from .cases import BenchCase
-from .runner import OrtRunner, check_outputs, time_engine
+from .runner import OrtRunner, check_setup, time_engine
 
 LOCAL_CANDIDATES = (None, (8,), (16,), (32,), (64,), (128,), (8, 2), (16, 4), (32, 2))
 
@@ -64,9 +64,13 @@ def _grid(space: dict, limit: int) -> list[dict]:
 
 def family_tunables(ops_seen) -> dict:
     """{op: {param: candidates}} declared by the families for the ops a case looked up."""
+    import warnings
     from clss.ops import load_all
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        mods = load_all()
     out = {}
-    for mod in load_all().values():
+    for mod in mods.values():
         for op, space in getattr(mod, "TUNABLES", {}).items():
             if op in ops_seen:
                 out[op] = space
@@ -81,7 +85,7 @@ def tune_case(case: BenchCase, dev: Device, prec: str, *, runs: int = 5, max_can
         setup = case.build(dev, prec, params)   # the engine reads `params` on every run
         refs = ort.session(setup.twin).run(None, setup.feeds)
         base_ms, base_ev, outs, launches = time_engine(setup, dev, runs)
-    check, _ = check_outputs(outs, refs, setup.tol, setup.refs_round)
+    check, _ = check_setup(setup, outs, refs)
     if check != "pass":
         raise RuntimeError(f"{case.name} [{prec}]: the default configuration does not match "
                            f"onnxruntime ({check}); fix the kernel before tuning it")
@@ -105,7 +109,7 @@ def tune_case(case: BenchCase, dev: Device, prec: str, *, runs: int = 5, max_can
                     t.ms, t.event_ms, out, _ = time_engine(setup, dev, runs, local)
             else:
                 t.ms, t.event_ms, out, _ = time_engine(setup, dev, runs, local)
-            t.check, _ = check_outputs(out, refs, setup.tol, setup.refs_round)
+            t.check, _ = check_setup(setup, out, refs)
         except Exception as e:   # a candidate that does not build or launch is just rejected
             t.check = f"error: {type(e).__name__}: {str(e).splitlines()[0][:200]}"
         res.trials.append(t)

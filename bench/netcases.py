@@ -1,0 +1,116 @@
+"""Whole-network and whole-frame bench cases: clss.Model against onnxruntime on the
+same network graph, and clss.Upscaler's device path against onnxruntime running
+the frame-step ONNX graph (clss/pipeline/oracle.py). Imported only once those
+modules exist."""
+from __future__ import annotations
+
+import numpy as np
+import onnx
+
+from clss.device import storage_dtype
+from clss.ops.base import Tolerance, rng
+
+from .cases import BenchCase, Setup, _nbytes, _rounded, pad16, smooth_motion
+
+# Whole networks and frames chain dozens of roundings and an in-graph bilinear and
+# sigmoid; the check is a sanity check here (the op and pipeline tests are the strict ones).
+NET_TOL = {"fp32": Tolerance(1e-4, 1e-3), "fp16": Tolerance(2e-2, 2e-2), "fp16-native": Tolerance(5e-2, 5e-2)}
+
+
+def model_case(name, model: onnx.ModelProto, input_shapes: dict, tier: str, flops: float,
+               quick: bool = False) -> BenchCase:
+    def build(dev, prec, params):
+        from clss.model import Model
+        m = Model(model, device=dev, precision=prec, input_shapes=input_shapes)
+        host = {k: _rounded(np.abs(rng("bench net", name, k).standard_normal(s, dtype=np.float32)), prec)
+                for k, s in input_shapes.items()}
+        d_in = {k: dev.to_device(v, prec) for k, v in host.items()}
+        out_shapes = list(m.output_shapes.values())
+        st = storage_dtype(prec)
+        # Compulsory traffic of a whole network: inputs, weights, outputs once.
+        weights = sum(_nbytes(t.dims, np.float32) for t in model.graph.initializer)
+        eng = sum(float(a.nbytes) for a in d_in.values()) + weights * st.itemsize / 4 + \
+            sum(_nbytes(s, st) for s in out_shapes)
+        ort = sum(float(v.nbytes) for v in host.values()) + weights + sum(_nbytes(s, np.float32) for s in out_shapes)
+        twin = _static(model, input_shapes)
+
+        def run():
+            return list(m.run_device(d_in).values())
+        return Setup(run, twin, host, NET_TOL[prec], eng, ort, release=d_in.clear,
+                     note=f"{len(m.graph.nodes)} steps after fusion")
+    shape = ", ".join(f"{k} {'x'.join(map(str, s))}" for k, s in input_shapes.items())
+    return BenchCase(name, "network", "network", tier, float(flops), build, quick=quick, shape=shape)
+
+
+def _static(model: onnx.ModelProto, input_shapes: dict) -> onnx.ModelProto:
+    """The model with its symbolic input dims fixed, so onnxruntime plans for the shape."""
+    m = onnx.ModelProto()
+    m.CopyFrom(model)
+    for vi in m.graph.input:
+        if vi.name in input_shapes:
+            for d, s in zip(vi.type.tensor_type.shape.dim, input_shapes[vi.name]):
+                d.Clear()
+                d.dim_value = int(s)
+    return m
+
+
+def synthetic_frame(h: int, w: int):
+    """A render-resolution frame in the contract's image layout: HDR-ish colour,
+    reversed-Z depth in (0, 1], smooth motion in render pixels."""
+    g = rng("bench frame", h, w)
+    color = g.uniform(0.0, 4.0, (h, w, 3)).astype(np.float32)
+    depth = g.uniform(0.05, 1.0, (h, w)).astype(np.float32)
+    motion = smooth_motion(("bench frame m", h, w), (1, 2, h, w), 2.0)[0].transpose(1, 2, 0).copy()
+    return color, depth, motion
+
+
+def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
+    from clss.pipeline import build_frame_graph
+    from clss.pipeline.contract import output_size
+    from weights_tools.networks import build_classifier, build_composition, frame_flops
+    h, w = render_size
+    H, W = output_size(h, w, scale)
+    flops = 0.0
+    if mode == "net":
+        flops = float(sum(frame_flops(build_classifier(), build_composition(), H, W)))
+
+    def build(dev, prec, params):
+        from clss.pipeline import Upscaler
+        cls = build_classifier(height=pad16(H), width=pad16(W)) if mode == "net" else None
+        comp = build_composition() if mode == "net" else None
+        up = Upscaler(scale=scale, mode=mode, device=dev, precision=prec,
+                      classifier=cls, composition=comp)
+        color, depth, motion = synthetic_frame(h, w)
+        jitter = np.array([0.25, -0.125], np.float32)
+        d = {"color": dev.to_device(color, "fp32"), "depth": dev.to_device(depth, "fp32"),
+             "motion": dev.to_device(motion, "fp32")}
+        out = dev.empty((H, W, 3), dtype=np.float32)
+        calls = [0]
+
+        def run():
+            # The first frame is a reset (what the oracle computes from a zero history);
+            # the timed ones carry the history, as a running game does.
+            up.step_device(d["color"], d["depth"], d["motion"], jitter, reset=calls[0] == 0, out=out)
+            calls[0] += 1
+            return [out]
+        twin = build_frame_graph("rule" if mode == "rules" else mode, (h, w), scale, cls,
+                                 comp)
+        names = {i.name for i in twin.graph.input}
+        feeds = {"color": color.transpose(2, 0, 1)[None].copy(), "depth": depth[None, None].copy(),
+                 "motion": motion.transpose(2, 0, 1)[None].copy(), "jitter": jitter,
+                 "reset": np.array([1.0], np.float32), "reactive": np.zeros((1, 1, h, w), np.float32),
+                 "history": np.zeros((1, 16, H, W), np.float32)}
+        feeds = {k: v for k, v in feeds.items() if k in names}
+        ort_out = [o.name for o in twin.graph.output]
+        # Compulsory traffic per frame: the render-res inputs, the history read and
+        # written, the output written.
+        st = storage_dtype(prec).itemsize
+        io = color.nbytes + depth.nbytes + motion.nbytes + H * W * 3 * 4
+        eng = io + 2 * 16 * H * W * st
+        ort = io + 2 * 16 * H * W * 4
+        return Setup(run, twin, feeds, NET_TOL[prec], eng, ort,
+                     post=lambda outs: [outs[0].transpose(2, 0, 1)[None]],
+                     out_index=ort_out.index("output") if "output" in ort_out else 0,
+                     note=(f"classifier on {up.classifier_backend_name}" if mode == "net" else ""))
+    return BenchCase(f"frame step {mode}", "frame", "frame", tier, flops, build,
+                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
