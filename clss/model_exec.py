@@ -84,6 +84,14 @@ def _conv(dev, prec, attrs, inputs):
                         activation=attrs["activation"], alpha=attrs["alpha"], residual=r)]
 
 
+@internal_op("clss.MaxPool")
+def _max_pool(dev, prec, attrs, inputs):
+    """MaxPool whose Indices output nobody reads: the values alone."""
+    pool = _family("pool")
+    x = inputs[0]
+    return [pool.max_pool(dev, prec, x, **pool._pool_attrs(attrs, x.ndim - 2))]
+
+
 @internal_op("clss.MLP")
 def _mlp(dev, prec, attrs, inputs):
     """A chain of pointwise convolutions in one kernel (clss/ops/mlp.py)."""

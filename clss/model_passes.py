@@ -604,6 +604,21 @@ def _chain_link(g, p, t, uses):
     return _is_pointwise(g, p) and _single_use(g, t, uses)
 
 
+def maxpool_values_only(g: Graph) -> int:
+    """MaxPool's Indices output, when unread, is not computed."""
+    changed = 0
+    uses = g.consumers()
+    for k, n in enumerate(g.nodes):
+        if n.op != "MaxPool" or int(n.attrs.get("storage_order", 0)):
+            continue
+        if len(n.outputs) > 1 and n.outputs[1] and (n.outputs[1] in uses or n.outputs[1] in g.outputs):
+            continue
+        g.nodes[k] = Node("clss.MaxPool", n.inputs[:1], n.outputs[:1], n.attrs, n.name, n.opset,
+                          sources=n.sources, unfused=[n])
+        changed += 1
+    return changed
+
+
 # --- cleanup -----------------------------------------------------------------------
 
 def remove_dead(g: Graph) -> int:
@@ -628,5 +643,6 @@ PASSES = [
     ("conv_canonical", canonical_convs),
     ("conv_epilogue", fuse_conv_epilogues),
     ("mlp", fuse_mlp),
+    ("maxpool", maxpool_values_only),
     ("dead", remove_dead),
 ]
