@@ -232,7 +232,8 @@ def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1",
             return make_setup(dev, prec, arrays, conv_twin("x", L["w"], L["b"], L["strides"], L["pads"],
                                                             L["act"], L["residual"]),
                               engine, [o_shape], tol=tol)
-        tunables = {"XV": (1, 2, 4), "CB": (1, 2, 4, 8)} if hasattr(conv, "TUNING") else {}
+        # conv.cl: XV in {1, 2} (A8 vectors along x), CB output channels per work-item.
+        tunables = {"XV": (1, 2), "CB": (1, 2, 4, 8)} if hasattr(conv, "TUNING") else {}
         out.append(BenchCase(name, "conv", "conv", tier, flops, build,
                              quick=L["name"] in quick_layers,
                              shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}",
@@ -493,6 +494,9 @@ def scatter_cases(tier):
                        arrays, [(1, n)], shape=f"{h}x{w} x4 taps", exact=True)]
 
 
+MLP_TUNABLES = {"XV": (1, 2)}
+
+
 def mlp_cases(tier):
     (h, w), scale = TIERS[tier]
     H, W = round(h * scale), round(w * scale)
@@ -505,9 +509,6 @@ def mlp_cases(tier):
     cin, hid = w1.shape[1], w1.shape[0]
     x_shape = (1, cin, H, W)
     flops = 2.0 * (cin * hid + hid * w2.shape[0]) * H * W
-    fn = getattr(mlp, "mlp", None)
-    if fn is None:
-        return []
 
     def build(dev, prec, params):
         def twin(host):
@@ -518,11 +519,17 @@ def mlp_cases(tier):
                               {"x": host["x"]}, ["y0"],
                               initializers={k: host[k] for k in ("w1", "b1", "w2", "b2")})
         arrays = {"x": _normal(("bench mlp",), x_shape), "w1": w1, "b1": b1, "w2": w2, "b2": b2}
-        return make_setup(dev, prec, arrays, twin,
-                          lambda d: fn(dev, prec, d["x"], [(d["w1"], d["b1"], "relu"), (d["w2"], d["b2"], "sigmoid")]),
-                          [(1, w2.shape[0], H, W)])
+        # Packed once, as a network would be; the device copies in `arrays` only count the bytes.
+        net = mlp.pack(dev, prec, [(w1, b1, "relu"), (w2, b2, "sigmoid")])
+
+        def engine(d):
+            tun = {k: v for k, v in params.items() if k in getattr(mlp, "TUNING", {})}
+            return mlp.mlp(dev, prec, d["x"], net, **({"tuning": tun} if tun else {}))
+        return make_setup(dev, prec, arrays, twin, engine, [(1, w2.shape[0], H, W)])
     return [BenchCase(f"mlp composition {cin}->{hid}->1 sigmoid", "mlp", "compute", tier, flops, build,
-                      quick=True, shape=_shape(*x_shape))]
+                      quick=True, shape=_shape(*x_shape), tunables=MLP_TUNABLES if hasattr(mlp, "TUNING") else {},
+                      defaults=dict(getattr(mlp, "TUNING", {})), tune_op="mlp",
+                      tune_key=f"{_shape(*x_shape)}/{cin}-{hid}-1")]
 
 
 FAMILY_CASES = {

@@ -34,6 +34,7 @@ class Trial:
     ms: float = float("nan")
     event_ms: float = float("nan")
     check: str = ""
+    launches: list = field(default_factory=list)    # (kernel name, global size)
 
     @property
     def ok(self) -> bool:
@@ -106,9 +107,9 @@ def tune_case(case: BenchCase, dev: Device, prec: str, *, runs: int = 5, max_can
         try:
             if declared:
                 with tuning.override(op, cand):
-                    t.ms, t.event_ms, out, _ = time_engine(setup, dev, runs, local)
+                    t.ms, t.event_ms, out, t.launches = time_engine(setup, dev, runs, local)
             else:
-                t.ms, t.event_ms, out, _ = time_engine(setup, dev, runs, local)
+                t.ms, t.event_ms, out, t.launches = time_engine(setup, dev, runs, local)
             t.check, _ = check_setup(setup, out, refs)
         except Exception as e:   # a candidate that does not build or launch is just rejected
             t.check = f"error: {type(e).__name__}: {str(e).splitlines()[0][:200]}"
@@ -136,7 +137,7 @@ def tune_case(case: BenchCase, dev: Device, prec: str, *, runs: int = 5, max_can
             entries.append((op, key, best.params))
         if best.local is not None:
             from .capture import fit_local
-            for name, gs in launches:
+            for name, gs in best.launches:
                 loc = fit_local(best.local, gs)
                 if loc is not None:
                     entries.append((f"local_size:{name}", tuning.shape_key(gs), {"local": list(loc)}))
