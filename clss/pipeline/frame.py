@@ -9,7 +9,7 @@ Per frame (render res h x w, output res H x W, H16 x W16 the size padded to 16):
 
     fill(recon, 0)
     prepare       color, depth, motion, reactive -> X (encoded colour), lr stack, recon
-    depth_diff    recon -> lr[dd]
+    depth_diff    recon -> lr[dd]; rule: X -> lr[colour box]
     resolve       rule: X, lr, history -> history', output
                   net:  X, lr, history -> classifier input (H16 x W16), aux
     classifier    net: classifier input -> logits at H16/2 x W16/2   (clss.Model)
@@ -213,7 +213,8 @@ class FrameStep:
             self.flags.data))))
         flag_ev = cl.enqueue_copy(q, self.flags_host, self.flags.data, is_blocking=False)
         ev.append(("depth_diff", dev.launch(self.k["depth_diff"], (w, h),
-                                            (self.recon.data, self.lr.data, i32(w), i32(h)))))
+                                            (self.recon.data, self.X.data, self.lr.data, i32(w),
+                                             i32(h)))))
         common = (self.X.data, self.lr.data, self.bx.data, self.by.data, f(jitter[0]),
                   f(jitter[1]), i32(w), i32(h), i32(W), i32(H), f(W / w), f(H / h),
                   i32(bool(reset)), hist.data)

@@ -1,0 +1,221 @@
+"""`clss demo`: the built-in sample scene through bicubic, CLSS rules and CLSS net.
+
+Renders clss.scene (jittered render-resolution frames and a 16-spp output-resolution
+reference), upscales every frame four ways and writes to OUT (default out/demo):
+
+    input/                 the rendered sequence as EXR + jitter.json (`clss upscale` reads it)
+    bicubic/ rules/ net/   output frames, EXR (half) and PNG
+    side_by_side.png       last frame: input (nearest), bicubic, rules, net, reference
+    side_by_side_crop.png  a 3x enlarged crop of the same
+    temporal_profile.png   one scanline over time for each method (flicker shows as noise)
+    debug/                 rules_* and net_* debug views of the last frame
+    metrics.json           PSNR / SSIM per frame and their means, per-stage milliseconds
+
+"bicubic" is a plain (not jitter-aware) Keys bicubic of each render frame in the PQ
+domain (clss.ops.resize), i.e. what a spatial upscaler without history gives.
+Metrics compare tone-mapped display values (clss.metrics) from frame SKIP on, once the
+history has warmed up. The net mode runs untrained (seeded) networks unless --weights
+is given: its numbers show that the machinery works, not what a trained CLSS reaches.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+SKIP = 4
+
+
+def _size(text):
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--size: expected WxH (e.g. 480x270), got {text!r}")
+    if w < 4 or h < 4:
+        raise argparse.ArgumentTypeError(f"--size: at least 4x4, got {text!r}")
+    return h, w
+
+
+class Bicubic:
+    """Plain bicubic (Keys a = -0.75, half-pixel centres) of one frame, on the device,
+    in the PQ domain so that it rings like the pipeline's colour would."""
+
+    def __init__(self, dev, out_hw):
+        self.dev, self.out_hw = dev, out_hw
+
+    def __call__(self, color):
+        from .ops.resize import resize
+        from .pipeline.contract import pq_decode, pq_encode
+        x = self.dev.to_device(pq_encode(color).transpose(2, 0, 1)[None])
+        y = resize(self.dev, "fp32", x, out_hw=self.out_hw, mode="cubic")
+        return pq_decode(np.clip(y.get()[0].transpose(1, 2, 0), 0, 1))
+
+
+def _crop_box(H, W):
+    """A region with the fence and wires (upper middle of the frame), 1/4 of each side."""
+    ch, cw = max(H // 4, 8), max(W // 4, 8)
+    y0, x0 = int(H * 0.30), int(W * 0.45)
+    return (min(y0, H - ch), min(y0, H - ch) + ch, min(x0, W - cw), min(x0, W - cw) + cw)
+
+
+def main(argv=None) -> int:
+    from .pipeline.cli import add_upscaler_args, format_stage_table, write_debug_views
+    p = argparse.ArgumentParser(
+        prog="clss demo",
+        description="Render the built-in sample scene, upscale it with bicubic, CLSS rules and "
+                    "CLSS net, and write frames, a side-by-side, a temporal profile, debug views "
+                    "and PSNR/SSIM against the scene's 16-spp reference.")
+    p.add_argument("-o", "--out", default=os.path.join("out", "demo"))
+    p.add_argument("--frames", "-n", type=int, default=30)
+    p.add_argument("--size", type=_size, default=(270, 480), metavar="WxH",
+                   help="render size (default 480x270; output = size x scale)")
+    add_upscaler_args(p)
+    p.add_argument("--weights", "-w", default=None,
+                   help="network weights (default: seeded, untrained networks)")
+    p.add_argument("--spp", type=int, default=16, help="reference samples per output pixel")
+    p.add_argument("--modes", default="rules,net", help="comma-separated subset of rules,net")
+    p.add_argument("--workers", type=int, default=2, help="processes rendering the scene")
+    a = p.parse_args(argv)
+    if a.frames < 1:
+        p.error("--frames: at least 1")
+    modes = [m.strip() for m in a.modes.split(",") if m.strip()]
+    if not modes or any(m not in ("rules", "net") for m in modes):
+        p.error(f"--modes: expected a subset of rules,net, got {a.modes!r}")
+
+    from . import io as cio
+    from . import metrics
+    from .device import get_device
+    from .pipeline import Upscaler
+    from .pipeline.contract import output_size
+    from .progress import progress
+    from .scene import iter_sequence
+
+    h, w = a.size
+    try:
+        H, W = output_size(h, w, a.scale)
+        dev = get_device(a.device)
+        ups = {m: Upscaler(a.scale, mode=m, weights=a.weights if m == "net" else None, device=dev,
+                           precision=a.precision, profile=True, debug=True) for m in modes}
+    except (ValueError, OSError) as e:
+        print(f"clss demo: {e}", file=sys.stderr)
+        return 2
+    trained = ups["net"].trained if "net" in ups else None
+    out = a.out
+    os.makedirs(out, exist_ok=True)
+    print(f"clss demo: {a.frames} frames {w}x{h} -> {W}x{H} (x{a.scale:g}), {a.precision}, "
+          f"device {dev.info.name}; writing to {out}", file=sys.stderr)
+
+    bicubic = Bicubic(dev, (H, W))
+    methods = ["bicubic"] + modes
+    scores = {m: {"psnr": [], "ssim": []} for m in methods}
+    row = int(H * 0.55)                          # the profile's scanline: ground and fence
+    lines = {m: [] for m in methods + ["reference"]}
+    wall = {m: 0.0 for m in methods}
+    render_s = 0.0
+    last = {}
+    t_all = time.perf_counter()
+    frames = iter_sequence(a.frames, (h, w), a.scale, spp_ref=a.spp, workers=a.workers)
+    in_dir = os.path.join(out, "input")
+    sidecar = None
+    t = time.perf_counter()
+    for f in progress(frames, desc="demo", unit="frame", total=a.frames):
+        render_s += time.perf_counter() - t
+        # One frame at a time (the references are large); write_sample_sequence writes a
+        # one-frame jitter.json each time, gathered into the sequence's sidecar below.
+        cio.write_sample_sequence([f], in_dir)
+        with open(os.path.join(in_dir, "jitter.json")) as fh:
+            one = json.load(fh)
+        if sidecar is None:
+            sidecar = dict(one, frames=[], jitter=[], resets=[])
+        sidecar["frames"] += one["frames"]
+        sidecar["jitter"] += one["jitter"]
+        sidecar["resets"] += one["resets"]
+        results = {}
+        t = time.perf_counter()
+        results["bicubic"] = bicubic(f.color)
+        wall["bicubic"] += time.perf_counter() - t
+        for m in modes:
+            t = time.perf_counter()
+            results[m] = ups[m].step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
+            wall[m] += time.perf_counter() - t
+        for m, img in results.items():
+            cio.write_exr(os.path.join(out, m, f"frame.{f.index:04d}.exr"), img)
+            cio.write_png(os.path.join(out, m, f"frame.{f.index:04d}.png"), img)
+            if f.index >= min(SKIP, a.frames - 1):
+                scores[m]["psnr"].append(metrics.psnr(img, f.reference))
+                scores[m]["ssim"].append(metrics.ssim(img, f.reference))
+            lines[m].append(img[row:row + 1])
+        lines["reference"].append(f.reference[row:row + 1])
+        last = dict(results, reference=f.reference, input=_nearest(f.color, H, W))
+        t = time.perf_counter()
+    with open(os.path.join(in_dir, "jitter.json"), "w") as fh:
+        json.dump(sidecar, fh, indent=1)
+    total_s = time.perf_counter() - t_all
+
+    # pictures
+    order = ["input"] + methods + ["reference"]
+    labels = ["input (nearest)", "bicubic"] + [f"CLSS {m}" for m in modes] + [f"reference {a.spp} spp"]
+    if "net" in modes and not trained:
+        labels[order.index("net")] = "CLSS net (untrained)"
+    pics = [last[k] for k in order]
+    side = os.path.join(out, "side_by_side.png")
+    metrics.save_side_by_side(side, pics, labels)
+    metrics.save_side_by_side(os.path.join(out, "side_by_side_crop.png"), pics, labels,
+                              crop=_crop_box(H, W), zoom=3)
+    span = (W // 4, W // 4 + min(W // 2, 240))
+    metrics.save_temporal_profiles(os.path.join(out, "temporal_profile.png"),
+                                   [lines[m] for m in methods + ["reference"]], labels[1:],
+                                   row=0, span=span, repeat=max(1, 240 // a.frames))
+    for m in modes:
+        write_debug_views(os.path.join(out, "debug"), ups[m], a.frames - 1, prefix=f"{m}_")
+
+    # summary
+    stage = {m: ups[m].stage_ms() for m in modes}
+    summary = {"frames": a.frames, "render_size": [h, w], "output_size": [H, W], "scale": a.scale,
+               "precision": a.precision, "device": dev.info.name, "metrics_from_frame":
+               min(SKIP, a.frames - 1), "net_weights": "trained" if trained else "untrained (seeded)",
+               "methods": {}, "stage_ms": stage, "render_s": render_s, "total_s": total_s}
+    if "net" in ups:
+        summary["classifier_backend"] = ups["net"].classifier_backend_name
+    print(f"\nsample scene, {a.frames} frames {w}x{h} -> {W}x{H}; metrics on tone-mapped frames "
+          f"{summary['metrics_from_frame']}..{a.frames - 1} against the {a.spp}-spp reference")
+    print(f"{'method':22s} {'PSNR dB':>8s} {'SSIM':>7s} {'ms/frame':>9s}")
+    for m in methods:
+        ps, ss = np.mean(scores[m]["psnr"]), np.mean(scores[m]["ssim"])
+        ms = wall[m] / a.frames * 1e3
+        name = "bicubic" if m == "bicubic" else f"CLSS {m}"
+        if m == "net" and not trained:
+            name += " (untrained)"
+        print(f"{name:22s} {ps:8.2f} {ss:7.4f} {ms:9.1f}")
+        summary["methods"][m] = {"psnr": scores[m]["psnr"], "ssim": scores[m]["ssim"],
+                                 "psnr_mean": float(ps), "ssim_mean": float(ss),
+                                 "ms_per_frame": ms}
+    if "net" in modes and not trained:
+        print("note: the net weights are untrained (seeded He init); its numbers show the "
+              "pipeline runs, not the quality of a trained CLSS")
+    for m in modes:
+        print(f"\nCLSS {m}, per-stage time per frame ({dev.info.name}; OpenCL events, "
+              f"classifier wall time):")
+        print(format_stage_table(stage[m]))
+    if "net" in ups:
+        print(f"classifier backend: {summary['classifier_backend']}")
+    print(f"\nscene rendering {render_s:.1f} s, total {total_s:.1f} s; pictures: {side}")
+    with open(os.path.join(out, "metrics.json"), "w") as fh:
+        json.dump(summary, fh, indent=1)
+    return 0
+
+
+def _nearest(img, H, W):
+    """Render-resolution image enlarged to H x W by nearest neighbour (any scale)."""
+    h, w = img.shape[:2]
+    iy = np.minimum(((np.arange(H) + 0.5) * h / H).astype(np.int64), h - 1)
+    ix = np.minimum(((np.arange(W) + 0.5) * w / W).astype(np.int64), w - 1)
+    return img[iy][:, ix]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
