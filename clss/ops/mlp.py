@@ -1,0 +1,196 @@
+"""Per-pixel MLP (kernels/mlp.cl): a chain of dense layers (1x1 convolutions)
+with activations, fused into one kernel whose hidden activations never leave
+private memory. Its ONNX twin is the chain Conv 1x1 -> activation -> ...;
+there is no ONNX op type of its own (fusing such chains is clss.Model's job)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from onnx import helper
+
+from ..device import Device, storage_dtype
+from .base import Case, check_storage, host_call, rng
+from .conv import ACTIVATIONS
+from .twin import make_model
+
+# Widest layer (input channels included) one kernel keeps in private memory:
+# two arrays of MAX_WIDTH x 8*XV floats per work-item (8 KiB at 128, XV=1).
+# Wider layers belong in conv2d 1x1 (clss.ops.conv).
+MAX_WIDTH = 128
+# Layers per kernel; longer chains run as several kernels through global memory.
+MAX_LAYERS = 8
+TUNING = {"XV": 1}
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    buffer: object                 # packed weights, storage type
+    widths: tuple[int, ...]        # C0 .. Cn
+    acts: tuple[int, ...]
+    alphas: tuple[float, ...]
+    offsets: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class MlpWeights:
+    """Layers packed on the device, ready for mlp(); pack once per network."""
+    prec: str
+    chunks: tuple[_Chunk, ...]
+
+    @property
+    def widths(self) -> tuple[int, ...]:
+        return self.chunks[0].widths[:1] + tuple(w for c in self.chunks for w in c.widths[1:])
+
+
+def _layer(i, layer):
+    if len(layer) == 2:
+        (w, b), act = layer, "none"
+    else:
+        w, b, act = layer
+    w = np.asarray(w.get() if hasattr(w, "get") else w, np.float32)
+    if w.ndim == 4 and w.shape[2:] == (1, 1):      # ONNX Conv weight [Cout, Cin, 1, 1]
+        w = w[:, :, 0, 0]
+    if w.ndim != 2:
+        raise ValueError(f"mlp layer {i}: weight must be [Cout, Cin] (or [Cout, Cin, 1, 1]), got {w.shape}")
+    b = (np.zeros(w.shape[0], np.float32) if b is None
+         else np.asarray(b.get() if hasattr(b, "get") else b, np.float32).reshape(-1))
+    if b.shape != (w.shape[0],):
+        raise ValueError(f"mlp layer {i}: bias shape {b.shape} != ({w.shape[0]},)")
+    name, alpha = (act, 0.01) if isinstance(act, str) else (act[0], float(act[1]))
+    if name not in ACTIVATIONS:
+        raise ValueError(f"mlp layer {i}: activation must be one of {', '.join(ACTIVATIONS)}, got {name!r}")
+    return w, b, ACTIVATIONS[name], alpha
+
+
+def pack(dev: Device, prec: str, layers) -> MlpWeights:
+    """layers: [(W [Cout,Cin], b [Cout] or None, act), ...] with act a name of
+    conv.ACTIVATIONS or (name, alpha); numpy or device arrays."""
+    if isinstance(layers, MlpWeights):
+        return layers
+    parsed = [_layer(i, l) for i, l in enumerate(layers)]
+    if not parsed:
+        raise ValueError("mlp: no layers")
+    widths = [parsed[0][0].shape[1]] + [w.shape[0] for w, *_ in parsed]
+    for i, (w, *_rest) in enumerate(parsed):
+        if w.shape[1] != widths[i]:
+            raise ValueError(f"mlp layer {i}: takes {w.shape[1]} inputs, previous layer gives {widths[i]}")
+    if max(widths) > MAX_WIDTH:
+        raise ValueError(f"mlp: widths {widths} exceed {MAX_WIDTH}, the most one kernel keeps in private "
+                         "memory; run such layers as conv2d 1x1 (clss.ops.conv)")
+    chunks = []
+    for s in range(0, len(parsed), MAX_LAYERS):
+        part = parsed[s:s + MAX_LAYERS]
+        offsets, blobs, off = [], [], 0
+        for w, b, _, _ in part:
+            offsets.append(off)
+            blobs += [w.reshape(-1), b]
+            off += w.size + b.size
+        buf = dev.to_device(np.concatenate(blobs).astype(storage_dtype(prec)), prec)
+        chunks.append(_Chunk(buf, tuple(widths[s:s + len(part) + 1]), tuple(p[2] for p in part),
+                             tuple(p[3] for p in part), tuple(offsets)))
+    return MlpWeights(prec, tuple(chunks))
+
+
+def mlp(dev: Device, prec: str, x, layers, out=None, tuning=None):
+    """y = layer_n(...layer_1(x)) per pixel; x [N, C0, H, W] -> y [N, Cn, H, W].
+    layers: an MlpWeights from pack(), or the layer list pack() takes."""
+    check_storage("x", x, prec)
+    net = pack(dev, prec, layers)
+    if net.prec != prec:
+        raise ValueError(f"mlp: weights packed for {net.prec}, called with {prec}")
+    n, c, h, w = x.shape
+    if c != net.widths[0]:
+        raise ValueError(f"mlp: input has {c} channels, the first layer takes {net.widths[0]}")
+    xv = {**TUNING, **(tuning or {})}["XV"]
+    cur = x
+    for i, ch in enumerate(net.chunks):
+        last = i == len(net.chunks) - 1
+        dst = out if (last and out is not None) else dev.empty((n, ch.widths[-1], h, w), prec)
+        defines = dict(NL=len(ch.acts), CMAX=max(ch.widths), XV=xv)
+        for k, wd in enumerate(ch.widths):
+            defines[f"C{k}"] = wd
+        for k, (a, al, off) in enumerate(zip(ch.acts, ch.alphas, ch.offsets), 1):
+            defines.update({f"ACT{k}": a, f"ALPHA{k}": float(al), f"OFF{k}": off})
+        kern = dev.kernel("mlp", "mlp", prec, **defines)
+        dev.launch(kern, (-(-(h * w) // (8 * xv)), n), (cur.data, ch.buffer.data, dst.data, np.int32(h * w)))
+        cur = dst
+    return cur
+
+
+# --- twins and cases ------------------------------------------------------------
+
+_ACT_OPS = {"relu": "Relu", "sigmoid": "Sigmoid", "tanh": "Tanh", "leaky_relu": "LeakyRelu"}
+
+
+def twin(x: np.ndarray, layers) -> "onnx.ModelProto":
+    """Conv 1x1 -> activation per layer; weights and biases are graph inputs
+    (w0, b0, w1, ...) so fp16 runs feed onnxruntime the same rounded values."""
+    nodes, inputs, cur = [], {"x": x}, "x"
+    for i, (w, b, act) in enumerate(layers):
+        name, alpha = (act, 0.01) if isinstance(act, str) else act
+        inputs[f"w{i}"] = w.reshape(w.shape[0], w.shape[1], 1, 1)
+        inputs[f"b{i}"] = b
+        nodes.append(helper.make_node("Conv", [cur, f"w{i}", f"b{i}"], [f"c{i}"]))
+        cur = f"c{i}"
+        if name != "none":
+            attrs = {"alpha": float(alpha)} if name == "leaky_relu" else {}
+            nodes.append(helper.make_node(_ACT_OPS[name], [cur], [f"a{i}"], **attrs))
+            cur = f"a{i}"
+    nodes.append(helper.make_node("Identity", [cur], ["y0"]))
+    return make_model(nodes, inputs, ["y0"])
+
+
+def make_case(widths, acts, n=1, h=7, w=13, name="") -> Case:
+    g = rng("mlp", tuple(widths), tuple(map(str, acts)), n, h, w)
+    x = g.standard_normal((n, widths[0], h, w)).astype(np.float32)
+    layers = []
+    for i, act in enumerate(acts):
+        wt = (g.standard_normal((widths[i + 1], widths[i])) / np.sqrt(widths[i])).astype(np.float32)
+        layers.append((wt, g.standard_normal(widths[i + 1]).astype(np.float32) * 0.5, act))
+    model = twin(x, layers)
+    inputs = {"x": x}
+    for i, (wt, b, _) in enumerate(layers):
+        inputs[f"w{i}"] = wt.reshape(wt.shape[0], wt.shape[1], 1, 1)
+        inputs[f"b{i}"] = b
+    acts_ = list(acts)
+
+    def run(dev, prec, x, **wb):
+        ls = [(wb[f"w{i}"], wb[f"b{i}"], a) for i, a in enumerate(acts_)]
+        return mlp(dev, prec, x, ls)
+
+    short = {"none": "id", "relu": "relu", "leaky_relu": "lrelu", "sigmoid": "sig", "tanh": "tanh"}
+    desc = "-".join(str(c) for c in widths) + " " + ",".join(
+        short[a if isinstance(a, str) else a[0]] for a in acts) + f" {n}x{h}x{w}" + (f" {name}" if name else "")
+    return Case("mlp", desc, inputs, model, host_call(run))
+
+
+def cases(level: str = "quick") -> list[Case]:
+    C = make_case
+    composition = ((22, 32, 1), ("relu", "sigmoid"))           # CLSS composition network
+    shader = ((50, 50, 50, 25), (("leaky_relu", 0.01),) * 3)   # shader MLP upscaler (seed 004)
+    tiny = [
+        C(*composition, h=5, w=9, name="clss-composition"),
+        C((3, 5, 4), ("tanh", ("leaky_relu", 0.2)), n=2, h=3, w=7),
+        C((2,) * 10, ("relu", "none") * 4 + ("sigmoid",), h=3, w=5, name="chained"),
+    ]
+    if level == "tiny":
+        return tiny
+    quick = tiny + [
+        C(*composition, h=31, w=27, name="clss-composition"),
+        C(*shader, h=7, w=13, name="shader-mlp"),
+    ]
+    if level == "quick":
+        return quick
+    full = quick + [
+        C(*composition, n=2, h=1, w=1),
+        C(*composition, h=7, w=13),
+        C((5, 3), ("none",), h=31, w=27),
+        C((23, 17, 3), ("tanh", "relu"), h=7, w=13),
+        C((17, 64, 64, 5), ("relu", ("leaky_relu", 0.1), "sigmoid"), n=2, h=9, w=11),
+        C((3, 128, 3), ("relu", "none"), h=4, w=6, name="widest"),
+        C(*shader, n=2, h=31, w=27, name="shader-mlp"),
+    ]
+    for act in ACTIVATIONS:
+        full.append(C((7, 9), (act,), h=7, w=13))
+    return full

@@ -1,0 +1,164 @@
+/* mlp: a per-pixel chain of dense layers (1x1 convolutions) with fused
+ * activations, all in one kernel; the hidden activations of a work-item's
+ * pixels stay in private memory (registers, spilling to the stack) and
+ * never touch global memory.
+ *
+ * The network is baked in at build time, so every loop over a layer's
+ * inputs unrolls:
+ *   -DNL=n                 number of layers (1..8)
+ *   -DC0=, -DC1=, ... -DCn= widths: C0 input channels, Ck layer k's outputs
+ *   -DACT1=, ...           layer k's activation (ACT_* ids of common.h)
+ *   -DALPHA1=, ...         layer k's leaky_relu slope
+ *   -DOFF1=, ...           layer k's offset in the packed weight buffer, which
+ *                          holds per layer W [Ck][Ck-1] row-major, then b [Ck]
+ *   -DCMAX=                the widest of C0..Cn (private array size)
+ *   -DXV=1|2               A8 pixel vectors per work-item (tunable)
+ *
+ * x: [N, C0, H, W], y: [N, Cn, H, W]. NDRange: (ceil(H*W / (8*XV)), N).
+ * Each work-item takes 8*XV consecutive pixels of one image; the image's last
+ * block loads and stores element by element, inside the tensor.
+ */
+#include "common.h"
+
+#ifndef XV
+#define XV 1
+#endif
+#ifndef OB
+#define OB 4 /* outputs per pass over a layer's inputs: each input load feeds OB FMAs */
+#endif
+
+/* Loads and stores without builtin calls: see kernels/conv.cl for why (PoCL
+ * does not inline its library, and a call spills every vector register). */
+#if defined(__clang__) && !defined(CLSS_NO_CLANG_VECTORS)
+#if defined(CLSS_FP16)
+typedef half Th1 __attribute__((ext_vector_type(1)));
+typedef half Th8 __attribute__((ext_vector_type(8), aligned(2)));
+typedef float Ta1 __attribute__((ext_vector_type(1)));
+#define FLD(p, i) (__builtin_convertvector(*(__global const Th1 *)((p) + (i)), Ta1).x)
+#define FLD8(p, i) __builtin_convertvector(*(__global const Th8 *)((p) + (i)), A8)
+#define FST8(p, i, v) (*(__global Th8 *)((p) + (i)) = __builtin_convertvector((A8)(v), Th8))
+#define FST(p, i, v) (*(__global Th1 *)((p) + (i)) = __builtin_convertvector((Ta1)(v), Th1))
+#else
+typedef T Tv8 __attribute__((ext_vector_type(8), aligned(sizeof(T))));
+#define FLD(p, i) ((A)(p)[(i)])
+#define FLD8(p, i) ((A8)(*(__global const Tv8 *)((p) + (i))))
+#define FST8(p, i, v) (*(__global Tv8 *)((p) + (i)) = (v))
+#define FST(p, i, v) ((p)[(i)] = (T)(v))
+#endif
+#else
+#define FLD LD
+#define FLD8 LD8
+#define FST8 ST8
+#define FST ST
+#endif
+
+/* Per-layer activation (common.h's APPLY_ACT serves one ACT per build). */
+inline A8 act8(A8 v, int kind, float alpha)
+{
+    if (kind == ACT_RELU)
+        return v > (A8)A_ZERO ? v : (A8)A_ZERO;
+    if (kind == ACT_LEAKY_RELU)
+        return v >= (A8)A_ZERO ? v : v * (A)alpha;
+    if (kind == ACT_SIGMOID)
+        return (A)1 / ((A)1 + exp(-v));
+    if (kind == ACT_TANH)
+        return tanh(v);
+    return v;
+}
+
+/* One dense layer: OUT[o] = act(b[o] + sum_i W[o][i] * IN[i]) for the
+ * work-item's pixel vectors, OB outputs per pass so each IN[i] load feeds OB
+ * multiply-adds; outputs past CO reuse row CO-1 (in bounds) and are dropped. */
+#define LAYER(IN, OUT, CI, CO, WOFF, ACTK, ALPHAK)                             \
+    for (int o = 0; o < (CO); o += OB) {                                       \
+        A8 a[OB][XV];                                                          \
+        int r[OB];                                                             \
+        _Pragma("unroll") for (int j = 0; j < OB; ++j) {                       \
+            r[j] = o + j < (CO) ? o + j : (CO) - 1;                            \
+            const A b = FLD(wp, (WOFF) + (CO) * (CI) + r[j]);                  \
+            for (int v = 0; v < XV; ++v)                                       \
+                a[j][v] = (A8)b;                                               \
+        }                                                                      \
+        _Pragma("unroll") for (int i = 0; i < (CI); ++i)                       \
+            _Pragma("unroll") for (int j = 0; j < OB; ++j) {                   \
+                const A wv = FLD(wp, (WOFF) + r[j] * (CI) + i);                \
+                for (int v = 0; v < XV; ++v)                                   \
+                    a[j][v] += wv * IN[i][v];                                  \
+            }                                                                  \
+        _Pragma("unroll") for (int j = 0; j < OB; ++j)                         \
+            if (o + j < (CO))                                                  \
+                for (int v = 0; v < XV; ++v)                                   \
+                    OUT[o + j][v] = act8(a[j][v], (ACTK), (ALPHAK));           \
+    }
+
+__kernel void mlp(__global const T *x, __global const T *wp, __global T *y, int HW)
+{
+    const int pb = get_global_id(0), n = get_global_id(1);
+    const int p0 = pb * 8 * XV;
+    if (p0 >= HW)
+        return;
+    const int full = p0 + 8 * XV <= HW;
+    A8 h0[CMAX][XV], h1[CMAX][XV];
+
+    const __global T *xn = x + (long)n * C0 * HW;
+    for (int c = 0; c < C0; ++c)
+        for (int v = 0; v < XV; ++v) {
+            const int p = p0 + 8 * v;
+            if (full) {
+                h0[c][v] = FLD8(xn, (long)c * HW + p);
+            } else {
+                union { A8 v; A e[8]; } u;
+                for (int e = 0; e < 8; ++e)
+                    u.e[e] = FLD(xn, (long)c * HW + (p + e < HW ? p + e : HW - 1));
+                h0[c][v] = u.v;
+            }
+        }
+
+    /* Layers alternate between h0 and h1. */
+    LAYER(h0, h1, C0, C1, OFF1, ACT1, ALPHA1)
+#if NL >= 2
+    LAYER(h1, h0, C1, C2, OFF2, ACT2, ALPHA2)
+#endif
+#if NL >= 3
+    LAYER(h0, h1, C2, C3, OFF3, ACT3, ALPHA3)
+#endif
+#if NL >= 4
+    LAYER(h1, h0, C3, C4, OFF4, ACT4, ALPHA4)
+#endif
+#if NL >= 5
+    LAYER(h0, h1, C4, C5, OFF5, ACT5, ALPHA5)
+#endif
+#if NL >= 6
+    LAYER(h1, h0, C5, C6, OFF6, ACT6, ALPHA6)
+#endif
+#if NL >= 7
+    LAYER(h0, h1, C6, C7, OFF7, ACT7, ALPHA7)
+#endif
+#if NL >= 8
+    LAYER(h1, h0, C7, C8, OFF8, ACT8, ALPHA8)
+#endif
+#if NL > 8
+#error "mlp: at most 8 layers per kernel (the host chains longer networks)"
+#endif
+#if NL % 2
+#define OUTV h1
+#else
+#define OUTV h0
+#endif
+#define CN_(k) C##k
+#define CN(k) CN_(k)
+
+    __global T *yn = y + (long)n * CN(NL) * HW;
+    for (int c = 0; c < CN(NL); ++c)
+        for (int v = 0; v < XV; ++v) {
+            const int p = p0 + 8 * v;
+            if (full) {
+                FST8(yn, (long)c * HW + p, OUTV[c][v]);
+            } else {
+                union { A8 v; A e[8]; } u;
+                u.v = OUTV[c][v];
+                for (int e = 0; e < 8 && p + e < HW; ++e)
+                    FST(yn, (long)c * HW + p + e, u.e[e]);
+            }
+        }
+}
