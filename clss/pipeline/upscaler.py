@@ -230,6 +230,8 @@ class Upscaler:
     # -- the host path ----------------------------------------------------------------
     def step(self, color, depth, motion, jitter, reset=False, reactive=None) -> np.ndarray:
         """One frame from host arrays; returns the H x W x 3 float32 linear output."""
+        if reset:
+            self._pending_reset = True          # kept if this frame is refused
         hw = color.shape[:2] if isinstance(color, np.ndarray) and color.ndim == 3 else None
         if hw is not None and self._fs is not None and not reset:
             self._frame_step(hw, reset)         # a size change without reset: a clear error
@@ -255,6 +257,8 @@ class Upscaler:
         which allocates): color h x w x 3, depth h x w, motion h x w x 2, reactive h x w.
         Returns the H x W x 3 float32 output on the device: `out` if given, else an
         internal buffer that the next step overwrites."""
+        if reset:
+            self._pending_reset = True
         for name, a in (("color", color), ("depth", depth), ("motion", motion),
                         ("reactive", reactive), ("out", out)):
             if a is not None and not isinstance(a, cla.Array):
@@ -291,7 +295,7 @@ class Upscaler:
 
     # -- shared --------------------------------------------------------------------------
     def _run(self, fs, color, depth, motion, reactive, jitter, reset, out, device_inputs=False):
-        use_reset = bool(reset) or self._pending_reset
+        use_reset = self._pending_reset
         ev = fs.run(color, depth, motion, reactive, jitter,
                     use_reset, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
                     exposure=self.exposure, out=out)
@@ -319,6 +323,12 @@ class Upscaler:
         if self._fs is not None and self.profile:
             for k, v in self._fs.stage_ms().items():
                 self._totals[k] = self._totals.get(k, 0.0) + v
+
+    def reset_timings(self):
+        """Start the per-stage statistics afresh (e.g. after a first frame that paid for
+        kernel compilation)."""
+        self._flush_timings()
+        self._totals, self._timed_frames = {}, 0
 
     def stage_ms(self) -> dict[str, float]:
         """Mean milliseconds per frame of each stage since construction (needs
