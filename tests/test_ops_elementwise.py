@@ -1,3 +1,7 @@
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
@@ -5,6 +9,8 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from clss.ops import elementwise as ew
 from clss.ops.base import DEFAULT_TOL, compare
 from conftest import PRECISIONS, assert_case
+from test_oclgrind import ICD, oclgrind_env
+from test_ops_pool import FP16_NATIVE_BUILD
 
 CASES = ew.cases("full")
 SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -188,3 +194,12 @@ def test_bad_arguments_raise(dev):
         ew.where(dev, "fp32", x, x, x)
     with pytest.raises(TypeError, match="float16 storage"):
         ew.relu(dev, "fp16", x)
+
+
+@pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
+def test_fp16_native_variants_build(tmp_path):
+    # Every variant type-checks with half arithmetic (see test_ops_pool.py).
+    code = FP16_NATIVE_BUILD.format(module="elementwise", stem="elementwise")
+    p = subprocess.run([sys.executable, "-c", code], env=oclgrind_env(tmp_path), capture_output=True,
+                       text=True, timeout=600)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]

@@ -13,12 +13,10 @@ ones); a shape that still needs more raises ValueError (Unsupported in ONNX).
 from __future__ import annotations
 
 import numpy as np
-import pyopencl.array as cla
-from onnx import helper
 
 from ..device import Device, storage_dtype
 from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
-from .twin import make_model, node_model
+from .twin import node_model
 
 BINARY = {"add": 0, "sub": 1, "mul": 2, "div": 3, "min": 4, "max": 5, "prelu": 6,
           "greater": 7, "less": 8, "equal": 9, "greater_equal": 10, "less_equal": 11}
@@ -27,6 +25,11 @@ UNARY = {"relu": 0, "leaky_relu": 1, "sigmoid": 2, "tanh": 3, "elu": 4, "hard_si
          "abs": 6, "neg": 7, "exp": 8, "sqrt": 9, "clip": 10}
 PAD_MODES = {"constant": 0, "edge": 1, "reflect": 2, "wrap": 3}
 _VEC = 8  # elements per work-item in the flat kernels
+# Every -D combination the launches use, for build checks (fp16-native included,
+# which PoCL cannot compile): (defines) of kernels/elementwise.cl.
+BUILD_VARIANTS = ([dict(OP=o, A_SCALAR=a, B_SCALAR=b) for o in BINARY.values() for a, b in ((0, 0), (1, 0), (0, 1))]
+                  + [dict(UOP=u) for u in UNARY.values()] + [dict(PAD_MODE=m) for m in PAD_MODES.values()]
+                  + [dict(LAST=1)])
 
 
 # --- shapes ----------------------------------------------------------------------
@@ -469,17 +472,22 @@ for _op_type, _name in (("Min", "min"), ("Max", "max"), ("Sum", "add")):
     onnx_op(_op_type)(lambda dev, prec, attrs, inputs, _n=_name:
                       [_unsupported(variadic, dev, prec, _n, [i for i in inputs if i is not None])])
 
-# (op type, unary op, attribute defaults for alpha, beta)
-_UNARY_ONNX = (("Relu", "relu", None, None), ("LeakyRelu", "leaky_relu", ("alpha", 0.01), None),
-               ("Sigmoid", "sigmoid", None, None), ("Tanh", "tanh", None, None),
-               ("Elu", "elu", ("alpha", 1.0), None),
-               ("HardSigmoid", "hard_sigmoid", ("alpha", 0.2), ("beta", 0.5)),
-               ("Abs", "abs", None, None), ("Neg", "neg", None, None), ("Exp", "exp", None, None),
-               ("Sqrt", "sqrt", None, None))
-for _op_type, _name, _a, _b in _UNARY_ONNX:
-    onnx_op(_op_type)(lambda dev, prec, attrs, inputs, _n=_name, _a=_a, _b=_b: [unary(
-        dev, prec, _n, inputs[0], float(attrs.get(_a[0], _a[1])) if _a else 0.0,
-        float(attrs.get(_b[0], _b[1])) if _b else 0.0)])
+# ONNX op type -> (unary op, ONNX defaults of its alpha/beta attributes)
+_UNARY_ONNX = {"Relu": ("relu", {}), "LeakyRelu": ("leaky_relu", {"alpha": 0.01}),
+               "Sigmoid": ("sigmoid", {}), "Tanh": ("tanh", {}), "Elu": ("elu", {"alpha": 1.0}),
+               "HardSigmoid": ("hard_sigmoid", {"alpha": 0.2, "beta": 0.5}),
+               "Abs": ("abs", {}), "Neg": ("neg", {}), "Exp": ("exp", {}), "Sqrt": ("sqrt", {})}
+
+
+def _onnx_unary(name, defaults):
+    def handler(dev, prec, attrs, inputs):
+        p = {**defaults, **{k: v for k, v in attrs.items() if k in defaults}}
+        return [unary(dev, prec, name, inputs[0], float(p.get("alpha", 0.0)), float(p.get("beta", 0.0)))]
+    return handler
+
+
+for _op_type, (_name, _defaults) in _UNARY_ONNX.items():
+    onnx_op(_op_type)(_onnx_unary(_name, _defaults))
 
 
 def _scalar(v, what):
@@ -623,7 +631,7 @@ def _onnx_unsqueeze(dev, prec, attrs, inputs):
 _ONNX_BINARY = {"add": "Add", "sub": "Sub", "mul": "Mul", "div": "Div", "min": "Min", "max": "Max",
                 "prelu": "PRelu", "greater": "Greater", "less": "Less", "equal": "Equal",
                 "greater_equal": "GreaterOrEqual", "less_equal": "LessOrEqual"}
-_ONNX_UNARY = {name: op for op, name, _, _ in _UNARY_ONNX}
+_ONNX_UNARY = {name: (op, defaults) for op, (name, defaults) in _UNARY_ONNX.items()}
 # Selections and sign flips: the output is one of the (rounded) inputs.
 _EXACT_UNARY = ("relu", "abs", "neg", "clip")
 # Each pairwise fold of a variadic Sum rounds to half storage once more.
@@ -691,11 +699,10 @@ def unary_case(op, shape, alpha=None, beta=None):
             attrs["alpha"] = float(alpha)
         if beta is not None:
             attrs["beta"] = float(beta)
-        defaults = dict((d, v) for _, name, *ab in _UNARY_ONNX if name == op for d, v in
-                        (x for x in ab if x))
+        op_type, defaults = _ONNX_UNARY[op]
         a = float(alpha if alpha is not None else defaults.get("alpha", 0.0))
         b = float(beta if beta is not None else defaults.get("beta", 0.0))
-        twin = node_model(_ONNX_UNARY[op], {"x": x}, **attrs)
+        twin = node_model(op_type, {"x": x}, **attrs)
         fn = host_call(lambda dev, p, x: unary(dev, p, op, x, a, b))
     variant = _shape_str(shape) + "".join(f" {k}={v}" for k, v in (("alpha", alpha), ("beta", beta))
                                           if v is not None)

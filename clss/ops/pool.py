@@ -9,8 +9,6 @@ and auto_pad SAME_* pads ceil(in / stride) outputs' worth (kernel without dilati
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..device import Device
@@ -20,6 +18,10 @@ from .twin import node_model
 AUTO_PADS = ("NOTSET", "VALID", "SAME_UPPER", "SAME_LOWER")
 # Elements one work-item reduces in the first pass of global pooling.
 GLOBAL_CHUNK = 2048
+# Every -D combination the launches use, for build checks (fp16-native included,
+# which PoCL cannot compile): (defines) of kernels/pool.cl.
+BUILD_VARIANTS = ([dict(MODE=0), dict(MODE=0, INDICES=1), dict(MODE=1), dict(MODE=1, COUNT_PAD=1)]
+                  + [dict(MODE=m, FINAL=f) for m in (0, 1) for f in (0, 1)])
 
 
 def _per_dim(v, nd: int, default: int, name: str) -> list[int]:
