@@ -80,6 +80,14 @@ class Capture:
             total += ev.profile.end - ev.profile.start
         return total * 1e-6
 
+    def per_kernel_ms(self) -> dict:
+        """{kernel name: summed event ms} of the run, largest first."""
+        tot: dict = {}
+        for ev, (name, _) in zip(self.events, self.launches):
+            ev.wait()
+            tot[name] = tot.get(name, 0.0) + (ev.profile.end - ev.profile.start) * 1e-6
+        return dict(sorted(tot.items(), key=lambda kv: -kv[1]))
+
     def release(self) -> None:
         self._pool.clear()
 

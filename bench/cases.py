@@ -240,7 +240,34 @@ def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1",
                              tunables=tunables, defaults=dict(getattr(conv, "TUNING", {})),
                              tune_op="conv2d",
                              tune_key=f"{_shape(*x_shape)}/{_shape(*wt.shape)}/s{L['strides'][0]}"))
+    if hasattr(conv, "conv_transpose2d"):
+        out.append(_conv_transpose_case(conv, tier, h, w))
     return out
+
+
+def _conv_transpose_case(conv, tier, h, w):
+    """Not a CLSS layer: the stride-2 learned upsampling NSRR-style decoders use, at
+    the render size (32 channels at half res -> render res)."""
+    x_shape, w_shape = (1, 32, h // 2, w // 2), (32, 32, 2, 2)
+    o_shape = (1, 32, h // 2 * 2, w // 2 * 2)
+    flops = 2.0 * 32 * 32 * 4 * x_shape[2] * x_shape[3]
+
+    def build(dev, prec, params):
+        g = rng("bench convT")
+        arrays = {"x": _normal(("bench convT x",), x_shape),
+                  "w": (g.standard_normal(w_shape) * 0.1).astype(np.float32),
+                  "b": g.uniform(-0.05, 0.05, 32).astype(np.float32)}
+
+        def twin(host):
+            return make_model([helper.make_node("ConvTranspose", ["x", "w", "b"], ["c"], kernel_shape=[2, 2],
+                                                strides=[2, 2]),
+                               helper.make_node("Relu", ["c"], ["y0"])],
+                              {"x": host["x"]}, ["y0"], initializers={"w": host["w"], "b": host["b"]})
+        return make_setup(dev, prec, arrays, twin,
+                          lambda d: conv.conv_transpose2d(dev, prec, d["x"], d["w"], d["b"], strides=(2, 2),
+                                                          activation="relu"), [o_shape])
+    return BenchCase("conv_transpose 2x2/s2 32->32 relu (NSRR-style)", "conv", "compute", tier, flops, build,
+                     shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}")
 
 
 # --- memory-bound families ----------------------------------------------------------

@@ -165,7 +165,7 @@ def format_table(rows) -> str:
     body = []
     for r in rows:
         r = r if isinstance(r, dict) else r.as_dict()
-        if r["status"].startswith("error"):
+        if r["status"].startswith(("error", "skipped")):
             body.append((r["name"], r["tier"], r["precision"], *("-",) * 9, r["status"][:60]))
             continue
         body.append((r["name"], r["tier"], r["precision"], _f(r["engine_ms"], ".2f"), _f(r["engine_min_ms"], ".2f"),
@@ -209,7 +209,7 @@ def markdown(doc: dict) -> str:
             "| case | tier | prec | engine ms | event ms | ort ms | vs ort | GFLOP/s | GB/s | bound | of peak | check |",
             "|---|---|---|---:|---:|---:|---:|---:|---:|---|---:|---|"]
     for r in doc["rows"]:
-        if r["status"].startswith("error"):
+        if r["status"].startswith(("error", "skipped")):
             out.append(f"| {r['name']} | {r['tier']} | {r['precision']} | | | | | | | | | {r['status'][:80]} |")
             continue
         out.append(f"| {r['name']} | {r['tier']} | {r['precision']} | {_f(r['engine_ms'], '.2f')} "
@@ -217,6 +217,13 @@ def markdown(doc: dict) -> str:
                    f"{_f(r['ort_ms'], '.2f')} ({_f(r['ort_min_ms'], '.2f')}) | {_f(r['speedup_vs_ort'], '.2f')} | "
                    f"{_f(r['gflops'], '.1f') if r['flops'] else '-'} | {_f(r['gbs'], '.1f')} | {r['bound'] or '-'} | "
                    f"{_f(r['peak_share'], '.0%')} | {r['check']} |")
+    multi = [r for r in doc["rows"] if r["status"] == "ok" and len(r.get("kernels") or {}) > 1]
+    if multi:
+        out += ["", "## Where the time goes (kernel event ms of one run)", ""]
+        for r in multi:
+            ks = ", ".join(f"{k} {v:.2f}" for k, v in list(r["kernels"].items())[:8])
+            out.append(f"- {r['name']} [{r['tier']} {r['precision']}]: {ks}"
+                       + (f" ({r['note']})" if r.get("note") else ""))
     slow = slowest(doc["rows"], 3)
     if slow:
         out += ["", "## Slowest relative to onnxruntime", ""]
