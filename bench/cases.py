@@ -27,7 +27,7 @@ import numpy as np
 import onnx
 from onnx import helper
 
-from clss.device import Device, storage_dtype
+from clss.device import Device, DeviceError, storage_dtype
 from clss.ops.base import DEFAULT_TOL, EXACT, Tolerance, rng
 from clss.ops.twin import make_model, node_model
 
@@ -96,11 +96,19 @@ def _nbytes(shape, dtype) -> float:
 
 
 def make_setup(dev: Device, prec: str, arrays: dict, twin_fn, engine, out_shapes, *,
-               fp32=(), exact=False, tol=None, ints=()) -> Setup:
+               fp32=(), exact=False, tol=None) -> Setup:
     """Upload `arrays` (storage precision; names in `fp32` stay float32, e.g. grids),
     build the twin from the same values as the engine sees, and wrap
     engine(dev_arrays) -> device output(s) as the Setup's run."""
     host = {k: (v if k in fp32 else _rounded(v, prec)) for k, v in arrays.items()}
+    st = storage_dtype(prec)
+    sizes = {k: v.size * (v.itemsize if k in fp32 or v.dtype.kind != "f" else st.itemsize)
+             for k, v in host.items()}
+    sizes.update({f"output {i}": _nbytes(s, st) for i, s in enumerate(out_shapes)})
+    for k, n in sizes.items():
+        if n > dev.info.max_alloc:
+            raise DeviceError(f"{k}: {n / 2**20:.0f} MiB exceeds the device's max allocation "
+                              f"({dev.info.max_alloc / 2**20:.0f} MiB)")
     dev_arrays = {k: (dev.to_device(v, "fp32") if k in fp32 else dev.to_device(v, prec))
                   for k, v in host.items()}
     twin = twin_fn(host)
@@ -108,7 +116,6 @@ def make_setup(dev: Device, prec: str, arrays: dict, twin_fn, engine, out_shapes
     feeds = {k: v for k, v in host.items() if k in graph_inputs}
     inits = sum(_nbytes(t.dims, onnx.helper.tensor_dtype_to_np_dtype(t.data_type))
                 for t in twin.graph.initializer)
-    st = storage_dtype(prec)
     out_eng = sum(_nbytes(s, st) for s in out_shapes)
     out_ort = sum(_nbytes(s, np.float32) for s in out_shapes)
     eng_bytes = sum(float(a.nbytes) for a in dev_arrays.values()) + out_eng

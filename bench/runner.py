@@ -195,7 +195,8 @@ def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: 
     except Exception as e:
         last = traceback.format_exception_only(type(e), e)[-1].strip()
         # A tensor past the device's max allocation is a limit of the device, not a bug.
-        limit = isinstance(e, DeviceError) or "max allocation" in str(e) or "max_alloc" in str(e)
+        limit = isinstance(e, DeviceError) or any(t in str(e) for t in (
+            "max allocation", "max_alloc", "INVALID_BUFFER_SIZE", "MEM_OBJECT_ALLOCATION_FAILURE"))
         row.status = f"{'skipped' if limit else 'error'}: {last[:500]}"
     finally:
         cap.release()
