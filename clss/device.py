@@ -216,7 +216,7 @@ class Device:
         a = np.asarray(a)
         if a.dtype.kind == "f":
             a = a.astype(storage_dtype(precision), copy=False)
-        return cla.to_device(self.queue, np.ascontiguousarray(a))
+        return cla.to_device(self.queue, np.require(a, requirements='C'))  # keeps 0-d shapes
 
     @staticmethod
     def to_host(a: cla.Array) -> np.ndarray:
