@@ -1,0 +1,407 @@
+"""Resize over H and W (kernels/resize.cl): ONNX Resize (opsets 10-19) and Upsample.
+
+Semantics are the ONNX spec's, evaluated in float32 as onnxruntime (the twin) does:
+
+* Output size from scales is ``int(float32(scale) * in)`` (onnxruntime); the ONNX Python
+  reference floors the float64 product, which differs when the float32 scale sits just
+  below an integer product (2.3 * 10 -> 23 here and in onnxruntime, 22 in the reference).
+* The scale in the coordinate transform is the given scale, or float32(out) / float32(in)
+  when sizes are given; keep_aspect_ratio_policy takes the min/max of those and rounds
+  ``scale * in`` half up, as onnxruntime.
+* align_corners and pytorch_half_pixel use ``length_resized``, the integer output length,
+  as the spec writes and onnxruntime and PyTorch do. The ONNX reference uses the
+  fractional ``scale * in`` instead; the two node cases where that matters are listed
+  in NODE_DEVIATIONS. pytorch_half_pixel with an output length of 1 maps to 0 (spec,
+  onnxruntime; the reference uses -0.5, which only changes cubic).
+* Coordinates are float32 on the device, operation by operation as onnxruntime (the
+  reference uses float64; nearest can then pick the other pixel on an exact tie that
+  float32 rounding creates or removes). The kernel needs correctly rounded float32
+  division for that, which PoCL and oclgrind give (see the README section).
+* tf_crop_and_resize takes the output size from sizes, or from scales ignoring the roi
+  (onnxruntime and the reference; the spec's text scales the roi length).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyopencl.cltypes as clt
+
+from ..device import Device
+from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .twin import node_model
+
+MODES = ("nearest", "linear", "cubic")
+COORDS = ("half_pixel", "half_pixel_symmetric", "align_corners", "asymmetric", "pytorch_half_pixel",
+          "tf_crop_and_resize")
+# "legacy" is Resize-10 / Upsample nearest: ceil when the axis down-scales, else floor.
+NEAREST_MODES = ("round_prefer_floor", "round_prefer_ceil", "floor", "ceil", "legacy")
+POLICIES = ("stretch", "not_larger", "not_smaller")
+
+_COORD_DEFINE = {"half_pixel": 0, "half_pixel_symmetric": 0, "align_corners": 1, "asymmetric": 2,
+                 "pytorch_half_pixel": 3, "tf_crop_and_resize": 4}
+# Channels per work-item: coordinates and weights are computed once per pixel for them.
+CHANNELS_PER_ITEM = 4
+
+_f32 = np.float32
+
+
+def _pair(v, name):
+    if np.ndim(v) == 0:
+        return (v, v)
+    v = tuple(np.asarray(v).ravel().tolist())
+    if len(v) != 2:
+        raise ValueError(f"{name} must be one value or (H, W), got {v}")
+    return v
+
+
+def output_size(in_hw, out_hw=None, scales=None, policy: str = "stretch"):
+    """(out_hw, float32 scales) as onnxruntime derives them: from scales the size is
+    int(scale * in) in float32; from sizes the scale is out / in, adjusted by the
+    keep_aspect_ratio policy. Both given: taken as they are."""
+    if policy not in POLICIES:
+        raise ValueError(f"keep_aspect_ratio_policy must be one of {POLICIES}, got {policy!r}")
+    if scales is None and out_hw is None:
+        raise ValueError("resize: give out_hw or scales")
+    if scales is not None:
+        sc = tuple(_f32(s) for s in _pair(scales, "scales"))
+        if not all(np.isfinite(s) and s > 0 for s in sc):
+            raise ValueError(f"resize: scales must be finite and > 0, got {scales}")
+        if out_hw is None:
+            out_hw = tuple(int(s * _f32(n)) for s, n in zip(sc, in_hw))
+        return tuple(int(o) for o in _pair(out_hw, "out_hw")), sc
+    out_hw = tuple(int(o) for o in _pair(out_hw, "out_hw"))
+    if any(o < 0 for o in out_hw):
+        raise ValueError(f"resize: negative output size {out_hw}")
+    sc = tuple(_f32(o) / _f32(n) if n else _f32(1) for o, n in zip(out_hw, in_hw))
+    if policy != "stretch":
+        s = min(sc) if policy == "not_larger" else max(sc)
+        sc = (s, s)
+        out_hw = tuple(int(math.floor(float(s * _f32(n)) + 0.5)) for n in in_hw)
+    return out_hw, sc
+
+
+def _nearest_rule(m) -> int:
+    if m not in NEAREST_MODES:
+        raise ValueError(f"nearest_mode must be one of {NEAREST_MODES}, got {m!r}")
+    return NEAREST_MODES.index(m)
+
+
+def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "linear",
+           coord: str = "half_pixel", nearest_mode="round_prefer_floor", cubic_a: float = -0.75,
+           exclude_outside: bool = False, out=None, *, antialias: bool = False, roi=None,
+           extrapolation_value: float = 0.0, keep_aspect_ratio_policy: str = "stretch"):
+    """Resize [N,C,H,W] over H and W.
+
+    out_hw / scales: (H, W) pairs or one value for both; see output_size(). mode: nearest,
+    linear, cubic; coord: an ONNX coordinate_transformation_mode; nearest_mode: one mode or
+    a (H, W) pair ("legacy": Resize-10/Upsample rounding). antialias: linear/cubic filter
+    widened by 1/scale when down-scaling. roi: (h_start, w_start, h_end, w_end), used by
+    tf_crop_and_resize, whose out-of-range samples are extrapolation_value."""
+    check_storage("x", x, prec)
+    if len(x.shape) != 4:
+        raise ValueError(f"resize: expected an NCHW tensor, got shape {x.shape}")
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if coord not in COORDS:
+        raise ValueError(f"coord must be one of {COORDS}, got {coord!r}")
+    if antialias and mode == "nearest":
+        raise ValueError("resize: antialias applies to linear and cubic only")
+    if antialias and coord == "tf_crop_and_resize":
+        raise ValueError("resize: antialias with tf_crop_and_resize is not supported")
+    n, c, h, w = x.shape
+    (ho, wo), (sy, sx) = output_size((h, w), out_hw, scales, keep_aspect_ratio_policy)
+    if out is None:
+        out = dev.empty((n, c, ho, wo), prec)
+    else:
+        check_storage("out", out, prec)
+        if tuple(out.shape) != (n, c, ho, wo):
+            raise ValueError(f"resize: out has shape {out.shape}, expected {(n, c, ho, wo)}")
+    if out.size == 0:
+        return out
+    if h == 0 or w == 0:
+        raise ValueError(f"resize: empty input {x.shape} cannot fill output {out.shape}")
+
+    off = (_f32(0), _f32(0))
+    if coord == "half_pixel_symmetric":
+        # onnxruntime's float32 steps; the rest of its formula runs in double there.
+        def offset(s, n_in, n_out):
+            adjustment = _f32(n_out) / (s * _f32(n_in))
+            return _f32(n_in) / _f32(2) * (_f32(1) - adjustment)
+        off = (offset(sy, h, ho), offset(sx, w, wo))
+    r = np.asarray((0, 0, 1, 1) if roi is None else roi, np.float32).ravel()
+    if r.size != 4:
+        raise ValueError(f"resize: roi must be (h_start, w_start, h_end, w_end), got {roi}")
+
+    defines = dict(MODE=MODES.index(mode), COORD=_COORD_DEFINE[coord], CPT=CHANNELS_PER_ITEM)
+    if mode == "nearest":
+        ny, nx = (nearest_mode, nearest_mode) if isinstance(nearest_mode, str) else tuple(nearest_mode)
+        defines.update(NEAREST_Y=_nearest_rule(ny), NEAREST_X=_nearest_rule(nx))
+    else:
+        defines["ANTIALIAS"] = int(bool(antialias))
+        # Linear without antialias: excluding an outside tap and renormalising leaves the
+        # edge pixel, which clamping gives too, so one build serves both.
+        defines["EXCLUDE"] = int(bool(exclude_outside) and (mode == "cubic" or antialias))
+    k = dev.kernel("resize", "resize", prec, **defines)
+    cb = -(-c // CHANNELS_PER_ITEM)
+    dev.launch(k, (wo, ho, n * cb),
+               (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(ho), np.int32(wo),
+                np.int32(n * cb), _f32(sy), _f32(sx), _f32(off[0]), _f32(off[1]),
+                clt.make_float4(*(float(v) for v in r)),
+                _f32(extrapolation_value), _f32(cubic_a)))
+    return out
+
+
+# --- ONNX -----------------------------------------------------------------------
+
+def _full_rank(values, axes, rank, fill):
+    full = [fill(i) for i in range(rank)]
+    for v, a in zip(values, axes):
+        full[a] = v
+    return full
+
+
+def _onnx_plan(shape, scales, sizes, axes, policy):
+    """Full-rank (out_shape, float32 scales), as onnxruntime computes them."""
+    rank = len(shape)
+    if sizes is not None:
+        out = _full_rank([int(s) for s in sizes], axes, rank, lambda i: shape[i])
+        sc = [_f32(o) / _f32(n) if n else _f32(1) for o, n in zip(out, shape)]
+        if policy != "stretch":
+            s = (min if policy == "not_larger" else max)(sc[a] for a in axes)
+            sc = [s if i in axes else _f32(1) for i in range(rank)]
+            out = [int(math.floor(float(s * _f32(n)) + 0.5)) if i in axes else n
+                   for i, n in enumerate(shape)]
+        return out, sc
+    sc = _full_rank([_f32(s) for s in scales], axes, rank, lambda i: _f32(1))
+    return [int(s * _f32(n)) for s, n in zip(sc, shape)], sc
+
+
+def _resize_onnx(dev, prec, x, scales, sizes, roi, axes, *, mode, coord, nearest_mode, cubic_a=-0.75,
+                 exclude_outside=False, antialias=False, extrapolation_value=0.0, policy="stretch"):
+    shape = tuple(x.shape)
+    rank = len(shape)
+    if rank < 2:
+        raise Unsupported(f"Resize of a rank-{rank} tensor (clss resizes the last two axes)")
+    axes = [a + rank if a < 0 else a for a in (range(rank) if axes is None else axes)]
+    if scales is None and sizes is None:
+        raise Unsupported("Resize without scales or sizes")
+    out_shape, sc = _onnx_plan(shape, scales, sizes, axes, policy)
+    if roi is not None and roi.size:
+        r = np.asarray(roi, np.float32).ravel()
+        if r.size == 2 * len(axes) and len(axes) != rank:
+            r = np.array(_full_rank(r[:len(axes)], axes, rank, lambda i: 0.0)
+                         + _full_rank(r[len(axes):], axes, rank, lambda i: 1.0), np.float32)
+        if r.size != 2 * rank:
+            raise Unsupported(f"Resize roi of {r.size} values for rank {rank}")
+    else:
+        r = np.array([0.0] * rank + [1.0] * rank, np.float32)
+    for i in range(rank - 2):
+        crop = coord == "tf_crop_and_resize" and (r[i] != 0 or r[rank + i] != 1)
+        if out_shape[i] != shape[i] or sc[i] != 1 or crop:
+            raise Unsupported(f"Resize over axis {i} of rank {rank} (clss resizes the last two axes)")
+    lead = int(np.prod(shape[:-2], dtype=np.int64))
+    x4 = x.reshape(1, lead, shape[-2], shape[-1])
+    y = resize(dev, prec, x4, out_hw=tuple(out_shape[-2:]), scales=(sc[-2], sc[-1]), mode=mode,
+               coord=coord, nearest_mode=nearest_mode, cubic_a=cubic_a, exclude_outside=exclude_outside,
+               antialias=antialias, roi=(r[rank - 2], r[rank - 1], r[2 * rank - 2], r[2 * rank - 1]),
+               extrapolation_value=extrapolation_value)
+    return y.reshape(*shape[:-2], *out_shape[-2:])
+
+
+def _legacy(dev, prec, attrs, x, scales):
+    """Resize-10 and Upsample: asymmetric coordinates, nearest or (bi)linear."""
+    mode = as_str(attrs.get("mode", "nearest"))
+    mode = {"bilinear": "linear"}.get(mode, mode)
+    if mode not in ("nearest", "linear"):
+        raise Unsupported(f"Resize-10/Upsample mode {mode!r}")
+    return _resize_onnx(dev, prec, x, np.asarray(scales, np.float32).ravel(), None, None, None,
+                        mode=mode, coord="asymmetric", nearest_mode="legacy")
+
+
+@onnx_op("Resize", const_inputs=(1, 2, 3))
+def _onnx_resize(dev, prec, attrs, inputs):
+    x = inputs[0]
+    if len(inputs) == 2:  # Resize-10: (X, scales); from opset 11 a second input alone is invalid
+        return [_legacy(dev, prec, attrs, x, inputs[1])]
+    roi = inputs[1]
+    scales = inputs[2] if len(inputs) > 2 and inputs[2] is not None and inputs[2].size else None
+    sizes = inputs[3] if len(inputs) > 3 and inputs[3] is not None and inputs[3].size else None
+    mode = as_str(attrs.get("mode", "nearest"))
+    coord = as_str(attrs.get("coordinate_transformation_mode", "half_pixel"))
+    nearest = as_str(attrs.get("nearest_mode", "round_prefer_floor"))
+    policy = as_str(attrs.get("keep_aspect_ratio_policy", "stretch"))
+    antialias = bool(attrs.get("antialias", 0))
+    if mode not in MODES:
+        raise Unsupported(f"Resize mode {mode!r}")
+    if coord not in COORDS:
+        raise Unsupported(f"Resize coordinate_transformation_mode {coord!r}")
+    if nearest not in NEAREST_MODES[:4]:
+        raise Unsupported(f"Resize nearest_mode {nearest!r}")
+    if policy not in POLICIES:
+        raise Unsupported(f"Resize keep_aspect_ratio_policy {policy!r}")
+    if antialias and (mode == "nearest" or coord == "tf_crop_and_resize"):
+        raise Unsupported(f"Resize antialias with mode {mode!r} / {coord!r}")
+    axes = attrs.get("axes")
+    return [_resize_onnx(dev, prec, x, scales, sizes, roi, None if axes is None else list(axes),
+                         mode=mode, coord=coord, nearest_mode=nearest,
+                         cubic_a=float(attrs.get("cubic_coeff_a", -0.75)),
+                         exclude_outside=bool(attrs.get("exclude_outside", 0)), antialias=antialias,
+                         extrapolation_value=float(attrs.get("extrapolation_value", 0.0)), policy=policy)]
+
+
+@onnx_op("Upsample", const_inputs=(1,))
+def _onnx_upsample(dev, prec, attrs, inputs):
+    scales = attrs.get("scales") if len(inputs) < 2 or inputs[1] is None else inputs[1]
+    if scales is None:
+        raise Unsupported("Upsample without scales")
+    return [_legacy(dev, prec, attrs, inputs[0], scales)]
+
+
+NODE_DEVIATIONS = {
+    name: "the ONNX reference takes align_corners' length_resized as the fractional scale*in "
+          "(2.4 here); the spec's formula, onnxruntime (our twin) and PyTorch use the integer "
+          "output length, as clss does"
+    for name in ("test_resize_downsample_scales_linear_align_corners",
+                 "test_resize_downsample_scales_cubic_align_corners")
+}
+
+
+# --- conformance cases ------------------------------------------------------------
+
+def twin(x: np.ndarray, *, scales=None, sizes=None, roi=None, opset: int = 19, **attrs):
+    """One Resize node with roi/scales/sizes as initializers (full rank, NCHW)."""
+    consts = {}
+    if roi is not None:
+        consts["roi"] = np.asarray(roi, np.float32)
+    if scales is not None:
+        consts["scales"] = np.asarray(scales, np.float32)
+    if sizes is not None:
+        consts["sizes"] = np.asarray(sizes, np.int64)
+    if opset < 11:
+        return node_model("Resize", {"x": x, "scales": consts["scales"]}, opset=opset,
+                          initializers=consts, **attrs)
+    ins = {"x": x, "roi": consts.get("roi"), "scales": consts.get("scales"), "sizes": consts.get("sizes")}
+    if ins["sizes"] is None:
+        ins.pop("sizes")
+    return node_model("Resize", ins, opset=opset, initializers=consts, **attrs)
+
+
+def case(n, c, h, w, *, mode="linear", coord="half_pixel", nearest="round_prefer_floor", scales=None,
+         sizes=None, cubic_a=-0.75, exclude=False, antialias=False, roi=None, extrap=0.0,
+         policy="stretch", legacy=False, tag="") -> Case:
+    """A Resize case over H, W: scales / sizes are (H, W) pairs; roi (h0, w0, h1, w1)."""
+    g = rng("resize", n, c, h, w, mode, coord, nearest, scales, sizes, cubic_a, exclude, antialias, roi,
+            policy, legacy)
+    x = g.standard_normal((n, c, h, w)).astype(np.float32)
+    full_sc = None if scales is None else [1, 1, *scales]
+    full_sz = None if sizes is None else [n, c, *sizes]
+    attrs = {}
+    if legacy:
+        model = twin(x, scales=full_sc, opset=10, mode=mode)
+        run = host_call(lambda dev, p, x: _legacy(dev, p, {"mode": mode}, x, full_sc))
+    else:
+        attrs = dict(mode=mode, coordinate_transformation_mode=coord)
+        if mode == "nearest":
+            attrs["nearest_mode"] = nearest
+        if mode == "cubic":
+            attrs["cubic_coeff_a"] = cubic_a
+        if exclude:
+            attrs["exclude_outside"] = 1
+        if antialias:
+            attrs["antialias"] = 1
+        if coord == "tf_crop_and_resize":
+            attrs["extrapolation_value"] = extrap
+        if policy != "stretch":
+            attrs["keep_aspect_ratio_policy"] = policy
+        full_roi = None if roi is None else [0, 0, roi[0], roi[1], 1, 1, roi[2], roi[3]]
+        model = twin(x, scales=full_sc, sizes=full_sz, roi=full_roi, **attrs)
+
+        def fn(dev, p, x):
+            return resize(dev, p, x, out_hw=sizes, scales=scales, mode=mode, coord=coord,
+                          nearest_mode=nearest, cubic_a=cubic_a, exclude_outside=exclude,
+                          antialias=antialias, roi=roi, extrapolation_value=extrap,
+                          keep_aspect_ratio_policy=policy)
+        run = host_call(fn)
+    how = (f"s{scales[0]:g}x{scales[1]:g}" if scales is not None else f"to{sizes[0]}x{sizes[1]}")
+    bits = [mode, "legacy" if legacy else coord]
+    if mode == "nearest" and not legacy:
+        bits.append(nearest)
+    if mode == "cubic" and cubic_a != -0.75:
+        bits.append(f"a{cubic_a:g}")
+    bits += [b for b, on in (("exclude", exclude), ("antialias", antialias)) if on]
+    if policy != "stretch":
+        bits.append(policy)
+    variant = f"{' '.join(bits)} {how} {n}x{c}x{h}x{w}{' ' + tag if tag else ''}"
+    return Case("resize", variant, {"x": x}, model, run, exact=(mode == "nearest"))
+
+
+def cases(level: str = "quick") -> list[Case]:
+    # Each define value at least once, on shapes small enough for oclgrind.
+    tiny = [
+        case(1, 3, 5, 7, mode="nearest", scales=(2, 2)),
+        case(1, 5, 7, 6, mode="nearest", coord="asymmetric", nearest="round_prefer_ceil", sizes=(4, 3)),
+        case(1, 1, 4, 5, mode="nearest", coord="align_corners", nearest="floor", sizes=(9, 11)),
+        case(1, 2, 6, 5, mode="nearest", coord="pytorch_half_pixel", nearest="ceil", scales=(1.5, 0.6)),
+        case(1, 2, 5, 6, mode="nearest", coord="tf_crop_and_resize", sizes=(7, 4), roi=(0.2, -0.1, 0.9, 1.3),
+             extrap=2.5),
+        case(1, 3, 4, 6, mode="nearest", scales=(2, 0.5), legacy=True),
+        case(1, 3, 5, 7, mode="linear", scales=(2, 3)),
+        case(1, 2, 7, 6, mode="linear", coord="half_pixel_symmetric", scales=(0.6, 1.5)),
+        case(1, 5, 4, 5, mode="linear", coord="align_corners", sizes=(7, 9)),
+        case(1, 1, 5, 4, mode="linear", coord="tf_crop_and_resize", sizes=(6, 5), roi=(0.1, 0.4, 1.2, 0.7),
+             extrap=-1.0),
+        case(1, 3, 5, 7, mode="cubic", scales=(2, 1.5)),
+        case(1, 2, 6, 6, mode="cubic", coord="asymmetric", cubic_a=-0.5, exclude=True, scales=(0.6, 1.5)),
+        case(1, 2, 8, 7, mode="linear", antialias=True, scales=(0.5, 0.6)),
+        case(1, 2, 8, 7, mode="cubic", antialias=True, exclude=True, sizes=(3, 5)),
+    ]
+    if level == "tiny":
+        return tiny
+    quick = [
+        case(2, 5, 7, 13, mode="nearest", scales=(2, 2)),
+        case(1, 3, 31, 27, mode="linear", scales=(2, 2)),
+        case(1, 23, 16, 20, mode="linear", sizes=(8, 10)),
+        case(1, 3, 13, 7, mode="cubic", scales=(2, 2)),
+        case(1, 5, 16, 16, mode="linear", antialias=True, scales=(0.5, 0.5)),
+    ]
+    if level == "quick":
+        return quick
+    full = tiny + quick
+    # Shapes x scales x modes on the default half_pixel transform.
+    shapes = [(1, 1, 1, 1), (1, 3, 7, 13), (1, 5, 31, 27), (2, 23, 7, 13), (1, 1, 13, 7)]
+    for (n, c, h, w), sc in zip(shapes * 3, [(2, 2), (1.5, 1.5), (3, 3), (4, 4), (0.5, 0.5), (0.6, 0.6),
+                                             (3, 1.5), (0.6, 2), (2, 0.5), (4, 0.6), (1, 2), (1.5, 4),
+                                             (2, 3), (0.5, 1), (3, 3)]):
+        for mode in MODES:
+            full.append(case(n, c, h, w, mode=mode, scales=sc))
+    for (n, c, h, w), sz in [((1, 3, 7, 13), (14, 26)), ((1, 5, 31, 27), (19, 11)), ((2, 23, 7, 13), (10, 20)),
+                             ((1, 1, 1, 1), (3, 2)), ((1, 3, 13, 7), (1, 1))]:
+        for mode in MODES:
+            full.append(case(n, c, h, w, mode=mode, sizes=sz))
+    # Every coordinate transform x mode, up and down.
+    for coord in COORDS:
+        for mode in MODES:
+            for sc, sz in (((1.5, 2.5), None), (None, (4, 6)), ((0.6, 0.5), None)):
+                roi = (0.1, -0.2, 0.8, 1.1) if coord == "tf_crop_and_resize" else None
+                if coord == "tf_crop_and_resize" and sz is None:
+                    sz, sc = (9, 5), None
+                full.append(case(1, 3, 7, 9, mode=mode, coord=coord, scales=sc, sizes=sz, roi=roi, extrap=0.5))
+    for nm in NEAREST_MODES[:4]:
+        for coord in ("half_pixel", "asymmetric", "align_corners"):
+            full.append(case(1, 3, 7, 13, mode="nearest", coord=coord, nearest=nm, scales=(1.5, 3)))
+            full.append(case(1, 3, 7, 13, mode="nearest", coord=coord, nearest=nm, sizes=(5, 8)))
+    for a, excl in ((-0.5, True), (-0.75, True), (-0.5, False)):
+        for sc in ((2, 1.5), (0.6, 0.5)):
+            full.append(case(1, 5, 9, 11, mode="cubic", cubic_a=a, exclude=excl, scales=sc))
+    for mode in ("linear", "cubic"):
+        for sc, excl in (((0.5, 0.6), False), ((0.3, 0.25), False), ((0.6, 2), True)):
+            full.append(case(1, 3, 17, 19, mode=mode, antialias=True, exclude=excl, scales=sc))
+    for policy in POLICIES[1:]:
+        for sz in ((5, 20), (14, 6)):
+            full.append(case(1, 3, 7, 13, mode="nearest", sizes=sz, policy=policy))
+            full.append(case(1, 3, 7, 13, mode="linear", sizes=sz, policy=policy))
+    for mode in ("nearest", "linear"):
+        for sc in ((2, 3), (1.5, 2.5), (0.5, 0.6)):
+            full.append(case(1, 3, 7, 13, mode=mode, scales=sc, legacy=True))
+    return full
