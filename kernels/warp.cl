@@ -3,7 +3,6 @@
  * Build options:
  *   -DMODE=0|1|2        nearest | bilinear ("linear") | bicubic ("cubic", Keys a = -0.75)
  *   -DPAD=0|1|2         zeros | border | reflection
- *   -DALIGN=0|1         align_corners (grid_sample only; the motion warp is always 0)
  *   -DCUBIC_CHANNELS=k  channels [0, k) are sampled bicubic, the rest with MODE: the CLSS
  *                       history (colour 3 + counter, range and logits 13) is warped in one
  *                       pass with its colour bicubic and everything else bilinear.
@@ -17,7 +16,9 @@
  *
  * NDRange: (Wo, Ho, N * channel blocks); dimension 0 walks the contiguous output row.
  * One work-item computes the taps and weights of one output pixel once and applies them
- * to a block of `cpb` channels.
+ * to a block of `cpb` channels. align_corners is a run-time argument, not a build option:
+ * it only moves two constants, and as -D it would double the builds (PoCL compiles each
+ * variant again for every work-group size it meets).
  */
 #include "common.h"
 
@@ -33,9 +34,6 @@
 #endif
 #ifndef PAD
 #define PAD PAD_ZEROS
-#endif
-#ifndef ALIGN
-#define ALIGN 0
 #endif
 #ifndef CUBIC_CHANNELS
 #define CUBIC_CHANNELS 0
@@ -71,7 +69,7 @@ inline float reflect(float x, float lo, float hi)
 /* Resolve one integer-valued tap position on an axis of n pixels to a safe index.
  * *ok is cleared where zeros padding reads 0 (NaN positions included); the index
  * is always in [0, n) so even a NaN or huge coordinate never reads out of bounds. */
-inline int tap(float t, int n, int *ok)
+inline int tap(float t, int n, int align, int *ok)
 {
 #if PAD == PAD_ZEROS
     const int in = t >= 0.0f && t < (float)n;
@@ -80,11 +78,7 @@ inline int tap(float t, int n, int *ok)
 #else
     *ok = 1;
 #if PAD == PAD_REFLECTION
-#if ALIGN
-    t = reflect(t, 0.0f, (float)n - 1.0f);
-#else
-    t = reflect(t, -0.5f, (float)n - 0.5f);
-#endif
+    t = align ? reflect(t, 0.0f, (float)n - 1.0f) : reflect(t, -0.5f, (float)n - 0.5f);
 #endif
     /* fmax first: fmax(NaN, 0) = 0 */
     return (int)fmin(fmax(t, 0.0f), (float)(n - 1));
@@ -105,14 +99,10 @@ inline float4 cubic_weights(float t)
 
 /* Normalised grid coordinate -> pixel index space, exactly as onnxruntime's
  * GsDenormalize (two roundings, no fma: nearest must pick the same pixel). */
-inline float denormalize(float g, int n)
+inline float denormalize(float g, int n, int align)
 {
 #pragma OPENCL FP_CONTRACT OFF
-#if ALIGN
-    return (g + 1.0f) / 2.0f * (float)(n - 1);
-#else
-    return ((g + 1.0f) * (float)n - 1.0f) / 2.0f;
-#endif
+    return align ? (g + 1.0f) / 2.0f * (float)(n - 1) : ((g + 1.0f) * (float)n - 1.0f) / 2.0f;
 }
 
 #define VAL(rowp, i, ok) ((ok) ? LD(rowp, i) : A_ZERO)
@@ -120,7 +110,7 @@ inline float denormalize(float g, int n)
 /* Sample channels [c0, c1) of image x (one batch item, planes of Hi*Wi) at pixel-index
  * position (xs, ys) and store them to y (already at this output pixel, planes HWo apart). */
 inline void sample(__global const T *x, __global T *y, int c0, int c1, long HWo,
-                   int Hi, int Wi, float xs, float ys)
+                   int Hi, int Wi, int align, float xs, float ys)
 {
     const long HWi = (long)Hi * Wi;
     const float flx = floor(xs), fly = floor(ys);
@@ -129,14 +119,14 @@ inline void sample(__global const T *x, __global T *y, int c0, int c1, long HWo,
     {
         int4 cx, okx, ry, oky;
         int ok;
-        cx.s0 = tap(flx - 1.0f, Wi, &ok); okx.s0 = ok;
-        cx.s1 = tap(flx,        Wi, &ok); okx.s1 = ok;
-        cx.s2 = tap(flx + 1.0f, Wi, &ok); okx.s2 = ok;
-        cx.s3 = tap(flx + 2.0f, Wi, &ok); okx.s3 = ok;
-        ry.s0 = tap(fly - 1.0f, Hi, &ok); oky.s0 = ok;
-        ry.s1 = tap(fly,        Hi, &ok); oky.s1 = ok;
-        ry.s2 = tap(fly + 1.0f, Hi, &ok); oky.s2 = ok;
-        ry.s3 = tap(fly + 2.0f, Hi, &ok); oky.s3 = ok;
+        cx.s0 = tap(flx - 1.0f, Wi, align, &ok); okx.s0 = ok;
+        cx.s1 = tap(flx,        Wi, align, &ok); okx.s1 = ok;
+        cx.s2 = tap(flx + 1.0f, Wi, align, &ok); okx.s2 = ok;
+        cx.s3 = tap(flx + 2.0f, Wi, align, &ok); okx.s3 = ok;
+        ry.s0 = tap(fly - 1.0f, Hi, align, &ok); oky.s0 = ok;
+        ry.s1 = tap(fly,        Hi, align, &ok); oky.s1 = ok;
+        ry.s2 = tap(fly + 1.0f, Hi, align, &ok); oky.s2 = ok;
+        ry.s3 = tap(fly + 2.0f, Hi, align, &ok); oky.s3 = ok;
         ry *= Wi;
         const A4 wx = CONVERT_A4(cubic_weights(xs - flx));
         const A4 wy = CONVERT_A4(cubic_weights(ys - fly));
@@ -160,10 +150,10 @@ inline void sample(__global const T *x, __global T *y, int c0, int c1, long HWo,
 #if NEED_LINEAR
     if (c < c1) {
         int x1, x2, y1, y2, okx1, okx2, oky1, oky2;
-        x1 = tap(flx, Wi, &okx1);
-        x2 = tap(flx + 1.0f, Wi, &okx2);
-        y1 = tap(fly, Hi, &oky1) * Wi;
-        y2 = tap(fly + 1.0f, Hi, &oky2) * Wi;
+        x1 = tap(flx, Wi, align, &okx1);
+        x2 = tap(flx + 1.0f, Wi, align, &okx2);
+        y1 = tap(fly, Hi, align, &oky1) * Wi;
+        y2 = tap(fly + 1.0f, Hi, align, &oky2) * Wi;
         /* onnxruntime's weights: dx1 = x - x1, dx2 = x2 - x */
         const A dx1 = (A)(xs - flx), dx2 = (A)((flx + 1.0f) - xs);
         const A dy1 = (A)(ys - fly), dy2 = (A)((fly + 1.0f) - ys);
@@ -180,8 +170,8 @@ inline void sample(__global const T *x, __global T *y, int c0, int c1, long HWo,
         /* rint rounds half to even, as std::nearbyint in onnxruntime and np.rint in
          * the ONNX reference (PyTorch >= 2.1 agrees). */
         int okx, oky;
-        const int xi = tap(rint(xs), Wi, &okx);
-        const long yi = (long)tap(rint(ys), Hi, &oky) * Wi;
+        const int xi = tap(rint(xs), Wi, align, &okx);
+        const long yi = (long)tap(rint(ys), Hi, align, &oky) * Wi;
         const int ok = okx && oky;
         __global const TB *src = (__global const TB *)x;
         __global TB *dst = (__global TB *)y;
@@ -194,7 +184,7 @@ inline void sample(__global const T *x, __global T *y, int c0, int c1, long HWo,
 /* x: [N, C, Hi, Wi] T; grid: [N, Ho, Wo, 2] float (x then y, normalised to [-1, 1]);
  * y: [N, C, Ho, Wo] T. cpb channels per work-item, nblk = ceil(C / cpb). */
 __kernel void grid_sample(__global const T *x, __global const float *grid, __global T *y,
-                          int C, int Hi, int Wi, int Ho, int Wo, int cpb, int nblk, int N)
+                          int C, int Hi, int Wi, int Ho, int Wo, int cpb, int nblk, int N, int align)
 {
     const int X = get_global_id(0), Y = get_global_id(1), nb = get_global_id(2);
     if (X >= Wo || Y >= Ho || nb >= N * nblk) return;
@@ -202,7 +192,7 @@ __kernel void grid_sample(__global const T *x, __global const float *grid, __glo
     const long HWo = (long)Ho * Wo;
     const float2 g = vload2(0, grid + (((long)n * Ho + Y) * Wo + X) * 2);
     sample(x + (long)n * C * Hi * Wi, y + ((long)n * C + c0) * HWo + (long)Y * Wo + X, c0, c1, HWo,
-           Hi, Wi, denormalize(g.x, Wi), denormalize(g.y, Hi));
+           Hi, Wi, align, denormalize(g.x, Wi, align), denormalize(g.y, Hi, align));
 }
 
 /* The motion-vector form: output pixel (X, Y) of an Ho x Wo grid reads the input at
@@ -226,5 +216,13 @@ __kernel void warp_motion(__global const T *x, __global const T *motion, __globa
     const float xs = ((float)X + 0.5f) * sx - 0.5f + mx * kx;
     const float ys = ((float)Y + 0.5f) * sy - 0.5f + my * ky;
     sample(x + (long)n * C * Hi * Wi, y + ((long)n * C + c0) * HWo + (long)Y * Wo + X, c0, c1, HWo,
-           Hi, Wi, xs, ys);
+           Hi, Wi, 0, xs, ys);
+}
+
+/* A float16 grid (an fp16 ONNX model's storage) widened to the float grid the samplers
+ * read; vload_half is core OpenCL, so this builds in every precision. */
+__kernel void widen_half(__global const half *src, __global float *dst, int n)
+{
+    const int i = get_global_id(0);
+    if (i < n) dst[i] = vload_half(i, src);
 }
