@@ -55,14 +55,19 @@
 #define F_RES_BEFORE 2
 #define F_RES_AFTER 4
 
-/* Loads and stores without builtin calls in the hot loops. PoCL 3.0
+/* Loads and stores without builtin calls in the hot loops, where the host
+ * asks for them (-DCLSS_CLANG_VECTORS=1, on PoCL). PoCL 3.0
  * (pocl-binary-distribution) links its kernel library, built for haswell,
  * into kernels built for the host CPU, and LLVM does not inline across that
  * mismatch: each vload8/vload_half/mad/min becomes an out-of-line call, and a
  * call makes every live vector register (all caller-saved) spill. Clang's
  * vector extensions express the same accesses as plain loads and stores
- * (element-aligned, like vloadn); other compilers get the common.h macros. */
-#if defined(__clang__) && !defined(CLSS_NO_CLANG_VECTORS)
+ * (element-aligned, like vloadn). Elsewhere (other vendors, oclgrind, which
+ * cannot simulate half<->float vector conversions) the common.h macros. */
+#ifndef CLSS_CLANG_VECTORS
+#define CLSS_CLANG_VECTORS 0
+#endif
+#if defined(__clang__) && CLSS_CLANG_VECTORS
 #if defined(CLSS_FP16)
 typedef half Th1 __attribute__((ext_vector_type(1)));
 typedef half Th8 __attribute__((ext_vector_type(8), aligned(2)));
@@ -118,13 +123,23 @@ inline A8 ld8_inside(__global const T *row, int ix, int s)
                 FLD(row, ix + 4 * s), FLD(row, ix + 5 * s), FLD(row, ix + 6 * s), FLD(row, ix + 7 * s));
 }
 
+/* relu and leaky_relu as vector selects rather than the fmax/select
+ * builtins (calls on PoCL); same results, NaN included. */
+#if ACT == ACT_RELU
+#define ACT8(v, alpha) ((v) > (A8)A_ZERO ? (v) : (A8)A_ZERO)
+#elif ACT == ACT_LEAKY_RELU
+#define ACT8(v, alpha) ((v) >= (A8)A_ZERO ? (v) : (v) * (A)(alpha))
+#else
+#define ACT8 APPLY_ACT
+#endif
+
 /* Bias, residual and activation, in the order the flags ask for. */
 inline A8 epilogue(A8 v, A b, A8 r, int flags, float alpha)
 {
     v += b;
     if (flags & F_RES_BEFORE)
         v += r;
-    v = APPLY_ACT(v, alpha);
+    v = ACT8(v, alpha);
     if (flags & F_RES_AFTER)
         v += r;
     return v;

@@ -27,9 +27,13 @@
 #define OB 4 /* outputs per pass over a layer's inputs: each input load feeds OB FMAs */
 #endif
 
-/* Loads and stores without builtin calls: see kernels/conv.cl for why (PoCL
- * does not inline its library, and a call spills every vector register). */
-#if defined(__clang__) && !defined(CLSS_NO_CLANG_VECTORS)
+/* Loads and stores without builtin calls where the host asks for them
+ * (-DCLSS_CLANG_VECTORS=1, on PoCL): see kernels/conv.cl for why (PoCL does
+ * not inline its library, and a call spills every vector register). */
+#ifndef CLSS_CLANG_VECTORS
+#define CLSS_CLANG_VECTORS 0
+#endif
+#if defined(__clang__) && CLSS_CLANG_VECTORS
 #if defined(CLSS_FP16)
 typedef half Th1 __attribute__((ext_vector_type(1)));
 typedef half Th8 __attribute__((ext_vector_type(8), aligned(2)));

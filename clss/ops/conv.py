@@ -19,6 +19,12 @@ TUNING = {"XV": 2, "CB": 4, "LX": 8, "LZ": 16}
 _F_BIAS, _F_RES_BEFORE, _F_RES_AFTER = 1, 2, 4
 
 
+def builtin_free(dev: Device) -> int:
+    """-DCLSS_CLANG_VECTORS for kernels/conv.cl and mlp.cl: PoCL's CPU devices call
+    their OpenCL builtins out of line, so those kernels use clang vector loads there."""
+    return int("portable computing language" in dev.info.platform.lower())
+
+
 def _act(activation: str) -> int:
     if activation not in ACTIVATIONS:
         raise ValueError(f"activation must be one of {', '.join(ACTIVATIONS)}, got {activation!r}")
@@ -116,7 +122,7 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     xb = 8 * t["XV"]
     ncb = -(-cout_g // cb)
     k = dev.kernel("conv", "conv2d", prec, KH=kh, KW=kw, SX=sx,
-                   XV=t["XV"], CB=cb, ACT=_act(activation))
+                   XV=t["XV"], CB=cb, ACT=_act(activation), CLSS_CLANG_VECTORS=builtin_free(dev))
     nz = n * group * ncb
     gs, ls = _sizes((-(-wo // xb), ho, nz), ncb, t)
     dev.launch(k, gs,
@@ -167,7 +173,7 @@ def conv_transpose2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pa
     xb = 8 * t["XV"]
     ncb = -(-cout_g // cb)
     k = dev.kernel("conv", "conv_transpose2d", prec, KH=kh, KW=kw, XV=t["XV"], CB=cb,
-                   ACT=_act(activation))
+                   ACT=_act(activation), CLSS_CLANG_VECTORS=builtin_free(dev))
     nz = n * group * ncb * sx
     nt = -(-wo // sx)
     gs, ls = _sizes((-(-nt // xb), ho, nz), ncb * sx, t)
