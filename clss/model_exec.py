@@ -94,9 +94,22 @@ def _max_pool(dev, prec, attrs, inputs):
 
 @internal_op("clss.MLP")
 def _mlp(dev, prec, attrs, inputs):
-    """A chain of pointwise convolutions in one kernel (clss/ops/mlp.py)."""
+    """A chain of pointwise convolutions in one kernel (clss/ops/mlp.py); the
+    layers are packed on the device once, at the first (dry) call."""
     mlp = _family("mlp")
-    return [mlp.mlp(dev, prec, inputs[0], attrs["layers"])]
+    packed = attrs.setdefault("_packed", {})
+    if prec not in packed:
+        layers = [(w, b, (act, alpha)) for w, b, act, alpha in attrs["layers"]]
+        packed[prec] = mlp.pack(getattr(dev, "base", dev), prec, layers)
+    return [mlp.mlp(dev, prec, inputs[0], packed[prec])]
+
+
+def packed_bytes(attrs: dict) -> int:
+    """Device bytes of weights an internal op packed for itself."""
+    total = 0
+    for w in attrs.get("_packed", {}).values():
+        total += sum(c.buffer.nbytes for c in getattr(w, "chunks", ()))
+    return total
 
 
 # --- the device the handlers see ----------------------------------------------------
@@ -116,6 +129,7 @@ class PlannedDevice(Device):
         self.planned: dict[tuple[int, int], tuple] = {}  # (node, call) -> (shape, dtype, array|None)
         self.uploads: dict[tuple[int, int], tuple] = {}  # (node, call) -> (host, device)
         self.unplanned = 0
+        self._kernel_memo: dict = {}
 
     def begin(self, node: int) -> None:
         self.node, self._cursor, self._upload_cursor = node, 0, 0
@@ -154,9 +168,22 @@ class PlannedDevice(Device):
         self.uploads[key] = (a.copy(), devarr)
         return devarr
 
+    def kernel(self, stem: str, name: str, precision: str = "fp32", **defines):
+        """Device.kernel re-reads and hashes the source on every call; a loaded
+        model's kernels do not change under it, so they are looked up once."""
+        key = (stem, name, precision, tuple(sorted(defines.items())))
+        k = self._kernel_memo.get(key)
+        if k is None:
+            k = self.base.kernel(stem, name, precision, **defines)
+            self._kernel_memo[key] = k
+        return k
+
     def launch(self, kernel, global_size, args, local_size=None, wait_for=None):
         if self.dry:
-            return cl.enqueue_marker(self.queue)
+            # A completed event, should a handler wait on what it launched.
+            e = cl.UserEvent(self.context)
+            e.set_status(cl.command_execution_status.COMPLETE)
+            return e
         return self.base.launch(kernel, global_size, args, local_size, wait_for)
 
 
@@ -206,7 +233,11 @@ class Executor:
 
     @property
     def weight_bytes(self) -> int:
-        return int(sum(a.nbytes for a in self.const_dev.values()))
+        """Constants on the device: uploaded by the model, packed by fused ops,
+        or uploaded (once) by handlers."""
+        return int(sum(a.nbytes for a in self.const_dev.values())
+                   + sum(packed_bytes(n.attrs) for n in self.g.nodes)
+                   + sum(d.nbytes for _, d in self.pdev.uploads.values()))
 
     # -- the dry run ----------------------------------------------------------------
     def _step(self, node: Node) -> Step:

@@ -359,3 +359,32 @@ def test_plan_keeps_skip_connections_alive():
              "sc": np.array([1, 1, 2, 2], np.float32)}
     for prec in ("fp32", "fp16"):
         assert_matches(make_model(nodes, {"x": x}, ["y"], initializers=inits), {"x": x}, prec)
+
+
+# --- CLI ------------------------------------------------------------------------------------
+
+def test_cli_info_and_run(tmp_path, capsys):
+    from clss.cli import main
+    x = rnd(1, 3, 5, 7)
+    p = tmp_path / "chain.onnx"
+    onnx.save(conv_chain_model(x, n=2), str(p))
+    sym = tmp_path / "sym.onnx"
+    onnx.save(_symbolic_model(), str(sym))
+    assert main(["info", str(p), "--json", str(tmp_path / "i.json")]) == 0
+    out = capsys.readouterr().out
+    assert "Conv 2, Relu 2" in out and "Conv+relu 2" in out and "parameters: 498" in out
+    assert "FLOPs per inference" in out and "planned peak device memory" in out
+    assert main(["info", str(sym)]) == 2
+    assert "symbolic dimension 'H'" in capsys.readouterr().err
+    assert main(["info", str(sym), "--input-shape", "x=1x3x8x8"]) == 0
+    capsys.readouterr()
+    np.save(tmp_path / "x.npy", x)
+    rc = main(["run", str(p), "--input", f"x={tmp_path / 'x.npy'}", "--output-dir", str(tmp_path / "o"),
+               "--compare-ort", "--repeat", "1", "--json", str(tmp_path / "r.json")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "PASS" in out and "onnxruntime CPU" in out, out
+    np.testing.assert_allclose(np.load(tmp_path / "o" / "y.npy"), run_ort(conv_chain_model(x, n=2), {"x": x})[0],
+                               rtol=1e-4, atol=1e-5)
+    np.save(tmp_path / "bad.npy", x[..., :6])
+    assert main(["run", str(p), "--input", f"x={tmp_path / 'bad.npy'}"]) == 2
+    assert "input 'x'" in capsys.readouterr().err
