@@ -73,11 +73,10 @@ class Model:
         """Device bytes: weights (constants uploaded once), intermediates (the
         planned shared buffers: the peak), outputs (fresh per run), inputs."""
         p = self._exec.plan
-        cached = sum(d.nbytes for _, d in self._exec.pdev.uploads.values())
         st = storage_dtype(self.precision).itemsize
         ins = sum(int(np.prod(s)) * (st if self._in_dtypes[t].kind == "f" else self._in_dtypes[t].itemsize)
                   for t, s in self.input_shapes.items())
-        return {"weights_bytes": self._exec.weight_bytes + int(cached),
+        return {"weights_bytes": self._exec.weight_bytes,
                 "intermediate_peak_bytes": p.peak_bytes, "intermediate_buffers": len(p.slots),
                 "intermediate_unshared_bytes": p.unshared_bytes, "output_bytes": p.output_bytes,
                 "unplanned_bytes": p.unplanned_bytes, "input_bytes": int(ins)}
