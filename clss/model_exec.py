@@ -18,7 +18,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from .device import Device, storage_dtype
-from .model_graph import Graph, Node, UnsupportedModelError
+from .model_graph import Graph, ModelError, Node, UnsupportedModelError
 from .model_plan import Alloc, Plan, assign_slots, check_plan
 from .ops.base import ONNX_HANDLERS, OnnxHandler, Unsupported
 
@@ -284,10 +284,48 @@ class Executor:
         dt = self.g.dtypes[t]
         return self.base.empty(self.g.shapes[t], self.prec, None if dt.kind == "f" else dt)
 
+    def live_bytes(self) -> int:
+        """Largest sum of tensor bytes live at any one step, from the resolved
+        shapes alone (no allocation): what the plan can at best reach."""
+        g = self.g
+        st = storage_dtype(self.prec).itemsize
+        size = {}
+        for t, shape in g.shapes.items():
+            dt = g.dtypes.get(t, np.dtype(np.float32))
+            size[t] = int(np.prod(shape, dtype=np.int64)) * (st if dt.kind == "f" else dt.itemsize)
+        last: dict[str, int] = {}
+        for i, n in enumerate(g.nodes):
+            for t in n.inputs:
+                if t:
+                    last[t] = i
+        end = len(g.nodes)
+        for t in g.outputs:
+            last[t] = end
+        live, peak = {t: size.get(t, 0) for t in g.inputs}, 0
+        for i, n in enumerate(g.nodes):
+            for t in n.outputs:
+                if t:
+                    live[t] = size.get(t, 0)
+            peak = max(peak, sum(live.values()))
+            for t in list(live):
+                if last.get(t, -1) <= i:
+                    del live[t]
+        consts = sum(size.get(t, 0) for t in g.consts)
+        return peak + consts
+
+    def check_memory(self) -> None:
+        need = self.live_bytes()
+        have = self.base.info.global_mem
+        if need > have:
+            raise ModelError(f"the model needs at least {need / 2**20:,.2f} MiB of device memory at these "
+                             f"input shapes (weights plus the largest set of tensors alive at once); "
+                             f"{self.base.info.name} has {have / 2**20:,.2f} MiB (no allocation was made)")
+
     def trace(self) -> None:
         """Call every node with launches disabled: collects every unsupported
         node (fused ops that fail fall back to their parts), checks output
         shapes, records allocations, then plans memory. Nothing is computed."""
+        self.check_memory()
         g, pdev = self.g, self.pdev
         work = list(g.nodes)
         final: list[Node] = []

@@ -388,3 +388,16 @@ def test_cli_info_and_run(tmp_path, capsys):
     np.save(tmp_path / "bad.npy", x[..., :6])
     assert main(["run", str(p), "--input", f"x={tmp_path / 'bad.npy'}"]) == 2
     assert "input 'x'" in capsys.readouterr().err
+
+
+def test_total_memory_refused_before_allocation(monkeypatch):
+    """Each tensor fits the max allocation, all of them together not the device."""
+    x = rnd(1, 3, 5, 7)
+    cm = clss.Model(conv_chain_model(x, n=3))
+    need = cm._exec.live_bytes()
+    assert need >= 2 * 6 * 5 * 7 * 4
+    from clss.device import DeviceInfo
+    dev = cm.device
+    monkeypatch.setattr(dev, "info", DeviceInfo(**{**dev.info.__dict__, "global_mem": need - 1}))
+    with pytest.raises(ModelError, match="needs at least.*no allocation was made"):
+        clss.Model(conv_chain_model(x, n=3), device=dev)
