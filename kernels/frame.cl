@@ -20,6 +20,7 @@
  *   -DNET=0|1       resolve: rule mode (0) or classifier input (1)
  *   -DSANITIZE=0|1  replace non-finite inputs instead of refusing the frame
  *   -DHIDDEN=n      compose: hidden width of the composition MLP
+ *   -DVEC=8|4|1     output-res pixels per work-item in resolve (rule) and compose
  *
  * Buffers: inputs in image layout (colour h x w x 3, motion h x w x 2 interleaved,
  * depth and reactive h x w), float. Planes ("NCHW") everywhere else. The output is
@@ -85,31 +86,61 @@
 #define PQ_C2 18.8515625f
 #define PQ_C3 18.6875f
 
+/* The output-res arithmetic (aux update, MLP, blend, transfer function) runs on VEC
+ * consecutive pixels of a row per work-item as explicit vectors: PoCL's CPU device then
+ * vectorises it, exp2/log2 included (6x faster than what its implicit vectoriser makes
+ * of the per-pixel form). VEC = 1 for GPUs, where each work-item is already a lane. */
+#ifndef VEC
+#define VEC 8
+#endif
+#if VEC == 8
+typedef float8 fv;
+typedef int8 iv;
+#define VLD(p) vload8(0, (p))
+#define VST(v, p) vstore8((v), 0, (p))
+#define LDV(p, i) LD8(p, i)
+#define STV(p, i, v) ST8(p, i, v)
+#elif VEC == 4
+typedef float4 fv;
+typedef int4 iv;
+#define VLD(p) vload4(0, (p))
+#define VST(v, p) vstore4((v), 0, (p))
+#define LDV(p, i) LD4(p, i)
+#define STV(p, i, v) ST4(p, i, v)
+#elif VEC == 1
+typedef float fv;
+typedef int iv;
+#define VLD(p) ((p)[0])
+#define VST(v, p) ((p)[0] = (v))
+#define LDV(p, i) LD(p, i)
+#define STV(p, i, v) ST(p, i, v)
+#else
+#error "VEC must be 1, 4 or 8"
+#endif
+#define FV(x) ((fv)(x))
+
 /* x^y for x >= 0 as exp2(y log2 x): 4-5x faster than pow on PoCL's CPU device, about
  * 1e-5 relative here (the transfer function is the hot spot at output resolution);
  * 0 stays 0 (log2 0 = -inf). */
-inline float powp(float x, float y)
-{
-    return exp2(y * log2(x));
-}
+#define POWP(x, y) exp2((y) * log2(x))
 
 inline float encode(float x, float pq_scale)
 {
 #if HDR
     const float y = clamp(x * pq_scale, 0.0f, 1.0f);
-    const float ym = powp(y, PQ_M1);
-    return powp((PQ_C1 + PQ_C2 * ym) / (1.0f + PQ_C3 * ym), PQ_M2);
+    const float ym = POWP(y, PQ_M1);
+    return POWP((PQ_C1 + PQ_C2 * ym) / (1.0f + PQ_C3 * ym), PQ_M2);
 #else
     return clamp(x, 0.0f, 1.0f);
 #endif
 }
 
-/* inv_pq_scale = 10000 / nits; the encoded value is clamped to [0, 1] first. */
-inline float decode(float e, float inv_pq_scale)
+/* VEC pixels; inv_pq_scale = 10000 / nits; the encoded value is clamped to [0, 1] first. */
+inline fv decode(fv e, float inv_pq_scale)
 {
 #if HDR
-    const float ep = powp(clamp(e, 0.0f, 1.0f), 1.0f / PQ_M2);
-    const float y = powp(fmax(ep - PQ_C1, 0.0f) / (PQ_C2 - PQ_C3 * ep), 1.0f / PQ_M1);
+    const fv ep = POWP(clamp(e, 0.0f, 1.0f), 1.0f / PQ_M2);
+    const fv y = POWP(fmax(ep - PQ_C1, 0.0f) / (PQ_C2 - PQ_C3 * ep), 1.0f / PQ_M1);
     return y * inv_pq_scale;
 #else
     return e;
@@ -448,8 +479,44 @@ inline void keep_history(__global const T *hist, __global T *hist_out, int q, in
         dst[c * HW + q] = src[c * HW + q];
 }
 
+/* v (VEC pixels) to plane p at q .. q + n - 1; n < VEC at the right edge of a row. */
+inline void st_plane(__global T *p, int q, fv v, int n)
+{
+    if (n == VEC) {
+        STV(p, q, v);
+        return;
+    }
+    float t[VEC];
+    VST(v, t);
+    for (int l = 0; l < n; ++l)
+        ST(p, q + l, t[l]);
+}
+
+inline void st_plane_f(__global float *p, int q, fv v, int n)
+{
+    float t[VEC];
+    VST(v, t);
+    for (int l = 0; l < n; ++l)
+        p[q + l] = t[l];
+}
+
+/* The linear output, interleaved h x w x 3 as the caller wants it. */
+inline void st_rgb(__global float *out, int q, fv r, fv g, fv b, int n)
+{
+    float t[3][VEC];
+    VST(r, t[0]);
+    VST(g, t[1]);
+    VST(b, t[2]);
+    for (int l = 0; l < n; ++l) {
+        out[(q + l) * 3] = t[0][l];
+        out[(q + l) * 3 + 1] = t[1][l];
+        out[(q + l) * 3 + 2] = t[2][l];
+    }
+}
+
 #if !NET
-/* Rule mode: stages 4-9 in one pass (reference.md s8, s9 "rule"). */
+/* Rule mode: stages 4-9 in one pass (reference.md s8, s9 "rule"). Each work-item
+ * gathers VEC pixels one by one, then updates and blends them as vectors. */
 __kernel void resolve(__global const T *X, __global const float *lr, __global const float *bx,
                       __global const float *by, float jx, float jy, int w, int h, int W, int H,
                       float sx, float sy, int reset, __global const T *hist,
@@ -457,41 +524,61 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
                       float depth_threshold, float cap, float inv_pq_scale, float exposure,
                       int debug, __global float *dbg)
 {
-    const int J = get_global_id(0), I = get_global_id(1);
-    if (J >= W || I >= H) return;
-    const int HW = W * H, q = I * W + J;
+    const int J0 = get_global_id(0) * VEC, I = get_global_id(1);
+    if (J0 >= W || I >= H) return;
+    const int HW = W * H, q = I * W + J0, n = min(VEC, W - J0);
     if (flags[0] & F_REFUSE) {
-        keep_history(hist, hist_out, q, HW);
+        for (int l = 0; l < n; ++l)
+            keep_history(hist, hist_out, q + l, HW);
         return;
     }
-    Gathered g = gather(I, J, X, lr, bx, by, jx, jy, w, h, W, H, sx, sy, reset, hist);
-    const int ghost = g.dd > depth_threshold || !g.valid;
-    const float cnt = ghost ? 0.0f : fmin(g.cnt + 1.0f, cap);
-    const float wgt = fmax(1.0f / (1.0f + cnt), g.react);
-    for (int c = 0; c < 3; ++c) {
-        const float cmin = ghost ? g.up[c] : fmin(g.mn[c], g.up[c]);
-        const float cmax = ghost ? g.up[c] : fmax(g.mx[c], g.up[c]);
-        const float hc = fmin(fmax(g.col[c], g.bmin[c]), g.bmax[c]);
-        const float o = wgt * g.up[c] + (1.0f - wgt) * hc;
-        ST(hist_out, c * HW + q, o);
-        ST(hist_out, (4 + c) * HW + q, cmin);
-        ST(hist_out, (7 + c) * HW + q, cmax);
-        out[q * 3 + c] = decode(o, inv_pq_scale) * exposure;
+    float up[3][VEC], col[3][VEC], mn[3][VEC], mx[3][VEC], bmin[3][VEC], bmax[3][VEC];
+    float cnt[VEC], dd[VEC], react[VEC], valid[VEC];
+    for (int l = 0; l < VEC; ++l) {
+        const Gathered g = gather(I, min(J0 + l, W - 1), X, lr, bx, by, jx, jy, w, h, W, H,
+                                  sx, sy, reset, hist);
+        for (int c = 0; c < 3; ++c) {
+            up[c][l] = g.up[c];
+            col[c][l] = g.col[c];
+            mn[c][l] = g.mn[c];
+            mx[c][l] = g.mx[c];
+            bmin[c][l] = g.bmin[c];
+            bmax[c][l] = g.bmax[c];
+        }
+        cnt[l] = g.cnt;
+        dd[l] = g.dd;
+        react[l] = g.react;
+        valid[l] = (float)g.valid;
     }
-    ST(hist_out, 3 * HW + q, cnt);
+    const fv ddv = VLD(dd);
+    const iv ghost = (ddv > depth_threshold) | (VLD(valid) < 0.5f);
+    const fv cntv = select(fmin(VLD(cnt) + 1.0f, cap), FV(0.0f), ghost);
+    const fv wgt = fmax(1.0f / (1.0f + cntv), VLD(react));
+    fv o[3];
+    for (int c = 0; c < 3; ++c) {
+        const fv u = VLD(up[c]);
+        const fv hc = fmin(fmax(VLD(col[c]), VLD(bmin[c])), VLD(bmax[c]));
+        o[c] = wgt * u + (1.0f - wgt) * hc;
+        st_plane(hist_out, c * HW + q, o[c], n);
+        st_plane(hist_out, (4 + c) * HW + q, select(fmin(VLD(mn[c]), u), u, ghost), n);
+        st_plane(hist_out, (7 + c) * HW + q, select(fmax(VLD(mx[c]), u), u, ghost), n);
+    }
+    st_plane(hist_out, 3 * HW + q, cntv, n);
     for (int c = 0; c < 6; ++c)
-        ST(hist_out, (10 + c) * HW + q, 0.0f);
+        st_plane(hist_out, (10 + c) * HW + q, FV(0.0f), n);
+    st_rgb(out, q, decode(o[0], inv_pq_scale) * exposure, decode(o[1], inv_pq_scale) * exposure,
+           decode(o[2], inv_pq_scale) * exposure, n);
     if (debug) {
-        dbg[q] = wgt;
-        dbg[HW + q] = (float)ghost;
-        dbg[2 * HW + q] = g.dd;
+        st_plane_f(dbg, q, wgt, n);
+        st_plane_f(dbg, HW + q, select(FV(0.0f), FV(1.0f), ghost), n);
+        st_plane_f(dbg, 2 * HW + q, ddv, n);
     }
 }
 
 #else
 /* Net mode, stages 4-6: the classifier input at the padded size (W16, H16); pixels
- * past (W, H) replicate the edge (ONNX Pad "edge"). aux (W x H, T): warped counter,
- * valid, reactive, for `compose`. */
+ * past (W, H) replicate the edge (ONNX Pad "edge"). aux [3, H16, W16] T: warped counter,
+ * valid, reactive for `compose` (padded too, so that compose reads whole vectors). */
 __kernel void resolve(__global const T *X, __global const float *lr, __global const float *bx,
                       __global const float *by, float jx, float jy, int w, int h, int W, int H,
                       float sx, float sy, int reset, __global const T *hist,
@@ -519,17 +606,14 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     ST(cls_in, 16 * P + r, g.dd);
     for (int c = 0; c < 6; ++c)
         ST(cls_in, (17 + c) * P + r, g.lg[c]);
-    if (I16 == I && J16 == J) {
-        const int HW = W * H, q = I * W + J;
-        ST(aux, q, g.cnt);
-        ST(aux, HW + q, (float)g.valid);
-        ST(aux, 2 * HW + q, g.react);
-    }
+    ST(aux, r, g.cnt);
+    ST(aux, P + r, (float)g.valid);
+    ST(aux, 2 * P + r, g.react);
 }
 
-/* Net mode, stages 6 (logits x2), 7, 8, 9 in one pass.
+/* Net mode, stages 6 (logits x2), 7, 8, 9 in one pass, VEC pixels per work-item.
  * logits: [6, H16/2, W16/2] T from the classifier; bilinear x2 (Resize linear,
- * half_pixel) evaluated at (I, J) only, then cropped by construction.
+ * half_pixel) evaluated at the output pixels only, which crops by construction.
  * w1: [HIDDEN, 22], b1: [HIDDEN], w2: [HIDDEN], b2: [1] (the composition MLP). */
 __kernel void compose(__global const T *cls_in, __global const T *aux,
                       __global const T *logits, int W, int H, int W16, int H16,
@@ -538,77 +622,75 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
                       __global float *out, __global const uint *flags, float cap,
                       float inv_pq_scale, float exposure, int debug, __global float *dbg)
 {
-    const int J = get_global_id(0), I = get_global_id(1);
-    if (J >= W || I >= H) return;
-    const int HW = W * H, q = I * W + J;
+    const int J0 = get_global_id(0) * VEC, I = get_global_id(1);
+    if (J0 >= W || I >= H) return;
+    const int HW = W * H, q = I * W + J0, n = min(VEC, W - J0);
     if (flags[0] & F_REFUSE) {
-        keep_history(hist, hist_out, q, HW);
+        for (int l = 0; l < n; ++l)
+            keep_history(hist, hist_out, q + l, HW);
         return;
     }
-    const int P = W16 * H16, r = I * W16 + J;
+    /* rows are padded to W16, a multiple of 16 and of VEC: whole vectors stay in bounds */
+    const int P = W16 * H16, r = I * W16 + J0;
     const int w2_ = W16 / 2, h2_ = H16 / 2, P2 = w2_ * h2_;
 
     /* Resize linear half_pixel x2: source x = (J + 0.5) / 2 - 0.5, clamped */
-    const float lx = clamp(((float)J + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(w2_ - 1));
+    float lgs[6][VEC];
     const float ly = clamp(((float)I + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(h2_ - 1));
-    const Linear ll = linear_at(lx, ly, w2_, h2_);
-    float lg[6];
+    for (int l = 0; l < VEC; ++l) {
+        const float lx = clamp(((float)(J0 + l) + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(w2_ - 1));
+        const Linear ll = linear_at(lx, ly, w2_, h2_);
+        for (int c = 0; c < 6; ++c)
+            lgs[c][l] = linear_T(logits + c * P2, ll);
+    }
+    fv lg[6];
     for (int c = 0; c < 6; ++c)
-        lg[c] = linear_T(logits + c * P2, ll);
+        lg[c] = VLD(lgs[c]);
 
     /* visibility ghosting = argmax of logits 0-2 is 0 (first index on ties) */
-    const int valid = LD(aux, HW + q) > 0.5f;
-    const int reject = lg[0] >= lg[1] && lg[0] >= lg[2];
-    const int ghost = reject || !valid;
-    const float wcnt = LD(aux, q);
-    const float cnt = ghost ? 0.0f : fmin(wcnt + 1.0f, cap);
-
-    float up[3], col[3], cmin[3], cmax[3];
-    for (int c = 0; c < 3; ++c) {
-        up[c] = LD(cls_in, c * P + r);
-        col[c] = LD(cls_in, (3 + c) * P + r);
-        const float mn = LD(cls_in, (10 + c) * P + r), mx = LD(cls_in, (13 + c) * P + r);
-        cmin[c] = ghost ? up[c] : fmin(mn, up[c]);
-        cmax[c] = ghost ? up[c] : fmax(mx, up[c]);
-    }
+    const iv ghost = ((lg[0] >= lg[1]) & (lg[0] >= lg[2])) | (LDV(aux, P + r) < 0.5f);
+    const fv cnt = select(fmin(LDV(aux, r) + 1.0f, cap), FV(0.0f), ghost);
 
     /* the composition MLP on COMPOSITION_INPUTS, in their order */
-    float x[22];
+    fv x[22];
     for (int c = 0; c < 3; ++c) {
-        x[c] = up[c];
-        x[3 + c] = col[c];
-        x[10 + c] = cmin[c];
-        x[13 + c] = cmax[c];
+        const fv u = LDV(cls_in, c * P + r);
+        x[c] = u;
+        x[3 + c] = LDV(cls_in, (3 + c) * P + r);
+        x[10 + c] = select(fmin(LDV(cls_in, (10 + c) * P + r), u), u, ghost);
+        x[13 + c] = select(fmax(LDV(cls_in, (13 + c) * P + r), u), u, ghost);
     }
-    x[6] = LD(cls_in, 6 * P + r);
-    x[7] = LD(cls_in, 7 * P + r);
-    x[8] = LD(cls_in, 8 * P + r);
+    x[6] = LDV(cls_in, 6 * P + r);
+    x[7] = LDV(cls_in, 7 * P + r);
+    x[8] = LDV(cls_in, 8 * P + r);
     x[9] = 1.0f / (1.0f + cnt);
     for (int c = 0; c < 6; ++c)
         x[16 + c] = lg[c];
-    float z = b2[0];
+    fv z = FV(b2[0]);
     for (int k = 0; k < HIDDEN; ++k) {
-        float a = b1[k];
+        fv a = FV(b1[k]);
         for (int c = 0; c < 22; ++c)
-            a += w1[k * 22 + c] * x[c];
-        z += w2[k] * fmax(a, 0.0f);
+            a = mad(FV(w1[k * 22 + c]), x[c], a);
+        z = mad(FV(w2[k]), fmax(a, 0.0f), z);
     }
-    const float wgt = fmax(1.0f / (1.0f + exp(-z)), LD(aux, 2 * HW + q));
+    const fv wgt = fmax(1.0f / (1.0f + exp(-z)), LDV(aux, 2 * P + r));
 
+    fv o[3];
     for (int c = 0; c < 3; ++c) {
-        const float o = wgt * up[c] + (1.0f - wgt) * col[c];
-        ST(hist_out, c * HW + q, o);
-        ST(hist_out, (4 + c) * HW + q, cmin[c]);
-        ST(hist_out, (7 + c) * HW + q, cmax[c]);
-        out[q * 3 + c] = decode(o, inv_pq_scale) * exposure;
+        o[c] = wgt * x[c] + (1.0f - wgt) * x[3 + c];
+        st_plane(hist_out, c * HW + q, o[c], n);
+        st_plane(hist_out, (4 + c) * HW + q, x[10 + c], n);
+        st_plane(hist_out, (7 + c) * HW + q, x[13 + c], n);
     }
-    ST(hist_out, 3 * HW + q, cnt);
+    st_plane(hist_out, 3 * HW + q, cnt, n);
     for (int c = 0; c < 6; ++c)
-        ST(hist_out, (10 + c) * HW + q, lg[c]);
+        st_plane(hist_out, (10 + c) * HW + q, lg[c], n);
+    st_rgb(out, q, decode(o[0], inv_pq_scale) * exposure, decode(o[1], inv_pq_scale) * exposure,
+           decode(o[2], inv_pq_scale) * exposure, n);
     if (debug) {
-        dbg[q] = wgt;
-        dbg[HW + q] = (float)ghost;
-        dbg[2 * HW + q] = LD(cls_in, 16 * P + r);
+        st_plane_f(dbg, q, wgt, n);
+        st_plane_f(dbg, HW + q, select(FV(0.0f), FV(1.0f), ghost), n);
+        st_plane_f(dbg, 2 * HW + q, LDV(cls_in, 16 * P + r), n);
     }
 }
 #endif

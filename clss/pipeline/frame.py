@@ -151,7 +151,10 @@ class FrameStep:
         self.sanitize = bool(sanitize)
         self.profile = bool(profile)
         net = mode == "net"
-        defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize))
+        # Output-res pixels per work-item (kernels/frame.cl): explicit vectors for CPUs,
+        # one pixel per work-item elsewhere.
+        self.vec = 8 if dev.cl_device.type & cl.device_type.CPU else 1
+        defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec)
         h, w, H, W = self.h, self.w, self.H, self.W
         f32 = np.float32
         e = dev.empty
@@ -181,7 +184,7 @@ class FrameStep:
             defines["HIDDEN"] = w1.shape[0]
             self.mlp = [dev.to_device(a) for a in (w1, b1, w2, b2)]
             self.cls_in = e((1, CLASSIFIER_CHANNELS, self.H16, self.W16), prec)
-            self.aux = e((3, H, W), prec)
+            self.aux = e((3, self.H16, self.W16), prec)
             self.classifier = ClassifierRunner(dev, prec, classifier, self.cls_in.shape,
                                                force=classifier_backend)
         self.k = {name: dev.kernel("frame", name, prec, **defines)
@@ -220,7 +223,7 @@ class FrameStep:
                   i32(bool(reset)), hist.data)
         inv_pq, expo = f(PQ_PEAK_NITS / self.nits), f(exposure)
         if self.mode == "rule":
-            ev.append(("resolve", dev.launch(self.k["resolve"], (W, H), common + (
+            ev.append(("resolve", dev.launch(self.k["resolve"], (-(-W // self.vec), H), common + (
                 hist_out.data, out.data, self.flags.data, f(self.depth_threshold), f(self.cap),
                 inv_pq, expo, i32(self.debug), self.dbg.data))))
         else:
@@ -238,7 +241,7 @@ class FrameStep:
             if tuple(logits.shape) != want:
                 raise RuntimeError(f"classifier: expected logits of shape {want}, got "
                                    f"{tuple(logits.shape)}")
-            ev.append(("compose", dev.launch(self.k["compose"], (W, H), (
+            ev.append(("compose", dev.launch(self.k["compose"], (-(-W // self.vec), H), (
                 self.cls_in.data, self.aux.data, logits.data, i32(W), i32(H), i32(self.W16),
                 i32(self.H16), *(a.data for a in self.mlp), hist.data, hist_out.data, out.data,
                 self.flags.data, f(self.cap), inv_pq, expo, i32(self.debug), self.dbg.data))))
