@@ -9,10 +9,12 @@
  *
  * Coordinates follow onnxruntime's CPU kernel (the oracle): a sample position is first
  * mapped to "pixel index" space, where pixel i has its centre at i. Padding is applied to
- * each tap separately (as onnxruntime >= 1.20 and PyTorch do; the ONNX Python reference
- * instead clamps the position first, which differs for bicubic + border).
- * The grid and the motion offsets stay float in every precision: they are coordinates,
- * and half would leave 1/16-pixel steps at 2K. Data is T; nearest copies raw bits (TB).
+ * each tap separately (as onnxruntime 1.32, the pinned oracle, and PyTorch do; the ONNX
+ * Python reference clamps the position first, which differs for bicubic + border).
+ * The grid stays float in every precision: normalised coordinates in half resolve only
+ * 2^-11 * W/2 pixels, about one pixel at 4K. Motion offsets are a few pixels and may be
+ * T (half resolves 1/64 pixel below 32); all position arithmetic is float. Data is T;
+ * nearest copies raw bits (TB).
  *
  * NDRange: (Wo, Ho, N * channel blocks); dimension 0 walks the contiguous output row.
  * One work-item computes the taps and weights of one output pixel once and applies them
