@@ -213,7 +213,7 @@ def _to_host(a: cla.Array, want: np.dtype) -> np.ndarray:
 
 def _label(n) -> str:
     if n.op == "clss.Conv":
-        s = "Conv"
+        s = "ConvTranspose" if n.attrs.get("transpose") else "Conv"
         if n.inputs[3]:
             s += "+Add"
         if n.attrs["activation"] != "none":

@@ -79,9 +79,11 @@ def _conv(dev, prec, attrs, inputs):
     """Conv with its fused epilogue: act(conv(x, w) + b + residual)."""
     conv = _family("conv")
     x, w, b, r = (list(inputs) + [None] * 4)[:4]
-    return [conv.conv2d(dev, prec, x, w, b, strides=attrs["strides"], pads=attrs["pads"],
-                        dilations=attrs["dilations"], group=attrs["group"],
-                        activation=attrs["activation"], alpha=attrs["alpha"], residual=r)]
+    kw = dict(strides=attrs["strides"], pads=attrs["pads"], dilations=attrs["dilations"],
+              group=attrs["group"], activation=attrs["activation"], alpha=attrs["alpha"], residual=r)
+    if attrs.get("transpose"):
+        return [conv.conv_transpose2d(dev, prec, x, w, b, output_padding=attrs["output_padding"], **kw)]
+    return [conv.conv2d(dev, prec, x, w, b, **kw)]
 
 
 @internal_op("clss.MaxPool")

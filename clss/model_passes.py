@@ -452,11 +452,33 @@ def _same_pads(size, k, s, d, lower):
     return (total - small, small) if lower else (small, total - small)
 
 
+def _canonical_transpose(g: Graph, n: Node) -> bool:
+    """2-D ConvTranspose with explicit pads -> clss.Conv(transpose=True);
+    auto_pad SAME_* and output_shape stay with the ONNX handler."""
+    ap = n.attrs.get("auto_pad", b"NOTSET")
+    ap = ap.decode() if isinstance(ap, bytes) else str(ap)
+    if len(g.shapes[n.inputs[0]]) != 4 or ap not in ("NOTSET", "VALID") or "output_shape" in n.attrs:
+        return False
+    attrs = {"strides": tuple(n.attrs.get("strides", (1, 1))),
+             "pads": (0, 0, 0, 0) if ap == "VALID" else tuple(n.attrs.get("pads", (0, 0, 0, 0))),
+             "dilations": tuple(n.attrs.get("dilations", (1, 1))), "group": int(n.attrs.get("group", 1)),
+             "output_padding": tuple(n.attrs.get("output_padding", (0, 0))), "transpose": True,
+             "activation": "none", "alpha": 0.01}
+    b = n.inputs[2] if len(n.inputs) > 2 else ""
+    g.nodes[g.nodes.index(n)] = Node("clss.Conv", [n.inputs[0], n.inputs[1], b, ""], list(n.outputs), attrs,
+                                     n.name, n.opset, sources=n.sources, unfused=[n])
+    return True
+
+
 def canonical_convs(g: Graph) -> int:
-    """ONNX Conv (1-D or 2-D) -> clss.Conv with explicit pads (auto_pad
-    resolved) and an activation slot; 1-D convolutions run as [N,C,1,L]."""
+    """ONNX Conv (1-D or 2-D) and ConvTranspose (2-D) -> clss.Conv with
+    explicit pads (auto_pad resolved) and an activation/residual epilogue;
+    1-D convolutions run as [N,C,1,L]."""
     changed = 0
     for n in list(g.nodes):
+        if n.op == "ConvTranspose":
+            changed += _canonical_transpose(g, n)
+            continue
         if n.op != "Conv":
             continue
         x, w = n.inputs[0], n.inputs[1]
@@ -545,7 +567,7 @@ def fuse_conv_epilogues(g: Graph) -> int:
 
 
 def _is_pointwise(g: Graph, n: Node) -> bool:
-    if n.op != "clss.Conv" or n.inputs[3] or n.attrs["group"] != 1:
+    if n.op != "clss.Conv" or n.inputs[3] or n.attrs["group"] != 1 or n.attrs.get("transpose"):
         return False
     ws = g.shapes[n.inputs[1]]
     return (tuple(ws[2:]) == (1, 1) and tuple(n.attrs["strides"]) == (1, 1)

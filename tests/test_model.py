@@ -401,3 +401,16 @@ def test_total_memory_refused_before_allocation(monkeypatch):
     monkeypatch.setattr(dev, "info", DeviceInfo(**{**dev.info.__dict__, "global_mem": need - 1}))
     with pytest.raises(ModelError, match="needs at least.*no allocation was made"):
         clss.Model(conv_chain_model(x, n=3), device=dev)
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+def test_conv_transpose_fusion(prec):
+    x = rnd(2, 4, 5, 6)
+    nodes = [helper.make_node("ConvTranspose", ["x", "w", "b"], ["c"], strides=[2, 2], pads=[1, 1, 0, 0],
+                             output_padding=[1, 0]),
+             helper.make_node("BatchNormalization", ["c", "g", "be", "mu", "var"], ["n"]),
+             helper.make_node("Sigmoid", ["n"], ["y"])]
+    inits = {"w": rnd(4, 3, 3, 3, seed=1, scale=0.3), "b": rnd(3, seed=2, scale=0.1),
+             "g": np.full(3, 1.5, np.float32), "be": rnd(3, seed=3), "mu": rnd(3, seed=4), "var": np.ones(3, np.float32)}
+    cm = assert_matches(make_model(nodes, {"x": x}, ["y"], initializers=inits), {"x": x}, prec)
+    assert cm.execution_ops() == {"ConvTranspose+sigmoid": 1}
