@@ -70,9 +70,10 @@ def node_flops(node: onnx.NodeProto, shapes: dict) -> int:
     return PER_ELEMENT.get(op, 1) * _n(out)
 
 
-def flops(m: onnx.ModelProto) -> int:
-    """FLOPs of one inference of a shape-resolved model (see module doc)."""
-    shapes = _shapes(m)
+def flops(m: onnx.ModelProto, known: dict | None = None) -> int:
+    """FLOPs of one inference of a shape-resolved model (see module doc);
+    ``known`` adds shapes resolved later (after constant folding)."""
+    shapes = {**(known or {}), **_shapes(m)}
     return int(sum(node_flops(n, shapes) for n in m.graph.node))
 
 
@@ -119,7 +120,7 @@ def summary(model) -> dict:
         "execution": dict(model.execution_ops().most_common()),
         "passes": list(model.pass_log),
         "parameters": parameters(m),
-        "flops": flops(m),
+        "flops": flops(m, model.graph.shapes),
         "precision": model.precision,
         "device": f"{model.device.info.platform} / {model.device.info.name}",
         "memory": model.memory(),

@@ -10,10 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
-from onnx import helper, numpy_helper
+from onnx import helper
 
 import clss
-from clss.model import UnsupportedModelError
 from clss.ops.base import Tolerance, compare
 from clss.ops.twin import make_model, run_ort
 
