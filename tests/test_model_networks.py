@@ -11,6 +11,9 @@
   lighting + motion mask, PixelUnshuffle of the previous HR output, a ConvLSTM
   cell carrying (h, c), a residual channel-attention block (GlobalAveragePool,
   1x1 squeeze/excite, sigmoid gating) and PixelShuffle back to HR, remodulated;
+* the shader MLP of seeds/004 (Spencer 2022): 5x5 neighbourhoods of beauty and
+  depth (50 inputs, gathered by a one-hot 5x5 convolution), two hidden layers
+  of 50 and an output layer of 25, leaky ReLU throughout;
 * the CLSS classifier and composition networks from weights_tools.
 
 Spatial sizes are small; channel widths are the papers' (NSRR) or ours (NSRD,
@@ -192,6 +195,19 @@ def build_nsrd(h=8, w=12, scale=2, hid=16, feat=24, seed=0):
     return net.model(inputs, ["out", "h_out", "c_out"]), inputs
 
 
+def build_shader_mlp(h=9, w=14, seed=0):
+    net = Net(seed)
+    onehot = np.eye(25, dtype=np.float32).reshape(25, 1, 5, 5)
+    taps = [net.op("Conv", [t, net.const(onehot, "unfold")], pads=[2] * 4) for t in ("beauty", "depth")]
+    y = net.op("Concat", taps, axis=1)
+    for cin, cout in ((50, 50), (50, 50), (50, 25)):
+        y = net.conv(y, cin, cout, k=1, act="LeakyRelu")
+    net.nodes[-1].output[0] = "kernel"
+    g = np.random.default_rng(seed + 1)
+    inputs = {"beauty": g.random((1, 1, h, w), np.float32), "depth": g.random((1, 1, h, w), np.float32)}
+    return net.model(inputs, ["kernel"]), inputs
+
+
 def _half_model(model):
     """The model with its float initializers rounded to fp16: the fp16 reference."""
     import onnx
@@ -233,6 +249,13 @@ def test_nsrd(prec):
     ops = cm.execution_ops()
     assert ops["SpaceToDepth"] == 1 and ops["DepthToSpace"] == 1 and "Transpose" not in ops, ops
     assert ops["Conv+leaky_relu"] == 1 and ops["Conv+sigmoid"] >= 1, ops
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+def test_shader_mlp(prec):
+    model, feeds = build_shader_mlp()
+    cm = check_network(model, feeds, prec)
+    assert cm.execution_ops()["MLP(3 layers)"] == 1, cm.execution_ops()
 
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
