@@ -453,21 +453,53 @@ def _same_pads(size, k, s, d, lower):
 
 
 def _canonical_transpose(g: Graph, n: Node) -> bool:
-    """2-D ConvTranspose with explicit pads -> clss.Conv(transpose=True);
-    auto_pad SAME_* and output_shape stay with the ONNX handler."""
+    """1-D/2-D ConvTranspose with explicit pads -> clss.Conv(transpose=True)
+    (1-D as [N,C,1,L]); auto_pad SAME_* and output_shape stay with the ONNX handler."""
     ap = n.attrs.get("auto_pad", b"NOTSET")
     ap = ap.decode() if isinstance(ap, bytes) else str(ap)
-    if len(g.shapes[n.inputs[0]]) != 4 or ap not in ("NOTSET", "VALID") or "output_shape" in n.attrs:
+    x, w = n.inputs[0], n.inputs[1]
+    nd = len(g.shapes[x]) - 2
+    if nd not in (1, 2) or ap not in ("NOTSET", "VALID") or "output_shape" in n.attrs:
         return False
-    attrs = {"strides": tuple(n.attrs.get("strides", (1, 1))),
-             "pads": (0, 0, 0, 0) if ap == "VALID" else tuple(n.attrs.get("pads", (0, 0, 0, 0))),
-             "dilations": tuple(n.attrs.get("dilations", (1, 1))), "group": int(n.attrs.get("group", 1)),
-             "output_padding": tuple(n.attrs.get("output_padding", (0, 0))), "transpose": True,
+    pads = [0] * (2 * nd) if ap == "VALID" else list(n.attrs.get("pads", [0] * (2 * nd)))
+    strides = list(n.attrs.get("strides", [1] * nd))
+    dil = list(n.attrs.get("dilations", [1] * nd))
+    opad = list(n.attrs.get("output_padding", [0] * nd))
+    if nd == 1:
+        pads, strides, dil, opad = [0, pads[0], 0, pads[1]], [1] + strides, [1] + dil, [0] + opad
+    attrs = {"strides": tuple(strides), "pads": tuple(pads), "dilations": tuple(dil),
+             "group": int(n.attrs.get("group", 1)), "output_padding": tuple(opad), "transpose": True,
              "activation": "none", "alpha": 0.01}
     b = n.inputs[2] if len(n.inputs) > 2 else ""
-    g.nodes[g.nodes.index(n)] = Node("clss.Conv", [n.inputs[0], n.inputs[1], b, ""], list(n.outputs), attrs,
-                                     n.name, n.opset, sources=n.sources, unfused=[n])
+    idx = g.nodes.index(n)
+    if nd == 2:
+        g.nodes[idx] = Node("clss.Conv", [x, w, b, ""], list(n.outputs), attrs, n.name, n.opset,
+                            sources=n.sources, unfused=[n])
+        return True
+    xs, ys = g.shapes[x], g.shapes[n.outputs[0]]
+    v1, x4 = _view(g, x, (xs[0], xs[1], 1, xs[2]), name=f"{n.name} (2-D)", sources=n.sources)
+    vw, w4 = _weight_2d(g, n, w)
+    y = n.outputs[0]
+    t = g.fresh(y)
+    g.shapes[t], g.dtypes[t] = (ys[0], ys[1], 1, ys[2]), g.dtypes[y]
+    conv = Node("clss.Conv", [x4, w4, b, ""], [t], attrs, n.name, n.opset, sources=n.sources)
+    conv.unfused = [Node("ConvTranspose", [x4, w4, b], [t],
+                         {"strides": strides, "pads": pads, "dilations": dil, "output_padding": opad,
+                          "group": attrs["group"]}, n.name, n.opset, sources=n.sources)]
+    v2, _ = _view(g, t, ys, out=y, name=f"{n.name} (back)", sources=n.sources)
+    g.nodes[idx:idx + 1] = vw + [v1, conv, v2]
     return True
+
+
+def _weight_2d(g: Graph, n: Node, w: str):
+    """A 1-D convolution's weight [A, B, k] as [A, B, 1, k]: a constant, or a view."""
+    ws = g.shapes[w]
+    shape = (ws[0], ws[1], 1, ws[2])
+    wc = _const(g, w)
+    if wc is not None:
+        return [], g.add_const(f"{n.name}.weight2d", wc.reshape(shape))
+    v, w4 = _view(g, w, shape, name=f"{n.name} (weight 2-D)", sources=n.sources)
+    return [v], w4
 
 
 def canonical_convs(g: Graph) -> int:
@@ -508,11 +540,8 @@ def canonical_convs(g: Graph) -> int:
             g.nodes[idx] = Node("clss.Conv", [x, w, b, ""], list(n.outputs), attrs, n.name, n.opset,
                                 sources=n.sources, unfused=[n])
         else:
-            wc = _const(g, w)
-            if wc is None:
-                continue
             v1, x4 = _view(g, x, (xs[0], xs[1], 1, xs[2]), name=f"{n.name} (2-D)", sources=n.sources)
-            w4 = g.add_const(f"{n.name}.weight2d", wc.reshape(ws[0], ws[1], 1, ws[2]))
+            vw, w4 = _weight_2d(g, n, w)
             y = n.outputs[0]
             t = g.fresh(y)
             g.shapes[t], g.dtypes[t] = (ys[0], ys[1], 1, ys[2]), g.dtypes[y]
@@ -523,7 +552,7 @@ def canonical_convs(g: Graph) -> int:
                                  {"strides": list(attrs["strides"]), "pads": list(attrs["pads"]),
                                   "dilations": list(attrs["dilations"]), "group": attrs["group"]},
                                  n.name, n.opset, sources=n.sources)]
-            g.nodes[idx:idx + 1] = [v1, conv, v2]
+            g.nodes[idx:idx + 1] = vw + [v1, conv, v2]
         changed += 1
     return changed
 

@@ -414,3 +414,13 @@ def test_conv_transpose_fusion(prec):
              "g": np.full(3, 1.5, np.float32), "be": rnd(3, seed=3), "mu": rnd(3, seed=4), "var": np.ones(3, np.float32)}
     cm = assert_matches(make_model(nodes, {"x": x}, ["y"], initializers=inits), {"x": x}, prec)
     assert cm.execution_ops() == {"ConvTranspose+sigmoid": 1}
+
+
+def test_conv_1d_and_auto_pad():
+    x = rnd(2, 3, 17)
+    nodes = [helper.make_node("Conv", ["x", "w"], ["c"], auto_pad="SAME_UPPER", strides=[2], dilations=[2]),
+             helper.make_node("Relu", ["c"], ["r"]),
+             helper.make_node("ConvTranspose", ["r", "wt"], ["y"], strides=[2], pads=[1, 0])]
+    inits = {"w": rnd(4, 3, 3, seed=1, scale=0.4), "wt": rnd(4, 2, 3, seed=2, scale=0.4)}
+    cm = assert_matches(make_model(nodes, {"x": x}, ["y"], initializers=inits), {"x": x})
+    assert cm.execution_ops()["Conv+relu"] == 1 and cm.execution_ops()["ConvTranspose"] == 1
