@@ -208,7 +208,7 @@ def conv_twin(x_name, w, b, strides, pads, act, residual, opset=18):
     return fn
 
 
-def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1", "cls.dec.fuse")):
+def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1")):
     (h, w), scale = TIERS[tier]
     H, W = round(h * scale), round(w * scale)
     conv = _family("conv")
@@ -392,7 +392,7 @@ def pool_cases(tier):
     (h, w), _ = TIERS[tier]
     pool = _family("pool")
     out = []
-    for name, shape, quick in (("max_pool 3x3 depth dilation", (1, 1, h, w), True),
+    for name, shape, quick in (("max_pool 3x3 depth dilation", (1, 1, h, w), False),
                                ("max_pool 3x3 colour neighbourhood", (1, 3, h, w), False)):
         def build(dev, prec, params, shape=shape, name=name):
             return make_setup(dev, prec, {"x": _normal(("bench pool", name), shape)},

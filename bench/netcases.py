@@ -115,5 +115,6 @@ def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
                      post=lambda outs: [outs[0].transpose(2, 0, 1)[None]],
                      out_index=ort_out.index("output") if "output" in ort_out else 0,
                      note=(f"classifier on {up.classifier_backend_name}" if mode == "net" else ""))
-    return BenchCase(f"frame step {mode}", "frame", "frame", tier, flops, build, quick=mode == "net",
+    # Not in --quick: at 540p a net-mode frame costs seconds on a 2-core CPU.
+    return BenchCase(f"frame step {mode}", "frame", "frame", tier, flops, build,
                      shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))

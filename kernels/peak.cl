@@ -99,5 +99,5 @@ __kernel void stream_triad(__global float4 *a, __global const float4 *b,
 {
     const int i = get_global_id(0);
     if (i >= n4) return;
-    a[i] = mad((float4)s, c[i], b[i]);
+    a[i] = b[i] + s * c[i];   /* contracted to an FMA; mad() is a slow call on PoCL */
 }
