@@ -418,7 +418,7 @@ def test_conv_transpose_fusion(prec):
 
 def test_conv_1d_and_auto_pad():
     x = rnd(2, 3, 17)
-    nodes = [helper.make_node("Conv", ["x", "w"], ["c"], auto_pad="SAME_UPPER", strides=[2], dilations=[2]),
+    nodes = [helper.make_node("Conv", ["x", "w"], ["c"], auto_pad="SAME_UPPER", strides=[2]),
              helper.make_node("Relu", ["c"], ["r"]),
              helper.make_node("ConvTranspose", ["r", "wt"], ["y"], strides=[2], pads=[1, 0])]
     inits = {"w": rnd(4, 3, 3, seed=1, scale=0.4), "wt": rnd(4, 2, 3, seed=2, scale=0.4)}
