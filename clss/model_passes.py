@@ -560,7 +560,7 @@ def canonical_convs(g: Graph) -> int:
 def fuse_conv_epilogues(g: Graph) -> int:
     """clss.Conv followed by Add (a residual of the output's shape) and/or an
     activation (Relu, LeakyRelu, Sigmoid, Tanh) -> one clss.Conv."""
-    changed = 0
+    changed = _activations_before_views(g)
     again = True
     while again:
         again = False
@@ -592,6 +592,35 @@ def fuse_conv_epilogues(g: Graph) -> int:
             changed += 1
             again = True
             break
+    return changed
+
+
+def _activations_before_views(g: Graph) -> int:
+    """conv -> view -> activation becomes conv -> activation -> view (the
+    activation is elementwise), so the activation can fuse into the conv."""
+    changed = 0
+    uses = g.consumers()
+    prod = g.producer()
+    for v in list(g.nodes):
+        if v.op != "clss.View" or v.inputs[0] not in prod or g.nodes[prod[v.inputs[0]]].op != "clss.Conv":
+            continue
+        t, y = v.inputs[0], v.outputs[0]
+        if not _single_use(g, t, uses) or not _single_use(g, y, uses):
+            continue
+        act = g.nodes[uses[y][0]]
+        if act.op not in ACT_OPS:
+            continue
+        a_out = act.outputs[0]
+        t2 = g.fresh(a_out)
+        g.shapes[t2], g.dtypes[t2] = g.shapes[t], g.dtypes[t]
+        act.inputs, act.outputs = [t], [t2]
+        v.inputs, v.outputs = [t2], [a_out]
+        v.attrs = {"shape": tuple(g.shapes[a_out])}
+        i, j = g.nodes.index(v), g.nodes.index(act)
+        g.nodes[i], g.nodes[j] = act, v
+        changed += 1
+        uses = g.consumers()
+        prod = g.producer()
     return changed
 
 
