@@ -90,6 +90,17 @@ typedef T Tv8 __attribute__((ext_vector_type(8), aligned(sizeof(T))));
 #define FST ST
 #endif
 
+/* Weights: in fp16 storage mode the host hands them over converted to float
+ * (kernel weights_to_float, once per call), so the hot loop broadcasts them
+ * with one load instead of a load, a half->float conversion and a shuffle. */
+#if defined(CLSS_FP16)
+typedef float TW;
+#define LDW(p, i) ((p)[(i)])
+#else
+typedef T TW;
+#define LDW FLD
+#endif
+
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
 #define IMAX(a, b) ((a) > (b) ? (a) : (b))
 
@@ -177,7 +188,7 @@ inline void st_out8(__global T *p, long o, int os, int n, A8 v)
         for (int v_ = 0; v_ < XV; ++v_)                                        \
             xv[v_] = LOAD(v_);                                                 \
         _Pragma("unroll") for (int j_ = 0; j_ < CB; ++j_) {                    \
-            const A wj = FLD(wc, wo[j_] + (woff));                             \
+            const A wj = LDW(wc, wo[j_] + (woff));                             \
             _Pragma("unroll") for (int v_ = 0; v_ < XV; ++v_)                  \
                 acc[j_][v_] += wj * xv[v_];                                    \
         }                                                                      \
@@ -204,7 +215,7 @@ inline void st_out8(__global T *p, long o, int os, int n, A8 v)
 
 /* x: [N, Cin, H, W]; w: [Cout, Cin/groups, KH, KW]; y, res: [N, Cout, Ho, Wo].
  * NDRange: (ceil(Wo / XB), Ho, N * groups * ncb) with ncb = ceil((Cout/groups) / CB). */
-__kernel void conv2d(__global const T *x, __global const T *w, __global const T *bias,
+__kernel void conv2d(__global const T *x, __global const TW *w, __global const T *bias,
                      __global const T *res, __global T *y,
                      int Cin, int H, int W, int Cout, int Ho, int Wo,
                      int Cin_g, int Cout_g, int ncb, int groups,
@@ -239,7 +250,7 @@ __kernel void conv2d(__global const T *x, __global const T *w, __global const T 
 #define CONV_LOOP(LOAD)                                                        \
     for (int ky = ky0; ky < ky1; ++ky) {                                       \
         const __global T *row = xg + (long)(iy0 + ky * dy) * W;                \
-        const __global T *wc = w + ky * KW;                                    \
+        const __global TW *wc = w + ky * KW;                                   \
         for (int ci = 0; ci < Cin_g; ++ci, row += (long)H * W, wc += KK) {     \
             _Pragma("unroll") for (int kx = 0; kx < KW; ++kx)                  \
                 TAP(LOAD, kx)                                                  \
@@ -264,7 +275,7 @@ __kernel void conv2d(__global const T *x, __global const T *w, __global const T 
  *
  * x: [N, Cin, H, W]; w: [Cin, Cout/groups, KH, KW]; y, res: [N, Cout, Ho, Wo].
  * NDRange: (ceil(ceil(Wo/sx) / XB), Ho, N * groups * ncb * sx). */
-__kernel void conv_transpose2d(__global const T *x, __global const T *w, __global const T *bias,
+__kernel void conv_transpose2d(__global const T *x, __global const TW *w, __global const T *bias,
                                __global const T *res, __global T *y,
                                int Cin, int H, int W, int Cout, int Ho, int Wo,
                                int Cin_g, int Cout_g, int ncb, int groups,
@@ -310,7 +321,7 @@ __kernel void conv_transpose2d(__global const T *x, __global const T *w, __globa
         const long iy = num / sy;                                              \
         for (int ci = 0; ci < Cin_g; ++ci) {                                   \
             const __global T *row = xg + ((long)ci * H + iy) * W;              \
-            const __global T *wc = w + ci * Cout_g * KK;                       \
+            const __global TW *wc = w + ci * Cout_g * KK;                      \
             _Pragma("unroll") for (int kx = 0; kx < KW; ++kx)                  \
                 if (ixk[kx] != INT_MIN)                                        \
                     TAP(LOAD, ky * KW + kx)                                    \
@@ -324,4 +335,12 @@ __kernel void conv_transpose2d(__global const T *x, __global const T *w, __globa
         CONVT_LOOP(LOADT_GUARDED)
     }
     STORE_BLOCK((long)n * Cout * Ho * Wo + px + (long)t0 * sx, sx, nt - t0)
+}
+
+/* Half weights to float for the kernels above (fp16 storage mode), exact. */
+__kernel void weights_to_float(__global const T *w, __global float *out, int n)
+{
+    const int i = get_global_id(0);
+    if (i < n)
+        out[i] = LD(w, i);
 }

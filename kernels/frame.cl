@@ -1,6 +1,7 @@
 /* The CLSS frame step, fused (clss/pipeline/reference.md gives every formula; the
  * section numbers below are its sections).
  *
+ *   clear                     zeroes the depth reconstruction and the flags
  *   prepare      render res   entry conversions, validity flags, transfer function,
  *                             dilation (s2), scatter of the previous depth (s3)
  *   depth_diff   render res   bilinear of the reconstructed depth -> dd (s4); rule mode:
@@ -118,17 +119,40 @@ typedef int iv;
 #error "VEC must be 1, 4 or 8"
 #endif
 #define FV(x) ((fv)(x))
+#define LDF(p, i) ((p)[(i)])
+#if VEC == 8
+#define LANES ((iv)(0, 1, 2, 3, 4, 5, 6, 7))
+#define CONVERT_IV convert_int8
+#define CONVERT_FV convert_float8
+#define ANY(m) any(m)
+/* VEC loads at the lanes' indices */
+#define GATHER(LDX, p, i) ((fv)(LDX(p, (i).s0), LDX(p, (i).s1), LDX(p, (i).s2), LDX(p, (i).s3), \
+                                LDX(p, (i).s4), LDX(p, (i).s5), LDX(p, (i).s6), LDX(p, (i).s7)))
+#elif VEC == 4
+#define LANES ((iv)(0, 1, 2, 3))
+#define CONVERT_IV convert_int4
+#define CONVERT_FV convert_float4
+#define ANY(m) any(m)
+#define GATHER(LDX, p, i) ((fv)(LDX(p, (i).s0), LDX(p, (i).s1), LDX(p, (i).s2), LDX(p, (i).s3)))
+#else
+#define LANES 0
+#define CONVERT_IV convert_int
+#define CONVERT_FV convert_float
+/* scalar comparisons give 1, vector ones -1: any() reads the sign bit */
+#define ANY(m) (m)
+#define GATHER(LDX, p, i) LDX(p, i)
+#endif
 
 /* x^y for x >= 0 as exp2(y log2 x): 4-5x faster than pow on PoCL's CPU device, about
  * 1e-5 relative here (the transfer function is the hot spot at output resolution);
  * 0 stays 0 (log2 0 = -inf). */
 #define POWP(x, y) exp2((y) * log2(x))
 
-inline float encode(float x, float pq_scale)
+inline fv encode(fv x, float pq_scale)
 {
 #if HDR
-    const float y = clamp(x * pq_scale, 0.0f, 1.0f);
-    const float ym = POWP(y, PQ_M1);
+    const fv y = clamp(x * pq_scale, 0.0f, 1.0f);
+    const fv ym = POWP(y, PQ_M1);
     return POWP((PQ_C1 + PQ_C2 * ym) / (1.0f + PQ_C3 * ym), PQ_M2);
 #else
     return clamp(x, 0.0f, 1.0f);
@@ -145,6 +169,41 @@ inline fv decode(fv e, float inv_pq_scale)
 #else
     return e;
 #endif
+}
+
+/* v (VEC pixels) to plane p at q .. q + n - 1; n < VEC at the right edge of a row. */
+inline void st_plane(__global T *p, int q, fv v, int n)
+{
+    if (n == VEC) {
+        STV(p, q, v);
+        return;
+    }
+    float t[VEC];
+    VST(v, t);
+    for (int l = 0; l < n; ++l)
+        ST(p, q + l, t[l]);
+}
+
+inline void st_plane_f(__global float *p, int q, fv v, int n)
+{
+    float t[VEC];
+    VST(v, t);
+    for (int l = 0; l < n; ++l)
+        p[q + l] = t[l];
+}
+
+/* The linear output, interleaved h x w x 3 as the caller wants it. */
+inline void st_rgb(__global float *out, int q, fv r, fv g, fv b, int n)
+{
+    float t[3][VEC];
+    VST(r, t[0]);
+    VST(g, t[1]);
+    VST(b, t[2]);
+    for (int l = 0; l < n; ++l) {
+        out[(q + l) * 3] = t[0][l];
+        out[(q + l) * 3 + 1] = t[1][l];
+        out[(q + l) * 3 + 2] = t[2][l];
+    }
 }
 
 /* Entry conversions (reference.md s1), applied on every load so that neighbours read
@@ -177,91 +236,86 @@ inline float3 ld_color(__global const float *color, int i, float inv_exposure)
     return inv_exposure == 1.0f ? c : c * inv_exposure;
 }
 
-/* Keys cubic weights (a = -0.75) for the taps at -1, 0, 1, 2 around fraction t, in
- * onnxruntime's GsGetCubicCoeffs form. */
-inline float4 cubic_weights(float t)
-{
-    const float a = -0.75f;
-    const float x = fabs(t);
-    return (float4)(((a * (x + 1.0f) - 5.0f * a) * (x + 1.0f) + 8.0f * a) * (x + 1.0f) - 4.0f * a,
-                    ((a + 2.0f) * x - (a + 3.0f)) * x * x + 1.0f,
-                    ((a + 2.0f) * (1.0f - x) - (a + 3.0f)) * (1.0f - x) * (1.0f - x) + 1.0f,
-                    ((a * (2.0f - x) - 5.0f * a) * (2.0f - x) + 8.0f * a) * (2.0f - x) - 4.0f * a);
-}
-
-/* The oracle feeds GridSample the normalised coordinate (2u + 1) / n - 1, which
- * onnxruntime maps back with ((g + 1) n - 1) / 2; doing the same round trip here puts
- * every tap exactly where the oracle's is (the two can differ by an ulp of u). */
-inline float grid_round_trip(float u, int n)
-{
-    const float fn = (float)n;
-    const float g = (u * 2.0f + 1.0f) / fn - 1.0f;
-    return ((g + 1.0f) * fn - 1.0f) / 2.0f;
-}
-
-/* Taps and weights of one position, shared by every channel sampled there
- * (border padding: taps clamp to the edge). */
+/* Taps and weights along one axis for VEC positions (border padding: taps clamp to
+ * the edge). Rows are pre-multiplied by the row length. */
 typedef struct {
-    int4 cx, ry;        /* bicubic columns and row offsets (row * width) */
-    float4 wx, wy;
-} Cubic;
+    iv c0, c1, c2, c3;
+    fv w0, w1, w2, w3;
+} Taps4;                /* bicubic */
 
 typedef struct {
-    int x1, x2, y1, y2; /* bilinear columns and row offsets */
-    float dx1, dx2, dy1, dy2;
-} Linear;
+    iv c0, c1;
+    fv w0, w1;
+} Taps2;                /* bilinear */
 
 inline int edge(float t, int n)
 {
     return (int)fmin(fmax(t, 0.0f), (float)(n - 1));
 }
 
-inline Cubic cubic_at(float u, float v, int n, int m)
+inline iv edge_v(fv t, int n)
 {
-    Cubic c;
-    const float fx = floor(u), fy = floor(v);
-    c.cx = (int4)(edge(fx - 1.0f, n), edge(fx, n), edge(fx + 1.0f, n), edge(fx + 2.0f, n));
-    c.ry = (int4)(edge(fy - 1.0f, m), edge(fy, m), edge(fy + 1.0f, m), edge(fy + 2.0f, m)) * n;
-    c.wx = cubic_weights(u - fx);
-    c.wy = cubic_weights(v - fy);
-    return c;
+    return CONVERT_IV(fmin(fmax(t, 0.0f), (float)(n - 1)));
 }
 
-inline Linear linear_at(float u, float v, int n, int m)
+/* Keys cubic weights (a = -0.75) for the taps at -1, 0, 1, 2 around u, in onnxruntime's
+ * GsGetCubicCoeffs form. */
+inline Taps4 cubic_taps(fv u, int n, int stride)
 {
-    Linear l;
-    const float fx = floor(u), fy = floor(v);
-    l.x1 = edge(fx, n);
-    l.x2 = edge(fx + 1.0f, n);
-    l.y1 = edge(fy, m) * n;
-    l.y2 = edge(fy + 1.0f, m) * n;
-    /* onnxruntime's weights: dx1 = x - x1, dx2 = x2 - x */
-    l.dx1 = u - fx;
-    l.dx2 = (fx + 1.0f) - u;
-    l.dy1 = v - fy;
-    l.dy2 = (fy + 1.0f) - v;
-    return l;
+    Taps4 t;
+    const fv f = floor(u), x = fabs(u - f);
+    const float a = -0.75f;
+    t.c0 = edge_v(f - 1.0f, n) * stride;
+    t.c1 = edge_v(f, n) * stride;
+    t.c2 = edge_v(f + 1.0f, n) * stride;
+    t.c3 = edge_v(f + 2.0f, n) * stride;
+    t.w0 = ((a * (x + 1.0f) - 5.0f * a) * (x + 1.0f) + 8.0f * a) * (x + 1.0f) - 4.0f * a;
+    t.w1 = ((a + 2.0f) * x - (a + 3.0f)) * x * x + 1.0f;
+    t.w2 = ((a + 2.0f) * (1.0f - x) - (a + 3.0f)) * (1.0f - x) * (1.0f - x) + 1.0f;
+    t.w3 = ((a * (2.0f - x) - 5.0f * a) * (2.0f - x) + 8.0f * a) * (2.0f - x) - 4.0f * a;
+    return t;
 }
 
-inline float cubic_T(__global const T *p, Cubic c)
+/* onnxruntime's bilinear weights: w0 = x1 + 1 - u for tap x1 = floor(u), w1 = u - x1 */
+inline Taps2 linear_taps(fv u, int n, int stride)
 {
-#define ROW(k) (c.wx.s0 * LD(p, c.ry.s##k + c.cx.s0) + c.wx.s1 * LD(p, c.ry.s##k + c.cx.s1) + \
-                c.wx.s2 * LD(p, c.ry.s##k + c.cx.s2) + c.wx.s3 * LD(p, c.ry.s##k + c.cx.s3))
-    return c.wy.s0 * ROW(0) + c.wy.s1 * ROW(1) + c.wy.s2 * ROW(2) + c.wy.s3 * ROW(3);
+    Taps2 t;
+    const fv f = floor(u);
+    t.c0 = edge_v(f, n) * stride;
+    t.c1 = edge_v(f + 1.0f, n) * stride;
+    t.w0 = (f + 1.0f) - u;
+    t.w1 = u - f;
+    return t;
+}
+
+/* The oracle feeds GridSample the normalised coordinate (2u + 1) / n - 1, which
+ * onnxruntime maps back with ((g + 1) n - 1) / 2; doing the same round trip here puts
+ * every tap exactly where the oracle's is (the two can differ by an ulp of u). */
+inline fv grid_round_trip(fv u, int n)
+{
+    const float fn = (float)n;
+    const fv g = (u * 2.0f + 1.0f) / fn - 1.0f;
+    return ((g + 1.0f) * fn - 1.0f) / 2.0f;
+}
+
+/* One channel sampled at VEC positions: rows first (x), then along y, the oracle's
+ * order. The loads are gathers; the arithmetic runs on vectors. */
+inline fv cubic_T(__global const T *p, Taps4 x, Taps4 y)
+{
+#define ROW(r) (x.w0 * GATHER(LD, p, (r) + x.c0) + x.w1 * GATHER(LD, p, (r) + x.c1) + \
+                x.w2 * GATHER(LD, p, (r) + x.c2) + x.w3 * GATHER(LD, p, (r) + x.c3))
+    return y.w0 * ROW(y.c0) + y.w1 * ROW(y.c1) + y.w2 * ROW(y.c2) + y.w3 * ROW(y.c3);
 #undef ROW
 }
 
-inline float linear_T(__global const T *p, Linear l)
-{
-    return l.dy2 * (l.dx2 * LD(p, l.y1 + l.x1) + l.dx1 * LD(p, l.y1 + l.x2)) +
-           l.dy1 * (l.dx2 * LD(p, l.y2 + l.x1) + l.dx1 * LD(p, l.y2 + l.x2));
-}
-
-inline float linear_f(__global const float *p, Linear l)
-{
-    return l.dy2 * (l.dx2 * p[l.y1 + l.x1] + l.dx1 * p[l.y1 + l.x2]) +
-           l.dy1 * (l.dx2 * p[l.y2 + l.x1] + l.dx1 * p[l.y2 + l.x2]);
-}
+#define LINEAR_SAMPLER(name, ELEM, LDX)                                                      \
+    inline fv name(__global const ELEM *p, Taps2 x, Taps2 y)                                \
+    {                                                                                        \
+        return y.w0 * (x.w0 * GATHER(LDX, p, y.c0 + x.c0) + x.w1 * GATHER(LDX, p, y.c0 + x.c1)) + \
+               y.w1 * (x.w0 * GATHER(LDX, p, y.c1 + x.c0) + x.w1 * GATHER(LDX, p, y.c1 + x.c1)); \
+    }
+LINEAR_SAMPLER(linear_T, T, LD)
+LINEAR_SAMPLER(linear_f, float, LDF)
 
 /* The 4 bilinear taps of p + motion for the depth reconstruction (reference.md s3):
  * tap k = (a, b) in order (0,0) (1,0) (0,1) (1,1). */
@@ -271,8 +325,19 @@ inline float linear_f(__global const float *p, Linear l)
     const float fx = ux - x0, fy = uy - y0;                               \
     const float wxs[2] = {1.0f - fx, fx}, wys[2] = {1.0f - fy, fy};
 
+/* Zeroes a[0, na) and b[0, nb) (32-bit words): the depth reconstruction and the flags
+ * before each frame, the history once. (A kernel rather than clEnqueueFillBuffer, which
+ * oclgrind's uninitialised-memory check does not see.) */
+__kernel void clear(__global uint *a, int na, __global uint *b, int nb)
+{
+    const int i = get_global_id(0);
+    if (i < na) a[i] = 0u;
+    if (i < nb) b[i] = 0u;
+}
+
 /* Stage 1 (dilate) + stage 2 (scatter), the encoded colour and the input checks, in one
- * pass over the render-res inputs.
+ * pass over the render-res inputs; VEC pixels of a row per work-item (the transfer
+ * function runs on them as a vector).
  * recon: h*w uint, cleared to 0 (far) before this kernel; X: 3 planes T; lr: stack. */
 __kernel void prepare(__global const float *color, __global const float *depth,
                       __global const float *motion, __global const float *reactive,
@@ -281,82 +346,93 @@ __kernel void prepare(__global const float *color, __global const float *depth,
                       __global uint *recon, __global T *X, __global float *lr,
                       __global uint *flags)
 {
-    const int j = get_global_id(0), i = get_global_id(1);
-    if (j >= w || i >= h) return;
-    const int p = i * w + j, hw = w * h;
+    const int j0 = get_global_id(0) * VEC, i = get_global_id(1);
+    if (j0 >= w || i >= h) return;
+    const int hw = w * h, n = min(VEC, w - j0);
     const float2 ms = (float2)(msx, msy);
+    /* the colour of the VEC pixels, gathered for the vector transfer function */
+    float cr[VEC], cg[VEC], cb[VEC];
+    for (int l = 0; l < VEC; ++l) {
+        const int j = min(j0 + l, w - 1), p = i * w + j;
+        const float3 c = ld_color(color, p, inv_exposure);
+        cr[l] = c.x;
+        cg[l] = c.y;
+        cb[l] = c.z;
+        if (l >= n) continue;       /* past the row's end: only the colour, for the vector */
 
-    /* input checks on this pixel's own values */
-    uint bad = 0;
-    const float3 c_raw = vload3(p, color);
-    const float d_raw = depth[p];
-    const float2 m_raw = vload2(p, motion);
-    if (any(isfinite(c_raw) == (int3)(0))) bad |= F_COLOR_NONFINITE;
-    if (!isfinite(d_raw)) bad |= F_DEPTH_NONFINITE;
-    else if (!(d_raw >= 0.0f && d_raw <= 1.0f)) bad |= F_DEPTH_RANGE;
-    if (any(isfinite(m_raw) == (int2)(0))) bad |= F_MOTION_NONFINITE;
-    float r = 0.0f;
-    if (has_reactive) {
-        r = reactive[p];
-        if (!isfinite(r)) {
-            bad |= F_REACTIVE_NONFINITE;
+        /* input checks on this pixel's own values */
+        uint bad = 0;
+        const float3 c_raw = vload3(p, color);
+        const float d_raw = depth[p];
+        const float2 m_raw = vload2(p, motion);
+        if (any(isfinite(c_raw) == (int3)(0))) bad |= F_COLOR_NONFINITE;
+        if (!isfinite(d_raw)) bad |= F_DEPTH_NONFINITE;
+        else if (!(d_raw >= 0.0f && d_raw <= 1.0f)) bad |= F_DEPTH_RANGE;
+        if (any(isfinite(m_raw) == (int2)(0))) bad |= F_MOTION_NONFINITE;
+        float r = 0.0f;
+        if (has_reactive) {
+            r = reactive[p];
+            if (!isfinite(r)) {
+                bad |= F_REACTIVE_NONFINITE;
 #if SANITIZE
-            r = 0.0f;
+                r = 0.0f;
 #endif
-        } else if (!(r >= 0.0f && r <= 1.0f)) {
-            bad |= F_REACTIVE_RANGE;
-        }
-    }
-    if (bad) {
-        atomic_or(flags, bad);
-        /* element counts, for the report of what SANITIZE replaced */
-        const int3 fc = isfinite(c_raw);
-        const int2 fm = isfinite(m_raw);
-        if (bad & F_COLOR_NONFINITE) atomic_add(flags + 1, (uint)((fc.x == 0) + (fc.y == 0) + (fc.z == 0)));
-        if (bad & F_DEPTH_NONFINITE) atomic_inc(flags + 2);
-        if (bad & F_MOTION_NONFINITE) atomic_add(flags + 3, (uint)((fm.x == 0) + (fm.y == 0)));
-        if (bad & F_REACTIVE_NONFINITE) atomic_inc(flags + 4);
-    }
-
-    /* s2: the first neighbour with the nearest (largest) depth, FSR2's order; the
-     * centre comes first so it wins ties. */
-    const int2 offs[9] = {(int2)(0, 0), (int2)(1, 0), (int2)(0, 1), (int2)(0, -1), (int2)(-1, 0),
-                          (int2)(-1, 1), (int2)(1, 1), (int2)(-1, -1), (int2)(1, -1)};
-    float best = ld_depth(depth, p, depth_inverted);
-    int bi = p;
-    for (int k = 1; k < 9; ++k) {
-        const int jj = j + offs[k].x, ii = i + offs[k].y;
-        if (jj < 0 || jj >= w || ii < 0 || ii >= h) continue;
-        const float d = ld_depth(depth, ii * w + jj, depth_inverted);
-        if (d > best) { best = d; bi = ii * w + jj; }
-    }
-    const float2 m = ld_motion(motion, bi, ms);
-    lr[L_DEPTH * hw + p] = best;
-    lr[L_MX * hw + p] = m.x;
-    lr[L_MY * hw + p] = m.y;
-    lr[L_REACTIVE * hw + p] = r;
-
-    /* s3: scatter-max of the dilated depth onto the previous frame's pixels. Depth is
-     * >= 0, so its float bits order like the floats; the sign bit is cleared so that
-     * -0.0 does not win over everything. */
-    {
-        SCATTER_TAPS(j, i, m)
-        const uint bits = as_uint(best) & 0x7fffffffu;
-        for (int b = 0; b < 2; ++b)
-            for (int a = 0; a < 2; ++a) {
-                const float wk = wxs[a] * wys[b];
-                const float xk = x0 + (float)a, yk = y0 + (float)b;
-                if (xk >= 0.0f && xk <= (float)(w - 1) && yk >= 0.0f && yk <= (float)(h - 1) &&
-                    wk > 0.01f)
-                    atomic_max(recon + (int)yk * w + (int)xk, bits);
+            } else if (!(r >= 0.0f && r <= 1.0f)) {
+                bad |= F_REACTIVE_RANGE;
             }
+        }
+        if (bad) {
+            atomic_or(flags, bad);
+            /* element counts, for the report of what SANITIZE replaced */
+            const int3 fc = isfinite(c_raw);
+            const int2 fm = isfinite(m_raw);
+            if (bad & F_COLOR_NONFINITE)
+                atomic_add(flags + 1, (uint)((fc.x == 0) + (fc.y == 0) + (fc.z == 0)));
+            if (bad & F_DEPTH_NONFINITE) atomic_inc(flags + 2);
+            if (bad & F_MOTION_NONFINITE) atomic_add(flags + 3, (uint)((fm.x == 0) + (fm.y == 0)));
+            if (bad & F_REACTIVE_NONFINITE) atomic_inc(flags + 4);
+        }
+
+        /* s2: the first neighbour with the nearest (largest) depth, FSR2's order; the
+         * centre comes first so it wins ties. */
+        const int2 offs[9] = {(int2)(0, 0), (int2)(1, 0), (int2)(0, 1), (int2)(0, -1), (int2)(-1, 0),
+                              (int2)(-1, 1), (int2)(1, 1), (int2)(-1, -1), (int2)(1, -1)};
+        float best = ld_depth(depth, p, depth_inverted);
+        int bi = p;
+        for (int k = 1; k < 9; ++k) {
+            const int jj = j + offs[k].x, ii = i + offs[k].y;
+            if (jj < 0 || jj >= w || ii < 0 || ii >= h) continue;
+            const float d = ld_depth(depth, ii * w + jj, depth_inverted);
+            if (d > best) { best = d; bi = ii * w + jj; }
+        }
+        const float2 m = ld_motion(motion, bi, ms);
+        lr[L_DEPTH * hw + p] = best;
+        lr[L_MX * hw + p] = m.x;
+        lr[L_MY * hw + p] = m.y;
+        lr[L_REACTIVE * hw + p] = r;
+
+        /* s3: scatter-max of the dilated depth onto the previous frame's pixels. Depth is
+         * >= 0, so its float bits order like the floats; the sign bit is cleared so that
+         * -0.0 does not win over everything. */
+        {
+            SCATTER_TAPS(j, i, m)
+            const uint bits = as_uint(best) & 0x7fffffffu;
+            for (int b = 0; b < 2; ++b)
+                for (int a = 0; a < 2; ++a) {
+                    const float wk = wxs[a] * wys[b];
+                    const float xk = x0 + (float)a, yk = y0 + (float)b;
+                    if (xk >= 0.0f && xk <= (float)(w - 1) && yk >= 0.0f && yk <= (float)(h - 1) &&
+                        wk > 0.01f)
+                        atomic_max(recon + (int)yk * w + (int)xk, bits);
+                }
+        }
     }
 
     /* transfer function */
-    const float3 c = ld_color(color, p, inv_exposure);
-    ST(X, p, encode(c.x, pq_scale));
-    ST(X, hw + p, encode(c.y, pq_scale));
-    ST(X, 2 * hw + p, encode(c.z, pq_scale));
+    const int p0 = i * w + j0;
+    st_plane(X, p0, encode(VLD(cr), pq_scale), n);
+    st_plane(X, hw + p0, encode(VLD(cg), pq_scale), n);
+    st_plane(X, 2 * hw + p0, encode(VLD(cb), pq_scale), n);
 }
 
 /* Stage 3: the reconstructed previous depth read bilinearly at p + motion (taps that
@@ -406,67 +482,68 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
 #endif
 }
 
-/* What stage 4 and 5 give one output pixel. */
+/* What stages 4 and 5 give VEC output pixels. */
 typedef struct {
-    float up[3], col[3], mn[3], mx[3], lg[6];
-    float depth, mvx, mvy, dd, react, cnt;
-    int valid;
+    fv up[3], col[3], mn[3], mx[3], lg[6];
+    fv depth, mvx, mvy, dd, react, cnt;
+    iv valid;
 #if !NET
-    float bmin[3], bmax[3];
+    fv bmin[3], bmax[3];
 #endif
 } Gathered;
 
-/* Stages 4 and 5 at output pixel (I, J). bx, by: (J + 0.5) w / W - 0.5 per column and
- * row (float64 on the host, rounded, as the oracle's constants). */
-inline Gathered gather(int I, int J, __global const T *X, __global const float *lr,
+/* Stages 4 and 5 at output pixels (I, J[lane]). bx, by: (J + 0.5) w / W - 0.5 per column
+ * and row (float64 on the host, rounded, as the oracle's constants). */
+inline Gathered gather(int I, iv J, __global const T *X, __global const float *lr,
                        __global const float *bx, __global const float *by, float jx, float jy,
                        int w, int h, int W, int H, float sx, float sy, int reset,
                        __global const T *hist)
 {
     Gathered g;
     const int hw = w * h, HW = W * H;
-    const float u = grid_round_trip(clamp(bx[J] - jx, 0.0f, (float)(w - 1)), w);
-    const float v = grid_round_trip(clamp(by[I] - jy, 0.0f, (float)(h - 1)), h);
-    const Cubic cb = cubic_at(u, v, w, h);
+    const fv u = grid_round_trip(clamp(GATHER(LDF, bx, J) - jx, 0.0f, (float)(w - 1)), w);
+    const fv v = grid_round_trip(FV(clamp(by[I] - jy, 0.0f, (float)(h - 1))), h);
+    const Taps4 cx = cubic_taps(u, w, 1), cy = cubic_taps(v, h, w);
     for (int c = 0; c < 3; ++c)
-        g.up[c] = clamp(cubic_T(X + c * hw, cb), 0.0f, 1.0f);
-    const Linear lb = linear_at(u, v, w, h);
-    g.depth = linear_f(lr + L_DEPTH * hw, lb);
-    g.mvx = linear_f(lr + L_MX * hw, lb) * sx;
-    g.mvy = linear_f(lr + L_MY * hw, lb) * sy;
-    g.dd = linear_f(lr + L_DD * hw, lb);
-    g.react = linear_f(lr + L_REACTIVE * hw, lb);
+        g.up[c] = clamp(cubic_T(X + c * hw, cx, cy), 0.0f, 1.0f);
+    const Taps2 lx = linear_taps(u, w, 1), ly = linear_taps(v, h, w);
+    g.depth = linear_f(lr + L_DEPTH * hw, lx, ly);
+    g.mvx = linear_f(lr + L_MX * hw, lx, ly) * sx;
+    g.mvy = linear_f(lr + L_MY * hw, lx, ly) * sy;
+    g.dd = linear_f(lr + L_DD * hw, lx, ly);
+    g.react = linear_f(lr + L_REACTIVE * hw, lx, ly);
 #if !NET
     for (int c = 0; c < 3; ++c) {
-        g.bmin[c] = linear_f(lr + (L_NMIN + c) * hw, lb);
-        g.bmax[c] = linear_f(lr + (L_NMAX + c) * hw, lb);
+        g.bmin[c] = linear_f(lr + (L_NMIN + c) * hw, lx, ly);
+        g.bmax[c] = linear_f(lr + (L_NMAX + c) * hw, lx, ly);
     }
 #endif
 
     /* s6: the history at P + motion; off-screen or reset pixels start afresh */
-    const float su = (float)J + g.mvx, sv = (float)I + g.mvy;
-    const int off = su < -0.5f || su > (float)W - 0.5f || sv < -0.5f || sv > (float)H - 0.5f;
-    g.valid = !off && !reset;
-    if (g.valid) {
-        const float uc = grid_round_trip(clamp(su, 0.0f, (float)(W - 1)), W);
-        const float vc = grid_round_trip(clamp(sv, 0.0f, (float)(H - 1)), H);
-        const Cubic ch = cubic_at(uc, vc, W, H);
+    const fv su = CONVERT_FV(J) + g.mvx, sv = (float)I + g.mvy;
+    const iv off = (su < -0.5f) | (su > (float)W - 0.5f) | (sv < -0.5f) | (sv > (float)H - 0.5f);
+    g.valid = reset ? (iv)(0) : (off == (iv)(0));
+    for (int c = 0; c < 3; ++c)
+        g.col[c] = g.mn[c] = g.mx[c] = g.up[c];
+    g.cnt = FV(0.0f);
+    for (int c = 0; c < 6; ++c)
+        g.lg[c] = FV(0.0f);
+    if (ANY(g.valid)) {
+        /* every lane reads at clamped, in-bounds positions; invalid ones are dropped */
+        const fv uc = grid_round_trip(clamp(su, 0.0f, (float)(W - 1)), W);
+        const fv vc = grid_round_trip(clamp(sv, 0.0f, (float)(H - 1)), H);
+        const Taps4 hx = cubic_taps(uc, W, 1), hy = cubic_taps(vc, H, W);
         for (int c = 0; c < 3; ++c)
-            g.col[c] = clamp(cubic_T(hist + c * HW, ch), 0.0f, 1.0f);
-        const Linear lh = linear_at(uc, vc, W, H);
-        g.cnt = linear_T(hist + 3 * HW, lh);
+            g.col[c] = select(g.col[c], clamp(cubic_T(hist + c * HW, hx, hy), 0.0f, 1.0f),
+                              g.valid);
+        const Taps2 gx = linear_taps(uc, W, 1), gy = linear_taps(vc, H, W);
+        g.cnt = select(g.cnt, linear_T(hist + 3 * HW, gx, gy), g.valid);
         for (int c = 0; c < 3; ++c) {
-            g.mn[c] = linear_T(hist + (4 + c) * HW, lh);
-            g.mx[c] = linear_T(hist + (7 + c) * HW, lh);
+            g.mn[c] = select(g.mn[c], linear_T(hist + (4 + c) * HW, gx, gy), g.valid);
+            g.mx[c] = select(g.mx[c], linear_T(hist + (7 + c) * HW, gx, gy), g.valid);
         }
         for (int c = 0; c < 6; ++c)
-            g.lg[c] = linear_T(hist + (10 + c) * HW, lh);
-    } else {
-        for (int c = 0; c < 3; ++c)
-            g.col[c] = g.mn[c] = g.mx[c] = g.up[c];
-        g.cnt = 0.0f;
-        for (int c = 0; c < 6; ++c)
-            g.lg[c] = 0.0f;
+            g.lg[c] = select(g.lg[c], linear_T(hist + (10 + c) * HW, gx, gy), g.valid);
     }
     return g;
 }
@@ -479,44 +556,9 @@ inline void keep_history(__global const T *hist, __global T *hist_out, int q, in
         dst[c * HW + q] = src[c * HW + q];
 }
 
-/* v (VEC pixels) to plane p at q .. q + n - 1; n < VEC at the right edge of a row. */
-inline void st_plane(__global T *p, int q, fv v, int n)
-{
-    if (n == VEC) {
-        STV(p, q, v);
-        return;
-    }
-    float t[VEC];
-    VST(v, t);
-    for (int l = 0; l < n; ++l)
-        ST(p, q + l, t[l]);
-}
-
-inline void st_plane_f(__global float *p, int q, fv v, int n)
-{
-    float t[VEC];
-    VST(v, t);
-    for (int l = 0; l < n; ++l)
-        p[q + l] = t[l];
-}
-
-/* The linear output, interleaved h x w x 3 as the caller wants it. */
-inline void st_rgb(__global float *out, int q, fv r, fv g, fv b, int n)
-{
-    float t[3][VEC];
-    VST(r, t[0]);
-    VST(g, t[1]);
-    VST(b, t[2]);
-    for (int l = 0; l < n; ++l) {
-        out[(q + l) * 3] = t[0][l];
-        out[(q + l) * 3 + 1] = t[1][l];
-        out[(q + l) * 3 + 2] = t[2][l];
-    }
-}
-
 #if !NET
-/* Rule mode: stages 4-9 in one pass (reference.md s8, s9 "rule"). Each work-item
- * gathers VEC pixels one by one, then updates and blends them as vectors. */
+/* Rule mode: stages 4-9 in one pass (reference.md s8, s9 "rule"), VEC pixels of a row
+ * per work-item. */
 __kernel void resolve(__global const T *X, __global const float *lr, __global const float *bx,
                       __global const float *by, float jx, float jy, int w, int h, int W, int H,
                       float sx, float sy, int reset, __global const T *hist,
@@ -532,38 +574,21 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
             keep_history(hist, hist_out, q + l, HW);
         return;
     }
-    float up[3][VEC], col[3][VEC], mn[3][VEC], mx[3][VEC], bmin[3][VEC], bmax[3][VEC];
-    float cnt[VEC], dd[VEC], react[VEC], valid[VEC];
-    for (int l = 0; l < VEC; ++l) {
-        const Gathered g = gather(I, min(J0 + l, W - 1), X, lr, bx, by, jx, jy, w, h, W, H,
-                                  sx, sy, reset, hist);
-        for (int c = 0; c < 3; ++c) {
-            up[c][l] = g.up[c];
-            col[c][l] = g.col[c];
-            mn[c][l] = g.mn[c];
-            mx[c][l] = g.mx[c];
-            bmin[c][l] = g.bmin[c];
-            bmax[c][l] = g.bmax[c];
-        }
-        cnt[l] = g.cnt;
-        dd[l] = g.dd;
-        react[l] = g.react;
-        valid[l] = (float)g.valid;
-    }
-    const fv ddv = VLD(dd);
-    const iv ghost = (ddv > depth_threshold) | (VLD(valid) < 0.5f);
-    const fv cntv = select(fmin(VLD(cnt) + 1.0f, cap), FV(0.0f), ghost);
-    const fv wgt = fmax(1.0f / (1.0f + cntv), VLD(react));
+    const Gathered g = gather(I, min(J0 + LANES, (iv)(W - 1)), X, lr, bx, by, jx, jy, w, h, W, H,
+                              sx, sy, reset, hist);
+    const iv ghost = (g.dd > depth_threshold) | (g.valid == (iv)(0));
+    const fv cnt = select(fmin(g.cnt + 1.0f, cap), FV(0.0f), ghost);
+    const fv wgt = fmax(1.0f / (1.0f + cnt), g.react);
     fv o[3];
     for (int c = 0; c < 3; ++c) {
-        const fv u = VLD(up[c]);
-        const fv hc = fmin(fmax(VLD(col[c]), VLD(bmin[c])), VLD(bmax[c]));
+        const fv u = g.up[c];
+        const fv hc = fmin(fmax(g.col[c], g.bmin[c]), g.bmax[c]);
         o[c] = wgt * u + (1.0f - wgt) * hc;
         st_plane(hist_out, c * HW + q, o[c], n);
-        st_plane(hist_out, (4 + c) * HW + q, select(fmin(VLD(mn[c]), u), u, ghost), n);
-        st_plane(hist_out, (7 + c) * HW + q, select(fmax(VLD(mx[c]), u), u, ghost), n);
+        st_plane(hist_out, (4 + c) * HW + q, select(fmin(g.mn[c], u), u, ghost), n);
+        st_plane(hist_out, (7 + c) * HW + q, select(fmax(g.mx[c], u), u, ghost), n);
     }
-    st_plane(hist_out, 3 * HW + q, cntv, n);
+    st_plane(hist_out, 3 * HW + q, cnt, n);
     for (int c = 0; c < 6; ++c)
         st_plane(hist_out, (10 + c) * HW + q, FV(0.0f), n);
     st_rgb(out, q, decode(o[0], inv_pq_scale) * exposure, decode(o[1], inv_pq_scale) * exposure,
@@ -571,44 +596,45 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     if (debug) {
         st_plane_f(dbg, q, wgt, n);
         st_plane_f(dbg, HW + q, select(FV(0.0f), FV(1.0f), ghost), n);
-        st_plane_f(dbg, 2 * HW + q, ddv, n);
+        st_plane_f(dbg, 2 * HW + q, g.dd, n);
     }
 }
 
 #else
-/* Net mode, stages 4-6: the classifier input at the padded size (W16, H16); pixels
- * past (W, H) replicate the edge (ONNX Pad "edge"). aux [3, H16, W16] T: warped counter,
- * valid, reactive for `compose` (padded too, so that compose reads whole vectors). */
+/* Net mode, stages 4-6: the classifier input at the padded size (W16, H16), VEC pixels
+ * per work-item (W16 is a multiple of 16, so rows hold whole vectors); pixels past
+ * (W, H) replicate the edge (ONNX Pad "edge"). aux [3, H16, W16] T: warped counter,
+ * valid, reactive for `compose`. */
 __kernel void resolve(__global const T *X, __global const float *lr, __global const float *bx,
                       __global const float *by, float jx, float jy, int w, int h, int W, int H,
                       float sx, float sy, int reset, __global const T *hist,
                       __global T *cls_in, __global T *aux, __global const uint *flags,
                       int W16, int H16)
 {
-    const int J16 = get_global_id(0), I16 = get_global_id(1);
-    if (J16 >= W16 || I16 >= H16) return;
+    const int J0 = get_global_id(0) * VEC, I16 = get_global_id(1);
+    if (J0 >= W16 || I16 >= H16) return;
     /* a refused frame only reaches compose's flag check; its inputs are never used */
     if (flags[0] & F_REFUSE) return;
-    const int J = min(J16, W - 1), I = min(I16, H - 1);
-    Gathered g = gather(I, J, X, lr, bx, by, jx, jy, w, h, W, H, sx, sy, reset, hist);
-    const int P = W16 * H16, r = I16 * W16 + J16;
+    const Gathered g = gather(min(I16, H - 1), min(J0 + LANES, (iv)(W - 1)), X, lr, bx, by, jx, jy,
+                              w, h, W, H, sx, sy, reset, hist);
+    const int P = W16 * H16, r = I16 * W16 + J0;
     /* CLASSIFIER_INPUTS order (weights_tools.networks) */
     for (int c = 0; c < 3; ++c) {
-        ST(cls_in, c * P + r, g.up[c]);
-        ST(cls_in, (3 + c) * P + r, g.col[c]);
-        ST(cls_in, (10 + c) * P + r, g.mn[c]);
-        ST(cls_in, (13 + c) * P + r, g.mx[c]);
+        STV(cls_in, c * P + r, g.up[c]);
+        STV(cls_in, (3 + c) * P + r, g.col[c]);
+        STV(cls_in, (10 + c) * P + r, g.mn[c]);
+        STV(cls_in, (13 + c) * P + r, g.mx[c]);
     }
-    ST(cls_in, 6 * P + r, g.depth);
-    ST(cls_in, 7 * P + r, g.mvx);
-    ST(cls_in, 8 * P + r, g.mvy);
-    ST(cls_in, 9 * P + r, 1.0f / (1.0f + g.cnt));
-    ST(cls_in, 16 * P + r, g.dd);
+    STV(cls_in, 6 * P + r, g.depth);
+    STV(cls_in, 7 * P + r, g.mvx);
+    STV(cls_in, 8 * P + r, g.mvy);
+    STV(cls_in, 9 * P + r, 1.0f / (1.0f + g.cnt));
+    STV(cls_in, 16 * P + r, g.dd);
     for (int c = 0; c < 6; ++c)
-        ST(cls_in, (17 + c) * P + r, g.lg[c]);
-    ST(aux, r, g.cnt);
-    ST(aux, P + r, (float)g.valid);
-    ST(aux, 2 * P + r, g.react);
+        STV(cls_in, (17 + c) * P + r, g.lg[c]);
+    STV(aux, r, g.cnt);
+    STV(aux, P + r, select(FV(0.0f), FV(1.0f), g.valid));
+    STV(aux, 2 * P + r, g.react);
 }
 
 /* Net mode, stages 6 (logits x2), 7, 8, 9 in one pass, VEC pixels per work-item.
@@ -635,17 +661,12 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
     const int w2_ = W16 / 2, h2_ = H16 / 2, P2 = w2_ * h2_;
 
     /* Resize linear half_pixel x2: source x = (J + 0.5) / 2 - 0.5, clamped */
-    float lgs[6][VEC];
-    const float ly = clamp(((float)I + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(h2_ - 1));
-    for (int l = 0; l < VEC; ++l) {
-        const float lx = clamp(((float)(J0 + l) + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(w2_ - 1));
-        const Linear ll = linear_at(lx, ly, w2_, h2_);
-        for (int c = 0; c < 6; ++c)
-            lgs[c][l] = linear_T(logits + c * P2, ll);
-    }
+    const fv lxs = clamp((CONVERT_FV(J0 + LANES) + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(w2_ - 1));
+    const fv lys = FV(clamp(((float)I + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(h2_ - 1)));
+    const Taps2 lx = linear_taps(lxs, w2_, 1), ly = linear_taps(lys, h2_, w2_);
     fv lg[6];
     for (int c = 0; c < 6; ++c)
-        lg[c] = VLD(lgs[c]);
+        lg[c] = linear_T(logits + c * P2, lx, ly);
 
     /* visibility ghosting = argmax of logits 0-2 is 0 (first index on ties) */
     const iv ghost = ((lg[0] >= lg[1]) & (lg[0] >= lg[2])) | (LDV(aux, P + r) < 0.5f);

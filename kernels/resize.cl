@@ -2,9 +2,9 @@
  *
  * Build options (one source, modes by -D):
  *   -DMODE=0|1|2        nearest | linear (bilinear) | cubic (bicubic)
- *   -DCOORD=0..4        source coordinate of an output index, per axis:
- *                       0 half_pixel (and half_pixel_symmetric: the host passes its offset)
- *                       1 align_corners  2 asymmetric  3 pytorch_half_pixel  4 tf_crop_and_resize
+ *   -DCOORD=0..5        source coordinate of an output index, per axis: 0 half_pixel,
+ *                       1 align_corners, 2 asymmetric, 3 pytorch_half_pixel,
+ *                       4 tf_crop_and_resize, 5 half_pixel_symmetric (offset from the host)
  *   -DNEAREST_Y, -DNEAREST_X = 0..4   nearest rounding per axis: round_prefer_floor,
  *                       round_prefer_ceil, floor, ceil, and 4 = ceil when the axis
  *                       down-scales else floor (Resize-10/Upsample, as onnxruntime)
@@ -68,13 +68,22 @@ static float div_rn(float a, float b)
 }
 
 /* Output index o -> source coordinate. scale: the given scale (out/in when sizes
- * were given); off: half_pixel_symmetric's offset (0 for half_pixel); r0, r1: the
+ * were given); off: half_pixel_symmetric's offset; r0, r1: the
  * tf_crop_and_resize roi of this axis. */
 static float src_coord(int o, float scale, float off, int in, int out, float r0, float r1)
 {
     const float y = (float)o;
 #if COORD == 0
-    return off + div_rn(y + 0.5f, scale) - 0.5f;
+    return div_rn(y + 0.5f, scale) - 0.5f;
+#elif COORD == 5
+    /* half_pixel_symmetric: onnxruntime evaluates off + (y + 0.5) / scale - 0.5 in double
+     * and rounds once to float. Carry the rounding errors of the quotient and the two
+     * sums (exact residual by fma, TwoSum) and round once at the end, which matches that
+     * except for values within 2^-53 of a float rounding boundary. */
+    const float a = y + 0.5f, q = div_rn(a, scale), ql = fma(-q, scale, a) / scale;
+    const float t = off + q, tb = t - off, te = (off - (t - tb)) + (q - tb);
+    const float u = t - 0.5f, ub = u - t, ue = (t - (u - ub)) + (-0.5f - ub);
+    return u + (ue + (te + ql));
 #elif COORD == 1
     return out == 1 ? 0.0f : div_rn(y * (float)(in - 1), (float)(out - 1));
 #elif COORD == 2

@@ -198,7 +198,7 @@ def single_op(draw):
                                   mode=draw(st.sampled_from(["bilinear", "nearest", "bicubic"])),
                                   padding_mode=draw(st.sampled_from(["zeros", "border", "reflection"])),
                                   align_corners=int(draw(st.booleans())))]
-        if nodes[0].attribute[0].s == b"nearest":
+        if {a.name: a.s for a in nodes[0].attribute}["mode"] == b"nearest":
             # Exact ties between two source pixels round differently: keep samples off them.
             feeds["grid"] = np.round(feeds["grid"] * 64) / 64 + 1 / 256
     return nodes, feeds, inits

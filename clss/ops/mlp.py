@@ -20,7 +20,7 @@ from .twin import make_model
 MAX_WIDTH = 128
 # Layers per kernel; longer chains run as several kernels through global memory.
 MAX_LAYERS = 8
-TUNING = {"XV": 1}
+TUNING = {"XV": 1, "LX": 16}
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,9 @@ def pack(dev: Device, prec: str, layers) -> MlpWeights:
             offsets.append(off)
             blobs += [w.reshape(-1), b]
             off += w.size + b.size
-        buf = dev.to_device(np.concatenate(blobs).astype(storage_dtype(prec)), prec)
+        # fp16 storage mode: values rounded to half, kept as float (kernels/mlp.cl, TW)
+        packed = np.concatenate(blobs).astype(storage_dtype(prec))
+        buf = dev.to_device(packed.astype(np.float32), "fp32") if prec == "fp16" else dev.to_device(packed, prec)
         chunks.append(_Chunk(buf, tuple(widths[s:s + len(part) + 1]), tuple(p[2] for p in part),
                              tuple(p[3] for p in part), tuple(offsets)))
     return MlpWeights(prec, tuple(chunks))
@@ -102,7 +104,8 @@ def mlp(dev: Device, prec: str, x, layers, out=None, tuning=None):
     n, c, h, w = x.shape
     if c != net.widths[0]:
         raise ValueError(f"mlp: input has {c} channels, the first layer takes {net.widths[0]}")
-    xv = {**TUNING, **(tuning or {})}["XV"]
+    t = {**TUNING, **(tuning or {})}
+    xv = t["XV"]
     cur = x
     for i, ch in enumerate(net.chunks):
         last = i == len(net.chunks) - 1
@@ -113,7 +116,11 @@ def mlp(dev: Device, prec: str, x, layers, out=None, tuning=None):
         for k, (a, al, off) in enumerate(zip(ch.acts, ch.alphas, ch.offsets), 1):
             defines.update({f"ACT{k}": a, f"ALPHA{k}": float(al), f"OFF{k}": off})
         kern = dev.kernel("mlp", "mlp", prec, **defines)
-        dev.launch(kern, (-(-(h * w) // (8 * xv)), n), (cur.data, ch.buffer.data, dst.data, np.int32(h * w)))
+        # a fixed work-group size (global rounded up, the kernel guards) so PoCL
+        # compiles one work-group function per network, not one per image size
+        nb = -(-(h * w) // (8 * xv))
+        dev.launch(kern, (-(-nb // t["LX"]) * t["LX"], n), (cur.data, ch.buffer.data, dst.data, np.int32(h * w)),
+                   local_size=(t["LX"], 1))
         cur = dst
     return cur
 
@@ -177,25 +184,22 @@ def cases(level: str = "quick") -> list[Case]:
     ]
     if level == "tiny":
         return tiny
-    quick = tiny + [
+    quick = tiny + [C(*shader, h=7, w=13, name="shader-mlp")]
+    if level == "quick":
+        return quick
+    full = quick + [
         # more than MAX_LAYERS: two kernels through a global intermediate. Not in
         # "tiny": oclgrind 21.10 flags the second kernel's reads as uninitialised
         # on a repeated run in one process although the first kernel (or a fill)
         # wrote every element and the values match onnxruntime.
         C((2,) * 10, ("relu", "none") * 4 + ("sigmoid",), h=3, w=5, name="chained"),
         C(*composition, h=31, w=27, name="clss-composition"),
-        C(*shader, h=7, w=13, name="shader-mlp"),
-    ]
-    if level == "quick":
-        return quick
-    full = quick + [
         C(*composition, n=2, h=1, w=1),
         C(*composition, h=7, w=13),
         C((5, 3), ("none",), h=31, w=27),
         C((23, 17, 3), ("tanh", "relu"), h=7, w=13),
         C((17, 64, 64, 5), ("relu", ("leaky_relu", 0.1), "sigmoid"), n=2, h=9, w=11),
         C((3, 128, 3), ("relu", "none"), h=4, w=6, name="widest"),
-        C(*shader, n=2, h=31, w=27, name="shader-mlp"),
     ]
     for act in ACTIVATIONS:
         full.append(C((7, 9), (act,), h=7, w=13))

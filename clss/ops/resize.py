@@ -38,8 +38,8 @@ COORDS = ("half_pixel", "half_pixel_symmetric", "align_corners", "asymmetric", "
 NEAREST_MODES = ("round_prefer_floor", "round_prefer_ceil", "floor", "ceil", "legacy")
 POLICIES = ("stretch", "not_larger", "not_smaller")
 
-_COORD_DEFINE = {"half_pixel": 0, "half_pixel_symmetric": 0, "align_corners": 1, "asymmetric": 2,
-                 "pytorch_half_pixel": 3, "tf_crop_and_resize": 4}
+_COORD_DEFINE = {"half_pixel": 0, "align_corners": 1, "asymmetric": 2, "pytorch_half_pixel": 3,
+                 "tf_crop_and_resize": 4, "half_pixel_symmetric": 5}
 # Channels per work-item: coordinates and weights are computed once per pixel for them.
 CHANNELS_PER_ITEM = 4
 
@@ -315,6 +315,9 @@ def case(n, c, h, w, *, mode="linear", coord="half_pixel", nearest="round_prefer
         if policy != "stretch":
             attrs["keep_aspect_ratio_policy"] = policy
         full_roi = None if roi is None else [0, 0, roi[0], roi[1], 1, 1, roi[2], roi[3]]
+        if policy != "stretch":  # the policy spans every listed axis: list H and W only
+            attrs["axes"] = [2, 3]
+            full_sz = list(sizes)
         model = twin(x, scales=full_sc, sizes=full_sz, roi=full_roi, **attrs)
 
         def fn(dev, p, x):
@@ -384,8 +387,6 @@ def cases(level: str = "quick") -> list[Case]:
         for mode in MODES:
             for sc, sz in (((1.5, 2.5), None), (None, (4, 6)), ((0.6, 0.5), None)):
                 roi = (0.1, -0.2, 0.8, 1.1) if coord == "tf_crop_and_resize" else None
-                if coord == "tf_crop_and_resize" and sz is None:
-                    sz, sc = (9, 5), None
                 full.append(case(1, 3, 7, 9, mode=mode, coord=coord, scales=sc, sizes=sz, roi=roi, extrap=0.5))
     for nm in NEAREST_MODES[:4]:
         for coord in ("half_pixel", "asymmetric", "align_corners"):

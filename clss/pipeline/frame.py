@@ -7,7 +7,7 @@ puts the caller-facing contract around it.
 
 Per frame (render res h x w, output res H x W, H16 x W16 the size padded to 16):
 
-    fill(recon, 0)
+    clear         recon, flags <- 0
     prepare       color, depth, motion, reactive -> X (encoded colour), lr stack, recon
     depth_diff    recon -> lr[dd]; rule: X -> lr[colour box]
     resolve       rule: X, lr, history -> history', output
@@ -20,6 +20,7 @@ reconstruction is per-frame scratch (reference.md s3).
 """
 from __future__ import annotations
 
+import os
 import time
 import warnings
 
@@ -41,6 +42,18 @@ FLAG_BITS = {1: ("color", "non-finite"), 2: ("depth", "non-finite"), 4: ("motion
              32: ("reactive", "outside [0, 1]")}
 NONFINITE_BITS = 15
 STAGES = ("prepare", "depth_diff", "resolve", "classifier", "compose")
+
+
+def pixels_per_item(dev: Device) -> int:
+    """VEC of kernels/frame.cl: CPUs get 8 pixels per work-item as explicit vectors (what
+    their OpenCL compilers vectorise), other devices one (a work-item is already a lane).
+    $CLSS_FRAME_VEC (1, 4 or 8) overrides it."""
+    env = os.environ.get("CLSS_FRAME_VEC", "").strip()
+    if env:
+        if env not in ("1", "4", "8"):
+            raise ValueError(f"CLSS_FRAME_VEC: expected 1, 4 or 8, got {env!r}")
+        return int(env)
+    return 8 if dev.cl_device.type & cl.device_type.CPU else 1
 
 
 def pad16(n: int) -> int:
@@ -151,9 +164,7 @@ class FrameStep:
         self.sanitize = bool(sanitize)
         self.profile = bool(profile)
         net = mode == "net"
-        # Output-res pixels per work-item (kernels/frame.cl): explicit vectors for CPUs,
-        # one pixel per work-item elsewhere.
-        self.vec = 8 if dev.cl_device.type & cl.device_type.CPU else 1
+        self.vec = pixels_per_item(dev)
         defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec)
         h, w, H, W = self.h, self.w, self.H, self.W
         f32 = np.float32
@@ -187,10 +198,17 @@ class FrameStep:
             self.aux = e((3, self.H16, self.W16), prec)
             self.classifier = ClassifierRunner(dev, prec, classifier, self.cls_in.shape,
                                                force=classifier_backend)
-        self.k = {name: dev.kernel("frame", name, prec, **defines)
-                  for name in ("prepare", "depth_diff", "resolve") + (("compose",) if net else ())}
+        self.k = {name: dev.kernel("frame", name, prec, **defines) for name in
+                  ("clear", "prepare", "depth_diff", "resolve") + (("compose",) if net else ())}
+        # zeroed once: no kernel then ever reads uninitialised memory (oclgrind checks it)
+        self._clear(*self.history)
         self.events: list[tuple[str, cl.Event]] = []
         self.wall: dict[str, float] = {}
+
+    def _clear(self, a, b):
+        na, nb = a.nbytes // 4, b.nbytes // 4
+        return self.dev.launch(self.k["clear"], (max(na, nb),),
+                               (a.data, np.int32(na), b.data, np.int32(nb)))
 
     # -- one frame ------------------------------------------------------------
     def run(self, color, depth, motion, reactive, jitter, reset, *, depth_inverted=True,
@@ -203,13 +221,10 @@ class FrameStep:
         out = self.out if out is None else out
         hist, hist_out = self.history[self.cur], self.history[1 - self.cur]
         ev = []
-        ev.append(("prepare", cl.enqueue_fill_buffer(q, self.recon.data, np.uint32(0), 0,
-                                                     self.recon.nbytes)))
-        ev.append(("prepare", cl.enqueue_fill_buffer(q, self.flags.data, np.uint32(0), 0,
-                                                     self.flags.nbytes)))
+        ev.append(("prepare", self._clear(self.recon, self.flags)))
         pq_scale = self.nits / PQ_PEAK_NITS
         has_r = reactive is not None
-        ev.append(("prepare", dev.launch(self.k["prepare"], (w, h), (
+        ev.append(("prepare", dev.launch(self.k["prepare"], (-(-w // self.vec), h), (
             color.data, depth.data, motion.data, (reactive if has_r else depth).data, i32(has_r),
             i32(w), i32(h), i32(bool(depth_inverted)), f(motion_scale[0]), f(motion_scale[1]),
             f(1.0 / exposure), f(pq_scale), self.recon.data, self.X.data, self.lr.data,
