@@ -101,4 +101,51 @@ typedef float8 A8;
 #define APPLY_ACT(x, alpha) (x)
 #endif
 
+/* Loads and stores without builtin calls in the hot loops, where the host
+ * asks for them (-DCLSS_CLANG_VECTORS=1, on PoCL). PoCL 3.0
+ * (pocl-binary-distribution) links its kernel library, built for haswell,
+ * into kernels built for the host CPU, and LLVM does not inline across that
+ * mismatch: each vload8/vload_half/mad/min becomes an out-of-line call, and a
+ * call makes every live vector register (all caller-saved) spill. Clang's
+ * vector extensions express the same accesses as plain loads and stores
+ * (element-aligned, like vloadn). Elsewhere (other vendors, oclgrind, which
+ * cannot simulate half<->float vector conversions) the common.h macros. */
+#ifndef CLSS_CLANG_VECTORS
+#define CLSS_CLANG_VECTORS 0
+#endif
+#if defined(__clang__) && CLSS_CLANG_VECTORS
+#if defined(CLSS_FP16)
+typedef half Th1 __attribute__((ext_vector_type(1)));
+typedef half Th8 __attribute__((ext_vector_type(8), aligned(2)));
+typedef float Ta1 __attribute__((ext_vector_type(1)));
+#define FLD(p, i) (__builtin_convertvector(*(__global const Th1 *)((p) + (i)), Ta1).x)
+#define FLD8(p, i) __builtin_convertvector(*(__global const Th8 *)((p) + (i)), A8)
+#define FST8(p, i, v) (*(__global Th8 *)((p) + (i)) = __builtin_convertvector((A8)(v), Th8))
+#define FST(p, i, v) (*(__global Th1 *)((p) + (i)) = __builtin_convertvector((Ta1)(v), Th1))
+#else
+typedef T Tv8 __attribute__((ext_vector_type(8), aligned(sizeof(T))));
+#define FLD(p, i) ((A)(p)[(i)])
+#define FLD8(p, i) ((A8)(*(__global const Tv8 *)((p) + (i))))
+#define FST8(p, i, v) (*(__global Tv8 *)((p) + (i)) = (v))
+#define FST(p, i, v) ((p)[(i)] = (T)(v))
+#endif
+#else
+#define FLD LD
+#define FLD8 LD8
+#define FST8 ST8
+#define FST ST
+#endif
+
+/* Weights (conv, mlp): in fp16 storage mode the host hands them over as float,
+ * rounded to half (conv.cl's weights_to_float once per call, mlp's packing once
+ * per network), so hot loops broadcast them with one load instead of a load, a
+ * half->float conversion and a shuffle. */
+#if defined(CLSS_FP16)
+typedef float TW;
+#define LDW(p, i) ((p)[(i)])
+#else
+typedef T TW;
+#define LDW FLD
+#endif
+
 #endif /* CLSS_COMMON_H */

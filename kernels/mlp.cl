@@ -39,45 +39,9 @@
 #define OB 4 /* outputs per pass over a layer's inputs: each input load feeds OB FMAs */
 #endif
 
-/* Loads and stores without builtin calls where the host asks for them
- * (-DCLSS_CLANG_VECTORS=1, on PoCL): see kernels/conv.cl for why (PoCL does
- * not inline its library, and a call spills every vector register). */
-#ifndef CLSS_CLANG_VECTORS
-#define CLSS_CLANG_VECTORS 0
-#endif
-#if defined(__clang__) && CLSS_CLANG_VECTORS
-#if defined(CLSS_FP16)
-typedef half Th1 __attribute__((ext_vector_type(1)));
-typedef half Th8 __attribute__((ext_vector_type(8), aligned(2)));
-typedef float Ta1 __attribute__((ext_vector_type(1)));
-#define FLD(p, i) (__builtin_convertvector(*(__global const Th1 *)((p) + (i)), Ta1).x)
-#define FLD8(p, i) __builtin_convertvector(*(__global const Th8 *)((p) + (i)), A8)
-#define FST8(p, i, v) (*(__global Th8 *)((p) + (i)) = __builtin_convertvector((A8)(v), Th8))
-#define FST(p, i, v) (*(__global Th1 *)((p) + (i)) = __builtin_convertvector((Ta1)(v), Th1))
-#else
-typedef T Tv8 __attribute__((ext_vector_type(8), aligned(sizeof(T))));
-#define FLD(p, i) ((A)(p)[(i)])
-#define FLD8(p, i) ((A8)(*(__global const Tv8 *)((p) + (i))))
-#define FST8(p, i, v) (*(__global Tv8 *)((p) + (i)) = (v))
-#define FST(p, i, v) ((p)[(i)] = (T)(v))
-#endif
-#else
-#define FLD LD
-#define FLD8 LD8
-#define FST8 ST8
-#define FST ST
-#endif
-
-/* Packed weights: float in fp16 storage mode (fp16-rounded values, packed
- * as float by the host once per network, so the unrolled loops broadcast
- * them without a conversion each); the storage type otherwise. */
-#if defined(CLSS_FP16)
-typedef float TW;
-#define LDW(p, i) ((p)[(i)])
-#else
-typedef T TW;
-#define LDW FLD
-#endif
+/* FLD/FLD8/FST/FST8 and TW/LDW (packed weights: float in fp16 storage mode,
+ * rounded to half by the host, so the unrolled loops broadcast them without a
+ * conversion each): kernels/common.h. */
 
 /* Per-layer activation (common.h's APPLY_ACT serves one ACT per build). */
 inline A8 act8(A8 v, int kind, float alpha)
