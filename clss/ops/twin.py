@@ -40,12 +40,12 @@ def make_model(nodes: Sequence[onnx.NodeProto], inputs: dict, outputs, *,
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)],
                               producer_name="clss")
     model.ir_version = IR_VERSION
-    _fill_output_shapes(model)
+    fill_output_shapes(model)
     onnx.checker.check_model(model)
     return model
 
 
-def _fill_output_shapes(model: onnx.ModelProto) -> None:
+def fill_output_shapes(model: onnx.ModelProto) -> None:
     """Graph outputs are declared without a shape; take the inferred one
     (the checker wants a shape field, and a wrong guess would be worse)."""
     inferred = onnx.shape_inference.infer_shapes(model)

@@ -18,6 +18,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
+from ..ops.twin import fill_output_shapes
 from .contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
                        output_size, to_internal, validate_frame)
 
@@ -459,22 +460,9 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
                                          f"{H}x{W}, cap={cap:g}, hdr={hdr}, nits={nits:g}")
     model.ir_version = IR_VERSION
     if debug:
-        _fill_output_shapes(model)
+        fill_output_shapes(model)
     onnx.checker.check_model(model)
     return model
-
-
-def _fill_output_shapes(model):
-    """Debug outputs are declared shapeless; copy the inferred shapes (the checker
-    wants a shape field)."""
-    inferred = onnx.shape_inference.infer_shapes(model)
-    known = {v.name: v for v in list(inferred.graph.value_info) + list(inferred.graph.output)}
-    for out in model.graph.output:
-        v = known.get(out.name)
-        if v is not None and v.type.tensor_type.HasField("shape"):
-            out.type.CopyFrom(v.type)
-        elif not out.type.tensor_type.HasField("shape"):
-            out.type.tensor_type.shape.SetInParent()
 
 
 def initial_history(output_hw) -> np.ndarray:
