@@ -101,6 +101,15 @@ typedef float8 A8;
 #define APPLY_ACT(x, alpha) (x)
 #endif
 
+/* Raw-bit vectors for data movement (vload8/vload16 of TB). */
+#if defined(CLSS_FP16) || defined(CLSS_FP16_NATIVE)
+typedef ushort8 TB8;
+typedef ushort16 TB16;
+#else
+typedef uint8 TB8;
+typedef uint16 TB16;
+#endif
+
 /* Loads and stores without builtin calls in the hot loops, where the host
  * asks for them (-DCLSS_CLANG_VECTORS=1, on PoCL). PoCL 3.0
  * (pocl-binary-distribution) links its kernel library, built for haswell,

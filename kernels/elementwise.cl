@@ -17,11 +17,6 @@
  */
 #include "common.h"
 
-#if defined(CLSS_FP16) || defined(CLSS_FP16_NATIVE)
-typedef ushort8 TB8;
-#else
-typedef uint8 TB8;
-#endif
 
 #define OP_ADD 0
 #define OP_SUB 1

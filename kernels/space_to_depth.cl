@@ -6,9 +6,8 @@
  *   -DCRD=1  CRD order: channels outer, channel c*B*B + by*B + bx
  *            (ONNX DepthToSpace mode=CRD, PyTorch pixel_shuffle/pixel_unshuffle)
  *
- * NDRange: (output width, output height, N * output channels); dimension 0
- * walks the contiguous output row. Each work-item moves one element as raw
- * bits (TB), so NaN payloads and signed zeros survive.
+ * Dimension 0 of each NDRange walks contiguous rows. Elements move as raw bits
+ * (TB), so NaN payloads and signed zeros survive.
  */
 #include "common.h"
 
@@ -16,21 +15,43 @@
 #define CRD 0
 #endif
 
-/* in: [N, C, H*B, W*B] -> out: [N, C*B*B, H, W] */
-__kernel void space_to_depth(__global const TB *in, __global TB *out,
-                             int C, int H, int W, int B, int NCo)
+/* Output channel of input channel c at block position (by, bx). */
+inline int s2d_channel(int c, int by, int bx, int C, int B)
 {
-    const int x = get_global_id(0), y = get_global_id(1), nc = get_global_id(2);
-    if (x >= W || y >= H || nc >= NCo) return;
-    const int Co = C * B * B;
-    const int n = nc / Co, co = nc % Co;
 #if CRD
-    const int c = co / (B * B), by = (co / B) % B, bx = co % B;
+    return (c * B + by) * B + bx;
 #else
-    const int c = co % C, by = (co / C) / B, bx = (co / C) % B;
+    return (by * B + bx) * C + c;
 #endif
-    const long src = (((long)n * C + c) * (H * B) + (y * B + by)) * (long)(W * B) + (x * B + bx);
-    out[((long)nc * H + y) * W + x] = in[src];
+}
+
+/* in: [N, C, H*B, W*B] -> out: [N, C*B*B, H, W].
+ * NDRange: (ceil(W / 8), H, N * C * B). A work-item takes 8 output columns of one
+ * input row (c, y*B + by): it reads the 8*B contiguous input elements once and writes
+ * B runs of 8 contiguous outputs, one per bx, so both sides stream through memory
+ * (one element per work-item made every read a stride-B gather). B = 2, the CLSS
+ * classifier's case, de-interleaves with vector loads; other B loop. */
+__kernel void space_to_depth(__global const TB *in, __global TB *out,
+                             int C, int H, int W, int B, int NCB)
+{
+    const int x0 = get_global_id(0) * 8, y = get_global_id(1), ncb = get_global_id(2);
+    if (x0 >= W || y >= H || ncb >= NCB) return;
+    const int by = ncb % B, nc = ncb / B, c = nc % C, n = nc / C;
+    const long Wi = (long)W * B, plane = (long)H * W;
+    __global const TB *row = in + ((long)nc * H * B + (long)y * B + by) * Wi + (long)x0 * B;
+    __global TB *o = out + (long)n * C * B * B * plane + (long)y * W + x0;
+    if (B == 2 && x0 + 8 <= W) {
+        const TB16 v = vload16(0, row);
+        vstore8(v.even, 0, o + s2d_channel(c, by, 0, C, 2) * plane);
+        vstore8(v.odd, 0, o + s2d_channel(c, by, 1, C, 2) * plane);
+        return;
+    }
+    const int nx = min(8, W - x0);
+    for (int bx = 0; bx < B; ++bx) {
+        __global TB *ob = o + s2d_channel(c, by, bx, C, B) * plane;
+        for (int e = 0; e < nx; ++e)
+            ob[e] = row[e * B + bx];
+    }
 }
 
 /* in: [N, C*B*B, H, W] -> out: [N, C, H*B, W*B] */

@@ -26,9 +26,9 @@ def space_to_depth(dev: Device, prec: str, x, block: int, mode: str = "DCR", out
     h, w = hh // block, ww // block
     out = out if out is not None else dev.empty((n, c * block * block, h, w), prec)
     k = dev.kernel("space_to_depth", "space_to_depth", prec, CRD=_mode(mode))
-    dev.launch(k, (w, h, n * c * block * block),
+    dev.launch(k, (-(-w // 8), h, n * c * block),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(block),
-                np.int32(n * c * block * block)))
+                np.int32(n * c * block)))
     return out
 
 
