@@ -13,8 +13,9 @@
  *   -DCPT=n             channels per work-item (default 4): the coordinates and weights
  *                       of a pixel are computed once and reused for n channels
  *
- * NDRange: (output width, output height, N * ceil(C / CPT)); dimension 0 walks the
- * contiguous output row. Nearest copies raw bits (TB): bit-exact in every precision.
+ * Two launches: axis_tables (coordinates, taps and weights per output row and column),
+ * then resize, NDRange (output width, output height, N * ceil(C / CPT)); dimension 0
+ * walks the contiguous output row. Nearest copies raw bits (TB): bit-exact in every precision.
  *
  * Coordinates follow the ONNX spec and onnxruntime in float32, operation by operation
  * (the ONNX Python reference evaluates the same formulas in float64; a tie that float32
@@ -171,9 +172,43 @@ static void axis_taps(float x, int in, float a, float *w, int *idx)
     for (int k = 0; k < TAPS; ++k) idx[k] = clamp(i0 + k, 0, in - 1);
 }
 
+/* Everything that depends on one axis only, once per output row and column instead of
+ * once per output element and channel block (the correctly rounded division alone is a
+ * loop of library calls on some compilers). One work-item per output index: o < Ho is
+ * row o, else column o - Ho. tab layout, n = Ho + Wo:
+ *   coord[n] float   the source coordinate
+ *   idx[n * TAPS]    int tap indices, edge-clamped (nearest: idx[o] is the pixel)
+ *   wt[n * TAPS]     float tap weights (linear/cubic without antialias) */
+__kernel void axis_tables(int Ho, int Wo, int H, int W, float sy, float sx, float oy, float ox,
+                          float4 roi, float cubic_a, __global float *coord, __global int *idx,
+                          __global float *wt)
+{
+    const int o = get_global_id(0);
+    if (o >= Ho + Wo) return;
+    const int is_x = o >= Ho, i = is_x ? o - Ho : o;
+    const int in = is_x ? W : H;
+    const float s = is_x ? sx : sy;
+    const float f = is_x ? src_coord(i, sx, ox, W, Wo, roi.s1, roi.s3)
+                         : src_coord(i, sy, oy, H, Ho, roi.s0, roi.s2);
+    coord[o] = f;
+#if MODE == 0
+    idx[o] = nearest_index(f, in, is_x ? NEAREST_X : NEAREST_Y, s);
+#elif !ANTIALIAS
+    float w[TAPS];
+    int t[TAPS];
+    axis_taps(f, in, cubic_a, w, t);
+    for (int k = 0; k < TAPS; ++k) {
+        idx[o * TAPS + k] = t[k];
+        wt[o * TAPS + k] = w[k];
+    }
+#endif
+}
+
+/* tab: axis_tables' output for this resize (rows at 0, columns at Ho). */
 __kernel void resize(__global const T *in, __global T *out,
                      int C, int H, int W, int Ho, int Wo, int NCb,
-                     float sy, float sx, float oy, float ox, float4 roi, float extrap, float cubic_a)
+                     float sy, float sx, float extrap, float cubic_a,
+                     __global const float *coord, __global const int *idx, __global const float *wt)
 {
     const int X = get_global_id(0), Y = get_global_id(1), ncb = get_global_id(2);
     if (X >= Wo || Y >= Ho || ncb >= NCb) return;
@@ -183,9 +218,11 @@ __kernel void resize(__global const T *in, __global T *out,
     const long plane = (long)H * W, oplane = (long)Ho * Wo;
     __global const T *src = in + ((long)n * C + c0) * plane;
     const long o = ((long)n * C + c0) * oplane + (long)Y * Wo + X;
+    const int ox_ = Ho + X;
 
-    const float fy = src_coord(Y, sy, oy, H, Ho, roi.s0, roi.s2);
-    const float fx = src_coord(X, sx, ox, W, Wo, roi.s1, roi.s3);
+#if COORD == 4 || ANTIALIAS
+    const float fy = coord[Y], fx = coord[ox_];
+#endif
 #if COORD == 4
     /* tf_crop_and_resize: a source outside the input is the extrapolation value. */
     if (fy < 0.0f || fy > (float)(H - 1) || fx < 0.0f || fx > (float)(W - 1)) {
@@ -195,7 +232,7 @@ __kernel void resize(__global const T *in, __global T *out,
 #endif
 
 #if MODE == 0
-    const long s = (long)nearest_index(fy, H, NEAREST_Y, sy) * W + nearest_index(fx, W, NEAREST_X, sx);
+    const long s = (long)idx[Y] * W + idx[ox_];
     __global const TB *sb = (__global const TB *)src;
     __global TB *ob = (__global TB *)out;
     for (int c = 0; c < nc; ++c) ob[o + c * oplane] = sb[c * plane + s];
@@ -232,13 +269,15 @@ __kernel void resize(__global const T *in, __global T *out,
     for (int c = 0; c < nc; ++c) ST(out, o + c * oplane, acc[c]);
 
 #else
-    float wyf[TAPS], wxf[TAPS];
-    int iy[TAPS], ix[TAPS];
-    axis_taps(fy, H, cubic_a, wyf, iy);
-    axis_taps(fx, W, cubic_a, wxf, ix);
     A wy[TAPS], wx[TAPS];
+    int iy[TAPS], ix[TAPS];
 #pragma unroll
-    for (int k = 0; k < TAPS; ++k) { wy[k] = CONVERT_A(wyf[k]); wx[k] = CONVERT_A(wxf[k]); }
+    for (int k = 0; k < TAPS; ++k) {
+        wy[k] = CONVERT_A(wt[Y * TAPS + k]);
+        wx[k] = CONVERT_A(wt[ox_ * TAPS + k]);
+        iy[k] = idx[Y * TAPS + k];
+        ix[k] = idx[ox_ * TAPS + k];
+    }
     for (int c = 0; c < nc; ++c) {
         __global const T *p = src + c * plane;
         A acc = A_ZERO;

@@ -128,7 +128,7 @@ def test_capture_pools_allocations_and_records_events(dev):
             assert len(cap.events) == 1 and cap.event_ms() >= 0
     assert "launch" not in dev.__dict__ and "empty" not in dev.__dict__
     assert outs[0].data.int_ptr == outs[1].data.int_ptr      # run 2 reused run 1's buffer
-    assert cap.launches == [("space_to_depth", (2, 2, 8))]
+    assert cap.launches == [("space_to_depth", (1, 2, 4))]   # (ceil(W/8), H, N*C*B)
     assert fit_local((4,), (8, 2, 1)) == (4, 1, 1) and fit_local((3,), (8, 2)) is None
 
 

@@ -23,6 +23,7 @@ Semantics are the ONNX spec's, evaluated in float32 as onnxruntime (the twin) do
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 
 import numpy as np
 import pyopencl.cltypes as clt
@@ -87,6 +88,36 @@ def _nearest_rule(m) -> int:
     return NEAREST_MODES.index(m)
 
 
+_TABLES_KEPT = 256  # per device; a few KiB each
+
+
+def _axis_tables(dev: Device, prec: str, defines: dict, mode: str, sizes, scales, off, roi, cubic_a):
+    """Per-axis coordinates, taps and weights (kernels/resize.cl axis_tables) for one
+    resize geometry, computed once on the device and kept: they cost O(Ho + Wo), the
+    pixels O(Ho * Wo * C). Kept on the real device (a model's planned device hands
+    its allocations out per call), so a geometry's tables outlive every launch using them."""
+    base = getattr(dev, "base", dev)
+    cache = base.__dict__.setdefault("_resize_tables", OrderedDict())
+    key = (prec, tuple(sorted(defines.items())), tuple(sizes), tuple(float(v) for v in (*scales, *off, *roi, cubic_a)))
+    hit = cache.get(key)
+    if hit is not None:
+        cache.move_to_end(key)
+        return hit
+    ho, wo, h, w = sizes
+    taps = 1 if mode == "nearest" else (2 if mode == "linear" else 4)
+    na = ho + wo
+    tabs = (base.empty((na,), "fp32"), base.empty((na * taps,), "fp32", np.int32), base.empty((na * taps,), "fp32"))
+    kt = base.kernel("resize", "axis_tables", prec, **defines)
+    base.launch(kt, (na,), (np.int32(ho), np.int32(wo), np.int32(h), np.int32(w), _f32(scales[0]),
+                            _f32(scales[1]), _f32(off[0]), _f32(off[1]),
+                            clt.make_float4(*(float(v) for v in roi)), _f32(cubic_a),
+                            *(t.data for t in tabs)))
+    cache[key] = tabs
+    while len(cache) > _TABLES_KEPT:
+        cache.popitem(last=False)
+    return tabs
+
+
 def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "linear",
            coord: str = "half_pixel", nearest_mode="round_prefer_floor", cubic_a: float = -0.75,
            exclude_outside: bool = False, out=None, *, antialias: bool = False, roi=None,
@@ -142,13 +173,13 @@ def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "lin
         # Linear without antialias: excluding an outside tap and renormalising leaves the
         # edge pixel, which clamping gives too, so one build serves both.
         defines["EXCLUDE"] = int(bool(exclude_outside) and (mode == "cubic" or antialias))
+    coord, idx, wt = _axis_tables(dev, prec, defines, mode, (ho, wo, h, w), (sy, sx), off, r, cubic_a)
     k = dev.kernel("resize", "resize", prec, **defines)
     cb = -(-c // CHANNELS_PER_ITEM)
     dev.launch(k, (wo, ho, n * cb),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(ho), np.int32(wo),
-                np.int32(n * cb), _f32(sy), _f32(sx), _f32(off[0]), _f32(off[1]),
-                clt.make_float4(*(float(v) for v in r)),
-                _f32(extrapolation_value), _f32(cubic_a)))
+                np.int32(n * cb), _f32(sy), _f32(sx), _f32(extrapolation_value), _f32(cubic_a),
+                coord.data, idx.data, wt.data))
     return out
 
 
