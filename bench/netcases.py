@@ -24,7 +24,7 @@ def model_case(name, model: onnx.ModelProto, input_shapes: dict, tier: str, flop
         m = Model(model, device=dev, precision=prec, input_shapes=input_shapes)
         host = {k: _rounded(np.abs(rng("bench net", name, k).standard_normal(s, dtype=np.float32)), prec)
                 for k, s in input_shapes.items()}
-        d_in = {k: dev.to_device(v, prec) for k, v in host.items()}
+        d_in = m.upload(host)
         out_shapes = list(m.output_shapes.values())
         st = storage_dtype(prec)
         # Compulsory traffic of a whole network: inputs, weights, outputs once.

@@ -96,16 +96,21 @@ class Model:
     def run(self, inputs: Mapping) -> dict:
         """numpy arrays in (float32; float16 also accepted in the half precisions),
         numpy arrays out (float outputs as float32)."""
-        feeds = self._check_host(inputs)
-        dev = self.device
-        douts = self._run(
-            {k: dev.to_device(v, self.precision) for k, v in feeds.items()}, None)
+        douts = self._run(self.upload(inputs), None)
         return {k: _to_host(v, self._out_dtypes[k]) for k, v in douts.items()}
+
+    def upload(self, inputs: Mapping) -> dict:
+        """numpy inputs (checked as for run()) -> the device arrays run_device() takes:
+        the precision's storage type, except GridSample grids, which stay float32."""
+        feeds = self._check_host(inputs)
+        return {k: self.device.to_device(v, "fp32" if k in self._exec.fp32_inputs else self.precision)
+                for k, v in feeds.items()}
 
     def run_device(self, inputs: Mapping, out: Mapping | None = None) -> dict:
         """pyopencl arrays in and out, on this model's device and queue: float
         tensors in the precision's storage type (float32, or float16 in the half
-        precisions), C-contiguous, offset 0. Returns fresh output arrays per
+        precisions; graph inputs used only as GridSample grids stay float32: see
+        upload()), C-contiguous, offset 0. Returns fresh output arrays per
         call, or writes into ``out`` (name -> array) where given. Work is queued,
         not waited for (the device queue is in order)."""
         feeds = self._check_device(inputs)
@@ -164,6 +169,8 @@ class Model:
 
     def _device_dtype(self, name):
         want = self._in_dtypes[name]
+        if name in self._exec.fp32_inputs:   # GridSample grids stay float32 (model_exec)
+            return np.dtype(np.float32)
         return storage_dtype(self.precision) if want.kind == "f" else want
 
     def _check_device(self, inputs: Mapping) -> dict:

@@ -213,7 +213,7 @@ def _compare(a, m, feeds, outs, report) -> int:
               f"{'PASS' if c.passed else 'FAIL ' + c.detail}")
         report["outputs"][k].update(max_abs=c.max_abs, max_rel=c.max_rel, ratio=c.ratio, passed=c.passed)
     dev = m.device
-    dfeeds = {k: dev.to_device(v, m.precision) for k, v in feeds.items()}
+    dfeeds = m.upload(feeds)
 
     def device_run():
         m.run_device(dfeeds)

@@ -221,6 +221,15 @@ class Executor:
         self.base = dev
         self.prec = prec
         self.pdev = PlannedDevice(dev)
+        # Graph inputs used only as GridSample grids stay float32 in the half precisions:
+        # they are coordinates, and half would move samples by up to 1/8 pixel at 1080p.
+        uses: dict[str, list] = {}
+        for n in graph.nodes:
+            for i, t in enumerate(n.inputs):
+                uses.setdefault(t, []).append((n.op, i))
+        self.fp32_inputs = set() if prec == "fp32" else {
+            t for t in graph.inputs if graph.dtypes[t].kind == "f" and uses.get(t)
+            and all(op == "GridSample" and i == 1 for op, i in uses[t])}
         self.const_dev: dict[str, cla.Array] = {}   # constants used as device tensors
         self.steps: list[Step] = []
         self.plan = Plan()
@@ -284,6 +293,8 @@ class Executor:
 
     def _placeholder(self, t: str):
         dt = self.g.dtypes[t]
+        if t in self.fp32_inputs:
+            return self.base.empty(self.g.shapes[t], "fp32")
         return self.base.empty(self.g.shapes[t], self.prec, None if dt.kind == "f" else dt)
 
     def live_bytes(self) -> int:

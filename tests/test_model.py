@@ -425,3 +425,20 @@ def test_conv_1d_and_auto_pad():
     inits = {"w": rnd(4, 3, 3, seed=1, scale=0.4), "wt": rnd(4, 2, 3, seed=2, scale=0.4)}
     cm = assert_matches(make_model(nodes, {"x": x}, ["y"], initializers=inits), {"x": x})
     assert cm.execution_ops()["Conv+relu"] == 1 and cm.execution_ops()["ConvTranspose"] == 1
+
+
+def test_grid_inputs_stay_float32_in_fp16():
+    """A grid fed to GridSample is a coordinate: in half precisions it stays float32 (half
+    would move samples by up to 1/8 pixel at 1080p). Data inputs are half as usual."""
+    x = rnd(1, 3, 40, 64)
+    grid = (rnd(1, 40, 64, 2, seed=1) * 0.9).astype(np.float32)
+    node = helper.make_node("GridSample", ["x", "grid"], ["y"], mode="bilinear", align_corners=0)
+    model = make_model([node], {"x": x, "grid": grid}, ["y"], opset=16)
+    m = clss.Model(model, precision="fp16")
+    up = m.upload({"x": x, "grid": grid})
+    assert up["x"].dtype == np.float16 and up["grid"].dtype == np.float32
+    ref = run_ort(model, {"x": x.astype(np.float16).astype(np.float32), "grid": grid})[0]
+    c = compare(m.run_device(up)["y"].get().astype(np.float32), ref, Tolerance(1e-3, 1e-3))
+    assert c.passed, c
+    with pytest.raises(InputError, match="float32"):
+        m.run_device({"x": up["x"], "grid": m.device.to_device(grid, "fp16")})
