@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 import time
+import warnings
 
 DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
                "'platform / device' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else the PoCL CPU device)")
@@ -136,6 +137,9 @@ def main(argv=None) -> int:
             print(f"  {name:10s} {summary}")
         return 0 if argv else 2
     name, rest = argv[0], argv[1:]
+    # pyopencl warns about any compiler output (PoCL prints notes for valid kernels); a
+    # build that fails raises KernelBuildError with the whole log instead.
+    warnings.filterwarnings("ignore", message="Non-empty compiler output")
     if name not in COMMANDS:
         print(f"clss: unknown command {name!r}; try `clss --help`", file=sys.stderr)
         return 2
