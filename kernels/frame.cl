@@ -556,6 +556,15 @@ inline void keep_history(__global const T *hist, __global T *hist_out, int q, in
         dst[c * HW + q] = src[c * HW + q];
 }
 
+/* A refused frame (flags from `prepare`) leaves the state as it was: the history
+ * is copied through unchanged for this work-item's n pixels at q. */
+#define KEEP_HISTORY_IF_REFUSED                                                \
+    if (flags[0] & F_REFUSE) {                                                 \
+        for (int l = 0; l < n; ++l)                                            \
+            keep_history(hist, hist_out, q + l, HW);                           \
+        return;                                                                \
+    }
+
 #if !NET
 /* Rule mode: stages 4-9 in one pass (reference.md s8, s9 "rule"), VEC pixels of a row
  * per work-item. */
@@ -569,11 +578,7 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     const int J0 = get_global_id(0) * VEC, I = get_global_id(1);
     if (J0 >= W || I >= H) return;
     const int HW = W * H, q = I * W + J0, n = min(VEC, W - J0);
-    if (flags[0] & F_REFUSE) {
-        for (int l = 0; l < n; ++l)
-            keep_history(hist, hist_out, q + l, HW);
-        return;
-    }
+    KEEP_HISTORY_IF_REFUSED
     const Gathered g = gather(I, min(J0 + LANES, (iv)(W - 1)), X, lr, bx, by, jx, jy, w, h, W, H,
                               sx, sy, reset, hist);
     const iv ghost = (g.dd > depth_threshold) | (g.valid == (iv)(0));
@@ -651,11 +656,7 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
     const int J0 = get_global_id(0) * VEC, I = get_global_id(1);
     if (J0 >= W || I >= H) return;
     const int HW = W * H, q = I * W + J0, n = min(VEC, W - J0);
-    if (flags[0] & F_REFUSE) {
-        for (int l = 0; l < n; ++l)
-            keep_history(hist, hist_out, q + l, HW);
-        return;
-    }
+    KEEP_HISTORY_IF_REFUSED
     /* rows are padded to W16, a multiple of 16 and of VEC: whole vectors stay in bounds */
     const int P = W16 * H16, r = I * W16 + J0;
     const int w2_ = W16 / 2, h2_ = H16 / 2, P2 = w2_ * h2_;
