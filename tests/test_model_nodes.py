@@ -16,7 +16,6 @@ families' NODE_DEVIATIONS or in MODEL_DEVIATIONS below.
 """
 from __future__ import annotations
 
-import glob
 import os
 
 import numpy as np
@@ -28,8 +27,8 @@ import clss
 from clss.model_graph import MAX_OPSET, MIN_OPSET, UnsupportedModelError
 from clss.ops import ONNX_HANDLERS, load_all
 from clss.ops.base import Tolerance, compare
+from node_cases import load_case_data, single_node_cases
 
-NODE_DIR = os.path.join(os.path.dirname(onnx.__file__), "backend", "test", "data", "node")
 FAMILIES = load_all()
 FAMILY_DEVIATIONS = {k: v for m in FAMILIES.values() for k, v in getattr(m, "NODE_DEVIATIONS", {}).items()}
 NODE_TOL = Tolerance(1e-5, 1e-4)
@@ -69,29 +68,7 @@ def _const_positions(op: str) -> set:
     return set(LOWERED.get(op, ()))
 
 
-def _cases():
-    out = []
-    if not os.path.isdir(NODE_DIR):
-        return out
-    ops = set(ONNX_HANDLERS) | set(LOWERED)
-    for d in sorted(glob.glob(os.path.join(NODE_DIR, "test_*"))):
-        base = os.path.basename(d)
-        if base.endswith("_expanded") or "_expanded_" in base:
-            continue
-        m = onnx.load(os.path.join(d, "model.onnx"), load_external_data=False)
-        if len(m.graph.node) == 1 and m.graph.node[0].op_type in ops and not m.graph.node[0].domain:
-            out.append(d)
-    return out
-
-
-CASES = _cases()
-
-
-def _data(d, model):
-    data = sorted(glob.glob(os.path.join(d, "test_data_set_*")))[0]
-    ins = [numpy_helper.to_array(onnx.load_tensor(f)) for f in sorted(glob.glob(os.path.join(data, "input_*.pb")))]
-    outs = [numpy_helper.to_array(onnx.load_tensor(f)) for f in sorted(glob.glob(os.path.join(data, "output_*.pb")))]
-    return dict(zip([i.name for i in model.graph.input], ins)), outs
+CASES = single_node_cases(set(ONNX_HANDLERS) | set(LOWERED))
 
 
 def _lower_opset(m: onnx.ModelProto, op: str):
@@ -121,7 +98,7 @@ def adapt(case_dir):
         return "optional/sequence values: clss runs tensors only"
     if next(o.version for o in m.opset_import if o.domain in ("", "ai.onnx")) < MIN_OPSET:
         return f"opset < {MIN_OPSET}: clss runs opsets {MIN_OPSET}-{MAX_OPSET}"
-    feeds, expected = _data(case_dir, m)
+    feeds, expected = load_case_data(case_dir, m)
     consts = _const_positions(node.op_type)
     for i, name in enumerate(node.input):
         if not name or name not in feeds:

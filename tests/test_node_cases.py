@@ -9,7 +9,6 @@ documented category.
 """
 from __future__ import annotations
 
-import glob
 import os
 
 import numpy as np
@@ -19,9 +18,8 @@ from clss.ops import ONNX_HANDLERS, Unsupported, load_all
 from clss.ops.base import Tolerance, compare, node_attrs
 
 onnx = pytest.importorskip("onnx")
-from onnx import numpy_helper  # noqa: E402
+from node_cases import NODE_DIR, load_case_data, single_node_cases  # noqa: E402
 
-NODE_DIR = os.path.join(os.path.dirname(onnx.__file__), "backend", "test", "data", "node")
 FAMILIES = load_all()
 DEVIATIONS = {k: v for m in FAMILIES.values() for k, v in getattr(m, "NODE_DEVIATIONS", {}).items()}
 # onnx's own backend runner uses rtol=1e-3, atol=1e-7; ours is tighter in scale terms.
@@ -30,27 +28,7 @@ NODE_TOL = Tolerance(1e-5, 1e-4)
 NON_FLOAT_INPUTS = {"Where": {0}, "ScatterElements": {1}}
 
 
-def _cases():
-    out = []
-    if not os.path.isdir(NODE_DIR):
-        return out
-    for d in sorted(glob.glob(os.path.join(NODE_DIR, "test_*"))):
-        if d.endswith("_expanded") or "_expanded_" in os.path.basename(d):
-            continue
-        m = onnx.load(os.path.join(d, "model.onnx"))
-        if len(m.graph.node) == 1 and m.graph.node[0].op_type in ONNX_HANDLERS and not m.graph.node[0].domain:
-            out.append(d)
-    return out
-
-
-CASES = _cases()
-
-
-def _load(d, model):
-    data = sorted(glob.glob(os.path.join(d, "test_data_set_*")))[0]
-    ins = [numpy_helper.to_array(onnx.load_tensor(f)) for f in sorted(glob.glob(os.path.join(data, "input_*.pb")))]
-    outs = [numpy_helper.to_array(onnx.load_tensor(f)) for f in sorted(glob.glob(os.path.join(data, "output_*.pb")))]
-    return dict(zip([i.name for i in model.graph.input], ins)), outs
+CASES = single_node_cases(ONNX_HANDLERS)
 
 
 def test_node_cases_found():
@@ -65,7 +43,7 @@ def test_node_case(case_dir, dev):
     handler = ONNX_HANDLERS[node.op_type]
     if name in DEVIATIONS:  # before loading: some listed cases hold non-tensor inputs
         pytest.xfail(DEVIATIONS[name])
-    feeds, expected = _load(case_dir, model)
+    feeds, expected = load_case_data(case_dir, model)
     inputs = [feeds.get(n) if n else None for n in node.input]
     for i, x in enumerate(inputs):
         if x is None or i in handler.const_inputs or i in NON_FLOAT_INPUTS.get(node.op_type, ()):
