@@ -6,6 +6,9 @@
  *   -DCRD=1  CRD order: channels outer, channel c*B*B + by*B + bx
  *            (ONNX DepthToSpace mode=CRD, PyTorch pixel_shuffle/pixel_unshuffle)
  *
+ *   -DS2D_VEC=1 (default) B = 2 de-interleaves with 8-wide vector loads (the fast path);
+ *   -DS2D_VEC=0  the portable reference: a scalar loop for every B.
+ *
  * Dimension 0 of each NDRange walks contiguous rows. Elements move as raw bits
  * (TB), so NaN payloads and signed zeros survive.
  */
@@ -13,6 +16,9 @@
 
 #ifndef CRD
 #define CRD 0
+#endif
+#ifndef S2D_VEC
+#define S2D_VEC 1
 #endif
 
 /* Output channel of input channel c at block position (by, bx). */
@@ -40,12 +46,17 @@ __kernel void space_to_depth(__global const TB *in, __global TB *out,
     const long Wi = (long)W * B, plane = (long)H * W;
     __global const TB *row = in + ((long)nc * H * B + (long)y * B + by) * Wi + (long)x0 * B;
     __global TB *o = out + (long)n * C * B * B * plane + (long)y * W + x0;
+#if S2D_VEC
+    /* Two 8-wide loads, each de-interleaved into 4 lanes. Not one 16-wide
+     * .even/.odd: PoCL 3.0-rc2 on AVX-512 returns garbage in lanes 4-7 of
+     * uint16.even/.odd (ushort16 is right), a miscompile this form avoids. */
     if (B == 2 && x0 + 8 <= W) {
-        const TB16 v = vload16(0, row);
-        vstore8(v.even, 0, o + s2d_channel(c, by, 0, C, 2) * plane);
-        vstore8(v.odd, 0, o + s2d_channel(c, by, 1, C, 2) * plane);
+        const TB8 v0 = vload8(0, row), v1 = vload8(1, row);
+        vstore8((TB8)(v0.even, v1.even), 0, o + s2d_channel(c, by, 0, C, 2) * plane);
+        vstore8((TB8)(v0.odd, v1.odd), 0, o + s2d_channel(c, by, 1, C, 2) * plane);
         return;
     }
+#endif
     const int nx = min(8, W - x0);
     for (int bx = 0; bx < B; ++bx) {
         __global TB *ob = o + s2d_channel(c, by, bx, C, B) * plane;
