@@ -18,7 +18,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from .device import Device, storage_dtype
-from .model_graph import Graph, ModelError, Node, UnsupportedModelError
+from .model_graph import NO_KERNEL, Graph, ModelError, Node, UnsupportedModelError, custom_domain_reason
 from .model_plan import Alloc, Plan, assign_slots, check_plan
 from .ops.base import ONNX_HANDLERS, OnnxHandler, Unsupported
 
@@ -255,9 +255,9 @@ class Executor:
         """Raises Unsupported when the node cannot be set up."""
         h = handler_for(node.op)
         if node.domain and not node.op.startswith("clss."):
-            raise Unsupported(f"custom domain {node.domain!r}: clss runs the default ONNX domain only")
+            raise Unsupported(custom_domain_reason(node.domain))
         if h is None:
-            raise Unsupported("no clss kernel for this op type")
+            raise Unsupported(NO_KERNEL)
         g = self.g
         for t in list(node.inputs) + list(node.outputs):
             if t and t not in g.consts and g.dtypes.get(t) == np.float64:

@@ -14,7 +14,11 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-MIN_OPSET, MAX_OPSET = 11, 21
+# Opsets 22-25 only widened the type constraints of the ops clss runs (bfloat16,
+# float8, float4, int2; checked with onnx.defs.get_schema), so their float32/float16
+# semantics are those of 21. Past 25, a node is accepted while its op's schema
+# is still one of these (see check_opset).
+MIN_OPSET, MAX_OPSET = 11, 25
 # Kernels index with 32-bit ints: a tensor past this many elements is refused.
 MAX_ELEMENTS = 2**31 - 1
 # Folding evaluates on the host; a folded constant past this is a model we refuse
@@ -33,13 +37,14 @@ class InputError(ValueError):
 
 
 class UnsupportedModelError(ModelError):
-    """One or more nodes clss cannot run; ``nodes`` lists (name, op_type, opset, reason)."""
+    """One or more nodes clss cannot run; ``nodes`` lists (name, op_type, opset, reason).
+    ``note``: what else went wrong because of them (e.g. a shape they leave unknown)."""
 
-    def __init__(self, nodes: list[tuple[str, str, int, str]]):
+    def __init__(self, nodes: list[tuple[str, str, int, str]], note: str = ""):
         self.nodes = nodes
         lines = [f"  - {n!r} ({op}, opset {ver}): {why}" for n, op, ver, why in nodes]
         super().__init__(f"{len(nodes)} node(s) of this model are not supported by clss:\n"
-                         + "\n".join(lines))
+                         + "\n".join(lines) + (f"\n{note}" if note else ""))
 
 
 @dataclass
@@ -133,17 +138,60 @@ def load_proto(model) -> onnx.ModelProto:
 def check(m: onnx.ModelProto) -> int:
     """onnx's checker and the opset range; returns the default-domain opset."""
     try:
-        onnx.checker.check_model(m)
+        onnx.checker.check_model(_with_output_shapes(m))
     except onnx.checker.ValidationError as e:
         raise ModelError(f"malformed model (onnx checker): {e}") from None
     opsets = {o.domain or "": o.version for o in m.opset_import}
     opset = opsets.get("", opsets.get("ai.onnx"))
     if opset is None:
         raise ModelError("model imports no default-domain (ai.onnx) opset")
-    if not MIN_OPSET <= opset <= MAX_OPSET:
+    check_opset(m, opset)
+    return opset
+
+
+def _with_output_shapes(m: onnx.ModelProto) -> onnx.ModelProto:
+    """The model as the checker wants it. Its main-graph rule requires a shape
+    on every graph output; onnxruntime and exporters do not, and shape
+    inference (at load, in _infer) gives the real one. So the checker sees a
+    copy whose shapeless outputs carry the inferred shape."""
+    kinds = [o.type.WhichOneof("value") for o in m.graph.output]
+    if any(k not in (None, "tensor_type") for k in kinds) or all(
+            k and o.type.tensor_type.HasField("shape") for k, o in zip(kinds, m.graph.output)):
+        return m   # nothing to fill (non-tensor outputs are refused later, by name)
+    from .ops.twin import fill_output_shapes
+    probe = onnx.ModelProto()
+    probe.CopyFrom(m)
+    for o in probe.graph.output:
+        o.type.tensor_type.SetInParent()   # an output with no type at all: inference fills it
+    try:
+        fill_output_shapes(probe)
+    except Exception:   # inference itself fails: the checker, then _infer, say why
+        return m
+    return probe
+
+
+def check_opset(m: onnx.ModelProto, opset: int) -> None:
+    """Opsets MIN_OPSET..MAX_OPSET; past MAX_OPSET, every default-domain node
+    whose op's schema changed after MAX_OPSET is refused by name."""
+    if opset < MIN_OPSET:
         raise ModelError(f"model uses ONNX opset {opset}; clss supports opsets {MIN_OPSET} to {MAX_OPSET} "
                          f"(onnx.version_converter.convert_version can move it into range)")
-    return opset
+    if opset <= MAX_OPSET:
+        return
+    newer = []
+    for k, n in enumerate(m.graph.node):
+        if n.domain not in ("", "ai.onnx"):
+            continue
+        try:
+            since = onnx.defs.get_schema(n.op_type, opset).since_version
+        except Exception:   # an op onnx does not know: the dry run names it unsupported
+            continue
+        if since > MAX_OPSET:
+            newer.append(f"{n.name or f'#{k}'!r} ({n.op_type}, changed at opset {since})")
+    if newer:
+        raise ModelError(f"model uses ONNX opset {opset}; clss knows opsets {MIN_OPSET} to {MAX_OPSET}, "
+                         f"and these nodes' ops changed after {MAX_OPSET}: {', '.join(newer)} "
+                         f"(onnx.version_converter.convert_version can move the model to {MAX_OPSET})")
 
 
 def _dims(vi: onnx.ValueInfoProto):
@@ -212,12 +260,41 @@ def resolve_inputs(m: onnx.ModelProto, input_shapes: dict | None) -> dict[str, t
     return out
 
 
-def _infer(m: onnx.ModelProto) -> onnx.ModelProto:
+def _infer(m: onnx.ModelProto, opset: int) -> onnx.ModelProto:
     del m.graph.value_info[:]
     try:
         return onnx.shape_inference.infer_shapes(m, check_type=True, strict_mode=True, data_prop=True)
     except Exception as e:  # InferenceError and friends
+        refuse_unknown_ops(m, opset, f"(also: shape inference failed: {e})")
         raise ModelError(f"shape inference failed: {e}") from None
+
+
+# --- ops clss has no kernel for ---------------------------------------------------
+
+NO_KERNEL = "no clss kernel for this op type"
+
+
+def custom_domain_reason(domain: str) -> str:
+    return f"custom domain {domain!r}: clss runs the default ONNX domain only"
+
+
+def refuse_unknown_ops(m: onnx.ModelProto, opset: int, note: str) -> None:
+    """Raise UnsupportedModelError naming every node whose op clss can neither
+    run nor rewrite, when there is any. Called where such a node shows up as
+    something else (a shape inference cannot resolve, say), so that the user
+    hears first what is unsupported; ``note`` tells what else went wrong."""
+    from .model_passes import LOWERED_OPS
+    from .ops.base import ONNX_HANDLERS
+    opsets = {o.domain or "": o.version for o in m.opset_import}
+    bad = []
+    for k, n in enumerate(m.graph.node):
+        name = n.name or f"#{k} {n.op_type}"
+        if n.domain not in ("", "ai.onnx"):
+            bad.append((name, n.op_type, opsets.get(n.domain, opset), custom_domain_reason(n.domain)))
+        elif n.op_type not in ONNX_HANDLERS and n.op_type not in LOWERED_OPS:
+            bad.append((name, n.op_type, opset, NO_KERNEL))
+    if bad:
+        raise UnsupportedModelError(bad, note)
 
 
 def _collect(m: onnx.ModelProto):
@@ -394,7 +471,7 @@ def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
         except Exception as e:
             raise ModelError(f"could not inline the model's local functions: {e}") from None
     in_shapes = resolve_inputs(m, input_shapes)
-    resolved = _infer(m)
+    resolved = _infer(m, opset)
     producers = {t: f"{n.op_type} node {n.name!r}" for n in m.graph.node for t in n.output}
     shapes, types = _collect(resolved)
     check_sizes(shapes, types, max_alloc, storage_itemsize, producers)
@@ -404,7 +481,7 @@ def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
     for _ in range(16):
         if not fold_constants(work, shapes, opset):
             break
-        work = _infer(work)
+        work = _infer(work, opset)
         shapes, types = _collect(work)
         check_sizes(shapes, types, max_alloc, storage_itemsize, producers)
     return _to_graph(work, shapes, types, opset, in_shapes), original, in_shapes
@@ -426,11 +503,14 @@ def _to_graph(m, shapes, types, opset, in_shapes) -> Graph:
     for n in nodes:
         for t in n.outputs:
             if t and t not in shapes:
-                raise ModelError(f"could not resolve the shape of tensor {t!r} (output of {n.op} node "
-                                 f"{n.name!r}); clss needs every shape static at load")
-            if t and t not in types:
-                raise ModelError(f"could not resolve the element type of tensor {t!r} "
-                                 f"(output of {n.op} node {n.name!r})")
+                why = (f"could not resolve the shape of tensor {t!r} (output of {n.op} node "
+                       f"{n.name!r}); clss needs every shape static at load")
+            elif t and t not in types:
+                why = f"could not resolve the element type of tensor {t!r} (output of {n.op} node {n.name!r})"
+            else:
+                continue
+            refuse_unknown_ops(m, opset, f"(also: {why})")
+            raise ModelError(why)
     dtypes = {}
     for t, et in types.items():
         dtypes[t] = np.dtype(np.float32) if et in FLOAT_TYPES else _np_dtype(et)

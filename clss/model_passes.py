@@ -12,9 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model_graph import Graph, Node
+from .model_graph import FLOAT_TYPES, Graph, Node
 
 ACT_OPS = {"Relu": "relu", "LeakyRelu": "leaky_relu", "Sigmoid": "sigmoid", "Tanh": "tanh"}
+
+# ONNX ops with no handler of their name that the passes rewrite into ones that
+# have (some only in some forms: the dry run names the rest unsupported).
+LOWERED_OPS = frozenset({"Identity", "Dropout", "Cast", "CastLike", "Reshape", "Flatten", "Squeeze",
+                         "Unsqueeze", "Transpose", "BatchNormalization", "Gemm", "MatMul", "Constant"})
 
 
 def run_passes(g: Graph, conv_fusion: bool = True, mlp_fusion: bool = True) -> list[str]:
@@ -100,17 +105,32 @@ def normalise_opsets(g: Graph) -> int:
     return changed
 
 
-# --- Identity, Dropout ---------------------------------------------------------------
+# --- Identity, Dropout, float casts ---------------------------------------------------
+
+def _float_cast(g: Graph, n: Node) -> bool:
+    """Cast/CastLike from a float tensor to float or float16: clss stores every
+    float tensor in the precision's storage type (the model's ``precision``
+    decides, not the graph), so these are identities. Constant ones were folded."""
+    if n.op == "Cast":
+        to_float = int(n.attrs.get("to", 0)) in FLOAT_TYPES
+    elif n.op == "CastLike":
+        to_float = g.dtypes.get(n.inputs[1]) == np.float32   # float16 tensors are float32 here
+    else:
+        return False
+    return to_float and g.dtypes.get(n.inputs[0]) == np.float32
+
 
 def remove_identities(g: Graph) -> int:
-    """Identity (and inference-mode Dropout) cost nothing: their consumers read
-    the input. A graph output that would be left without a producer of its own
-    gets a clss.Copy."""
+    """Identity, inference-mode Dropout and float-to-float casts cost nothing:
+    their consumers read the input. A graph output that would be left without
+    a producer of its own gets a clss.Copy."""
     changed = 0
     inputs = set(g.inputs)
     outputs = set(g.outputs)
     for n in list(g.nodes):
-        if n.op == "Dropout":
+        if _float_cast(g, n):
+            n.inputs = n.inputs[:1]
+        elif n.op == "Dropout":
             tm = n.inputs[2] if len(n.inputs) > 2 else ""
             if tm and (tm not in g.consts or bool(g.consts[tm])):
                 continue  # training mode: left for the unsupported list

@@ -7,8 +7,6 @@ collected. The harness adapts each case the way a deployed model differs
 from a conformance test, and nothing else:
 * inputs the kernels need at load (Resize scales, Pad pads, Reshape shape,
   BatchNorm statistics, Gemm's B and C) become initializers;
-* cases written at opsets 22-25 run with their import set to 21 when the op's
-  schema at 21 has the same inputs and attributes (22-25 only widened types);
 * IR version 10, for onnxruntime.
 Cases on non-float32 data are skipped as one category (the kernels are
 float32/float16); cases the kernels cannot run are listed with a reason in the
@@ -25,6 +23,7 @@ from onnx import numpy_helper
 
 import clss
 from clss.model_graph import MAX_OPSET, MIN_OPSET, UnsupportedModelError
+from clss.model_passes import LOWERED_OPS
 from clss.ops import ONNX_HANDLERS, load_all
 from clss.ops.base import Tolerance, compare
 from node_cases import load_case_data, single_node_cases
@@ -33,11 +32,10 @@ FAMILIES = load_all()
 FAMILY_DEVIATIONS = {k: v for m in FAMILIES.values() for k, v in getattr(m, "NODE_DEVIATIONS", {}).items()}
 NODE_TOL = Tolerance(1e-5, 1e-4)
 
-# Ops clss.Model runs without a handler of that name (lowered by model_passes),
-# with the inputs that must be constant at load.
-LOWERED = {"Identity": (), "Dropout": (1, 2), "Reshape": (1,), "Flatten": (), "Squeeze": (1,),
-           "Unsqueeze": (1,), "Transpose": (), "BatchNormalization": (1, 2, 3, 4), "Gemm": (1, 2),
-           "MatMul": (), "Constant": ()}
+# Inputs that must be constant at load for the ops clss.Model runs without a
+# handler of that name (model_passes.LOWERED_OPS).
+LOWERED_CONST_INPUTS = {"Dropout": (1, 2), "Reshape": (1,), "Squeeze": (1,), "Unsqueeze": (1,),
+                        "BatchNormalization": (1, 2, 3, 4), "Gemm": (1, 2)}
 # Data inputs that are legitimately not float.
 NON_FLOAT_INPUTS = {"Where": {0}, "ScatterElements": {1}}
 
@@ -65,29 +63,10 @@ def _const_positions(op: str) -> set:
     h = ONNX_HANDLERS.get(op)
     if h is not None:
         return set(h.const_inputs)
-    return set(LOWERED.get(op, ()))
+    return set(LOWERED_CONST_INPUTS.get(op, ()))
 
 
-CASES = single_node_cases(set(ONNX_HANDLERS) | set(LOWERED))
-
-
-def _lower_opset(m: onnx.ModelProto, op: str):
-    """Opset import down to 21 when the op's schema there takes the same inputs
-    and attributes; None when it does not."""
-    imp = next(o for o in m.opset_import if o.domain in ("", "ai.onnx"))
-    if imp.version <= MAX_OPSET:
-        return m
-    new, old = onnx.defs.get_schema(op, imp.version), onnx.defs.get_schema(op, MAX_OPSET)
-    if (set(new.attributes) != set(old.attributes)
-            or [i.name for i in new.inputs] != [i.name for i in old.inputs]
-            or [o.name for o in new.outputs] != [o.name for o in old.outputs]):
-        return None
-    imp.version = MAX_OPSET
-    try:  # e.g. AveragePool's ceil_mode output size was corrected at opset 22
-        onnx.shape_inference.infer_shapes(m, check_type=True, strict_mode=True)
-    except Exception:
-        return None
-    return m
+CASES = single_node_cases(set(ONNX_HANDLERS) | LOWERED_OPS)
 
 
 def adapt(case_dir):
@@ -106,8 +85,8 @@ def adapt(case_dir):
         x = feeds[name]
         if i not in consts and i not in NON_FLOAT_INPUTS.get(node.op_type, ()) and x.dtype != np.float32:
             return f"{x.dtype} tensors: the kernels are float32/float16 only"
-    for e in expected:
-        if e.dtype.kind == "f" and e.dtype != np.float32:
+    for e in expected:   # float64/16 and ml_dtypes' bfloat16, float8, int4, ... outputs
+        if e.dtype != np.float32 and (e.dtype.kind not in "biu" or e.dtype.type.__module__ != "numpy"):
             return f"{e.dtype} outputs: the kernels are float32/float16 only"
     for i, name in enumerate(node.input):
         if name and i in consts and name in feeds:
@@ -115,8 +94,6 @@ def adapt(case_dir):
             keep = [v for v in m.graph.input if v.name != name]
             del m.graph.input[:]
             m.graph.input.extend(keep)
-    if _lower_opset(m, node.op_type) is None:
-        return "the op's opset > 21 schema differs from opset 21; clss runs opsets 11-21"
     m.ir_version = min(m.ir_version, 10)
     return m, feeds, expected
 
