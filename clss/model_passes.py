@@ -19,7 +19,7 @@ ACT_OPS = {"Relu": "relu", "LeakyRelu": "leaky_relu", "Sigmoid": "sigmoid", "Tan
 # ONNX ops with no handler of their name that the passes rewrite into ones that
 # have (some only in some forms: the dry run names the rest unsupported).
 LOWERED_OPS = frozenset({"Identity", "Dropout", "Cast", "CastLike", "Reshape", "Flatten", "Squeeze",
-                         "Unsqueeze", "Transpose", "BatchNormalization", "Gemm", "MatMul", "Constant"})
+                         "Unsqueeze", "BatchNormalization", "Gemm", "MatMul", "Constant"})
 
 
 def run_passes(g: Graph, conv_fusion: bool = True, mlp_fusion: bool = True) -> list[str]:
@@ -430,12 +430,23 @@ def _lower_gemm(g: Graph, n: Node):
     beta = float(n.attrs.get("beta", 1.0))
     ta, tb = int(n.attrs.get("transA", 0)), int(n.attrs.get("transB", 0))
     bc = _const(g, b)
-    if bc is None or ta:
+    if bc is None:
         return None   # left to a registered Gemm handler, if any
+    src = n.sources
+    out = []
+    if ta:   # A^T: on the host when A is constant, else a Transpose kernel
+        ac = _const(g, a)
+        if ac is not None:
+            a = g.add_const(f"{n.name}.a_t", np.ascontiguousarray(ac.T))
+        else:
+            at = g.fresh(a)
+            g.shapes[at], g.dtypes[at] = tuple(g.shapes[a])[::-1], g.dtypes[a]
+            out.append(Node("Transpose", [a], [at], {"perm": [1, 0]}, f"{n.name} (A^T)", n.opset,
+                            sources=src))
+            a = at
     w = (bc.T if tb else bc).astype(np.float64) * alpha      # [K, N]
     kk, nn = w.shape
     m = g.shapes[a][0]
-    src = n.sources
     bias, residual = "", ""
     if c:
         cc = _const(g, c)
@@ -450,7 +461,6 @@ def _lower_gemm(g: Graph, n: Node):
             rv, residual = _view(g, c, (m, nn, 1, 1), name=f"{n.name} (C)", sources=src)
         else:
             return None
-    out = []
     if residual and residual not in g.consts:
         out.append(rv)
     v1, xa = _view(g, a, (m, kk, 1, 1), name=f"{n.name} (rows)", sources=src)

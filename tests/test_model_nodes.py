@@ -39,17 +39,11 @@ LOWERED_CONST_INPUTS = {"Dropout": (1, 2), "Reshape": (1,), "Squeeze": (1,), "Un
 # Data inputs that are legitimately not float.
 NON_FLOAT_INPUTS = {"Where": {0}, "ScatterElements": {1}}
 
-_TRANSPOSE = ("a general Transpose (no kernel): clss runs Transpose as a view when it only moves "
-              "size-1 axes, and inside the PixelShuffle/PixelUnshuffle Reshape-Transpose-Reshape patterns")
 MODEL_DEVIATIONS = {
     "test_batchnorm_epsilon_training_mode": "training-mode BatchNormalization: clss runs inference graphs",
     "test_batchnorm_example_training_mode": "training-mode BatchNormalization: clss runs inference graphs",
-    "test_gemm_all_attributes": "Gemm transA=1 would need a general Transpose kernel",
-    "test_gemm_transposeA": "Gemm transA=1 would need a general Transpose kernel",
     "test_matmul_bcast": "MatMul batch dims broadcast against each other ([3,1] x [1,2]); clss lowers "
                          "MatMul to convolutions, which need one side's batch to be 1 or both equal",
-    **{f"test_transpose_all_permutations_{i}": _TRANSPOSE for i in range(1, 6)},
-    "test_transpose_default": _TRANSPOSE,
     "test_training_dropout": "training-mode Dropout is random; clss runs inference graphs",
     "test_training_dropout_default": "training-mode Dropout is random; clss runs inference graphs",
     "test_training_dropout_default_mask": "training-mode Dropout is random; clss runs inference graphs",
