@@ -121,9 +121,9 @@ def _float_cast(g: Graph, n: Node) -> bool:
 
 
 def remove_identities(g: Graph) -> int:
-    """Identity, inference-mode Dropout and float-to-float casts cost nothing:
-    their consumers read the input. A graph output that would be left without
-    a producer of its own gets a clss.Copy."""
+    """Identity, Dropout (inference, or training with ratio 0: no randomness) and
+    float-to-float casts cost nothing: their consumers read the input. A graph
+    output that would be left without a producer of its own gets a clss.Copy."""
     changed = 0
     inputs = set(g.inputs)
     outputs = set(g.outputs)
@@ -132,8 +132,10 @@ def remove_identities(g: Graph) -> int:
             n.inputs = n.inputs[:1]
         elif n.op == "Dropout":
             tm = n.inputs[2] if len(n.inputs) > 2 else ""
-            if tm and (tm not in g.consts or bool(g.consts[tm])):
-                continue  # training mode: left for the unsupported list
+            ratio = n.inputs[1] if len(n.inputs) > 1 else ""
+            if (tm and (tm not in g.consts or bool(g.consts[tm]))
+                    and not (ratio in g.consts and not np.any(g.consts[ratio]))):
+                continue  # training mode, random: left for the unsupported list
             if len(n.outputs) > 1 and n.outputs[1]:
                 g.consts[n.outputs[1]] = np.ones(g.shapes[n.outputs[1]], bool)
             n.outputs = n.outputs[:1]
@@ -386,6 +388,15 @@ def _lower_matmul(g: Graph, n: Node):
     ra = int(np.prod(batch_a, dtype=np.int64))
     rb = int(np.prod(batch_b, dtype=np.int64))
     out = []
+    if ra > 1 and rb > 1 and tuple(batch_a) != tuple(batch_b):
+        # Batch dims that broadcast against each other: both expanded to the common ones.
+        try:
+            batch = tuple(int(d) for d in np.broadcast_shapes(tuple(batch_a), tuple(batch_b)))
+        except ValueError:
+            return None
+        a, b = (_expand(g, n, t, batch + tuple(s[-2:]), out) for t, s in ((a, a2), (b, b2)))
+        batch_a = batch_b = batch
+        ra = rb = int(np.prod(batch, dtype=np.int64))
     bc = _const(g, b)
     src = n.sources
     if bc is not None and rb == 1:
@@ -420,6 +431,17 @@ def _lower_matmul(g: Graph, n: Node):
     v3, _ = _view(g, t, sy, out=y, name=f"{n.name} (back)", sources=src)
     out += [v1, v2, conv, v3]
     return out
+
+
+def _expand(g: Graph, n: Node, t: str, shape: tuple, out: list) -> str:
+    """t broadcast to shape by an Expand node appended to out (t itself if it has that shape)."""
+    if tuple(g.shapes[t]) == shape:
+        return t
+    e = g.fresh(t)
+    g.shapes[e], g.dtypes[e] = shape, g.dtypes[t]
+    out.append(Node("Expand", [t, g.add_const(f"{n.name}.shape", np.array(shape, np.int64))], [e], {},
+                    f"{n.name} (expand {t})", n.opset, sources=n.sources))
+    return e
 
 
 def _lower_gemm(g: Graph, n: Node):

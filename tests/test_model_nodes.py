@@ -42,14 +42,10 @@ NON_FLOAT_INPUTS = {"Where": {0}, "ScatterElements": {1}}
 MODEL_DEVIATIONS = {
     "test_batchnorm_epsilon_training_mode": "training-mode BatchNormalization: clss runs inference graphs",
     "test_batchnorm_example_training_mode": "training-mode BatchNormalization: clss runs inference graphs",
-    "test_matmul_bcast": "MatMul batch dims broadcast against each other ([3,1] x [1,2]); clss lowers "
-                         "MatMul to convolutions, which need one side's batch to be 1 or both equal",
     "test_training_dropout": "training-mode Dropout is random; clss runs inference graphs",
     "test_training_dropout_default": "training-mode Dropout is random; clss runs inference graphs",
     "test_training_dropout_default_mask": "training-mode Dropout is random; clss runs inference graphs",
     "test_training_dropout_mask": "training-mode Dropout is random; clss runs inference graphs",
-    "test_training_dropout_zero_ratio": "training-mode Dropout: clss runs inference graphs",
-    "test_training_dropout_zero_ratio_mask": "training-mode Dropout: clss runs inference graphs",
 }
 
 

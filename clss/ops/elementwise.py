@@ -3,7 +3,7 @@
 Arithmetic: binary ops with ONNX multidirectional broadcasting (add, sub, mul,
 div, min, max, prelu; greater/less/equal -> bool), variadic Min/Max/Sum,
 clip, standalone activations, softmax and argmax along any axis.
-Data movement, bit-exact: where, concat, split, slice, pad, transpose, copy; reshape-like
+Data movement, bit-exact: where, concat, split, slice, pad, transpose, expand, copy; reshape-like
 ops are metadata only (a view on the same buffer).
 
 Broadcast and strided launches coalesce the shapes to at most four dimensions
@@ -360,9 +360,20 @@ def transpose(dev: Device, prec: str, x, perm=None):
     return out
 
 
+def expand(dev: Device, prec: str, x, shape):
+    """ONNX Expand: x broadcast with ``shape`` (a gather with stride 0 along the
+    broadcast axes). Bit-exact."""
+    check_storage("x", x, prec)
+    out_shape = tuple(np.broadcast_shapes(tuple(x.shape), tuple(int(s) for s in shape)))
+    out = dev.empty(out_shape, prec)
+    if out.size:
+        _gather(dev, prec, x, out, 0, _broadcast_strides(x.shape, out_shape), "expand")
+    return out
+
+
 def _gather(dev, prec, x, out, base: int, src_strides, what: str):
     """out[i] = x[base + sum_d i_d * src_strides[d]] over out's shape: the
-    strided copy that slice and transpose are."""
+    strided copy that slice, transpose and expand are."""
     dims, (src,) = coalesce(out.shape, [list(src_strides)])
     dims, (src,) = _four(dims, [src], what)
     gs, dargs = _grid(dims)
@@ -595,6 +606,11 @@ def _onnx_transpose(dev, prec, attrs, inputs):
     return [_unsupported(transpose, dev, prec, inputs[0], attrs.get("perm"))]
 
 
+@onnx_op("Expand", const_inputs=(1,))
+def _onnx_expand(dev, prec, attrs, inputs):
+    return [_unsupported(expand, dev, prec, inputs[0], _ints(inputs[1]))]
+
+
 @onnx_op("Identity")
 def _onnx_identity(dev, prec, attrs, inputs):
     return [copy(dev, prec, inputs[0])]
@@ -810,6 +826,14 @@ def transpose_case(shape, perm):
                 host_call(lambda dev, p, x: transpose(dev, p, x, perm)), exact=True)
 
 
+def expand_case(shape, to):
+    x = _data(rng("expand", shape, to), shape)
+    sh = np.array(to, np.int64)
+    return Case("expand", f"{_shape_str(shape)} to {list(to)}", {"x": x},
+                node_model("Expand", {"x": x, "shape": sh}, initializers={"shape": sh}),
+                host_call(lambda dev, p, x: expand(dev, p, x, to)), exact=True)
+
+
 def flatten_case(shape, axis):
     x = _data(rng("flatten", shape), shape)
     return Case("flatten", f"{_shape_str(shape)} axis={axis}", {"x": x},
@@ -840,6 +864,7 @@ def cases(level: str = "quick") -> list[Case]:
             *[pad_case((1, 2, 4, 5), [0, 0, 1, 2, 0, 0, 2, 1], mode, 0.5) for mode in PAD_MODES],
             identity_case((2, 3, 5, 7)),
             transpose_case((2, 3, 5, 7), (0, 2, 3, 1)),
+            expand_case((3, 1, 7), (2, 1, 5, 1)),
             softmax_case((2, 5, 3, 7), 1),
             argmax_case((2, 5, 3, 7), 1),
             argmax_case((2, 5, 3, 7), -1, keepdims=False, last=True),
@@ -934,6 +959,8 @@ def cases(level: str = "quick") -> list[Case]:
         transpose_case((2, 3, 7, 13), (3, 2, 1, 0)),
         transpose_case((2, 3, 5, 7, 2), (0, 1, 3, 4, 2)),   # rank 5 that coalesces to 4
         transpose_case((7, 13), (1, 0)),
+        expand_case((1, 23, 1, 13), (2, 1, 7, 13)),
+        expand_case((5,), ()),
         flatten_case((2, 3, 7, 13), 2),
     ]
     return out
