@@ -452,7 +452,17 @@ def _constant_value(node: onnx.NodeProto) -> np.ndarray:
         return np.array(a["value_int"].i, np.int64)
     if "value_ints" in a:
         return np.array(list(a["value_ints"].ints), np.int64)
-    raise ModelError(f"Constant node {node.name!r}: unsupported value attribute {sorted(a)}")
+    if "sparse_value" in a:   # COO: indices linear [NNZ] or per axis [NNZ, rank]
+        sp = a["sparse_value"].sparse_tensor
+        vals, idx = numpy_helper.to_array(sp.values), numpy_helper.to_array(sp.indices)
+        dense = np.zeros(tuple(sp.dims), vals.dtype)
+        if idx.ndim == 1:
+            dense.flat[idx] = vals
+        else:
+            dense[tuple(idx.T)] = vals
+        return dense
+    raise ModelError(f"Constant node {node.name!r}: unsupported value attribute {sorted(a)} "
+                     "(clss runs numeric tensors)")
 
 
 # --- the whole load ---------------------------------------------------------------

@@ -107,17 +107,34 @@ def normalise_opsets(g: Graph) -> int:
 
 # --- Identity, Dropout, float casts ---------------------------------------------------
 
-def _float_cast(g: Graph, n: Node) -> bool:
-    """Cast/CastLike from a float tensor to float or float16: clss stores every
-    float tensor in the precision's storage type (the model's ``precision``
-    decides, not the graph), so these are identities. Constant ones were folded."""
+def _cast_to_float(g: Graph, n: Node) -> bool:
+    """A Cast/CastLike whose target is float or float16 (one type here: clss
+    stores every float tensor in the precision's storage type; the model's
+    ``precision`` decides, not the graph). Constant ones were folded at load."""
     if n.op == "Cast":
-        to_float = int(n.attrs.get("to", 0)) in FLOAT_TYPES
-    elif n.op == "CastLike":
-        to_float = g.dtypes.get(n.inputs[1]) == np.float32   # float16 tensors are float32 here
-    else:
-        return False
-    return to_float and g.dtypes.get(n.inputs[0]) == np.float32
+        return int(n.attrs.get("to", 0)) in FLOAT_TYPES
+    if n.op == "CastLike":
+        return g.dtypes.get(n.inputs[1]) == np.float32   # float16 tensors are float32 here
+    return False
+
+
+def _float_cast(g: Graph, n: Node) -> bool:
+    """Float to float casts are identities."""
+    return _cast_to_float(g, n) and g.dtypes.get(n.inputs[0]) == np.float32
+
+
+def bool_casts(g: Graph) -> int:
+    """Cast of a bool tensor (a comparison's result) to float, as exporters
+    write ``mask.float()``: Where(mask, 1, 0), a kernel clss has."""
+    changed = 0
+    for k, n in enumerate(g.nodes):
+        if _cast_to_float(g, n) and g.dtypes.get(n.inputs[0]) == np.bool_:
+            one = g.add_const(f"{n.name}.one", np.ones((), np.float32))
+            zero = g.add_const(f"{n.name}.zero", np.zeros((), np.float32))
+            g.nodes[k] = Node("Where", [n.inputs[0], one, zero], n.outputs[:1], {}, n.name, n.opset,
+                              sources=n.sources)
+            changed += 1
+    return changed
 
 
 def remove_identities(g: Graph) -> int:
@@ -768,6 +785,7 @@ def remove_dead(g: Graph) -> int:
 PASSES = [
     ("opsets", normalise_opsets),
     ("identity", remove_identities),
+    ("bool_casts", bool_casts),
     ("pixel_shuffle", pixel_shuffle),
     ("views", lower_views),
     ("batchnorm", fold_batchnorm),

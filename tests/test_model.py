@@ -162,6 +162,23 @@ def test_small_exporter_ops_fold_or_vanish():
 
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
+def test_bool_cast_and_sparse_constant(prec):
+    """mask.float() (Cast of a comparison) runs as Where(mask, 1, 0); a Constant's
+    sparse_value is densified at load."""
+    x = rnd(1, 2, 3, 5)
+    sparse = helper.make_sparse_tensor(helper.make_tensor("v", TensorProto.FLOAT, [2], [1.5, -2.0]),
+                                       helper.make_tensor("i", TensorProto.INT64, [2], [1, 7]), [1, 2, 3, 5])
+    nodes = [helper.make_node("Greater", ["x", "zero"], ["m"]),
+             helper.make_node("Cast", ["m"], ["mf"], to=TensorProto.FLOAT),
+             helper.make_node("Constant", [], ["s"], sparse_value=sparse),
+             helper.make_node("Mul", ["x", "mf"], ["a"]),
+             helper.make_node("Add", ["a", "s"], ["y"])]
+    m = make_model(nodes, {"x": x}, ["y"], initializers={"zero": np.zeros(1, np.float32)}, opset=22)
+    cm = assert_matches(m, {"x": x}, prec)
+    assert cm.execution_ops()["Where"] == 1
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
 def test_nan_propagates_like_onnxruntime(prec):
     """NaN in -> NaN out, standalone and fused: relu/leaky_relu (conv epilogue,
     MLP layers, elementwise), clip, max, min, hard_sigmoid."""
@@ -245,16 +262,16 @@ def test_absurd_sizes_refused_before_allocation():
 def test_every_unsupported_node_listed_in_one_error():
     x = rnd(1, 4, 6, 6)
     nodes = [helper.make_node("Relu", ["x"], ["a"], name="ok_relu"),
-             helper.make_node("Transpose", ["a"], ["b"], perm=[0, 2, 3, 1], name="general_transpose"),
+             helper.make_node("LRN", ["a"], ["b"], size=3, name="the_lrn"),
              helper.make_node("Erf", ["b"], ["c"], name="the_erf"),
              helper.make_node("Conv", ["c", "w"], ["y"], name="conv_ok")]
-    m = make_model(nodes, {"x": x}, ["y"], initializers={"w": conv_w(3, 6, 1, 0)})
+    m = make_model(nodes, {"x": x}, ["y"], initializers={"w": conv_w(3, 4, 1, 0)})
     with pytest.raises(UnsupportedModelError) as e:
         clss.Model(m)
     msg = str(e.value)
     assert "2 node(s)" in msg
-    assert "'general_transpose' (Transpose, opset 18)" in msg and "'the_erf' (Erf, opset 18)" in msg
-    assert [n[0] for n in e.value.nodes] == ["general_transpose", "the_erf"]
+    assert "'the_lrn' (LRN, opset 18)" in msg and "'the_erf' (Erf, opset 18)" in msg
+    assert [n[0] for n in e.value.nodes] == ["the_lrn", "the_erf"]
 
 
 def test_data_dependent_shapes_and_constants():
