@@ -19,6 +19,7 @@ import pyopencl.array as cla
 
 from .device import Device, storage_dtype
 from .model_graph import NO_KERNEL, Graph, ModelError, Node, UnsupportedModelError, custom_domain_reason
+from .model_passes import LOWERED_OPS
 from .model_plan import Alloc, Plan, assign_slots, check_plan
 from .ops.base import ONNX_HANDLERS, OnnxHandler, Unsupported
 
@@ -257,6 +258,9 @@ class Executor:
         if node.domain and not node.op.startswith("clss."):
             raise Unsupported(custom_domain_reason(node.domain))
         if h is None:
+            if node.op in LOWERED_OPS:
+                raise Unsupported(f"clss runs {node.op} only in the forms its load-time passes rewrite "
+                                  "(see the README's clss.Model section); not this one")
             raise Unsupported(NO_KERNEL)
         g = self.g
         for t in list(node.inputs) + list(node.outputs):
