@@ -8,7 +8,8 @@ from a conformance test, and nothing else:
 * inputs the kernels need at load (Resize scales, Pad pads, Reshape shape,
   BatchNorm statistics, Gemm's B and C) become initializers;
 * IR version 10, for onnxruntime.
-Cases on non-float32 data are skipped as one category (the kernels are
+Each case runs at the opset it was written for (11 to 25; 22-25 only widened
+types). Cases on non-float32 data are skipped as one category (the kernels are
 float32/float16); cases the kernels cannot run are listed with a reason in the
 families' NODE_DEVIATIONS or in MODEL_DEVIATIONS below.
 """
