@@ -138,7 +138,7 @@ def load_proto(model) -> onnx.ModelProto:
 def check(m: onnx.ModelProto) -> int:
     """onnx's checker and the opset range; returns the default-domain opset."""
     try:
-        onnx.checker.check_model(_with_output_shapes(m))
+        onnx.checker.check_model(_checkable(m))
     except onnx.checker.ValidationError as e:
         raise ModelError(f"malformed model (onnx checker): {e}") from None
     opsets = {o.domain or "": o.version for o in m.opset_import}
@@ -149,24 +149,30 @@ def check(m: onnx.ModelProto) -> int:
     return opset
 
 
-def _with_output_shapes(m: onnx.ModelProto) -> onnx.ModelProto:
-    """The model as the checker wants it. Its main-graph rule requires a shape
-    on every graph output; onnxruntime and exporters do not, and shape
-    inference (at load, in _infer) gives the real one. So the checker sees a
-    copy whose shapeless outputs carry the inferred shape."""
+def _checkable(m: onnx.ModelProto) -> onnx.ModelProto:
+    """The model as the checker wants it, where onnxruntime wants less:
+    * the checker refuses IR versions past its own (onnx 1.22: 13; onnx >= 1.23
+      writes 14, which onnxruntime 1.32 runs): it sees the model at its IR;
+    * its main-graph rule requires a shape on every graph output; onnxruntime
+      and exporters do not, and shape inference (at load, in _infer) gives the
+      real one: it sees the shapeless outputs with the inferred shape."""
     kinds = [o.type.WhichOneof("value") for o in m.graph.output]
-    if any(k not in (None, "tensor_type") for k in kinds) or all(
-            k and o.type.tensor_type.HasField("shape") for k, o in zip(kinds, m.graph.output)):
-        return m   # nothing to fill (non-tensor outputs are refused later, by name)
-    from .ops.twin import fill_output_shapes
+    fill = not any(k not in (None, "tensor_type") for k in kinds) and not all(
+        k and o.type.tensor_type.HasField("shape") for k, o in zip(kinds, m.graph.output))
+    if not fill and m.ir_version <= onnx.IR_VERSION:
+        return m   # (non-tensor outputs are refused later, by name)
     probe = onnx.ModelProto()
     probe.CopyFrom(m)
+    probe.ir_version = min(probe.ir_version, onnx.IR_VERSION)
+    if not fill:
+        return probe
+    from .ops.twin import fill_output_shapes
     for o in probe.graph.output:
         o.type.tensor_type.SetInParent()   # an output with no type at all: inference fills it
     try:
         fill_output_shapes(probe)
     except Exception:   # inference itself fails: the checker, then _infer, say why
-        return m
+        pass
     return probe
 
 

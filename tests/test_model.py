@@ -117,6 +117,16 @@ def test_graph_outputs_without_shape_or_type(prec):
     assert cm.output_shapes == {"y": (1, 6, 5, 7), "c0": (1, 6, 5, 7)}
 
 
+def test_ir_version_past_the_checkers():
+    """onnx >= 1.23 writes IR 14, past onnx 1.22's checker (13); onnxruntime 1.32 runs it."""
+    x = rnd(1, 3, 5, 7)
+    m = conv_chain_model(x, n=1)
+    ref = run_ort(m, {"x": x})[0]   # at IR 10: older onnxruntimes refuse 14
+    m.ir_version = 14
+    y = clss.Model(m).run({"x": x})["y"]
+    assert compare(y, ref, TOL["fp32"]).passed
+
+
 def test_unsupported_op_named_before_its_unknown_shape():
     boxes = np.random.default_rng(0).random((1, 6, 4), np.float32)
     scores = np.random.default_rng(1).random((1, 1, 6), np.float32)
