@@ -135,6 +135,35 @@ def load_proto(model) -> onnx.ModelProto:
     raise TypeError(f"model must be a path, bytes or onnx.ModelProto, got {type(model).__name__}")
 
 
+def sort_nodes(g: onnx.GraphProto) -> None:
+    """Nodes in an order where each comes after the producers of its inputs.
+    onnxruntime takes a graph in any order; the checker, the folding and the
+    passes want it sorted. Stable (a sorted graph stays as it is); a node
+    whose input nothing produces stays last, for the checker to name."""
+    avail = {t.name for t in g.input} | {t.name for t in g.initializer} | {""}
+    avail |= {t.values.name for t in g.sparse_initializer}
+    order, pending = [], list(range(len(g.node)))
+    while pending:
+        rest = []
+        for k in pending:
+            if all(t in avail for t in g.node[k].input):
+                order.append(k)
+                avail.update(g.node[k].output)
+            else:
+                rest.append(k)
+        if len(rest) == len(pending):
+            break
+        pending = rest
+    order += pending
+    if order != sorted(order):
+        nodes = []
+        for k in order:   # copies: deleting from a repeated field may free its elements
+            nodes.append(onnx.NodeProto())
+            nodes[-1].CopyFrom(g.node[k])
+        del g.node[:]
+        g.node.extend(nodes)
+
+
 def check(m: onnx.ModelProto) -> int:
     """onnx's checker and the opset range; returns the default-domain opset."""
     try:
@@ -479,6 +508,7 @@ def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
     shape-resolved ModelProto (before folding, for FLOP counting and `clss info`),
     and the resolved input shapes."""
     m = load_proto(model)
+    sort_nodes(m.graph)
     opset = check(m)
     if m.functions:
         try:

@@ -117,6 +117,16 @@ def test_graph_outputs_without_shape_or_type(prec):
     assert cm.output_shapes == {"y": (1, 6, 5, 7), "c0": (1, 6, 5, 7)}
 
 
+def test_nodes_in_any_order():
+    """onnxruntime takes nodes in any order; the checker wants them sorted."""
+    x = rnd(1, 3, 5, 7)
+    m = conv_chain_model(x, n=2)
+    nodes = list(m.graph.node)[::-1]
+    del m.graph.node[:]
+    m.graph.node.extend(nodes)
+    assert_matches(m, {"x": x})
+
+
 def test_ir_version_past_the_checkers():
     """onnx >= 1.23 writes IR 14, past onnx 1.22's checker (13); onnxruntime 1.32 runs it."""
     x = rnd(1, 3, 5, 7)
