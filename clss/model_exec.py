@@ -526,8 +526,9 @@ class Executor:
         for t in g.outputs:
             if t in env:
                 res[t] = env[t]
-            else:
-                res[t] = self.const_array(t)
+            else:   # a 0-d constant is uploaded as shape (1,): give it its own
+                a = self.const_array(t)
+                res[t] = a if tuple(a.shape) == tuple(g.shapes[t]) else a.reshape(tuple(g.shapes[t]))
         return res
 
 

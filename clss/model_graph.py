@@ -292,6 +292,12 @@ def resolve_inputs(m: onnx.ModelProto, input_shapes: dict | None) -> dict[str, t
         tt.shape.Clear()
         for s in shape:
             tt.shape.dim.add().dim_value = int(s)
+    # A graph output that is an input is that input: a shapeless declaration of it
+    # would otherwise hide the input's shape from shape inference downstream.
+    for o in g.output:
+        for vi in runtime:
+            if o.name == vi.name:
+                o.type.CopyFrom(vi.type)
     return out
 
 
@@ -574,4 +580,4 @@ def _host_const(v: np.ndarray) -> np.ndarray:
     v = np.asarray(v)
     if v.dtype == np.float16:
         return v.astype(np.float32)
-    return np.ascontiguousarray(v)
+    return np.ascontiguousarray(v).reshape(v.shape)   # (ascontiguousarray makes 0-d arrays 1-d)

@@ -117,6 +117,19 @@ def test_graph_outputs_without_shape_or_type(prec):
     assert cm.output_shapes == {"y": (1, 6, 5, 7), "c0": (1, 6, 5, 7)}
 
 
+def test_shapeless_outputs_that_are_an_input_or_a_scalar_constant():
+    x = rnd(1, 2, 3, 3)
+    g = helper.make_graph([helper.make_node("Relu", ["x"], ["y"]),
+                           helper.make_node("Constant", [], ["k"], value_float=3.0)], "g",
+                          [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 2, 3, 3])],
+                          [helper.make_tensor_value_info(n, TensorProto.FLOAT, None) for n in ("y", "x", "k")])
+    m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 22)])
+    m.ir_version = 10
+    outs = clss.Model(m).run({"x": x})
+    for name, ref in zip(("y", "x", "k"), run_ort(m, {"x": x})):
+        assert outs[name].shape == ref.shape and np.array_equal(outs[name], ref), name
+
+
 def test_nodes_in_any_order():
     """onnxruntime takes nodes in any order; the checker wants them sorted."""
     x = rnd(1, 3, 5, 7)
