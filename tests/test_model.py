@@ -232,15 +232,18 @@ def test_nan_propagates_like_onnxruntime(prec):
              helper.make_node("Conv", ["x", "w1"], ["p1"]),
              helper.make_node("Relu", ["p1"], ["p1r"]),
              helper.make_node("Conv", ["p1r", "w2"], ["p2"]),
-             helper.make_node("LeakyRelu", ["p2"], ["mlp"], alpha=0.3)]
-    outs = ["relu", "leaky", "clip", "max", "min", "hsig", "conv_relu", "conv_add_leaky", "mlp"]
+             helper.make_node("LeakyRelu", ["p2"], ["mlp"], alpha=0.3),
+             helper.make_node("ConvTranspose", ["x", "wt"], ["t2"], strides=[2, 2]),
+             helper.make_node("Relu", ["t2"], ["deconv_relu"])]
+    outs = ["relu", "leaky", "clip", "max", "min", "hsig", "conv_relu", "conv_add_leaky", "mlp", "deconv_relu"]
     inits = {"lo": lo, "hi": hi, "zero": zero, "w3": conv_w(4, 4, 3, 1), "w1": conv_w(6, 4, 1, 2),
-             "w2": conv_w(3, 6, 1, 3)}
+             "w2": conv_w(3, 6, 1, 3), "wt": conv_w(4, 3, 2, 4)}
     if prec != "fp32":
         inits = {k: v.astype(np.float16).astype(np.float32) for k, v in inits.items()}
     cm = assert_matches(make_model(nodes, {"x": x}, outs, initializers=inits), {"x": x}, prec)
     ops = cm.execution_ops()
     assert ops["Conv+relu"] == 1 and ops["Conv+Add+leaky_relu"] == 1 and ops["MLP(2 layers)"] == 1, ops
+    assert ops["ConvTranspose+relu"] == 1, ops
 
 
 def _symbolic_model():
