@@ -9,7 +9,8 @@ from a conformance test, and nothing else:
   BatchNorm statistics, Gemm's B and C) become initializers;
 * IR version 10, for onnxruntime.
 Each case runs at the opset it was written for (11 to 25; 22-25 only widened
-types). Cases on non-float32 data are skipped as one category (the kernels are
+types). Cases on float16 data run in precision fp16 (its default tolerance); cases on
+other non-float32 data are skipped as one category (the kernels are
 float32/float16); cases the kernels cannot run are listed with a reason in the
 families' NODE_DEVIATIONS or in MODEL_DEVIATIONS below.
 """
@@ -26,7 +27,7 @@ import clss
 from clss.model_graph import MAX_OPSET, MIN_OPSET, UnsupportedModelError
 from clss.model_passes import LOWERED_OPS
 from clss.ops import ONNX_HANDLERS, load_all
-from clss.ops.base import Tolerance, compare
+from clss.ops.base import DEFAULT_TOL, Tolerance, compare
 from node_cases import load_case_data, single_node_cases
 
 FAMILIES = load_all()
@@ -61,7 +62,8 @@ CASES = single_node_cases(set(ONNX_HANDLERS) | LOWERED_OPS)
 
 
 def adapt(case_dir):
-    """(model, feeds, expected) ready for clss.Model and onnxruntime, or a skip reason."""
+    """(model, feeds, expected, precision) ready for clss.Model and onnxruntime,
+    or a skip reason. Cases on float16 data run in precision fp16 (half storage)."""
     m = onnx.load(os.path.join(case_dir, "model.onnx"))
     node = m.graph.node[0]
     if any(v.type.WhichOneof("value") != "tensor_type" for v in list(m.graph.input) + list(m.graph.output)):
@@ -70,15 +72,19 @@ def adapt(case_dir):
         return f"opset < {MIN_OPSET}: clss runs opsets {MIN_OPSET}-{MAX_OPSET}"
     feeds, expected = load_case_data(case_dir, m)
     consts = _const_positions(node.op_type)
+    floats = set()
     for i, name in enumerate(node.input):
         if not name or name not in feeds:
             continue
         x = feeds[name]
-        if i not in consts and i not in NON_FLOAT_INPUTS.get(node.op_type, ()) and x.dtype != np.float32:
-            return f"{x.dtype} tensors: the kernels are float32/float16 only"
-    for e in expected:   # float64/16 and ml_dtypes' bfloat16, float8, int4, ... outputs
-        if e.dtype != np.float32 and (e.dtype.kind not in "biu" or e.dtype.type.__module__ != "numpy"):
-            return f"{e.dtype} outputs: the kernels are float32/float16 only"
+        if i not in consts and i not in NON_FLOAT_INPUTS.get(node.op_type, ()):
+            floats.add(x.dtype)
+    for e in expected:   # ml_dtypes' bfloat16, float8, int4, ... are not numpy's own
+        if not (e.dtype.kind in "biu" and e.dtype.type.__module__ == "numpy"):
+            floats.add(e.dtype)
+    other = floats - {np.dtype(np.float32), np.dtype(np.float16)}
+    if other:
+        return f"{sorted(map(str, other))[0]} tensors: the kernels are float32/float16 only"
     for i, name in enumerate(node.input):
         if name and i in consts and name in feeds:
             m.graph.initializer.append(numpy_helper.from_array(feeds.pop(name), name))
@@ -86,10 +92,10 @@ def adapt(case_dir):
             del m.graph.input[:]
             m.graph.input.extend(keep)
     m.ir_version = min(m.ir_version, 10)
-    return m, feeds, expected
+    return m, feeds, expected, "fp16" if np.dtype(np.float16) in floats else "fp32"
 
 
-def _check(outs, refs, names, what):
+def _check(outs, refs, names, what, tol=NODE_TOL):
     assert len(outs) >= len(refs)
     for name, r in zip(names, refs):
         o = outs[name]
@@ -97,7 +103,7 @@ def _check(outs, refs, names, what):
         if r.dtype.kind in "biu":
             assert np.array_equal(o.astype(r.dtype), r), f"{what}: output {name!r} integer values differ"
             continue
-        c = compare(o, r.astype(np.float32), NODE_TOL)
+        c = compare(o, r.astype(np.float32), tol)
         assert c.passed, f"{what}: output {name!r} max abs {c.max_abs:.3g} err/tol {c.ratio:.3g} {c.detail}"
 
 
@@ -111,10 +117,11 @@ def test_model_node_case(case_dir, dev):
     got = adapt(case_dir)
     if isinstance(got, str):
         pytest.skip(got)
-    model, feeds, expected = got
+    model, feeds, expected, prec = got
+    tol = NODE_TOL if prec == "fp32" else DEFAULT_TOL[prec]
     reason = MODEL_DEVIATIONS.get(name) or FAMILY_DEVIATIONS.get(name)
     try:
-        cm = clss.Model(model, device=dev)
+        cm = clss.Model(model, device=dev, precision=prec)
     except UnsupportedModelError as e:
         if reason:
             pytest.xfail(reason)
@@ -122,7 +129,7 @@ def test_model_node_case(case_dir, dev):
     outs = cm.run(feeds)
     names = cm.output_names
     try:
-        _check(outs, expected, names, "vs expected")
+        _check(outs, expected, names, "vs expected", tol)
     except AssertionError:
         if reason:
             pytest.xfail(reason)
@@ -132,4 +139,4 @@ def test_model_node_case(case_dir, dev):
         refs = run_ort(model, feeds)
     except Exception as e:  # onnxruntime lacks a few (op, opset) pairs
         pytest.skip(f"onnxruntime cannot run it: {str(e)[:200]}")
-    _check(outs, refs, names, "vs onnxruntime")
+    _check(outs, refs, names, "vs onnxruntime", tol)
