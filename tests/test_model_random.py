@@ -3,8 +3,8 @@
 single ops with random attributes, and multi-op graphs (conv stacks with
 activations, residual adds, skip concatenations, pooling and upsampling,
 pixel (un)shuffles, channel attention), fp32 and fp16, odd sizes and channel
-counts, with and without shapes on the graph outputs. In fp16 the reference is onnxruntime on fp16-rounded inputs and
-weights (what the engine stores)."""
+counts, with and without shapes on the graph outputs. In fp16 the reference
+is onnxruntime on fp16-rounded inputs and weights (what the engine stores)."""
 from __future__ import annotations
 
 import numpy as np
