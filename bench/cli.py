@@ -59,7 +59,7 @@ def _logger(bar):
 
 
 def bench_main(argv=None) -> int:
-    p = argparse.ArgumentParser(
+    p = ArgParser(
         prog="clss bench",
         description="Benchmark every clss kernel (and, once they exist, the CLSS networks and the whole "
                     "frame step) against onnxruntime running the same ONNX twin on the CPU, in one process, "
@@ -73,7 +73,7 @@ def bench_main(argv=None) -> int:
     p.add_argument("--full", action="store_true", help="also the 1080p -> 2160p shapes")
     p.add_argument("--tiny", action="store_true",
                    help="tiny shapes and a brief peak probe: a smoke test of the bench itself (numbers meaningless)")
-    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     p.add_argument("--precision", "-p", default=None,
                    help="fp32, fp16, fp16-native, a comma list, or all (default: fp32 with --quick, else all "
                         "the device supports)")
@@ -184,7 +184,7 @@ def bench_main(argv=None) -> int:
 
 
 def tune_main(argv=None) -> int:
-    p = argparse.ArgumentParser(
+    p = ArgParser(
         prog="clss tune",
         description="Search kernel tunables (register blocks, channels/pixels per work-item) and work-group "
                     "sizes for the bench cases on this device; each candidate's output is checked against "
@@ -197,7 +197,7 @@ def tune_main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="only the --quick bench cases")
     p.add_argument("--full", action="store_true", help="also the 1080p -> 2160p shapes")
     p.add_argument("--tiny", action="store_true", help="tiny shapes (a smoke test of the tuner)")
-    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     p.add_argument("--precision", "-p", default="fp32", help="fp32, fp16, fp16-native, a comma list, or all")
     p.add_argument("--filter", "-k", default=None, help="as for clss bench")
     p.add_argument("--runs", type=int, default=5, help="timed runs per candidate (median)")
