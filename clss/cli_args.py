@@ -20,8 +20,23 @@ class ArgParser(argparse.ArgumentParser):
     """argparse, but a mistake prints one line (what was wrong, and where to read
     more) instead of the usage block, and exits with status 2."""
 
+    dash_values: tuple = ()
+
     def error(self, message):
         self.exit(2, f"{self.prog}: {message} (see `{self.prog} --help`)\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        # argparse takes '-1,-1' or '-W,H' after a flag for another flag; the flags in
+        # `dash_values` take their next word as the value whatever it starts with.
+        if args is not None and self.dash_values:
+            args, out = list(args), []
+            while args:
+                tok = args.pop(0)
+                if tok in self.dash_values and args:
+                    tok = f"{tok}={args.pop(0)}"
+                out.append(tok)
+            args = out
+        return super().parse_known_args(args, namespace)
 
 
 # ---------------------------------------------------------------- value types

@@ -345,7 +345,8 @@ def _pattern_files(pattern):
     """Sorted [(frame number, path)] of a numbered pattern, a glob or a list of paths;
     every file's number is its own (never its position), see `_number_files`."""
     if isinstance(pattern, (list, tuple)):
-        return _number_files(sorted(pattern), "the frame list")
+        dirs = {os.path.dirname(os.fspath(p)) for p in pattern}
+        return _number_files(sorted(pattern), dirs.pop() if len(dirs) == 1 else "the frame list")
     pattern = os.fspath(pattern)
     m = _NUMBERED.search(pattern)
     if not m:
@@ -387,11 +388,14 @@ def _number_files(files, where):
     strays = unnumbered + [p for k, g in groups.items() if k != main for _, p in g]
     if strays:
         d, head, tail = main
-        example = os.path.join(d, f"{head}%04d{tail}")
+        widths = {len(m) for m in (_LAST_NUMBER.search(os.path.basename(p)).group(1)
+                                   for _, p in groups[main])}
+        width = widths.pop() if len(widths) == 1 else 1
+        example = os.path.join(d, f"{head}%0{width}d{tail}" if width > 1 else f"{head}%d{tail}")
         shown = ", ".join(os.path.basename(p) for p in sorted(strays)[:6])
         more = f" and {len(strays) - 6} more" if len(strays) > 6 else ""
         raise InputError(f"{where}: {len(strays)} file(s) do not follow the frames' numbering "
-                         f"{head}####{tail} ({len(groups[main])} frames): {shown}{more}; move them "
+                         f"{head}{'#' * width}{tail} ({len(groups[main])} frames): {shown}{more}; move them "
                          f"away, or name the frames exactly with a pattern such as {example!r}")
     out = sorted(groups[main])
     _refuse_duplicates(out, where)

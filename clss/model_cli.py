@@ -12,8 +12,8 @@ import time
 import numpy as np
 
 from .cli import DEVICE_HELP, register
-from .errors import cli_message
 from .cli_args import ArgParser, check_output_file, device_spec, positive_int
+from .errors import cli_message
 
 # Defaults of --atol/--rtol for --compare-ort (|d| <= atol*max|ref| + rtol*|ref|):
 # fp16 stores every intermediate tensor with an 11-bit mantissa, and the

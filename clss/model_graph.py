@@ -132,7 +132,8 @@ def load_proto(model) -> onnx.ModelProto:
         try:
             return onnx.load(path)
         except Exception as e:
-            raise ModelError(f"{path}: not an ONNX model: {e}") from None
+            # protobuf's text-format parser explains over several lines; the first says it.
+            raise ModelError(f"{path}: not an ONNX model: {str(e).splitlines()[0]}") from None
     raise TypeError(f"model must be a path, bytes or onnx.ModelProto, got {type(model).__name__}")
 
 

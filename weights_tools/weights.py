@@ -115,6 +115,8 @@ def load_weights(path) -> dict:
             data = f.read()
     except OSError as e:
         raise WeightsError(f"{path}: cannot read ({e.strerror or e})") from None
+    except WeightsError:
+        raise
     except (UnicodeDecodeError, ValueError) as e:
         raise bad(f"header is not JSON: {e}") from None
     if not isinstance(header, dict):

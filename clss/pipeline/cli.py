@@ -201,6 +201,7 @@ def cmd_upscale(argv) -> int:
     p.add_argument("--sanitize", action="store_true",
                    help="replace NaN/Inf inputs and report how many, in which frames "
                         "(default: refuse such frames and stop)")
+    p.dash_values = ("--motion-scale",)
     a = p.parse_args(argv)
     from ..io import read_sequence, write_exr, write_png
     from ..progress import progress
