@@ -7,6 +7,7 @@ import argparse
 import glob
 import math
 import os
+import re
 import tempfile
 
 from .errors import UserError
@@ -84,15 +85,20 @@ def device_spec(text: str) -> str:
     return text
 
 
+_SIZE_FACTOR = re.compile(r"([+-]?)(\d+\.?\d*|\.\d+)?\*?([WH])", re.IGNORECASE)
+
+
 def motion_scale(text: str) -> tuple:
-    """'sx,sy': two numbers, or W / H (the render width / height, for motion stored in
-    UV units), each optionally negated: '1,1', '-1,-1', 'W,H', '-W,H', '0.5,0.5'."""
+    """'sx,sy': each a number, or a multiple of W / H (the render width / height, for
+    motion stored in UV or NDC units): '1,1', '-1,-1', 'W,H', '-W,H', '-0.5W,0.5H'.
+    Returns (sx, sy) with W / H kept as (factor, 'W' or 'H') until the size is known."""
     parts = [p.strip() for p in text.split(",")]
     out = []
     for p in parts:
-        sign, name = (-1.0, p[1:]) if p.startswith("-") else (1.0, p)
-        if name.upper() in ("W", "H") and len(parts) == 2:
-            out.append((sign, name.upper()))
+        m = _SIZE_FACTOR.fullmatch(p)
+        if m:
+            factor = float(m.group(2)) if m.group(2) else 1.0
+            out.append((-factor if m.group(1) == "-" else factor, m.group(3).upper()))
             continue
         try:
             v = float(p)
@@ -102,8 +108,9 @@ def motion_scale(text: str) -> tuple:
             break
         out.append(v)
     if len(out) != 2 or len(parts) != 2:
-        raise argparse.ArgumentTypeError(f"expected 'sx,sy' (numbers, or W and H for the render "
-                                         f"width and height, e.g. 'W,H' or '-1,-1'), got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected 'sx,sy': numbers, or multiples of W and H "
+                                         f"(the render width and height), e.g. '-1,-1', 'W,H' or "
+                                         f"'-0.5W,0.5H'; got {text!r}")
     return tuple(out)
 
 
