@@ -107,10 +107,10 @@ def _atomic_write(path, write):
     os.makedirs(d, exist_ok=True)
     ext = os.path.splitext(base)[1]
     fd, tmp = tempfile.mkstemp(prefix="." + base + ".", suffix=".tmp" + ext, dir=d)
-    os.fchmod(fd, new_file_mode())
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, new_file_mode())      # after writing: a writer may recreate the file
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -316,3 +316,14 @@ def test_outputs_respect_the_umask(work, tmp_path, capsys):
     assert rc == 0
     for f in os.listdir(tmp_path / "out"):
         assert os.stat(tmp_path / "out" / f).st_mode & 0o777 == 0o640, f
+
+
+def test_progress_lines_off_a_terminal():
+    import io
+    from clss.progress import progress
+    log = io.StringIO()
+    assert list(progress(range(3), desc="upscale", unit="frame", file=log, interval=0)) == [0, 1, 2]
+    lines = log.getvalue().splitlines()
+    assert len(lines) == 3 and lines[1].startswith("upscale: 2/3 frames (") and "ETA" in lines[1]
+    quiet = io.StringIO()
+    assert list(progress([1, 2], file=quiet)) == [1, 2] and quiet.getvalue() == ""

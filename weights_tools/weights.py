@@ -76,11 +76,11 @@ def save_weights(model_or_tensors, path, half=False):
     tensors = {k: np.ascontiguousarray(v) for k, v in tensors.items()}
     d = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(suffix=".safetensors.tmp", dir=d)
-    os.fchmod(fd, new_file_mode())       # mkstemp's 0600 would ignore the umask
     os.close(fd)
     try:
         save_file(tensors, tmp, metadata={"producer": "weights_tools",
                                           "dtype": "float16" if half else "float32"})
+        os.chmod(tmp, new_file_mode())       # mkstemp's 0600 would ignore the umask
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)

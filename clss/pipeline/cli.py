@@ -101,14 +101,16 @@ def render_debug_views(views: dict, cap: float) -> dict:
     return out
 
 
-def write_debug_views(directory, up, frame_number, prefix=""):
+def write_debug_views(directory, up, frame_number, prefix="", paths=None):
+    """Write the debug views of the last frame; each path is appended to `paths` before
+    its file is written (so that an interruption knows what to clean up)."""
     from ..io import write_png_ldr
     cap = up._fs.cap if up._fs is not None else 1.0
-    paths = []
+    paths = [] if paths is None else paths
     for name, img in render_debug_views(up.debug_views(), cap).items():
         p = os.path.join(directory, f"{prefix}{name}.{frame_number:04d}.png")
-        write_png_ldr(p, img)
         paths.append(p)
+        write_png_ldr(p, img)
     return paths
 
 
@@ -250,7 +252,7 @@ def cmd_upscale(argv) -> int:
                 files.add(stem + ".png")
                 write_png(stem + ".png", out)
             if a.debug_views:
-                files.add(*write_debug_views(dbg_dir, up, number))
+                write_debug_views(dbg_dir, up, number, paths=files.pending)
             files.done()
             if f.reference is not None and f.reference.shape == out.shape:
                 from ..metrics import psnr, ssim
