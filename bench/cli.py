@@ -131,6 +131,10 @@ def bench_main(argv=None) -> int:
         return 2
     cases, unavailable = all_cases(level, ("tiny",) if a.tiny else None)
     cases = _select(cases, a.filter)
+    if not cases and not a.list:
+        print(f"clss bench: --filter {a.filter!r} matches no case (`clss bench --list` lists them)",
+              file=sys.stderr)
+        return 2
     if a.list:
         for c in cases:
             print(f"{c.label:60s} {c.family:15s} {c.kind:8s} {c.shape}{'  (quick)' if c.quick else ''}")

@@ -93,6 +93,10 @@ def cmd_verify(argv) -> int:
         return 2
     cases = [c for c in all_cases(a.level, [a.family] if a.family else None)
              if not a.filter or a.filter in c.op]
+    if not cases:
+        print(f"clss verify: --filter {a.filter!r} matches no op (see `clss verify --level tiny` "
+              "for the list)", file=sys.stderr)
+        return 2
     print(f"device: {dev.info.platform} / {dev.info.name} (driver {dev.info.driver}); "
           f"{len(cases)} cases x {len(precs)} precision(s)", file=sys.stderr)
     t0 = time.perf_counter()

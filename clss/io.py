@@ -592,7 +592,7 @@ def read_sequence(source, channels=None, jitter=None, scale=None, reference=None
     numbers = [n for n, _ in entries]
     first_dir = os.path.dirname(os.path.abspath(entries[0][1]["color"]))
     jit, meta = _resolve_jitter(jitter, scale, numbers, first_dir)
-    resets = set(int(r) for r in meta.get("resets", []))
+    resets = _resets(meta.get("resets", []), meta.get("sidecar", "jitter sidecar"))
     return FrameSequence(entries, channels, jit, resets, meta, single)
 
 
@@ -603,6 +603,16 @@ def _describe(pattern):
             return "the frame list"
         return f"{pattern[0]} and {len(pattern) - 1} more" if len(pattern) > 1 else str(pattern[0])
     return str(pattern)
+
+
+def _resets(value, where):
+    """The sidecar's `resets`: a list of frame numbers."""
+    try:
+        if isinstance(value, (str, bytes)) or not all(float(r) == int(r) for r in value):
+            raise ValueError
+        return {int(r) for r in value}
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: 'resets' must be a list of frame numbers, got {value!r}") from None
 
 
 def check_channels(channels):
@@ -641,6 +651,7 @@ def _resolve_jitter(jitter, scale, numbers, directory):
     if isinstance(src, (str, os.PathLike)):
         path = os.fspath(src)
         table, meta = _read_jitter_file(path)
+        meta = dict(meta, sidecar=path)
         if isinstance(table, dict):
             lost = [n for n in numbers if n not in table]
             if lost:

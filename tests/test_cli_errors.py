@@ -41,6 +41,9 @@ def work(tmp_path_factory):
     d = tmp_path_factory.mktemp("cli_errors")
     frames = scene.render_sequence(n_frames=4, render_size=(9, 13), scale=2, spp_ref=1)
     cio.write_sample_sequence(frames, d / "seq")
+    shutil.copytree(d / "seq", d / "bad_resets")
+    side = json.loads((d / "seq" / "jitter.json").read_text())
+    (d / "bad_resets" / "jitter.json").write_text(json.dumps(dict(side, resets="0,2")))
     (d / "full").mkdir()
     (d / "full" / "old.txt").write_text("a previous run")
     (d / "a_file").write_text("x")
@@ -102,6 +105,7 @@ BAD = [
     ("upscale {d}/seq -o {d}/o --weights {d}/nothing", "does not exist"),
     ("upscale {d}/seq -o {d}/o --jitter {d}/nothing.json", "nothing.json"),
     ("upscale {d}/seq -o {d}/o --exposure 0", "--exposure"),
+    ("upscale {d}/bad_resets -o {d}/o", "'resets' must be a list of frame numbers"),
     ("upscale {d}/seq -o {d}/o --mode bogus", "--mode"),
     ("upscale {d}/nothing -o {d}/o", "no files match"),
     ("upscale {d}/seq", "-o/--out"),
@@ -150,6 +154,8 @@ BAD = [
     ("bench --runs 0", "--runs"),
     ("bench --budget -1", "--budget"),
     ("bench --device nosuch --no-peak --filter nothing", "no device matches"),
+    ("bench --tiny --no-peak --filter nothing", "matches no case"),
+    ("verify --filter nothing", "matches no op"),
     ("tune --runs 0", "--runs"),
     ("tune --quick --full", "--quick and --full"),
     ("tune --db {d}/missing/t.json", "--db"),

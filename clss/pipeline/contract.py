@@ -1,4 +1,4 @@
-"""The CLSS frame input contract: validation and conventions (clss-frame.md section 1).
+"""The CLSS frame input contract: validation and conventions (docs/input-contract.md).
 
 Layout of one frame as the caller hands it in (render resolution h x w):
 

@@ -4,7 +4,7 @@
     for f in frames:
         out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)   # H x W x 3
 
-Inputs follow the frame contract (contract.py, shared/design/clss-frame.md): colour
+Inputs follow the frame contract (contract.py, docs/input-contract.md): colour
 h x w x 3 linear, depth h x w (reversed-Z by default), motion h x w x 2 in render pixels
 (prev = p + motion * motion_scale), jitter (jx, jy) in render pixels. The output is
 H x W x 3 float32 linear (H = round(h * scale)).
