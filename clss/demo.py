@@ -34,9 +34,9 @@ def _size(text):
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--size: expected WxH (e.g. 480x270), got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 480x270), got {text!r}")
     if w < 4 or h < 4:
-        raise argparse.ArgumentTypeError(f"--size: at least 4x4, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected at least 4x4, got {text!r}")
     return h, w
 
 
