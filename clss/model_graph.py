@@ -179,8 +179,9 @@ def resolve_inputs(m: onnx.ModelProto, input_shapes: dict | None) -> dict[str, t
     given = {k: parse_shape(v) for k, v in (input_shapes or {}).items()}
     unknown = sorted(set(given) - set(names))
     if unknown:
-        raise ModelError(f"input_shapes names {', '.join(map(repr, unknown))}, which the model does not "
-                         f"have; its inputs are {', '.join(map(repr, names))}")
+        why = (f"names {', '.join(map(repr, unknown))}, which the model does not have; its inputs "
+               f"are {', '.join(map(repr, names))}")
+        raise ModelError(f"input_shapes {why}", cli=f"--input-shape / --input {why}")
     out = {}
     for vi in runtime:
         if vi.type.WhichOneof("value") != "tensor_type":
