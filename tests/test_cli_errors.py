@@ -333,3 +333,23 @@ def test_progress_lines_off_a_terminal():
     assert len(lines) == 3 and lines[1].startswith("upscale: 2/3 frames (") and "ETA" in lines[1]
     quiet = io.StringIO()
     assert list(progress([1, 2], file=quiet)) == [1, 2] and quiet.getvalue() == ""
+
+
+def test_read_only_output_places(work, tmp_path, monkeypatch, capsys):
+    """A read-only directory (simulated: the tests may run as root, who may write anywhere)
+    is refused before any work, for -o and for --json."""
+    import errno
+    import tempfile
+
+    def denied(*a, **k):
+        raise PermissionError(errno.EACCES, "Permission denied")
+    monkeypatch.setattr(tempfile, "TemporaryFile", denied)
+    monkeypatch.setattr(os, "access", lambda *a, **k: False)
+    (tmp_path / "ro").mkdir()
+    for argv, expected in (
+            (["upscale", work / "seq", "-o", tmp_path / "ro"], "cannot write there (permission denied)"),
+            (["upscale", work / "seq", "-o", tmp_path / "ro" / "new"], "is not writable"),
+            (["verify", "--json", tmp_path / "ro" / "v.json"], "not writable"),
+            (["demo", "-o", tmp_path / "ro" / "d"], "is not writable")):
+        rc, cap = _run(argv, capsys)
+        assert rc == 2 and expected in cap.err, cap.err
