@@ -36,10 +36,14 @@ def _safetensors(path, header, data=b""):
 
 
 @pytest.fixture(scope="module")
-def work(tmp_path_factory):
+def frames():
+    return scene.render_sequence(n_frames=4, render_size=(9, 13), scale=2, spp_ref=1)
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory, frames):
     """A sequence, a non-empty directory, bad weights, bad models and bad bench files."""
     d = tmp_path_factory.mktemp("cli_errors")
-    frames = scene.render_sequence(n_frames=4, render_size=(9, 13), scale=2, spp_ref=1)
     cio.write_sample_sequence(frames, d / "seq")
     shutil.copytree(d / "seq", d / "bad_resets")
     side = json.loads((d / "seq" / "jitter.json").read_text())
@@ -353,3 +357,26 @@ def test_read_only_output_places(work, tmp_path, monkeypatch, capsys):
             (["demo", "-o", tmp_path / "ro" / "d"], "is not writable")):
         rc, cap = _run(argv, capsys)
         assert rc == 2 and expected in cap.err, cap.err
+
+
+def test_demo_ctrl_c_leaves_whole_frames(frames, tmp_path, capsys, monkeypatch):
+    import clss.io
+    real = clss.io.write_png
+    # The module's frames instead of rendering the scene again (seconds on a busy machine).
+    monkeypatch.setattr(scene, "iter_sequence", lambda n, *a, **k: iter(frames[:n]))
+
+    def write_png(path, *a, **k):
+        if os.path.join("rules", "frame.0001") in str(path):
+            raise KeyboardInterrupt
+        return real(path, *a, **k)
+    monkeypatch.setattr(clss.io, "write_png", write_png)
+    out = tmp_path / "demo"
+    rc, cap = _run(["demo", "-o", out, "-n", "3", "--size", "13x9", "--modes", "rules",
+                    "--workers", "1", "--spp", "1"], capsys)
+    assert rc == 130 and "interrupted; 1 frames written" in cap.err
+    for d in ("bicubic", "rules"):
+        assert sorted(os.listdir(out / d)) == ["frame.0000.exr", "frame.0000.png"]
+    assert sorted(os.listdir(out / "input")) == ["frame.0000.exr", "jitter.json", "reference.0000.exr"]
+    side = json.loads((out / "input" / "jitter.json").read_text())
+    assert side["frames"] == [0] and len(side["jitter"]) == 1
+    assert cio.read_sequence(str(out / "input")).frame_numbers == [0]
