@@ -292,6 +292,64 @@ def _bn_params(g: Graph, n: Node):
     return s, bias - mean * s
 
 
+def training_batchnorm(g: Graph) -> int:
+    """BatchNormalization with training_mode=1 (constant scale, bias and running
+    statistics): the batch statistics per channel as GlobalAveragePools of the
+    channel-major layout, y = (x - mean) * scale / sqrt(var + eps) + bias, and
+    the running statistics r * momentum + batch * (1 - momentum) (var: the
+    population variance, as the ONNX reference and onnxruntime)."""
+    changed = 0
+    for n in list(g.nodes):
+        if (n.op != "BatchNormalization" or not n.attrs.get("training_mode", 0)
+                or any(_const(g, t) is None for t in n.inputs[1:5])):
+            continue
+        x = n.inputs[0]
+        shape = tuple(g.shapes[x])
+        if len(shape) < 2:
+            continue
+        c, length = shape[1], int(np.prod(shape, dtype=np.int64)) // shape[1]
+        eps, mom = float(n.attrs.get("epsilon", 1e-5)), float(n.attrs.get("momentum", 0.9))
+        scale, bias, r_mean, r_var = (g.consts[t].astype(np.float32) for t in n.inputs[1:5])
+        per_channel = (1, c) + (1,) * (len(shape) - 2)
+        new: list[Node] = []
+
+        def node(op, inputs, out_shape, attrs=None, out=None):
+            t = out or g.fresh(f"{n.outputs[0]}.{op.lower()}")
+            g.shapes[t], g.dtypes[t] = tuple(out_shape), g.dtypes[x]
+            new.append(Node(op, list(inputs), [t], attrs or {}, f"{n.name} ({op})", n.opset, sources=n.sources))
+            return t
+
+        def channel_mean(t):   # [N, C, ...] -> [1, C, 1, ...], the mean over all but C
+            cm = node("Transpose", [t], (c, shape[0]) + shape[2:], {"perm": [1, 0] + list(range(2, len(shape)))})
+            v, flat = _view(g, cm, (1, c, length), name=f"{n.name} (channel rows)", sources=n.sources)
+            new.append(v)
+            m = node("GlobalAveragePool", [flat], (1, c, 1))
+            v, back = _view(g, m, per_channel, name=f"{n.name} (per channel)", sources=n.sources)
+            new.append(v)
+            return back
+
+        mean = channel_mean(x)
+        d = node("Sub", [x, mean], shape)
+        var = channel_mean(node("Mul", [d, d], shape))
+        std = node("Sqrt", [node("Add", [var, g.add_const(f"{n.name}.eps", np.float32(eps))], per_channel)],
+                   per_channel)
+        k = node("Div", [g.add_const(f"{n.name}.scale", scale.reshape(per_channel)), std], per_channel)
+        node("Add", [node("Mul", [d, k], shape), g.add_const(f"{n.name}.bias", bias.reshape(per_channel))],
+             shape, out=n.outputs[0])
+        for out, batch, running in zip(n.outputs[1:3], (mean, var), (r_mean, r_var)):
+            if not out:
+                continue
+            v, flat = _view(g, batch, (c,), name=f"{n.name} (statistic)", sources=n.sources)
+            new.append(v)
+            weighted = node("Mul", [flat, g.add_const(f"{n.name}.1-momentum", np.float32(1 - mom))], (c,))
+            node("Add", [weighted, g.add_const(f"{n.name}.running", (running * mom).astype(np.float32))], (c,),
+                 out=out)
+        k_ = g.nodes.index(n)
+        g.nodes[k_:k_ + 1] = new
+        changed += 1
+    return changed
+
+
 def fold_batchnorm(g: Graph) -> int:
     """BatchNormalization (inference) after a Conv/ConvTranspose with constant
     weights is folded into them; elsewhere it becomes a depthwise 1x1 Conv."""
@@ -909,6 +967,7 @@ PASSES = [
     ("pixel_shuffle", pixel_shuffle),
     ("views", lower_views),
     ("batchnorm", fold_batchnorm),
+    ("batchnorm_training", training_batchnorm),
     ("matmul", lower_matmul),
     ("conv_canonical", canonical_convs),
     ("conv_resize", conv_through_resize),

@@ -212,6 +212,20 @@ def test_bool_cast_and_sparse_constant(prec):
 
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
+def test_training_mode_batchnorm(prec):
+    x = rnd(3, 5, 7, 6, scale=2.0) + 0.5
+    inits = {"s": rnd(5, seed=1), "b": rnd(5, seed=2), "m": rnd(5, seed=3),
+             "v": np.abs(rnd(5, seed=4)) + 0.5}
+    if prec != "fp32":
+        inits = {k: v.astype(np.float16).astype(np.float32) for k, v in inits.items()}
+    nodes = [helper.make_node("BatchNormalization", ["x", "s", "b", "m", "v"], ["y", "rm", "rv"],
+                              training_mode=1, momentum=0.8, epsilon=1e-3)]
+    m = make_model(nodes, {"x": x}, ["y", "rm", "rv"], initializers=inits, opset=15)
+    cm = assert_matches(m, {"x": x}, prec)
+    assert "BatchNormalization" not in cm.execution_ops()
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
 def test_nan_propagates_like_onnxruntime(prec):
     """NaN in -> NaN out, standalone and fused: relu/leaky_relu (conv epilogue,
     MLP layers, elementwise), clip, max, min, hard_sigmoid."""

@@ -42,8 +42,6 @@ LOWERED_CONST_INPUTS = {"Dropout": (1, 2), "Reshape": (1,), "Squeeze": (1,), "Un
 NON_FLOAT_INPUTS = {"Where": {0}, "ScatterElements": {1}}
 
 MODEL_DEVIATIONS = {
-    "test_batchnorm_epsilon_training_mode": "training-mode BatchNormalization: clss runs inference graphs",
-    "test_batchnorm_example_training_mode": "training-mode BatchNormalization: clss runs inference graphs",
     "test_training_dropout": "training-mode Dropout is random; clss runs inference graphs",
     "test_training_dropout_default": "training-mode Dropout is random; clss runs inference graphs",
     "test_training_dropout_default_mask": "training-mode Dropout is random; clss runs inference graphs",
