@@ -340,7 +340,8 @@ def refuse_unknown_ops(m: onnx.ModelProto, opset: int, note: str) -> None:
     something else (a shape inference cannot resolve, say), so that the user
     hears first what is unsupported; ``note`` tells what else went wrong."""
     from .model_passes import LOWERED_OPS
-    from .ops.base import ONNX_HANDLERS
+    from .ops import ONNX_HANDLERS, load_all
+    load_all()   # the handlers register when their family is imported
     opsets = {o.domain or "": o.version for o in m.opset_import}
     bad = []
     for k, n in enumerate(m.graph.node):
