@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup test test-large demo verify devices bench bench-quick oclgrind clean
+.PHONY: setup test test-large demo eval verify devices bench bench-quick oclgrind clean
 
 $(STAMP): setup.cfg pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -24,6 +24,15 @@ test-large: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/clss demo -o $(OUT)/demo
+
+# Score bicubic, jitter-aware bicubic, rules and net on sequences (weights_tools/DATA.md):
+# EVAL_SEQS defaults to the held-out generated and the Blender validation sequences;
+# EVAL_ARGS passes options (e.g. EVAL_ARGS="--methods rules,jbicubic --precision fp16").
+EVAL_DATA ?= data
+EVAL_SEQS ?= $(wildcard $(EVAL_DATA)/heldout/*.npz $(EVAL_DATA)/validation/*.npz)
+eval: $(STAMP)
+	@test -n "$(EVAL_SEQS)" || { echo "make eval: no sequences (set EVAL_SEQS=a.npz b.npz, or EVAL_DATA=dir holding heldout/ and validation/)"; exit 2; }
+	$(BIN)/python -m weights_tools eval $(EVAL_SEQS) --out $(OUT)/eval $(EVAL_ARGS)
 
 verify: $(STAMP)
 	$(BIN)/clss verify --precision all
