@@ -242,7 +242,15 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
     ghost = (aux[3] > thr) | ~valid
     cnt = np.where(ghost, 0, np.minimum(wcnt + 1, cap))
     wgt = np.maximum(1 / (1 + cnt), aux[4])
-    hist = np.minimum(np.maximum(wcol, aux[5:8]), aux[8:11])
+    # history clip: up + t (wcol - up), one t in [0, 1] for the three channels
+    d = wcol - up
+    lim = np.where(d > 0, aux[8:11] - up, aux[5:8] - up)
+    big = np.abs(d) > C.RULE_CLIP_EPS
+    tc = np.where(big, lim / np.where(big, d, 1), 1)
+    t = np.minimum(np.maximum(tc, 0).min(0), 1)
+    hist = up + t * d
+    inside = np.all((up >= aux[5:8]) & (up <= aux[8:11]), 0)   # up may overshoot the box
+    assert np.all(((hist >= aux[5:8] - 1e-6) & (hist <= aux[8:11] + 1e-6)) | ~inside)
     out = wgt * up + (1 - wgt) * hist
     return dict(dbg_dilated_depth=d_dil, dbg_dilated_motion=m_dil, dbg_recon_depth=R,
                 dbg_depth_diff=dd, dbg_upsampled=up, dbg_motion_hr=mhr, dbg_valid=valid,
