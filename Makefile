@@ -26,12 +26,14 @@ demo: $(STAMP)
 	$(BIN)/clss demo -o $(OUT)/demo
 
 # Score bicubic, jitter-aware bicubic, rules and net on sequences (weights_tools/DATA.md):
-# EVAL_SEQS defaults to the held-out generated and the Blender validation sequences;
-# EVAL_ARGS passes options (e.g. EVAL_ARGS="--methods rules,jbicubic --precision fp16").
-EVAL_DATA ?= data
-EVAL_SEQS ?= $(wildcard $(EVAL_DATA)/heldout/*.npz $(EVAL_DATA)/validation/*.npz)
+# by default the held-out generated sequences and the Blender validation sequences
+# ($(DATA)/validation, else the float16 copies in weights_tools/validation);
+# EVAL_ARGS passes options (e.g. EVAL_ARGS="--methods jbicubic,rules --precision fp16").
+DATA ?= $(OUT)/data
+EVAL_SEQS ?= $(wildcard $(DATA)/heldout/*.npz) \
+	$(or $(wildcard $(DATA)/validation/*.npz),$(wildcard weights_tools/validation/*.npz))
 eval: $(STAMP)
-	@test -n "$(EVAL_SEQS)" || { echo "make eval: no sequences (set EVAL_SEQS=a.npz b.npz, or EVAL_DATA=dir holding heldout/ and validation/)"; exit 2; }
+	@test -n "$(strip $(EVAL_SEQS))" || { echo "make eval: no sequences (make train-data validation-data, or EVAL_SEQS=\"a.npz b.npz\")"; exit 2; }
 	$(BIN)/python -m weights_tools eval $(EVAL_SEQS) --out $(OUT)/eval $(EVAL_ARGS)
 
 verify: $(STAMP)

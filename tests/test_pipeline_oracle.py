@@ -260,6 +260,33 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
                                             np.zeros((6, H, W))]))
 
 
+def test_rule_history_clip_hand_cases():
+    """reference.md s9: the history is pulled towards `up` by one fraction for all three
+    channels until it is inside the box (a per-channel clamp would change its hue)."""
+    from onnx import TensorProto, helper
+    g = O._Graph(O.OPSET)
+    out = O._clip_towards(g, "hist", "up", "lo", "hi")
+    g.op("Identity", out, name="clipped")
+    vi = [helper.make_tensor_value_info(n, TensorProto.FLOAT, [1, 3, 1, 4])
+          for n in ("hist", "up", "lo", "hi")]
+    m = helper.make_model(helper.make_graph(g.nodes, "clip", vi, [helper.make_tensor_value_info(
+        "clipped", TensorProto.FLOAT, [1, 3, 1, 4])], initializer=g.inits),
+        opset_imports=[helper.make_opsetid("", O.OPSET)])
+    m.ir_version = O.IR_VERSION
+    sess = ort.InferenceSession(m.SerializeToString(), _opts(), providers=["CPUExecutionProvider"])
+    # pixels: inside the box | green 0.1 above the box (d_g = 0.2: t = 0.5) | up outside the
+    # box (t = 0) | history equal to up
+    up = np.array([[.5, .5, .5], [.5, .5, .5], [.9, .5, .5], [.5, .5, .5]], np.float32)
+    hist = np.array([[.6, .45, .5], [.6, .7, .4], [.8, .5, .5], [.5, .5, .5]], np.float32)
+    lo = np.full((4, 3), .4, np.float32)
+    hi = np.full((4, 3), .6, np.float32)
+    want = np.array([[.6, .45, .5], [.55, .6, .45], [.9, .5, .5], [.5, .5, .5]], np.float32)
+    feed = {k: np.ascontiguousarray(v.T.reshape(1, 3, 1, 4))
+            for k, v in (("hist", hist), ("up", up), ("lo", lo), ("hi", hi))}
+    (got,) = sess.run(["clipped"], feed)
+    np.testing.assert_allclose(got.reshape(3, 4).T, want, atol=1e-6)
+
+
 def test_graph_matches_numpy_reference():
     """Random depth edges, random sub-pixel motion (some off-screen), jitter, reactive,
     odd render size and scale 1.5: every stage of reference.md against the graph."""
