@@ -589,9 +589,9 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     const fv cnt = select(fmin(g.cnt + 1.0f, cap), FV(0.0f), ghost);
     const fv wgt = fmax(1.0f / (1.0f + cnt), g.react);
     /* s9 history clip: up + t (hist - up), t the largest fraction in [0, 1] that keeps all
-     * three channels inside the clamp box (channels at most CLIP_EPS from up do not limit
-     * it); one t for the three keeps the history's hue, which a per-channel clamp shifts
-     * differently each frame as the jittered box moves (flicker) */
+     * three channels inside the clamp box when up is (channels at most CLIP_EPS from up do
+     * not limit it); one t for the three keeps the history's hue, which a per-channel clamp
+     * shifts differently each frame as the jittered box moves (flicker) */
     fv t = FV(1.0f);
     for (int c = 0; c < 3; ++c) {
         const fv d = g.col[c] - g.up[c];

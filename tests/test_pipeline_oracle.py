@@ -274,10 +274,10 @@ def test_rule_history_clip_hand_cases():
         opset_imports=[helper.make_opsetid("", O.OPSET)])
     m.ir_version = O.IR_VERSION
     sess = ort.InferenceSession(m.SerializeToString(), _opts(), providers=["CPUExecutionProvider"])
-    # pixels: inside the box | green 0.1 above the box (d_g = 0.2: t = 0.5) | up outside the
-    # box (t = 0) | history equal to up
+    # pixels: inside the box | green 0.1 above the box (d_g = 0.2: t = 0.5) | up above the
+    # box, history further out (t = 0) | history equal to up
     up = np.array([[.5, .5, .5], [.5, .5, .5], [.9, .5, .5], [.5, .5, .5]], np.float32)
-    hist = np.array([[.6, .45, .5], [.6, .7, .4], [.8, .5, .5], [.5, .5, .5]], np.float32)
+    hist = np.array([[.6, .45, .5], [.6, .7, .4], [.95, .5, .5], [.5, .5, .5]], np.float32)
     lo = np.full((4, 3), .4, np.float32)
     hi = np.full((4, 3), .6, np.float32)
     want = np.array([[.6, .45, .5], [.55, .6, .45], [.9, .5, .5], [.5, .5, .5]], np.float32)

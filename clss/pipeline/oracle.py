@@ -223,8 +223,9 @@ def _pq_decode(g, e, nits, name):
 
 
 def _clip_towards(g, hist, up, lo, hi):
-    """Rule mode's history clip (reference.md s9): up + t (hist - up) with the largest t
-    in [0, 1] that keeps every channel inside [lo, hi] (the same t for all three)."""
+    """Rule mode's history clip (reference.md s9): up + t (hist - up), one t in [0, 1] for
+    the three channels, the largest that keeps every channel inside [lo, hi] (when `up`
+    is inside; an `up` outside only stops the history from moving further out)."""
     d = g.sub(hist, up)
     lim = g.where(g.op("Greater", d, g.const(0.0)), g.sub(hi, up), g.sub(lo, up))
     big = g.op("Greater", g.op("Abs", d), g.const(RULE_CLIP_EPS))
