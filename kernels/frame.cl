@@ -610,8 +610,12 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
         st_plane(hist_out, (7 + c) * HW + q, select(fmax(g.mx[c], u), u, ghost), n);
     }
     st_plane(hist_out, 3 * HW + q, cnt, n);
+    /* rule mode carries no logits: zero bits (0.0 in half and in float). Stored as bits,
+     * not through st_plane: with VEC=8 and half storage, six more vstore_half8_rte made
+     * PoCL 3.x's compiler (LLVM, AVX-512 host) crash while building this kernel. */
     for (int c = 0; c < 6; ++c)
-        st_plane(hist_out, (10 + c) * HW + q, FV(0.0f), n);
+        for (int l = 0; l < n; ++l)
+            ((__global TB *)hist_out)[(10 + c) * HW + q + l] = (TB)0;
     st_rgb(out, q, decode(o[0], inv_pq_scale) * exposure, decode(o[1], inv_pq_scale) * exposure,
            decode(o[2], inv_pq_scale) * exposure, n);
     if (debug) {
