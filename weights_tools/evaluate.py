@@ -197,6 +197,8 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
                          f"frames per reset ({T} frames); lower --warmup")
     scored_set = set(scored)
     run = {m: make_method(m, seq, dev, precision, net_kwargs) for m in methods}
+    if "net" in run and net_trained is None:       # the package's default weights
+        net_trained = run["net"].up.trained
     acc = {m: {"psnr": [], "ssim": [], "flip": [], "tpsnr": metrics.TemporalPSNR(), "s": 0.0}
            for m in methods}
     names = list(methods) + ["reference"]
@@ -245,8 +247,8 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
             "psnr_frames": a["psnr"], "ssim_frames": a["ssim"], "flip_frames": a["flip"]}
         record["tpsnr_pairs"] = a["tpsnr"].pairs // (H * W * 3)
     if "net" in methods:
-        record["net_weights"] = ("trained" if net_trained else
-                                 "untrained (seeded)" if net_trained is False else "package default")
+        record["net_trained"] = bool(net_trained)
+        record["net_weights"] = "trained" if net_trained else "untrained (seeded)"
     if out_dir is not None:
         record["pictures"] = _write_pictures(out_dir, seq, methods, lines, last, place,
                                              net_trained)
@@ -356,6 +358,7 @@ def run_eval(paths, methods=METHODS, weights=None, precision="fp32", warmup=4,
         records.append(rec)
         print(f"\n{seq['name']}: {T} frames, {w}x{h} -> {W}x{H} (x{seq['scale']:g}), "
               f"{len(rec['scored_frames'])} scored (warm-up {warmup} per reset), {precision}")
+        trained = rec.get("net_trained", trained)
         print(format_table(rec["methods"], trained))
     result = {"device": dev.info.name, "precision": precision, "warmup": warmup,
               "net_weights": None if "net" not in methods else
