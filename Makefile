@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup test test-large demo verify devices bench bench-quick oclgrind clean
+.PHONY: setup test test-large demo eval verify devices bench bench-quick oclgrind clean
 
 $(STAMP): setup.cfg pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -24,6 +24,17 @@ test-large: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/clss demo -o $(OUT)/demo --overwrite
+
+# Score bicubic, jitter-aware bicubic, rules and net on sequences (weights_tools/DATA.md):
+# by default the held-out generated sequences and the Blender validation sequences
+# ($(DATA)/validation, else the float16 copies in weights_tools/validation);
+# EVAL_ARGS passes options (e.g. EVAL_ARGS="--methods jbicubic,rules --precision fp16").
+DATA ?= $(OUT)/data
+EVAL_SEQS ?= $(wildcard $(DATA)/heldout/*.npz) \
+	$(or $(wildcard $(DATA)/validation/*.npz),$(wildcard weights_tools/validation/*.npz))
+eval: $(STAMP)
+	@test -n "$(strip $(EVAL_SEQS))" || { echo "make eval: no sequences (make train-data validation-data, or EVAL_SEQS=\"a.npz b.npz\")"; exit 2; }
+	$(BIN)/python -m weights_tools eval $(EVAL_SEQS) --out $(OUT)/eval $(EVAL_ARGS)
 
 verify: $(STAMP)
 	$(BIN)/clss verify --precision all

@@ -1,4 +1,4 @@
-"""python -m weights_tools build --out DIR [...] | inspect FILE"""
+"""python -m weights_tools build --out DIR [...] | inspect FILE | eval SEQ.npz [...]"""
 from __future__ import annotations
 
 import argparse
@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import onnx
 
-from . import networks, weights
+from . import evaluate, networks, weights
 
 RESOLUTIONS = (("540p", 540, 960), ("1080p", 1080, 1920), ("2160p", 2160, 3840))
 
@@ -111,6 +111,10 @@ def main(argv=None):
     i = sub.add_parser("inspect", help="describe a .onnx or .safetensors file")
     i.add_argument("file")
     i.set_defaults(fn=cmd_inspect)
+    e = sub.add_parser("eval", help="score bicubic, jitter-aware bicubic, rules and net on "
+                       "sequences (PSNR, SSIM, tPSNR, FLIP) and write pictures and JSON")
+    evaluate.add_arguments(e)
+    e.set_defaults(fn=lambda a: evaluate.main_args(a, e))
     args = p.parse_args(argv)
     try:
         return args.fn(args)
