@@ -41,6 +41,19 @@ _F = np.float32
 
 
 @dataclass
+class Light:
+    """The sun (a directional light casting shadows on the ground) and the ambient term.
+    The built-in scene uses DEFAULT_LIGHT; generated scenes move and dim it per frame."""
+    sun_dir: np.ndarray          # unit vector toward the sun (float64)
+    sun: np.ndarray              # float32 RGB radiance
+    ambient: np.ndarray          # float32 RGB
+
+
+DEFAULT_LIGHT = Light(SUN_DIR, SUN, AMBIENT)
+SKY_ID, GROUND_ID = -2, -1       # primitive ids of the sky and the ground plane
+
+
+@dataclass
 class Frame:
     """One rendered frame; ``reference`` is None when no reference was rendered."""
     index: int
@@ -405,10 +418,11 @@ class _View:
     """One frame's primitives seen by one camera at one image size; screen rectangles
     are computed once and shared by all sample passes."""
 
-    def __init__(self, prims, cam, width, height):
+    def __init__(self, prims, cam, width, height, light=None):
         self.prims, self.cam, self.w, self.h = prims, cam, width, height
+        self.light = DEFAULT_LIGHT if light is None else light
         self.rects = [_screen_rect(p.corners(), cam, width, height) for p in prims]
-        L = SUN_DIR
+        L = self.light.sun_dir
         self.casters = [(p, _screen_rect(p.shadow_corners(L), cam, width, height))
                         for p in prims if hasattr(p, "shadow_corners") and p.emission is None]
 
@@ -459,6 +473,13 @@ def _ground_band(view, A, B, rows):
     t = -o[1] / b[1]                                     # per row
     x = (o[0] + t * b[0]) + t * A[0]
     z = (o[2] + t * b[2]) + t * A[2]
+    return _ground_color(view, x, z, t, rows)
+
+
+def _ground_color(view, x, z, t, rows=None):
+    """Ground colour (3 arrays shaped like x) at ground points (x, 0, z) seen at ray
+    parameter t. `rows`: the image rows of a band (x, z are (rows, w) and the casters'
+    screen rectangles crop the shadow tests), or None for arbitrary points."""
     # float32 keeps 4 fractional bits at 2^20, enough to floor to whole texels.
     scale, off = _F(_TEX / 2.0), _F(2 ** 20)
     ix = (x * scale + off).astype(np.int32) & (_TEX - 1)
@@ -466,36 +487,43 @@ def _ground_band(view, A, B, rows):
     cls = np.where(np.abs(x - _F(0.4)) < 0.9, np.take(_STRIPE_CLASS, iz),
                    np.take(_TILE_CLASS, (iz << 8) | ix))
     fog = np.exp(t * -HAZE)
-    L = SUN_DIR.tolist()
+    L = view.light.sun_dir.tolist()
+    sun, ambient = view.light.sun, view.light.ambient
     out = [HORIZON[k] * (1 - fog) + np.take(_GROUND_ALBEDO[k], cls) * (
-        (SUN[k] * L[1] + AMBIENT[k]) * fog) for k in range(3)]
-    r0 = rows.start
+        (sun[k] * L[1] + ambient[k]) * fog) for k in range(3)]
     for p, rect in view.casters:
-        if rect is None or rect[1] <= r0 or rect[0] >= rows.stop:
+        if rect is None:
             continue
-        a0, a1, c0, c1 = max(rect[0] - r0, 0), rect[1] - r0, rect[2], rect[3]
-        shadow = p.occludes((x[a0:a1, c0:c1], 0.0, z[a0:a1, c0:c1]), L)
+        if rows is None:
+            idx, f = (Ellipsis,), fog
+        else:
+            r0 = rows.start
+            if rect[1] <= r0 or rect[0] >= rows.stop:
+                continue
+            a0, a1, c0, c1 = max(rect[0] - r0, 0), rect[1] - r0, rect[2], rect[3]
+            idx, f = (slice(a0, a1), slice(c0, c1)), fog[a0:a1]
+        shadow = p.occludes((x[idx], 0.0, z[idx]), L)
         if not shadow.any():
             continue
-        f = fog[a0:a1]
         for k in range(3):
-            dark = HORIZON[k] * (1 - f) + np.take(_GROUND_ALBEDO[k], cls[a0:a1, c0:c1]) * (
-                AMBIENT[k] * f)
-            sub = out[k][a0:a1, c0:c1]
+            dark = HORIZON[k] * (1 - f) + np.take(_GROUND_ALBEDO[k], cls[idx]) * (
+                ambient[k] * f)
+            sub = out[k][idx]
             sub[shadow] = dark[shadow]
     return out
 
 
-def _shade(o, hits, d, t):
+def _shade(o, hits, d, t, light=DEFAULT_LIGHT):
     """Colour (N, 3) of the gathered hit points of several primitives at once, for
     rays from o along d (3 arrays) at parameter t; `hits` lists (primitive, slice)."""
+    SUN, AMBIENT = light.sun, light.ambient
     P = [o[j] + t * d[j] for j in range(3)]
     parts = [p.surface([q[s] for q in P], [q[s] for q in d]) for p, s in hits]
     n = np.concatenate([a for a, _ in parts])
     albedo = np.concatenate([b for _, b in parts])
     ks = np.concatenate([np.full(s.stop - s.start, p.spec[0], _F) for p, s in hits])
     shin = np.concatenate([np.full(s.stop - s.start, p.spec[1], _F) for p, s in hits])
-    L = SUN_DIR.astype(_F)
+    L = light.sun_dir.astype(_F)
     ndl = np.maximum(n @ L, 0)
     col = albedo * (ndl[:, None] * SUN + AMBIENT)
     dn = np.stack(d, -1)
@@ -510,10 +538,13 @@ def _shade(o, hits, d, t):
     return HORIZON + (col - HORIZON) * fog
 
 
-def _trace(view, us, vs, prev_cam=None):
+def _trace(view, us, vs, prev_cam=None, out=None):
     """Planar colour (3, h, w) for one sample per pixel taken at column positions
     us (w,) and row positions vs (h,) (each within +-1 pixel of the pixel centre);
-    with prev_cam also view depth (h, w) and motion (h, w, 2).
+    with prev_cam also view depth (h, w) and motion (h, w, 2). A dict `out` receives
+    what labelling needs: "t" (view depth, inf for sky), "ids" (int16 index into
+    view.prims, GROUND_ID or SKY_ID) and, with prev_cam, "prev_z" (the hit point's view
+    depth in the previous frame).
 
     Sample positions that vary per column and per row, not per pixel, make the ray
     directions separable, d = A[:, col] + B[:, row], and the ground depth a function
@@ -565,18 +596,63 @@ def _trace(view, us, vs, prev_cam=None):
         cc = np.concatenate([b for _, b in sel])
         t = tbest[rr, cc]
         dk = [A[j][cc] + B[j][rr] for j in range(3)]
-        color[:, rr, cc] = _shade(o, hits, dk, t).T
+        color[:, rr, cc] = _shade(o, hits, dk, t, view.light).T
         if want_motion:
             for p, s in hits:
                 P = [o[j] + t[s].astype(np.float64) * dk[j][s] for j in range(3)]
                 Pp = p.to_prev(P)
                 for j in range(3):
                     prev[j][rr[s], cc[s]] = Pp[j]
+    if out is not None:
+        out["t"] = tbest
+        out["ids"] = np.where(np.isfinite(tbest), ids, np.int16(SKY_ID)).astype(np.int16)
     if not want_motion:
         return color, None, None
-    up, vp, _ = prev_cam.project(prev[0], prev[1], prev[2], W, H)
+    up, vp, zp = prev_cam.project(prev[0], prev[1], prev[2], W, H)
     motion = np.stack([up - us[None, :], vp - vs[:, None]], -1).astype(_F)
+    if out is not None:
+        out["prev_z"] = zp
     return color, tbest, motion
+
+
+def trace_points(view, u, v):
+    """Colour (N, 3), view depth t (N,) (inf for sky) and primitive ids (N,) (as
+    _trace's) of one ray through each of the arbitrary continuous pixel positions u, v
+    (N,) of `view`. Slower per ray than _trace (no separable rays, no screen
+    rectangles); made for a few scattered positions, such as where the labeller asks
+    what the previous frame saw at a point's reprojected position."""
+    o = view.cam.pos.tolist()
+    d = view.cam.rays(np.asarray(u, _F), np.asarray(v, _F), view.w, view.h)
+    d = tuple(np.asarray(c, _F) for c in d)
+    with np.errstate(divide="ignore"):
+        tbest = np.where(d[1] < 0, -o[1] / d[1], np.inf).astype(_F)
+    ids = np.full(tbest.shape, GROUND_ID, np.int16)
+    for k, p in enumerate(view.prims):
+        if view.rects[k] is None:     # nowhere on screen (positions are on screen)
+            continue
+        t = p.hit(o, d)
+        closer = t < tbest
+        tbest[closer] = t[closer]
+        ids[closer] = k
+    sky = ~np.isfinite(tbest)
+    ids[sky] = SKY_ID
+    color = np.empty(tbest.shape + (3,), _F)
+    if sky.any():
+        color[sky] = np.stack(_sky([c[sky] for c in d]), -1)
+    g = ids == GROUND_ID
+    if g.any():
+        tg = tbest[g]
+        x = o[0] + tg * d[0][g]
+        z = o[2] + tg * d[2][g]
+        color[g] = np.stack(_ground_color(view, x, z, tg), -1)
+    sel = [(p, np.nonzero(ids == k)[0]) for k, p in enumerate(view.prims)]
+    sel = [(p, i) for p, i in sel if i.size]
+    if sel:
+        idx = np.concatenate([i for _, i in sel])
+        bounds = np.cumsum([0] + [i.size for _, i in sel])
+        hits = [(p, slice(bounds[m], bounds[m + 1])) for m, (p, _) in enumerate(sel)]
+        color[idx] = _shade(o, hits, [c[idx] for c in d], tbest[idx], view.light)
+    return color, tbest, ids
 
 
 # ---------------------------------------------------------------- frames
@@ -609,11 +685,12 @@ def render_frame(index, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):
                  meta={"scale": scale, "spp_ref": spp_ref, "near": NEAR})
 
 
-def render_reference(view, spp, rng):
+def render_reference(view, spp, rng, on_sample=None):
     """Box-filtered reference: gx x gy strata per pixel (gx * gy >= spp), one sample
     in each at a random position inside the stratum. The random offset is drawn per
     column (x) and per row (y) for each stratum (see _trace), which keeps the samples
-    stratified and breaks up the regular-grid moire."""
+    stratified and breaks up the regular-grid moire. `on_sample(color, out)`, if given,
+    sees each sample pass: planar colour (3, H, W) and _trace's `out` dict."""
     gx = int(math.ceil(math.sqrt(spp)))
     gy = int(math.ceil(spp / gx))
     H, W = view.h, view.w
@@ -623,7 +700,11 @@ def render_reference(view, spp, rng):
         for sx in range(gx):
             us = cols + (sx + rng.random(W, _F)) * _F(1 / gx)
             vs = rows + (sy + rng.random(H, _F)) * _F(1 / gy)
-            acc += _trace(view, us, vs)[0]
+            out = None if on_sample is None else {}
+            c = _trace(view, us, vs, out=out)[0]
+            acc += c
+            if on_sample is not None:
+                on_sample(c, out)
     acc *= _F(1.0 / (gx * gy))
     return np.ascontiguousarray(acc.transpose(1, 2, 0))
 
