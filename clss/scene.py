@@ -42,11 +42,14 @@ _F = np.float32
 
 @dataclass
 class Light:
-    """The sun (a directional light casting shadows on the ground) and the ambient term.
-    The built-in scene uses DEFAULT_LIGHT; generated scenes move and dim it per frame."""
+    """The sun (a directional light casting shadows on the ground), the ambient term and
+    the sky (horizon colour, also the haze colour; zenith colour). The built-in scene
+    uses DEFAULT_LIGHT; generated scenes move and dim it per frame."""
     sun_dir: np.ndarray          # unit vector toward the sun (float64)
     sun: np.ndarray              # float32 RGB radiance
     ambient: np.ndarray          # float32 RGB
+    horizon: np.ndarray = field(default_factory=lambda: HORIZON)
+    zenith: np.ndarray = field(default_factory=lambda: ZENITH)
 
 
 DEFAULT_LIGHT = Light(SUN_DIR, SUN, AMBIENT)
@@ -418,19 +421,21 @@ class _View:
     """One frame's primitives seen by one camera at one image size; screen rectangles
     are computed once and shared by all sample passes."""
 
-    def __init__(self, prims, cam, width, height, light=None):
+    def __init__(self, prims, cam, width, height, light=None, ground=None):
         self.prims, self.cam, self.w, self.h = prims, cam, width, height
         self.light = DEFAULT_LIGHT if light is None else light
+        self.ground = DEFAULT_GROUND if ground is None else ground
         self.rects = [_screen_rect(p.corners(), cam, width, height) for p in prims]
         L = self.light.sun_dir
         self.casters = [(p, _screen_rect(p.shadow_corners(L), cam, width, height))
                         for p in prims if hasattr(p, "shadow_corners") and p.emission is None]
 
 
-def _sky(d):
+def _sky(d, light=DEFAULT_LIGHT):
     n2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
     a = np.sqrt(np.sqrt(np.maximum(d[1], 0) ** 2 / n2))
-    return [HORIZON[k] + (ZENITH[k] - HORIZON[k]) * a for k in range(3)]
+    hor, zen = light.horizon, light.zenith
+    return [hor[k] + (zen[k] - hor[k]) * a for k in range(3)]
 
 
 # Ground texture: a 2 m x 2 m tile of 256 x 256 texels (0.78 cm), point sampled:
@@ -452,6 +457,21 @@ def _ground_texture():
 
 
 _TILE_CLASS, _STRIPE_CLASS = _ground_texture()
+
+
+@dataclass
+class Ground:
+    """The ground texture's colours (3 x 5 float32: grout, dark tile, light tile, path
+    stripe, path gap), texels per metre (the 256-texel tile repeats every 256 / that
+    metres; at most 256 so float32 still floors to whole texels) and the striped path
+    (|x - path_x| < path_half; path_half 0 for none)."""
+    albedo: np.ndarray = field(default_factory=lambda: _GROUND_ALBEDO)
+    texels_per_metre: float = _TEX / 2.0
+    path_x: float = 0.4
+    path_half: float = 0.9
+
+
+DEFAULT_GROUND = Ground()
 _BAND = 64   # rows per band: keeps the band's temporaries in cache
 
 
@@ -481,15 +501,16 @@ def _ground_color(view, x, z, t, rows=None):
     parameter t. `rows`: the image rows of a band (x, z are (rows, w) and the casters'
     screen rectangles crop the shadow tests), or None for arbitrary points."""
     # float32 keeps 4 fractional bits at 2^20, enough to floor to whole texels.
-    scale, off = _F(_TEX / 2.0), _F(2 ** 20)
+    g = view.ground
+    scale, off = _F(g.texels_per_metre), _F(2 ** 20)
     ix = (x * scale + off).astype(np.int32) & (_TEX - 1)
     iz = (z * scale + off).astype(np.int32) & (_TEX - 1)
-    cls = np.where(np.abs(x - _F(0.4)) < 0.9, np.take(_STRIPE_CLASS, iz),
+    cls = np.where(np.abs(x - _F(g.path_x)) < g.path_half, np.take(_STRIPE_CLASS, iz),
                    np.take(_TILE_CLASS, (iz << 8) | ix))
     fog = np.exp(t * -HAZE)
     L = view.light.sun_dir.tolist()
-    sun, ambient = view.light.sun, view.light.ambient
-    out = [HORIZON[k] * (1 - fog) + np.take(_GROUND_ALBEDO[k], cls) * (
+    sun, ambient, hor = view.light.sun, view.light.ambient, view.light.horizon
+    out = [hor[k] * (1 - fog) + np.take(g.albedo[k], cls) * (
         (sun[k] * L[1] + ambient[k]) * fog) for k in range(3)]
     for p, rect in view.casters:
         if rect is None:
@@ -506,7 +527,7 @@ def _ground_color(view, x, z, t, rows=None):
         if not shadow.any():
             continue
         for k in range(3):
-            dark = HORIZON[k] * (1 - f) + np.take(_GROUND_ALBEDO[k], cls[idx]) * (
+            dark = hor[k] * (1 - f) + np.take(g.albedo[k], cls[idx]) * (
                 ambient[k] * f)
             sub = out[k][idx]
             sub[shadow] = dark[shadow]
@@ -535,7 +556,7 @@ def _shade(o, hits, d, t, light=DEFAULT_LIGHT):
         if p.emission is not None:
             col[s] = p.emission
     fog = np.exp(t * -HAZE)[:, None]
-    return HORIZON + (col - HORIZON) * fog
+    return light.horizon + (col - light.horizon) * fog
 
 
 def _trace(view, us, vs, prev_cam=None, out=None):
@@ -573,7 +594,7 @@ def _trace(view, us, vs, prev_cam=None, out=None):
         ib[closer] = k
     color = np.empty((3, H, W), _F)
     if rg > 0:
-        color[:, :rg] = _sky([A[j] + B[j][:rg, None] for j in range(3)])
+        color[:, :rg] = _sky([A[j] + B[j][:rg, None] for j in range(3)], view.light)
     if rg < H:
         color[:, rg:] = _ground(view, A, B, slice(rg, H))
     want_motion = prev_cam is not None
@@ -638,7 +659,7 @@ def trace_points(view, u, v):
     ids[sky] = SKY_ID
     color = np.empty(tbest.shape + (3,), _F)
     if sky.any():
-        color[sky] = np.stack(_sky([c[sky] for c in d]), -1)
+        color[sky] = np.stack(_sky([c[sky] for c in d], view.light), -1)
     g = ids == GROUND_ID
     if g.any():
         tg = tbest[g]

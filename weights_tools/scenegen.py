@@ -13,7 +13,9 @@ What is randomised per sequence (`SceneSpec.random`):
     highlights, moving (with bounces) and turning: disocclusions in every direction;
   * emissive lamps (HDR 3-40) that are steady, blink or pulse; the sun moves, dims or
     flickers (moving shadows), its colour and the ambient term vary;
-  * a backdrop wall and a textured floor slab, sometimes;
+  * the ground's texture colours, scale (tiles of 1 to 8 m) and striped path, the sky's
+    colours (clear, dusk, overcast) and brightness; a backdrop wall and a textured floor
+    slab, sometimes;
   * the camera: static, pan, truck, dolly, orbit or a mix, at random speeds, and a cut
     (a second camera path, `reset`) in about a third of the sequences;
   * jitter: Halton(2,3) as clss.scene (length ceil(8 scale^2)), or none at all (about
@@ -60,7 +62,7 @@ import numpy as np
 
 from clss import scene
 from clss.pipeline.contract import output_size
-from clss.scene import (NEAR, Box, Camera, Cylinder, Light, Sphere, _box_corners, _Rigid,
+from clss.scene import (NEAR, Box, Camera, Cylinder, Ground, Light, Sphere, _box_corners, _Rigid,
                         _trace, _View, halton_jitter, render_reference, trace_points)
 
 LABEL_RULES_VERSION = 1
@@ -292,6 +294,7 @@ class SceneSpec:
     cameras: list
     light: dict
     objects: list = field(default_factory=list)
+    ground: dict = field(default_factory=dict)     # empty: clss.scene's ground
 
     @staticmethod
     def random(seed, index, frames):
@@ -313,6 +316,7 @@ class SceneSpec:
                          cameras=[_random_camera_path(rng, frames),
                                   _random_camera_path(rng, frames)],
                          light=light)
+        _random_environment(np.random.default_rng([seed, index, 0x6A0D]), spec)
         objs = spec.objects
         if rng.random() < 0.5:      # backdrop wall
             objs.append(dict(type="box", pos=[rng.uniform(-3, 3), 2.5, rng.uniform(-16, -9)],
@@ -389,6 +393,36 @@ class SceneSpec:
         return json.dumps(self.__dict__)
 
 
+def _random_environment(rng, spec):
+    """Ground texture colours, scale and path, and the sky's colours (its own random
+    stream, so that the rest of a scene does not depend on it)."""
+    dark = _random_color(rng, 0.02, 0.15)
+    spec.ground = dict(albedo=np.array([dark, _random_color(rng, 0.1, 0.5),
+                                        _random_color(rng, 0.3, 0.8), _random_color(rng),
+                                        _random_color(rng, 0.05, 0.3)]).T.round(3).tolist(),
+                       texels_per_metre=float(np.exp(rng.uniform(math.log(32), math.log(256)))),
+                       path_x=float(rng.uniform(-3, 3)),
+                       path_half=float(rng.uniform(0.3, 2.0) * (rng.random() < 0.6)))
+    sky = rng.choice(["clear", "clear", "dusk", "overcast"])
+    if sky == "clear":
+        hor, zen = [0.8, 0.86, 0.95], [0.22, 0.42, 0.85]
+    elif sky == "dusk":
+        hor, zen = [1.2, 0.7, 0.4], [0.15, 0.2, 0.45]
+    else:
+        hor, zen = [0.7, 0.72, 0.75], [0.5, 0.52, 0.56]
+    gain = rng.uniform(0.6, 1.6)
+    spec.light["horizon"] = (np.array(hor) * gain).round(3).tolist()
+    spec.light["zenith"] = (np.array(zen) * gain).round(3).tolist()
+
+
+def ground_of(spec):
+    g = spec.ground
+    if not g:
+        return None
+    return Ground(np.asarray(g["albedo"], _F), g["texels_per_metre"], g["path_x"],
+                  g["path_half"])
+
+
 def _build_texture(t):
     return SolidTexture(t["kind"], t["freq"], t["basis"], t["c0"], t["c1"], t["duty"])
 
@@ -457,8 +491,9 @@ def light_at(spec, t):
         gain = 0.6 + 0.4 * math.cos(L["pulse"] * t)
     d = np.array([math.cos(elev) * math.sin(azim), math.sin(elev),
                   math.cos(elev) * math.cos(azim)])
+    sky = {k: np.asarray(L[k], _F) for k in ("horizon", "zenith") if k in L}
     return Light(d / np.linalg.norm(d), (np.asarray(L["sun"]) * gain).astype(_F),
-                 np.asarray(L["ambient"], _F))
+                 np.asarray(L["ambient"], _F), **sky)
 
 
 def camera_at(spec, t, aspect):
@@ -480,7 +515,7 @@ def _ghost_labels(spec, i, view, prims_prev, light_prev, prev_cam):
     u = cols[None, :] + motion[..., 0]
     v = rows[:, None] + motion[..., 1]
     on = (u >= 0) & (u < W) & (v >= 0) & (v < H)
-    prev_view = _View(prims_prev, prev_cam, W, H, light_prev)
+    prev_view = _View(prims_prev, prev_cam, W, H, light_prev, ground_of(spec))
     pc, pt, pid = trace_points(prev_view, u[on], v[on])
     cid, z = out["ids"][on], out["prev_z"][on]
     with np.errstate(invalid="ignore"):
@@ -534,10 +569,11 @@ def render_frame(spec, i, render_size, scale, spp):
     jx, jy = halton_jitter(i, scale) if spec.jittered else (0.0, 0.0)
     us = np.arange(w, dtype=_F) + _F(0.5 + jx)
     vs = np.arange(h, dtype=_F) + _F(0.5 + jy)
-    color, z, motion = _trace(_View(prims, cam, w, h, light), us, vs, prev_cam)
+    ground = ground_of(spec)
+    color, z, motion = _trace(_View(prims, cam, w, h, light, ground), us, vs, prev_cam)
     with np.errstate(divide="ignore"):
         depth = np.where(np.isfinite(z), _F(NEAR) / z, _F(0)).astype(_F)
-    out_view = _View(prims, cam, W, H, light)
+    out_view = _View(prims, cam, W, H, light, ground)
     stats = _AliasStats()
     ref = render_reference(out_view, spp, np.random.default_rng([spec.seed, spec.index, i, 1]),
                            on_sample=stats)

@@ -3,9 +3,9 @@
     python -m weights_tools.blender.convert SRC OUT [--check] [--fp16]
 
 SRC holds one directory per scene (with frames.json); OUT/<scene>.npz is written for
-each (np.savez_compressed, float32 as DATA.md; with --fp16 colour, motion and
+each (np.savez_compressed, float32 as DATA.md; with --fp16 colour and the
 reference are stored as float16, which keeps the copies committed to the repository
-small: readers cast with .astype(np.float32); depth stays float32). Conversions:
+small: readers cast with .astype(np.float32); depth and motion stay float32). Conversions:
   * colour: the Combined pass (RGB, linear scene-referred radiance);
   * depth: Cycles' Depth pass is the planar view depth z (checked on the pan test:
     a plane 5 m away reads 5.0 in every pixel); depth = NEAR / z (reversed-Z), 0 where
@@ -130,7 +130,7 @@ def main(argv=None):
     p.add_argument("out", help="directory for <scene>.npz")
     p.add_argument("--check", action="store_true", help="print the jitter sign check")
     p.add_argument("--fp16", action="store_true",
-                   help="store colour, motion and reference as float16")
+                   help="store colour and reference as float16")
     a = p.parse_args(argv)
     if not os.path.isdir(a.src):
         print(f"error: {a.src} is not a directory", file=sys.stderr)
@@ -149,7 +149,7 @@ def main(argv=None):
             print(f"error: {name}: {e}", file=sys.stderr)
             return 1
         if a.fp16:
-            for k in ("color", "motion", "reference"):
+            for k in ("color", "reference"):
                 data[k] = data[k].astype(np.float16)
         path = os.path.join(a.out, name + ".npz")
         np.savez_compressed(path + ".tmp.npz", **data)
