@@ -1,7 +1,7 @@
 """The Blender validation renderer's conventions, on its pan test scene: the Vector
 pass converted to DATA.md motion (prev = p + motion, +y down), the Depth pass to
-reversed-Z, and the jitter's camera shift. Needs Blender (`apt-get install blender`);
-skipped without it. About 10 s (mostly Blender's start)."""
+reversed-Z, and the jitter's camera shift. The render test needs Blender (`apt-get
+install blender`) and is skipped without it; about 10 s (mostly Blender's start)."""
 import math
 import os
 import shutil
@@ -10,12 +10,19 @@ import subprocess
 import numpy as np
 import pytest
 
+from clss import scene
 from weights_tools.blender import convert, render_validation as rv
 
 BLENDER = shutil.which("blender")
-pytestmark = pytest.mark.skipif(BLENDER is None, reason="blender not installed")
 
 
+def test_jitter_matches_clss_scene():
+    for scale in (1.5, 2.0, 3.0):
+        for i in range(80):
+            assert rv.halton_jitter(i, scale) == scene.halton_jitter(i, scale)
+
+
+@pytest.mark.skipif(BLENDER is None, reason="blender not installed")
 def test_pan_test_conventions(tmp_path):
     script = os.path.join(os.path.dirname(rv.__file__), "render_validation.py")
     h, w = 18, 32

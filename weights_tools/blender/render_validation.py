@@ -52,6 +52,8 @@ NEAR = 0.1   # camera clip start = the reversed-Z near plane of DATA.md
 
 # ---------------------------------------------------------------- setup
 
+# clss.scene's Halton jitter, repeated here because Blender's Python has no numpy (which
+# clss.scene imports); tests/test_blender_validation.py checks that the two agree.
 def halton(index, base):
     f, r = 1.0, 0.0
     while index > 0:
@@ -76,9 +78,11 @@ def new_scene():
     cy.use_denoising = False
     cy.use_adaptive_sampling = False
     cy.seed = 0
-    cy.max_bounces, cy.diffuse_bounces, cy.glossy_bounces = 4, 2, 2
-    cy.transmission_bounces, cy.transparent_max_bounces = 2, 4
-    cy.sample_clamp_indirect = 10.0     # fireflies would dominate a small validation set
+    # One diffuse and one glossy bounce and a firm indirect clamp: the remaining path
+    # tracing noise stays well below the aliasing the sequences are about.
+    cy.max_bounces, cy.diffuse_bounces, cy.glossy_bounces = 3, 1, 1
+    cy.transmission_bounces, cy.transparent_max_bounces = 1, 4
+    cy.sample_clamp_indirect = 2.0
     scene.render.use_motion_blur = False
     scene.render.film_transparent = False
     scene.render.resolution_percentage = 100
@@ -154,9 +158,15 @@ def material(name, color=(0.8, 0.8, 0.8), rough=0.5, tex=None, scale=10.0, color
     return m
 
 
-def add(op, mat=None, name=None, **kw):
+def add(op, mat=None, name=None, scale=None, **kw):
+    """A mesh primitive; `scale` is applied to the mesh (the operators' own scale
+    argument is ignored by some, e.g. planes), so textures in object coordinates keep
+    their size in metres."""
     getattr(bpy.ops.mesh, op)(**kw)
     obj = bpy.context.active_object
+    if scale is not None:
+        from mathutils import Matrix
+        obj.data.transform(Matrix.Diagonal((*scale, 1.0)))
     if name:
         obj.name = name
     if mat is not None:
@@ -244,7 +254,7 @@ def scene_interior(scene, frames):
         add("primitive_cube_add", wood, "transom", size=1,
             location=(W / 2, (wx0 + wx1) / 2, z), scale=(0.12, wx1 - wx0, 0.015))
     add("primitive_plane_add", outside, "outside", size=1, location=(W / 2 + 1.0, -0.25, 1.6),
-        scale=(1, 4, 3), rotation=(0, math.pi / 2, 0))
+        scale=(3, 4, 1), rotation=(0, math.pi / 2, 0))
     # Table with thin legs, a slatted chair.
     add("primitive_cube_add", wood, "table", size=1, location=(0.5, -1.0, 0.75),
         scale=(1.6, 0.9, 0.05))
@@ -295,11 +305,12 @@ def scene_interior(scene, frames):
     for pivot, s in arms:
         key(pivot, keys, rotation=lambda f, s=s: (0, 0.6 * math.sin(0.8 * f) * s, 0))
     # Lights: a ceiling area light, a desk lamp switching on at frame 8.
-    area = bpy.data.lights.new("area", "AREA")
-    area.energy, area.size = 250.0, 1.5
-    ao = bpy.data.objects.new("area", area)
-    scene.collection.objects.link(ao)
-    ao.location = (-1.0, 0.5, H - 0.02)
+    for k, (x, y) in enumerate(((-1.5, 1.0), (1.5, -1.5))):
+        area = bpy.data.lights.new(f"area{k}", "AREA")
+        area.energy, area.size = 300.0, 1.2
+        ao = bpy.data.objects.new(f"area{k}", area)
+        scene.collection.objects.link(ao)
+        ao.location = (x, y, H - 0.02)
     lampm = material("lampshade", (1, 1, 1), emission=(1.0, 0.8, 0.5), strength=0.0)
     add("primitive_uv_sphere_add", lampm, "bulb", radius=0.08, location=(1.0, -1.2, 1.0))
     bulb = bpy.data.lights.new("bulb", "POINT")
