@@ -48,11 +48,11 @@ train-data: $(STAMP)
 	$(BIN)/python -m weights_tools gen --out $(DATA)/train --sequences 96 --frames 12 --seed 0 --size 72x128
 	$(BIN)/python -m weights_tools gen --out $(DATA)/heldout --sequences 16 --frames 12 --seed 1000 --size 90x160
 
-# Blender validation sequences (sparingly: about 10 minutes on 2 cores; needs
+# Blender validation sequences (sparingly: about 20 minutes on 2 cores; needs
 # `apt-get install blender`): renders EXRs, converts them to weights_tools/validation/
 # (float16, committed) and $(DATA)/validation (float32).
 validation-data: $(STAMP)
-	blender -b --factory-startup -P weights_tools/blender/render_validation.py -- --out $(OUT)/validation-exr --frames 20
+	blender -b --factory-startup -P weights_tools/blender/render_validation.py -- --out $(OUT)/validation-exr --frames 16
 	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr weights_tools/validation --fp16 --check
 	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr $(DATA)/validation
 
