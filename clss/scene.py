@@ -287,9 +287,16 @@ class Box:
 
 class Cylinder:
     """Static open cylinder from `a` along an axis-aligned unit `axis` for `length`
-    (poles, wires)."""
+    (poles, wires).
+
+    `thin_safe` (a class attribute, off here so that the built-in scene's output stays
+    as it was) computes the hit with the cancellation-free discriminant
+    A r^2 - (o x d)^2 and renormalises the normal: for radii of millimetres metres away,
+    float32's B^2 - A C loses r^2 entirely (the wire is missed) and the hit point is
+    too coarse for (P - axis) / r to stay of unit length (highlights of thousands)."""
     spec = (0.3, 60.0)
     emission = None
+    thin_safe = False
 
     def __init__(self, a, axis, length, radius, color):
         self.a = np.asarray(a, np.float64)
@@ -312,7 +319,11 @@ class Cylinder:
         di, dj = d[i], d[j]
         A = di * di + dj * dj
         B = di * oi + dj * oj
-        disc = B * B - A * (oi * oi + oj * oj - self.r ** 2)
+        if self.thin_safe:
+            cross = oi * dj - oj * di
+            disc = A * self.r ** 2 - cross * cross
+        else:
+            disc = B * B - A * (oi * oi + oj * oj - self.r ** 2)
         with np.errstate(invalid="ignore", divide="ignore"):
             t = (-B - np.sqrt(disc)) / A
         s = (float(o[self.k] - self.a[self.k]) + t * d[self.k]) * self.sign
@@ -322,7 +333,10 @@ class Cylinder:
     def surface(self, P, d):
         n = np.stack([P[m] - float(self.a[m]) for m in range(3)], -1)
         n[:, self.k] = 0
-        n *= 1 / self.r
+        if self.thin_safe:
+            n /= np.maximum(np.sqrt(np.sum(n * n, -1, keepdims=True)), _F(1e-12))
+        else:
+            n *= 1 / self.r
         return n, np.broadcast_to(self.color, n.shape)
 
     def to_prev(self, P):

@@ -138,6 +138,23 @@ def test_geometry_aliasing_on_a_thin_wire():
     assert sky_rows[:3].all() and (a[:3] == sg.ALIAS_NONE).all()
 
 
+def test_thin_wire_shading_stays_bounded():
+    """Millimetre wires: the float32 hit point is coarse next to the radius; the normal
+    must stay of unit length or highlights reach thousands."""
+    fence = dict(type="fence", along_z=False, start=[-6.0, 0.0, -6.0], n=13, spacing=1.0,
+                 height=1.5, pole_r=0.01, wire_r=0.002, wires=4, color=[0.5, 0.5, 0.5],
+                 wire_color=[0.8, 0.8, 0.8])
+    spec = _spec([fence], camera=dict(pos=[0.0, 1.0, 6.0], target=[0.0, 0.8, -6.0]),
+                 light=dict(sun=[3.0, 3.0, 3.0]), frames=1)
+    prims = sg.build_primitives(spec, 0.0)
+    n = 400          # the 4 mm wires, 12 m away, cover 0.2 px: some rows hit them
+    view = scene._View(prims, sg.camera_at(spec, 0.0, 1.0), n, n, sg.light_at(spec, 0.0))
+    u, v = np.meshgrid(np.arange(n, dtype=np.float32) + 0.5, np.arange(n) + 0.5)
+    color, _, ids = scene.trace_points(view, u.ravel(), v.ravel())
+    assert (ids >= 13).sum() > 20                            # wires seen
+    assert color.max() < 4.0
+
+
 def test_shading_ghosting_when_the_sun_dims():
     spec = _spec([_floor(), _sphere((0.0, 0.6, -1.0), 0.6)],
                  light=dict(anim="flicker", change_at=2, dim=0.3))

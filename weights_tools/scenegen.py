@@ -129,6 +129,12 @@ class TexturedBox(Box):
         return n, self.texture(self.rigid.to_local(P))
 
 
+class Wire(Cylinder):
+    """Poles and wires: clss.scene's Cylinder with the float32-safe hit and normal
+    for radii of millimetres (see Cylinder.thin_safe)."""
+    thin_safe = True
+
+
 def _hash01(ix, iy, salt):
     """Deterministic per-cell pseudo-random numbers in [0, 1) (int64 arithmetic)."""
     h = ((ix * 73856093) ^ (iy * 19349663) ^ salt) & 0xFFFFFF
@@ -275,7 +281,7 @@ def _camera(path, t, aspect):
     if k in ("dolly", "mixed"):          # the camera moves toward / away from the aim
         p = p + (g - p) / np.linalg.norm(g - p) * (v * t * s[1])
     if k == "orbit":
-        a = math.atan2(p[0] - g[0], p[2] - g[2]) + v * t / path["radius"] * 3
+        a = math.atan2(p[0] - g[0], p[2] - g[2]) + v * t / path["radius"] * 1.5
         r = path["radius"]
         p = np.array([g[0] + r * math.sin(a), p[1], g[2] + r * math.cos(a)])
     p = p + np.array([0.0, path["bob"] * math.sin(0.7 * t), 0.0])
@@ -468,15 +474,15 @@ def _fence(prims, f):
     axis = np.array([0.0, 0.0, -1.0]) if f["along_z"] else np.array([1.0, 0.0, 0.0])
     a = np.asarray(f["start"])
     for k in range(f["n"]):
-        prims.append(Cylinder(a + axis * (f["spacing"] * k), (0, 1, 0), f["height"],
-                              f["pole_r"], f["color"]))
+        prims.append(Wire(a + axis * (f["spacing"] * k), (0, 1, 0), f["height"],
+                          f["pole_r"], f["color"]))
     chunk = 4
     for m in range(f["wires"]):
         y = f["height"] * (m + 1) / (f["wires"] + 0.5)
         for k in range(0, f["n"] - 1, chunk):
             length = f["spacing"] * min(chunk, f["n"] - 1 - k)
             start = a + axis * (f["spacing"] * k) + [0.0, y, 0.0]
-            prims.append(Cylinder(start, axis, length, f["wire_r"], f["wire_color"]))
+            prims.append(Wire(start, axis, length, f["wire_r"], f["wire_color"]))
 
 
 def light_at(spec, t):

@@ -4,7 +4,7 @@ Run inside Blender (its Python has bpy, not numpy or clss):
 
     blender -b -P weights_tools/blender/render_validation.py -- --out DIR \\
         [--scenes interior,foliage] [--frames 16] [--size 90x160] [--scale 2] \\
-        [--spp 32] [--ref-spp 64]
+        [--spp 64] [--ref-spp 96]
 
 then convert the EXRs to the DATA.md .npz with `python -m weights_tools.blender.convert`
 (`make validation-data` does both).
