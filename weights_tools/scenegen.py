@@ -258,7 +258,7 @@ def _pose(obj, t):
     return c, obj["yaw"] + m["spin"] * t
 
 
-def _random_camera_path(rng, T):
+def _random_camera_path(rng):
     kind = str(rng.choice(["static", "pan", "truck", "dolly", "orbit", "mixed"],
                           p=[0.1, 0.2, 0.2, 0.15, 0.15, 0.2]))
     speed = rng.uniform(0.02, 0.15) * (3 if rng.random() < 0.15 else 1)
@@ -319,8 +319,8 @@ class SceneSpec:
                      dim=float(rng.uniform(0.2, 0.6)))
         spec = SceneSpec(seed=seed, index=index, frames=frames,
                          jittered=bool(rng.random() > 0.2), cut=cut,
-                         cameras=[_random_camera_path(rng, frames),
-                                  _random_camera_path(rng, frames)],
+                         cameras=[_random_camera_path(rng),
+                                  _random_camera_path(rng)],
                          light=light)
         _random_environment(np.random.default_rng([seed, index, 0x6A0D]), spec)
         objs = spec.objects
