@@ -6,7 +6,8 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup test test-large demo eval verify devices bench bench-quick oclgrind clean
+.PHONY: setup test test-large demo eval verify devices bench bench-quick oclgrind clean \
+	train-data validation-data
 
 $(STAMP): setup.cfg pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -50,6 +51,21 @@ bench: $(STAMP)
 
 oclgrind: $(STAMP)
 	$(BIN)/python -m pytest -q -ra tests/test_oclgrind.py
+
+# Generated training data (weights_tools/scenegen.py): the training set and a held-out
+# set with another seed (never trained on). A few minutes on 2 cores.
+DATA ?= $(OUT)/data
+train-data: $(STAMP)
+	$(BIN)/python -m weights_tools gen --out $(DATA)/train --sequences 96 --frames 12 --seed 0 --size 72x128
+	$(BIN)/python -m weights_tools gen --out $(DATA)/heldout --sequences 16 --frames 12 --seed 1000 --size 90x160
+
+# Blender validation sequences (sparingly: about 20 minutes on 2 cores; needs
+# `apt-get install blender`): renders EXRs, converts them to weights_tools/validation/
+# (float16, committed) and $(DATA)/validation (float32).
+validation-data: $(STAMP)
+	blender -b --factory-startup -P weights_tools/blender/render_validation.py -- --out $(OUT)/validation-exr --frames 16
+	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr weights_tools/validation --fp16 --check
+	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr $(DATA)/validation
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info .pytest_cache .hypothesis
