@@ -94,6 +94,24 @@ def cmd_inspect(args):
     return 0
 
 
+def _add_train(sub):
+    """`train` (weights_tools/train.py) needs torch, the [train] extra; without it the
+    subcommand says so instead of breaking the others."""
+    try:
+        from .train import add_parser
+    except ModuleNotFoundError as e:
+        missing = e.name
+
+        def no_torch(args):
+            print(f"error: train needs {missing} (pip install -e '.[train]')", file=sys.stderr)
+            return 1
+        t = sub.add_parser("train", help="train the networks (needs the [train] extra)")
+        t.add_argument("rest", nargs=argparse.REMAINDER)
+        t.set_defaults(fn=no_torch)
+        return
+    add_parser(sub)
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m weights_tools", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -111,6 +129,7 @@ def main(argv=None):
     i = sub.add_parser("inspect", help="describe a .onnx or .safetensors file")
     i.add_argument("file")
     i.set_defaults(fn=cmd_inspect)
+    _add_train(sub)
     args = p.parse_args(argv)
     try:
         return args.fn(args)
