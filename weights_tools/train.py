@@ -30,8 +30,8 @@ leaves open (ours, marked *):
   summed): L1 between the blend weight and 1/(1+counter) on geometry-aliasing pixels the
   classifier got right; nothing on misclassified aliasing or false-positive aliasing;
   L1 between output and reference in the PQ domain on the rest.
-* Optimiser: *Adam (the paper used Ranger, lr 5e-4), lr 5e-4, cosine decay to 10 % over
-  each stage; batches drawn from a generator seeded by (seed, stage, step), so a resumed
+* Optimiser: *Adam (the paper used Ranger, lr 5e-4 over 180 + 120 epochs), lr 1e-3
+  because the budget here is a few hundred steps, cosine decay to 10 % over each stage; batches drawn from a generator seeded by (seed, stage, step), so a resumed
   run draws the same batches as an uninterrupted one.
 * Network widths: weights_tools.networks defaults (16, 32, 64, 128; MLP 32).
 
@@ -439,14 +439,15 @@ def add_parser(sub):
     t.add_argument("--out", required=True, help="directory for checkpoints, loss.png, "
                                                 "weights.safetensors, train.json")
     t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--cls-steps", type=int, default=1200, help="classifier steps")
-    t.add_argument("--comp-steps", type=int, default=600, help="composition steps")
+    # Defaults sized for ~45-60 min on the shared 2-core machine (~7 s a step there).
+    t.add_argument("--cls-steps", type=int, default=300, help="classifier steps")
+    t.add_argument("--comp-steps", type=int, default=120, help="composition steps")
     t.add_argument("--batch", type=int, default=4, help="windows per step")
     t.add_argument("--patch", type=int, default=64, help="patch size, output pixels")
     t.add_argument("--frames", type=int, default=8, help="recurrent frames per window")
     t.add_argument("--candidates", type=int, default=4000, help="random windows scored")
     t.add_argument("--keep", type=float, default=0.25, help="fraction of candidates kept")
-    t.add_argument("--lr", type=float, default=5e-4)
+    t.add_argument("--lr", type=float, default=1e-3)
     t.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     t.add_argument("--device", default=None, help="torch device (default: cuda if present)")
     t.add_argument("--init", default=None, help="start from these weights (.safetensors)")
