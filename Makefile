@@ -6,7 +6,8 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup test test-large demo verify devices bench bench-quick oclgrind clean
+.PHONY: setup test test-large demo verify devices bench bench-quick oclgrind clean \
+	train-data train
 
 $(STAMP): setup.cfg pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -39,6 +40,29 @@ bench: $(STAMP)
 
 oclgrind: $(STAMP)
 	$(BIN)/python -m pytest -q -ra tests/test_oclgrind.py
+
+# Generated training data (weights_tools/scenegen.py): the training set and a held-out
+# set with another seed (never trained on). A few minutes on 2 cores.
+DATA ?= $(OUT)/data
+train-data: $(STAMP)
+	$(BIN)/python -m weights_tools gen --out $(DATA)/train --sequences 96 --frames 12 --seed 0 --size 72x128
+	$(BIN)/python -m weights_tools gen --out $(DATA)/heldout --sequences 16 --frames 12 --seed 1000 --size 90x160
+
+# The shipped net-mode weights from scratch (recipe: weights_tools/train.py): data,
+# training with a fixed seed (torch, the [train] extra), then the copy into the package.
+# About an hour on the 2-core machine. An interrupted run resumes from its checkpoint;
+# `rm -rf $(TRAIN_RUN)` starts afresh.
+TRAIN_RUN ?= $(OUT)/train_run
+TRAIN_STAMP := $(VENV)/.train-stamp
+$(TRAIN_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -q -e '.[test,train]'
+	touch $@
+
+train: train-data $(TRAIN_STAMP)
+	$(BIN)/python -m weights_tools train --data $(DATA)/train --heldout $(DATA)/heldout \
+		--out $(TRAIN_RUN) --seed 0 --resume
+	mkdir -p clss/weights
+	cp $(TRAIN_RUN)/weights.safetensors clss/weights/clss_trained.safetensors
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info .pytest_cache .hypothesis
