@@ -62,6 +62,11 @@ def test_train_smoke(tiny_data, tmp_path, capsys):
     assert os.path.isfile(os.path.join(out, "loss.png"))
     assert log["heldout_psnr_pq"][0]["net"] > 10
     trained = load_weights(os.path.join(out, "weights.safetensors"))
+    # --export writes the same weights from the final checkpoint
+    os.rename(os.path.join(out, "weights.safetensors"), os.path.join(out, "first.safetensors"))
+    assert main(["train", "--data", tiny_data, "--out", out, "--export"]) == 0
+    again = load_weights(os.path.join(out, "weights.safetensors"))
+    assert all(np.array_equal(again[k], v) for k, v in trained.items())
 
     # the weights moved away from the seeded init
     from weights_tools.networks import build_classifier, build_composition

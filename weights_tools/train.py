@@ -317,6 +317,26 @@ def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
     return rows
 
 
+def export_checkpoint(out_dir):
+    """weights.safetensors from --out/checkpoint.pt as it stands (an unfinished run's
+    networks: e.g. the classifier done and the composition part-trained)."""
+    ckpt_path = os.path.join(out_dir, "checkpoint.pt")
+    if not os.path.isfile(ckpt_path):
+        raise TrainError(f"--export: no checkpoint.pt in {out_dir}")
+    ck = torch.load(ckpt_path, weights_only=True)
+    widths = tuple(int(ck["cls"][f"{n}.weight"].shape[0])
+                   for n in ("stem", "down.0", "down.1", "down.2"))
+    cls = torch_frame.Classifier(widths)
+    comp = torch_frame.Composition(int(ck["comp"]["mlp.0.weight"].shape[0]))
+    cls.load_state_dict(ck["cls"])
+    comp.load_state_dict(ck["comp"])
+    out_path = os.path.join(out_dir, "weights.safetensors")
+    save_weights(torch_frame.tensors_from_networks(cls, comp), out_path)
+    stage = STAGES[ck["stage"]] if ck["stage"] < len(STAGES) else "done"
+    print(f"wrote {out_path} from the checkpoint (next: {stage} step {ck['step']})")
+    return 0
+
+
 def train(args):
     torch.set_num_threads(int(args.threads))
     device = torch_frame.pick_device(args.device)
@@ -454,10 +474,14 @@ def add_parser(sub):
     t.add_argument("--heldout", default=None,
                    help="directory of held-out sequences: print rules/net PSNR at the end")
     t.add_argument("--resume", action="store_true", help="continue from --out/checkpoint.pt")
+    t.add_argument("--export", action="store_true",
+                   help="only write --out/weights.safetensors from its checkpoint, no training")
     t.set_defaults(fn=cmd_train)
 
 
 def cmd_train(args):
+    if args.export:
+        return export_checkpoint(args.out)
     for name in ("cls_steps", "comp_steps"):
         if getattr(args, name) < 0:
             raise TrainError(f"--{name.replace('_', '-')}: expected >= 0")
