@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
 .PHONY: setup test test-large demo eval verify devices bench bench-quick oclgrind clean \
-	train-data validation-data
+	train-data validation-data train
 
 $(STAMP): setup.cfg pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -66,6 +66,22 @@ validation-data: $(STAMP)
 	blender -b --factory-startup -P weights_tools/blender/render_validation.py -- --out $(OUT)/validation-exr --frames 16
 	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr weights_tools/validation --fp16 --check
 	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr $(DATA)/validation
+
+# The shipped net-mode weights from scratch (recipe: weights_tools/train.py): data,
+# training with a fixed seed (torch, the [train] extra), then the copy into the package.
+# About an hour on the 2-core machine. An interrupted run resumes from its checkpoint;
+# `rm -rf $(TRAIN_RUN)` starts afresh.
+TRAIN_RUN ?= $(OUT)/train_run
+TRAIN_STAMP := $(VENV)/.train-stamp
+$(TRAIN_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -q -e '.[test,train]'
+	touch $@
+
+train: train-data $(TRAIN_STAMP)
+	$(BIN)/python -m weights_tools train --data $(DATA)/train --heldout $(DATA)/heldout \
+		--out $(TRAIN_RUN) --seed 0 --resume
+	mkdir -p clss/weights
+	cp $(TRAIN_RUN)/weights.safetensors clss/weights/clss_trained.safetensors
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info .pytest_cache .hypothesis

@@ -137,6 +137,22 @@ def cmd_gen(args):
         print(f"  {key:5s} " + ", ".join(f"{n} {f:6.2%}" for n, f
                                          in zip(names, stats["frequencies"][key])))
     return 0
+def _add_train(sub):
+    """`train` (weights_tools/train.py) needs torch, the [train] extra; without it the
+    subcommand says so instead of breaking the others."""
+    try:
+        from .train import add_parser
+    except ModuleNotFoundError as e:
+        missing = e.name
+
+        def no_torch(args):
+            print(f"error: train needs {missing} (pip install -e '.[train]')", file=sys.stderr)
+            return 1
+        t = sub.add_parser("train", help="train the networks (needs the [train] extra)")
+        t.add_argument("rest", nargs=argparse.REMAINDER)
+        t.set_defaults(fn=no_torch)
+        return
+    add_parser(sub)
 
 
 def main(argv=None):
@@ -171,6 +187,7 @@ def main(argv=None):
     g.add_argument("--workers", type=int, default=2, help="processes")
     g.add_argument("--quiet", action="store_true")
     g.set_defaults(fn=cmd_gen)
+    _add_train(sub)
     args = p.parse_args(argv)
     try:
         return args.fn(args)
