@@ -30,7 +30,8 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from clss.pipeline.contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS,
-                                    PQ_PEAK_NITS, output_size, to_internal, validate_frame)
+                                    PQ_PEAK_NITS, RULE_CLIP_EPS, output_size, to_internal,
+                                    validate_frame)
 from clss.pipeline.oracle import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
                                   HISTORY_CHANNELS, SCATTER_WEIGHT_THRESHOLD)
 
@@ -42,6 +43,17 @@ MODES = ("rule", "net")
 # Net mode's blend: "net" = the composition network (inference), "rule" = w = 1/(1+counter)
 # without a clamp, the paper's rule-based composition for training the classifier (s3.4).
 BLENDS = ("net", "rule")
+
+
+def clip_towards(hist, up, lo, hi):
+    """Rule mode's history clip (reference.md s9): up + t (hist - up) with one t in [0, 1]
+    for the three channels, the largest that keeps every channel inside [lo, hi]."""
+    d = hist - up
+    lim = torch.where(d > 0, hi - up, lo - up)
+    big = d.abs() > RULE_CLIP_EPS
+    tc = torch.where(big, lim / torch.where(big, d, torch.ones_like(d)), torch.ones_like(d))
+    t = torch.clamp(tc, min=0.0).amin(1, keepdim=True).clamp(max=1.0)
+    return up + t * d
 
 
 def pick_device(device=None) -> torch.device:
@@ -378,7 +390,7 @@ class FrameStep(nn.Module):
             new_logits = logits
         else:
             w0 = inv_cnt
-            blend_hist = torch.minimum(torch.maximum(w_col, p["clamp_min"]), p["clamp_max"])
+            blend_hist = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
             new_logits = torch.zeros(B, len(LOGITS), H, W, device=up.device)
         wgt = torch.maximum(w0, react)
         out = wgt * up + (1.0 - wgt) * blend_hist
