@@ -6,6 +6,8 @@
  *   -DA_SCALAR=1, -DB_SCALAR=1  binary_flat with that operand a single element
  *   -DUOP=n       unary operator (UOP_* below) for unary
  *   -DPAD_MODE=n  pad: 0 constant, 1 edge, 2 reflect, 3 wrap
+ *   -DCLSS_CLANG_VECTORS=1  pad8's 8-element copies as clang vector loads and
+ *                 stores instead of vload8/vstore8 (out-of-line calls on PoCL)
  *   -DLAST=1      argmax: the last index of a tied maximum (select_last_index)
  *
  * Data movement (copy_rows, gather, pad, where) moves raw bits (TB) and is
@@ -265,6 +267,50 @@ __kernel void pad(__global const TB *src, __global TB *dst, int D1, int D2, int 
         dst[o] = value;
     else
         dst[o] = src[(((long)i0 * N1 + i1) * N2 + i2) * N3 + i3];
+}
+
+/* pad, 8 outputs along the last dimension per work-item (the host's fast path,
+ * PAD_VEC=1 in clss/ops/elementwise.py; `pad` above, one output per work-item,
+ * is its reference): the outer coordinates are mapped once, a block whose
+ * source lies wholly inside the input row is one 8-element copy, a block in a
+ * constant-padded row one 8-element fill; others go element by element.
+ * Same arguments as `pad`; NDRange (ceil(D3 / 8), D2, D0*D1). */
+#if defined(__clang__) && CLSS_CLANG_VECTORS
+typedef TB TBv8 __attribute__((ext_vector_type(8), aligned(sizeof(TB))));
+#define TB_LD8(p) (*(__global const TBv8 *)(p))
+#define TB_ST8(p, v) (*(__global TBv8 *)(p) = (v))
+#else
+#define TB_LD8(p) vload8(0, (p))
+#define TB_ST8(p, v) vstore8((v), 0, (p))
+#endif
+__kernel void pad8(__global const TB *src, __global TB *dst, int D1, int D2, int D3, int D01,
+                   int N0, int N1, int N2, int N3, int P0, int P1, int P2, int P3, TB value)
+{
+    const int o3 = get_global_id(0) * 8, o2 = get_global_id(1), z = get_global_id(2);
+    if (o3 >= D3 || o2 >= D2 || z >= D01) return;
+    const int o0 = z / D1, o1 = z % D1;
+    const int i0 = pad_src(o0, P0, N0), i1 = pad_src(o1, P1, N1), i2 = pad_src(o2, P2, N2);
+    __global TB *d = dst + ((long)z * D2 + o2) * D3 + o3;
+    const int n = min(8, D3 - o3);
+    if ((i0 | i1 | i2) < 0) {                    /* constant mode: a padded row */
+        if (n == 8) {
+            TB_ST8(d, (TB8)value);
+        } else {
+            for (int e = 0; e < n; ++e)
+                d[e] = value;
+        }
+        return;
+    }
+    const __global TB *s = src + (((long)i0 * N1 + i1) * N2 + i2) * N3;
+    const int i3 = o3 - P3;
+    if (n == 8 && i3 >= 0 && i3 + 8 <= N3) {
+        TB_ST8(d, TB_LD8(s + i3));
+        return;
+    }
+    for (int e = 0; e < n; ++e) {
+        const int j = pad_src(o3 + e, P3, N3);
+        d[e] = j < 0 ? value : s[j];
+    }
 }
 
 /* --- per-row reductions over a [outer, L, inner] view --------------------------

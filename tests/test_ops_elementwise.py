@@ -203,3 +203,15 @@ def test_fp16_native_variants_build(tmp_path):
     p = subprocess.run([sys.executable, "-c", code], env=oclgrind_env(tmp_path), capture_output=True,
                        text=True, timeout=600)
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("vec", [0, 1], ids=["pad-reference", "pad8"])
+def test_pad_fast_and_reference_kernels(vec, precision, dev, monkeypatch):
+    # PAD_VEC=0 is the reference kernel the 8-wide pad8 is checked against.
+    monkeypatch.setattr(ew, "PAD_VEC", vec)
+    for c in (ew.pad_case((1, 5, 11, 67), [0, 0, 0, 0, 0, 0, 5, 13], "edge"),
+              ew.pad_case((1, 3, 13, 41), [0, 0, 3, 5, 0, 0, 2, 0], "constant", -2.5),
+              ew.pad_case((2, 2, 5, 37), [0, 0, 1, 11, 0, 0, 1, 3], "reflect"),
+              ew.pad_case((3, 17), [1, 9, 2, 0], "wrap")):
+        assert_case(c, dev, precision)

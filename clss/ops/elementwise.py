@@ -16,6 +16,7 @@ import numpy as np
 
 from ..device import Device, storage_dtype
 from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .conv import builtin_free
 from .twin import node_model
 
 BINARY = {"add": 0, "sub": 1, "mul": 2, "div": 3, "min": 4, "max": 5, "prelu": 6,
@@ -348,6 +349,11 @@ def slice(dev: Device, prec: str, x, starts, ends, axes=None, steps=None):  # no
     return out
 
 
+# Pad with 8 outputs per work-item along the last axis (kernel pad8); 0 selects
+# the reference kernel `pad` (one output per work-item).
+PAD_VEC = 1
+
+
 def pad(dev: Device, prec: str, x, pads, mode: str = "constant", value: float = 0.0, axes=None):
     """ONNX Pad: pads = [begin per axis..., end per axis...] (negative crops),
     modes constant / edge / reflect / wrap. Bit-exact."""
@@ -385,11 +391,17 @@ def pad(dev: Device, prec: str, x, pads, mode: str = "constant", value: float = 
         raise ValueError(f"pad: needs {len(dims)} dimensions after coalescing; the kernels take 4")
     dims = [[1, 0, 1]] * (4 - len(dims)) + dims
     gs, dargs = _grid([d[2] for d in dims])
+    if PAD_VEC:
+        gs = (-(-gs[0] // 8), gs[1], gs[2])
     bits = np.array(value, dtype=storage_dtype(prec))
     bits = bits.view(np.uint32 if bits.itemsize == 4 else np.uint16)
     # An empty input is never read (constant mode pads everything) but needs a buffer.
     src = x if x.size else dev.empty((1,), prec)
-    k = dev.kernel("elementwise", "pad", prec, PAD_MODE=PAD_MODES[mode])
+    if PAD_VEC:
+        k = dev.kernel("elementwise", "pad8", prec, PAD_MODE=PAD_MODES[mode],
+                       CLSS_CLANG_VECTORS=builtin_free(dev))
+    else:
+        k = dev.kernel("elementwise", "pad", prec, PAD_MODE=PAD_MODES[mode])
     dev.launch(k, gs, (src.data, out.data, *dargs, *_i32(*[d[0] for d in dims], *[d[1] for d in dims]),
                        bits.reshape(())[()]))
     return out
@@ -885,6 +897,11 @@ def cases(level: str = "quick") -> list[Case]:
         pad_case((2, 3, 7, 13), [1, 2, 3, 4], "edge", axes=[-1, 1]),
         pad_case((2, 3, 4, 5, 6), [0, 0, 0, 1, 1, 0, 0, 0, 1, 1], "constant", 2.0),
         pad_case((7, 13), [2, 3, 1, 0], "constant", 1e30),
+        # pad8: 8-wide copies and fills, edges, tails (prime widths)
+        pad_case((1, 5, 11, 67), [0, 0, 0, 0, 0, 0, 5, 13], "edge"),
+        pad_case((1, 3, 13, 41), [0, 0, 3, 5, 0, 0, 2, 0], "constant", -2.5),
+        pad_case((2, 2, 5, 37), [0, 0, 1, 11, 0, 0, 1, 3], "reflect"),
+        pad_case((1, 2, 6, 29), [0, 0, 1, 3, 0, 0, 0, 19], "wrap"),
         softmax_case((2, 3, 7, 13), -1),
         softmax_case((2, 3, 7, 13), 0),
         softmax_case((1, 23, 31, 27), -3),
