@@ -86,6 +86,12 @@ def _i32(*vs):
 
 # --- binary ------------------------------------------------------------------------
 
+# Broadcasting binary ops whose operands are contiguous or broadcast along the
+# innermost (coalesced) axis: kernel binary_bcast8, 8 outputs per work-item;
+# 0 selects the reference kernel binary_bcast (one output per work-item).
+BCAST_VEC = 1
+
+
 def binary(dev: Device, prec: str, op: str, a, b, out=None):
     """ONNX-broadcasting binary op. Comparisons return a bool (uchar) tensor."""
     if op not in BINARY:
@@ -108,6 +114,11 @@ def binary(dev: Device, prec: str, op: str, a, b, out=None):
     dims, (sa, sb) = coalesce(shape, [_broadcast_strides(a.shape, shape), _broadcast_strides(b.shape, shape)])
     dims, (sa, sb) = _four(dims, [sa, sb], op)
     gs, dargs = _grid(dims)
+    if BCAST_VEC and sa[3] in (0, 1) and sb[3] in (0, 1) and dims[3] >= 8:
+        k = dev.kernel("elementwise", "binary_bcast8", prec, OP=BINARY[op],
+                       CLSS_CLANG_VECTORS=builtin_free(dev))
+        dev.launch(k, (-(-gs[0] // 8), gs[1], gs[2]), (a.data, b.data, out.data, *dargs, *_i32(*sa, *sb)))
+        return out
     k = dev.kernel("elementwise", "binary_bcast", prec, OP=BINARY[op])
     dev.launch(k, gs, (a.data, b.data, out.data, *dargs, *_i32(*sa, *sb)))
     return out
