@@ -21,6 +21,10 @@
  *   -DNET=0|1       resolve: rule mode (0) or classifier input (1)
  *   -DSANITIZE=0|1  replace non-finite inputs instead of refusing the frame
  *   -DHIDDEN=n      compose: hidden width of the composition MLP
+ *   -DCLSS_CLANG_VECTORS=0|1  half loads/stores (LDV/STV, st_plane, neighbourhood
+ *                   reads) through common.h's FLD/FLD8/FST/FST8, inline clang vector
+ *                   conversions, instead of vload_halfN and vstore_halfN (out-of-line calls
+ *                   on PoCL); 0 is the reference
  *   -DVEC=8|4|1     output-res pixels per work-item in resolve (rule) and compose
  *
  * Buffers: inputs in image layout (colour h x w x 3, motion h x w x 2 interleaved,
@@ -99,8 +103,8 @@ typedef float8 fv;
 typedef int8 iv;
 #define VLD(p) vload8(0, (p))
 #define VST(v, p) vstore8((v), 0, (p))
-#define LDV(p, i) LD8(p, i)
-#define STV(p, i, v) ST8(p, i, v)
+#define LDV(p, i) FLD8(p, i)
+#define STV(p, i, v) FST8(p, i, v)
 #elif VEC == 4
 typedef float4 fv;
 typedef int4 iv;
@@ -113,8 +117,8 @@ typedef float fv;
 typedef int iv;
 #define VLD(p) ((p)[0])
 #define VST(v, p) ((p)[0] = (v))
-#define LDV(p, i) LD(p, i)
-#define STV(p, i, v) ST(p, i, v)
+#define LDV(p, i) FLD(p, i)
+#define STV(p, i, v) FST(p, i, v)
 #else
 #error "VEC must be 1, 4 or 8"
 #endif
@@ -181,7 +185,7 @@ inline void st_plane(__global T *p, int q, fv v, int n)
     float t[VEC];
     VST(v, t);
     for (int l = 0; l < n; ++l)
-        ST(p, q + l, t[l]);
+        FST(p, q + l, t[l]);
 }
 
 inline void st_plane_f(__global float *p, int q, fv v, int n)
@@ -464,14 +468,14 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
      * off-screen neighbours left out */
     for (int c = 0; c < 3; ++c) {
         __global const T *x = X + c * hw;
-        float lo = LD(x, p), hi = lo;
+        float lo = FLD(x, p), hi = lo;
         for (int dy = -1; dy <= 1; ++dy) {
             const int ii = i + dy;
             if (ii < 0 || ii >= h) continue;
             for (int dx = -1; dx <= 1; ++dx) {
                 const int jj = j + dx;
                 if (jj < 0 || jj >= w) continue;
-                const float n = LD(x, ii * w + jj);
+                const float n = FLD(x, ii * w + jj);
                 lo = fmin(lo, n);
                 hi = fmax(hi, n);
             }

@@ -10,6 +10,10 @@
  *                       down-scales else floor (Resize-10/Upsample, as onnxruntime)
  *   -DEXCLUDE=0|1       exclude_outside: taps outside the input get weight 0, renormalised
  *   -DANTIALIAS=0|1     linear/cubic filter stretched by 1/scale when down-scaling
+ *   -DCLSS_CLANG_VECTORS=0|1  element loads/stores through common.h's FLD/FST
+ *                       (clang vector conversions, inline) instead of LD/ST
+ *                       (vload_half/vstore_half: out-of-line calls on PoCL, so fp16
+ *                       ran several times slower than fp32); 0 is the reference
  *   -DCPT=n             channels per work-item (default 4): the coordinates and weights
  *                       of a pixel are computed once and reused for n channels
  *
@@ -226,7 +230,7 @@ __kernel void resize(__global const T *in, __global T *out,
 #if COORD == 4
     /* tf_crop_and_resize: a source outside the input is the extrapolation value. */
     if (fy < 0.0f || fy > (float)(H - 1) || fx < 0.0f || fx > (float)(W - 1)) {
-        for (int c = 0; c < nc; ++c) ST(out, o + c * oplane, extrap);
+        for (int c = 0; c < nc; ++c) FST(out, o + c * oplane, extrap);
         return;
     }
 #endif
@@ -263,10 +267,10 @@ __kernel void resize(__global const T *in, __global T *out,
             const int xi = clamp(i, 0, W - 1);
 #pragma unroll
             for (int c = 0; c < CPT; ++c)
-                if (c < nc) acc[c] += w * LD(row, c * plane + xi);
+                if (c < nc) acc[c] += w * FLD(row, c * plane + xi);
         }
     }
-    for (int c = 0; c < nc; ++c) ST(out, o + c * oplane, acc[c]);
+    for (int c = 0; c < nc; ++c) FST(out, o + c * oplane, acc[c]);
 
 #else
     A wy[TAPS], wx[TAPS];
@@ -286,10 +290,10 @@ __kernel void resize(__global const T *in, __global T *out,
             __global const T *row = p + (long)iy[r] * W;
             A racc = A_ZERO;
 #pragma unroll
-            for (int k = 0; k < TAPS; ++k) racc += wx[k] * LD(row, ix[k]);
+            for (int k = 0; k < TAPS; ++k) racc += wx[k] * FLD(row, ix[k]);
             acc += wy[r] * racc;
         }
-        ST(out, o + c * oplane, acc);
+        FST(out, o + c * oplane, acc);
     }
 #endif
 }

@@ -30,6 +30,7 @@ import pyopencl.cltypes as clt
 
 from ..device import Device
 from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .conv import builtin_free
 from .twin import node_model
 
 MODES = ("nearest", "linear", "cubic")
@@ -174,7 +175,7 @@ def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "lin
         # edge pixel, which clamping gives too, so one build serves both.
         defines["EXCLUDE"] = int(bool(exclude_outside) and (mode == "cubic" or antialias))
     coord, idx, wt = _axis_tables(dev, prec, defines, mode, (ho, wo, h, w), (sy, sx), off, r, cubic_a)
-    k = dev.kernel("resize", "resize", prec, **defines)
+    k = dev.kernel("resize", "resize", prec, **defines, CLSS_CLANG_VECTORS=builtin_free(dev))
     cb = -(-c // CHANNELS_PER_ITEM)
     dev.launch(k, (wo, ho, n * cb),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(ho), np.int32(wo),
