@@ -297,3 +297,66 @@ __kernel void resize(__global const T *in, __global T *out,
     }
 #endif
 }
+
+/* Linear and cubic resize (no antialias, not tf_crop_and_resize) with 8
+ * consecutive outputs along x per work-item: the host's fast path (RESIZE_X8=1
+ * in clss/ops/resize.py; `resize` above is its reference and computes each
+ * output with the same operations in the same order). The row taps and weights
+ * are read once per work-item instead of once per output, and a full block of
+ * outputs is one 8-wide store per channel. Same arguments as `resize`;
+ * NDRange (ceil(Wo / 8), Ho, N * ceil(C / CPT)). */
+#if MODE != 0 && !ANTIALIAS && COORD != 4
+__kernel void resize_x8(__global const T *in, __global T *out,
+                        int C, int H, int W, int Ho, int Wo, int NCb,
+                        float sy, float sx, float extrap, float cubic_a,
+                        __global const float *coord, __global const int *idx, __global const float *wt)
+{
+    const int X0 = get_global_id(0) * 8, Y = get_global_id(1), ncb = get_global_id(2);
+    if (X0 >= Wo || Y >= Ho || ncb >= NCb) return;
+    const int CB = (C + CPT - 1) / CPT;
+    const int n = ncb / CB, c0 = (ncb % CB) * CPT;
+    const int nc = min(CPT, C - c0);
+    const int nx = min(8, Wo - X0);
+    const long plane = (long)H * W, oplane = (long)Ho * Wo;
+    __global const T *src = in + ((long)n * C + c0) * plane;
+    const long o = ((long)n * C + c0) * oplane + (long)Y * Wo + X0;
+    A wy[TAPS], wx[8][TAPS];
+    int iy[TAPS], ix[8][TAPS];
+#pragma unroll
+    for (int k = 0; k < TAPS; ++k) {
+        wy[k] = CONVERT_A(wt[Y * TAPS + k]);
+        iy[k] = idx[Y * TAPS + k];
+    }
+#pragma unroll
+    for (int e = 0; e < 8; ++e) {
+        const int ox_ = Ho + X0 + min(e, nx - 1);     /* the tail repeats its last column */
+#pragma unroll
+        for (int k = 0; k < TAPS; ++k) {
+            wx[e][k] = CONVERT_A(wt[ox_ * TAPS + k]);
+            ix[e][k] = idx[ox_ * TAPS + k];
+        }
+    }
+    for (int c = 0; c < nc; ++c) {
+        __global const T *p = src + c * plane;
+        union { A8 v; A e[8]; } acc;
+        acc.v = (A8)A_ZERO;
+#pragma unroll
+        for (int r = 0; r < TAPS; ++r) {
+            __global const T *row = p + (long)iy[r] * W;
+#pragma unroll
+            for (int e = 0; e < 8; ++e) {
+                A racc = A_ZERO;
+#pragma unroll
+                for (int k = 0; k < TAPS; ++k) racc += wx[e][k] * FLD(row, ix[e][k]);
+                acc.e[e] += wy[r] * racc;
+            }
+        }
+        if (nx == 8) {
+            FST8(out, o + c * oplane, acc.v);
+        } else {
+            for (int e = 0; e < nx; ++e)
+                FST(out, o + c * oplane + e, acc.e[e]);
+        }
+    }
+}
+#endif
