@@ -311,7 +311,8 @@ __kernel void pad(__global const TB *src, __global TB *dst, int D1, int D2, int 
  * is its reference): the outer coordinates are mapped once, a block whose
  * source lies wholly inside the input row is one 8-element copy, a block in a
  * constant-padded row one 8-element fill; others go element by element.
- * Same arguments as `pad`; NDRange (ceil(D3 / 8), D2, D0*D1). */
+ * -DPAD_BLOCKS=n (default 8): blocks of 8 per work-item, consecutive along the row.
+ * Same arguments as `pad`; NDRange (ceil(D3 / (8 * PAD_BLOCKS)), D2, D0*D1). */
 #if defined(__clang__) && CLSS_CLANG_VECTORS
 typedef TB TBv8 __attribute__((ext_vector_type(8), aligned(sizeof(TB))));
 #define TB_LD8(p) (*(__global const TBv8 *)(p))
@@ -320,33 +321,36 @@ typedef TB TBv8 __attribute__((ext_vector_type(8), aligned(sizeof(TB))));
 #define TB_LD8(p) vload8(0, (p))
 #define TB_ST8(p, v) vstore8((v), 0, (p))
 #endif
+#ifndef PAD_BLOCKS
+#define PAD_BLOCKS 8
+#endif
 __kernel void pad8(__global const TB *src, __global TB *dst, int D1, int D2, int D3, int D01,
                    int N0, int N1, int N2, int N3, int P0, int P1, int P2, int P3, TB value)
 {
-    const int o3 = get_global_id(0) * 8, o2 = get_global_id(1), z = get_global_id(2);
-    if (o3 >= D3 || o2 >= D2 || z >= D01) return;
+    const int b0 = get_global_id(0) * PAD_BLOCKS, o2 = get_global_id(1), z = get_global_id(2);
+    if (b0 * 8 >= D3 || o2 >= D2 || z >= D01) return;
     const int o0 = z / D1, o1 = z % D1;
     const int i0 = pad_src(o0, P0, N0), i1 = pad_src(o1, P1, N1), i2 = pad_src(o2, P2, N2);
-    __global TB *d = dst + ((long)z * D2 + o2) * D3 + o3;
-    const int n = min(8, D3 - o3);
-    if ((i0 | i1 | i2) < 0) {                    /* constant mode: a padded row */
-        if (n == 8) {
+    const int pad_row = (i0 | i1 | i2) < 0;      /* constant mode: a padded row */
+    __global TB *drow = dst + ((long)z * D2 + o2) * D3;
+    const __global TB *s = src + (pad_row ? 0 : (((long)i0 * N1 + i1) * N2 + i2) * N3);
+    for (int b = 0; b < PAD_BLOCKS; ++b) {
+        const int o3 = (b0 + b) * 8;
+        if (o3 >= D3)
+            break;
+        __global TB *d = drow + o3;
+        const int n = min(8, D3 - o3);
+        const int i3 = o3 - P3;
+        if (n == 8 && pad_row) {
             TB_ST8(d, (TB8)value);
+        } else if (n == 8 && i3 >= 0 && i3 + 8 <= N3) {
+            TB_ST8(d, TB_LD8(s + i3));
         } else {
-            for (int e = 0; e < n; ++e)
-                d[e] = value;
+            for (int e = 0; e < n; ++e) {
+                const int j = pad_row ? -1 : pad_src(o3 + e, P3, N3);
+                d[e] = j < 0 ? value : s[j];
+            }
         }
-        return;
-    }
-    const __global TB *s = src + (((long)i0 * N1 + i1) * N2 + i2) * N3;
-    const int i3 = o3 - P3;
-    if (n == 8 && i3 >= 0 && i3 + 8 <= N3) {
-        TB_ST8(d, TB_LD8(s + i3));
-        return;
-    }
-    for (int e = 0; e < n; ++e) {
-        const int j = pad_src(o3 + e, P3, N3);
-        d[e] = j < 0 ? value : s[j];
     }
 }
 

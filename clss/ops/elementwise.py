@@ -363,6 +363,7 @@ def slice(dev: Device, prec: str, x, starts, ends, axes=None, steps=None):  # no
 # Pad with 8 outputs per work-item along the last axis (kernel pad8); 0 selects
 # the reference kernel `pad` (one output per work-item).
 PAD_VEC = 1
+PAD_BLOCKS = 8          # blocks of 8 outputs per pad8 work-item
 
 
 def pad(dev: Device, prec: str, x, pads, mode: str = "constant", value: float = 0.0, axes=None):
@@ -403,13 +404,13 @@ def pad(dev: Device, prec: str, x, pads, mode: str = "constant", value: float = 
     dims = [[1, 0, 1]] * (4 - len(dims)) + dims
     gs, dargs = _grid([d[2] for d in dims])
     if PAD_VEC:
-        gs = (-(-gs[0] // 8), gs[1], gs[2])
+        gs = (-(-gs[0] // (8 * PAD_BLOCKS)), gs[1], gs[2])
     bits = np.array(value, dtype=storage_dtype(prec))
     bits = bits.view(np.uint32 if bits.itemsize == 4 else np.uint16)
     # An empty input is never read (constant mode pads everything) but needs a buffer.
     src = x if x.size else dev.empty((1,), prec)
     if PAD_VEC:
-        k = dev.kernel("elementwise", "pad8", prec, PAD_MODE=PAD_MODES[mode],
+        k = dev.kernel("elementwise", "pad8", prec, PAD_MODE=PAD_MODES[mode], PAD_BLOCKS=PAD_BLOCKS,
                        CLSS_CLANG_VECTORS=builtin_free(dev))
     else:
         k = dev.kernel("elementwise", "pad", prec, PAD_MODE=PAD_MODES[mode])
