@@ -306,8 +306,8 @@ inline fv grid_round_trip(fv u, int n)
  * order. The loads are gathers; the arithmetic runs on vectors. */
 inline fv cubic_T(__global const T *p, Taps4 x, Taps4 y)
 {
-#define ROW(r) (x.w0 * GATHER(LD, p, (r) + x.c0) + x.w1 * GATHER(LD, p, (r) + x.c1) + \
-                x.w2 * GATHER(LD, p, (r) + x.c2) + x.w3 * GATHER(LD, p, (r) + x.c3))
+#define ROW(r) (x.w0 * GATHER(FLD, p, (r) + x.c0) + x.w1 * GATHER(FLD, p, (r) + x.c1) + \
+                x.w2 * GATHER(FLD, p, (r) + x.c2) + x.w3 * GATHER(FLD, p, (r) + x.c3))
     return y.w0 * ROW(y.c0) + y.w1 * ROW(y.c1) + y.w2 * ROW(y.c2) + y.w3 * ROW(y.c3);
 #undef ROW
 }
@@ -318,7 +318,7 @@ inline fv cubic_T(__global const T *p, Taps4 x, Taps4 y)
         return y.w0 * (x.w0 * GATHER(LDX, p, y.c0 + x.c0) + x.w1 * GATHER(LDX, p, y.c0 + x.c1)) + \
                y.w1 * (x.w0 * GATHER(LDX, p, y.c1 + x.c0) + x.w1 * GATHER(LDX, p, y.c1 + x.c1)); \
     }
-LINEAR_SAMPLER(linear_T, T, LD)
+LINEAR_SAMPLER(linear_T, T, FLD)
 LINEAR_SAMPLER(linear_f, float, LDF)
 
 /* The 4 bilinear taps of p + motion for the depth reconstruction (reference.md s3):
