@@ -828,6 +828,7 @@ def cases(level: str = "quick") -> list[Case]:
             split_case((1, 5, 3, 7), [2, 3], 1),
             slice_case((2, 3, 5, 7), [0, 4, -1], [3, 0, -9], [1, 2, 3], [1, -2, -3]),
             *[pad_case((1, 2, 4, 5), [0, 0, 1, 2, 0, 0, 2, 1], mode, 0.5) for mode in PAD_MODES],
+            pad_case((1, 2, 3, 21), [0, 0, 1, 3, 0, 0, 0, 2], "edge"),   # pad8's vector copies
             identity_case((2, 3, 5, 7)),
             softmax_case((2, 5, 3, 7), 1),
             argmax_case((2, 5, 3, 7), 1),

@@ -324,6 +324,7 @@ def cases(level: str = "quick") -> list[Case]:
     if level == "tiny":
         return [
             max_pool_case((1, 3, 7, 9), 2, 2),
+            max_pool_case((1, 2, 5, 27), 3, 1, 1),                  # max_pool_row8: inside, edges, tail
             max_pool_case((1, 2, 7, 9), (3, 3), (2, 2), (1, 0, 1, 2), (2, 1), ceil_mode=True, indices=True),
             avg_pool_case((1, 3, 7, 9), 3, 2, (1, 1, 2, 0)),
             avg_pool_case((1, 2, 7, 9), 3, 2, 1, ceil_mode=True, count_include_pad=True),
