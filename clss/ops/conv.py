@@ -418,7 +418,6 @@ def cases(level: str = "quick") -> list[Case]:
           residual="before"),
         C("convT", cin=2, h=4, w=19, cout=3, k=(3, 3), strides=(1, 1), pads=(0, 2, 1, 0),
           dilations=(2, 2), bias=False, activation="leaky_relu", residual="after"),
-        C(cin=3, h=5, w=69, cout=3, strides=(2, 2), pads=(0, 0, 1, 1), activation="relu"),  # S2K3 inside+edge
     ]
     if level == "tiny":
         return tiny
