@@ -13,6 +13,15 @@
  *   -DCB=1..8      output channels per work-item (tunable; the host lowers it
  *                  for groups with few output channels, e.g. depthwise)
  *   -DACT=         fused activation (common.h); alpha is a kernel argument
+ *   -DCONV_S2K3=0|1 fast path for SX=2, KW=3, dilation 1 along x (the host
+ *                  sets 1 only for such layers): per input row and channel,
+ *                  each XB-output block loads 2*XB+1 inputs once (two A8 and a
+ *                  scalar per A8 of outputs) and derives the three taps by
+ *                  de-interleaving (tap 0 = even lanes, tap 1 = odd lanes,
+ *                  tap 2 = even lanes shifted by one plus the scalar), instead
+ *                  of three strided two-vector loads; edge blocks load with
+ *                  unit stride through ld8_guarded. 0 (the reference): the
+ *                  generic per-tap loads (ld8_inside/ld8_guarded with s=2).
  *
  * Runtime flags (arg `flags`): bias present; residual added before the
  * activation (ResNet's relu(conv(x) + r)); residual added after it.
@@ -40,6 +49,9 @@
 #endif
 #ifndef CB
 #define CB 8
+#endif
+#ifndef CONV_S2K3
+#define CONV_S2K3 0
 #endif
 #if XV != 1 && XV != 2
 #error "XV must be 1 or 2"
@@ -216,11 +228,50 @@ __kernel void conv2d(__global const T *x, __global const TW *w, __global const T
     }
 #define LOAD_INSIDE(v_) ld8_inside(row, ix0 + kx * dx + 8 * SX * (v_), SX)
 #define LOAD_GUARDED(v_) ld8_guarded(row, ix0 + kx * dx + 8 * SX * (v_), W, SX)
+#if SX == 2 && KW == 3 && CONV_S2K3
+/* Stride 2, three taps along x, dx == 1 (CONV_S2K3 above): one load of the
+ * inputs ix0 + 16v .. ix0 + 16v + 16 per A8 of outputs and input channel. */
+#define S2K3_LOOP(LDV, LDS)                                                    \
+    for (int ky = ky0; ky < ky1; ++ky) {                                       \
+        const __global T *row = xg + (long)(iy0 + ky * dy) * W;                \
+        const __global TW *wc = w + ky * KW;                                   \
+        for (int ci = 0; ci < Cin_g; ++ci, row += (long)H * W, wc += KK) {     \
+            A8 t0[XV], t1[XV], t2[XV];                                         \
+            _Pragma("unroll") for (int v_ = 0; v_ < XV; ++v_) {                \
+                const int b_ = ix0 + 16 * v_;                                  \
+                const A8 a_ = LDV(b_), c_ = LDV(b_ + 8);                       \
+                const A e_ = LDS(b_ + 16);                                     \
+                t0[v_] = (A8)(a_.even, c_.even);                               \
+                t1[v_] = (A8)(a_.odd, c_.odd);                                 \
+                t2[v_] = (A8)(a_.s246, c_.even, e_);                           \
+            }                                                                  \
+            _Pragma("unroll") for (int j_ = 0; j_ < CB; ++j_) {                \
+                const A w0 = LDW(wc, wo[j_]), w1 = LDW(wc, wo[j_] + 1),        \
+                        w2 = LDW(wc, wo[j_] + 2);                              \
+                _Pragma("unroll") for (int v_ = 0; v_ < XV; ++v_) {            \
+                    acc[j_][v_] += w0 * t0[v_];                                \
+                    acc[j_][v_] += w1 * t1[v_];                                \
+                    acc[j_][v_] += w2 * t2[v_];                                \
+                }                                                              \
+            }                                                                  \
+        }                                                                      \
+    }
+#define S2_LDV_IN(i) FLD8(row, (i))
+#define S2_LDS_IN(i) FLD(row, (i))
+#define S2_LDV_G(i) ld8_guarded(row, (i), W, 1)
+#define S2_LDS_G(i) (((i) >= 0 && (i) < W) ? FLD(row, IMIN(IMAX((i), 0), W - 1)) : A_ZERO)
+    if (inside) {
+        S2K3_LOOP(S2_LDV_IN, S2_LDS_IN)
+    } else {
+        S2K3_LOOP(S2_LDV_G, S2_LDS_G)
+    }
+#else
     if (inside) {
         CONV_LOOP(LOAD_INSIDE)
     } else {
         CONV_LOOP(LOAD_GUARDED)
     }
+#endif
     STORE_BLOCK((long)n * Cout * Ho * Wo + ox0, 1, Wo - ox0)
 }
 

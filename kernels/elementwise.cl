@@ -6,6 +6,12 @@
  *   -DA_SCALAR=1, -DB_SCALAR=1  binary_flat with that operand a single element
  *   -DUOP=n       unary operator (UOP_* below) for unary
  *   -DPAD_MODE=n  pad: 0 constant, 1 edge, 2 reflect, 3 wrap
+ *   -DCLSS_CLANG_VECTORS=0|1  1: loads and stores through common.h's FLD/FLD8/
+ *                 FST/FST8 (binary kernels, unary) and pad8's copies through clang
+ *                 vector types, inline, instead of vload8/vload_half/vstore_half
+ *                 (out-of-line calls on PoCL); 0 is the reference. The host sets 1
+ *                 for binary_bcast8 and pad8 only: measured on PoCL 3.0, fp16
+ *                 binary_flat and unary ran 3-4x slower with it.
  *   -DLAST=1      argmax: the last index of a tied maximum (select_last_index)
  *
  * Data movement (copy_rows, gather, pad, where) moves raw bits (TB) and is
@@ -78,8 +84,8 @@ typedef uchar O;
 #define STO8(p, i, v) vstore8(convert_uchar8(-(v)), 0, (p) + (i))
 #else
 typedef T O;
-#define STO(p, i, v) ST(p, i, v)
-#define STO8(p, i, v) ST8(p, i, v)
+#define STO(p, i, v) FST(p, i, v)
+#define STO8(p, i, v) FST8(p, i, v)
 #endif
 
 /* Same-shape operands (or one of them a single element): eight elements per
@@ -90,20 +96,20 @@ __kernel void binary_flat(__global const T *a, __global const T *b, __global O *
     if (i >= n) return;
     if (i + 8 <= n) {
 #if A_SCALAR
-        const A8 x = (A8)(LD(a, 0));
+        const A8 x = (A8)(FLD(a, 0));
 #else
-        const A8 x = LD8(a, i);
+        const A8 x = FLD8(a, i);
 #endif
 #if B_SCALAR
-        const A8 y = (A8)(LD(b, 0));
+        const A8 y = (A8)(FLD(b, 0));
 #else
-        const A8 y = LD8(b, i);
+        const A8 y = FLD8(b, i);
 #endif
         STO8(out, i, BINOP(x, y));
         return;
     }
     for (int j = i; j < n; ++j) {
-        const A x = LD(a, A_SCALAR ? 0 : j), y = LD(b, B_SCALAR ? 0 : j);
+        const A x = FLD(a, A_SCALAR ? 0 : j), y = FLD(b, B_SCALAR ? 0 : j);
         STO(out, j, BINOP(x, y));
     }
 }
@@ -119,6 +125,39 @@ __kernel void binary_bcast(__global const T *a, __global const T *b, __global O 
     const long ib = (long)i0 * b0 + (long)i1 * b1 + (long)i2 * b2 + (long)i3 * b3;
     const A x = LD(a, ia), y = LD(b, ib);
     STO(out, ((long)z * D2 + i2) * D3 + i3, BINOP(x, y));
+}
+
+/* binary_bcast with 8 outputs along D3 per work-item, for operands whose
+ * innermost stride is 0 (broadcast: one load, splat) or 1 (one vector load):
+ * the host's fast path (BCAST_VEC=1 in clss/ops/elementwise.py; binary_bcast
+ * is its reference). Same arguments; NDRange (ceil(D3 / 8), D2, D0*D1). */
+__kernel void binary_bcast8(__global const T *a, __global const T *b, __global O *out,
+                            int D1, int D2, int D3, int D01,
+                            int a0, int a1, int a2, int a3, int b0, int b1, int b2, int b3)
+{
+    const int i3 = get_global_id(0) * 8, i2 = get_global_id(1), z = get_global_id(2);
+    if (i3 >= D3 || i2 >= D2 || z >= D01) return;
+    const int i0 = z / D1, i1 = z % D1;
+    const long ia = (long)i0 * a0 + (long)i1 * a1 + (long)i2 * a2 + (long)i3 * a3;
+    const long ib = (long)i0 * b0 + (long)i1 * b1 + (long)i2 * b2 + (long)i3 * b3;
+    const long o = ((long)z * D2 + i2) * D3 + i3;
+    if (i3 + 8 <= D3) {
+        A8 x, y;
+        if (a3)
+            x = FLD8(a, ia);
+        else
+            x = (A8)(FLD(a, ia));
+        if (b3)
+            y = FLD8(b, ib);
+        else
+            y = (A8)(FLD(b, ib));
+        STO8(out, o, BINOP(x, y));
+        return;
+    }
+    for (int e = 0; i3 + e < D3; ++e) {
+        const A x = FLD(a, ia + (long)e * a3), y = FLD(b, ib + (long)e * b3);
+        STO(out, o + e, BINOP(x, y));
+    }
 }
 
 /* where(cond, a, b): selects raw bits, so it is bit-exact. */
@@ -189,13 +228,13 @@ __kernel void unary(__global const T *in, __global T *out, int n, float p0, floa
     const int i = get_global_id(0) * 8;
     if (i >= n) return;
     if (i + 8 <= n) {
-        const A8 x = LD8(in, i);
-        ST8(out, i, UNOP(x));
+        const A8 x = FLD8(in, i);
+        FST8(out, i, UNOP(x));
         return;
     }
     for (int j = i; j < n; ++j) {
-        const A x = LD(in, j);
-        ST(out, j, UNOP(x));
+        const A x = FLD(in, j);
+        FST(out, j, UNOP(x));
     }
 }
 
@@ -268,6 +307,54 @@ __kernel void pad(__global const TB *src, __global TB *dst, int D1, int D2, int 
         dst[o] = value;
     else
         dst[o] = src[(((long)i0 * N1 + i1) * N2 + i2) * N3 + i3];
+}
+
+/* pad, 8 outputs along the last dimension per work-item (the host's fast path,
+ * PAD_VEC=1 in clss/ops/elementwise.py; `pad` above, one output per work-item,
+ * is its reference): the outer coordinates are mapped once, a block whose
+ * source lies wholly inside the input row is one 8-element copy, a block in a
+ * constant-padded row one 8-element fill; others go element by element.
+ * -DPAD_BLOCKS=n (default 8): blocks of 8 per work-item, consecutive along the row.
+ * Same arguments as `pad`; NDRange (ceil(D3 / (8 * PAD_BLOCKS)), D2, D0*D1). */
+#if defined(__clang__) && CLSS_CLANG_VECTORS
+typedef TB TBv8 __attribute__((ext_vector_type(8), aligned(sizeof(TB))));
+#define TB_LD8(p) (*(__global const TBv8 *)(p))
+#define TB_ST8(p, v) (*(__global TBv8 *)(p) = (v))
+#else
+#define TB_LD8(p) vload8(0, (p))
+#define TB_ST8(p, v) vstore8((v), 0, (p))
+#endif
+#ifndef PAD_BLOCKS
+#define PAD_BLOCKS 8
+#endif
+__kernel void pad8(__global const TB *src, __global TB *dst, int D1, int D2, int D3, int D01,
+                   int N0, int N1, int N2, int N3, int P0, int P1, int P2, int P3, TB value)
+{
+    const int b0 = get_global_id(0) * PAD_BLOCKS, o2 = get_global_id(1), z = get_global_id(2);
+    if (b0 * 8 >= D3 || o2 >= D2 || z >= D01) return;
+    const int o0 = z / D1, o1 = z % D1;
+    const int i0 = pad_src(o0, P0, N0), i1 = pad_src(o1, P1, N1), i2 = pad_src(o2, P2, N2);
+    const int pad_row = (i0 | i1 | i2) < 0;      /* constant mode: a padded row */
+    __global TB *drow = dst + ((long)z * D2 + o2) * D3;
+    const __global TB *s = src + (pad_row ? 0 : (((long)i0 * N1 + i1) * N2 + i2) * N3);
+    for (int b = 0; b < PAD_BLOCKS; ++b) {
+        const int o3 = (b0 + b) * 8;
+        if (o3 >= D3)
+            break;
+        __global TB *d = drow + o3;
+        const int n = min(8, D3 - o3);
+        const int i3 = o3 - P3;
+        if (n == 8 && pad_row) {
+            TB_ST8(d, (TB8)value);
+        } else if (n == 8 && i3 >= 0 && i3 + 8 <= N3) {
+            TB_ST8(d, TB_LD8(s + i3));
+        } else {
+            for (int e = 0; e < n; ++e) {
+                const int j = pad_row ? -1 : pad_src(o3 + e, P3, N3);
+                d[e] = j < 0 ? value : s[j];
+            }
+        }
+    }
 }
 
 /* --- per-row reductions over a [outer, L, inner] view --------------------------

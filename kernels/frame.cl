@@ -22,6 +22,10 @@
  *   -DSANITIZE=0|1  replace non-finite inputs instead of refusing the frame
  *   -DHIDDEN=n      compose: hidden width of the composition MLP
  *   -DCLIP_EPS=x    resolve (rule): contract.RULE_CLIP_EPS, see the history clip (s9)
+ *   -DCLSS_CLANG_VECTORS=0|1  half loads/stores (LDV/STV, st_plane, neighbourhood
+ *                   reads) through common.h's FLD/FLD8/FST/FST8, inline clang vector
+ *                   conversions, instead of vload_halfN and vstore_halfN (out-of-line calls
+ *                   on PoCL); 0 is the reference
  *   -DVEC=8|4|1     output-res pixels per work-item in resolve (rule) and compose
  *
  * Buffers: inputs in image layout (colour h x w x 3, motion h x w x 2 interleaved,
@@ -103,8 +107,8 @@ typedef float8 fv;
 typedef int8 iv;
 #define VLD(p) vload8(0, (p))
 #define VST(v, p) vstore8((v), 0, (p))
-#define LDV(p, i) LD8(p, i)
-#define STV(p, i, v) ST8(p, i, v)
+#define LDV(p, i) FLD8(p, i)
+#define STV(p, i, v) FST8(p, i, v)
 #elif VEC == 4
 typedef float4 fv;
 typedef int4 iv;
@@ -117,8 +121,8 @@ typedef float fv;
 typedef int iv;
 #define VLD(p) ((p)[0])
 #define VST(v, p) ((p)[0] = (v))
-#define LDV(p, i) LD(p, i)
-#define STV(p, i, v) ST(p, i, v)
+#define LDV(p, i) FLD(p, i)
+#define STV(p, i, v) FST(p, i, v)
 #else
 #error "VEC must be 1, 4 or 8"
 #endif
@@ -185,7 +189,7 @@ inline void st_plane(__global T *p, int q, fv v, int n)
     float t[VEC];
     VST(v, t);
     for (int l = 0; l < n; ++l)
-        ST(p, q + l, t[l]);
+        FST(p, q + l, t[l]);
 }
 
 inline void st_plane_f(__global float *p, int q, fv v, int n)
@@ -306,8 +310,8 @@ inline fv grid_round_trip(fv u, int n)
  * order. The loads are gathers; the arithmetic runs on vectors. */
 inline fv cubic_T(__global const T *p, Taps4 x, Taps4 y)
 {
-#define ROW(r) (x.w0 * GATHER(LD, p, (r) + x.c0) + x.w1 * GATHER(LD, p, (r) + x.c1) + \
-                x.w2 * GATHER(LD, p, (r) + x.c2) + x.w3 * GATHER(LD, p, (r) + x.c3))
+#define ROW(r) (x.w0 * GATHER(FLD, p, (r) + x.c0) + x.w1 * GATHER(FLD, p, (r) + x.c1) + \
+                x.w2 * GATHER(FLD, p, (r) + x.c2) + x.w3 * GATHER(FLD, p, (r) + x.c3))
     return y.w0 * ROW(y.c0) + y.w1 * ROW(y.c1) + y.w2 * ROW(y.c2) + y.w3 * ROW(y.c3);
 #undef ROW
 }
@@ -318,7 +322,7 @@ inline fv cubic_T(__global const T *p, Taps4 x, Taps4 y)
         return y.w0 * (x.w0 * GATHER(LDX, p, y.c0 + x.c0) + x.w1 * GATHER(LDX, p, y.c0 + x.c1)) + \
                y.w1 * (x.w0 * GATHER(LDX, p, y.c1 + x.c0) + x.w1 * GATHER(LDX, p, y.c1 + x.c1)); \
     }
-LINEAR_SAMPLER(linear_T, T, LD)
+LINEAR_SAMPLER(linear_T, T, FLD)
 LINEAR_SAMPLER(linear_f, float, LDF)
 
 /* The 4 bilinear taps of p + motion for the depth reconstruction (reference.md s3):
@@ -468,14 +472,14 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
      * off-screen neighbours left out */
     for (int c = 0; c < 3; ++c) {
         __global const T *x = X + c * hw;
-        float lo = LD(x, p), hi = lo;
+        float lo = FLD(x, p), hi = lo;
         for (int dy = -1; dy <= 1; ++dy) {
             const int ii = i + dy;
             if (ii < 0 || ii >= h) continue;
             for (int dx = -1; dx <= 1; ++dx) {
                 const int jj = j + dx;
                 if (jj < 0 || jj >= w) continue;
-                const float n = LD(x, ii * w + jj);
+                const float n = FLD(x, ii * w + jj);
                 lo = fmin(lo, n);
                 hi = fmax(hi, n);
             }

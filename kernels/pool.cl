@@ -11,6 +11,8 @@
  *   -DFINAL=1    global pooling with a single chunk per row: pass 1 writes the
  *                result directly and pass 2 is skipped
  *
+ *   -DCLSS_CLANG_VECTORS=1  max_pool_row8's loads and stores as clang vectors
+ *
  * A 2-D tensor is pooled as 3-D with depth 1, so one kernel serves
  * MaxPool/AveragePool over 1, 2 and 3 spatial dimensions.
  */
@@ -109,6 +111,66 @@ __kernel void pool(__global const T *in, __global T *out,
     const int count = (cd.y - cd.x + 1) * (ch.y - ch.x + 1) * (cw.y - cw.x + 1);
     ST(out, o, s / (A)count);
 #endif
+}
+
+/* 2-D max pooling with a window 3 wide, stride and dilation 1 along x, no
+ * indices: the host's fast path (POOL_ROW8=1 in clss/ops/pool.py; `pool` is its
+ * reference). Eight outputs along x per work-item: per window row one load of
+ * the 10 inputs they see, the three taps as shifted vectors. Taps are visited
+ * in the reference's order with its strict `>` (the first maximum wins, NaN is
+ * never selected), so the result is the same stored value; inputs outside the
+ * row read as -inf, which `>` never selects.
+ * in: [NC, IH, IW] -> out: [NC, OH, OW]; NDRange (ceil(OW / 8), OH, NC). */
+#if defined(__clang__) && CLSS_CLANG_VECTORS
+#define PLD8 FLD8
+#define PST8 FST8
+#else
+#define PLD8 LD8
+#define PST8 ST8
+#endif
+__kernel void max_pool_row8(__global const T *in, __global T *out, int IH, int IW, int OH, int OW,
+                            int KH, int SH, int PH, int PW, int DH, int NC)
+{
+    const int ox0 = get_global_id(0) * 8, oy = get_global_id(1), nc = get_global_id(2);
+    if (ox0 >= OW || oy >= OH || nc >= NC) return;
+    const int h0 = oy * SH - PH, w0 = ox0 - PW;
+    const int2 kh = tap_range(h0, KH, DH, 0, IH);
+    const __global T *base = in + (long)nc * IH * IW;
+    const int inside = w0 >= 0 && w0 + 10 <= IW;
+    A8 m = (A8)(-INFINITY);
+    for (int j = kh.x; j <= kh.y; ++j) {
+        const __global T *row = base + (long)(h0 + j * DH) * IW;
+        A8 a;
+        A b0, b1;
+        if (inside) {
+            a = PLD8(row, w0);
+            b0 = FLD(row, w0 + 8);
+            b1 = FLD(row, w0 + 9);
+        } else {
+            union { A8 v; A e[8]; } u;
+            for (int e = 0; e < 8; ++e) {
+                const int p = w0 + e;
+                u.e[e] = (p >= 0 && p < IW) ? FLD(row, p) : (A)(-INFINITY);
+            }
+            a = u.v;
+            b0 = (w0 + 8 >= 0 && w0 + 8 < IW) ? FLD(row, w0 + 8) : (A)(-INFINITY);
+            b1 = (w0 + 9 >= 0 && w0 + 9 < IW) ? FLD(row, w0 + 9) : (A)(-INFINITY);
+        }
+        const A8 t1 = (A8)(a.s123, a.s4567, b0);
+        const A8 t2 = (A8)(a.s23, a.s4567, b0, b1);
+        m = a > m ? a : m;
+        m = t1 > m ? t1 : m;
+        m = t2 > m ? t2 : m;
+    }
+    __global T *o = out + ((long)nc * OH + oy) * OW + ox0;
+    if (ox0 + 8 <= OW) {
+        PST8(o, 0, m);
+    } else {
+        union { A8 v; A e[8]; } u;
+        u.v = m;
+        for (int e = 0; e < OW - ox0; ++e)
+            FST(o, e, u.e[e]);
+    }
 }
 
 /* Global pooling, pass 1: one work-item reduces CHUNK contiguous elements of

@@ -10,6 +10,10 @@
  *                       down-scales else floor (Resize-10/Upsample, as onnxruntime)
  *   -DEXCLUDE=0|1       exclude_outside: taps outside the input get weight 0, renormalised
  *   -DANTIALIAS=0|1     linear/cubic filter stretched by 1/scale when down-scaling
+ *   -DCLSS_CLANG_VECTORS=0|1  element loads/stores through common.h's FLD/FST
+ *                       (clang vector conversions, inline) instead of LD/ST
+ *                       (vload_half/vstore_half: out-of-line calls on PoCL, so fp16
+ *                       ran several times slower than fp32); 0 is the reference
  *   -DCPT=n             channels per work-item (default 4): the coordinates and weights
  *                       of a pixel are computed once and reused for n channels
  *
@@ -226,7 +230,7 @@ __kernel void resize(__global const T *in, __global T *out,
 #if COORD == 4
     /* tf_crop_and_resize: a source outside the input is the extrapolation value. */
     if (fy < 0.0f || fy > (float)(H - 1) || fx < 0.0f || fx > (float)(W - 1)) {
-        for (int c = 0; c < nc; ++c) ST(out, o + c * oplane, extrap);
+        for (int c = 0; c < nc; ++c) FST(out, o + c * oplane, extrap);
         return;
     }
 #endif
@@ -263,10 +267,10 @@ __kernel void resize(__global const T *in, __global T *out,
             const int xi = clamp(i, 0, W - 1);
 #pragma unroll
             for (int c = 0; c < CPT; ++c)
-                if (c < nc) acc[c] += w * LD(row, c * plane + xi);
+                if (c < nc) acc[c] += w * FLD(row, c * plane + xi);
         }
     }
-    for (int c = 0; c < nc; ++c) ST(out, o + c * oplane, acc[c]);
+    for (int c = 0; c < nc; ++c) FST(out, o + c * oplane, acc[c]);
 
 #else
     A wy[TAPS], wx[TAPS];
@@ -286,10 +290,73 @@ __kernel void resize(__global const T *in, __global T *out,
             __global const T *row = p + (long)iy[r] * W;
             A racc = A_ZERO;
 #pragma unroll
-            for (int k = 0; k < TAPS; ++k) racc += wx[k] * LD(row, ix[k]);
+            for (int k = 0; k < TAPS; ++k) racc += wx[k] * FLD(row, ix[k]);
             acc += wy[r] * racc;
         }
-        ST(out, o + c * oplane, acc);
+        FST(out, o + c * oplane, acc);
     }
 #endif
 }
+
+/* Linear and cubic resize (no antialias, not tf_crop_and_resize) with 8
+ * consecutive outputs along x per work-item: the host's fast path (RESIZE_X8=1
+ * in clss/ops/resize.py; `resize` above is its reference and computes each
+ * output with the same operations in the same order). The row taps and weights
+ * are read once per work-item instead of once per output, and a full block of
+ * outputs is one 8-wide store per channel. Same arguments as `resize`;
+ * NDRange (ceil(Wo / 8), Ho, N * ceil(C / CPT)). */
+#if MODE != 0 && !ANTIALIAS && COORD != 4
+__kernel void resize_x8(__global const T *in, __global T *out,
+                        int C, int H, int W, int Ho, int Wo, int NCb,
+                        float sy, float sx, float extrap, float cubic_a,
+                        __global const float *coord, __global const int *idx, __global const float *wt)
+{
+    const int X0 = get_global_id(0) * 8, Y = get_global_id(1), ncb = get_global_id(2);
+    if (X0 >= Wo || Y >= Ho || ncb >= NCb) return;
+    const int CB = (C + CPT - 1) / CPT;
+    const int n = ncb / CB, c0 = (ncb % CB) * CPT;
+    const int nc = min(CPT, C - c0);
+    const int nx = min(8, Wo - X0);
+    const long plane = (long)H * W, oplane = (long)Ho * Wo;
+    __global const T *src = in + ((long)n * C + c0) * plane;
+    const long o = ((long)n * C + c0) * oplane + (long)Y * Wo + X0;
+    A wy[TAPS], wx[8][TAPS];
+    int iy[TAPS], ix[8][TAPS];
+#pragma unroll
+    for (int k = 0; k < TAPS; ++k) {
+        wy[k] = CONVERT_A(wt[Y * TAPS + k]);
+        iy[k] = idx[Y * TAPS + k];
+    }
+#pragma unroll
+    for (int e = 0; e < 8; ++e) {
+        const int ox_ = Ho + X0 + min(e, nx - 1);     /* the tail repeats its last column */
+#pragma unroll
+        for (int k = 0; k < TAPS; ++k) {
+            wx[e][k] = CONVERT_A(wt[ox_ * TAPS + k]);
+            ix[e][k] = idx[ox_ * TAPS + k];
+        }
+    }
+    for (int c = 0; c < nc; ++c) {
+        __global const T *p = src + c * plane;
+        union { A8 v; A e[8]; } acc;
+        acc.v = (A8)A_ZERO;
+#pragma unroll
+        for (int r = 0; r < TAPS; ++r) {
+            __global const T *row = p + (long)iy[r] * W;
+#pragma unroll
+            for (int e = 0; e < 8; ++e) {
+                A racc = A_ZERO;
+#pragma unroll
+                for (int k = 0; k < TAPS; ++k) racc += wx[e][k] * FLD(row, ix[e][k]);
+                acc.e[e] += wy[r] * racc;
+            }
+        }
+        if (nx == 8) {
+            FST8(out, o + c * oplane, acc.v);
+        } else {
+            for (int e = 0; e < nx; ++e)
+                FST(out, o + c * oplane + e, acc.e[e]);
+        }
+    }
+}
+#endif

@@ -3,6 +3,10 @@
  * Build options:
  *   -DMODE=0|1|2        nearest | bilinear ("linear") | bicubic ("cubic", Keys a = -0.75)
  *   -DPAD=0|1|2         zeros | border | reflection
+ *   -DCLSS_CLANG_VECTORS=0|1  element loads/stores through common.h's FLD/FST
+ *                       (clang vector conversions, inline) instead of LD/ST
+ *                       (vload_half/vstore_half: out-of-line calls on PoCL, so fp16
+ *                       ran several times slower than fp32); 0 is the reference
  *   -DCUBIC_CHANNELS=k  channels [0, k) are sampled bicubic, the rest with MODE: the CLSS
  *                       history (colour 3 + counter, range and logits 13) is warped in one
  *                       pass with its colour bicubic and everything else bilinear.
@@ -107,7 +111,7 @@ inline float denormalize(float g, int n, int align)
     return align ? (g + 1.0f) / 2.0f * (float)(n - 1) : ((g + 1.0f) * (float)n - 1.0f) / 2.0f;
 }
 
-#define VAL(rowp, i, ok) ((ok) ? LD(rowp, i) : A_ZERO)
+#define VAL(rowp, i, ok) ((ok) ? FLD(rowp, i) : A_ZERO)
 
 /* Sample channels [c0, c1) of image x (one batch item, planes of Hi*Wi) at pixel-index
  * position (xs, ys) and store them to y (already at this output pixel, planes HWo apart). */
@@ -145,7 +149,7 @@ inline void sample(__global const T *x, __global T *y, int c0, int c1, long HWo,
                 wx.s3 * VAL(p + ry.s##k, cx.s3, oky.s##k && okx.s3))
             const A v = wy.s0 * ROW(0) + wy.s1 * ROW(1) + wy.s2 * ROW(2) + wy.s3 * ROW(3);
 #undef ROW
-            ST(y + (c - c0) * HWo, 0, v);
+            FST(y + (c - c0) * HWo, 0, v);
         }
     }
 #endif
@@ -163,7 +167,7 @@ inline void sample(__global const T *x, __global T *y, int c0, int c1, long HWo,
             __global const T *p = x + c * HWi;
             const A v = dy2 * (dx2 * VAL(p + y1, x1, oky1 && okx1) + dx1 * VAL(p + y1, x2, oky1 && okx2)) +
                         dy1 * (dx2 * VAL(p + y2, x1, oky2 && okx1) + dx1 * VAL(p + y2, x2, oky2 && okx2));
-            ST(y + (c - c0) * HWo, 0, v);
+            FST(y + (c - c0) * HWo, 0, v);
         }
     }
 #endif
@@ -214,7 +218,7 @@ __kernel void warp_motion(__global const T *x, __global const T *motion, __globa
     const int n = nb / nblk, c0 = (nb % nblk) * cpb, c1 = min(C, c0 + cpb);
     const long HWo = (long)Ho * Wo;
     const long m = (long)n * 2 * HWo + (long)Y * Wo + X;
-    const float mx = (float)LD(motion, m), my = (float)LD(motion, m + HWo);
+    const float mx = (float)FLD(motion, m), my = (float)FLD(motion, m + HWo);
     const float xs = ((float)X + 0.5f) * sx - 0.5f + mx * kx;
     const float ys = ((float)Y + 0.5f) * sy - 0.5f + my * ky;
     sample(x + (long)n * C * Hi * Wi, y + ((long)n * C + c0) * HWo + (long)Y * Wo + X, c0, c1, HWo,

@@ -53,6 +53,20 @@ def test_other_register_blocks(dev, tuning):
         assert row.passed, row
 
 
+@pytest.mark.parametrize("precision", PRECISIONS)
+@pytest.mark.parametrize("tuning", [{"S2K3": 0}, {"S2K3": 1, "XV": 1, "CB": 8}, {"S2K3": 1, "XV": 2, "CB": 8}],
+                         ids=lambda t: "-".join(f"{k}{v}" for k, v in t.items()))
+def test_stride2_reference_and_fast_variants(dev, tuning, precision):
+    # -DCONV_S2K3=0 is the reference the fast de-interleaved path is checked against.
+    for c in (conv.make_case(cin=5, h=13, w=71, cout=11, strides=(2, 2), activation="relu"),
+              conv.make_case(cin=3, h=7, w=37, cout=13, strides=(2, 2), pads=(0, 1, 2, 0),
+                             residual="after")):
+        fn = c.run
+        c.run = lambda d, p, i, fn=fn: _with_tuning(tuning, fn, d, p, i)
+        row = check(c, dev, precision)
+        assert row.passed, row
+
+
 def _with_tuning(tuning, fn, dev, prec, inputs):
     saved = dict(conv.TUNING)
     conv.TUNING.update(tuning)

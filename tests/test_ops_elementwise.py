@@ -203,3 +203,27 @@ def test_fp16_native_variants_build(tmp_path):
     p = subprocess.run([sys.executable, "-c", code], env=oclgrind_env(tmp_path), capture_output=True,
                        text=True, timeout=600)
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("vec", [0, 1], ids=["pad-reference", "pad8"])
+def test_pad_fast_and_reference_kernels(vec, precision, dev, monkeypatch):
+    # PAD_VEC=0 is the reference kernel the 8-wide pad8 is checked against.
+    monkeypatch.setattr(ew, "PAD_VEC", vec)
+    for c in (ew.pad_case((1, 5, 11, 67), [0, 0, 0, 0, 0, 0, 5, 13], "edge"),
+              ew.pad_case((1, 3, 13, 41), [0, 0, 3, 5, 0, 0, 2, 0], "constant", -2.5),
+              ew.pad_case((2, 2, 5, 37), [0, 0, 1, 11, 0, 0, 1, 3], "reflect"),
+              ew.pad_case((3, 17), [1, 9, 2, 0], "wrap")):
+        assert_case(c, dev, precision)
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("vec", [0, 1], ids=["bcast-reference", "binary_bcast8"])
+def test_binary_bcast_fast_and_reference_kernels(vec, precision, dev, monkeypatch):
+    # BCAST_VEC=0 is the reference kernel the 8-wide binary_bcast8 is checked against:
+    # the blend's weight broadcast over channels, a last-axis broadcast, tails, a comparison.
+    monkeypatch.setattr(ew, "BCAST_VEC", vec)
+    for op, sa, sb in (("mul", (1, 1, 7, 37), (1, 3, 7, 37)), ("sub", (2, 3, 5, 1), (2, 3, 5, 29)),
+                       ("add", (3, 1, 41), (3, 5, 41)), ("max", (1, 5, 1, 13), (1, 5, 3, 13)),
+                       ("greater", (1, 1, 6, 23), (1, 4, 6, 23)), ("div", (2, 1, 9), (2, 7, 9))):
+        assert_case(ew.binary_case(op, sa, sb), dev, precision)

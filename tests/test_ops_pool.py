@@ -122,3 +122,25 @@ def test_fp16_native_variants_build(tmp_path):
     p = subprocess.run([sys.executable, "-c", code], env=oclgrind_env(tmp_path), capture_output=True,
                        text=True, timeout=600)
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("row8", [0, 1], ids=["pool-reference", "max_pool_row8"])
+def test_max_pool_fast_and_reference_kernels(row8, precision, dev, monkeypatch):
+    # POOL_ROW8=0 is the reference kernel the 8-wide max_pool_row8 is checked against.
+    monkeypatch.setattr(pool, "POOL_ROW8", row8)
+    x = np.random.default_rng(3).standard_normal((1, 2, 9, 43)).astype(np.float32)
+    x[0, 0, 4, 17] = np.nan
+    x[0, 1, 2, 5:9] = [0.0, -0.0, -0.0, 0.0]
+    for c in (pool.max_pool_case((1, 3, 13, 71), 3, 1, 1),
+              pool.max_pool_case((2, 2, 11, 37), (5, 3), (2, 1), (2, 0, 1, 2), dilation=(2, 1))):
+        assert_case(c, dev, precision)
+    ref = None
+    for flag in (0, row8):
+        monkeypatch.setattr(pool, "POOL_ROW8", flag)
+        y = pool.max_pool(dev, precision, dev.to_device(x.astype(np.float32 if precision == "fp32" else np.float16),
+                                                        precision), (3, 3), (1, 1), (1, 1, 1, 1)).get()
+        bits = y.view(np.uint32 if y.dtype == np.float32 else np.uint16)
+        if ref is None:
+            ref = bits
+        assert np.array_equal(bits, ref)

@@ -97,3 +97,16 @@ def test_onnx_handler_rank3_and_axes(dev):
     out = rs._onnx_resize(dev, "fp32", {"mode": b"linear", "axes": [1, 2]}, [dev.to_device(x), None, sc])[0]
     assert out.shape == ref.shape
     np.testing.assert_allclose(out.get(), ref, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("x8", [0, 1], ids=["resize-reference", "resize_x8"])
+def test_resize_x8_fast_and_reference_kernels(x8, precision, dev, monkeypatch):
+    # RESIZE_X8=0 is the reference kernel the 8-outputs-per-work-item resize_x8 is checked
+    # against: tails (widths off multiples of 8), both filters, up and down, channels off CPT.
+    monkeypatch.setattr(rs, "RESIZE_X8", x8)
+    for c in (rs.case(1, 5, 7, 13, mode="linear", scales=(2.0, 2.0)),
+              rs.case(2, 3, 11, 29, mode="cubic", scales=(1.5, 3.0)),
+              rs.case(1, 7, 17, 41, mode="linear", coord="align_corners", scales=(0.5, 0.75)),
+              rs.case(1, 2, 5, 9, mode="linear", coord="asymmetric", scales=(8.0, 8.0))):
+        assert_case(c, dev, precision)

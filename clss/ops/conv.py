@@ -14,7 +14,10 @@ ACTIVATIONS = {"none": 0, "relu": 1, "leaky_relu": 2, "sigmoid": 3, "tanh": 4}
 # Register block per work-item: XV A8 vectors along x (8*XV outputs) times CB
 # output channels. XV=2, CB=4 keeps 8 accumulators in flight (FMA latency x
 # throughput on AVX2) with 6 loads per 8 FMAs; see the report's timings.
-TUNING = {"XV": 2, "CB": 4, "LX": 8, "LZ": 16}
+TUNING = {"XV": 2, "CB": 4, "LX": 8, "LZ": 16, "S2K3": 1}
+# S2K3: kernels/conv.cl -DCONV_S2K3 (de-interleaved stride-2 3-tap rows) where
+# the layer allows it (stride 2, kernel width 3, dilation 1 along x); 0 selects
+# the reference per-tap loads.
 
 _F_BIAS, _F_RES_BEFORE, _F_RES_AFTER = 1, 2, 4
 
@@ -56,6 +59,16 @@ def _pads(p):
     if len(t) != 4:
         raise ValueError(f"pads must be [top, left, bottom, right] (ONNX order), got {p!r}")
     return t
+
+
+def shape_tuning(kh: int, kw: int, cout_g: int) -> dict:
+    """Per-layer defaults laid over TUNING (a caller's `tuning` still wins): spatial
+    kernels with >= 32 output channels per group take CB=8 channels x one A8
+    (XV=1) per work-item: every input vector then feeds 8 FMAs with 9
+    accumulators live (measured on the CLSS down1-3 and enc3.mid layers)."""
+    if kh * kw > 1 and cout_g >= 32:
+        return {"XV": 1, "CB": 8}
+    return {}
 
 
 def _channel_block(cout_g: int, cb: int) -> int:
@@ -127,13 +140,15 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     # pixels: one row of H*W, so only the image's last block takes the edge path.
     if kh == kw == 1 and sy == sx == 1 and pt == pl == pb == pr == 0:
         h, wd, ho, wo = 1, h * wd, 1, ho * wo
-    t = {**TUNING, **(tuning or {})}
     cout_g = cout // group
+    t = {**TUNING, **shape_tuning(kh, kw, cout_g), **(tuning or {})}
     cb = _channel_block(cout_g, t["CB"])
     xb = 8 * t["XV"]
     ncb = -(-cout_g // cb)
+    s2k3 = int(bool(t["S2K3"]) and sx == 2 and kw == 3 and dx == 1)
     k = dev.kernel("conv", "conv2d", prec, KH=kh, KW=kw, SX=sx,
-                   XV=t["XV"], CB=cb, ACT=_act(activation), CLSS_CLANG_VECTORS=builtin_free(dev))
+                   XV=t["XV"], CB=cb, ACT=_act(activation), CLSS_CLANG_VECTORS=builtin_free(dev),
+                   CONV_S2K3=s2k3)
     nz = n * group * ncb
     gs, ls = _sizes((-(-wo // xb), ho, nz), ncb, t)
     dev.launch(k, gs,
@@ -439,6 +454,13 @@ def cases(level: str = "quick") -> list[Case]:
           residual="before"),                                                    # K = 576
         C(cin=64, h=16, w=40, cout=64, k=(1, 1), pads=(0, 0, 0, 0)),
         C(cin=3, h=32, w=32, cout=24, k=(3, 3), strides=(2, 2), pads=(0, 0, 1, 1)),
+        # stride 2, 3 taps along x (-DCONV_S2K3): inside blocks, both edges, prime widths
+        C(cin=5, h=13, w=71, cout=11, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1), activation="relu"),
+        C(cin=7, h=11, w=131, cout=9, k=(3, 3), strides=(2, 2), pads=(0, 0, 1, 1), activation="relu",
+          residual="before"),
+        C(cin=3, h=9, w=67, cout=5, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1), dilations=(2, 1)),
+        C(cin=3, h=9, w=67, cout=5, k=(3, 3), strides=(2, 2), pads=(2, 2, 2, 2), dilations=(1, 2)),
+        C(cin=67, h=7, w=37, cout=131, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1), activation="relu"),
         C("convT", n=2, cin=8, h=7, w=13, cout=4, k=(2, 2), strides=(2, 2), pads=(0, 0, 0, 0)),
         C("convT", cin=6, h=9, w=11, cout=6, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1), group=6,
           output_padding=(1, 1)),

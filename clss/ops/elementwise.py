@@ -16,6 +16,7 @@ import numpy as np
 
 from ..device import Device, storage_dtype
 from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .conv import builtin_free
 from .twin import node_model
 
 BINARY = {"add": 0, "sub": 1, "mul": 2, "div": 3, "min": 4, "max": 5, "prelu": 6,
@@ -85,6 +86,12 @@ def _i32(*vs):
 
 # --- binary ------------------------------------------------------------------------
 
+# Broadcasting binary ops whose operands are contiguous or broadcast along the
+# innermost (coalesced) axis: kernel binary_bcast8, 8 outputs per work-item;
+# 0 selects the reference kernel binary_bcast (one output per work-item).
+BCAST_VEC = 1
+
+
 def binary(dev: Device, prec: str, op: str, a, b, out=None):
     """ONNX-broadcasting binary op. Comparisons return a bool (uchar) tensor."""
     if op not in BINARY:
@@ -107,6 +114,11 @@ def binary(dev: Device, prec: str, op: str, a, b, out=None):
     dims, (sa, sb) = coalesce(shape, [_broadcast_strides(a.shape, shape), _broadcast_strides(b.shape, shape)])
     dims, (sa, sb) = _four(dims, [sa, sb], op)
     gs, dargs = _grid(dims)
+    if BCAST_VEC and sa[3] in (0, 1) and sb[3] in (0, 1) and dims[3] >= 8:
+        k = dev.kernel("elementwise", "binary_bcast8", prec, OP=BINARY[op],
+                       CLSS_CLANG_VECTORS=builtin_free(dev))
+        dev.launch(k, (-(-gs[0] // 8), gs[1], gs[2]), (a.data, b.data, out.data, *dargs, *_i32(*sa, *sb)))
+        return out
     k = dev.kernel("elementwise", "binary_bcast", prec, OP=BINARY[op])
     dev.launch(k, gs, (a.data, b.data, out.data, *dargs, *_i32(*sa, *sb)))
     return out
@@ -381,6 +393,12 @@ def _gather(dev, prec, x, out, base: int, src_strides, what: str):
     dev.launch(k, gs, (x.data, out.data, *dargs, np.int64(base), *_i32(*src)))
 
 
+# Pad with 8 outputs per work-item along the last axis (kernel pad8); 0 selects
+# the reference kernel `pad` (one output per work-item).
+PAD_VEC = 1
+PAD_BLOCKS = 8          # blocks of 8 outputs per pad8 work-item
+
+
 def pad(dev: Device, prec: str, x, pads, mode: str = "constant", value: float = 0.0, axes=None):
     """ONNX Pad: pads = [begin per axis..., end per axis...] (negative crops),
     modes constant / edge / reflect / wrap. Bit-exact."""
@@ -418,11 +436,17 @@ def pad(dev: Device, prec: str, x, pads, mode: str = "constant", value: float = 
         raise ValueError(f"pad: needs {len(dims)} dimensions after coalescing; the kernels take 4")
     dims = [[1, 0, 1]] * (4 - len(dims)) + dims
     gs, dargs = _grid([d[2] for d in dims])
+    if PAD_VEC:
+        gs = (-(-gs[0] // (8 * PAD_BLOCKS)), gs[1], gs[2])
     bits = np.array(value, dtype=storage_dtype(prec))
     bits = bits.view(np.uint32 if bits.itemsize == 4 else np.uint16)
     # An empty input is never read (constant mode pads everything) but needs a buffer.
     src = x if x.size else dev.empty((1,), prec)
-    k = dev.kernel("elementwise", "pad", prec, PAD_MODE=PAD_MODES[mode])
+    if PAD_VEC:
+        k = dev.kernel("elementwise", "pad8", prec, PAD_MODE=PAD_MODES[mode], PAD_BLOCKS=PAD_BLOCKS,
+                       CLSS_CLANG_VECTORS=builtin_free(dev))
+    else:
+        k = dev.kernel("elementwise", "pad", prec, PAD_MODE=PAD_MODES[mode])
     dev.launch(k, gs, (src.data, out.data, *dargs, *_i32(*[d[0] for d in dims], *[d[1] for d in dims]),
                        bits.reshape(())[()]))
     return out
@@ -862,6 +886,7 @@ def cases(level: str = "quick") -> list[Case]:
             split_case((1, 5, 3, 7), [2, 3], 1),
             slice_case((2, 3, 5, 7), [0, 4, -1], [3, 0, -9], [1, 2, 3], [1, -2, -3]),
             *[pad_case((1, 2, 4, 5), [0, 0, 1, 2, 0, 0, 2, 1], mode, 0.5) for mode in PAD_MODES],
+            pad_case((1, 2, 3, 21), [0, 0, 1, 3, 0, 0, 0, 2], "edge"),   # pad8's vector copies
             identity_case((2, 3, 5, 7)),
             transpose_case((2, 3, 5, 7), (0, 2, 3, 1)),
             expand_case((3, 1, 7), (2, 1, 5, 1)),
@@ -946,6 +971,11 @@ def cases(level: str = "quick") -> list[Case]:
         pad_case((2, 3, 7, 13), [1, 2, 3, 4], "edge", axes=[-1, 1]),
         pad_case((2, 3, 4, 5, 6), [0, 0, 0, 1, 1, 0, 0, 0, 1, 1], "constant", 2.0),
         pad_case((7, 13), [2, 3, 1, 0], "constant", 1e30),
+        # pad8: 8-wide copies and fills, edges, tails (prime widths)
+        pad_case((1, 5, 11, 67), [0, 0, 0, 0, 0, 0, 5, 13], "edge"),
+        pad_case((1, 3, 13, 41), [0, 0, 3, 5, 0, 0, 2, 0], "constant", -2.5),
+        pad_case((2, 2, 5, 37), [0, 0, 1, 11, 0, 0, 1, 3], "reflect"),
+        pad_case((1, 2, 6, 29), [0, 0, 1, 3, 0, 0, 0, 19], "wrap"),
         softmax_case((2, 3, 7, 13), -1),
         softmax_case((2, 3, 7, 13), 0),
         softmax_case((1, 23, 31, 27), -3),

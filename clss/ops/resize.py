@@ -30,6 +30,7 @@ import pyopencl.cltypes as clt
 
 from ..device import Device
 from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .conv import builtin_free
 from .twin import node_model
 
 MODES = ("nearest", "linear", "cubic")
@@ -43,6 +44,9 @@ _COORD_DEFINE = {"half_pixel": 0, "align_corners": 1, "asymmetric": 2, "pytorch_
                  "tf_crop_and_resize": 4, "half_pixel_symmetric": 5}
 # Channels per work-item: coordinates and weights are computed once per pixel for them.
 CHANNELS_PER_ITEM = 4
+# Linear/cubic (no antialias, not tf_crop_and_resize): kernel resize_x8, 8 outputs
+# along x per work-item; 0 selects the reference kernel `resize` (one output each).
+RESIZE_X8 = 1
 
 _f32 = np.float32
 
@@ -174,9 +178,11 @@ def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "lin
         # edge pixel, which clamping gives too, so one build serves both.
         defines["EXCLUDE"] = int(bool(exclude_outside) and (mode == "cubic" or antialias))
     coord, idx, wt = _axis_tables(dev, prec, defines, mode, (ho, wo, h, w), (sy, sx), off, r, cubic_a)
-    k = dev.kernel("resize", "resize", prec, **defines)
+    x8 = bool(RESIZE_X8) and mode != "nearest" and not antialias and defines["COORD"] != 4
+    k = dev.kernel("resize", "resize_x8" if x8 else "resize", prec, **defines,
+                   CLSS_CLANG_VECTORS=builtin_free(dev))
     cb = -(-c // CHANNELS_PER_ITEM)
-    dev.launch(k, (wo, ho, n * cb),
+    dev.launch(k, (-(-wo // 8) if x8 else wo, ho, n * cb),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(ho), np.int32(wo),
                 np.int32(n * cb), _f32(sy), _f32(sx), _f32(extrapolation_value), _f32(cubic_a),
                 coord.data, idx.data, wt.data))

@@ -16,6 +16,7 @@ from onnx import helper
 
 from ..device import Device
 from .base import DEFAULT_TOL, Case, Tolerance, Unsupported, as_str, check_storage, onnx_op, rng
+from .conv import builtin_free
 from .twin import make_model, node_model, run_ort
 
 MODES = ("nearest", "bilinear", "bicubic")
@@ -62,7 +63,8 @@ def grid_sample(dev: Device, prec: str, x, grid, mode: str = "bilinear", padding
     if out.size == 0 or hi * wi == 0:
         return _zero_fill(dev, out)
     cpb, nblk = _blocks(c, channels_per_item)
-    k = dev.kernel("warp", "grid_sample", prec, **_options(mode, padding, cubic_channels))
+    k = dev.kernel("warp", "grid_sample", prec, **_options(mode, padding, cubic_channels),
+                   CLSS_CLANG_VECTORS=builtin_free(dev))
     dev.launch(k, (wo, ho, n * nblk), (x.data, grid.data, out.data,
                                        *map(np.int32, (c, hi, wi, ho, wo, cpb, nblk, n, bool(align_corners)))))
     return out
@@ -94,7 +96,8 @@ def warp(dev: Device, prec: str, x, motion, *, motion_scale=(1.0, 1.0), scale: f
         return _zero_fill(dev, out)
     cpb, nblk = _blocks(c, channels_per_item)
     kx, ky = (float(s) * float(scale) for s in motion_scale)
-    k = dev.kernel("warp", "warp_motion", prec, **_options(mode, padding, cubic_channels))
+    k = dev.kernel("warp", "warp_motion", prec, **_options(mode, padding, cubic_channels),
+                   CLSS_CLANG_VECTORS=builtin_free(dev))
     dev.launch(k, (wo, ho, n * nblk),
                (x.data, motion.data, out.data, *map(np.int32, (c, hi, wi, ho, wo, cpb, nblk, n)),
                 np.float32(wi / wo), np.float32(hi / ho), np.float32(kx), np.float32(ky)))

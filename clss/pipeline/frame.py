@@ -31,6 +31,7 @@ import pyopencl.array as cla
 from onnx import numpy_helper
 
 from ..device import Device
+from ..ops.conv import builtin_free
 from .contract import PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size
 from .oracle import DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS
 
@@ -165,7 +166,8 @@ class FrameStep:
         self.profile = bool(profile)
         net = mode == "net"
         self.vec = pixels_per_item(dev)
-        defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec)
+        defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec,
+                       CLSS_CLANG_VECTORS=builtin_free(dev))
         if not net:
             defines["CLIP_EPS"] = float(RULE_CLIP_EPS)
         h, w, H, W = self.h, self.w, self.H, self.W
