@@ -155,15 +155,20 @@ class Device:
         common = (d / "common.h").read_text()
         return path.read_text().replace('#include "common.h"', common, 1)
 
-    def program(self, stem: str, precision: str = "fp32", **defines) -> cl.Program:
-        self.require(precision)
+    @staticmethod
+    def build_options(precision: str = "fp32", **defines) -> str:
+        """The compiler options of a build: precision and kernel -D options, then
+        $CLSS_BUILD_OPTIONS."""
         opts = {**_PRECISION_DEFINES[precision], **defines}
         options = " ".join(f"-D{k}={_define_value(v)}" for k, v in sorted(opts.items()))
         # Extra compiler flags for every program, e.g. -cl-opt-disable under oclgrind
         # (its uninitialised-value checker rejects LLVM's `freeze`, which the optimiser emits).
         extra = os.environ.get("CLSS_BUILD_OPTIONS", "").strip()
-        if extra:
-            options = f"{options} {extra}"
+        return f"{options} {extra}" if extra else options
+
+    def program(self, stem: str, precision: str = "fp32", **defines) -> cl.Program:
+        self.require(precision)
+        options = self.build_options(precision, **defines)
         src = self.source(stem)
         key = (hashlib.sha1(src.encode()).hexdigest(), options)
         prog = self._programs.get(key)

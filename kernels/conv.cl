@@ -13,6 +13,10 @@
  *   -DCB=1..8      output channels per work-item (tunable; the host lowers it
  *                  for groups with few output channels, e.g. depthwise)
  *   -DACT=         fused activation (common.h); alpha is a kernel argument
+ *   -DCONV_DEINTERLEAVE=1 (default) stride-2 rows as two vector loads de-interleaved
+ *                  with .even (the fast path); =0 gathers them element by element
+ *                  (the portable reference the fast-path self-check compares with)
+ *   -DCLSS_CLANG_VECTORS  builtin-free loads (common.h; =0 is their reference)
  *
  * Runtime flags (arg `flags`): bias present; residual added before the
  * activation (ResNet's relu(conv(x) + r)); residual added after it.
@@ -58,6 +62,10 @@
 /* FLD/FLD8/FST/FST8 (builtin-free loads on PoCL) and TW/LDW (float weights in
  * fp16 storage mode): kernels/common.h. */
 
+#ifndef CONV_DEINTERLEAVE
+#define CONV_DEINTERLEAVE 1
+#endif
+
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
 #define IMAX(a, b) ((a) > (b) ? (a) : (b))
 
@@ -83,7 +91,7 @@ inline A8 ld8_inside(__global const T *row, int ix, int s)
 {
     if (s == 1)
         return FLD8(row, ix);
-    if (s == 2) {
+    if (s == 2 && CONV_DEINTERLEAVE) {
         const A8 a = FLD8(row, ix), b = FLD8(row, ix + 8);
         return (A8)(a.even, b.even);
     }

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import selfcheck
 from ..device import Device
-from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .base import (DEFAULT_TOL, Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op,
+                   rng)
 from .twin import make_model, node_model
 from onnx import helper
 
@@ -23,6 +25,19 @@ def builtin_free(dev: Device) -> int:
     """-DCLSS_CLANG_VECTORS for kernels/conv.cl and mlp.cl: PoCL's CPU devices call
     their OpenCL builtins out of line, so those kernels use clang vector loads there."""
     return int("portable computing language" in dev.info.platform.lower())
+
+
+def load_defines(dev: Device, prec: str, stem: str) -> dict:
+    """The load variant of kernels/<stem>.cl (conv or mlp): builtin-free loads where
+    builtin_free() asks for them and the self-check (clss/selfcheck.py) lets them,
+    the common.h macros otherwise."""
+    if not builtin_free(dev):
+        return {"CLSS_CLANG_VECTORS": 0}
+    return selfcheck.defines(dev, prec, f"{stem}.builtin_free_loads")
+
+
+def _fast_defines(dev: Device, prec: str) -> dict:
+    return {**load_defines(dev, prec, "conv"), **selfcheck.defines(dev, prec, "conv.stride2_deinterleave")}
 
 
 def _weights(dev: Device, prec: str, w):
@@ -133,7 +148,7 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     xb = 8 * t["XV"]
     ncb = -(-cout_g // cb)
     k = dev.kernel("conv", "conv2d", prec, KH=kh, KW=kw, SX=sx,
-                   XV=t["XV"], CB=cb, ACT=_act(activation), CLSS_CLANG_VECTORS=builtin_free(dev))
+                   XV=t["XV"], CB=cb, ACT=_act(activation), **_fast_defines(dev, prec))
     nz = n * group * ncb
     gs, ls = _sizes((-(-wo // xb), ho, nz), ncb, t)
     dev.launch(k, gs,
@@ -184,7 +199,7 @@ def conv_transpose2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pa
     xb = 8 * t["XV"]
     ncb = -(-cout_g // cb)
     k = dev.kernel("conv", "conv_transpose2d", prec, KH=kh, KW=kw, XV=t["XV"], CB=cb,
-                   ACT=_act(activation), CLSS_CLANG_VECTORS=builtin_free(dev))
+                   ACT=_act(activation), **_fast_defines(dev, prec))
     nz = n * group * ncb * sx
     nt = -(-wo // sx)
     gs, ls = _sizes((-(-nt // xb), ho, nz), ncb * sx, t)
@@ -197,6 +212,29 @@ def conv_transpose2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pa
                 np.int32(_flags(b, residual, residual_before_act)), np.float32(alpha), np.int32(nz)),
                local_size=ls)
     return out
+
+
+def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
+    """conv2d at strides 1 and 2 (rows wide enough for the vector paths, a ragged
+    tail) and conv_transpose2d: every load path of kernels/conv.cl once."""
+    g = rng("conv selfcheck")
+    x = dev.to_device(g.standard_normal((1, 5, 9, 75)).astype(np.float32), prec)
+    w = dev.to_device(g.standard_normal((6, 5, 3, 3)).astype(np.float32) * 0.3, prec)
+    b = dev.to_device(g.standard_normal(6).astype(np.float32), prec)
+    wt = dev.to_device(g.standard_normal((5, 3, 3, 3)).astype(np.float32) * 0.3, prec)
+    outs = [conv2d(dev, prec, x, w, b, pads=(1, 1, 1, 1), activation="relu"),
+            conv2d(dev, prec, x, w, None, strides=(2, 2), pads=(1, 0, 1, 2)),
+            conv_transpose2d(dev, prec, x, wt, None, strides=(2, 2), pads=(1, 1, 0, 0))]
+    return [dev.to_host(o) for o in outs]
+
+
+for _name, _fast, _ref, _what in (
+        ("conv.builtin_free_loads", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
+         "loads and stores as clang vector types instead of vload/vstore builtins (PoCL)"),
+        ("conv.stride2_deinterleave", {"CONV_DEINTERLEAVE": 1}, {"CONV_DEINTERLEAVE": 0},
+         "stride-2 rows as two vector loads and .even")):
+    selfcheck.register(selfcheck.FastPath(_name, "conv", _fast, _ref, check=_selfcheck_run,
+                                          tolerance=DEFAULT_TOL.__getitem__, what=_what))
 
 
 # --- ONNX -----------------------------------------------------------------------

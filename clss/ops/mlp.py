@@ -9,9 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 from onnx import helper
 
+from .. import selfcheck
 from ..device import Device, storage_dtype
-from .base import Case, check_storage, host_call, rng
-from .conv import ACTIVATIONS, builtin_free
+from .base import DEFAULT_TOL, Case, check_storage, host_call, rng
+from .conv import ACTIVATIONS, load_defines
 from .twin import make_model
 
 # Widest layer (input channels included) one kernel keeps in private memory:
@@ -110,7 +111,7 @@ def mlp(dev: Device, prec: str, x, layers, out=None, tuning=None):
     for i, ch in enumerate(net.chunks):
         last = i == len(net.chunks) - 1
         dst = out if (last and out is not None) else dev.empty((n, ch.widths[-1], h, w), prec)
-        defines = dict(NL=len(ch.acts), CMAX=max(ch.widths), XV=xv, CLSS_CLANG_VECTORS=builtin_free(dev))
+        defines = dict(NL=len(ch.acts), CMAX=max(ch.widths), XV=xv, **load_defines(dev, prec, "mlp"))
         for k, wd in enumerate(ch.widths):
             defines[f"C{k}"] = wd
         for k, (a, al, off) in enumerate(zip(ch.acts, ch.alphas, ch.offsets), 1):
@@ -123,6 +124,22 @@ def mlp(dev: Device, prec: str, x, layers, out=None, tuning=None):
                    local_size=(t["LX"], 1))
         cur = dst
     return cur
+
+
+def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
+    """A two-layer network over whole pixel vectors and a ragged last block."""
+    g = rng("mlp selfcheck")
+    x = dev.to_device(g.standard_normal((1, 6, 5, 7)).astype(np.float32), prec)
+    layers = [(g.standard_normal((9, 6)).astype(np.float32) * 0.4, g.standard_normal(9).astype(np.float32),
+               "relu"),
+              (g.standard_normal((3, 9)).astype(np.float32) * 0.4, None, "sigmoid")]
+    return [dev.to_host(mlp(dev, prec, x, layers))]
+
+
+selfcheck.register(selfcheck.FastPath(
+    "mlp.builtin_free_loads", "mlp", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
+    check=_selfcheck_run, tolerance=DEFAULT_TOL.__getitem__,
+    what="loads and stores as clang vector types instead of vload/vstore builtins (PoCL)"))
 
 
 # --- twins and cases ------------------------------------------------------------
