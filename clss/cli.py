@@ -98,10 +98,14 @@ def cmd_verify(argv) -> int:
     print(format_table(shown))
     fails = sum(not r.passed for r in rows)
     print(f"\n{len(rows) - fails} passed, {fails} failed ({len(rows)} rows, {time.perf_counter() - t0:.1f} s)")
+    from .conformance import format_fast_paths
+    from .selfcheck import check_all
+    fast = check_all(dev, precs, [a.family] if a.family else None)
+    print("\n" + format_fast_paths(fast))
     if a.json:
         with open(a.json, "w") as f:
-            json.dump({"device": dev.info.__dict__, "rows": [r.as_dict() for r in rows]}, f, indent=2,
-                      default=float)
+            json.dump({"device": dev.info.__dict__, "rows": [r.as_dict() for r in rows],
+                       "fast_paths": [v.as_dict() for v in fast]}, f, indent=2, default=float)
     return 1 if fails else 0
 
 

@@ -178,11 +178,14 @@ def enabled(dev, prec: str, name: str) -> bool:
         return v.ok
 
 
-def check_all(dev, precisions) -> list[Verdict]:
-    """Verdicts of every registered fast path on dev, checking what is not yet known."""
+def check_all(dev, precisions, kernels=None) -> list[Verdict]:
+    """Verdicts of every registered fast path on dev (of `kernels`, stems of
+    kernels/*.cl, if given), checking what is not yet known."""
     _import_registrations()
     out = []
     for name in sorted(REGISTRY):
+        if kernels is not None and REGISTRY[name].kernel not in kernels:
+            continue
         for prec in precisions:
             if prec == "fp16-native" and not dev.has_fp16:
                 continue
