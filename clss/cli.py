@@ -9,7 +9,7 @@ import time
 import warnings
 
 DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
-               "'platform / device' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else the PoCL CPU device)")
+               "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device)")
 
 
 def _add_device(p: argparse.ArgumentParser, precision: bool = True) -> None:
@@ -36,7 +36,8 @@ def cmd_devices(argv) -> int:
         print(f"      OpenCL {info.version}; driver {info.driver}; {info.compute_units} compute units; "
               f"{info.global_mem / 2**30:.1f} GiB global memory (max alloc {info.max_alloc / 2**30:.1f} GiB); "
               f"fp16 arithmetic (cl_khr_fp16): {'yes' if info.fp16 else 'no'}")
-    print("* = default device")
+    from .device import default_reason
+    print(f"* = default device: {default_reason()}; choose another with --device or $CLSS_DEVICE")
     if a.json:
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=2)

@@ -2,8 +2,10 @@
 
 Choice order: an explicit spec (``--device``), then ``CLSS_DEVICE``, then
 ``PYOPENCL_CTX`` (pyopencl's own convention, "platform:device" indices), then
-the PoCL CPU device, then the first device found. A spec is an index into
-`list_devices()` or a case-insensitive substring of "platform / device".
+the default (`default_reason`): the CPU device of the PoCL that pip installs
+(pocl-binary-distribution, a dependency of clss), else any PoCL CPU device,
+else the first device found. A spec is an index into `list_devices()` or a
+case-insensitive substring of "platform / device (driver)".
 """
 from __future__ import annotations
 
@@ -61,14 +63,48 @@ def list_devices() -> list[tuple[cl.Platform, cl.Device]]:
 
 
 def describe(index: int, platform: cl.Platform, device: cl.Device) -> str:
-    return f"[{index}] {platform.name.strip()} / {device.name.strip()}"
+    return f"[{index}] {platform.name.strip()} / {device.name.strip()} ({device.driver_version.strip()})"
+
+
+def pip_pocl_version() -> str | None:
+    """The PoCL version pip installed (package pocl-binary-distribution), or None."""
+    import importlib.metadata
+    try:
+        return importlib.metadata.version("pocl-binary-distribution")
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def is_pip_pocl(platform: cl.Platform) -> bool:
+    """Whether the platform is the PoCL pip installed: its version string names that
+    PoCL release ("OpenCL 3.0 PoCL 3.0-rc2 ..." for package 3.0). Distribution builds
+    tag theirs ("PoCL 3.1+debian"), so a system PoCL of the same release is not taken
+    for it; the ICD loader's platform order is not a stable criterion (it lists
+    /etc/OpenCL/vendors first)."""
+    import re
+    v = pip_pocl_version()
+    return v is not None and re.search(rf"PoCL {re.escape(v)}(?![\d.+])", platform.version) is not None
+
+
+def _is_pocl_cpu(platform: cl.Platform, device: cl.Device) -> bool:
+    return "portable computing language" in platform.name.lower() and bool(device.type & cl.device_type.CPU)
+
+
+def default_reason() -> str:
+    """Which device the default is, and why (for `clss devices` and errors)."""
+    if any(is_pip_pocl(p) for p, _ in list_devices()):
+        return (f"the CPU device of the PoCL pip installs (pocl-binary-distribution {pip_pocl_version()}): "
+                "every clss install has it and CI proves every kernel on it")
+    if any(_is_pocl_cpu(p, d) for p, d in list_devices()):
+        return "the first PoCL CPU device (pip's PoCL is not installed)"
+    return "the first device found (no PoCL installed)"
 
 
 def _pick(spec: str | None) -> cl.Device:
     found = list_devices()
     if not found:
         raise DeviceError("no OpenCL device found")
-    names = [f"{p.name.strip()} / {d.name.strip()}" for p, d in found]
+    names = [f"{p.name.strip()} / {d.name.strip()} ({d.driver_version.strip()})" for p, d in found]
     if spec is None and os.environ.get("CLSS_DEVICE"):
         spec = os.environ["CLSS_DEVICE"]
     if spec is None and os.environ.get("PYOPENCL_CTX"):
@@ -79,9 +115,10 @@ def _pick(spec: str | None) -> cl.Device:
         except (ValueError, IndexError) as e:
             raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} names no device") from e
     if spec is None:
-        for (p, d), name in zip(found, names):
-            if "portable computing language" in p.name.lower():
-                return d
+        for rule in (lambda p, d: _is_pocl_cpu(p, d) and is_pip_pocl(p), _is_pocl_cpu):
+            for p, d in found:
+                if rule(p, d):
+                    return d
         return found[0][1]
     spec = str(spec).strip()
     if spec.isdigit():

@@ -138,7 +138,7 @@ def test_node_cases_found():
 
 
 @pytest.mark.parametrize("case_dir", CASES, ids=[os.path.basename(c) for c in CASES])
-def test_model_node_case(case_dir, dev):
+def test_model_node_case(case_dir, any_dev):
     name = os.path.basename(case_dir)
     got = adapt(case_dir)
     if isinstance(got, str):
@@ -146,7 +146,7 @@ def test_model_node_case(case_dir, dev):
     model, feeds, expected = got
     reason = MODEL_DEVIATIONS.get(name) or FAMILY_DEVIATIONS.get(name)
     try:
-        cm = clss.Model(model, device=dev)
+        cm = clss.Model(model, device=any_dev)
     except UnsupportedModelError as e:
         if reason:
             pytest.xfail(reason)
