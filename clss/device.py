@@ -239,8 +239,13 @@ class Device:
 
     # -- launches and arrays ----------------------------------------------
     def launch(self, kernel: cl.Kernel, global_size, args, local_size=None, wait_for=None) -> cl.Event:
-        """Enqueue with the exact global size (kernels guard their own bounds)."""
+        """Enqueue with the exact global size (kernels guard their own bounds). Without a
+        local size from the op, the tuning database's work-group size for this kernel and
+        global size on this device (`clss tune`), else the driver's choice."""
         gs = tuple(int(max(1, g)) for g in global_size)
+        if local_size is None:
+            from . import tuning
+            local_size = tuning.local_size(self, kernel.function_name, gs)
         kernel.set_args(*args)
         return cl.enqueue_nd_range_kernel(self.queue, kernel, gs, local_size, wait_for=wait_for)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import selfcheck
+from .. import selfcheck, tuning as tuning_db
 from ..device import Device
 from .base import (DEFAULT_TOL, Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op,
                    rng)
@@ -17,6 +17,9 @@ ACTIVATIONS = {"none": 0, "relu": 1, "leaky_relu": 2, "sigmoid": 3, "tanh": 4}
 # output channels. XV=2, CB=4 keeps 8 accumulators in flight (FMA latency x
 # throughput on AVX2) with 6 loads per 8 FMAs; see the report's timings.
 TUNING = {"XV": 2, "CB": 4, "LX": 8, "LZ": 16}
+# What `clss tune` searches (bench/tune.py), per op; the engine reads the winner back
+# from the tuning database (clss/tuning.py) at each launch (_tunables).
+TUNABLES = {op: {"XV": (1, 2), "CB": (1, 2, 4, 8)} for op in ("conv2d", "conv_transpose2d")}
 
 _F_BIAS, _F_RES_BEFORE, _F_RES_AFTER = 1, 2, 4
 
@@ -92,6 +95,13 @@ def _sizes(gs, nzin, t):
     return tuple(-(-g // l) * l for g, l in zip(gs, (lx, 1, lz))), (lx, 1, lz)
 
 
+def _tunables(dev: Device, prec: str, op: str, x, w, strides, explicit) -> dict:
+    """The register block for this launch: defaults < the tuning database's entry for
+    (device, op, shapes, stride, precision) < the caller's `tuning=`."""
+    key = tuning_db.shape_key(tuple(x.shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec)
+    return tuning_db.lookup(dev, op, key, TUNING, explicit=explicit, allowed=TUNABLES[op])
+
+
 def _flags(b, residual, residual_before_act):
     f = _F_BIAS if b is not None else 0
     if residual is not None:
@@ -140,9 +150,9 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     out = out if out is not None else dev.empty((n, cout, ho, wo), prec)
     # A pointwise conv with unit stride and no padding is a GEMM over flattened
     # pixels: one row of H*W, so only the image's last block takes the edge path.
+    t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning)
     if kh == kw == 1 and sy == sx == 1 and pt == pl == pb == pr == 0:
         h, wd, ho, wo = 1, h * wd, 1, ho * wo
-    t = {**TUNING, **(tuning or {})}
     cout_g = cout // group
     cb = _channel_block(cout_g, t["CB"])
     xb = 8 * t["XV"]
@@ -194,7 +204,7 @@ def conv_transpose2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pa
         raise ValueError(f"conv_transpose2d: output would be {ho}x{wo} for input {h}x{wd}")
     _check_common(x, w, b, residual, prec, (n, cout, ho, wo), cout)
     out = out if out is not None else dev.empty((n, cout, ho, wo), prec)
-    t = {**TUNING, **(tuning or {})}
+    t = _tunables(dev, prec, "conv_transpose2d", x, w, (sy, sx), tuning)
     cb = _channel_block(cout_g, t["CB"])
     xb = 8 * t["XV"]
     ncb = -(-cout_g // cb)

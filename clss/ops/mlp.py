@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from onnx import helper
 
-from .. import selfcheck
+from .. import selfcheck, tuning as tuning_db
 from ..device import Device, storage_dtype
 from .base import DEFAULT_TOL, Case, check_storage, host_call, rng
 from .conv import ACTIVATIONS, load_defines
@@ -22,6 +22,8 @@ MAX_WIDTH = 128
 # Layers per kernel; longer chains run as several kernels through global memory.
 MAX_LAYERS = 8
 TUNING = {"XV": 1, "LX": 16}
+# What `clss tune` searches; the engine reads the winner back per (device, shape, widths).
+TUNABLES = {"mlp": {"XV": (1, 2), "LX": (8, 16, 32)}}
 
 
 @dataclass(frozen=True)
@@ -105,7 +107,8 @@ def mlp(dev: Device, prec: str, x, layers, out=None, tuning=None):
     n, c, h, w = x.shape
     if c != net.widths[0]:
         raise ValueError(f"mlp: input has {c} channels, the first layer takes {net.widths[0]}")
-    t = {**TUNING, **(tuning or {})}
+    key = tuning_db.shape_key(tuple(x.shape), tuple(net.widths), prec)
+    t = tuning_db.lookup(dev, "mlp", key, TUNING, explicit=tuning, allowed=TUNABLES["mlp"])
     xv = t["XV"]
     cur = x
     for i, ch in enumerate(net.chunks):
