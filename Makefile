@@ -23,7 +23,7 @@ test-large: $(STAMP)
 	CLSS_LARGE=1 $(BIN)/python -m pytest -q -ra -m large
 
 demo: $(STAMP)
-	$(BIN)/clss demo -o $(OUT)/demo
+	$(BIN)/clss demo -o $(OUT)/demo --overwrite
 
 verify: $(STAMP)
 	$(BIN)/clss verify --precision all

@@ -1,9 +1,11 @@
 """`python -m bench [args]` is `clss bench [args]`; `python -m bench tune [args]` is `clss tune`."""
 import sys
 
+from clss.cli import run_command
+
 from .cli import bench_main, tune_main
 
 argv = sys.argv[1:]
 if argv[:1] == ["tune"]:
-    sys.exit(tune_main(argv[1:]))
-sys.exit(bench_main(argv))
+    sys.exit(run_command("clss tune", tune_main, argv[1:]))
+sys.exit(run_command("clss bench", bench_main, argv))

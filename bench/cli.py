@@ -8,6 +8,9 @@ import time
 from pathlib import Path
 
 from clss.cli import DEVICE_HELP, register
+from clss.cli_args import (ArgParser, UsageError, check_output_file, device_spec, positive_float,
+                           positive_int, prepare_output_dir)
+from clss.errors import cli_message
 
 LEVEL_HELP = ("--quick: a small subset (about a minute); default: every kernel at the CLSS "
               "540p -> 1080p shapes; --full: adds 1080p -> 2160p")
@@ -15,7 +18,7 @@ LEVEL_HELP = ("--quick: a small subset (about a minute); default: every kernel a
 
 def _level(a) -> str:
     if a.quick and a.full:
-        raise SystemExit("clss bench: --quick and --full exclude each other")
+        raise UsageError("--quick and --full exclude each other")
     return "quick" if a.quick else "full" if a.full else "default"
 
 
@@ -59,7 +62,7 @@ def _logger(bar):
 
 
 def bench_main(argv=None) -> int:
-    p = argparse.ArgumentParser(
+    p = ArgParser(
         prog="clss bench",
         description="Benchmark every clss kernel (and, once they exist, the CLSS networks and the whole "
                     "frame step) against onnxruntime running the same ONNX twin on the CPU, in one process, "
@@ -73,7 +76,7 @@ def bench_main(argv=None) -> int:
     p.add_argument("--full", action="store_true", help="also the 1080p -> 2160p shapes")
     p.add_argument("--tiny", action="store_true",
                    help="tiny shapes and a brief peak probe: a smoke test of the bench itself (numbers meaningless)")
-    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     p.add_argument("--precision", "-p", default=None,
                    help="fp32, fp16, fp16-native, a comma list, or all (default: fp32 with --quick, else all "
                         "the device supports)")
@@ -82,9 +85,12 @@ def bench_main(argv=None) -> int:
     p.add_argument("--out", "-o", default="out/bench",
                    help="directory for bench.json, bench.md and roofline.png (default: out/bench; '' for none)")
     p.add_argument("--json", metavar="FILE", help="also write the JSON result here")
-    p.add_argument("--runs", type=int, default=None, help="timed runs per case (default: by a time budget, 3..15)")
-    p.add_argument("--budget", type=float, default=None, help="seconds of timed runs per case (default 4, quick 1.5)")
-    p.add_argument("--ort-threads", type=int, default=None, help="onnxruntime intra-op threads (default: cores)")
+    p.add_argument("--runs", type=positive_int, default=None,
+                   help="timed runs per case (default: by a time budget, 3..15)")
+    p.add_argument("--budget", type=positive_float, default=None,
+                   help="seconds of timed runs per case (default 4, quick 1.5)")
+    p.add_argument("--ort-threads", type=positive_int, default=None,
+                   help="onnxruntime intra-op threads (default: cores)")
     p.add_argument("--ort-spinning", action="store_true",
                    help="let onnxruntime's idle workers spin (its default; off here because they would "
                         "compete with the engine for the cores between alternating runs)")
@@ -94,12 +100,18 @@ def bench_main(argv=None) -> int:
     p.add_argument("--compare", nargs=2, metavar=("A.json", "B.json"), help="compare two runs and exit")
     a = p.parse_args(argv)
 
+    level = _level(a)
+    if a.json is not None:
+        check_output_file(a.json, "--json", inputs=a.compare or ())
+    if a.out and not a.compare and not a.list:
+        # bench.json / bench.md / roofline.png are replaced on every run: no --overwrite here.
+        prepare_output_dir(a.out, "--out", overwrite=True)
     from . import report
     if a.compare:
         try:
             docs = [report.load_json(f) for f in a.compare]
         except (OSError, ValueError) as e:
-            print(f"clss bench: {e}", file=sys.stderr)
+            print(f"clss bench: {cli_message(e)}", file=sys.stderr)
             return 2
         print(report.compare_docs(*docs))
         return 0
@@ -110,16 +122,19 @@ def bench_main(argv=None) -> int:
     from .peak import measure
     from .runner import OrtRunner, Settings, run_case
 
-    level = _level(a)
     _quiet_family_warnings()
     try:
         dev = get_device(a.device)
         precs = _precisions(dev, a.precision, level)
     except (DeviceError, ValueError) as e:
-        print(f"clss bench: {e}", file=sys.stderr)
+        print(f"clss bench: {cli_message(e)}", file=sys.stderr)
         return 2
     cases, unavailable = all_cases(level, ("tiny",) if a.tiny else None)
     cases = _select(cases, a.filter)
+    if not cases and not a.list:
+        print(f"clss bench: --filter {a.filter!r} matches no case (`clss bench --list` lists them)",
+              file=sys.stderr)
+        return 2
     if a.list:
         for c in cases:
             print(f"{c.label:60s} {c.family:15s} {c.kind:8s} {c.shape}{'  (quick)' if c.quick else ''}")
@@ -184,7 +199,7 @@ def bench_main(argv=None) -> int:
 
 
 def tune_main(argv=None) -> int:
-    p = argparse.ArgumentParser(
+    p = ArgParser(
         prog="clss tune",
         description="Search kernel tunables (register blocks, channels/pixels per work-item) and work-group "
                     "sizes for the bench cases on this device; each candidate's output is checked against "
@@ -197,11 +212,12 @@ def tune_main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="only the --quick bench cases")
     p.add_argument("--full", action="store_true", help="also the 1080p -> 2160p shapes")
     p.add_argument("--tiny", action="store_true", help="tiny shapes (a smoke test of the tuner)")
-    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     p.add_argument("--precision", "-p", default="fp32", help="fp32, fp16, fp16-native, a comma list, or all")
     p.add_argument("--filter", "-k", default=None, help="as for clss bench")
-    p.add_argument("--runs", type=int, default=5, help="timed runs per candidate (median)")
-    p.add_argument("--max-candidates", type=int, default=48, help="cap on parameter combinations per case")
+    p.add_argument("--runs", type=positive_int, default=5, help="timed runs per candidate (median)")
+    p.add_argument("--max-candidates", type=positive_int, default=48,
+                   help="cap on parameter combinations per case")
     p.add_argument("--no-local", action="store_true", help="do not search work-group sizes")
     p.add_argument("--all", action="store_true", help="also cases without tunables (work-group sizes only)")
     p.add_argument("--db", default=None, help="tuning database file (default: $CLSS_TUNING_DB or ~/.cache/clss/tuning.json)")
@@ -214,11 +230,13 @@ def tune_main(argv=None) -> int:
     from .tune import format_results, tune_case
 
     level = _level(a)
+    if a.db is not None and not a.dry_run:
+        check_output_file(a.db, "--db")
     try:
         dev = get_device(a.device)
         precs = _precisions(dev, a.precision, level)
     except (DeviceError, ValueError) as e:
-        print(f"clss tune: {e}", file=sys.stderr)
+        print(f"clss tune: {cli_message(e)}", file=sys.stderr)
         return 2
     cases, _ = all_cases(level, ("tiny",) if a.tiny else None)
     cases = [c for c in _select(cases, a.filter) if c.tunables or a.all]

@@ -101,9 +101,13 @@ def write_json(doc: dict, path) -> None:
 
 
 def load_json(path) -> dict:
-    doc = json.loads(Path(path).read_text())
-    if doc.get("schema") != SCHEMA:
-        raise ValueError(f"{path}: not a clss bench result (schema {doc.get('schema')!r}, expected {SCHEMA!r})")
+    try:
+        doc = json.loads(Path(path).read_text())
+    except ValueError as e:
+        raise ValueError(f"{path}: not a clss bench result (not JSON: {e})") from None
+    schema = doc.get("schema") if isinstance(doc, dict) else None
+    if schema != SCHEMA:
+        raise ValueError(f"{path}: not a clss bench result (schema {schema!r}, expected {SCHEMA!r})")
     return doc
 
 

@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import warnings
+
+from .cli_args import ArgParser, check_output_file, device_spec
 
 DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
                "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device)")
 
 
 def _add_device(p: argparse.ArgumentParser, precision: bool = True) -> None:
-    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     if precision:
         p.add_argument("--precision", "-p", default="fp32", choices=("fp32", "fp16", "fp16-native", "all"),
                        help="fp32; fp16 = half storage, float arithmetic (every device); "
@@ -21,9 +24,11 @@ def _add_device(p: argparse.ArgumentParser, precision: bool = True) -> None:
 
 
 def cmd_devices(argv) -> int:
-    p = argparse.ArgumentParser(prog="clss devices", description="List OpenCL platforms and devices.")
+    p = ArgParser(prog="clss devices", description="List OpenCL platforms and devices.")
     p.add_argument("--json", metavar="FILE", help="also write the list as JSON")
     a = p.parse_args(argv)
+    if a.json is not None:
+        check_output_file(a.json, "--json")
     from .device import DeviceInfo, get_device, list_devices
     found = list_devices()
     default = get_device().cl_device
@@ -45,7 +50,7 @@ def cmd_devices(argv) -> int:
 
 
 def cmd_verify(argv) -> int:
-    p = argparse.ArgumentParser(
+    p = ArgParser(
         prog="clss verify",
         description="Run every kernel on the chosen device and diff it against onnxruntime "
                     "(the ONNX twin of each op, fed the same inputs). Prints one row per op variant "
@@ -64,6 +69,8 @@ def cmd_verify(argv) -> int:
                         "full (odd shapes and parameter sweeps, as the tests)")
     p.add_argument("--failures-only", action="store_true", help="print only failing rows")
     a = p.parse_args(argv)
+    if a.json is not None:
+        check_output_file(a.json, "--json")
     from .conformance import check, format_table
     from .device import DeviceError, get_device
     from .ops import all_cases
@@ -87,6 +94,10 @@ def cmd_verify(argv) -> int:
         return 2
     cases = [c for c in all_cases(a.level, [a.family] if a.family else None)
              if not a.filter or a.filter in c.op]
+    if not cases:
+        print(f"clss verify: --filter {a.filter!r} matches no op (see `clss verify --level tiny` "
+              "for the list)", file=sys.stderr)
+        return 2
     print(f"device: {dev.info.platform} / {dev.info.name} (driver {dev.info.driver}); "
           f"{len(cases)} cases x {len(precs)} precision(s)", file=sys.stderr)
     t0 = time.perf_counter()
@@ -132,14 +143,34 @@ def _load_plugins() -> None:
                 raise
 
 
+def _version() -> str:
+    from . import __version__
+    return __version__
+
+
+# What a user's mistake raises (a bad flag value, file, device, model or frame); each
+# ends the command with one line and exit status 2. Anything else is a bug in clss and
+# keeps its traceback. CLSS_TRACEBACK=1 shows the traceback of these too.
+USER_ERRORS = (ValueError, OSError)
+
+
+def _user_errors():
+    from .device import DeviceError
+    return USER_ERRORS + (DeviceError,)
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     _load_plugins()
+    if argv and argv[0] == "--version":
+        print(f"clss {_version()}")
+        return 0
     if not argv or argv[0] in ("-h", "--help"):
         print("usage: clss COMMAND [options]   (clss COMMAND --help for each)\n\n"
               "clss runs neural temporal supersampling networks on any OpenCL 1.2 device.\n\ncommands:")
         for name, (_, summary) in COMMANDS.items():
             print(f"  {name:10s} {summary}")
+        print("\n  --version  print the version and exit")
         return 0 if argv else 2
     name, rest = argv[0], argv[1:]
     # pyopencl warns about any compiler output (PoCL prints notes for valid kernels); a
@@ -148,7 +179,29 @@ def main(argv=None) -> int:
     if name not in COMMANDS:
         print(f"clss: unknown command {name!r}; try `clss --help`", file=sys.stderr)
         return 2
-    return COMMANDS[name][0](rest) or 0
+    return run_command(f"clss {name}", COMMANDS[name][0], rest)
+
+
+def run_command(prog: str, fn, argv) -> int:
+    """fn(argv) with the command line's error policy: a user's mistake is one line on
+    stderr and status 2, Ctrl-C is status 130 (commands that write files say first how
+    far they got), `--help` and parser errors return their status instead of exiting."""
+    from .errors import cli_message
+    try:
+        return fn(argv) or 0
+    except SystemExit as e:             # argparse: --help (0), or a mistake already printed (2)
+        if isinstance(e.code, int) or e.code is None:
+            return e.code or 0
+        print(e.code, file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\n{prog}: interrupted", file=sys.stderr)
+        return 130
+    except _user_errors() as e:
+        if os.environ.get("CLSS_TRACEBACK"):
+            raise
+        print(f"{prog}: {cli_message(e)}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

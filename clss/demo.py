@@ -34,9 +34,9 @@ def _size(text):
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--size: expected WxH (e.g. 480x270), got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected WxH (e.g. 480x270), got {text!r}")
     if w < 4 or h < 4:
-        raise argparse.ArgumentTypeError(f"--size: at least 4x4, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected at least 4x4, got {text!r}")
     return h, w
 
 
@@ -62,29 +62,38 @@ def _crop_box(H, W):
     return (min(y0, H - ch), min(y0, H - ch) + ch, min(x0, W - cw), min(x0, W - cw) + cw)
 
 
+# What a demo run writes into OUT: replaced as a whole by --overwrite.
+OUTPUT_SET = ("input/*", "bicubic/*", "rules/*", "net/*", "debug/*", "side_by_side.png",
+              "side_by_side_crop.png", "temporal_profile.png", "metrics.json")
+
+
 def main(argv=None) -> int:
-    from .pipeline.cli import add_upscaler_args, format_stage_table, write_debug_views
-    p = argparse.ArgumentParser(
+    from .cli_args import ArgParser, positive_int, prepare_output_dir, start_output
+    from .pipeline.cli import (WEIGHTS_HELP, FrameFiles, add_upscaler_args, check_weights_mode,
+                               format_stage_table, write_debug_views)
+    p = ArgParser(
         prog="clss demo",
         description="Render the built-in sample scene, upscale it with bicubic, CLSS rules and "
                     "CLSS net, and write frames, a side-by-side, a temporal profile, debug views "
                     "and PSNR/SSIM against the scene's 16-spp reference.")
-    p.add_argument("-o", "--out", default=os.path.join("out", "demo"))
-    p.add_argument("--frames", "-n", type=int, default=30)
+    p.add_argument("-o", "--out", default=os.path.join("out", "demo"),
+                   help="output directory (default out/demo): created if missing, refused if "
+                        "not empty unless --overwrite")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a previous demo's output in OUT")
+    p.add_argument("--frames", "-n", type=positive_int, default=30, help="frames (default 30)")
     p.add_argument("--size", type=_size, default=(270, 480), metavar="WxH",
                    help="render size (default 480x270; output = size x scale)")
     add_upscaler_args(p)
-    p.add_argument("--weights", "-w", default=None,
-                   help="network weights (default: seeded, untrained networks)")
-    p.add_argument("--spp", type=int, default=16, help="reference samples per output pixel")
+    p.add_argument("--weights", "-w", default=None, help=WEIGHTS_HELP)
+    p.add_argument("--spp", type=positive_int, default=16, help="reference samples per output pixel")
     p.add_argument("--modes", default="rules,net", help="comma-separated subset of rules,net")
-    p.add_argument("--workers", type=int, default=2, help="processes rendering the scene")
+    p.add_argument("--workers", type=positive_int, default=2, help="processes rendering the scene")
     a = p.parse_args(argv)
-    if a.frames < 1:
-        p.error("--frames: at least 1")
     modes = [m.strip() for m in a.modes.split(",") if m.strip()]
     if not modes or any(m not in ("rules", "net") for m in modes):
         p.error(f"--modes: expected a subset of rules,net, got {a.modes!r}")
+    check_weights_mode(a.weights, "net" in modes)
 
     from . import io as cio
     from . import metrics
@@ -95,17 +104,14 @@ def main(argv=None) -> int:
     from .scene import iter_sequence
 
     h, w = a.size
-    try:
-        H, W = output_size(h, w, a.scale)
-        dev = get_device(a.device)
-        ups = {m: Upscaler(a.scale, mode=m, weights=a.weights if m == "net" else None, device=dev,
-                           precision=a.precision, profile=True, debug=True) for m in modes}
-    except (ValueError, OSError) as e:
-        print(f"clss demo: {e}", file=sys.stderr)
-        return 2
+    H, W = output_size(h, w, a.scale)
+    stale = prepare_output_dir(a.out, "-o", overwrite=a.overwrite, outputs=OUTPUT_SET)
+    dev = get_device(a.device)
+    ups = {m: Upscaler(a.scale, mode=m, weights=a.weights if m == "net" else None, device=dev,
+                       precision=a.precision, profile=True, debug=True) for m in modes}
+    start_output(a.out, stale)
     trained = ups["net"].trained if "net" in ups else None
     out = a.out
-    os.makedirs(out, exist_ok=True)
     print(f"clss demo: {a.frames} frames {w}x{h} -> {W}x{H} (x{a.scale:g}), {a.precision}, "
           f"device {dev.info.name}; writing to {out}", file=sys.stderr)
 
@@ -122,38 +128,54 @@ def main(argv=None) -> int:
     in_dir = os.path.join(out, "input")
     sidecar = None
     t = time.perf_counter()
-    for f in progress(frames, desc="demo", unit="frame", total=a.frames):
-        render_s += time.perf_counter() - t
-        # One frame at a time (the references are large); write_sample_sequence writes a
-        # one-frame jitter.json each time, gathered into the sequence's sidecar below.
-        cio.write_sample_sequence([f], in_dir)
-        with open(os.path.join(in_dir, "jitter.json")) as fh:
-            one = json.load(fh)
-        if sidecar is None:
-            sidecar = dict(one, frames=[], jitter=[], resets=[])
-        sidecar["frames"] += one["frames"]
-        sidecar["jitter"] += one["jitter"]
-        sidecar["resets"] += one["resets"]
-        results = {}
-        t = time.perf_counter()
-        results["bicubic"] = bicubic(f.color)
-        wall["bicubic"] += time.perf_counter() - t
-        for m in modes:
+    files = FrameFiles()
+    try:
+        for f in progress(frames, desc="demo", unit="frame", total=a.frames):
+            render_s += time.perf_counter() - t
+            # One frame at a time (the references are large); write_sample_sequence writes a
+            # one-frame jitter.json each time, gathered into the sequence's sidecar, which is
+            # rewritten after every frame so that input/ is always a readable sequence.
+            files.add(*[q for q in cio.write_sample_sequence([f], in_dir)
+                        if not q.endswith("jitter.json")])
+            with open(os.path.join(in_dir, "jitter.json")) as fh:
+                one = json.load(fh)
+            if sidecar is None:
+                sidecar = dict(one, frames=[], jitter=[], resets=[])
+            sidecar["frames"] += one["frames"]
+            sidecar["jitter"] += one["jitter"]
+            sidecar["resets"] += one["resets"]
+            cio.write_json(os.path.join(in_dir, "jitter.json"), sidecar)
+            results = {}
             t = time.perf_counter()
-            results[m] = ups[m].step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
-            wall[m] += time.perf_counter() - t
-        for m, img in results.items():
-            cio.write_exr(os.path.join(out, m, f"frame.{f.index:04d}.exr"), img)
-            cio.write_png(os.path.join(out, m, f"frame.{f.index:04d}.png"), img)
-            if f.index >= min(SKIP, a.frames - 1):
-                scores[m]["psnr"].append(metrics.psnr(img, f.reference))
-                scores[m]["ssim"].append(metrics.ssim(img, f.reference))
-            lines[m].append(img[row:row + 1])
-        lines["reference"].append(f.reference[row:row + 1])
-        last = dict(results, reference=f.reference, input=_nearest(f.color, H, W))
-        t = time.perf_counter()
-    with open(os.path.join(in_dir, "jitter.json"), "w") as fh:
-        json.dump(sidecar, fh, indent=1)
+            results["bicubic"] = bicubic(f.color)
+            wall["bicubic"] += time.perf_counter() - t
+            for m in modes:
+                t = time.perf_counter()
+                results[m] = ups[m].step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
+                wall[m] += time.perf_counter() - t
+            for m, img in results.items():
+                stem = os.path.join(out, m, f"frame.{f.index:04d}")
+                files.add(stem + ".exr", stem + ".png")
+                cio.write_exr(stem + ".exr", img)
+                cio.write_png(stem + ".png", img)
+                if f.index >= min(SKIP, a.frames - 1):
+                    scores[m]["psnr"].append(metrics.psnr(img, f.reference))
+                    scores[m]["ssim"].append(metrics.ssim(img, f.reference))
+                lines[m].append(img[row:row + 1])
+            files.done()
+            lines["reference"].append(f.reference[row:row + 1])
+            last = dict(results, reference=f.reference, input=_nearest(f.color, H, W))
+            t = time.perf_counter()
+    except KeyboardInterrupt:
+        files.discard()
+        if sidecar is not None:     # the sidecar of the whole frames only
+            k = files.done_frames
+            cio.write_json(os.path.join(in_dir, "jitter.json"),
+                        dict(sidecar, frames=sidecar["frames"][:k], jitter=sidecar["jitter"][:k],
+                             resets=[r for r in sidecar["resets"] if r in sidecar["frames"][:k]]))
+        print(f"\nclss demo: interrupted; {files.done_frames} frames written to {out} "
+              "(no pictures or metrics)", file=sys.stderr)
+        return 130
     total_s = time.perf_counter() - t_all
 
     # pictures
@@ -204,8 +226,7 @@ def main(argv=None) -> int:
     if "net" in ups:
         print(f"classifier backend: {summary['classifier_backend']}")
     print(f"\nscene rendering {render_s:.1f} s, total {total_s:.1f} s; pictures: {side}")
-    with open(os.path.join(out, "metrics.json"), "w") as fh:
-        json.dump(summary, fh, indent=1)
+    cio.write_json(os.path.join(out, "metrics.json"), summary)
     return 0
 
 

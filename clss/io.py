@@ -28,6 +28,7 @@ import tempfile
 
 import numpy as np
 
+from .errors import UserError
 from .scene import Frame, halton_jitter
 
 try:
@@ -36,7 +37,7 @@ except ImportError:     # pragma: no cover - OpenImageIO is a hard dependency
     oiio = None
 
 
-class InputError(ValueError):
+class InputError(UserError):
     """An input file is missing, unreadable, lacks a channel or has the wrong size."""
 
 
@@ -85,9 +86,22 @@ def _require_oiio():
         raise RuntimeError("OpenImageIO (python module OpenImageIO) is not installed")
 
 
+def current_umask() -> int:
+    """The process umask (reading it means setting it; set straight back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def new_file_mode() -> int:
+    """What open() would give a new file: 0666 less the umask (mkstemp gives 0600)."""
+    return 0o666 & ~current_umask()
+
+
 def _atomic_write(path, write):
     """Call write(tmp_path) then rename onto path. The temporary name keeps the
-    extension, which is how OpenImageIO picks the format."""
+    extension, which is how OpenImageIO picks the format. The file gets the mode a
+    plain open() would give (the umask's), not mkstemp's private 0600."""
     path = os.fspath(path)
     d, base = os.path.split(os.path.abspath(path))
     os.makedirs(d, exist_ok=True)
@@ -96,6 +110,7 @@ def _atomic_write(path, write):
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, new_file_mode())      # after writing: a writer may recreate the file
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -206,14 +221,17 @@ def write_sample_sequence(frames, directory, half=True):
                             "jitter": "sample of pixel (i,j) at (j+0.5+jx, i+0.5+jy)"},
             **meta}
     p = os.path.join(directory, "jitter.json")
-    _atomic_write(p, lambda tmp: _dump_json(tmp, side))
+    write_json(p, side)
     paths.append(p)
     return paths
 
 
-def _dump_json(path, obj):
-    with open(path, "w") as fh:
-        json.dump(obj, fh, indent=1)
+def write_json(path, obj):
+    """JSON file, written atomically (a temporary name, then renamed)."""
+    def dump(tmp):
+        with open(tmp, "w") as fh:
+            json.dump(obj, fh, indent=1)
+    _atomic_write(path, dump)
 
 
 def _has(f, key):
@@ -279,8 +297,9 @@ def _pick(path, names, buffer, channels, single):
     if channels and buffer in channels:
         want = _as_names(channels[buffer])
         if len(want) != n:
-            raise InputError(f"{path}: channels[{buffer!r}] names {len(want)} channels, "
-                             f"{buffer} has {n}")
+            what = f"names {len(want)} channels, {buffer} has {n}"
+            raise InputError(f"{path}: channels[{buffer!r}] {what}",
+                             cli=f"{path}: --channels {buffer}={','.join(want)} {what}")
         for c in want:
             if c not in names:
                 raise InputError(f"{path}: channel {c!r} for {buffer} not found "
@@ -300,8 +319,10 @@ def _pick(path, names, buffer, channels, single):
     if single and len(names) == n:
         return tuple(names)
     tried = "; ".join(",".join(c) for c in cands)
-    raise InputError(f"{path}: no {buffer} channel found (tried {tried}; file has "
-                     f"{', '.join(names)}); name it with channels={{{buffer!r}: ...}}")
+    what = f"{path}: no {buffer} channel found (tried {tried}; file has {', '.join(names)})"
+    example = ",".join(names[:n])
+    raise InputError(f"{what}; name it with channels={{{buffer!r}: {example!r}}}",
+                     cli=f"{what}; name it with --channels '{buffer}={example}'")
 
 
 def _extract(path, data, names, buffer, channels, single):
@@ -321,56 +342,93 @@ _NUMBERED = re.compile(r"%0?(\d*)d|#+|\{frame(?::0?(\d+)d)?\}")
 
 
 def _pattern_files(pattern):
-    """Sorted [(frame number, path)] of a numbered pattern, a glob or a list of paths."""
+    """Sorted [(frame number, path)] of a numbered pattern, a glob or a list of paths;
+    every file's number is its own (never its position), see `_number_files`."""
     if isinstance(pattern, (list, tuple)):
-        files = sorted(pattern)
-    else:
-        pattern = os.fspath(pattern)
-        m = _NUMBERED.search(pattern)
-        if m:
-            head, tail = pattern[:m.start()], pattern[m.end():]
-            rx = re.compile(re.escape(head) + r"(-?\d+)" + re.escape(tail) + "$")
-            out = []
-            for p in glob.glob(glob.escape(head) + "*" + glob.escape(tail)):
-                mm = rx.match(p)
-                if mm:
-                    out.append((int(mm.group(1)), p))
-            return sorted(out)
-        files = sorted(glob.glob(pattern))
+        dirs = {os.path.dirname(os.fspath(p)) for p in pattern}
+        return _number_files(sorted(pattern), dirs.pop() if len(dirs) == 1 else "the frame list")
+    pattern = os.fspath(pattern)
+    m = _NUMBERED.search(pattern)
+    if not m:
+        return _number_files(sorted(glob.glob(pattern)), pattern)
+    head, tail = pattern[:m.start()], pattern[m.end():]
+    rx = re.compile(re.escape(head) + r"(-?\d+)" + re.escape(tail) + "$")
     out = []
-    for pos, p in enumerate(files):
-        nums = re.findall(r"(\d+)", os.path.basename(p))
-        out.append((int(nums[-1]) if nums else pos, p))
-    numbers = [n for n, _ in out]
-    if len(set(numbers)) != len(numbers):       # no usable numbering: file order
-        out = [(pos, p) for pos, (_, p) in enumerate(out)]
+    for p in glob.glob(glob.escape(head) + "*" + glob.escape(tail)):
+        mm = rx.match(p)
+        if mm:
+            out.append((int(mm.group(1)), p))
+    _refuse_duplicates(out, pattern)
     return sorted(out)
 
 
+_LAST_NUMBER = re.compile(r"(\d+)(?=\D*$)")
+
+
+def _number_files(files, where):
+    """[(number, path)] for files that share one numbering pattern (name = head,
+    digits, tail; the number is the last run of digits). Stray files (another head or
+    tail, or no number) are refused with their names: silently taking them as frames
+    would renumber every later output against its input. A single file needs no
+    number (frame 0)."""
+    if len(files) == 1 and not _LAST_NUMBER.search(os.path.basename(files[0])):
+        return [(0, files[0])]
+    groups, unnumbered = {}, []
+    for p in files:
+        d, base = os.path.split(p)
+        m = _LAST_NUMBER.search(base)
+        if m is None:
+            unnumbered.append(p)
+            continue
+        key = (d, base[:m.start()], base[m.end():])
+        groups.setdefault(key, []).append((int(m.group(1)), p))
+    if not groups:
+        return []
+    main = max(groups, key=lambda k: len(groups[k]))
+    strays = unnumbered + [p for k, g in groups.items() if k != main for _, p in g]
+    if strays:
+        d, head, tail = main
+        widths = {len(m) for m in (_LAST_NUMBER.search(os.path.basename(p)).group(1)
+                                   for _, p in groups[main])}
+        width = widths.pop() if len(widths) == 1 else 1
+        example = os.path.join(d, f"{head}%0{width}d{tail}" if width > 1 else f"{head}%d{tail}")
+        shown = ", ".join(os.path.basename(p) for p in sorted(strays)[:6])
+        more = f" and {len(strays) - 6} more" if len(strays) > 6 else ""
+        raise InputError(f"{where}: {len(strays)} file(s) do not follow the frames' numbering "
+                         f"{head}{'#' * width}{tail} ({len(groups[main])} frames): {shown}{more}; move them "
+                         f"away, or name the frames exactly with a pattern such as {example!r}")
+    out = sorted(groups[main])
+    _refuse_duplicates(out, where)
+    return out
+
+
+def _refuse_duplicates(numbered, where):
+    seen = {}
+    for n, p in numbered:
+        if n in seen:
+            raise InputError(f"{where}: frame {n} is given twice ({os.path.basename(seen[n])} and "
+                             f"{os.path.basename(p)}); keep one")
+        seen[n] = p
+
+
 def _detect_layout(directory):
-    """Per-buffer patterns if `directory` holds color.* / depth.* / motion.* EXRs,
-    else a glob of all EXRs in it."""
+    """{buffer: [files]} if `directory` holds color.* / depth.* / motion.* EXRs, else
+    ([frame files], [reference files] or None) for one multichannel EXR per frame."""
     per = {}
     for b, stems in (("color", ("color", "colour", "beauty")), ("depth", ("depth",)),
                      ("motion", ("motion", "mv", "velocity")), ("reference", ("reference",))):
         for s in stems:
             hits = glob.glob(os.path.join(glob.escape(directory), s + "[._]*[0-9].exr"))
             if hits:
-                per[b] = hits
+                per[b] = sorted(hits)
                 break
     if all(b in per for b in ("color", "depth", "motion")):
-        return {b: _ref_pattern(sorted(hits)[0]) for b, hits in per.items()}
+        return per
     refs = set(per.get("reference", []))
     files = [p for p in glob.glob(os.path.join(glob.escape(directory), "*.exr")) if p not in refs]
     if not files:
         raise InputError(f"{directory}: no .exr files")
-    return sorted(files), (_ref_pattern(sorted(refs)[0]) if refs else None)
-
-
-def _ref_pattern(p):
-    """The numbered pattern of an example file: shot.0012.exr -> shot.%04d.exr."""
-    m = re.search(r"(\d+)(\.exr)$", p)
-    return p[:m.start(1)] + "%0" + str(len(m.group(1))) + "d" + m.group(2)
+    return sorted(files), (sorted(refs) if refs else None)
 
 
 def _read_jitter_file(path):
@@ -442,6 +500,11 @@ class FrameSequence:
     def frame_numbers(self):
         return [n for n, _ in self._entries]
 
+    @property
+    def files(self):
+        """Every file the sequence reads (frames, per-buffer files, references)."""
+        return sorted({p for _, files in self._entries for p in files.values()})
+
     def __getitem__(self, i):
         if isinstance(i, slice):
             return [self[k] for k in range(*i.indices(len(self)))]
@@ -487,6 +550,7 @@ def read_sequence(source, channels=None, jitter=None, scale=None, reference=None
       or an (n, 2) array.
     reference: optional numbered pattern of reference images (R, G, B).
     """
+    check_channels(channels)
     single = isinstance(source, dict)
     ref_pat = reference
     if single:
@@ -510,7 +574,7 @@ def read_sequence(source, channels=None, jitter=None, scale=None, reference=None
     listed = {b: dict(_pattern_files(p)) for b, p in pats.items()}
     key = "color" if single else "frame"
     if not listed[key]:
-        raise InputError(f"{pats[key]}: no files match")
+        raise InputError(f"{_describe(pats[key])}: no files match")
     entries = []
     for n in sorted(listed[key]):
         files = {}
@@ -518,7 +582,7 @@ def read_sequence(source, channels=None, jitter=None, scale=None, reference=None
             if n not in found:
                 if b == "reference":
                     continue
-                raise InputError(f"{pats[b]}: no {b} file for frame {n} "
+                raise InputError(f"{_describe(pats[b])}: no {b} file for frame {n} "
                                  f"(have {listed[key][n]})")
             if b == "frame":
                 files.update(color=found[n], depth=found[n], motion=found[n])
@@ -528,8 +592,40 @@ def read_sequence(source, channels=None, jitter=None, scale=None, reference=None
     numbers = [n for n, _ in entries]
     first_dir = os.path.dirname(os.path.abspath(entries[0][1]["color"]))
     jit, meta = _resolve_jitter(jitter, scale, numbers, first_dir)
-    resets = set(int(r) for r in meta.get("resets", []))
+    resets = _resets(meta.get("resets", []), meta.get("sidecar", "jitter sidecar"))
     return FrameSequence(entries, channels, jit, resets, meta, single)
+
+
+def _describe(pattern):
+    """A pattern, or a list of files by its first one, for messages."""
+    if isinstance(pattern, (list, tuple)):
+        if not pattern:
+            return "the frame list"
+        return f"{pattern[0]} and {len(pattern) - 1} more" if len(pattern) > 1 else str(pattern[0])
+    return str(pattern)
+
+
+def _resets(value, where):
+    """The sidecar's `resets`: a list of frame numbers."""
+    try:
+        if isinstance(value, (str, bytes)) or not all(float(r) == int(r) for r in value):
+            raise ValueError
+        return {int(r) for r in value}
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: 'resets' must be a list of frame numbers, got {value!r}") from None
+
+
+def check_channels(channels):
+    """Refuse a `channels` mapping that names a buffer there is none of (a typo such as
+    'colour' would otherwise be ignored and the channel search would pick another)."""
+    if not channels:
+        return
+    unknown = [k for k in channels if k not in BUFFER_CHANNELS]
+    if unknown:
+        known = ", ".join(BUFFER_CHANNELS)
+        raise InputError(f"channels: unknown buffer {unknown[0]!r}; the buffers are {known}",
+                         cli=f"--channels: unknown buffer {unknown[0]!r}; the buffers are {known} "
+                             "(e.g. 'color=R,G,B;depth=Z;motion=mv.x,mv.y')")
 
 
 def _resolve_jitter(jitter, scale, numbers, directory):
@@ -555,6 +651,7 @@ def _resolve_jitter(jitter, scale, numbers, directory):
     if isinstance(src, (str, os.PathLike)):
         path = os.fspath(src)
         table, meta = _read_jitter_file(path)
+        meta = dict(meta, sidecar=path)
         if isinstance(table, dict):
             lost = [n for n in numbers if n not in table]
             if lost:

@@ -12,6 +12,8 @@ import time
 import numpy as np
 
 from .cli import DEVICE_HELP, register
+from .cli_args import ArgParser, check_output_file, device_spec, positive_int
+from .errors import cli_message
 
 # Defaults of --atol/--rtol for --compare-ort (|d| <= atol*max|ref| + rtol*|ref|):
 # fp16 stores every intermediate tensor with an 11-bit mantissa, and the
@@ -25,6 +27,10 @@ def _shapes(specs) -> dict:
         name, sep, shape = s.rpartition("=")
         if not sep or not name:
             raise ValueError(f"--input-shape wants NAME=SHAPE like x=1x3x64x64, got {s!r}")
+        dims = shape.lower().replace(",", "x").split("x")
+        if not all(d.strip().isdigit() and int(d) > 0 for d in dims):
+            raise ValueError(f"--input-shape {s}: expected sizes >= 1 separated by 'x', "
+                             "like x=1x3x64x64")
         out[name] = shape
     return out
 
@@ -35,12 +41,12 @@ def _load(path, device, precision, input_shapes, prog):
     try:
         return Model(path, device=device, precision=precision, input_shapes=input_shapes or None)
     except (ModelError, DeviceError) as e:
-        print(f"{prog}: {e}", file=sys.stderr)
+        print(f"{prog}: {cli_message(e)}", file=sys.stderr)
         return None
 
 
 def cmd_info(argv) -> int:
-    p = argparse.ArgumentParser(
+    p = ArgParser(
         prog="clss info",
         description="Load an ONNX model for a device and report its ops (as written, and as clss runs "
                     "them after fusion), parameter count, FLOPs per inference at the given input shapes, "
@@ -51,9 +57,11 @@ def cmd_info(argv) -> int:
     p.add_argument("--input-shape", action="append", metavar="NAME=SHAPE",
                    help="shape of an input with symbolic dimensions, e.g. x=1x3x64x64 (repeatable)")
     p.add_argument("--precision", "-p", default="fp32", choices=("fp32", "fp16", "fp16-native"))
-    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     p.add_argument("--json", metavar="FILE", help="also write the report as JSON")
     a = p.parse_args(argv)
+    if a.json is not None:
+        check_output_file(a.json, "--json", inputs=[a.model])
     try:
         shapes = _shapes(a.input_shape)
     except ValueError as e:
@@ -87,6 +95,20 @@ def _declared_symbolic(path, shapes: dict) -> dict:
     return {k: v for k, v in shapes.items() if not static.get(k) or isinstance(v, str)}
 
 
+def _check_output_dir(path, inputs):
+    """--output-dir: a directory (created if missing) that can be written, checked before
+    the model runs."""
+    from .cli_args import UsageError
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise UsageError(f"--output-dir {path}: is a file, expected a directory")
+    try:
+        os.makedirs(path, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"--output-dir {path}: cannot create the directory "
+                         f"({e.strerror.lower()})") from None
+    check_output_file(os.path.join(path, "output.npy"), "--output-dir", inputs)
+
+
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "output"
 
@@ -101,7 +123,7 @@ def _median_ms(fn, repeat: int) -> float:
 
 
 def cmd_run(argv) -> int:
-    p = argparse.ArgumentParser(
+    p = ArgParser(
         prog="clss run",
         description="Run an ONNX model on an OpenCL device. Inputs come from .npy files (their shapes "
                     "resolve symbolic dimensions). With --compare-ort the same inputs also go through "
@@ -119,31 +141,41 @@ def cmd_run(argv) -> int:
                    help="shape of an input with symbolic dimensions, e.g. x=1x3x64x64")
     p.add_argument("--output-dir", "-o", metavar="D", help="write each output to D/<name>.npy")
     p.add_argument("--compare-ort", action="store_true", help="diff against onnxruntime and time both")
-    p.add_argument("--repeat", type=int, default=10, help="timed runs for --compare-ort (default 10)")
+    p.add_argument("--repeat", type=positive_int, default=10, help="timed runs for --compare-ort (default 10)")
     p.add_argument("--atol", type=float, default=None, help="error bound relative to max|ref| "
                    "(default 1e-4 fp32, 2e-2 fp16)")
     p.add_argument("--rtol", type=float, default=None, help="error bound relative to |ref| per element "
                    "(default 1e-3 fp32, 2e-2 fp16)")
     p.add_argument("--precision", "-p", default="fp32", choices=("fp32", "fp16", "fp16-native"))
-    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     p.add_argument("--json", metavar="FILE", help="write the comparison and timings as JSON")
     a = p.parse_args(argv)
+    inputs = [a.model] + [s.partition("=")[2] for s in a.input]
+    if a.json is not None:
+        check_output_file(a.json, "--json", inputs=inputs)
+    if a.output_dir is not None:
+        _check_output_dir(a.output_dir, inputs)
 
     feeds = {}
     for spec in a.input:
         name, sep, path = spec.partition("=")
-        if not sep:
-            print(f"clss run: --input wants NAME=FILE.npy, got {spec!r}", file=sys.stderr)
+        if not sep or not name or not path:
+            print(f"clss run: --input {spec}: expected NAME=FILE.npy (an input name of the model, "
+                  "'=', a .npy file)", file=sys.stderr)
+            return 2
+        if name in feeds:
+            print(f"clss run: --input {spec}: input {name!r} is given twice", file=sys.stderr)
             return 2
         try:
-            feeds[name] = np.load(path)
+            feeds[name] = np.load(path, allow_pickle=False)
         except (OSError, ValueError) as e:
-            print(f"clss run: input {name!r}: cannot read {path}: {e}", file=sys.stderr)
+            why = "no such file" if isinstance(e, FileNotFoundError) else f"not a .npy array ({e})"
+            print(f"clss run: --input {spec}: {path}: {why}", file=sys.stderr)
             return 2
     try:
         shapes = _shapes(a.input_shape)
     except ValueError as e:
-        print(f"clss run: {e}", file=sys.stderr)
+        print(f"clss run: {cli_message(e)}", file=sys.stderr)
         return 2
     for k, v in feeds.items():
         shapes.setdefault(k, tuple(v.shape))
@@ -161,7 +193,7 @@ def cmd_run(argv) -> int:
     try:
         outs = m.run(feeds)
     except InputError as e:
-        print(f"clss run: {e}", file=sys.stderr)
+        print(f"clss run: {cli_message(e)}", file=sys.stderr)
         return 2
     report = {"model": a.model, "precision": a.precision, "device": m.device.info.name, "outputs": {}}
     for k, v in outs.items():

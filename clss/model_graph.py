@@ -14,6 +14,8 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
+from .errors import UserError
+
 MIN_OPSET, MAX_OPSET = 11, 21
 # Kernels index with 32-bit ints: a tensor past this many elements is refused.
 MAX_ELEMENTS = 2**31 - 1
@@ -24,11 +26,15 @@ MAX_FOLD_ELEMENTS = 2**26
 FLOAT_TYPES = (onnx.TensorProto.FLOAT, onnx.TensorProto.FLOAT16)
 
 
-class ModelError(ValueError):
+# How `clss info` / `clss run` users give input_shapes.
+_FLAG_SHAPE = "the shape given (--input-shape, or the --input array) for"
+
+
+class ModelError(UserError):
     """A model clss cannot load: malformed, unsupported opset, unresolved shapes."""
 
 
-class InputError(ValueError):
+class InputError(UserError):
     """A run's inputs do not match the model: name, shape or dtype."""
 
 
@@ -126,7 +132,8 @@ def load_proto(model) -> onnx.ModelProto:
         try:
             return onnx.load(path)
         except Exception as e:
-            raise ModelError(f"{path}: not an ONNX model: {e}") from None
+            # protobuf's text-format parser explains over several lines; the first says it.
+            raise ModelError(f"{path}: not an ONNX model: {str(e).splitlines()[0]}") from None
     raise TypeError(f"model must be a path, bytes or onnx.ModelProto, got {type(model).__name__}")
 
 
@@ -172,8 +179,9 @@ def resolve_inputs(m: onnx.ModelProto, input_shapes: dict | None) -> dict[str, t
     given = {k: parse_shape(v) for k, v in (input_shapes or {}).items()}
     unknown = sorted(set(given) - set(names))
     if unknown:
-        raise ModelError(f"input_shapes names {', '.join(map(repr, unknown))}, which the model does not "
-                         f"have; its inputs are {', '.join(map(repr, names))}")
+        why = (f"names {', '.join(map(repr, unknown))}, which the model does not have; its inputs "
+               f"are {', '.join(map(repr, names))}")
+        raise ModelError(f"input_shapes {why}", cli=f"--input-shape / --input {why}")
     out = {}
     for vi in runtime:
         if vi.type.WhichOneof("value") != "tensor_type":
@@ -183,26 +191,33 @@ def resolve_inputs(m: onnx.ModelProto, input_shapes: dict | None) -> dict[str, t
             shape = given[vi.name]
             if dims is not None:
                 if len(dims) != len(shape):
-                    raise ModelError(f"input_shapes gives {vi.name!r} rank {len(shape)} {list(shape)}; "
-                                     f"the model declares rank {len(dims)} {dims}")
+                    why = f"rank {len(shape)} {list(shape)}; the model declares rank {len(dims)} {dims}"
+                    raise ModelError(f"input_shapes gives {vi.name!r} {why}", cli=f"{_FLAG_SHAPE} "
+                                     f"{vi.name!r} has {why}")
                 for ax, (d, s) in enumerate(zip(dims, shape)):
                     if isinstance(d, int) and d != s:
-                        raise ModelError(f"input_shapes gives {vi.name!r} size {s} on axis {ax}; "
-                                         f"the model fixes it to {d} (shape {dims})")
+                        why = f"size {s} on axis {ax}; the model fixes it to {d} (shape {dims})"
+                        raise ModelError(f"input_shapes gives {vi.name!r} {why}", cli=f"{_FLAG_SHAPE} "
+                                         f"{vi.name!r} has {why}")
             if any(s < 0 for s in shape):
-                raise ModelError(f"input_shapes gives {vi.name!r} a negative size: {list(shape)}")
+                raise ModelError(f"input_shapes gives {vi.name!r} a negative size: {list(shape)}",
+                                 cli=f"{_FLAG_SHAPE} {vi.name!r} has a negative size: {list(shape)}")
         else:
             if dims is None:
                 raise ModelError(f"input {vi.name!r} has no declared shape; pass "
-                                 f"input_shapes={{{vi.name!r}: (...)}} at load")
+                                 f"input_shapes={{{vi.name!r}: (...)}} at load",
+                                 cli=f"input {vi.name!r} has no declared shape; give it with "
+                                     f"--input-shape {vi.name}=1x3x64x64 (its real sizes)")
             sym = [(ax, d) for ax, d in enumerate(dims) if not isinstance(d, int)]
             if sym:
                 ax, d = sym[0]
+                what = f"input {vi.name!r} has symbolic dimension {d!r} (axis {ax}) in shape {dims}"
+                example = tuple(x if isinstance(x, int) else 64 for x in dims)
                 raise ModelError(
-                    f"input {vi.name!r} has symbolic dimension {d!r} (axis {ax}) in shape {dims}; "
-                    f"clss resolves shapes at load: pass input_shapes={{{vi.name!r}: (...)}}, "
-                    f"e.g. clss.Model(path, input_shapes={{{vi.name!r}: "
-                    f"{tuple(x if isinstance(x, int) else 64 for x in dims)}}})")
+                    f"{what}; clss resolves shapes at load: pass input_shapes={{{vi.name!r}: (...)}}, "
+                    f"e.g. clss.Model(path, input_shapes={{{vi.name!r}: {example}}})",
+                    cli=f"{what}; give its sizes with --input-shape, e.g. --input-shape "
+                        f"{vi.name}={'x'.join(map(str, example))}")
             shape = tuple(dims)
         out[vi.name] = tuple(int(s) for s in shape)
         tt = vi.type.tensor_type

@@ -557,6 +557,126 @@ def canonical_convs(g: Graph) -> int:
     return changed
 
 
+_LINEAR_RESIZE_MODES = ("nearest", "linear", "cubic")
+
+
+def _linear_resize(g: Graph, n: Node) -> bool:
+    """A Resize that is a linear map of each channel plane on its own, the same map
+    for every channel (so it commutes with any channel mix): no crop-and-resize
+    (its extrapolation value makes it affine), no aspect-ratio policy, N and C kept."""
+    if n.op != "Resize" or len(n.inputs) < 3:
+        return False
+    attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in n.attrs.items()}
+    if attrs.get("mode", "nearest") not in _LINEAR_RESIZE_MODES:
+        return False
+    if attrs.get("coordinate_transformation_mode", "half_pixel") == "tf_crop_and_resize":
+        return False
+    if attrs.get("keep_aspect_ratio_policy", "stretch") != "stretch":
+        return False
+    if any(t and t not in g.consts for t in n.inputs[1:]):
+        return False
+    xs, ys = g.shapes[n.inputs[0]], g.shapes[n.outputs[0]]
+    return len(xs) == 4 and tuple(xs[:2]) == tuple(ys[:2])
+
+
+def _resize_on(g: Graph, r: Node, x: str, out: str, channels: int) -> Node:
+    """A copy of Resize r applied to x (same geometry, `channels` channels)."""
+    shape = tuple(g.shapes[r.outputs[0]])
+    shape = (shape[0], channels) + shape[2:]
+    g.shapes[out], g.dtypes[out] = shape, g.dtypes[x]
+    inputs = list(r.inputs)
+    inputs[0] = x
+    if len(inputs) > 3 and inputs[3]:           # sizes name the channel count too
+        axes = r.attrs.get("axes")
+        axes = [a % 4 for a in axes] if axes is not None else list(range(4))
+        inputs[3] = g.add_const(f"{r.name}.sizes", np.array([shape[a] for a in axes], np.int64))
+    return Node("Resize", inputs, [out], dict(r.attrs), f"{r.name} (after 1x1)", r.opset,
+                sources=r.sources)
+
+
+def conv_through_resize(g: Graph) -> int:
+    """Conv1x1(Concat(Resize(e1), ..., e0)) -> Conv1x1_0(e0) + Sum_i Resize(Conv1x1_i(e_i)).
+
+    A 1x1 convolution mixes channels and a linear Resize mixes pixels the same way
+    in every channel, so the two commute, and a 1x1 convolution of a channel
+    concatenation is the sum of 1x1 convolutions of the parts (its weight split by
+    input channel). Exact up to float rounding. It pays where the Resize up-samples
+    and the convolution has fewer outputs than the part has channels: the
+    convolution then runs at the low resolution, and the Resize moves Cout
+    channels instead of Cin (the CLSS decoder's 240->16 fuse: 224 channels no
+    longer up-sampled to level 0). The bias, activation and the sum (as the fused
+    residual, added before the activation) go to the convolution of the parts that
+    are not resized, so at least one such part is required. Parts that would not
+    pay stay in that convolution."""
+    changed = 0
+    uses = g.consumers()
+    prod = g.producer()
+    for n in list(g.nodes):
+        if n.op != "clss.Conv" or n.inputs[3] or n.attrs.get("transpose") or n.attrs["group"] != 1:
+            continue
+        x, w, b = n.inputs[0], n.inputs[1], n.inputs[2]
+        ws = g.shapes[w]
+        if (tuple(ws[2:]) != (1, 1) or any(n.attrs["pads"]) or tuple(n.attrs["strides"]) != (1, 1)
+                or w not in g.consts or (b and b not in g.consts)):
+            continue
+        if x not in prod or not _single_use(g, x, uses):
+            continue
+        cat = g.nodes[prod[x]]
+        if cat.op != "Concat" or int(cat.attrs.get("axis", 0)) % 4 != 1 or len(g.shapes[x]) != 4:
+            continue
+        cout, out_hw = ws[0], tuple(g.shapes[x][2:])
+        moved, kept, off = [], [], 0
+        for t in cat.inputs:
+            c = g.shapes[t][1]
+            part = (t, slice(off, off + c))
+            off += c
+            r = g.nodes[prod[t]] if t in prod else None
+            if (r is not None and _linear_resize(g, r) and _single_use(g, t, uses)
+                    and cout <= c and np.prod(g.shapes[r.inputs[0]][2:]) <= np.prod(out_hw)):
+                moved.append((r, part[1]))
+            else:
+                kept.append(part)
+        if not moved or not kept:
+            continue
+        wc = g.consts[w]
+        new, terms = [], []
+        for r, sl in moved:
+            e = r.inputs[0]
+            t = g.fresh(f"{n.name}.part")
+            g.shapes[t] = (g.shapes[e][0], cout) + tuple(g.shapes[e][2:])
+            g.dtypes[t] = g.dtypes[e]
+            wk = g.add_const(f"{n.name}.weight", np.ascontiguousarray(wc[:, sl]))
+            new.append(Node("clss.Conv", [e, wk, "", ""], [t], dict(n.attrs, activation="none"),
+                            f"{n.name} (part of {r.name})", n.opset, sources=n.sources))
+            u = g.fresh(f"{n.name}.up")
+            new.append(_resize_on(g, r, t, u, cout))
+            terms.append(u)
+        if len(terms) > 1:
+            s = g.fresh(f"{n.name}.sum")
+            g.shapes[s], g.dtypes[s] = g.shapes[terms[0]], g.dtypes[terms[0]]
+            new.append(Node("Sum", terms, [s], {}, f"{n.name} (sum of parts)", n.opset,
+                            sources=n.sources))
+            terms = [s]
+        if len(kept) == 1:
+            x0 = kept[0][0]
+        else:
+            x0 = g.fresh(f"{n.name}.kept")
+            g.shapes[x0] = (g.shapes[x][0], sum(sl.stop - sl.start for _, sl in kept)) + out_hw
+            g.dtypes[x0] = g.dtypes[x]
+            new.append(Node("Concat", [t for t, _ in kept], [x0], {"axis": 1}, f"{cat.name} (kept)",
+                            cat.opset, sources=cat.sources))
+        w0 = g.add_const(f"{n.name}.weight", np.ascontiguousarray(
+            np.concatenate([wc[:, sl] for _, sl in kept], axis=1)))
+        main = Node("clss.Conv", [x0, w0, b, terms[0]], list(n.outputs), dict(n.attrs), n.name,
+                    n.opset, sources=n.sources + cat.sources)
+        idx = g.nodes.index(n)
+        g.nodes[idx:idx + 1] = new + [main]
+        changed += 1
+        uses = g.consumers()
+        prod = g.producer()
+    return changed
+
+
 def fuse_conv_epilogues(g: Graph) -> int:
     """clss.Conv followed by Add (a residual of the output's shape) and/or an
     activation (Relu, LeakyRelu, Sigmoid, Tanh) -> one clss.Conv."""
@@ -721,6 +841,7 @@ PASSES = [
     ("batchnorm", fold_batchnorm),
     ("matmul", lower_matmul),
     ("conv_canonical", canonical_convs),
+    ("conv_resize", conv_through_resize),
     ("conv_epilogue", fuse_conv_epilogues),
     ("mlp", fuse_mlp),
     ("maxpool", maxpool_values_only),

@@ -1,13 +1,38 @@
-"""Progress bars for long runs: tqdm on a terminal, silent otherwise (CI logs
-stay readable)."""
+"""Progress of long runs: a tqdm bar on a terminal; elsewhere (a pipe, a CI log, a
+file) one plain line every few seconds, so that a logged run shows it is alive
+without filling the log with bar redraws."""
 from __future__ import annotations
 
 import sys
+import time
+
+LOG_INTERVAL_S = 5.0
 
 
-def progress(iterable, desc: str = "", unit: str = "it", total=None, file=None):
+def progress(iterable, desc: str = "", unit: str = "it", total=None, file=None,
+             interval: float = LOG_INTERVAL_S):
     out = file or sys.stderr
-    if not getattr(out, "isatty", lambda: False)():
-        return iterable
-    from tqdm import tqdm
-    return tqdm(iterable, desc=desc, unit=unit, total=total, file=out, dynamic_ncols=True)
+    if getattr(out, "isatty", lambda: False)():
+        from tqdm import tqdm
+        return tqdm(iterable, desc=desc, unit=unit, total=total, file=out, dynamic_ncols=True)
+    if total is None and hasattr(iterable, "__len__"):
+        total = len(iterable)
+    return _log_lines(iterable, desc, unit, total, out, interval)
+
+
+def _log_lines(iterable, desc, unit, total, out, interval):
+    """Yield from iterable; every `interval` seconds print 'desc: n/total unit (rate,
+    ETA)'. Nothing for runs shorter than one interval."""
+    t0 = last = time.perf_counter()
+    n = 0
+    for item in iterable:
+        yield item
+        n += 1
+        now = time.perf_counter()
+        if now - last >= interval:
+            last = now
+            rate = n / (now - t0)
+            line = f"{desc}: {n}" + (f"/{total}" if total else "") + f" {unit}s ({rate:.2f} {unit}/s"
+            if total and rate > 0:
+                line += f", ETA {(total - n) / rate:.0f} s"
+            print(line + ")", file=out, flush=True)

@@ -191,3 +191,43 @@ def test_png_tonemap(tmp_path):
     assert 0.3 < a[0, 1, 0] < 0.6        # mid grey lands mid-range
     t = cio.tonemap(np.linspace(0, 20, 50, dtype=np.float32))
     assert (np.diff(t) >= 0).all() and t[0] == 0 and t[-1] <= 1
+
+
+def test_writes_respect_the_umask(tmp_path, frames):
+    """Atomic writes (mkstemp, then rename) give files the mode open() would."""
+    from weights_tools.weights import save_weights
+    old = os.umask(0o007)
+    try:
+        paths = cio.write_sample_sequence(frames[:1], str(tmp_path / "seq"))
+        cio.write_png(str(tmp_path / "a.png"), frames[0].color)
+        save_weights({"w": np.ones(3, np.float32)}, str(tmp_path / "w.safetensors"))
+    finally:
+        os.umask(old)
+    for p in paths + [str(tmp_path / "a.png"), str(tmp_path / "w.safetensors")]:
+        assert os.stat(p).st_mode & 0o777 == 0o660, p
+
+
+def test_frame_selection_is_exact(tmp_path, frames):
+    d = tmp_path / "seq"
+    cio.write_sample_sequence(frames, str(d))
+    for n in (7, 8):
+        os.rename(d / f"frame.{n - 7:04d}.exr", d / f"frame.{n:04d}.exr")
+    os.remove(d / "jitter.json")
+    seq = cio.read_sequence(str(d), jitter="zero")
+    assert seq.frame_numbers == [2, 7, 8]                     # numbers kept, gaps too
+    (d / "frame.0002_old.exr").write_bytes((d / "frame.0002.exr").read_bytes())
+    with pytest.raises(cio.InputError, match=r"frame\.0002_old\.exr.*frame\.%04d\.exr"):
+        cio.read_sequence(str(d), jitter="zero")
+    with pytest.raises(cio.InputError, match=r"frame\.0002_old\.exr"):
+        cio.read_sequence(str(d / "*.exr"), jitter="zero")
+    assert cio.read_sequence(str(d / "frame.%04d.exr"), jitter="zero").frame_numbers == [2, 7, 8]
+    (d / "frame.7.exr").write_bytes((d / "frame.0007.exr").read_bytes())
+    with pytest.raises(cio.InputError, match="frame 7 is given twice"):
+        cio.read_sequence(str(d / "frame.%04d.exr"), jitter="zero")
+
+
+def test_unknown_channels_key_is_refused(tmp_path, frames):
+    cio.write_sample_sequence(frames, str(tmp_path))
+    with pytest.raises(cio.InputError, match="unknown buffer 'colour'") as e:
+        cio.read_sequence(str(tmp_path), channels={"colour": "R,G,B"})
+    assert "--channels" in e.value.cli and "--channels" not in str(e.value)

@@ -10,6 +10,8 @@ import tempfile
 import numpy as np
 from onnx import numpy_helper
 
+from clss.errors import UserError
+
 # How a PyTorch re-implementation of the networks names its parameters, mapped to our
 # initializer names. The torch modules this assumes (documented so that a trainer can
 # match them):
@@ -34,8 +36,14 @@ TORCH_NAME_MAP = (
 _TORCH_PREFIXES = ("module.", "classifier.", "cls.", "composition.", "comp.")
 
 
-class WeightsError(ValueError):
-    pass
+class WeightsError(UserError):
+    """A weights file that cannot be used; the message names the file (and the tensor)."""
+
+
+# A value beyond this magnitude in a weights file is a broken file or a diverged training
+# run, not a network (the networks see PQ-encoded inputs in [0, 1]; trained weights and
+# normalisation statistics stay orders of magnitude below it).
+MAX_ABS_WEIGHT = 1e6
 
 
 def _is_weight(name):
@@ -58,6 +66,8 @@ def save_weights(model_or_tensors, path, half=False):
 
     Accepts a ModelProto, a dict name -> array, or a list of either. Atomic."""
     from safetensors.numpy import save_file
+
+    from clss.io import new_file_mode
     items = model_or_tensors if isinstance(model_or_tensors, (list, tuple)) else [model_or_tensors]
     tensors = {}
     for it in items:
@@ -71,6 +81,7 @@ def save_weights(model_or_tensors, path, half=False):
     try:
         save_file(tensors, tmp, metadata={"producer": "weights_tools",
                                           "dtype": "float16" if half else "float32"})
+        os.chmod(tmp, new_file_mode())       # mkstemp's 0600 would ignore the umask
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)
@@ -87,30 +98,72 @@ _ST_DTYPES = {"F64": np.float64, "F32": np.float32, "F16": np.float16, "I64": np
 
 def load_weights(path) -> dict:
     """name -> numpy array. Reads the safetensors layout directly so that bf16 files
-    written by torch load too (as float32)."""
+    written by torch load too (as float32). Refuses, naming the file and the tensor, a
+    file that is not well-formed safetensors and weights that are not finite or
+    larger than MAX_ABS_WEIGHT."""
+    def bad(why):
+        return WeightsError(f"{path}: not a valid safetensors file ({why})")
     try:
         with open(path, "rb") as f:
-            (n,) = struct.unpack("<Q", f.read(8))
-            if n > os.fstat(f.fileno()).st_size:
-                raise ValueError("header length exceeds the file size")
+            size = os.fstat(f.fileno()).st_size
+            head = f.read(8)
+            if len(head) < 8:
+                raise bad(f"{size} bytes, shorter than the 8-byte header length")
+            (n,) = struct.unpack("<Q", head)
+            if n > size - 8:
+                raise bad(f"header length {n} exceeds the file size {size}")
             header = json.loads(f.read(n))
             data = f.read()
-    except (OSError, struct.error, ValueError) as e:
-        raise WeightsError(f"{path}: not a readable safetensors file ({e})") from None
+    except OSError as e:
+        raise WeightsError(f"{path}: cannot read ({e.strerror or e})") from None
+    except WeightsError:
+        raise
+    except (UnicodeDecodeError, ValueError) as e:
+        raise bad(f"header is not JSON: {e}") from None
+    if not isinstance(header, dict):
+        raise bad(f"header is a JSON {type(header).__name__}, expected an object")
     out = {}
     for name, info in header.items():
         if name == "__metadata__":
             continue
-        a, b = info["data_offsets"]
-        raw, shape = data[a:b], info["shape"]
-        if info["dtype"] == "BF16":
-            arr = _bf16_to_f32(raw)
-        elif info["dtype"] in _ST_DTYPES:
-            arr = np.frombuffer(raw, _ST_DTYPES[info["dtype"]])
-        else:
-            raise WeightsError(f"{path}: tensor {name} has unsupported dtype {info['dtype']}")
-        out[name] = arr.reshape(shape).copy()
+        out[name] = _tensor(path, name, info, data, bad)
     return out
+
+
+def _tensor(path, name, info, data, bad):
+    """One tensor of a safetensors file, checked: its entry, its bytes, its values."""
+    try:
+        dtype, shape, (a, b) = info["dtype"], [int(d) for d in info["shape"]], info["data_offsets"]
+        a, b = int(a), int(b)
+    except (KeyError, TypeError, ValueError):
+        raise bad(f"tensor {name!r}: expected an entry with dtype, shape and data_offsets "
+                  f"[begin, end], got {info!r}") from None
+    if dtype == "BF16":
+        itemsize = 2
+    elif dtype in _ST_DTYPES:
+        itemsize = np.dtype(_ST_DTYPES[dtype]).itemsize
+    else:
+        raise WeightsError(f"{path}: tensor {name} has unsupported dtype {dtype}")
+    want = itemsize * int(np.prod(shape, dtype=np.int64))
+    if not 0 <= a <= b or b - a != want or any(d < 0 for d in shape):
+        raise bad(f"tensor {name!r}: data_offsets [{a}, {b}] do not hold {dtype} {shape} "
+                  f"({want} bytes)")
+    if b > len(data):
+        raise bad(f"tensor {name!r}: data ends at byte {b}, the file holds {len(data)} "
+                  "(truncated?)")
+    raw = data[a:b]
+    arr = _bf16_to_f32(raw) if dtype == "BF16" else np.frombuffer(raw, _ST_DTYPES[dtype])
+    arr = arr.reshape(shape).copy()
+    if arr.dtype.kind == "f" and arr.size:
+        finite = np.isfinite(arr)
+        if not finite.all():
+            raise WeightsError(f"{path}: tensor {name!r} holds {int((~finite).sum())} non-finite "
+                               "(NaN/Inf) values; the weights are broken")
+        peak = float(np.abs(arr).max())
+        if peak > MAX_ABS_WEIGHT:
+            raise WeightsError(f"{path}: tensor {name!r} holds a value of magnitude {peak:.3g} "
+                               f"(more than {MAX_ABS_WEIGHT:g}); the weights are broken")
+    return arr
 
 
 def apply_weights(model, tensors: dict, strict=False):

@@ -11,25 +11,57 @@ import time
 import numpy as np
 
 from ..cli import DEVICE_HELP, register
+from ..cli_args import (ArgParser, UsageError, device_spec, motion_scale, positive_float,
+                        positive_int, prepare_output_dir, resolve_motion_scale, start_output)
+from ..cli_args import scale as scale_arg
+from ..errors import cli_message
 
 PRECISION_CHOICES = ("fp32", "fp16")
+WEIGHTS_HELP = ("network weights for --mode net: a directory from `python -m weights_tools build` "
+                "or a .safetensors file; 'untrained' for the seeded, untrained networks")
 
 
 def add_upscaler_args(p: argparse.ArgumentParser, scale=True):
     if scale:
-        p.add_argument("--scale", "-s", type=float, default=2.0,
+        p.add_argument("--scale", "-s", type=scale_arg, default=2.0,
                        help="output / render size (default 2; 1.5, 3, 4 ... work)")
-    p.add_argument("--device", "-d", default=None, help=DEVICE_HELP)
+    p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     p.add_argument("--precision", "-p", default="fp32", choices=PRECISION_CHOICES,
                    help="fp32, or fp16 (half storage of history and network tensors)")
 
 
-def _pair(text, what):
-    try:
-        a, b = (float(v) for v in text.split(","))
-        return a, b
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{what}: expected two numbers 'x,y', got {text!r}")
+def check_weights_mode(weights, net: bool) -> None:
+    """--weights only means something to the networks: refuse it without them rather
+    than ignore it (a user who passes it expects it to be used)."""
+    if weights is not None and not net:
+        raise UsageError("--weights applies to the net mode only (rules mode runs no networks); "
+                         "drop --weights or run the net mode")
+    if weights is not None and not weights.strip():
+        raise UsageError("--weights: expected a directory, a .safetensors file or 'untrained', "
+                         "got an empty string")
+
+
+class FrameFiles:
+    """The files of the frame being written. A frame counts once all its files are
+    written (`done`); an interruption removes the files of the frame in progress
+    (`discard`), so an output directory only ever holds whole frames."""
+
+    def __init__(self):
+        self.pending: list[str] = []
+        self.done_frames = 0
+
+    def add(self, *paths):
+        self.pending += paths
+
+    def done(self):
+        self.pending = []
+        self.done_frames += 1
+
+    def discard(self):
+        for p in self.pending:
+            if os.path.isfile(p):
+                os.unlink(p)
+        self.pending = []
 
 
 # ---------------------------------------------------------------- debug views
@@ -69,14 +101,16 @@ def render_debug_views(views: dict, cap: float) -> dict:
     return out
 
 
-def write_debug_views(directory, up, frame_number, prefix=""):
+def write_debug_views(directory, up, frame_number, prefix="", paths=None):
+    """Write the debug views of the last frame; each path is appended to `paths` before
+    its file is written (so that an interruption knows what to clean up)."""
     from ..io import write_png_ldr
     cap = up._fs.cap if up._fs is not None else 1.0
-    paths = []
+    paths = [] if paths is None else paths
     for name, img in render_debug_views(up.debug_views(), cap).items():
         p = os.path.join(directory, f"{prefix}{name}.{frame_number:04d}.png")
-        write_png_ldr(p, img)
         paths.append(p)
+        write_png_ldr(p, img)
     return paths
 
 
@@ -88,101 +122,157 @@ def format_stage_table(stages: dict) -> str:
 
 
 # ---------------------------------------------------------------- clss upscale
+# What a run writes into OUT: replaced as a whole by --overwrite.
+OUTPUT_SET = ("frame.*.exr", "frame.*.png", "debug/*.png")
+
+
+def parse_channels(text):
+    """--channels 'color=R,G,B;depth=depth.Z' -> {buffer: names}; unknown buffers refused."""
+    from ..io import check_channels
+    if text is None:
+        return None
+    channels = {}
+    for item in (kv.strip() for kv in text.split(";")):
+        if not item:
+            continue
+        key, sep, names = item.partition("=")
+        if not sep or not key.strip() or not names.strip():
+            raise UsageError(f"--channels: expected 'buffer=A,B,C;...' (e.g. "
+                             f"'color=R,G,B;depth=depth.Z'), got {item!r} in {text!r}")
+        channels[key.strip()] = names.strip()
+    if not channels:
+        raise UsageError(f"--channels: expected 'buffer=A,B,C;...', got {text!r}")
+    check_channels(channels)
+    return channels
+
+
+def format_sanitized(report: list, frames: int) -> str:
+    """--sanitize's account: how many values it replaced, in which frames."""
+    if not report:
+        return f"--sanitize: no value needed replacing in {frames} frames"
+    total = sum(sum(r.values()) for _, r in report)
+    each = [f"frame {n} (" + ", ".join(f"{k} {v}" for k, v in r.items()) + ")"
+            for n, r in report[:10]]
+    more = f", and {len(report) - 10} more frames" if len(report) > 10 else ""
+    return (f"--sanitize: replaced {total} non-finite values in {len(report)} of {frames} frames: "
+            + ", ".join(each) + more)
+
+
 def cmd_upscale(argv) -> int:
-    p = argparse.ArgumentParser(
+    p = ArgParser(
         prog="clss upscale",
         description="Upscale a rendered EXR sequence with CLSS temporal supersampling. INPUT is "
                     "a directory of EXR frames (one multichannel file per frame, or color.* / "
                     "depth.* / motion.* files), a glob or a numbered pattern; jitter comes from "
-                    "jitter.json / jitter.csv beside the frames, else the Halton(2,3) sequence.",
+                    "jitter.json / jitter.csv beside the frames, else the Halton(2,3) sequence. "
+                    "Outputs are named by the input frame numbers. The input contract (units, "
+                    "signs, sidecars, engine conventions) is in docs/input-contract.md.",
         epilog="example:\n  clss upscale shots/ -o out/ --mode rules --png",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("input")
-    p.add_argument("-o", "--out", required=True, help="output directory")
+    p.add_argument("input", help="directory, glob ('shots/*.exr') or numbered pattern "
+                                 "('shots/frame.%%04d.exr', 'shots/frame.####.exr')")
+    p.add_argument("-o", "--out", required=True,
+                   help="output directory: created if missing; refused if it holds input files, "
+                        "or if it is not empty (unless --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a previous run's output in OUT (its frame.* and debug/ files)")
     add_upscaler_args(p)
     p.add_argument("--mode", "-m", default="net", choices=("net", "rules"),
                    help="net (classifier + composition networks) or rules (no networks)")
-    p.add_argument("--weights", "-w", default=None,
-                   help="directory from `python -m weights_tools build` or a .safetensors file "
-                        "(default: seeded, untrained networks)")
+    p.add_argument("--weights", "-w", default=None, help=WEIGHTS_HELP)
     p.add_argument("--debug-views", action="store_true",
                    help="also write ghosting/aliasing class maps, blend weight, sample counter "
                         "and depth difference PNGs per frame (OUT/debug/)")
     p.add_argument("--png", action="store_true", help="also write tone-mapped PNGs")
     p.add_argument("--channels", default=None,
-                   help="channel names, e.g. 'color=R,G,B;depth=depth.Z;motion=mv.x,mv.y'")
+                   help="channel names, e.g. 'color=R,G,B;depth=depth.Z;motion=mv.x,mv.y' "
+                        "(buffers: color, depth, motion, reference)")
     p.add_argument("--jitter", default=None,
                    help="jitter sidecar (JSON/CSV), 'halton' or 'zero' (default: sidecar, else halton)")
-    p.add_argument("--frames", "-n", type=int, default=None, help="only the first N frames")
+    p.add_argument("--frames", "-n", type=positive_int, default=None, help="only the first N frames")
     p.add_argument("--depth-standard", action="store_true",
                    help="depth is standard Z (near = 0); default reversed-Z (near = 1)")
-    p.add_argument("--motion-scale", type=lambda s: _pair(s, "--motion-scale"), default=(1.0, 1.0),
+    p.add_argument("--motion-scale", type=motion_scale, default=(1.0, 1.0), metavar="SX,SY",
                    help="factors that turn the stored motion into render pixels pointing to the "
-                        "previous position, e.g. '-1,-1' or 'W,H' for UV motion (default 1,1)")
-    p.add_argument("--exposure", type=float, default=1.0)
+                        "previous position, e.g. '-1,-1', or 'W,H' (the render width and height) "
+                        "for motion stored in UV units (default 1,1)")
+    p.add_argument("--exposure", type=positive_float, default=1.0,
+                   help="the exposure the colour was rendered with: colour is divided by it on "
+                        "the way in and multiplied by it on the way out (default 1)")
     p.add_argument("--ldr", action="store_true", help="LDR input in [0,1] (no PQ transfer)")
     p.add_argument("--sanitize", action="store_true",
-                   help="replace NaN/Inf inputs (default: refuse such frames and stop)")
+                   help="replace NaN/Inf inputs and report how many, in which frames "
+                        "(default: refuse such frames and stop)")
+    p.dash_values = ("--motion-scale",)
     a = p.parse_args(argv)
-    from ..io import InputError, read_sequence, write_exr, write_png
+    from ..io import read_sequence, write_exr, write_png
     from ..progress import progress
     from .contract import FrameInputError
     from .upscaler import Upscaler
 
-    def fail(msg):
-        print(f"clss upscale: {msg}", file=sys.stderr)
-        return 2
-
-    channels = None
-    if a.channels:
-        try:
-            channels = dict(kv.split("=", 1) for kv in a.channels.split(";") if kv.strip())
-        except ValueError:
-            return fail(f"--channels: expected 'buffer=A,B,C;...', got {a.channels!r}")
-    try:
-        seq = read_sequence(a.input, channels=channels, jitter=a.jitter, scale=a.scale)
-        up = Upscaler(a.scale, mode=a.mode, weights=a.weights, device=a.device,
-                      precision=a.precision, depth_inverted=not a.depth_standard,
-                      motion_scale=a.motion_scale, hdr=not a.ldr, exposure=a.exposure,
-                      sanitize=a.sanitize, profile=True, debug=a.debug_views)
-    except (InputError, ValueError, OSError) as e:
-        return fail(e)
-    n = len(seq) if a.frames is None else min(len(seq), max(a.frames, 0))
-    os.makedirs(a.out, exist_ok=True)
+    check_weights_mode(a.weights, a.mode == "net")
+    channels = parse_channels(a.channels)
+    seq = read_sequence(a.input, channels=channels, jitter=a.jitter, scale=a.scale)
+    inputs = seq.files + ([a.jitter] if a.jitter and os.path.isfile(a.jitter) else [])
+    stale = prepare_output_dir(a.out, "-o", inputs, a.overwrite, OUTPUT_SET)
+    n = len(seq) if a.frames is None else min(len(seq), a.frames)
+    first = seq[0]
+    up = Upscaler(a.scale, mode=a.mode, weights=a.weights, device=a.device,
+                  precision=a.precision, depth_inverted=not a.depth_standard,
+                  motion_scale=resolve_motion_scale(a.motion_scale, first.color.shape[:2]),
+                  hdr=not a.ldr, exposure=a.exposure, sanitize=a.sanitize, profile=True,
+                  debug=a.debug_views)
+    start_output(a.out, stale)
     dbg_dir = os.path.join(a.out, "debug")
     print(f"clss upscale: {n} frames from {a.input}, mode {a.mode}, x{a.scale:g}, "
           f"{a.precision}, device {up.dev.info.name}", file=sys.stderr)
     if a.mode == "net" and not up.trained:
-        print("clss upscale: note: no --weights given, the networks are untrained (seeded init)",
-              file=sys.stderr)
-    scores = []
+        print("clss upscale: note: the networks are untrained (seeded init)", file=sys.stderr)
+    scores, sanitized = [], []
     t0 = time.perf_counter()
-    done = 0
+    files = FrameFiles()
+
+    def written():
+        return f"{files.done_frames} frames written to {a.out}"
     try:
         for i in progress(range(n), desc="upscale", unit="frame", total=n):
-            f = seq[i]
+            f = first if i == 0 else seq[i]
             number = f.meta.get("frame", i)
             try:
                 out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
             except FrameInputError as e:
-                files = f.meta.get("files", {})
-                return fail(f"frame {number} ({files.get('color', '?')}): {e}; "
-                            f"{done} frames written to {a.out}")
-            write_exr(os.path.join(a.out, f"frame.{number:04d}.exr"), out)
+                where = f.meta.get("files", {}).get("color", "?")
+                raise UsageError(f"frame {number} ({where}): {cli_message(e)}; {written()}") from None
+            if up.last_report:
+                sanitized.append((number, dict(up.last_report)))
+            stem = os.path.join(a.out, f"frame.{number:04d}")
+            files.add(stem + ".exr")
+            write_exr(stem + ".exr", out)
             if a.png:
-                write_png(os.path.join(a.out, f"frame.{number:04d}.png"), out)
+                files.add(stem + ".png")
+                write_png(stem + ".png", out)
             if a.debug_views:
-                write_debug_views(dbg_dir, up, number)
+                write_debug_views(dbg_dir, up, number, paths=files.pending)
+            files.done()
             if f.reference is not None and f.reference.shape == out.shape:
                 from ..metrics import psnr, ssim
                 scores.append((psnr(out, f.reference), ssim(out, f.reference)))
-            done += 1
-    except (InputError, ValueError, OSError) as e:
-        return fail(f"{e}; {done} frames written to {a.out}")
+    except KeyboardInterrupt:
+        files.discard()
+        print(f"\nclss upscale: interrupted; {written()}", file=sys.stderr)
+        return 130
+    except (ValueError, OSError) as e:
+        files.discard()
+        if isinstance(e, UsageError):
+            raise
+        raise UsageError(f"{cli_message(e)}; {written()}") from None
+    done = files.done_frames
     dt = time.perf_counter() - t0
     print(f"\n{done} frames {up.render_size[1]}x{up.render_size[0]} -> "
           f"{up.output_size[1]}x{up.output_size[0]} in {dt:.1f} s ({done / dt:.2f} frames/s) "
           f"-> {a.out}")
+    if a.sanitize:
+        print(format_sanitized(sanitized, done))
     if a.mode == "net":
         print(f"classifier: {up.classifier_backend_name}")
     print("per-stage time per frame (OpenCL events; classifier: wall time):")

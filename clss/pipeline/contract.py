@@ -1,4 +1,4 @@
-"""The CLSS frame input contract: validation and conventions (clss-frame.md section 1).
+"""The CLSS frame input contract: validation and conventions (docs/input-contract.md).
 
 Layout of one frame as the caller hands it in (render resolution h x w):
 
@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 
+from ..errors import UserError
+
 ACCEPTED_DTYPES = (np.float16, np.float32)
 
 # SMPTE ST 2084 (PQ) constants, exact rationals from the standard.
@@ -42,7 +44,7 @@ PQ_PEAK_NITS = 10000.0
 PQ_NITS = 100.0
 
 
-class FrameInputError(ValueError):
+class FrameInputError(UserError):
     """A frame input that breaks the contract; the message names the input."""
 
 
@@ -135,9 +137,10 @@ def _nonfinite(name, a, sanitize, fill, report):
     if n == 0:
         return a
     if not sanitize:
-        raise FrameInputError(
-            f"{name}: expected finite values, got {n} non-finite (NaN/Inf) of {a.size}; "
-            f"first at pixel ({_where(bad)}); pass sanitize=True to replace them")
+        what = (f"{name}: expected finite values, got {n} non-finite (NaN/Inf) of {a.size}; "
+                f"first at pixel ({_where(bad)})")
+        raise FrameInputError(f"{what}; pass sanitize=True to replace them",
+                              cli=f"{what}; pass --sanitize to replace them")
     a = a.copy()
     a[bad] = fill
     report[name] = n

@@ -4,7 +4,7 @@
     for f in frames:
         out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)   # H x W x 3
 
-Inputs follow the frame contract (contract.py, shared/design/clss-frame.md): colour
+Inputs follow the frame contract (contract.py, docs/input-contract.md): colour
 h x w x 3 linear, depth h x w (reversed-Z by default), motion h x w x 2 in render pixels
 (prev = p + motion * motion_scale), jitter (jx, jy) in render pixels. The output is
 H x W x 3 float32 linear (H = round(h * scale)).
@@ -25,7 +25,6 @@ import math
 import os
 
 import numpy as np
-import onnx
 import pyopencl.array as cla
 
 from ..device import Device, get_device
@@ -52,8 +51,9 @@ def load_networks(weights=None):
     path = os.fspath(weights)
     if os.path.isdir(path):
         def net(name, build):
+            from ..model_graph import load_proto      # a corrupt file: an error naming it
             p = os.path.join(path, name)
-            return onnx.load(p) if os.path.isfile(p) else build()
+            return load_proto(p) if os.path.isfile(p) else build()
         cls = net("classifier.onnx", build_classifier)
         comp = net("composition.onnx", build_composition)
         st = os.path.join(path, "weights.safetensors")
