@@ -52,7 +52,7 @@ class FastPath:
     ``check(dev, prec) -> list of host arrays`` runs the op on a small seeded
     input; the registry calls it once with the fast and once with the reference
     variant forced. ``tolerance(prec)`` is EXACT for data movement, else the op's
-    Tolerance (clss/ops/base.py)."""
+    Tolerance (clss/ops/base.py), or a list of those, one per output."""
     name: str
     kernel: str
     fast: dict
@@ -240,8 +240,9 @@ def _run_check(dev, prec: str, fp: FastPath) -> Verdict:
     except Exception as e:  # the fast variant does not build or run here: disable it
         v.ok, v.detail = False, f"fails: {type(e).__name__}: {str(e).splitlines()[0][:200]}"
         return v
+    tols = fp.tolerance(prec)    # one for every output, or a list, one per output
     for i, (o, r) in enumerate(zip(out, ref)):
-        c = compare(np.asarray(o), np.asarray(r), fp.tolerance(prec))
+        c = compare(np.asarray(o), np.asarray(r), tols[i] if isinstance(tols, list) else tols)
         if not c.passed:
             v.ok = False
             v.detail = f"differs from the reference variant (output {i}: {c.detail or c.tol})"
