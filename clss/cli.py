@@ -35,7 +35,7 @@ def cmd_devices(argv) -> int:
     rows = []
     for i, (plat, dev) in enumerate(found):
         info = DeviceInfo.of(dev)
-        rows.append(info.__dict__ | {"index": i})
+        rows.append(info.__dict__ | {"index": i, "default": dev == default})
         mark = "*" if dev == default else " "
         print(f"{mark}[{i}] {info.platform} / {info.name}")
         print(f"      OpenCL {info.version}; driver {info.driver}; {info.compute_units} compute units; "

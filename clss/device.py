@@ -92,6 +92,9 @@ def _is_pocl_cpu(platform: cl.Platform, device: cl.Device) -> bool:
 
 def default_reason() -> str:
     """Which device the default is, and why (for `clss devices` and errors)."""
+    for var in ("CLSS_DEVICE", "PYOPENCL_CTX"):
+        if os.environ.get(var):
+            return f"chosen by ${var}={os.environ[var]!r}"
     if any(is_pip_pocl(p) for p, _ in list_devices()):
         return (f"the CPU device of the PoCL pip installs (pocl-binary-distribution {pip_pocl_version()}): "
                 "every clss install has it and CI proves every kernel on it")
