@@ -14,7 +14,7 @@ import re
 import pytest
 
 from clss.conformance import check
-from clss.device import get_device, list_devices
+from clss.device import DeviceError, get_device, list_devices
 
 PRECISIONS = ("fp32", "fp16")
 
@@ -34,9 +34,12 @@ def conformance_devices() -> list[tuple[str, str]]:
     """(test id, device spec) of every device the conformance tests run on."""
     narrow = (os.environ.get("CLSS_DEVICE") or os.environ.get("PYOPENCL_CTX")
               or os.environ.get("CLSS_TEST_DEVICES", "all") == "default")
-    default = get_device().cl_device
+    try:
+        found, default = list_devices(), get_device().cl_device
+    except DeviceError:   # no OpenCL at all: the tests that need a device skip
+        return []
     out = []
-    for i, (p, d) in enumerate(list_devices()):
+    for i, (p, d) in enumerate(found):
         if "oclgrind" in p.name.lower() or (narrow and d != default):
             continue
         ident = _device_id(p, d)
