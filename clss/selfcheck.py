@@ -162,8 +162,11 @@ def enabled(dev, prec: str, name: str) -> bool:
     with _lock:
         v = _verdicts.get(key)
         if v is None or (m == "force" and key not in _checked_here):
-            v = None if m == "force" else _load().get(_disk_key(key))
-            v = Verdict(**v) if isinstance(v, dict) else None
+            rec = None if m == "force" else _load().get(_disk_key(key))
+            try:
+                v = Verdict(**rec) if isinstance(rec, dict) else None
+            except TypeError:   # a record of another clss version: check again
+                v = None
             if v is None:
                 v = _check_isolated(dev, prec, fp) if fp.isolate else _run_check(dev, prec, fp)
                 _checked_here.add(key)
@@ -182,6 +185,7 @@ def check_all(dev, precisions, kernels=None) -> list[Verdict]:
     """Verdicts of every registered fast path on dev (of `kernels`, stems of
     kernels/*.cl, if given), checking what is not yet known."""
     _import_registrations()
+    dev = getattr(dev, "base", dev)
     out = []
     for name in sorted(REGISTRY):
         if kernels is not None and REGISTRY[name].kernel not in kernels:
@@ -189,7 +193,6 @@ def check_all(dev, precisions, kernels=None) -> list[Verdict]:
         for prec in precisions:
             if prec == "fp16-native" and not dev.has_fp16:
                 continue
-            dev = getattr(dev, "base", dev)
             enabled(dev, prec, name)
             out.append(_verdicts.get(_key(dev, prec, REGISTRY[name])) or Verdict(
                 name, REGISTRY[name].kernel, prec, _device_name(dev), True, "not checked (CLSS_SELFCHECK=skip)"))
