@@ -99,7 +99,12 @@ def _tunables(dev: Device, prec: str, op: str, x, w, strides, explicit) -> dict:
     """The register block for this launch: defaults < the tuning database's entry for
     (device, op, shapes, stride, precision) < the caller's `tuning=`."""
     key = tuning_db.shape_key(tuple(x.shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec)
-    return tuning_db.lookup(dev, op, key, TUNING, explicit=explicit, allowed=TUNABLES[op])
+    t = tuning_db.lookup(dev, op, key, TUNING, explicit=explicit, allowed=TUNABLES[op])
+    # A register block is a fast path too: the default one is self-checked against one
+    # output per work-item (tuned ones were checked by `clss tune` before being stored).
+    if (t["XV"], t["CB"]) != (1, 1) and not selfcheck.enabled(dev, prec, "conv.register_block"):
+        t.update(selfcheck.REGISTRY["conv.register_block"].reference)
+    return t
 
 
 def _flags(b, residual, residual_before_act):
@@ -242,7 +247,9 @@ for _name, _fast, _ref, _what in (
         ("conv.builtin_free_loads", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
          "loads and stores as clang vector types instead of vload/vstore builtins (PoCL)"),
         ("conv.stride2_deinterleave", {"CONV_DEINTERLEAVE": 1}, {"CONV_DEINTERLEAVE": 0},
-         "stride-2 rows as two vector loads and .even")):
+         "stride-2 rows as two vector loads and .even"),
+        ("conv.register_block", {k: TUNING[k] for k in ("XV", "CB")}, {"XV": 1, "CB": 1},
+         "8*XV outputs times CB channels per work-item (default block) / one vector, one channel")):
     selfcheck.register(selfcheck.FastPath(_name, "conv", _fast, _ref, check=_selfcheck_run,
                                           tolerance=DEFAULT_TOL.__getitem__, what=_what))
 
