@@ -61,6 +61,7 @@ class FastPath:
     tolerance: Callable = field(compare=False)
     what: str = ""
     isolate: bool = True     # check in a child process (see _check_isolated)
+    applies: Callable = field(default=lambda dev: True, compare=False)   # does the op use it on dev?
 
     def options(self, fast: bool) -> str:
         d = self.fast if fast else self.reference
@@ -188,7 +189,7 @@ def check_all(dev, precisions, kernels=None) -> list[Verdict]:
     dev = getattr(dev, "base", dev)
     out = []
     for name in sorted(REGISTRY):
-        if kernels is not None and REGISTRY[name].kernel not in kernels:
+        if (kernels is not None and REGISTRY[name].kernel not in kernels) or not REGISTRY[name].applies(dev):
             continue
         for prec in precisions:
             if prec == "fp16-native" and not dev.has_fp16:

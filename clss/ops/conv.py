@@ -243,15 +243,16 @@ def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
     return [dev.to_host(o) for o in outs]
 
 
-for _name, _fast, _ref, _what in (
+for _name, _fast, _ref, _what, _applies in (
         ("conv.builtin_free_loads", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
-         "loads and stores as clang vector types instead of vload/vstore builtins (PoCL)"),
+         "loads and stores as clang vector types instead of vload/vstore builtins (PoCL)", builtin_free),
         ("conv.stride2_deinterleave", {"CONV_DEINTERLEAVE": 1}, {"CONV_DEINTERLEAVE": 0},
-         "stride-2 rows as two vector loads and .even"),
+         "stride-2 rows as two vector loads and .even", lambda dev: True),
         ("conv.register_block", {k: TUNING[k] for k in ("XV", "CB")}, {"XV": 1, "CB": 1},
-         "8*XV outputs times CB channels per work-item (default block) / one vector, one channel")):
+         "8*XV outputs times CB channels per work-item (default block) / one vector, one channel",
+         lambda dev: True)):
     selfcheck.register(selfcheck.FastPath(_name, "conv", _fast, _ref, check=_selfcheck_run,
-                                          tolerance=DEFAULT_TOL.__getitem__, what=_what))
+                                          tolerance=DEFAULT_TOL.__getitem__, what=_what, applies=_applies))
 
 
 # --- ONNX -----------------------------------------------------------------------

@@ -12,7 +12,7 @@ from onnx import helper
 from .. import selfcheck, tuning as tuning_db
 from ..device import Device, storage_dtype
 from .base import DEFAULT_TOL, Case, check_storage, host_call, rng
-from .conv import ACTIVATIONS, load_defines
+from .conv import ACTIVATIONS, builtin_free, load_defines
 from .twin import make_model
 
 # Widest layer (input channels included) one kernel keeps in private memory:
@@ -141,7 +141,7 @@ def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
 
 selfcheck.register(selfcheck.FastPath(
     "mlp.builtin_free_loads", "mlp", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
-    check=_selfcheck_run, tolerance=DEFAULT_TOL.__getitem__,
+    check=_selfcheck_run, tolerance=DEFAULT_TOL.__getitem__, applies=builtin_free,
     what="loads and stores as clang vector types instead of vload/vstore builtins (PoCL)"))
 
 

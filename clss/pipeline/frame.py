@@ -86,7 +86,8 @@ for _mode in ("rule", "net"):
     selfcheck.register(selfcheck.FastPath(
         f"frame.pixel_vectors.{_mode}", "frame", {"VEC": 8, "NET": int(_mode == "net")},
         {"VEC": 1, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode),
-        tolerance=DEFAULT_TOL.__getitem__, what=f"8 output pixels per work-item as vectors ({_mode} mode)"))
+        tolerance=DEFAULT_TOL.__getitem__, what=f"8 output pixels per work-item as vectors ({_mode} mode)",
+        applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU)))
 
 
 def pad16(n: int) -> int:
