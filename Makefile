@@ -6,7 +6,8 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup test test-large demo verify devices bench bench-quick oclgrind clean
+.PHONY: setup test test-large demo eval verify devices bench bench-quick oclgrind clean \
+	train-data validation-data train
 
 $(STAMP): setup.cfg pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -25,6 +26,17 @@ test-large: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/clss demo -o $(OUT)/demo --overwrite
 
+# Score bicubic, jitter-aware bicubic, rules and net on sequences (weights_tools/DATA.md):
+# by default the held-out generated sequences and the Blender validation sequences
+# ($(DATA)/validation, else the float16 copies in weights_tools/validation);
+# EVAL_ARGS passes options (e.g. EVAL_ARGS="--methods jbicubic,rules --precision fp16").
+DATA ?= $(OUT)/data
+EVAL_SEQS ?= $(wildcard $(DATA)/heldout/*.npz) \
+	$(or $(wildcard $(DATA)/validation/*.npz),$(wildcard weights_tools/validation/*.npz))
+eval: $(STAMP)
+	@test -n "$(strip $(EVAL_SEQS))" || { echo "make eval: no sequences (make train-data validation-data, or EVAL_SEQS=\"a.npz b.npz\")"; exit 2; }
+	$(BIN)/python -m weights_tools eval $(EVAL_SEQS) --out $(OUT)/eval $(EVAL_ARGS)
+
 verify: $(STAMP)
 	$(BIN)/clss verify --precision all
 
@@ -39,6 +51,37 @@ bench: $(STAMP)
 
 oclgrind: $(STAMP)
 	$(BIN)/python -m pytest -q -ra tests/test_oclgrind.py
+
+# Generated training data (weights_tools/scenegen.py): the training set and a held-out
+# set with another seed (never trained on). A few minutes on 2 cores.
+DATA ?= $(OUT)/data
+train-data: $(STAMP)
+	$(BIN)/python -m weights_tools gen --out $(DATA)/train --sequences 96 --frames 12 --seed 0 --size 72x128
+	$(BIN)/python -m weights_tools gen --out $(DATA)/heldout --sequences 16 --frames 12 --seed 1000 --size 90x160
+
+# Blender validation sequences (sparingly: about 20 minutes on 2 cores; needs
+# `apt-get install blender`): renders EXRs, converts them to weights_tools/validation/
+# (float16, committed) and $(DATA)/validation (float32).
+validation-data: $(STAMP)
+	blender -b --factory-startup -P weights_tools/blender/render_validation.py -- --out $(OUT)/validation-exr --frames 16
+	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr weights_tools/validation --fp16 --check
+	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr $(DATA)/validation
+
+# The shipped net-mode weights from scratch (recipe: weights_tools/train.py): data,
+# training with a fixed seed (torch, the [train] extra), then the copy into the package.
+# About an hour on the 2-core machine. An interrupted run resumes from its checkpoint;
+# `rm -rf $(TRAIN_RUN)` starts afresh.
+TRAIN_RUN ?= $(OUT)/train_run
+TRAIN_STAMP := $(VENV)/.train-stamp
+$(TRAIN_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -q -e '.[test,train]'
+	touch $@
+
+train: train-data $(TRAIN_STAMP)
+	$(BIN)/python -m weights_tools train --data $(DATA)/train --heldout $(DATA)/heldout \
+		--out $(TRAIN_RUN) --seed 0 --resume
+	mkdir -p clss/weights
+	cp $(TRAIN_RUN)/weights.safetensors clss/weights/clss_trained.safetensors
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info .pytest_cache .hypothesis

@@ -14,8 +14,9 @@ reference), upscales every frame four ways and writes to OUT (default out/demo):
 "bicubic" is a plain (not jitter-aware) Keys bicubic of each render frame in the PQ
 domain (clss.ops.resize), i.e. what a spatial upscaler without history gives.
 Metrics compare tone-mapped display values (clss.metrics) from frame SKIP on, once the
-history has warmed up. The net mode runs untrained (seeded) networks unless --weights
-is given: its numbers show that the machinery works, not what a trained CLSS reaches.
+history has warmed up. The net mode runs the trained weights shipped in the package
+(clss/weights/clss_trained.safetensors, from `make train`) unless --weights is given
+(`--weights untrained`: the seeded init, which shows the machinery, not the method).
 """
 from __future__ import annotations
 
@@ -85,7 +86,9 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=_size, default=(270, 480), metavar="WxH",
                    help="render size (default 480x270; output = size x scale)")
     add_upscaler_args(p)
-    p.add_argument("--weights", "-w", default=None, help=WEIGHTS_HELP)
+    p.add_argument("--weights", "-w", default=None,
+                   help="network weights: a .safetensors file or a directory (default: the "
+                        "trained weights shipped in the package; 'untrained': the seeded init)")
     p.add_argument("--spp", type=positive_int, default=16, help="reference samples per output pixel")
     p.add_argument("--modes", default="rules,net", help="comma-separated subset of rules,net")
     p.add_argument("--workers", type=positive_int, default=2, help="processes rendering the scene")

@@ -1,5 +1,5 @@
 """Image quality of supersampled output against a reference: PSNR, SSIM, temporal
-PSNR, temporal profiles and labelled side-by-side pictures.
+PSNR, FLIP, temporal profiles and labelled side-by-side pictures.
 
 All metrics compare *display* values: both images go through `clss.io.tonemap`
 (exposure, ACES fit, sRGB OETF) to [0, 1] first, so that HDR highlights do not
@@ -50,24 +50,82 @@ def ssim(test, ref, exposure=1.0, tonemapped=False):
                                        channel_axis=-1 if a.ndim == 3 else None))
 
 
+class TemporalPSNR:
+    """Running temporal PSNR (see `temporal_psnr`), fed one frame at a time so that a
+    long sequence need not be held in memory. `add(test, ref)` compares the step from
+    the previous frame; `cut()` forgets the previous frame (a camera cut, or frames
+    left out of the score), so no difference is taken across it. Frames are display
+    values in [0, 1] (pass them through `display` first)."""
+
+    def __init__(self):
+        self.se, self.n = 0.0, 0
+        self._prev = None
+
+    def cut(self):
+        self._prev = None
+
+    def add(self, test, ref):
+        _check_pair(test, ref)
+        a, b = np.asarray(test, np.float64), np.asarray(ref, np.float64)
+        if self._prev is not None:
+            pa, pb = self._prev
+            if pa.shape != a.shape:
+                raise ValueError(f"frame shape changed: {pa.shape} -> {a.shape}")
+            d = (a - pa) - (b - pb)
+            self.se += float(np.sum(d * d))
+            self.n += d.size
+        self._prev = (a, b)
+
+    @property
+    def pairs(self):
+        return self.n
+
+    def value(self):
+        """dB; inf when the differences match exactly; nan before any pair."""
+        if self.n == 0:
+            return float("nan")
+        mse = self.se / self.n
+        return float("inf") if mse == 0 else float(10 * np.log10(1.0 / mse))
+
+
 def temporal_psnr(tests, refs, exposure=1.0, tonemapped=False):
     """PSNR (peak 1) of the frame-to-frame differences: test[t] - test[t-1] against
-    ref[t] - ref[t-1], over all t >= 1 of the tone-mapped sequences. Flicker that the
-    reference does not have lowers it even when each frame's PSNR is good."""
+    ref[t] - ref[t-1], over all t >= 1 of the tone-mapped sequences (one mean squared
+    error over every pixel of every difference). Flicker that the reference does not
+    have lowers it even when each frame's PSNR is good."""
     if len(tests) != len(refs) or len(tests) < 2:
         raise ValueError("temporal_psnr needs two sequences of equal length >= 2")
-    se, n = 0.0, 0
-    pt = pr = None
+    acc = TemporalPSNR()
     for t, r in zip(tests, refs):
-        _check_pair(t, r)
-        a, b = _display(t, exposure, tonemapped), _display(r, exposure, tonemapped)
-        if pt is not None:
-            d = (a - pt) - (b - pr)
-            se += float(np.sum(d.astype(np.float64) ** 2))
-            n += d.size
-        pt, pr = a, b
-    mse = se / n
-    return float("inf") if mse == 0 else float(10 * np.log10(1.0 / mse))
+        acc.add(_display(t, exposure, tonemapped), _display(r, exposure, tonemapped))
+    return acc.value()
+
+
+def flip(test, ref, exposure=1.0, tonemapped=False, error_map=False):
+    """Mean LDR-FLIP error (NVIDIA's perceptual difference, `flip-evaluator` package;
+    0 = identical, 1 = maximal; default viewing condition, 67 pixels per degree) of the
+    tone-mapped sRGB display images, the same display values as `psnr` and `ssim`.
+    LDR-FLIP rather than HDR-FLIP so that all metrics judge one tone mapping (HDR-FLIP
+    would average over exposures of its own choosing). With `error_map=True`, returns
+    (mean, per-pixel error map h x w)."""
+    try:
+        import flip_evaluator
+    except ImportError:
+        raise RuntimeError("FLIP needs the flip-evaluator package (pip install "
+                           "flip-evaluator)") from None
+    _check_pair(test, ref)
+    a, b = _display(test, exposure, tonemapped), _display(ref, exposure, tonemapped)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise ValueError(f"FLIP needs h x w x 3 colour images, got shape {a.shape}")
+    emap, mean, _ = flip_evaluator.evaluate(np.ascontiguousarray(b), np.ascontiguousarray(a),
+                                            "LDR", inputsRGB=True, applyMagma=False)
+    return (float(mean), np.asarray(emap)[..., 0]) if error_map else float(mean)
+
+
+def display(img, exposure=1.0):
+    """The display values every metric compares: `clss.io.tonemap` of a linear image
+    (h x w [x 3]) to [0, 1]."""
+    return _display(img, exposure, False)
 
 
 def sequence_metrics(tests, refs, exposure=1.0, tonemapped=False, skip=0):

@@ -18,7 +18,8 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from .device import Device, storage_dtype
-from .model_graph import Graph, ModelError, Node, UnsupportedModelError
+from .model_graph import NO_KERNEL, Graph, ModelError, Node, UnsupportedModelError, custom_domain_reason
+from .model_passes import LOWERED_OPS
 from .model_plan import Alloc, Plan, assign_slots, check_plan
 from .ops.base import ONNX_HANDLERS, OnnxHandler, Unsupported
 
@@ -255,9 +256,12 @@ class Executor:
         """Raises Unsupported when the node cannot be set up."""
         h = handler_for(node.op)
         if node.domain and not node.op.startswith("clss."):
-            raise Unsupported(f"custom domain {node.domain!r}: clss runs the default ONNX domain only")
+            raise Unsupported(custom_domain_reason(node.domain))
         if h is None:
-            raise Unsupported("no clss kernel for this op type")
+            if node.op in LOWERED_OPS:
+                raise Unsupported(f"clss runs {node.op} only in the forms its load-time passes rewrite "
+                                  "(see the README's clss.Model section); not this one")
+            raise Unsupported(NO_KERNEL)
         g = self.g
         for t in list(node.inputs) + list(node.outputs):
             if t and t not in g.consts and g.dtypes.get(t) == np.float64:
@@ -522,8 +526,9 @@ class Executor:
         for t in g.outputs:
             if t in env:
                 res[t] = env[t]
-            else:
-                res[t] = self.const_array(t)
+            else:   # a 0-d constant is uploaded as shape (1,): give it its own
+                a = self.const_array(t)
+                res[t] = a if tuple(a.shape) == tuple(g.shapes[t]) else a.reshape(tuple(g.shapes[t]))
         return res
 
 

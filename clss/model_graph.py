@@ -16,7 +16,11 @@ from onnx import helper, numpy_helper
 
 from .errors import UserError
 
-MIN_OPSET, MAX_OPSET = 11, 21
+# Opsets 22-25 only widened the type constraints of the ops clss runs (bfloat16,
+# float8, float4, int2; checked with onnx.defs.get_schema), so their float32/float16
+# semantics are those of 21. Past 25, a node is accepted while its op's schema
+# is still one of these (see check_opset).
+MIN_OPSET, MAX_OPSET = 11, 25
 # Kernels index with 32-bit ints: a tensor past this many elements is refused.
 MAX_ELEMENTS = 2**31 - 1
 # Folding evaluates on the host; a folded constant past this is a model we refuse
@@ -39,13 +43,14 @@ class InputError(UserError):
 
 
 class UnsupportedModelError(ModelError):
-    """One or more nodes clss cannot run; ``nodes`` lists (name, op_type, opset, reason)."""
+    """One or more nodes clss cannot run; ``nodes`` lists (name, op_type, opset, reason).
+    ``note``: what else went wrong because of them (e.g. a shape they leave unknown)."""
 
-    def __init__(self, nodes: list[tuple[str, str, int, str]]):
+    def __init__(self, nodes: list[tuple[str, str, int, str]], note: str = ""):
         self.nodes = nodes
         lines = [f"  - {n!r} ({op}, opset {ver}): {why}" for n, op, ver, why in nodes]
         super().__init__(f"{len(nodes)} node(s) of this model are not supported by clss:\n"
-                         + "\n".join(lines))
+                         + "\n".join(lines) + (f"\n{note}" if note else ""))
 
 
 @dataclass
@@ -137,20 +142,98 @@ def load_proto(model) -> onnx.ModelProto:
     raise TypeError(f"model must be a path, bytes or onnx.ModelProto, got {type(model).__name__}")
 
 
+def sort_nodes(g: onnx.GraphProto) -> None:
+    """Nodes in an order where each comes after the producers of its inputs.
+    onnxruntime takes a graph in any order; the checker, the folding and the
+    passes want it sorted. Stable (a sorted graph stays as it is); a node
+    whose input nothing produces stays last, for the checker to name."""
+    avail = {t.name for t in g.input} | {t.name for t in g.initializer} | {""}
+    avail |= {t.values.name for t in g.sparse_initializer}
+    order, pending = [], list(range(len(g.node)))
+    while pending:
+        rest = []
+        for k in pending:
+            if all(t in avail for t in g.node[k].input):
+                order.append(k)
+                avail.update(g.node[k].output)
+            else:
+                rest.append(k)
+        if len(rest) == len(pending):
+            break
+        pending = rest
+    order += pending
+    if order != sorted(order):
+        nodes = []
+        for k in order:   # copies: deleting from a repeated field may free its elements
+            nodes.append(onnx.NodeProto())
+            nodes[-1].CopyFrom(g.node[k])
+        del g.node[:]
+        g.node.extend(nodes)
+
+
 def check(m: onnx.ModelProto) -> int:
     """onnx's checker and the opset range; returns the default-domain opset."""
     try:
-        onnx.checker.check_model(m)
+        onnx.checker.check_model(_checkable(m))
     except onnx.checker.ValidationError as e:
         raise ModelError(f"malformed model (onnx checker): {e}") from None
     opsets = {o.domain or "": o.version for o in m.opset_import}
     opset = opsets.get("", opsets.get("ai.onnx"))
     if opset is None:
         raise ModelError("model imports no default-domain (ai.onnx) opset")
-    if not MIN_OPSET <= opset <= MAX_OPSET:
+    check_opset(m, opset)
+    return opset
+
+
+def _checkable(m: onnx.ModelProto) -> onnx.ModelProto:
+    """The model as the checker wants it, where onnxruntime wants less:
+    * the checker refuses IR versions past its own (onnx 1.22: 13; onnx >= 1.23
+      writes 14, which onnxruntime 1.32 runs): it sees the model at its IR;
+    * its main-graph rule requires a shape on every graph output; onnxruntime
+      and exporters do not, and shape inference (at load, in _infer) gives the
+      real one: it sees the shapeless outputs with the inferred shape."""
+    kinds = [o.type.WhichOneof("value") for o in m.graph.output]
+    fill = not any(k not in (None, "tensor_type") for k in kinds) and not all(
+        k and o.type.tensor_type.HasField("shape") for k, o in zip(kinds, m.graph.output))
+    if not fill and m.ir_version <= onnx.IR_VERSION:
+        return m   # (non-tensor outputs are refused later, by name)
+    probe = onnx.ModelProto()
+    probe.CopyFrom(m)
+    probe.ir_version = min(probe.ir_version, onnx.IR_VERSION)
+    if not fill:
+        return probe
+    from .ops.twin import fill_output_shapes
+    for o in probe.graph.output:
+        o.type.tensor_type.SetInParent()   # an output with no type at all: inference fills it
+    try:
+        fill_output_shapes(probe)
+    except Exception:   # inference itself fails: the checker, then _infer, say why
+        pass
+    return probe
+
+
+def check_opset(m: onnx.ModelProto, opset: int) -> None:
+    """Opsets MIN_OPSET..MAX_OPSET; past MAX_OPSET, every default-domain node
+    whose op's schema changed after MAX_OPSET is refused by name."""
+    if opset < MIN_OPSET:
         raise ModelError(f"model uses ONNX opset {opset}; clss supports opsets {MIN_OPSET} to {MAX_OPSET} "
                          f"(onnx.version_converter.convert_version can move it into range)")
-    return opset
+    if opset <= MAX_OPSET:
+        return
+    newer = []
+    for k, n in enumerate(m.graph.node):
+        if n.domain not in ("", "ai.onnx"):
+            continue
+        try:
+            since = onnx.defs.get_schema(n.op_type, opset).since_version
+        except Exception:   # an op onnx does not know: the dry run names it unsupported
+            continue
+        if since > MAX_OPSET:
+            newer.append(f"{n.name or f'#{k}'!r} ({n.op_type}, changed at opset {since})")
+    if newer:
+        raise ModelError(f"model uses ONNX opset {opset}; clss knows opsets {MIN_OPSET} to {MAX_OPSET}, "
+                         f"and these nodes' ops changed after {MAX_OPSET}: {', '.join(newer)} "
+                         f"(onnx.version_converter.convert_version can move the model to {MAX_OPSET})")
 
 
 def _dims(vi: onnx.ValueInfoProto):
@@ -224,15 +307,51 @@ def resolve_inputs(m: onnx.ModelProto, input_shapes: dict | None) -> dict[str, t
         tt.shape.Clear()
         for s in shape:
             tt.shape.dim.add().dim_value = int(s)
+    # A graph output that is an input is that input: a shapeless declaration of it
+    # would otherwise hide the input's shape from shape inference downstream.
+    for o in g.output:
+        for vi in runtime:
+            if o.name == vi.name:
+                o.type.CopyFrom(vi.type)
     return out
 
 
-def _infer(m: onnx.ModelProto) -> onnx.ModelProto:
+def _infer(m: onnx.ModelProto, opset: int) -> onnx.ModelProto:
     del m.graph.value_info[:]
     try:
         return onnx.shape_inference.infer_shapes(m, check_type=True, strict_mode=True, data_prop=True)
     except Exception as e:  # InferenceError and friends
+        refuse_unknown_ops(m, opset, f"(also: shape inference failed: {e})")
         raise ModelError(f"shape inference failed: {e}") from None
+
+
+# --- ops clss has no kernel for ---------------------------------------------------
+
+NO_KERNEL = "no clss kernel for this op type"
+
+
+def custom_domain_reason(domain: str) -> str:
+    return f"custom domain {domain!r}: clss runs the default ONNX domain only"
+
+
+def refuse_unknown_ops(m: onnx.ModelProto, opset: int, note: str) -> None:
+    """Raise UnsupportedModelError naming every node whose op clss can neither
+    run nor rewrite, when there is any. Called where such a node shows up as
+    something else (a shape inference cannot resolve, say), so that the user
+    hears first what is unsupported; ``note`` tells what else went wrong."""
+    from .model_passes import LOWERED_OPS
+    from .ops import ONNX_HANDLERS, load_all
+    load_all()   # the handlers register when their family is imported
+    opsets = {o.domain or "": o.version for o in m.opset_import}
+    bad = []
+    for k, n in enumerate(m.graph.node):
+        name = n.name or f"#{k} {n.op_type}"
+        if n.domain not in ("", "ai.onnx"):
+            bad.append((name, n.op_type, opsets.get(n.domain, opset), custom_domain_reason(n.domain)))
+        elif n.op_type not in ONNX_HANDLERS and n.op_type not in LOWERED_OPS:
+            bad.append((name, n.op_type, opset, NO_KERNEL))
+    if bad:
+        raise UnsupportedModelError(bad, note)
 
 
 def _collect(m: onnx.ModelProto):
@@ -390,7 +509,17 @@ def _constant_value(node: onnx.NodeProto) -> np.ndarray:
         return np.array(a["value_int"].i, np.int64)
     if "value_ints" in a:
         return np.array(list(a["value_ints"].ints), np.int64)
-    raise ModelError(f"Constant node {node.name!r}: unsupported value attribute {sorted(a)}")
+    if "sparse_value" in a:   # COO: indices linear [NNZ] or per axis [NNZ, rank]
+        sp = a["sparse_value"].sparse_tensor
+        vals, idx = numpy_helper.to_array(sp.values), numpy_helper.to_array(sp.indices)
+        dense = np.zeros(tuple(sp.dims), vals.dtype)
+        if idx.ndim == 1:
+            dense.flat[idx] = vals
+        else:
+            dense[tuple(idx.T)] = vals
+        return dense
+    raise ModelError(f"Constant node {node.name!r}: unsupported value attribute {sorted(a)} "
+                     "(clss runs numeric tensors)")
 
 
 # --- the whole load ---------------------------------------------------------------
@@ -401,6 +530,7 @@ def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
     shape-resolved ModelProto (before folding, for FLOP counting and `clss info`),
     and the resolved input shapes."""
     m = load_proto(model)
+    sort_nodes(m.graph)
     opset = check(m)
     if m.functions:
         try:
@@ -409,7 +539,7 @@ def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
         except Exception as e:
             raise ModelError(f"could not inline the model's local functions: {e}") from None
     in_shapes = resolve_inputs(m, input_shapes)
-    resolved = _infer(m)
+    resolved = _infer(m, opset)
     producers = {t: f"{n.op_type} node {n.name!r}" for n in m.graph.node for t in n.output}
     shapes, types = _collect(resolved)
     check_sizes(shapes, types, max_alloc, storage_itemsize, producers)
@@ -419,7 +549,7 @@ def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
     for _ in range(16):
         if not fold_constants(work, shapes, opset):
             break
-        work = _infer(work)
+        work = _infer(work, opset)
         shapes, types = _collect(work)
         check_sizes(shapes, types, max_alloc, storage_itemsize, producers)
     return _to_graph(work, shapes, types, opset, in_shapes), original, in_shapes
@@ -441,11 +571,14 @@ def _to_graph(m, shapes, types, opset, in_shapes) -> Graph:
     for n in nodes:
         for t in n.outputs:
             if t and t not in shapes:
-                raise ModelError(f"could not resolve the shape of tensor {t!r} (output of {n.op} node "
-                                 f"{n.name!r}); clss needs every shape static at load")
-            if t and t not in types:
-                raise ModelError(f"could not resolve the element type of tensor {t!r} "
-                                 f"(output of {n.op} node {n.name!r})")
+                why = (f"could not resolve the shape of tensor {t!r} (output of {n.op} node "
+                       f"{n.name!r}); clss needs every shape static at load")
+            elif t and t not in types:
+                why = f"could not resolve the element type of tensor {t!r} (output of {n.op} node {n.name!r})"
+            else:
+                continue
+            refuse_unknown_ops(m, opset, f"(also: {why})")
+            raise ModelError(why)
     dtypes = {}
     for t, et in types.items():
         dtypes[t] = np.dtype(np.float32) if et in FLOAT_TYPES else _np_dtype(et)
@@ -463,4 +596,4 @@ def _host_const(v: np.ndarray) -> np.ndarray:
     v = np.asarray(v)
     if v.dtype == np.float16:
         return v.astype(np.float32)
-    return np.ascontiguousarray(v)
+    return np.ascontiguousarray(v).reshape(v.shape)   # (ascontiguousarray makes 0-d arrays 1-d)

@@ -12,9 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model_graph import Graph, Node
+from .model_graph import FLOAT_TYPES, Graph, Node
 
 ACT_OPS = {"Relu": "relu", "LeakyRelu": "leaky_relu", "Sigmoid": "sigmoid", "Tanh": "tanh"}
+
+# ONNX ops with no handler of their name that the passes rewrite into ones that
+# have (some only in some forms: the dry run names the rest unsupported).
+LOWERED_OPS = frozenset({"Identity", "Dropout", "Cast", "CastLike", "Reshape", "Flatten", "Squeeze",
+                         "Unsqueeze", "BatchNormalization", "Gemm", "MatMul", "Constant"})
 
 
 def run_passes(g: Graph, conv_fusion: bool = True, mlp_fusion: bool = True) -> list[str]:
@@ -100,20 +105,54 @@ def normalise_opsets(g: Graph) -> int:
     return changed
 
 
-# --- Identity, Dropout ---------------------------------------------------------------
+# --- Identity, Dropout, float casts ---------------------------------------------------
+
+def _cast_to_float(g: Graph, n: Node) -> bool:
+    """A Cast/CastLike whose target is float or float16 (one type here: clss
+    stores every float tensor in the precision's storage type; the model's
+    ``precision`` decides, not the graph). Constant ones were folded at load."""
+    if n.op == "Cast":
+        return int(n.attrs.get("to", 0)) in FLOAT_TYPES
+    if n.op == "CastLike":
+        return g.dtypes.get(n.inputs[1]) == np.float32   # float16 tensors are float32 here
+    return False
+
+
+def _float_cast(g: Graph, n: Node) -> bool:
+    """Float to float casts are identities."""
+    return _cast_to_float(g, n) and g.dtypes.get(n.inputs[0]) == np.float32
+
+
+def bool_casts(g: Graph) -> int:
+    """Cast of a bool tensor (a comparison's result) to float, as exporters
+    write ``mask.float()``: Where(mask, 1, 0), a kernel clss has."""
+    changed = 0
+    for k, n in enumerate(g.nodes):
+        if _cast_to_float(g, n) and g.dtypes.get(n.inputs[0]) == np.bool_:
+            one = g.add_const(f"{n.name}.one", np.ones((), np.float32))
+            zero = g.add_const(f"{n.name}.zero", np.zeros((), np.float32))
+            g.nodes[k] = Node("Where", [n.inputs[0], one, zero], n.outputs[:1], {}, n.name, n.opset,
+                              sources=n.sources)
+            changed += 1
+    return changed
+
 
 def remove_identities(g: Graph) -> int:
-    """Identity (and inference-mode Dropout) cost nothing: their consumers read
-    the input. A graph output that would be left without a producer of its own
-    gets a clss.Copy."""
+    """Identity, Dropout (inference, or training with ratio 0: no randomness) and
+    float-to-float casts cost nothing: their consumers read the input. A graph
+    output that would be left without a producer of its own gets a clss.Copy."""
     changed = 0
     inputs = set(g.inputs)
     outputs = set(g.outputs)
     for n in list(g.nodes):
-        if n.op == "Dropout":
+        if _float_cast(g, n):
+            n.inputs = n.inputs[:1]
+        elif n.op == "Dropout":
             tm = n.inputs[2] if len(n.inputs) > 2 else ""
-            if tm and (tm not in g.consts or bool(g.consts[tm])):
-                continue  # training mode: left for the unsupported list
+            ratio = n.inputs[1] if len(n.inputs) > 1 else ""
+            if (tm and (tm not in g.consts or bool(g.consts[tm]))
+                    and not (ratio in g.consts and not np.any(g.consts[ratio]))):
+                continue  # training mode, random: left for the unsupported list
             if len(n.outputs) > 1 and n.outputs[1]:
                 g.consts[n.outputs[1]] = np.ones(g.shapes[n.outputs[1]], bool)
             n.outputs = n.outputs[:1]
@@ -253,6 +292,64 @@ def _bn_params(g: Graph, n: Node):
     return s, bias - mean * s
 
 
+def training_batchnorm(g: Graph) -> int:
+    """BatchNormalization with training_mode=1 (constant scale, bias and running
+    statistics): the batch statistics per channel as GlobalAveragePools of the
+    channel-major layout, y = (x - mean) * scale / sqrt(var + eps) + bias, and
+    the running statistics r * momentum + batch * (1 - momentum) (var: the
+    population variance, as the ONNX reference and onnxruntime)."""
+    changed = 0
+    for n in list(g.nodes):
+        if (n.op != "BatchNormalization" or not n.attrs.get("training_mode", 0)
+                or any(_const(g, t) is None for t in n.inputs[1:5])):
+            continue
+        x = n.inputs[0]
+        shape = tuple(g.shapes[x])
+        if len(shape) < 2:
+            continue
+        c, length = shape[1], int(np.prod(shape, dtype=np.int64)) // shape[1]
+        eps, mom = float(n.attrs.get("epsilon", 1e-5)), float(n.attrs.get("momentum", 0.9))
+        scale, bias, r_mean, r_var = (g.consts[t].astype(np.float32) for t in n.inputs[1:5])
+        per_channel = (1, c) + (1,) * (len(shape) - 2)
+        new: list[Node] = []
+
+        def node(op, inputs, out_shape, attrs=None, out=None):
+            t = out or g.fresh(f"{n.outputs[0]}.{op.lower()}")
+            g.shapes[t], g.dtypes[t] = tuple(out_shape), g.dtypes[x]
+            new.append(Node(op, list(inputs), [t], attrs or {}, f"{n.name} ({op})", n.opset, sources=n.sources))
+            return t
+
+        def channel_mean(t):   # [N, C, ...] -> [1, C, 1, ...], the mean over all but C
+            cm = node("Transpose", [t], (c, shape[0]) + shape[2:], {"perm": [1, 0] + list(range(2, len(shape)))})
+            v, flat = _view(g, cm, (1, c, length), name=f"{n.name} (channel rows)", sources=n.sources)
+            new.append(v)
+            m = node("GlobalAveragePool", [flat], (1, c, 1))
+            v, back = _view(g, m, per_channel, name=f"{n.name} (per channel)", sources=n.sources)
+            new.append(v)
+            return back
+
+        mean = channel_mean(x)
+        d = node("Sub", [x, mean], shape)
+        var = channel_mean(node("Mul", [d, d], shape))
+        std = node("Sqrt", [node("Add", [var, g.add_const(f"{n.name}.eps", np.float32(eps))], per_channel)],
+                   per_channel)
+        k = node("Div", [g.add_const(f"{n.name}.scale", scale.reshape(per_channel)), std], per_channel)
+        node("Add", [node("Mul", [d, k], shape), g.add_const(f"{n.name}.bias", bias.reshape(per_channel))],
+             shape, out=n.outputs[0])
+        for out, batch, running in zip(n.outputs[1:3], (mean, var), (r_mean, r_var)):
+            if not out:
+                continue
+            v, flat = _view(g, batch, (c,), name=f"{n.name} (statistic)", sources=n.sources)
+            new.append(v)
+            weighted = node("Mul", [flat, g.add_const(f"{n.name}.1-momentum", np.float32(1 - mom))], (c,))
+            node("Add", [weighted, g.add_const(f"{n.name}.running", (running * mom).astype(np.float32))], (c,),
+                 out=out)
+        k_ = g.nodes.index(n)
+        g.nodes[k_:k_ + 1] = new
+        changed += 1
+    return changed
+
+
 def fold_batchnorm(g: Graph) -> int:
     """BatchNormalization (inference) after a Conv/ConvTranspose with constant
     weights is folded into them; elsewhere it becomes a depthwise 1x1 Conv."""
@@ -366,6 +463,15 @@ def _lower_matmul(g: Graph, n: Node):
     ra = int(np.prod(batch_a, dtype=np.int64))
     rb = int(np.prod(batch_b, dtype=np.int64))
     out = []
+    if ra > 1 and rb > 1 and tuple(batch_a) != tuple(batch_b):
+        # Batch dims that broadcast against each other: both expanded to the common ones.
+        try:
+            batch = tuple(int(d) for d in np.broadcast_shapes(tuple(batch_a), tuple(batch_b)))
+        except ValueError:
+            return None
+        a, b = (_expand(g, n, t, batch + tuple(s[-2:]), out) for t, s in ((a, a2), (b, b2)))
+        batch_a = batch_b = batch
+        ra = rb = int(np.prod(batch, dtype=np.int64))
     bc = _const(g, b)
     src = n.sources
     if bc is not None and rb == 1:
@@ -402,6 +508,17 @@ def _lower_matmul(g: Graph, n: Node):
     return out
 
 
+def _expand(g: Graph, n: Node, t: str, shape: tuple, out: list) -> str:
+    """t broadcast to shape by an Expand node appended to out (t itself if it has that shape)."""
+    if tuple(g.shapes[t]) == shape:
+        return t
+    e = g.fresh(t)
+    g.shapes[e], g.dtypes[e] = shape, g.dtypes[t]
+    out.append(Node("Expand", [t, g.add_const(f"{n.name}.shape", np.array(shape, np.int64))], [e], {},
+                    f"{n.name} (expand {t})", n.opset, sources=n.sources))
+    return e
+
+
 def _lower_gemm(g: Graph, n: Node):
     a, b = n.inputs[:2]
     c = n.inputs[2] if len(n.inputs) > 2 else ""
@@ -410,12 +527,23 @@ def _lower_gemm(g: Graph, n: Node):
     beta = float(n.attrs.get("beta", 1.0))
     ta, tb = int(n.attrs.get("transA", 0)), int(n.attrs.get("transB", 0))
     bc = _const(g, b)
-    if bc is None or ta:
+    if bc is None:
         return None   # left to a registered Gemm handler, if any
+    src = n.sources
+    out = []
+    if ta:   # A^T: on the host when A is constant, else a Transpose kernel
+        ac = _const(g, a)
+        if ac is not None:
+            a = g.add_const(f"{n.name}.a_t", np.ascontiguousarray(ac.T))
+        else:
+            at = g.fresh(a)
+            g.shapes[at], g.dtypes[at] = tuple(g.shapes[a])[::-1], g.dtypes[a]
+            out.append(Node("Transpose", [a], [at], {"perm": [1, 0]}, f"{n.name} (A^T)", n.opset,
+                            sources=src))
+            a = at
     w = (bc.T if tb else bc).astype(np.float64) * alpha      # [K, N]
     kk, nn = w.shape
     m = g.shapes[a][0]
-    src = n.sources
     bias, residual = "", ""
     if c:
         cc = _const(g, c)
@@ -430,7 +558,6 @@ def _lower_gemm(g: Graph, n: Node):
             rv, residual = _view(g, c, (m, nn, 1, 1), name=f"{n.name} (C)", sources=src)
         else:
             return None
-    out = []
     if residual and residual not in g.consts:
         out.append(rv)
     v1, xa = _view(g, a, (m, kk, 1, 1), name=f"{n.name} (rows)", sources=src)
@@ -836,9 +963,11 @@ def remove_dead(g: Graph) -> int:
 PASSES = [
     ("opsets", normalise_opsets),
     ("identity", remove_identities),
+    ("bool_casts", bool_casts),
     ("pixel_shuffle", pixel_shuffle),
     ("views", lower_views),
     ("batchnorm", fold_batchnorm),
+    ("batchnorm_training", training_batchnorm),
     ("matmul", lower_matmul),
     ("conv_canonical", canonical_convs),
     ("conv_resize", conv_through_resize),

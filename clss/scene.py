@@ -41,6 +41,22 @@ _F = np.float32
 
 
 @dataclass
+class Light:
+    """The sun (a directional light casting shadows on the ground), the ambient term and
+    the sky (horizon colour, also the haze colour; zenith colour). The built-in scene
+    uses DEFAULT_LIGHT; generated scenes move and dim it per frame."""
+    sun_dir: np.ndarray          # unit vector toward the sun (float64)
+    sun: np.ndarray              # float32 RGB radiance
+    ambient: np.ndarray          # float32 RGB
+    horizon: np.ndarray = field(default_factory=lambda: HORIZON)
+    zenith: np.ndarray = field(default_factory=lambda: ZENITH)
+
+
+DEFAULT_LIGHT = Light(SUN_DIR, SUN, AMBIENT)
+SKY_ID, GROUND_ID = -2, -1       # primitive ids of the sky and the ground plane
+
+
+@dataclass
 class Frame:
     """One rendered frame; ``reference`` is None when no reference was rendered."""
     index: int
@@ -271,9 +287,16 @@ class Box:
 
 class Cylinder:
     """Static open cylinder from `a` along an axis-aligned unit `axis` for `length`
-    (poles, wires)."""
+    (poles, wires).
+
+    `thin_safe` (a class attribute, off here so that the built-in scene's output stays
+    as it was) computes the hit with the cancellation-free discriminant
+    A r^2 - (o x d)^2 and renormalises the normal: for radii of millimetres metres away,
+    float32's B^2 - A C loses r^2 entirely (the wire is missed) and the hit point is
+    too coarse for (P - axis) / r to stay of unit length (highlights of thousands)."""
     spec = (0.3, 60.0)
     emission = None
+    thin_safe = False
 
     def __init__(self, a, axis, length, radius, color):
         self.a = np.asarray(a, np.float64)
@@ -296,7 +319,11 @@ class Cylinder:
         di, dj = d[i], d[j]
         A = di * di + dj * dj
         B = di * oi + dj * oj
-        disc = B * B - A * (oi * oi + oj * oj - self.r ** 2)
+        if self.thin_safe:
+            cross = oi * dj - oj * di
+            disc = A * self.r ** 2 - cross * cross
+        else:
+            disc = B * B - A * (oi * oi + oj * oj - self.r ** 2)
         with np.errstate(invalid="ignore", divide="ignore"):
             t = (-B - np.sqrt(disc)) / A
         s = (float(o[self.k] - self.a[self.k]) + t * d[self.k]) * self.sign
@@ -306,7 +333,10 @@ class Cylinder:
     def surface(self, P, d):
         n = np.stack([P[m] - float(self.a[m]) for m in range(3)], -1)
         n[:, self.k] = 0
-        n *= 1 / self.r
+        if self.thin_safe:
+            n /= np.maximum(np.sqrt(np.sum(n * n, -1, keepdims=True)), _F(1e-12))
+        else:
+            n *= 1 / self.r
         return n, np.broadcast_to(self.color, n.shape)
 
     def to_prev(self, P):
@@ -405,18 +435,21 @@ class _View:
     """One frame's primitives seen by one camera at one image size; screen rectangles
     are computed once and shared by all sample passes."""
 
-    def __init__(self, prims, cam, width, height):
+    def __init__(self, prims, cam, width, height, light=None, ground=None):
         self.prims, self.cam, self.w, self.h = prims, cam, width, height
+        self.light = DEFAULT_LIGHT if light is None else light
+        self.ground = DEFAULT_GROUND if ground is None else ground
         self.rects = [_screen_rect(p.corners(), cam, width, height) for p in prims]
-        L = SUN_DIR
+        L = self.light.sun_dir
         self.casters = [(p, _screen_rect(p.shadow_corners(L), cam, width, height))
                         for p in prims if hasattr(p, "shadow_corners") and p.emission is None]
 
 
-def _sky(d):
+def _sky(d, light=DEFAULT_LIGHT):
     n2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
     a = np.sqrt(np.sqrt(np.maximum(d[1], 0) ** 2 / n2))
-    return [HORIZON[k] + (ZENITH[k] - HORIZON[k]) * a for k in range(3)]
+    hor, zen = light.horizon, light.zenith
+    return [hor[k] + (zen[k] - hor[k]) * a for k in range(3)]
 
 
 # Ground texture: a 2 m x 2 m tile of 256 x 256 texels (0.78 cm), point sampled:
@@ -438,6 +471,21 @@ def _ground_texture():
 
 
 _TILE_CLASS, _STRIPE_CLASS = _ground_texture()
+
+
+@dataclass
+class Ground:
+    """The ground texture's colours (3 x 5 float32: grout, dark tile, light tile, path
+    stripe, path gap), texels per metre (the 256-texel tile repeats every 256 / that
+    metres; at most 256 so float32 still floors to whole texels) and the striped path
+    (|x - path_x| < path_half; path_half 0 for none)."""
+    albedo: np.ndarray = field(default_factory=lambda: _GROUND_ALBEDO)
+    texels_per_metre: float = _TEX / 2.0
+    path_x: float = 0.4
+    path_half: float = 0.9
+
+
+DEFAULT_GROUND = Ground()
 _BAND = 64   # rows per band: keeps the band's temporaries in cache
 
 
@@ -459,43 +507,58 @@ def _ground_band(view, A, B, rows):
     t = -o[1] / b[1]                                     # per row
     x = (o[0] + t * b[0]) + t * A[0]
     z = (o[2] + t * b[2]) + t * A[2]
+    return _ground_color(view, x, z, t, rows)
+
+
+def _ground_color(view, x, z, t, rows=None):
+    """Ground colour (3 arrays shaped like x) at ground points (x, 0, z) seen at ray
+    parameter t. `rows`: the image rows of a band (x, z are (rows, w) and the casters'
+    screen rectangles crop the shadow tests), or None for arbitrary points."""
     # float32 keeps 4 fractional bits at 2^20, enough to floor to whole texels.
-    scale, off = _F(_TEX / 2.0), _F(2 ** 20)
+    g = view.ground
+    scale, off = _F(g.texels_per_metre), _F(2 ** 20)
     ix = (x * scale + off).astype(np.int32) & (_TEX - 1)
     iz = (z * scale + off).astype(np.int32) & (_TEX - 1)
-    cls = np.where(np.abs(x - _F(0.4)) < 0.9, np.take(_STRIPE_CLASS, iz),
+    cls = np.where(np.abs(x - _F(g.path_x)) < g.path_half, np.take(_STRIPE_CLASS, iz),
                    np.take(_TILE_CLASS, (iz << 8) | ix))
     fog = np.exp(t * -HAZE)
-    L = SUN_DIR.tolist()
-    out = [HORIZON[k] * (1 - fog) + np.take(_GROUND_ALBEDO[k], cls) * (
-        (SUN[k] * L[1] + AMBIENT[k]) * fog) for k in range(3)]
-    r0 = rows.start
+    L = view.light.sun_dir.tolist()
+    sun, ambient, hor = view.light.sun, view.light.ambient, view.light.horizon
+    out = [hor[k] * (1 - fog) + np.take(g.albedo[k], cls) * (
+        (sun[k] * L[1] + ambient[k]) * fog) for k in range(3)]
     for p, rect in view.casters:
-        if rect is None or rect[1] <= r0 or rect[0] >= rows.stop:
+        if rect is None:
             continue
-        a0, a1, c0, c1 = max(rect[0] - r0, 0), rect[1] - r0, rect[2], rect[3]
-        shadow = p.occludes((x[a0:a1, c0:c1], 0.0, z[a0:a1, c0:c1]), L)
+        if rows is None:
+            idx, f = (Ellipsis,), fog
+        else:
+            r0 = rows.start
+            if rect[1] <= r0 or rect[0] >= rows.stop:
+                continue
+            a0, a1, c0, c1 = max(rect[0] - r0, 0), rect[1] - r0, rect[2], rect[3]
+            idx, f = (slice(a0, a1), slice(c0, c1)), fog[a0:a1]
+        shadow = p.occludes((x[idx], 0.0, z[idx]), L)
         if not shadow.any():
             continue
-        f = fog[a0:a1]
         for k in range(3):
-            dark = HORIZON[k] * (1 - f) + np.take(_GROUND_ALBEDO[k], cls[a0:a1, c0:c1]) * (
-                AMBIENT[k] * f)
-            sub = out[k][a0:a1, c0:c1]
+            dark = hor[k] * (1 - f) + np.take(g.albedo[k], cls[idx]) * (
+                ambient[k] * f)
+            sub = out[k][idx]
             sub[shadow] = dark[shadow]
     return out
 
 
-def _shade(o, hits, d, t):
+def _shade(o, hits, d, t, light=DEFAULT_LIGHT):
     """Colour (N, 3) of the gathered hit points of several primitives at once, for
     rays from o along d (3 arrays) at parameter t; `hits` lists (primitive, slice)."""
+    SUN, AMBIENT = light.sun, light.ambient
     P = [o[j] + t * d[j] for j in range(3)]
     parts = [p.surface([q[s] for q in P], [q[s] for q in d]) for p, s in hits]
     n = np.concatenate([a for a, _ in parts])
     albedo = np.concatenate([b for _, b in parts])
     ks = np.concatenate([np.full(s.stop - s.start, p.spec[0], _F) for p, s in hits])
     shin = np.concatenate([np.full(s.stop - s.start, p.spec[1], _F) for p, s in hits])
-    L = SUN_DIR.astype(_F)
+    L = light.sun_dir.astype(_F)
     ndl = np.maximum(n @ L, 0)
     col = albedo * (ndl[:, None] * SUN + AMBIENT)
     dn = np.stack(d, -1)
@@ -507,13 +570,16 @@ def _shade(o, hits, d, t):
         if p.emission is not None:
             col[s] = p.emission
     fog = np.exp(t * -HAZE)[:, None]
-    return HORIZON + (col - HORIZON) * fog
+    return light.horizon + (col - light.horizon) * fog
 
 
-def _trace(view, us, vs, prev_cam=None):
+def _trace(view, us, vs, prev_cam=None, out=None):
     """Planar colour (3, h, w) for one sample per pixel taken at column positions
     us (w,) and row positions vs (h,) (each within +-1 pixel of the pixel centre);
-    with prev_cam also view depth (h, w) and motion (h, w, 2).
+    with prev_cam also view depth (h, w) and motion (h, w, 2). A dict `out` receives
+    what labelling needs: "t" (view depth, inf for sky), "ids" (int16 index into
+    view.prims, GROUND_ID or SKY_ID) and, with prev_cam, "prev_z" (the hit point's view
+    depth in the previous frame).
 
     Sample positions that vary per column and per row, not per pixel, make the ray
     directions separable, d = A[:, col] + B[:, row], and the ground depth a function
@@ -542,7 +608,7 @@ def _trace(view, us, vs, prev_cam=None):
         ib[closer] = k
     color = np.empty((3, H, W), _F)
     if rg > 0:
-        color[:, :rg] = _sky([A[j] + B[j][:rg, None] for j in range(3)])
+        color[:, :rg] = _sky([A[j] + B[j][:rg, None] for j in range(3)], view.light)
     if rg < H:
         color[:, rg:] = _ground(view, A, B, slice(rg, H))
     want_motion = prev_cam is not None
@@ -565,18 +631,63 @@ def _trace(view, us, vs, prev_cam=None):
         cc = np.concatenate([b for _, b in sel])
         t = tbest[rr, cc]
         dk = [A[j][cc] + B[j][rr] for j in range(3)]
-        color[:, rr, cc] = _shade(o, hits, dk, t).T
+        color[:, rr, cc] = _shade(o, hits, dk, t, view.light).T
         if want_motion:
             for p, s in hits:
                 P = [o[j] + t[s].astype(np.float64) * dk[j][s] for j in range(3)]
                 Pp = p.to_prev(P)
                 for j in range(3):
                     prev[j][rr[s], cc[s]] = Pp[j]
+    if out is not None:
+        out["t"] = tbest
+        out["ids"] = np.where(np.isfinite(tbest), ids, np.int16(SKY_ID)).astype(np.int16)
     if not want_motion:
         return color, None, None
-    up, vp, _ = prev_cam.project(prev[0], prev[1], prev[2], W, H)
+    up, vp, zp = prev_cam.project(prev[0], prev[1], prev[2], W, H)
     motion = np.stack([up - us[None, :], vp - vs[:, None]], -1).astype(_F)
+    if out is not None:
+        out["prev_z"] = zp
     return color, tbest, motion
+
+
+def trace_points(view, u, v):
+    """Colour (N, 3), view depth t (N,) (inf for sky) and primitive ids (N,) (as
+    _trace's) of one ray through each of the arbitrary continuous pixel positions u, v
+    (N,) of `view`. Slower per ray than _trace (no separable rays, no screen
+    rectangles); made for a few scattered positions, such as where the labeller asks
+    what the previous frame saw at a point's reprojected position."""
+    o = view.cam.pos.tolist()
+    d = view.cam.rays(np.asarray(u, _F), np.asarray(v, _F), view.w, view.h)
+    d = tuple(np.asarray(c, _F) for c in d)
+    with np.errstate(divide="ignore"):
+        tbest = np.where(d[1] < 0, -o[1] / d[1], np.inf).astype(_F)
+    ids = np.full(tbest.shape, GROUND_ID, np.int16)
+    for k, p in enumerate(view.prims):
+        if view.rects[k] is None:     # nowhere on screen (positions are on screen)
+            continue
+        t = p.hit(o, d)
+        closer = t < tbest
+        tbest[closer] = t[closer]
+        ids[closer] = k
+    sky = ~np.isfinite(tbest)
+    ids[sky] = SKY_ID
+    color = np.empty(tbest.shape + (3,), _F)
+    if sky.any():
+        color[sky] = np.stack(_sky([c[sky] for c in d], view.light), -1)
+    g = ids == GROUND_ID
+    if g.any():
+        tg = tbest[g]
+        x = o[0] + tg * d[0][g]
+        z = o[2] + tg * d[2][g]
+        color[g] = np.stack(_ground_color(view, x, z, tg), -1)
+    sel = [(p, np.nonzero(ids == k)[0]) for k, p in enumerate(view.prims)]
+    sel = [(p, i) for p, i in sel if i.size]
+    if sel:
+        idx = np.concatenate([i for _, i in sel])
+        bounds = np.cumsum([0] + [i.size for _, i in sel])
+        hits = [(p, slice(bounds[m], bounds[m + 1])) for m, (p, _) in enumerate(sel)]
+        color[idx] = _shade(o, hits, [c[idx] for c in d], tbest[idx], view.light)
+    return color, tbest, ids
 
 
 # ---------------------------------------------------------------- frames
@@ -609,11 +720,12 @@ def render_frame(index, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):
                  meta={"scale": scale, "spp_ref": spp_ref, "near": NEAR})
 
 
-def render_reference(view, spp, rng):
+def render_reference(view, spp, rng, on_sample=None):
     """Box-filtered reference: gx x gy strata per pixel (gx * gy >= spp), one sample
     in each at a random position inside the stratum. The random offset is drawn per
     column (x) and per row (y) for each stratum (see _trace), which keeps the samples
-    stratified and breaks up the regular-grid moire."""
+    stratified and breaks up the regular-grid moire. `on_sample(color, out)`, if given,
+    sees each sample pass: planar colour (3, H, W) and _trace's `out` dict."""
     gx = int(math.ceil(math.sqrt(spp)))
     gy = int(math.ceil(spp / gx))
     H, W = view.h, view.w
@@ -623,7 +735,11 @@ def render_reference(view, spp, rng):
         for sx in range(gx):
             us = cols + (sx + rng.random(W, _F)) * _F(1 / gx)
             vs = rows + (sy + rng.random(H, _F)) * _F(1 / gy)
-            acc += _trace(view, us, vs)[0]
+            out = None if on_sample is None else {}
+            c = _trace(view, us, vs, out=out)[0]
+            acc += c
+            if on_sample is not None:
+                on_sample(c, out)
     acc *= _F(1.0 / (gx * gy))
     return np.ascontiguousarray(acc.transpose(1, 2, 0))
 

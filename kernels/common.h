@@ -89,10 +89,11 @@ typedef float8 A8;
 #endif
 
 /* Generic in the vector width: works for A, A4 and A8 alike. */
+/* relu/leaky_relu: NaN passes through, as in onnxruntime (fmax(NaN, 0) is 0). */
 #if ACT == ACT_RELU
-#define APPLY_ACT(x, alpha) fmax((x), (A)0)
+#define APPLY_ACT(x, alpha) (((x) < (A)0) ? (A)0 : (x))
 #elif ACT == ACT_LEAKY_RELU
-#define APPLY_ACT(x, alpha) select((x) * (A)(alpha), (x), (x) >= (A)0)
+#define APPLY_ACT(x, alpha) (((x) < (A)0) ? (x) * (A)(alpha) : (x))
 #elif ACT == ACT_SIGMOID
 #define APPLY_ACT(x, alpha) ((A)1 / ((A)1 + exp(-(x))))
 #elif ACT == ACT_TANH

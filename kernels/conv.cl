@@ -100,11 +100,12 @@ inline A8 ld8_inside(__global const T *row, int ix, int s)
 }
 
 /* relu and leaky_relu as vector selects rather than the fmax/select
- * builtins (calls on PoCL); same results, NaN included. */
+ * builtins (calls on PoCL). NaN passes through, as in onnxruntime: the
+ * comparisons are false for NaN, so each picks v (fmax(v, 0) would give 0). */
 #if ACT == ACT_RELU
-#define ACT8(v, alpha) ((v) > (A8)A_ZERO ? (v) : (A8)A_ZERO)
+#define ACT8(v, alpha) ((v) < (A8)A_ZERO ? (A8)A_ZERO : (v))
 #elif ACT == ACT_LEAKY_RELU
-#define ACT8(v, alpha) ((v) >= (A8)A_ZERO ? (v) : (v) * (A)(alpha))
+#define ACT8(v, alpha) ((v) < (A8)A_ZERO ? (v) * (A)(alpha) : (v))
 #else
 #define ACT8 APPLY_ACT
 #endif

@@ -153,8 +153,9 @@ __kernel void where_bcast(__global const uchar *c, __global const TB *a, __globa
 #define UOP UOP_RELU
 #endif
 
-/* p0, p1: alpha/beta, or clip's min/max. Relu and clip select, so NaN passes
- * through (as in onnxruntime); a min above max clips everything to max (ONNX). */
+/* p0, p1: alpha/beta, or clip's min/max. Relu, clip and hard_sigmoid select,
+ * so NaN passes through (as in onnxruntime; fmin/fmax would drop it); a min
+ * above max clips everything to max (ONNX). */
 #if UOP == UOP_RELU
 #define UNOP(x) (((x) < (A)0) ? (A)0 : (x))
 #elif UOP == UOP_LEAKY_RELU
@@ -166,7 +167,9 @@ __kernel void where_bcast(__global const uchar *c, __global const TB *a, __globa
 #elif UOP == UOP_ELU
 #define UNOP(x) (((x) < (A)0) ? (A)p0 * expm1(x) : (x))
 #elif UOP == UOP_HARD_SIGMOID
-#define UNOP(x) fmax((A)0, fmin((A)1, (A)p0 * (x) + (A)p1))
+#define HS_LINEAR(x) ((A)p0 * (x) + (A)p1)
+#define HS_LO(x) ((HS_LINEAR(x) < (A)0) ? (A)0 : HS_LINEAR(x))
+#define UNOP(x) ((HS_LO(x) > (A)1) ? (A)1 : HS_LO(x))
 #elif UOP == UOP_ABS
 #define UNOP(x) fabs(x)
 #elif UOP == UOP_NEG

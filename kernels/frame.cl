@@ -7,7 +7,7 @@
  *   depth_diff   render res   bilinear of the reconstructed depth -> dd (s4); rule mode:
  *                             the 3x3 box of the encoded colour (s9)
  *   resolve      output res   jitter-aware upsampling (s5), the 16-channel history warp
- *                             (s6); rule mode: ghost test, aux update, clamp and blend
+ *                             (s6); rule mode: ghost test, aux update, clip and blend
  *                             (s8, s9) in the same pass; net mode: the classifier input,
  *                             padded to multiples of 16 by edge replication (s7)
  *   compose      output res   net mode: logits x2 (s7), aux update (s8), composition
@@ -21,6 +21,7 @@
  *   -DNET=0|1       resolve: rule mode (0) or classifier input (1)
  *   -DSANITIZE=0|1  replace non-finite inputs instead of refusing the frame
  *   -DHIDDEN=n      compose: hidden width of the composition MLP
+ *   -DCLIP_EPS=x    resolve (rule): contract.RULE_CLIP_EPS, see the history clip (s9)
  *   -DVEC=8|4|1     output-res pixels per work-item in resolve (rule) and compose
  *
  * Buffers: inputs in image layout (colour h x w x 3, motion h x w x 2 interleaved,
@@ -52,6 +53,9 @@
 #endif
 #ifndef HIDDEN
 #define HIDDEN 32
+#endif
+#ifndef CLIP_EPS
+#define CLIP_EPS 1e-6f
 #endif
 
 /* flags[0]: what was found (bits); flags[1..4]: non-finite element counts */
@@ -584,18 +588,34 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     const iv ghost = (g.dd > depth_threshold) | (g.valid == (iv)(0));
     const fv cnt = select(fmin(g.cnt + 1.0f, cap), FV(0.0f), ghost);
     const fv wgt = fmax(1.0f / (1.0f + cnt), g.react);
+    /* s9 history clip: up + t (hist - up), t the largest fraction in [0, 1] that keeps all
+     * three channels inside the clamp box when up is (channels at most CLIP_EPS from up do
+     * not limit it); one t for the three keeps the history's hue, which a per-channel clamp
+     * shifts differently each frame as the jittered box moves (flicker) */
+    fv t = FV(1.0f);
+    for (int c = 0; c < 3; ++c) {
+        const fv d = g.col[c] - g.up[c];
+        const fv lim = select(g.bmin[c] - g.up[c], g.bmax[c] - g.up[c], d > 0.0f);
+        const iv big = fabs(d) > CLIP_EPS;
+        const fv tc = select(FV(1.0f), lim / select(FV(1.0f), d, big), big);
+        t = fmin(t, fmax(tc, 0.0f));
+    }
     fv o[3];
     for (int c = 0; c < 3; ++c) {
         const fv u = g.up[c];
-        const fv hc = fmin(fmax(g.col[c], g.bmin[c]), g.bmax[c]);
+        const fv hc = u + t * (g.col[c] - u);
         o[c] = wgt * u + (1.0f - wgt) * hc;
         st_plane(hist_out, c * HW + q, o[c], n);
         st_plane(hist_out, (4 + c) * HW + q, select(fmin(g.mn[c], u), u, ghost), n);
         st_plane(hist_out, (7 + c) * HW + q, select(fmax(g.mx[c], u), u, ghost), n);
     }
     st_plane(hist_out, 3 * HW + q, cnt, n);
+    /* rule mode carries no logits: zero bits (0.0 in half and in float). Stored as bits,
+     * not through st_plane: with VEC=8 and half storage, six more vstore_half8_rte made
+     * PoCL 3.x's compiler (LLVM, AVX-512 host) crash while building this kernel. */
     for (int c = 0; c < 6; ++c)
-        st_plane(hist_out, (10 + c) * HW + q, FV(0.0f), n);
+        for (int l = 0; l < n; ++l)
+            ((__global TB *)hist_out)[(10 + c) * HW + q + l] = (TB)0;
     st_rgb(out, q, decode(o[0], inv_pq_scale) * exposure, decode(o[1], inv_pq_scale) * exposure,
            decode(o[2], inv_pq_scale) * exposure, n);
     if (debug) {

@@ -43,13 +43,14 @@
  * rounded to half by the host, so the unrolled loops broadcast them without a
  * conversion each): kernels/common.h. */
 
-/* Per-layer activation (common.h's APPLY_ACT serves one ACT per build). */
+/* Per-layer activation (common.h's APPLY_ACT serves one ACT per build).
+ * relu/leaky_relu compare with < so that NaN passes through, as in onnxruntime. */
 inline A8 act8(A8 v, int kind, float alpha)
 {
     if (kind == ACT_RELU)
-        return v > (A8)A_ZERO ? v : (A8)A_ZERO;
+        return v < (A8)A_ZERO ? (A8)A_ZERO : v;
     if (kind == ACT_LEAKY_RELU)
-        return v >= (A8)A_ZERO ? v : v * (A)alpha;
+        return v < (A8)A_ZERO ? v * (A)alpha : v;
     if (kind == ACT_SIGMOID)
         return (A)1 / ((A)1 + exp(-v));
     if (kind == ACT_TANH)

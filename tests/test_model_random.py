@@ -3,8 +3,8 @@
 single ops with random attributes, and multi-op graphs (conv stacks with
 activations, residual adds, skip concatenations, pooling and upsampling,
 pixel (un)shuffles, channel attention), fp32 and fp16, odd sizes and channel
-counts. In fp16 the reference is onnxruntime on fp16-rounded inputs and
-weights (what the engine stores)."""
+counts, with and without shapes on the graph outputs. In fp16 the reference
+is onnxruntime on fp16-rounded inputs and weights (what the engine stores)."""
 from __future__ import annotations
 
 import numpy as np
@@ -29,11 +29,15 @@ def _half(a):
     return a.astype(np.float16).astype(np.float32) if a.dtype == np.float32 else a
 
 
-def check(nodes, feeds, outputs, inits, prec, tol, opset=18):
+def check(nodes, feeds, outputs, inits, prec, tol, opset=18, shapeless=False):
+    """shapeless: the graph outputs declare no shape (as onnxruntime allows)."""
     if prec != "fp32":
         inits = {k: _half(v) for k, v in inits.items()}
         feeds = {k: _half(v) for k, v in feeds.items()}
     model = make_model(nodes, feeds, outputs, initializers=inits, opset=opset)
+    if shapeless:
+        for o in model.graph.output:
+            o.type.tensor_type.ClearField("shape")
     cm = clss.Model(model, precision=prec)
     outs = cm.run(feeds)
     refs = run_ort(model, feeds)
@@ -206,13 +210,13 @@ def single_op(draw):
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
 @settings(max_examples=30, **SETTINGS)
-@given(case=single_op())
-def test_random_single_op(prec, case):
+@given(case=single_op(), shapeless=st.booleans())
+def test_random_single_op(prec, case, shapeless):
     nodes, feeds, inits = case
     tol = dict(TOL)
     if nodes[0].op_type == "GridSample" and prec == "fp16":
         tol["fp16"] = Tolerance(2e-3, 2e-3)   # bicubic: 16 taps with negative lobes
-    check(nodes, feeds, ["y"], inits, prec, tol)
+    check(nodes, feeds, ["y"], inits, prec, tol, shapeless=shapeless)
 
 
 # --- multi-op graphs --------------------------------------------------------------------------
@@ -299,12 +303,12 @@ def graph(draw):
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
 @settings(max_examples=12, **SETTINGS)
-@given(case=graph())
-def test_random_graph(prec, case):
+@given(case=graph(), shapeless=st.booleans())
+def test_random_graph(prec, case, shapeless):
     nodes, feeds, inits, outs = case
     if not outs:
         return
     used = {t for n in nodes for t in n.input}
     # Tensors nobody reads are graph outputs too, so every node is checked.
     dangling = [t for n in nodes for t in n.output if t not in used and t not in outs]
-    check(nodes, feeds, outs + dangling, inits, prec, CHAIN_TOL)
+    check(nodes, feeds, outs + dangling, inits, prec, CHAIN_TOL, shapeless=shapeless)

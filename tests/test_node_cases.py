@@ -3,9 +3,9 @@
 Every single-node case whose op type has a registered handler runs in fp32 and
 is compared with the case's expected outputs. A case the kernels do not cover
 must be listed, with its reason, in the family's NODE_DEVIATIONS (clss/ops/<family>.py);
-an unlisted Unsupported is a failure. Cases on non-float32 tensors (double,
-integer and bool data; the kernels are float32/float16 only) are skipped as one
-documented category.
+an unlisted Unsupported is a failure. Cases on float16 data run in precision
+fp16; cases on other non-float32 tensors (double, integer and bool data; the
+kernels are float32/float16 only) are skipped as one documented category.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from clss.ops import ONNX_HANDLERS, Unsupported, load_all
-from clss.ops.base import Tolerance, compare, node_attrs
+from clss.ops.base import DEFAULT_TOL, Tolerance, compare, node_attrs
 
 onnx = pytest.importorskip("onnx")
 from node_cases import NODE_DIR, load_case_data, single_node_cases  # noqa: E402
@@ -45,18 +45,20 @@ def test_node_case(case_dir, any_dev):
         pytest.xfail(DEVIATIONS[name])
     feeds, expected = load_case_data(case_dir, model)
     inputs = [feeds.get(n) if n else None for n in node.input]
-    for i, x in enumerate(inputs):
-        if x is None or i in handler.const_inputs or i in NON_FLOAT_INPUTS.get(node.op_type, ()):
-            continue
-        if x.dtype != np.float32:
-            pytest.skip(f"{x.dtype} tensors: the kernels are float32/float16 only")
-    dev_inputs = [None if x is None else (x if i in handler.const_inputs else any_dev.to_device(x))
+    floats = {x.dtype for i, x in enumerate(inputs) if x is not None and i not in handler.const_inputs
+              and i not in NON_FLOAT_INPUTS.get(node.op_type, ())}
+    other = floats - {np.dtype(np.float32), np.dtype(np.float16)}
+    if other:
+        pytest.skip(f"{sorted(map(str, other))[0]} tensors: the kernels are float32/float16 only")
+    # float16 data: half storage (precision fp16) and its tolerance
+    prec, tol = ("fp16", DEFAULT_TOL["fp16"]) if np.dtype(np.float16) in floats else ("fp32", NODE_TOL)
+    dev_inputs = [None if x is None else (x if i in handler.const_inputs else any_dev.to_device(x, prec))
                   for i, x in enumerate(inputs)]
     attrs = node_attrs(node)
     if node.op_type == "Split":  # opset 18 splits into as many parts as the node has outputs
         attrs.setdefault("num_outputs", len(node.output))
     try:
-        outs = handler.fn(any_dev, "fp32", attrs, dev_inputs)
+        outs = handler.fn(any_dev, prec, attrs, dev_inputs)
     except Unsupported as e:
         pytest.fail(f"{name}: Unsupported ({e}) and not listed in NODE_DEVIATIONS")
     outs = [any_dev.to_host(o) for o in outs]
@@ -66,5 +68,5 @@ def test_node_case(case_dir, any_dev):
         if r.dtype.kind in "biu":
             assert np.array_equal(o.astype(r.dtype), r), f"output {i}: integer/bool values differ"
             continue
-        c = compare(o, r.astype(np.float32), NODE_TOL)
+        c = compare(o.astype(np.float32), r.astype(np.float32), tol)
         assert c.passed, f"output {i}: max abs {c.max_abs:.3g} err/tol {c.ratio:.3g} {c.detail}"

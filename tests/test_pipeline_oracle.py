@@ -242,7 +242,15 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
     ghost = (aux[3] > thr) | ~valid
     cnt = np.where(ghost, 0, np.minimum(wcnt + 1, cap))
     wgt = np.maximum(1 / (1 + cnt), aux[4])
-    hist = np.minimum(np.maximum(wcol, aux[5:8]), aux[8:11])
+    # history clip: up + t (wcol - up), one t in [0, 1] for the three channels
+    d = wcol - up
+    lim = np.where(d > 0, aux[8:11] - up, aux[5:8] - up)
+    big = np.abs(d) > C.RULE_CLIP_EPS
+    tc = np.where(big, lim / np.where(big, d, 1), 1)
+    t = np.minimum(np.maximum(tc, 0).min(0), 1)
+    hist = up + t * d
+    inside = np.all((up >= aux[5:8]) & (up <= aux[8:11]), 0)   # up may overshoot the box
+    assert np.all(((hist >= aux[5:8] - 1e-6) & (hist <= aux[8:11] + 1e-6)) | ~inside)
     out = wgt * up + (1 - wgt) * hist
     return dict(dbg_dilated_depth=d_dil, dbg_dilated_motion=m_dil, dbg_recon_depth=R,
                 dbg_depth_diff=dd, dbg_upsampled=up, dbg_motion_hr=mhr, dbg_valid=valid,
@@ -250,6 +258,33 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
                 history_out=np.concatenate([out, cnt[None], np.where(ghost, up, np.minimum(wmin, up)),
                                             np.where(ghost, up, np.maximum(wmax, up)),
                                             np.zeros((6, H, W))]))
+
+
+def test_rule_history_clip_hand_cases():
+    """reference.md s9: the history is pulled towards `up` by one fraction for all three
+    channels until it is inside the box (a per-channel clamp would change its hue)."""
+    from onnx import TensorProto, helper
+    g = O._Graph(O.OPSET)
+    out = O._clip_towards(g, "hist", "up", "lo", "hi")
+    g.op("Identity", out, name="clipped")
+    vi = [helper.make_tensor_value_info(n, TensorProto.FLOAT, [1, 3, 1, 4])
+          for n in ("hist", "up", "lo", "hi")]
+    m = helper.make_model(helper.make_graph(g.nodes, "clip", vi, [helper.make_tensor_value_info(
+        "clipped", TensorProto.FLOAT, [1, 3, 1, 4])], initializer=g.inits),
+        opset_imports=[helper.make_opsetid("", O.OPSET)])
+    m.ir_version = O.IR_VERSION
+    sess = ort.InferenceSession(m.SerializeToString(), _opts(), providers=["CPUExecutionProvider"])
+    # pixels: inside the box | green 0.1 above the box (d_g = 0.2: t = 0.5) | up above the
+    # box, history further out (t = 0) | history equal to up
+    up = np.array([[.5, .5, .5], [.5, .5, .5], [.9, .5, .5], [.5, .5, .5]], np.float32)
+    hist = np.array([[.6, .45, .5], [.6, .7, .4], [.95, .5, .5], [.5, .5, .5]], np.float32)
+    lo = np.full((4, 3), .4, np.float32)
+    hi = np.full((4, 3), .6, np.float32)
+    want = np.array([[.6, .45, .5], [.55, .6, .45], [.9, .5, .5], [.5, .5, .5]], np.float32)
+    feed = {k: np.ascontiguousarray(v.T.reshape(1, 3, 1, 4))
+            for k, v in (("hist", hist), ("up", up), ("lo", lo), ("hi", hi))}
+    (got,) = sess.run(["clipped"], feed)
+    np.testing.assert_allclose(got.reshape(3, 4).T, want, atol=1e-6)
 
 
 def test_graph_matches_numpy_reference():

@@ -187,3 +187,31 @@ def test_cli_build_and_inspect(tmp_path, capsys):
     assert "cls.stem.weight" in capsys.readouterr().out
     assert main(["inspect", str(tmp_path / "composition.onnx")]) == 0
     assert "Sigmoid" in capsys.readouterr().out
+
+
+def test_load_networks_default_and_untrained(monkeypatch, tmp_path):
+    """weights=None: the shipped trained weights; absent, the untrained init with one
+    warning; "untrained": the seeded init on request."""
+    import warnings
+
+    from clss.pipeline import upscaler
+    from weights_tools.networks import build_classifier
+    from weights_tools.weights import model_weights
+    seeded = model_weights(build_classifier())
+    cls, _, trained = upscaler.load_networks("untrained")
+    assert not trained
+    assert all(np.array_equal(model_weights(cls)[k], v) for k, v in seeded.items())
+    monkeypatch.setattr(upscaler, "SHIPPED_WEIGHTS", str(tmp_path / "none.safetensors"))
+    monkeypatch.setattr(upscaler, "_warned_no_shipped", [])
+    with pytest.warns(UserWarning, match="no trained weights"):
+        assert upscaler.load_networks(None)[2] is False
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")          # only once
+        upscaler.load_networks(None)
+    shipped = tmp_path / "shipped.safetensors"
+    t = dict(seeded)
+    t["cls.stem.bias"] = t["cls.stem.bias"] + 1
+    save_weights(t, str(shipped))
+    monkeypatch.setattr(upscaler, "SHIPPED_WEIGHTS", str(shipped))
+    cls, _, trained = upscaler.load_networks(None)
+    assert trained and np.array_equal(model_weights(cls)["cls.stem.bias"], t["cls.stem.bias"])

@@ -1,4 +1,4 @@
-"""python -m weights_tools build --out DIR [...] | inspect FILE"""
+"""python -m weights_tools build --out DIR [...] | inspect FILE | gen --out DIR [...] | eval SEQ.npz [...]"""
 from __future__ import annotations
 
 import argparse
@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import onnx
 
-from . import networks, weights
+from . import evaluate, networks, weights
 
 RESOLUTIONS = (("540p", 540, 960), ("1080p", 1080, 1920), ("2160p", 2160, 3840))
 
@@ -94,6 +94,67 @@ def cmd_inspect(args):
     return 0
 
 
+def _size(text):
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected HxW (e.g. 72x128), got {text!r}") from None
+    if h < 4 or w < 4:
+        raise argparse.ArgumentTypeError(f"sizes must be at least 4x4, got {text!r}")
+    return h, w
+
+
+def cmd_gen(args):
+    """Generated sequences go to OUT.partial/, which becomes OUT/ (with a READY file)
+    once complete, so a reader never sees half a data set."""
+    import json
+    import shutil
+    from . import scenegen
+    out = os.path.normpath(args.out)
+    if os.path.exists(out):
+        print(f"error: --out {out} already exists (choose a new directory)", file=sys.stderr)
+        return 2
+    for name, v in (("--sequences", args.sequences), ("--frames", args.frames),
+                    ("--spp", args.spp), ("--workers", args.workers)):
+        if v < 1:
+            print(f"error: {name} must be at least 1, got {v}", file=sys.stderr)
+            return 2
+    if not 1.0 <= args.scale <= 4.0:
+        print(f"error: --scale must be in [1, 4], got {args.scale}", file=sys.stderr)
+        return 2
+    tmp = out + ".partial"
+    shutil.rmtree(tmp, ignore_errors=True)
+    os.makedirs(tmp)
+    stats = scenegen.generate(tmp, args.sequences, args.frames, args.seed, args.size,
+                              args.scale, args.spp, args.workers,
+                              log=(lambda m: None) if args.quiet else print)
+    with open(os.path.join(tmp, "READY"), "w") as fh:
+        fh.write(json.dumps({k: stats[k] for k in ("sequences", "frames", "seed")}) + "\n")
+    os.replace(tmp, out)
+    print(f"wrote {args.sequences} sequences of {args.frames} frames to {out} "
+          f"in {stats['seconds']:.1f} s")
+    for key, names in stats["class_names"].items():
+        print(f"  {key:5s} " + ", ".join(f"{n} {f:6.2%}" for n, f
+                                         in zip(names, stats["frequencies"][key])))
+    return 0
+def _add_train(sub):
+    """`train` (weights_tools/train.py) needs torch, the [train] extra; without it the
+    subcommand says so instead of breaking the others."""
+    try:
+        from .train import add_parser
+    except ModuleNotFoundError as e:
+        missing = e.name
+
+        def no_torch(args):
+            print(f"error: train needs {missing} (pip install -e '.[train]')", file=sys.stderr)
+            return 1
+        t = sub.add_parser("train", help="train the networks (needs the [train] extra)")
+        t.add_argument("rest", nargs=argparse.REMAINDER)
+        t.set_defaults(fn=no_torch)
+        return
+    add_parser(sub)
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m weights_tools", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -111,6 +172,22 @@ def main(argv=None):
     i = sub.add_parser("inspect", help="describe a .onnx or .safetensors file")
     i.add_argument("file")
     i.set_defaults(fn=cmd_inspect)
+    e = sub.add_parser("eval", help="score bicubic, jitter-aware bicubic, rules and net on "
+                       "sequences (PSNR, SSIM, tPSNR, FLIP) and write pictures and JSON")
+    evaluate.add_arguments(e)
+    e.set_defaults(fn=lambda a: evaluate.main_args(a, e))
+    g = sub.add_parser("gen", help="generate labelled training sequences (DATA.md .npz)")
+    g.add_argument("--out", required=True, help="new directory to write")
+    g.add_argument("--sequences", type=int, default=8)
+    g.add_argument("--frames", type=int, default=8)
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--size", type=_size, default=(72, 128), help="render size HxW")
+    g.add_argument("--scale", type=float, default=2.0)
+    g.add_argument("--spp", type=int, default=16, help="reference samples per pixel")
+    g.add_argument("--workers", type=int, default=2, help="processes")
+    g.add_argument("--quiet", action="store_true")
+    g.set_defaults(fn=cmd_gen)
+    _add_train(sub)
     args = p.parse_args(argv)
     try:
         return args.fn(args)

@@ -3,7 +3,7 @@
 Arithmetic: binary ops with ONNX multidirectional broadcasting (add, sub, mul,
 div, min, max, prelu; greater/less/equal -> bool), variadic Min/Max/Sum,
 clip, standalone activations, softmax and argmax along any axis.
-Data movement, bit-exact: where, concat, split, slice, pad, copy; reshape-like
+Data movement, bit-exact: where, concat, split, slice, pad, transpose, expand, copy; reshape-like
 ops are metadata only (a view on the same buffer).
 
 Broadcast and strided launches coalesce the shapes to at most four dimensions
@@ -340,12 +340,45 @@ def slice(dev: Device, prec: str, x, starts, ends, axes=None, steps=None):  # no
         return out
     st = _contiguous_strides(x.shape)
     base = sum(s[0] * t for s, t in zip(sel, st))
-    dims, (src,) = coalesce(shape, [[s[1] * t for s, t in zip(sel, st)]])
-    dims, (src,) = _four(dims, [src], "slice")
+    _gather(dev, prec, x, out, base, [s[1] * t for s, t in zip(sel, st)], "slice")
+    return out
+
+
+def transpose(dev: Device, prec: str, x, perm=None):
+    """ONNX Transpose (perm default: reversed axes). Any rank whose permutation
+    leaves at most 4 runs of axes that stay together. Bit-exact."""
+    check_storage("x", x, prec)
+    rank = x.ndim
+    perm = list(range(rank))[::-1] if perm is None else [int(p) for p in perm]
+    if sorted(p % rank if rank else p for p in perm) != list(range(rank)):
+        raise ValueError(f"transpose: perm {perm} is not a permutation of the {rank} axes of {x.shape}")
+    perm = [p % rank for p in perm]
+    out = dev.empty([x.shape[p] for p in perm], prec)
+    if out.size:
+        st = _contiguous_strides(x.shape)
+        _gather(dev, prec, x, out, 0, [st[p] for p in perm], "transpose")
+    return out
+
+
+def expand(dev: Device, prec: str, x, shape):
+    """ONNX Expand: x broadcast with ``shape`` (a gather with stride 0 along the
+    broadcast axes). Bit-exact."""
+    check_storage("x", x, prec)
+    out_shape = tuple(np.broadcast_shapes(tuple(x.shape), tuple(int(s) for s in shape)))
+    out = dev.empty(out_shape, prec)
+    if out.size:
+        _gather(dev, prec, x, out, 0, _broadcast_strides(x.shape, out_shape), "expand")
+    return out
+
+
+def _gather(dev, prec, x, out, base: int, src_strides, what: str):
+    """out[i] = x[base + sum_d i_d * src_strides[d]] over out's shape: the
+    strided copy that slice, transpose and expand are."""
+    dims, (src,) = coalesce(out.shape, [list(src_strides)])
+    dims, (src,) = _four(dims, [src], what)
     gs, dargs = _grid(dims)
     k = dev.kernel("elementwise", "gather", prec)
     dev.launch(k, gs, (x.data, out.data, *dargs, np.int64(base), *_i32(*src)))
-    return out
 
 
 def pad(dev: Device, prec: str, x, pads, mode: str = "constant", value: float = 0.0, axes=None):
@@ -568,6 +601,16 @@ def _onnx_pad(dev, prec, attrs, inputs):
     return [_unsupported(pad, dev, prec, ins[0], pads, mode, value, axes)]
 
 
+@onnx_op("Transpose")
+def _onnx_transpose(dev, prec, attrs, inputs):
+    return [_unsupported(transpose, dev, prec, inputs[0], attrs.get("perm"))]
+
+
+@onnx_op("Expand", const_inputs=(1,))
+def _onnx_expand(dev, prec, attrs, inputs):
+    return [_unsupported(expand, dev, prec, inputs[0], _ints(inputs[1]))]
+
+
 @onnx_op("Identity")
 def _onnx_identity(dev, prec, attrs, inputs):
     return [copy(dev, prec, inputs[0])]
@@ -776,6 +819,21 @@ def identity_case(shape):
                 host_call(lambda dev, p, x: copy(dev, p, x)), exact=True)
 
 
+def transpose_case(shape, perm):
+    x = _data(rng("transpose", shape, perm), shape)
+    return Case("transpose", f"{_shape_str(shape)} perm={list(perm)}", {"x": x},
+                node_model("Transpose", {"x": x}, perm=list(perm)),
+                host_call(lambda dev, p, x: transpose(dev, p, x, perm)), exact=True)
+
+
+def expand_case(shape, to):
+    x = _data(rng("expand", shape, to), shape)
+    sh = np.array(to, np.int64)
+    return Case("expand", f"{_shape_str(shape)} to {list(to)}", {"x": x},
+                node_model("Expand", {"x": x, "shape": sh}, initializers={"shape": sh}),
+                host_call(lambda dev, p, x: expand(dev, p, x, to)), exact=True)
+
+
 def flatten_case(shape, axis):
     x = _data(rng("flatten", shape), shape)
     return Case("flatten", f"{_shape_str(shape)} axis={axis}", {"x": x},
@@ -805,6 +863,8 @@ def cases(level: str = "quick") -> list[Case]:
             slice_case((2, 3, 5, 7), [0, 4, -1], [3, 0, -9], [1, 2, 3], [1, -2, -3]),
             *[pad_case((1, 2, 4, 5), [0, 0, 1, 2, 0, 0, 2, 1], mode, 0.5) for mode in PAD_MODES],
             identity_case((2, 3, 5, 7)),
+            transpose_case((2, 3, 5, 7), (0, 2, 3, 1)),
+            expand_case((3, 1, 7), (2, 1, 5, 1)),
             softmax_case((2, 5, 3, 7), 1),
             argmax_case((2, 5, 3, 7), 1),
             argmax_case((2, 5, 3, 7), -1, keepdims=False, last=True),
@@ -832,6 +892,7 @@ def cases(level: str = "quick") -> list[Case]:
         slice_case((2, 5, 16, 20), [0, 1, 15], [5, 16, 0], [1, 2, 3], [2, 3, -2]),
         pad_case((2, 5, 16, 20), [0, 0, 1, 2, 0, 0, 2, 1], "constant", 0.25),
         pad_case((2, 5, 16, 20), [0, 0, 2, 3, 0, 0, 3, 2], "reflect"),
+        transpose_case((2, 5, 16, 20), (0, 2, 3, 1)),
         softmax_case((2, 17, 16, 20), 1),
         argmax_case((2, 17, 16, 20), 1),
     ]
@@ -894,6 +955,12 @@ def cases(level: str = "quick") -> list[Case]:
         argmax_case((2, 17, 7, 13), 2, last=True),
         identity_case((1, 3, 31, 27)),
         identity_case((5,)),
+        transpose_case((1, 23, 7, 13), (0, 3, 1, 2)),
+        transpose_case((2, 3, 7, 13), (3, 2, 1, 0)),
+        transpose_case((2, 3, 5, 7, 2), (0, 1, 3, 4, 2)),   # rank 5 that coalesces to 4
+        transpose_case((7, 13), (1, 0)),
+        expand_case((1, 23, 1, 13), (2, 1, 7, 13)),
+        expand_case((5,), ()),
         flatten_case((2, 3, 7, 13), 2),
     ]
     return out

@@ -10,7 +10,7 @@ import onnx
 from onnx import helper, TensorProto
 
 # onnx >= 1.23 writes IR 14 by default, which onnxruntime <= 1.31 rejects.
-# IR 10 covers opsets up to 21, everything clss uses.
+# IR 10 carries every opset clss runs (11-25; onnxruntime 1.32 runs them under it).
 IR_VERSION = 10
 DEFAULT_OPSET = 18
 

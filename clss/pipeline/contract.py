@@ -44,6 +44,13 @@ PQ_PEAK_NITS = 10000.0
 PQ_NITS = 100.0
 
 
+# Rule mode's history clip (reference.md s9): the warped history is pulled towards the
+# current upsampled colour `up` along the segment up -> history until it lies inside the
+# clamp box, all three channels by the same fraction. A history channel closer to `up`
+# than this (PQ code values) does not limit the fraction (nothing to clip, and no 0/0).
+RULE_CLIP_EPS = 1e-6
+
+
 class FrameInputError(UserError):
     """A frame input that breaks the contract; the message names the input."""
 

@@ -33,7 +33,7 @@ from onnx import numpy_helper
 from .. import selfcheck
 from ..device import Device
 from ..ops.base import DEFAULT_TOL
-from .contract import PQ_NITS, PQ_PEAK_NITS, output_size
+from .contract import PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size
 from .oracle import DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS
 
 CLASSIFIER_CHANNELS = 23
@@ -200,6 +200,8 @@ class FrameStep:
         net = mode == "net"
         self.vec = pixels_per_item(dev, prec, mode)
         defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec)
+        if not net:
+            defines["CLIP_EPS"] = float(RULE_CLIP_EPS)
         h, w, H, W = self.h, self.w, self.H, self.W
         f32 = np.float32
         e = dev.empty

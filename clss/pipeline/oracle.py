@@ -20,7 +20,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from ..ops.twin import fill_output_shapes
 from .contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
-                       output_size, to_internal, validate_frame)
+                       RULE_CLIP_EPS, output_size, to_internal, validate_frame)
 
 IR_VERSION = 10
 OPSET = 18
@@ -222,14 +222,27 @@ def _pq_decode(g, e, nits, name):
     return g.op("Mul", y, g.const(PQ_PEAK_NITS / nits), name=name)
 
 
+def _clip_towards(g, hist, up, lo, hi):
+    """Rule mode's history clip (reference.md s9): up + t (hist - up), one t in [0, 1] for
+    the three channels, the largest that keeps every channel inside [lo, hi] (when `up`
+    is inside; an `up` outside only stops the history from moving further out)."""
+    d = g.sub(hist, up)
+    lim = g.where(g.op("Greater", d, g.const(0.0)), g.sub(hi, up), g.sub(lo, up))
+    big = g.op("Greater", g.op("Abs", d), g.const(RULE_CLIP_EPS))
+    tc = g.where(big, g.div(lim, g.where(big, d, g.const(1.0))), g.const(1.0))
+    t = g.op("Min", g.op("ReduceMin", g.op("Max", tc, g.const(0.0)), g.i64([1]), keepdims=1),
+             g.const(1.0))
+    return g.add(up, g.mul(t, d))
+
+
 def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier=None,
                       composition=None, cap=None, *, depth_threshold=DEPTH_THRESHOLD,
                       hdr=True, nits=PQ_NITS, debug=False) -> onnx.ModelProto:
     """One CLSS frame step as an ONNX model (see reference.md for every formula).
 
     mode "rule": no networks, ghost = off-screen or reset or depth difference >
-    `depth_threshold`, w = 1/(1+counter), history clamped to the current 3x3
-    neighbourhood.  mode "net": `classifier` and `composition` (onnx.ModelProto from
+    `depth_threshold`, w = 1/(1+counter), history clipped towards the current colour
+    into the current 3x3 neighbourhood's box.  mode "net": `classifier` and `composition` (onnx.ModelProto from
     weights_tools.networks) are inlined.  `render_size` = (h, w).  `cap`: counter cap
     (default 4 for rule, 32 for net).  `hdr=False`: LDR in/out, no PQ (values clamped
     to [0,1]).  `debug=True` adds the DEBUG_OUTPUTS(_RULE|_NET) graph outputs.
@@ -432,7 +445,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
         c_lo = g.chan(aux, slice(5, 8))
         c_hi = g.chan(aux, slice(8, 11))
         dbg["dbg_clamp_min"], dbg["dbg_clamp_max"] = c_lo, c_hi
-        blend_hist = g.op("Min", g.op("Max", w_col, c_lo), c_hi)
+        blend_hist = _clip_towards(g, w_col, up, c_lo, c_hi)
         new_logits = g.op("Expand", zero, g.i64([1, 6, H, W]))
     wgt = g.op("Max", wgt, react_hr, name="w")
     dbg["dbg_w"] = wgt

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 
 import numpy as np
 import pyopencl.array as cla
@@ -34,12 +35,20 @@ from .frame import STAGES, FrameStep, pad16
 from .oracle import DEPTH_THRESHOLD, HISTORY_CHANNELS
 
 MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
+# The trained networks shipped in the package (`make train` writes them; recipe in
+# weights_tools/train.py), the default of mode "net".
+SHIPPED_WEIGHTS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                               "weights", "clss_trained.safetensors")
+UNTRAINED = "untrained"
+_warned_no_shipped = []
 
 
 def load_networks(weights=None):
     """(classifier, composition, trained) from `weights`:
 
-    None: the seeded weights_tools networks (untrained, trained = False);
+    None: the shipped trained weights (SHIPPED_WEIGHTS); if the package has none, the
+      untrained init with one warning;
+    "untrained": the seeded weights_tools networks (untrained, trained = False);
     a directory: classifier.onnx and composition.onnx if present (else the default
       architectures), then weights.safetensors (or the only *.safetensors) applied;
     a .safetensors file: applied to the default architectures (every tensor must fit).
@@ -47,6 +56,15 @@ def load_networks(weights=None):
     from weights_tools.networks import build_classifier, build_composition
     from weights_tools.weights import apply_weights, load_weights
     if weights is None:
+        if os.path.isfile(SHIPPED_WEIGHTS):
+            weights = SHIPPED_WEIGHTS
+        else:
+            if not _warned_no_shipped:
+                _warned_no_shipped.append(True)
+                warnings.warn(f"clss: no trained weights in the package ({SHIPPED_WEIGHTS}); "
+                              "net mode runs the untrained (seeded) networks", stacklevel=3)
+            weights = UNTRAINED
+    if isinstance(weights, str) and weights == UNTRAINED:
         return build_classifier(), build_composition(), False
     path = os.fspath(weights)
     if os.path.isdir(path):
@@ -98,8 +116,8 @@ class Upscaler:
 
     scale: output / render size (>= 1; 1.5, 2, 3, 4 ...). mode: "net" (classifier +
     composition networks) or "rules" (depth test, neighbourhood clamp, 1/(1+n) blend).
-    weights: None (seeded, untrained networks), a directory or a .safetensors file (see
-    `load_networks`). device: a clss Device or a spec for clss.get_device. precision:
+    weights: None (the trained weights shipped in the package), "untrained" (the
+    seeded init), a directory or a .safetensors file (see `load_networks`). device: a clss Device or a spec for clss.get_device. precision:
     "fp32" or "fp16" (half storage of the history and network tensors). depth_inverted:
     reversed-Z input (near = 1). motion_scale: converts motion to render pixels. hdr:
     PQ-encoded internal colour (False: LDR in [0, 1] in and out). cap: sample-counter

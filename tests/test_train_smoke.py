@@ -1,0 +1,108 @@
+"""A smoke run of `python -m weights_tools train` on tiny data (seconds): it runs both
+stages, the loss is finite, the weights change, a checkpoint resumes, and the result
+loads into clss.Upscaler.  Skipped without torch (the [train] extra)."""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from weights_tools.__main__ import main  # noqa: E402
+from weights_tools.weights import load_weights  # noqa: E402
+
+RENDER = (16, 24)
+
+
+def write_tiny_sequence(path, n=6, seed=0):
+    """A DATA.md sequence from the built-in scene with crude labels (for this test only:
+    ghosting where the depth changes a lot between frames, geometry aliasing where the
+    reference has strong edges)."""
+    from clss.scene import render_sequence
+    seq = render_sequence(n, RENDER, 2.0, spp_ref=2, seed=seed)
+    ref = np.stack([f.reference for f in seq])
+    lum = ref.mean(-1)
+    edge = np.zeros_like(lum)
+    edge[:, :, 1:] = np.abs(np.diff(lum, axis=2))
+    alias = np.where(edge > np.percentile(edge, 80), 0, 2).astype(np.uint8)
+    d = np.stack([f.depth for f in seq])
+    dd = np.abs(np.diff(d, axis=0, prepend=d[:1])).repeat(2, 1).repeat(2, 2)
+    ghost = np.where(dd > 0.02, 0, 2).astype(np.uint8)
+    np.savez(path, color=np.stack([f.color for f in seq]), depth=d,
+             motion=np.stack([f.motion for f in seq]),
+             jitter=np.array([f.jitter for f in seq], np.float32),
+             reset=np.array([i == 0 for i in range(n)]), reference=ref,
+             label_ghost=ghost, label_alias=alias, scale=np.float32(2.0),
+             meta=np.array(json.dumps({"generator": "test_train_smoke"})))
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    d = tmp_path_factory.mktemp("train_data")
+    write_tiny_sequence(str(d / "a.npz"), seed=0)
+    return str(d)
+
+
+ARGS = ["--seed", "0", "--cls-steps", "3", "--comp-steps", "2", "--batch", "2",
+        "--patch", "16", "--frames", "4", "--candidates", "12", "--threads", "2"]
+
+
+def test_train_smoke(tiny_data, tmp_path, capsys):
+    out = str(tmp_path / "run")
+    assert main(["train", "--data", tiny_data, "--out", out, "--init", "untrained-seed"]
+                + ARGS) == 1
+    assert "--init" in capsys.readouterr().err
+    assert main(["train", "--data", tiny_data, "--out", out, "--heldout", tiny_data] + ARGS) == 0
+    log = json.load(open(os.path.join(out, "train.json")))
+    for stage, n in (("classifier", 3), ("composition", 2)):
+        assert len(log["losses"][stage]) == n and np.isfinite(log["losses"][stage]).all()
+    assert os.path.isfile(os.path.join(out, "loss.png"))
+    assert log["heldout_psnr_pq"][0]["net"] > 10
+    trained = load_weights(os.path.join(out, "weights.safetensors"))
+    # --export writes the same weights from the final checkpoint
+    os.rename(os.path.join(out, "weights.safetensors"), os.path.join(out, "first.safetensors"))
+    assert main(["train", "--data", tiny_data, "--out", out, "--export"]) == 0
+    again = load_weights(os.path.join(out, "weights.safetensors"))
+    assert all(np.array_equal(again[k], v) for k, v in trained.items())
+
+    # the weights moved away from the seeded init
+    from weights_tools.networks import build_classifier, build_composition
+    from weights_tools.weights import model_weights
+    init = {**model_weights(build_classifier()), **model_weights(build_composition())}
+    assert sorted(trained) == sorted(init)
+    for prefix in ("cls.", "comp."):
+        assert any(not np.array_equal(trained[k], init[k]) for k in init if k.startswith(prefix))
+
+    # they run in clss.Upscaler, agreeing with the torch twin
+    from clss.pipeline import Upscaler
+    from clss.scene import render_sequence
+    from weights_tools.torch_frame import TorchUpscaler
+    up = Upscaler(2.0, mode="net", weights=os.path.join(out, "weights.safetensors"))
+    twin = TorchUpscaler(2.0, "net", weights=trained, device="cpu")
+    for f in render_sequence(3, (11, 13), 2.0, spp_ref=0):
+        a, b = up.step(f.color, f.depth, f.motion, f.jitter), twin.step(f.color, f.depth,
+                                                                         f.motion, f.jitter)
+        assert np.abs(a - b).max() <= 1e-3 * np.abs(b).max() + 1e-12
+
+
+def test_train_resumes(tiny_data, tmp_path):
+    """An interrupted run (classifier done, composition not) resumes to the same weights
+    as an uninterrupted one."""
+    a, b = str(tmp_path / "a"), str(tmp_path / "b")
+    assert main(["train", "--data", tiny_data, "--out", a] + ARGS) == 0
+    short = [v if ARGS[i - 1] != "--comp-steps" else "0" for i, v in enumerate(ARGS)]
+    assert main(["train", "--data", tiny_data, "--out", b] + short) == 0
+    assert main(["train", "--data", tiny_data, "--out", b, "--resume"] + ARGS) == 0
+    wa = load_weights(os.path.join(a, "weights.safetensors"))
+    wb = load_weights(os.path.join(b, "weights.safetensors"))
+    for k in wa:
+        np.testing.assert_allclose(wa[k], wb[k], rtol=1e-5, atol=1e-6, err_msg=k)
+
+
+def test_train_bad_data_is_one_line(tmp_path, capsys):
+    assert main(["train", "--data", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: --data:") and "Traceback" not in err

@@ -1,0 +1,456 @@
+"""The CLSS frame step in PyTorch: a differentiable twin of clss.Upscaler for training.
+
+Every stage follows clss/pipeline/reference.md (section numbers below) in the evaluation
+order of the oracle graph (clss/pipeline/oracle.py), so that what is trained is what
+clss runs; tests/test_torch_twin.py checks it against clss.Upscaler frame by frame.
+
+Tensors are NCHW float32 with a batch dimension B (patches); the state between frames
+is the 16-channel history [B,16,H,W] (PQ colour 3, counter 1, colour min 3, max 3,
+logits 6), explicit as in the oracle.  Runs on CUDA when the tensors are there, else CPU.
+
+What carries gradients: the networks' parameters, through the classifier input (warped
+history colour, warped logits), the composition input and the blend, and through the
+history into later frames (recurrent training).  Stages 1-4 (dilation, FSR2 depth
+reconstruction, depth difference, jitter-aware upsampling) depend on the inputs only
+and run without autograd: the depth reconstruction is a scatter-max
+(`scatter_reduce(..., "amax")`), which is exact but not differentiable, and nothing
+upstream of it is learned.  The integer decisions (argmax reject, counter reset,
+validity) are piecewise constant, as in the engine.
+
+Networks: `Classifier` and `Composition` are torch modules named as
+weights_tools.weights.TORCH_NAME_MAP expects, so their parameters load from and export
+to the safetensors names of weights_tools.networks (`cls.<layer>.*`, `comp.<layer>.*`):
+`networks_from_tensors`, `tensors_from_networks`.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from clss.pipeline.contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS,
+                                    PQ_PEAK_NITS, RULE_CLIP_EPS, output_size, to_internal,
+                                    validate_frame)
+from clss.pipeline.oracle import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
+                                  HISTORY_CHANNELS, SCATTER_WEIGHT_THRESHOLD)
+
+from .networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_MLP_HIDDEN,
+                       DEFAULT_WIDTHS, LOGITS, build_classifier, build_composition)
+from .weights import WeightsError, model_weights, torch_to_onnx_name
+
+MODES = ("rule", "net")
+# Net mode's blend: "net" = the composition network (inference), "rule" = w = 1/(1+counter)
+# without a clamp, the paper's rule-based composition for training the classifier (s3.4).
+BLENDS = ("net", "rule")
+
+
+def clip_towards(hist, up, lo, hi):
+    """Rule mode's history clip (reference.md s9): up + t (hist - up) with one t in [0, 1]
+    for the three channels, the largest that keeps every channel inside [lo, hi]."""
+    d = hist - up
+    lim = torch.where(d > 0, hi - up, lo - up)
+    big = d.abs() > RULE_CLIP_EPS
+    tc = torch.where(big, lim / torch.where(big, d, torch.ones_like(d)), torch.ones_like(d))
+    t = torch.clamp(tc, min=0.0).amin(1, keepdim=True).clamp(max=1.0)
+    return up + t * d
+
+
+def pick_device(device=None) -> torch.device:
+    """CUDA when present (or the device asked for), else CPU."""
+    if device is not None:
+        return torch.device(device)
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+# ---- the networks ---------------------------------------------------------------------
+
+def space_to_depth(x, block=2):
+    """ONNX SpaceToDepth (DCR order: channel = (by*B + bx)*C + c); torch's
+    pixel_unshuffle is CRD (c*B*B + by*B + bx), which would scramble the stem's weights."""
+    n, c, h, w = x.shape
+    x = x.reshape(n, c, h // block, block, w // block, block)
+    return x.permute(0, 3, 5, 1, 2, 4).reshape(n, c * block * block, h // block, w // block)
+
+
+class Bottleneck(nn.Module):
+    """conv1 1x1 c->c/2, ReLU, conv2 3x3, ReLU, conv3 1x1 -> c, + input, ReLU."""
+
+    def __init__(self, c):
+        super().__init__()
+        mid = max(c // 2, 1)
+        self.conv1 = nn.Conv2d(c, mid, 1)
+        self.conv2 = nn.Conv2d(mid, mid, 3, padding=1)
+        self.conv3 = nn.Conv2d(mid, c, 1)
+
+    def forward(self, x):
+        y = F.relu(self.conv2(F.relu(self.conv1(x))))
+        return F.relu(x + self.conv3(y))
+
+
+class Classifier(nn.Module):
+    """weights_tools.networks.build_classifier as a torch module (same graph)."""
+
+    def __init__(self, widths=DEFAULT_WIDTHS, in_channels=CLASSIFIER_CHANNELS):
+        super().__init__()
+        c = tuple(int(v) for v in widths)
+        self.stem = nn.Conv2d(4 * in_channels, c[0], 1)
+        self.enc = nn.ModuleList(Bottleneck(ci) for ci in c)
+        self.down = nn.ModuleList(nn.Conv2d(c[i], c[i + 1], 3, stride=2, padding=1)
+                                  for i in range(3))
+        self.dec = nn.Sequential(nn.Conv2d(sum(c), c[0], 1), nn.ReLU(),
+                                 nn.Conv2d(c[0], c[0], 3, padding=1), nn.ReLU(),
+                                 nn.Conv2d(c[0], len(LOGITS), 1))
+
+    def forward(self, x):
+        """x [B,23,H,W], H and W multiples of 16 -> logits [B,6,H/2,W/2]."""
+        f = self.enc[0](F.relu(self.stem(space_to_depth(x))))
+        feats = [f]
+        for down, enc in zip(self.down, self.enc[1:]):
+            f = enc(F.relu(down(f)))
+            feats.append(f)
+        # ONNX Resize linear half_pixel with scales 2^i == torch bilinear, align_corners=False.
+        ups = [feats[0]] + [F.interpolate(f, scale_factor=2.0 ** i, mode="bilinear",
+                                          align_corners=False)
+                            for i, f in enumerate(feats[1:], 1)]
+        return self.dec(torch.cat(ups, 1))
+
+
+class Composition(nn.Module):
+    """The per-pixel two-layer MLP as 1x1 convolutions (named mlp.0 / mlp.2) -> w."""
+
+    def __init__(self, hidden=DEFAULT_MLP_HIDDEN, in_channels=COMPOSITION_CHANNELS):
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Conv2d(in_channels, int(hidden), 1), nn.ReLU(),
+                                 nn.Conv2d(int(hidden), 1, 1))
+
+    def forward(self, x):
+        return torch.sigmoid(self.mlp(x))
+
+
+def _onnx_names(module, prefix):
+    """{torch parameter name: safetensors/ONNX initializer name} of one network."""
+    names = {}
+    for k in module.state_dict():
+        o = torch_to_onnx_name(f"{prefix}.{k}")
+        if o is None:
+            raise WeightsError(f"{prefix}.{k}: no ONNX name in weights.TORCH_NAME_MAP")
+        names[k] = o
+    return names
+
+
+def _widths_from(tensors):
+    return tuple(int(tensors[f"cls.{n}.weight"].shape[0])
+                 for n in ("stem", "down1", "down2", "down3"))
+
+
+def networks_from_tensors(tensors=None, seed=0):
+    """(Classifier, Composition) holding `tensors` (name -> array, the safetensors names;
+    None: the seeded init of weights_tools.networks, identical to the ONNX graphs')."""
+    if tensors is None:
+        tensors = {**model_weights(build_classifier(seed=seed)),
+                   **model_weights(build_composition(seed=seed))}
+    cls = Classifier(_widths_from(tensors))
+    comp = Composition(int(tensors["comp.fc1.weight"].shape[0]))
+    for net, prefix in ((cls, "classifier"), (comp, "composition")):
+        sd = net.state_dict()
+        for k, o in _onnx_names(net, prefix).items():
+            if o not in tensors:
+                raise WeightsError(f"weights: no tensor {o} (for {prefix}.{k})")
+            a = torch.tensor(np.asarray(tensors[o], np.float32))
+            if a.numel() != sd[k].numel():
+                raise WeightsError(f"{o}: shape {tuple(a.shape)} does not fit "
+                                   f"{prefix}.{k} {tuple(sd[k].shape)}")
+            sd[k] = a.reshape(sd[k].shape)
+        net.load_state_dict(sd)
+    return cls, comp
+
+
+def tensors_from_networks(classifier, composition) -> dict:
+    """name -> float32 numpy in the ONNX shapes (what weights.save_weights writes and
+    clss.Upscaler(weights=...) loads)."""
+    out = {}
+    for net, prefix in ((classifier, "classifier"), (composition, "composition")):
+        sd = net.state_dict()
+        for k, o in _onnx_names(net, prefix).items():
+            out[o] = sd[k].detach().float().cpu().numpy().copy()
+    return out
+
+
+# ---- the frame step -------------------------------------------------------------------
+
+def pq_encode(x, nits=PQ_NITS):
+    y = torch.clamp(x * (nits / PQ_PEAK_NITS), 0.0, 1.0)
+    ym = torch.pow(y, PQ_M1)
+    return torch.pow((PQ_C1 + PQ_C2 * ym) / (1.0 + PQ_C3 * ym), PQ_M2)
+
+
+def pq_decode(e, nits=PQ_NITS):
+    ep = torch.pow(torch.clamp(e, 0.0, 1.0), 1.0 / PQ_M2)
+    y = torch.pow(torch.clamp(ep - PQ_C1, min=0.0) / (PQ_C2 - PQ_C3 * ep), 1.0 / PQ_M1)
+    return y * (PQ_PEAK_NITS / nits)
+
+
+def _normalised(u, n):
+    """GridSample align_corners=0 coordinate of the index coordinate u: (2u+1)/n - 1."""
+    return (u * 2.0 + 1.0) / float(n) - 1.0
+
+
+def _sample(x, grid, cubic):
+    # Bicubic is Keys a = -0.75 in torch as in ONNX; border padding clamps each tap.
+    return F.grid_sample(x, grid, mode="bicubic" if cubic else "bilinear",
+                         padding_mode="border", align_corners=False)
+
+
+def _pad16(n):
+    return -(-n // 16) * 16
+
+
+class FrameStep(nn.Module):
+    """One CLSS frame step for a fixed render size (reference.md s1-s9).
+
+    mode "rule" or "net"; in net mode `classifier` and `composition` are the torch
+    networks (`composition` may be None with blend="rule").  `cap`: counter cap (4 rule,
+    32 net by default).  Call with internal-convention tensors (contract.to_internal):
+    color [B,3,h,w] linear, depth [B,1,h,w] reversed-Z, motion [B,2,h,w] render pixels,
+    jitter [B,2], reset [B] bool, history [B,16,H,W] (read only where not reset),
+    reactive [B,1,h,w] or None.
+
+    Training extras (net mode): blend="rule" makes the paper's rule-based composition
+    (w = 1/(1+counter), no clamp) instead of the composition network; `rule_color`
+    [B,3,H,W] (PQ) is a second colour history made by that rule blend, which then feeds
+    the classifier while the composition network makes the output (composition training,
+    paper s3.4: "image composition twice").
+    """
+
+    def __init__(self, mode, render_size, scale=2.0, classifier=None, composition=None,
+                 cap=None, *, depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
+                 blend="net"):
+        super().__init__()
+        if mode not in MODES:
+            raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
+        if blend not in BLENDS:
+            raise ValueError(f"blend: expected one of {BLENDS}, got {blend!r}")
+        if mode == "net" and (classifier is None or (composition is None and blend == "net")):
+            raise ValueError("mode 'net' needs a classifier and (unless blend='rule') a composition")
+        self.mode, self.blend = mode, blend
+        self.h, self.w = int(render_size[0]), int(render_size[1])
+        self.H, self.W = output_size(self.h, self.w, scale)
+        self.cap = float(DEFAULT_CAP[mode] if cap is None else cap)
+        self.depth_threshold = float(depth_threshold)
+        self.hdr, self.nits = bool(hdr), float(nits)
+        self.classifier, self.composition = classifier, composition
+        h, w, H, W = self.h, self.w, self.H, self.W
+        # s5: output pixel centres in render index coordinates, float64 rounded to float32.
+        bx = ((np.arange(W, dtype=np.float64) + 0.5) * w / W - 0.5).astype(np.float32)
+        by = ((np.arange(H, dtype=np.float64) + 0.5) * h / H - 0.5).astype(np.float32)
+        self.register_buffer("bx", torch.from_numpy(bx), persistent=False)
+        self.register_buffer("by", torch.from_numpy(by), persistent=False)
+        ar = lambda n: torch.arange(n, dtype=torch.float32)  # noqa: E731
+        self.register_buffer("jj", ar(w).view(1, 1, 1, w), persistent=False)
+        self.register_buffer("ii", ar(h).view(1, 1, h, 1), persistent=False)
+        self.register_buffer("JJ", ar(W).view(1, 1, 1, W), persistent=False)
+        self.register_buffer("II", ar(H).view(1, 1, H, 1), persistent=False)
+        self.register_buffer("motion_ratio", torch.tensor([W / w, H / h], dtype=torch.float32)
+                             .view(1, 2, 1, 1), persistent=False)
+
+    def initial_history(self, batch=1):
+        return torch.zeros(batch, HISTORY_CHANNELS, self.H, self.W, device=self.bx.device)
+
+    # -- stages 1-4: inputs only, no autograd ---------------------------------------------
+    @torch.no_grad()
+    def prepare(self, color, depth, motion, jitter, reactive):
+        B, h, w = color.shape[0], self.h, self.w
+        X = pq_encode(color, self.nits) if self.hdr else torch.clamp(color, 0.0, 1.0)
+
+        # s2 dilate: the first neighbour (FSR2 order, centre first) with the largest depth.
+        pd = F.pad(depth, (1, 1, 1, 1), value=-1.0)
+        pm = F.pad(motion, (1, 1, 1, 1), value=0.0)
+        d9 = torch.cat([pd[:, :, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                        for dx, dy in DILATE_OFFSETS], 1)
+        m9 = torch.stack([pm[:, :, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                          for dx, dy in DILATE_OFFSETS], 1)                  # [B,9,2,h,w]
+        nearest = d9.argmax(1, keepdim=True)           # first maximum, as ONNX ArgMax
+        d_dil = d9.gather(1, nearest)
+        m_dil = m9.gather(1, nearest.unsqueeze(2).expand(B, 1, 2, h, w)).squeeze(1)
+
+        # s3 reconstruct the previous depth: scatter-max into h*w + 1 slots (the last
+        # takes refused taps), exactly the oracle's ScatterElements(reduction="max").
+        ux, uy = self.jj + m_dil[:, 0:1], self.ii + m_dil[:, 1:2]
+        x0, y0 = torch.floor(ux), torch.floor(uy)
+        fx, fy = ux - x0, uy - y0
+        wx, wy = (1.0 - fx, fx), (1.0 - fy, fy)
+        taps, sidx = [], []
+        for a, b in ((0, 0), (1, 0), (0, 1), (1, 1)):
+            wk = wx[a] * wy[b]
+            xk, yk = (x0 + float(a) if a else x0), (y0 + float(b) if b else y0)
+            on = (xk >= 0) & (xk <= w - 1) & (yk >= 0) & (yk <= h - 1)
+            lin = (torch.clamp(yk, 0, h - 1).long() * w + torch.clamp(xk, 0, w - 1).long())
+            sidx.append(torch.where(on & (wk > SCATTER_WEIGHT_THRESHOLD), lin, h * w))
+            taps.append((wk, on, lin))
+        idx = torch.cat(sidx, 1).reshape(B, -1)
+        recon = torch.zeros(B, h * w + 1, device=color.device).scatter_reduce(
+            1, idx, d_dil.reshape(B, 1, -1).expand(B, 4, -1).reshape(B, -1), "amax")
+
+        # s4 depth difference: bilinear read of the reconstruction, taps summed in order.
+        rs = None
+        for wk, on, lin in taps:
+            v = recon.gather(1, lin.reshape(B, -1)).reshape(B, 1, h, w) * on.float() * wk
+            rs = v if rs is None else rs + v
+        dd = torch.clamp((rs - d_dil) / torch.clamp(rs, min=DEPTH_EPS), -1.0, 1.0)
+
+        # s5 jitter-aware sampling at output pixel centres.
+        jx, jy = jitter[:, 0:1], jitter[:, 1:2]
+        gx = _normalised(torch.clamp(self.bx - jx, 0.0, float(w - 1)), w)     # [B,W]
+        gy = _normalised(torch.clamp(self.by - jy, 0.0, float(h - 1)), h)     # [B,H]
+        grid = torch.stack([gx[:, None, :].expand(B, self.H, self.W),
+                            gy[:, :, None].expand(B, self.H, self.W)], -1)
+        up = torch.clamp(_sample(X, grid, True), 0.0, 1.0)
+        if reactive is None:
+            reactive = torch.zeros_like(depth)
+        lr = [d_dil, m_dil, dd, reactive]
+        if self.mode == "rule":
+            # s9 clamp box: 3x3 render-res min/max (max_pool pads with -inf).
+            lr += [-F.max_pool2d(-X, 3, 1, 1), F.max_pool2d(X, 3, 1, 1)]
+        aux = _sample(torch.cat(lr, 1), grid, False)
+        return {"up": up, "depth_hr": aux[:, 0:1], "motion_hr": aux[:, 1:3] * self.motion_ratio,
+                "dd_hr": aux[:, 3:4], "reactive_hr": aux[:, 4:5],
+                "clamp_min": aux[:, 5:8] if self.mode == "rule" else None,
+                "clamp_max": aux[:, 8:11] if self.mode == "rule" else None,
+                "depth_diff": dd, "recon": recon[:, :h * w].reshape(B, 1, h, w)}
+
+    # -- stages 5-9 ------------------------------------------------------------------------
+    def forward(self, color, depth, motion, jitter, reset, history, reactive=None,
+                rule_color=None):
+        """-> dict: output [B,3,H,W] linear, out (PQ), history [B,16,H,W], w, counter,
+        ghost, valid, logits (net), up, and rule_color when it was given."""
+        p = self.prepare(color, depth, motion, jitter, reactive)
+        up, motion_hr = p["up"], p["motion_hr"]
+        B, H, W = up.shape[0], self.H, self.W
+
+        # s6 warp the history; invalid pixels re-initialised.
+        with torch.no_grad():
+            su, sv = self.JJ + motion_hr[:, 0:1], self.II + motion_hr[:, 1:2]
+            off = (su < -0.5) | (su > W - 0.5) | (sv < -0.5) | (sv > H - 0.5)
+            reset = torch.as_tensor(reset, device=up.device).reshape(-1, 1, 1, 1).bool()
+            valid = ~off & ~reset
+            grid_w = torch.cat([_normalised(torch.clamp(su, 0.0, float(W - 1)), W),
+                                _normalised(torch.clamp(sv, 0.0, float(H - 1)), H)],
+                               1).permute(0, 2, 3, 1)
+        hist_c = torch.clamp(_sample(history[:, 0:3], grid_w, True), 0.0, 1.0)
+        hist_o = _sample(history[:, 3:HISTORY_CHANNELS], grid_w, False)
+        zero = torch.zeros((), device=up.device)
+        w_col = torch.where(valid, hist_c, up)
+        w_cnt = torch.where(valid, hist_o[:, 0:1], zero)
+        w_min = torch.where(valid, hist_o[:, 1:4], up)
+        w_max = torch.where(valid, hist_o[:, 4:7], up)
+        w_log = torch.where(valid, hist_o[:, 7:13], zero)
+        cls_col = w_col
+        if rule_color is not None:
+            cls_col = torch.where(valid, torch.clamp(_sample(rule_color, grid_w, True), 0.0, 1.0),
+                                  up)
+
+        # s7 classification.
+        logits = None
+        if self.mode == "net":
+            x = torch.cat([up, cls_col, p["depth_hr"], motion_hr, 1.0 / (1.0 + w_cnt), w_min,
+                           w_max, p["dd_hr"], w_log], 1)
+            H16, W16 = _pad16(H), _pad16(W)
+            if (H16, W16) != (H, W):
+                x = F.pad(x, (0, W16 - W, 0, H16 - H), mode="replicate")
+            half = self.classifier(x.contiguous(memory_format=torch.channels_last))
+            logits = F.interpolate(half, scale_factor=2.0, mode="bilinear",
+                                   align_corners=False)[:, :, :H, :W]
+            reject = logits[:, 0:3].argmax(1, keepdim=True) == 0
+        else:
+            reject = p["dd_hr"] > self.depth_threshold
+        ghost = reject | ~valid
+
+        # s8 auxiliary buffers.
+        cnt = torch.where(ghost, zero, torch.clamp(w_cnt + 1.0, max=self.cap))
+        c_min = torch.where(ghost, up, torch.minimum(w_min, up))
+        c_max = torch.where(ghost, up, torch.maximum(w_max, up))
+        inv_cnt = 1.0 / (1.0 + cnt)
+
+        # s9 blend weight and blend.
+        react = p["reactive_hr"]
+        res = {}
+        if self.mode == "net":
+            if rule_color is not None or self.blend == "rule":
+                w_rule = torch.maximum(inv_cnt, react)
+                rule_out = w_rule * up + (1.0 - w_rule) * cls_col
+                res["rule_color"] = rule_out
+            if self.blend == "net":
+                comp_in = torch.cat([up, w_col, p["depth_hr"], motion_hr, inv_cnt, c_min, c_max,
+                                     logits], 1)
+                w0 = self.composition(comp_in.contiguous(memory_format=torch.channels_last))
+            else:
+                w0 = inv_cnt
+            blend_hist = w_col
+            new_logits = logits
+        else:
+            w0 = inv_cnt
+            blend_hist = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
+            new_logits = torch.zeros(B, len(LOGITS), H, W, device=up.device)
+        wgt = torch.maximum(w0, react)
+        out = wgt * up + (1.0 - wgt) * blend_hist
+        history_out = torch.cat([out, cnt, c_min, c_max, new_logits], 1)
+        output = pq_decode(out, self.nits) if self.hdr else out
+        res.update(output=output, out=out, history=history_out, w=wgt, counter=cnt,
+                   ghost=ghost, valid=valid, logits=logits, up=up, depth_diff=p["depth_diff"])
+        return res
+
+
+class TorchUpscaler:
+    """Frame-by-frame runner of `FrameStep` with clss.Upscaler's calling convention
+    (contract layout in, H x W x 3 float32 linear out, state carried, first frame and
+    `reset=True` start afresh).  For parity tests and evaluation; batch 1.
+
+    weights: None (the seeded untrained init), a dict of tensors, or a .safetensors path.
+    """
+
+    def __init__(self, scale=2.0, mode="net", weights=None, cap=None, *, device=None,
+                 depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
+                 depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0):
+        self.scale, self.mode = float(scale), {"rules": "rule"}.get(mode, mode)
+        self.device = pick_device(device)
+        self.kw = dict(cap=cap, depth_threshold=depth_threshold, hdr=hdr, nits=nits)
+        self.contract = dict(depth_inverted=depth_inverted, motion_scale=motion_scale,
+                             exposure=exposure)
+        self.nets = (None, None)
+        if self.mode == "net":
+            if isinstance(weights, (str, bytes)) or hasattr(weights, "__fspath__"):
+                from .weights import load_weights
+                weights = load_weights(weights)
+            self.nets = tuple(n.to(self.device).eval() for n in networks_from_tensors(weights))
+        self.step_fn = None
+        self.history = None
+        self.last = {}
+
+    def reset(self):
+        self.history = None
+
+    @torch.no_grad()
+    def step(self, color, depth, motion, jitter, reset=False, reactive=None):
+        frame = validate_frame(color, depth, motion, jitter, reactive,
+                               depth_inverted=self.contract["depth_inverted"])
+        feed = to_internal(frame, **self.contract)
+        h, w = feed["depth"].shape[2:]
+        if self.step_fn is None or (self.step_fn.h, self.step_fn.w) != (h, w):
+            self.step_fn = FrameStep(self.mode, (h, w), self.scale, *self.nets,
+                                     **self.kw).to(self.device)
+            self.history = None
+        t = {k: torch.from_numpy(v).to(self.device) for k, v in feed.items()}
+        first = self.history is None
+        hist = self.step_fn.initial_history() if first else self.history
+        r = self.step_fn(t["color"], t["depth"], t["motion"], t["jitter"].view(1, 2),
+                         torch.tensor([bool(reset or first)]), hist, t["reactive"])
+        self.history = r["history"]
+        self.last = r
+        out = r["output"][0].permute(1, 2, 0).cpu().numpy()
+        e = self.contract["exposure"]
+        return out * np.float32(e) if e != 1.0 else out
+
+    @property
+    def state(self):
+        return {"history": None if self.history is None else self.history.cpu().numpy()}

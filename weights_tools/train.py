@@ -1,0 +1,495 @@
+"""python -m weights_tools train: the CLSS networks trained as the paper does (s3.4, s4).
+
+    python -m weights_tools train --data /work/data/train --out runs/a --seed 0 \
+        [--heldout /work/data/heldout] [--cls-steps N] [--comp-steps N] [--resume]
+
+Data: the DATA.md sequences (*.npz) in --data.  The recipe, with the choices the paper
+leaves open (ours, marked *):
+
+* Patches (s4): windows of --frames (8) consecutive frames and --patch x --patch output
+  pixels (*64 by default: the paper's 256 does not fit the time budget on 2 cores; a
+  patch is cut at the same place at render and output resolution, which needs an integer
+  scale).  --candidates random windows are drawn, scored by the fraction of their
+  pixels labelled ghosting or aliasing, and the top --keep (25 %) kept.  The first frame
+  of a window is a reset, as are the data's own cuts.
+* Recurrent training: every step runs the whole window through the torch twin of the
+  frame step (torch_frame.FrameStep), the state carried with gradients (BPTT over all
+  frames); the loss is applied to every frame.  *Pixels whose history is invalid (reset,
+  or motion leaving the patch) carry no loss: the pipeline overrides every decision
+  there, so they only add noise.
+* Stage 1, classifier, with the paper's rule-based composition (w = 1/(1+counter), 1 on
+  ghosts): per-pixel cross-entropy on the ghosting head (logits 0-2) and the aliasing
+  head (3-5), each class weighted by the inverse of its frequency over the selected
+  patches (normalised so the mean pixel weight is 1; *the ratio between the largest and
+  smallest weight capped at CLASS_WEIGHT_RATIO).  False-positive ghosting in aliasing
+  regions (labelled aliasing and no ghosting, predicted ghosting) takes the weight of the
+  predicted ghosting class (s3.4 "the same weights as ghosting pixels").
+* Stage 2, composition, classifier frozen: composition done twice per frame, the rule
+  blend's colour history feeds the classifier, the network's blend makes the output and
+  its own history.  Losses (each averaged over its pixels over the whole window, then
+  summed): L1 between the blend weight and 1/(1+counter) on geometry-aliasing pixels the
+  classifier got right; nothing on misclassified aliasing or false-positive aliasing;
+  L1 between output and reference in the PQ domain on the rest.
+* Optimiser: *Adam (the paper used Ranger, lr 5e-4 over 180 + 120 epochs), lr 1e-3
+  because the budget here is a few hundred steps, cosine decay to 10 % over each stage; batches drawn from a generator seeded by (seed, stage, step), so a resumed
+  run draws the same batches as an uninterrupted one.
+* Network widths: weights_tools.networks defaults (16, 32, 64, 128; MLP 32).
+
+Progress lines every few seconds, loss.png (matplotlib) refreshed as it goes, a
+checkpoint (checkpoint.pt, torch's weights_only format) every minute and at the end of
+each stage; --resume continues from it.  The result: weights.safetensors in --out (the
+names of weights_tools.networks; `clss.Upscaler(mode="net", weights=PATH)` runs it) and
+train.json (settings, class weights, per-step times, losses, held-out PSNR).
+"""
+from __future__ import annotations
+
+import glob
+import json
+import math
+import os
+import time
+
+import numpy as np
+import torch
+
+from . import torch_frame
+from .weights import load_weights, save_weights
+
+CLASS_WEIGHT_RATIO = 100.0
+GHOST_NONE, ALIAS_GEOMETRY, ALIAS_NONE = 2, 0, 2
+STAGES = ("classifier", "composition")
+PROGRESS_S = 5.0
+CHECKPOINT_S = 60.0
+PLOT_S = 30.0
+
+
+class TrainError(ValueError):
+    """A user's mistake (bad directory, bad data, bad option): one line, no traceback."""
+
+
+# ---- data --------------------------------------------------------------------------------
+
+REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "label_ghost",
+            "label_alias", "scale")
+
+
+def load_sequences(data_dir, frames):
+    """The DATA.md sequences of `data_dir` with at least `frames` frames, as dicts of
+    arrays (reference PQ-encoded in float16 to halve the memory)."""
+    if not os.path.isdir(data_dir):
+        raise TrainError(f"--data: {data_dir} is not a directory")
+    paths = sorted(glob.glob(os.path.join(data_dir, "*.npz")))
+    if not paths:
+        raise TrainError(f"--data: no .npz sequences in {data_dir} "
+                         "(write some with `python -m weights_tools gen`)")
+    seqs, skipped = [], 0
+    for p in paths:
+        try:
+            z = np.load(p, allow_pickle=False)
+            missing = [k for k in REQUIRED if k not in z.files]
+            if missing:
+                raise TrainError(f"--data: {p} lacks {', '.join(missing)} (see weights_tools/DATA.md)")
+            s = {k: z[k] for k in REQUIRED}
+        except (OSError, ValueError) as e:
+            if isinstance(e, TrainError):
+                raise
+            raise TrainError(f"--data: {p} is not a readable .npz sequence ({e})") from None
+        T, h, w = s["depth"].shape
+        scale = float(s["scale"])
+        H, W = s["reference"].shape[1:3]
+        if abs(scale - round(scale)) > 1e-6 or (H, W) != (h * round(scale), w * round(scale)):
+            raise TrainError(f"--data: {p} has scale {scale:g} ({h}x{w} -> {H}x{W}); training "
+                             "cuts patches at an integer scale only")
+        if T < frames:
+            skipped += 1
+            continue
+        with torch.no_grad():
+            s["reference"] = torch_frame.pq_encode(torch.from_numpy(s["reference"])).numpy() \
+                .astype(np.float16)
+        s["scale"], s["name"] = int(round(scale)), os.path.basename(p)
+        seqs.append(s)
+    if not seqs:
+        raise TrainError(f"--data: no sequence in {data_dir} has {frames} frames (--frames)")
+    scales = {s["scale"] for s in seqs}
+    if len(scales) > 1:
+        raise TrainError(f"--data: sequences at several scales {sorted(scales)}; train one scale")
+    if skipped:
+        print(f"skipped {skipped} sequences shorter than {frames} frames")
+    return seqs
+
+
+def select_patches(seqs, patch, frames, candidates, keep, rng):
+    """[(seq, t0, I0, J0)] of the top `keep` fraction of `candidates` random windows by
+    their share of ghosting or aliasing pixels (paper s4); I0, J0 at output resolution."""
+    s = seqs[0]["scale"]
+    cand, score = [], []
+    for _ in range(int(candidates)):
+        k = int(rng.integers(len(seqs)))
+        q = seqs[k]
+        T, h, w = q["depth"].shape
+        ph, pw = min(patch // s, h), min(patch // s, w)
+        t0 = int(rng.integers(T - frames + 1))
+        i0, j0 = int(rng.integers(h - ph + 1)), int(rng.integers(w - pw + 1))
+        sl = (slice(t0, t0 + frames), slice(i0 * s, (i0 + ph) * s), slice(j0 * s, (j0 + pw) * s))
+        hard = (q["label_ghost"][sl] != GHOST_NONE) | (q["label_alias"][sl] != ALIAS_NONE)
+        cand.append((k, t0, i0 * s, j0 * s))
+        score.append(float(hard[1:].mean()))        # frame 0 of a window is a reset
+    order = np.argsort(-np.asarray(score), kind="stable")
+    n = max(1, int(round(len(cand) * keep)))
+    return [cand[i] for i in order[:n]], float(np.mean(np.asarray(score)[order[:n]]))
+
+
+def patch_size(seqs, patch):
+    s = seqs[0]["scale"]
+    h = min(min(q["depth"].shape[1], q["depth"].shape[2]) for q in seqs)
+    ph = min(patch // s, h)
+    if ph < 4:
+        raise TrainError(f"--patch {patch}: less than 4 render pixels at scale {s}")
+    return ph, ph * s
+
+
+def make_batch(seqs, items, rsize, frames, device):
+    """Tensors [T,B,...] of the windows `items` (render patch rsize x rsize)."""
+    s = seqs[0]["scale"]
+    R, O = rsize, rsize * s
+    cols = {k: [] for k in ("color", "depth", "motion", "jitter", "reset", "reference",
+                            "label_ghost", "label_alias")}
+    for k, t0, I0, J0 in items:
+        q = seqs[k]
+        t, i0, j0 = slice(t0, t0 + frames), I0 // s, J0 // s
+        r = (t, slice(i0, i0 + R), slice(j0, j0 + R))
+        o = (t, slice(I0, I0 + O), slice(J0, J0 + O))
+        cols["color"].append(q["color"][r].transpose(0, 3, 1, 2))
+        cols["depth"].append(q["depth"][r][:, None])
+        cols["motion"].append(q["motion"][r].transpose(0, 3, 1, 2))
+        cols["jitter"].append(q["jitter"][t])
+        reset = q["reset"][t].copy()
+        reset[0] = True
+        cols["reset"].append(reset)
+        cols["reference"].append(q["reference"][o].transpose(0, 3, 1, 2).astype(np.float32))
+        cols["label_ghost"].append(q["label_ghost"][o].astype(np.int64))
+        cols["label_alias"].append(q["label_alias"][o].astype(np.int64))
+    return {k: torch.from_numpy(np.ascontiguousarray(np.stack(v, 1))).to(device)
+            for k, v in cols.items()}
+
+
+def class_weights(seqs, items, rsize, frames):
+    """Inverse-frequency weights of the 3 ghosting and the 3 aliasing classes over the
+    selected windows (mean pixel weight 1, max/min capped at CLASS_WEIGHT_RATIO)."""
+    s = seqs[0]["scale"]
+    O = rsize * s
+    counts = {"ghost": np.zeros(3), "alias": np.zeros(3)}
+    for k, t0, I0, J0 in items:
+        q = seqs[k]
+        o = (slice(t0 + 1, t0 + frames), slice(I0, I0 + O), slice(J0, J0 + O))
+        counts["ghost"] += np.bincount(q["label_ghost"][o].ravel(), minlength=3)[:3]
+        counts["alias"] += np.bincount(q["label_alias"][o].ravel(), minlength=3)[:3]
+    out = {}
+    for head, c in counts.items():
+        f = c / max(c.sum(), 1)
+        w = 1.0 / np.maximum(f, 1e-6)
+        w = np.minimum(w, w.min() * CLASS_WEIGHT_RATIO)
+        w /= max((f * w).sum(), 1e-12)
+        out[head] = {"frequency": f.tolist(), "weight": w.tolist()}
+    return out
+
+
+# ---- losses ------------------------------------------------------------------------------
+
+def classifier_loss(logits, lg, la, valid, wg, wa):
+    """Summed weighted cross-entropy of both heads over the valid pixels, and the count."""
+    import torch.nn.functional as F
+    ce_g = F.cross_entropy(logits[:, 0:3], lg, reduction="none")
+    ce_a = F.cross_entropy(logits[:, 3:6], la, reduction="none")
+    pix_g = wg[lg]
+    with torch.no_grad():
+        pred_g = logits[:, 0:3].argmax(1)
+        false_ghost = (la != ALIAS_NONE) & (lg == GHOST_NONE) & (pred_g != GHOST_NONE)
+    # s3.4: false-positive ghosting in aliasing regions weighs as much as real ghosting.
+    pix_g = torch.where(false_ghost, wg[pred_g], pix_g)
+    v = valid[:, 0].float()
+    return ((pix_g * ce_g + wa[la] * ce_a) * v).sum(), v.sum()
+
+
+def composition_parts(r, lg, la, ref_pq):
+    """(weight-L1 sum, count, image-L1 sum, count) of one frame (paper s3.4)."""
+    valid = r["valid"][:, 0]
+    pred_a = r["logits"][:, 3:6].argmax(1).detach()
+    good_geo = (la == ALIAS_GEOMETRY) & (pred_a == ALIAS_GEOMETRY) & valid
+    unstable = ((la != ALIAS_NONE) & (pred_a != la)) | ((la == ALIAS_NONE) & (pred_a != ALIAS_NONE))
+    rest = valid & ~good_geo & ~unstable
+    target_w = (1.0 / (1.0 + r["counter"][:, 0])).detach()
+    lw = (r["w"][:, 0] - target_w).abs()
+    li = (r["out"] - ref_pq).abs().mean(1)
+    return ((lw * good_geo).sum(), good_geo.sum(), (li * rest).sum(), rest.sum())
+
+
+def run_window(step, batch, stage, wg=None, wa=None):
+    """The recurrent pass over one batch of windows -> (loss, stats)."""
+    T, B = batch["depth"].shape[:2]
+    hist = step.initial_history(B)
+    rule_color = torch.zeros_like(hist[:, 0:3]) if stage == "composition" else None
+    acc = [torch.zeros((), device=hist.device) for _ in range(4)]
+    for t in range(T):
+        r = step(batch["color"][t], batch["depth"][t], batch["motion"][t], batch["jitter"][t],
+                 batch["reset"][t], hist, None, rule_color)
+        hist = r["history"]
+        lg, la = batch["label_ghost"][t], batch["label_alias"][t]
+        if stage == "classifier":
+            s, n = classifier_loss(r["logits"], lg, la, r["valid"], wg, wa)
+            acc[0], acc[1] = acc[0] + s, acc[1] + n
+        else:
+            rule_color = r["rule_color"]
+            parts = composition_parts(r, lg, la, batch["reference"][t])
+            acc = [a + p for a, p in zip(acc, parts)]
+    if stage == "classifier":
+        loss = acc[0] / acc[1].clamp(min=1)
+        return loss, {}
+    lw = acc[0] / acc[1].clamp(min=1)
+    li = acc[2] / acc[3].clamp(min=1)
+    return lw + li, {"weight_l1": float(lw.detach()), "image_l1": float(li.detach())}
+
+
+# ---- the run -----------------------------------------------------------------------------
+
+def _fmt_s(s):
+    s = int(max(s, 0))
+    return f"{s // 3600}h{s // 60 % 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+
+
+def plot_losses(history, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
+    for ax, stage in zip(axes, STAGES):
+        ys = np.asarray(history.get(stage, []), np.float64)
+        if len(ys):
+            ax.plot(ys, lw=0.5, alpha=0.4, color="C0")
+            k = max(1, len(ys) // 50)
+            sm = np.convolve(ys, np.ones(k) / k, mode="valid")
+            ax.plot(np.arange(len(sm)) + k - 1, sm, color="C1", label=f"mean of {k}")
+            ax.legend()
+        ax.set_title(f"{stage} loss")
+        ax.set_xlabel("step")
+    fig.tight_layout()
+    tmp = path + ".tmp.png"
+    fig.savefig(tmp, dpi=80)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def _lr(base, step, total):
+    return base * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(step / max(total, 1), 1.0))))
+
+
+def _save_checkpoint(path, state):
+    tmp = path + ".tmp"
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
+    """PSNR (PQ domain, frames after `warmup` following a reset) of rules and net (the
+    trained `tensors`) on up to `max_sequences` held-out sequences: a sanity check, the
+    evaluation command is the real measure."""
+    rows = []
+    paths = sorted(glob.glob(os.path.join(data_dir, "*.npz")))[:max_sequences]
+    for p in paths:
+        z = np.load(p, allow_pickle=False)
+        row = {"sequence": os.path.basename(p)}
+        for mode in ("rules", "net"):
+            up = torch_frame.TorchUpscaler(float(z["scale"]), mode, tensors if mode == "net"
+                                           else None, device=device)
+            se, n, since = 0.0, 0, 0
+            for t in range(len(z["depth"])):
+                since = 0 if z["reset"][t] else since + 1
+                out = up.step(z["color"][t], z["depth"][t], z["motion"][t],
+                              tuple(z["jitter"][t]), reset=bool(z["reset"][t]))
+                if since >= warmup:
+                    with torch.no_grad():
+                        a = torch_frame.pq_encode(torch.from_numpy(out))
+                        b = torch_frame.pq_encode(torch.from_numpy(z["reference"][t]))
+                    se += float(((a - b) ** 2).mean())
+                    n += 1
+            row[mode] = 10 * math.log10(1.0 / max(se / max(n, 1), 1e-12))
+        rows.append(row)
+    return rows
+
+
+def export_checkpoint(out_dir):
+    """weights.safetensors from --out/checkpoint.pt as it stands (an unfinished run's
+    networks: e.g. the classifier done and the composition part-trained)."""
+    ckpt_path = os.path.join(out_dir, "checkpoint.pt")
+    if not os.path.isfile(ckpt_path):
+        raise TrainError(f"--export: no checkpoint.pt in {out_dir}")
+    ck = torch.load(ckpt_path, weights_only=True)
+    widths = tuple(int(ck["cls"][f"{n}.weight"].shape[0])
+                   for n in ("stem", "down.0", "down.1", "down.2"))
+    cls = torch_frame.Classifier(widths)
+    comp = torch_frame.Composition(int(ck["comp"]["mlp.0.weight"].shape[0]))
+    cls.load_state_dict(ck["cls"])
+    comp.load_state_dict(ck["comp"])
+    out_path = os.path.join(out_dir, "weights.safetensors")
+    save_weights(torch_frame.tensors_from_networks(cls, comp), out_path)
+    stage = STAGES[ck["stage"]] if ck["stage"] < len(STAGES) else "done"
+    print(f"wrote {out_path} from the checkpoint (next: {stage} step {ck['step']})")
+    return 0
+
+
+def train(args):
+    torch.set_num_threads(int(args.threads))
+    device = torch_frame.pick_device(args.device)
+    os.makedirs(args.out, exist_ok=True)
+    ckpt_path = os.path.join(args.out, "checkpoint.pt")
+    seqs = load_sequences(args.data, args.frames)
+    rsize, osize = patch_size(seqs, args.patch)
+    rng = np.random.default_rng([args.seed, 0])
+    items, mean_score = select_patches(seqs, osize, args.frames, args.candidates, args.keep, rng)
+    cw = class_weights(seqs, items, rsize, args.frames)
+    print(f"{len(seqs)} sequences, {len(items)} patches of {args.frames} x {osize}x{osize} "
+          f"(top {args.keep:.0%} of {args.candidates}, mean ghost/alias share {mean_score:.2f}); "
+          f"class weights ghost {np.round(cw['ghost']['weight'], 2).tolist()} "
+          f"alias {np.round(cw['alias']['weight'], 2).tolist()}", flush=True)
+    wg = torch.tensor(cw["ghost"]["weight"], dtype=torch.float32, device=device)
+    wa = torch.tensor(cw["alias"]["weight"], dtype=torch.float32, device=device)
+
+    torch.manual_seed(args.seed)
+    init = load_weights(args.init) if args.init else None
+    cls, comp = torch_frame.networks_from_tensors(init, seed=args.seed)
+    cls, comp = cls.to(device).to(memory_format=torch.channels_last), comp.to(device)
+    steps = {"classifier": int(args.cls_steps), "composition": int(args.comp_steps)}
+    log = {"settings": {k: v for k, v in vars(args).items() if k != "fn"},
+           "patches": len(items), "patch_output_px": osize, "class_weights": cw,
+           "losses": {s: [] for s in STAGES}, "parts": [], "step_s": {}}
+    start = {"stage": 0, "step": 0}
+    opt_state = None
+    if args.resume and os.path.isfile(ckpt_path):
+        ck = torch.load(ckpt_path, weights_only=True)
+        cls.load_state_dict(ck["cls"])
+        comp.load_state_dict(ck["comp"])
+        log = json.loads(ck["log"])
+        log["settings"] = {k: v for k, v in vars(args).items() if k != "fn"}
+        start, opt_state = {"stage": ck["stage"], "step": ck["step"]}, ck["opt"]
+        print(f"resumed from {ckpt_path}: {STAGES[start['stage']]} step {start['step']}",
+              flush=True)
+    elif args.resume:
+        print(f"--resume: no checkpoint in {args.out}, starting afresh", flush=True)
+
+    for si, stage in enumerate(STAGES):
+        if si < start["stage"]:
+            continue
+        first = start["step"] if si == start["stage"] else 0
+        train_cls = stage == "classifier"
+        cls.requires_grad_(train_cls)
+        comp.requires_grad_(not train_cls)
+        cls.train(train_cls)
+        net = cls if train_cls else comp
+        step = torch_frame.FrameStep("net", (rsize, rsize), float(seqs[0]["scale"]), cls,
+                                     None if train_cls else comp,
+                                     blend="rule" if train_cls else "net").to(device)
+        opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+        if opt_state is not None and si == start["stage"]:
+            opt.load_state_dict(opt_state)
+        total = steps[stage]
+        t_start = t_print = t_ckpt = t_plot = time.time()
+        done_here = 0
+        for it in range(first, total):
+            g = np.random.default_rng([args.seed, si + 1, it])
+            pick = g.choice(len(items), size=min(args.batch, len(items)), replace=False)
+            batch = make_batch(seqs, [items[i] for i in pick], rsize, args.frames, device)
+            for pg in opt.param_groups:
+                pg["lr"] = _lr(args.lr, it, total)
+            loss, parts = run_window(step, batch, stage, wg, wa)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            lv = float(loss.detach())
+            if not math.isfinite(lv):
+                raise RuntimeError(f"{stage} step {it}: loss is {lv}")
+            log["losses"][stage].append(lv)
+            if parts:
+                log["parts"].append(parts)
+            done_here += 1
+            now = time.time()
+            last = it + 1 == total
+            if now - t_print >= PROGRESS_S or last or done_here == 1:
+                rate = done_here / max(now - t_start, 1e-9)
+                recent = np.mean(log["losses"][stage][-20:])
+                extra = "".join(f"  {k} {v:.4f}" for k, v in parts.items())
+                print(f"[{stage}] step {it + 1}/{total}  loss {lv:.4f} (last 20: {recent:.4f})"
+                      f"{extra}  {rate:.2f} it/s  ETA {_fmt_s((total - it - 1) / rate)}",
+                      flush=True)
+                t_print = now
+                log["step_s"][stage] = 1.0 / rate
+            if now - t_plot >= PLOT_S or last:
+                plot_losses(log["losses"], os.path.join(args.out, "loss.png"))
+                t_plot = now
+            if now - t_ckpt >= CHECKPOINT_S or last:
+                nxt = (si, it + 1) if not last else (si + 1, 0)
+                _save_checkpoint(ckpt_path, {"stage": nxt[0], "step": nxt[1],
+                                             "cls": cls.state_dict(), "comp": comp.state_dict(),
+                                             "opt": opt.state_dict() if not last else None,
+                                             "log": json.dumps(log)})
+                t_ckpt = now
+        opt_state = None
+
+    tensors = torch_frame.tensors_from_networks(cls, comp)
+    out_path = os.path.join(args.out, "weights.safetensors")
+    save_weights(tensors, out_path)
+    print(f"wrote {out_path}", flush=True)
+    if args.heldout:
+        rows = psnr_table(args.heldout, tensors, device=device)
+        log["heldout_psnr_pq"] = rows
+        print("held-out PSNR (PQ domain, dB)   rules     net")
+        for r in rows:
+            print(f"  {r['sequence']:28s} {r['rules']:8.2f} {r['net']:8.2f}")
+        if rows:
+            print(f"  {'mean':28s} {np.mean([r['rules'] for r in rows]):8.2f} "
+                  f"{np.mean([r['net'] for r in rows]):8.2f}", flush=True)
+    with open(os.path.join(args.out, "train.json"), "w") as f:
+        json.dump(log, f, indent=1)
+    return 0
+
+
+def add_parser(sub):
+    t = sub.add_parser("train", help="train the classifier, then the composition network "
+                                     "(needs the [train] extra: torch)")
+    t.add_argument("--data", required=True, help="directory of DATA.md .npz sequences")
+    t.add_argument("--out", required=True, help="directory for checkpoints, loss.png, "
+                                                "weights.safetensors, train.json")
+    t.add_argument("--seed", type=int, default=0)
+    # Defaults sized for ~45-60 min on the shared 2-core machine (~7 s a step there).
+    t.add_argument("--cls-steps", type=int, default=300, help="classifier steps")
+    t.add_argument("--comp-steps", type=int, default=120, help="composition steps")
+    t.add_argument("--batch", type=int, default=4, help="windows per step")
+    t.add_argument("--patch", type=int, default=64, help="patch size, output pixels")
+    t.add_argument("--frames", type=int, default=8, help="recurrent frames per window")
+    t.add_argument("--candidates", type=int, default=4000, help="random windows scored")
+    t.add_argument("--keep", type=float, default=0.25, help="fraction of candidates kept")
+    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    t.add_argument("--device", default=None, help="torch device (default: cuda if present)")
+    t.add_argument("--init", default=None, help="start from these weights (.safetensors)")
+    t.add_argument("--heldout", default=None,
+                   help="directory of held-out sequences: print rules/net PSNR at the end")
+    t.add_argument("--resume", action="store_true", help="continue from --out/checkpoint.pt")
+    t.add_argument("--export", action="store_true",
+                   help="only write --out/weights.safetensors from its checkpoint, no training")
+    t.set_defaults(fn=cmd_train)
+
+
+def cmd_train(args):
+    if args.export:
+        return export_checkpoint(args.out)
+    for name in ("cls_steps", "comp_steps"):
+        if getattr(args, name) < 0:
+            raise TrainError(f"--{name.replace('_', '-')}: expected >= 0")
+    for name in ("batch", "patch", "frames", "candidates", "threads"):
+        if getattr(args, name) < 1:
+            raise TrainError(f"--{name}: expected >= 1, got {getattr(args, name)}")
+    if args.init and not os.path.isfile(args.init):
+        raise TrainError(f"--init: {args.init} is not a file (a .safetensors of the networks)")
+    if not 0 < args.keep <= 1:
+        raise TrainError(f"--keep: expected a fraction in (0, 1], got {args.keep}")
+    return train(args)
