@@ -259,7 +259,7 @@ def _run_check(dev, prec: str, fp: FastPath) -> Verdict:
 def _check_isolated(dev, prec: str, fp: FastPath) -> Verdict:
     """_run_check in a child process (`python -m clss.selfcheck`): a miscompiled fast
     variant can crash the process rather than give wrong numbers (Debian's PoCL 3.1
-    segfaults in frame.cl's VEC=8 resolve in fp16), and a crash must cost the variant,
+    segfaults in pool.cl's 8-lane fp16 global max), and a crash must cost the variant,
     not the caller. The child prints its verdict as JSON on its last line."""
     import subprocess
     from .device import list_devices

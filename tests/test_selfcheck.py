@@ -87,8 +87,8 @@ def test_force_rechecks_and_skip_trusts(dev, fresh, broken_s2d, monkeypatch):
 
 
 def test_a_check_that_crashes_disables_the_variant(dev, fresh, monkeypatch):
-    # A miscompile can kill the process (Debian's PoCL 3.1 segfaults in one frame.cl
-    # variant): the check runs in a child, and its death costs only the variant.
+    # A miscompile can kill the process (Debian's PoCL 3.1 segfaults in pool.cl's
+    # 8-lane fp16 global max): the check runs in a child, and its death costs only the variant.
     monkeypatch.setattr(selfcheck, "_child_command",
                         lambda *a: [sys.executable, "-c", "import os; os.abort()"])
     with pytest.warns(selfcheck.FastPathDisabled, match="self-check process died \\(signal 6\\)"):
