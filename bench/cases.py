@@ -230,7 +230,9 @@ def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1")
 
             def engine(d):
                 # params is read on every run: the tuner changes it between candidates.
-                tuning = {k: v for k, v in params.items() if k in getattr(conv, "TUNING", {})}
+                # (only what differs from the defaults: the tuning database decides the rest)
+                defaults = getattr(conv, "TUNING", {})
+                tuning = {k: v for k, v in params.items() if k in defaults and v != defaults[k]}
                 return conv.conv2d(dev, prec, d["x"], d["w"], d["b"], strides=L["strides"], pads=L["pads"],
                                    activation=L["act"], residual=d.get("r"),
                                    **({"tuning": tuning} if tuning else {}))
@@ -557,7 +559,8 @@ def mlp_cases(tier):
         net = mlp.pack(dev, prec, [(w1, b1, "relu"), (w2, b2, "sigmoid")])
 
         def engine(d):
-            tun = {k: v for k, v in params.items() if k in getattr(mlp, "TUNING", {})}
+            defaults = getattr(mlp, "TUNING", {})
+            tun = {k: v for k, v in params.items() if k in defaults and v != defaults[k]}
             return mlp.mlp(dev, prec, d["x"], net, **({"tuning": tun} if tun else {}))
         return make_setup(dev, prec, arrays, twin, engine, [(1, w2.shape[0], H, W)])
     return [BenchCase(f"mlp composition {cin}->{hid}->1 sigmoid", "mlp", "compute", tier, flops, build,

@@ -12,7 +12,7 @@ import warnings
 from .cli_args import ArgParser, check_output_file, device_spec
 
 DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
-               "'platform / device' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else the PoCL CPU device)")
+               "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device)")
 
 
 def _add_device(p: argparse.ArgumentParser, precision: bool = True) -> None:
@@ -35,13 +35,14 @@ def cmd_devices(argv) -> int:
     rows = []
     for i, (plat, dev) in enumerate(found):
         info = DeviceInfo.of(dev)
-        rows.append(info.__dict__ | {"index": i})
+        rows.append(info.__dict__ | {"index": i, "default": dev == default})
         mark = "*" if dev == default else " "
         print(f"{mark}[{i}] {info.platform} / {info.name}")
         print(f"      OpenCL {info.version}; driver {info.driver}; {info.compute_units} compute units; "
               f"{info.global_mem / 2**30:.1f} GiB global memory (max alloc {info.max_alloc / 2**30:.1f} GiB); "
               f"fp16 arithmetic (cl_khr_fp16): {'yes' if info.fp16 else 'no'}")
-    print("* = default device")
+    from .device import default_reason
+    print(f"* = default device: {default_reason()}; choose another with --device or $CLSS_DEVICE")
     if a.json:
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=2)
@@ -109,10 +110,14 @@ def cmd_verify(argv) -> int:
     print(format_table(shown))
     fails = sum(not r.passed for r in rows)
     print(f"\n{len(rows) - fails} passed, {fails} failed ({len(rows)} rows, {time.perf_counter() - t0:.1f} s)")
+    from .conformance import format_fast_paths
+    from .selfcheck import check_all
+    fast = check_all(dev, precs, [a.family] if a.family else None)
+    print("\n" + format_fast_paths(fast))
     if a.json:
         with open(a.json, "w") as f:
-            json.dump({"device": dev.info.__dict__, "rows": [r.as_dict() for r in rows]}, f, indent=2,
-                      default=float)
+            json.dump({"device": dev.info.__dict__, "rows": [r.as_dict() for r in rows],
+                       "fast_paths": [v.as_dict() for v in fast]}, f, indent=2, default=float)
     return 1 if fails else 0
 
 

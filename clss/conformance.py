@@ -80,3 +80,17 @@ def format_table(rows: list[Row]) -> str:
         if r.detail:
             lines.append(f"FAIL {r.op}[{r.variant}] {r.precision}: {r.detail}")
     return "\n".join(lines)
+
+
+def format_fast_paths(verdicts) -> str:
+    """The section after the table: which fast variants the self-check disabled here."""
+    bad = [v for v in verdicts if not v.ok]
+    names = sorted({v.name for v in verdicts})
+    lines = [f"fast paths: {len(names)} variant(s) self-checked against their reference variants "
+             f"(clss/selfcheck.py); {len(bad)} disabled on this device"]
+    from .selfcheck import REGISTRY
+    for v in bad:
+        fp = REGISTRY.get(v.name)
+        ref = f", using {fp.options(False)}" if fp else ""
+        lines.append(f"  DISABLED {v.name} [{v.precision}] ({v.options}, kernels/{v.kernel}.cl): {v.detail}{ref}")
+    return "\n".join(lines)

@@ -2,8 +2,10 @@
 
 Choice order: an explicit spec (``--device``), then ``CLSS_DEVICE``, then
 ``PYOPENCL_CTX`` (pyopencl's own convention, "platform:device" indices), then
-the PoCL CPU device, then the first device found. A spec is an index into
-`list_devices()` or a case-insensitive substring of "platform / device".
+the default (`default_reason`): the CPU device of the PoCL that pip installs
+(pocl-binary-distribution, a dependency of clss), else any PoCL CPU device,
+else the first device found. A spec is an index into `list_devices()` or a
+case-insensitive substring of "platform / device (driver)".
 """
 from __future__ import annotations
 
@@ -61,14 +63,51 @@ def list_devices() -> list[tuple[cl.Platform, cl.Device]]:
 
 
 def describe(index: int, platform: cl.Platform, device: cl.Device) -> str:
-    return f"[{index}] {platform.name.strip()} / {device.name.strip()}"
+    return f"[{index}] {platform.name.strip()} / {device.name.strip()} ({device.driver_version.strip()})"
+
+
+def pip_pocl_version() -> str | None:
+    """The PoCL version pip installed (package pocl-binary-distribution), or None."""
+    import importlib.metadata
+    try:
+        return importlib.metadata.version("pocl-binary-distribution")
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+def is_pip_pocl(platform: cl.Platform) -> bool:
+    """Whether the platform is the PoCL pip installed: its version string names that
+    PoCL release ("OpenCL 3.0 PoCL 3.0-rc2 ..." for package 3.0). Distribution builds
+    tag theirs ("PoCL 3.1+debian"), so a system PoCL of the same release is not taken
+    for it; the ICD loader's platform order is not a stable criterion (it lists
+    /etc/OpenCL/vendors first)."""
+    import re
+    v = pip_pocl_version()
+    return v is not None and re.search(rf"PoCL {re.escape(v)}(?![\d.+])", platform.version) is not None
+
+
+def _is_pocl_cpu(platform: cl.Platform, device: cl.Device) -> bool:
+    return "portable computing language" in platform.name.lower() and bool(device.type & cl.device_type.CPU)
+
+
+def default_reason() -> str:
+    """Which device the default is, and why (for `clss devices` and errors)."""
+    for var in ("CLSS_DEVICE", "PYOPENCL_CTX"):
+        if os.environ.get(var):
+            return f"chosen by ${var}={os.environ[var]!r}"
+    if any(is_pip_pocl(p) for p, _ in list_devices()):
+        return (f"the CPU device of the PoCL pip installs (pocl-binary-distribution {pip_pocl_version()}): "
+                "every clss install has it and CI proves every kernel on it")
+    if any(_is_pocl_cpu(p, d) for p, d in list_devices()):
+        return "the first PoCL CPU device (pip's PoCL is not installed)"
+    return "the first device found (no PoCL installed)"
 
 
 def _pick(spec: str | None) -> cl.Device:
     found = list_devices()
     if not found:
         raise DeviceError("no OpenCL device found")
-    names = [f"{p.name.strip()} / {d.name.strip()}" for p, d in found]
+    names = [f"{p.name.strip()} / {d.name.strip()} ({d.driver_version.strip()})" for p, d in found]
     if spec is None and os.environ.get("CLSS_DEVICE"):
         spec = os.environ["CLSS_DEVICE"]
     if spec is None and os.environ.get("PYOPENCL_CTX"):
@@ -79,9 +118,10 @@ def _pick(spec: str | None) -> cl.Device:
         except (ValueError, IndexError) as e:
             raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} names no device") from e
     if spec is None:
-        for (p, d), name in zip(found, names):
-            if "portable computing language" in p.name.lower():
-                return d
+        for rule in (lambda p, d: _is_pocl_cpu(p, d) and is_pip_pocl(p), _is_pocl_cpu):
+            for p, d in found:
+                if rule(p, d):
+                    return d
         return found[0][1]
     spec = str(spec).strip()
     if spec.isdigit():
@@ -155,15 +195,20 @@ class Device:
         common = (d / "common.h").read_text()
         return path.read_text().replace('#include "common.h"', common, 1)
 
-    def program(self, stem: str, precision: str = "fp32", **defines) -> cl.Program:
-        self.require(precision)
+    @staticmethod
+    def build_options(precision: str = "fp32", **defines) -> str:
+        """The compiler options of a build: precision and kernel -D options, then
+        $CLSS_BUILD_OPTIONS."""
         opts = {**_PRECISION_DEFINES[precision], **defines}
         options = " ".join(f"-D{k}={_define_value(v)}" for k, v in sorted(opts.items()))
         # Extra compiler flags for every program, e.g. -cl-opt-disable under oclgrind
         # (its uninitialised-value checker rejects LLVM's `freeze`, which the optimiser emits).
         extra = os.environ.get("CLSS_BUILD_OPTIONS", "").strip()
-        if extra:
-            options = f"{options} {extra}"
+        return f"{options} {extra}" if extra else options
+
+    def program(self, stem: str, precision: str = "fp32", **defines) -> cl.Program:
+        self.require(precision)
+        options = self.build_options(precision, **defines)
         src = self.source(stem)
         key = (hashlib.sha1(src.encode()).hexdigest(), options)
         prog = self._programs.get(key)
@@ -197,8 +242,13 @@ class Device:
 
     # -- launches and arrays ----------------------------------------------
     def launch(self, kernel: cl.Kernel, global_size, args, local_size=None, wait_for=None) -> cl.Event:
-        """Enqueue with the exact global size (kernels guard their own bounds)."""
+        """Enqueue with the exact global size (kernels guard their own bounds). Without a
+        local size from the op, the tuning database's work-group size for this kernel and
+        global size on this device (`clss tune`), else the driver's choice."""
         gs = tuple(int(max(1, g)) for g in global_size)
+        if local_size is None:
+            from . import tuning
+            local_size = tuning.local_size(self, kernel.function_name, gs)
         kernel.set_args(*args)
         return cl.enqueue_nd_range_kernel(self.queue, kernel, gs, local_size, wait_for=wait_for)
 

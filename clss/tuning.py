@@ -83,10 +83,14 @@ def entry(dev, op: str, key: str) -> dict | None:
     return load().get("devices", {}).get(device_key(dev), {}).get(op, {}).get(key)
 
 
-def lookup(dev, op: str, key: str, defaults: dict) -> dict:
-    """The parameters to use for (op, key) on dev: defaults, overlaid with the
-    database entry's values for the same names (and with the tuner's candidate
-    while it runs one)."""
+def lookup(dev, op: str, key: str, defaults: dict, explicit: dict | None = None,
+           allowed: dict | None = None) -> dict:
+    """The parameters to use for (op, key) on dev, as CLBlast does: the defaults,
+    overlaid with the database entry's values for the same names, then with the
+    caller's `explicit` ones; while the tuner runs a candidate, the defaults
+    overlaid with the candidate. `allowed` ({name: candidates}, a family's
+    TUNABLES) drops stored values outside the candidates, so a hand-edited or
+    stale entry cannot ask a kernel for a block size it does not build with."""
     if _seen is not None:
         _seen.append((op, key, dict(defaults)))
     out = dict(defaults)
@@ -95,7 +99,9 @@ def lookup(dev, op: str, key: str, defaults: dict) -> dict:
         return out
     e = entry(dev, op, key)
     if e:
-        out.update({k: v for k, v in e.get("params", {}).items() if k in defaults})
+        out.update({k: v for k, v in e.get("params", {}).items()
+                    if k in defaults and (allowed is None or k not in allowed or v in allowed[k])})
+    out.update(explicit or {})
     return out
 
 

@@ -22,6 +22,10 @@
  *                  of three strided two-vector loads; edge blocks load with
  *                  unit stride through ld8_guarded. 0 (the reference): the
  *                  generic per-tap loads (ld8_inside/ld8_guarded with s=2).
+ *   -DCONV_DEINTERLEAVE=1 (default) stride-2 rows as two vector loads de-interleaved
+ *                  with .even (the fast path); =0 gathers them element by element
+ *                  (the portable reference the fast-path self-check compares with)
+ *   -DCLSS_CLANG_VECTORS  builtin-free loads (common.h; =0 is their reference)
  *
  * Runtime flags (arg `flags`): bias present; residual added before the
  * activation (ResNet's relu(conv(x) + r)); residual added after it.
@@ -70,6 +74,10 @@
 /* FLD/FLD8/FST/FST8 (builtin-free loads on PoCL) and TW/LDW (float weights in
  * fp16 storage mode): kernels/common.h. */
 
+#ifndef CONV_DEINTERLEAVE
+#define CONV_DEINTERLEAVE 1
+#endif
+
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
 #define IMAX(a, b) ((a) > (b) ? (a) : (b))
 
@@ -95,7 +103,7 @@ inline A8 ld8_inside(__global const T *row, int ix, int s)
 {
     if (s == 1)
         return FLD8(row, ix);
-    if (s == 2) {
+    if (s == 2 && CONV_DEINTERLEAVE) {
         const A8 a = FLD8(row, ix), b = FLD8(row, ix + 8);
         return (A8)(a.even, b.even);
     }

@@ -10,6 +10,10 @@
  *   -DCHUNK=n    global pooling: elements one work-item reduces in pass 1
  *   -DFINAL=1    global pooling with a single chunk per row: pass 1 writes the
  *                result directly and pass 2 is skipped
+ *   -DGLOBAL_LANES=8 (default) global pooling pass 1 accumulates in 8 vector lanes
+ *                (the fast path); =1 one scalar accumulator (the portable reference
+ *                of the fast-path self-check: Debian's PoCL 3.1 crashes on the
+ *                8-lane fp16 max on an AVX-512 EPYC)
  *
  *   -DCLSS_CLANG_VECTORS=1  max_pool_row8's loads and stores as clang vectors
  *
@@ -29,6 +33,9 @@
 #endif
 #ifndef CHUNK
 #define CHUNK 2048
+#endif
+#ifndef GLOBAL_LANES
+#define GLOBAL_LANES 8
 #endif
 #ifndef FINAL
 #define FINAL 0
@@ -196,12 +203,16 @@ __kernel void global_pool_partial(__global const T *in,
     if (chunk >= nchunks || nc >= NC) return;
     const int lo = chunk * CHUNK, hi = min(HW, lo + CHUNK);
     __global const T *p = in + (long)nc * HW;
-    A8 acc = (A8)INIT;
     int i = lo;
+#if GLOBAL_LANES == 8
+    A8 acc = (A8)INIT;
     for (; i + 8 <= hi; i += 8)
         acc = COMBINE(acc, LD8(p, i));
     A4 a4 = COMBINE(acc.lo, acc.hi);
     A r = COMBINE(COMBINE(a4.x, a4.y), COMBINE(a4.z, a4.w));
+#else
+    A r = INIT;
+#endif
     for (; i < hi; ++i)
         r = COMBINE(r, LD(p, i));
 #if FINAL

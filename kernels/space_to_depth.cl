@@ -8,6 +8,9 @@
  *
  *   -DS2D_VEC=1 (default) B = 2 de-interleaves with 8-wide vector loads (the fast path);
  *   -DS2D_VEC=0  the portable reference: a scalar loop for every B.
+ *   -DS2D_VEC=2  the fast path with its two output runs swapped: deliberately wrong,
+ *                only for the test that proves the fast-path self-check refuses a
+ *                wrong variant (tests/test_selfcheck.py; clss/selfcheck.py).
  *
  * Dimension 0 of each NDRange walks contiguous rows. Elements move as raw bits
  * (TB), so NaN payloads and signed zeros survive.
@@ -52,8 +55,9 @@ __kernel void space_to_depth(__global const TB *in, __global TB *out,
      * uint16.even/.odd (ushort16 is right), a miscompile this form avoids. */
     if (B == 2 && x0 + 8 <= W) {
         const TB8 v0 = vload8(0, row), v1 = vload8(1, row);
-        vstore8((TB8)(v0.even, v1.even), 0, o + s2d_channel(c, by, 0, C, 2) * plane);
-        vstore8((TB8)(v0.odd, v1.odd), 0, o + s2d_channel(c, by, 1, C, 2) * plane);
+        const int bx_even = S2D_VEC == 2;   /* 0 but in the deliberately wrong variant */
+        vstore8((TB8)(v0.even, v1.even), 0, o + s2d_channel(c, by, bx_even, C, 2) * plane);
+        vstore8((TB8)(v0.odd, v1.odd), 0, o + s2d_channel(c, by, 1 - bx_even, C, 2) * plane);
         return;
     }
 #endif

@@ -1,14 +1,20 @@
-"""Shared fixtures: the device under test and the case checker.
+"""Shared fixtures: the devices under test and the case checker.
 
-CLSS_DEVICE / PYOPENCL_CTX choose the device, as for the CLI (default PoCL)."""
+`dev` is the default device (CLSS_DEVICE / PYOPENCL_CTX choose it, as for the
+CLI; else pip's PoCL). `any_dev` runs a test once per OpenCL device found (the
+conformance tests: ops against onnxruntime and the ONNX node cases), each device
+its own parametrisation named after its platform and driver; oclgrind is left to
+tests/test_oclgrind.py (tiny level). CLSS_DEVICE, PYOPENCL_CTX or
+CLSS_TEST_DEVICES=default narrow `any_dev` to the default device."""
 from __future__ import annotations
 
 import os
+import re
 
 import pytest
 
 from clss.conformance import check
-from clss.device import get_device
+from clss.device import DeviceError, get_device, list_devices
 
 PRECISIONS = ("fp32", "fp16")
 
@@ -16,6 +22,40 @@ PRECISIONS = ("fp32", "fp16")
 @pytest.fixture(scope="session")
 def dev():
     return get_device()
+
+
+def _device_id(platform, device) -> str:
+    name = platform.name.strip()
+    short = "pocl" if name == "Portable Computing Language" else name.split()[0].lower()
+    return re.sub(r"[^A-Za-z0-9.+_-]", "_", f"{short}-{device.driver_version.strip()}")
+
+
+def conformance_devices() -> list[tuple[str, str]]:
+    """(test id, device spec) of every device the conformance tests run on."""
+    narrow = (os.environ.get("CLSS_DEVICE") or os.environ.get("PYOPENCL_CTX")
+              or os.environ.get("CLSS_TEST_DEVICES", "all") == "default")
+    try:
+        found, default = list_devices(), get_device().cl_device
+    except DeviceError:   # no OpenCL at all: the tests that need a device skip
+        return []
+    out = []
+    for i, (p, d) in enumerate(found):
+        if "oclgrind" in p.name.lower() or (narrow and d != default):
+            continue
+        ident = _device_id(p, d)
+        while ident in (o[0] for o in out):
+            ident += f"-{i}"
+        out.append((ident, str(i)))
+    return out
+
+
+CONFORMANCE_DEVICES = conformance_devices()
+
+
+@pytest.fixture(scope="session", params=[s for _, s in CONFORMANCE_DEVICES],
+                ids=[i for i, _ in CONFORMANCE_DEVICES])
+def any_dev(request):
+    return get_device(request.param)
 
 
 def assert_case(case, dev, precision):

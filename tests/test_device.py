@@ -8,10 +8,30 @@ def test_default_is_pocl(dev, monkeypatch):
     assert "Portable Computing Language" in dev.info.platform or dev.info.platform
 
 
+def test_default_is_pips_pocl_whatever_the_platform_order(monkeypatch):
+    # With Debian's PoCL installed too, the ICD loader lists it first; the default stays
+    # the PoCL that pip installed (pocl-binary-distribution), identified by its version.
+    monkeypatch.delenv("CLSS_DEVICE", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    found = D.list_devices()
+    pip = [(p, d) for p, d in found if D.is_pip_pocl(p)]
+    if not pip:
+        pytest.skip("pip's PoCL (pocl-binary-distribution) is not installed")
+    assert D._pick(None) == pip[0][1]
+    monkeypatch.setattr(D, "list_devices", lambda: found[::-1])
+    assert D._pick(None) == pip[0][1]
+    assert "pocl-binary-distribution" in D.default_reason()
+    for p, d in found:
+        if "+debian" in d.driver_version:
+            assert not D.is_pip_pocl(p)
+
+
 def test_spec_by_index_and_substring():
     d0 = D.get_device("0")
     name = d0.info.name.split()[0]
     assert D.get_device(name).cl_device == d0.cl_device
+    # the driver version is part of what a spec matches (two PoCLs share a platform name)
+    assert D.get_device(f"({d0.info.driver})").cl_device == d0.cl_device
 
 
 def test_unknown_device_lists_devices():

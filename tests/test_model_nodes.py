@@ -110,7 +110,7 @@ def test_node_cases_found():
 
 
 @pytest.mark.parametrize("case_dir", CASES, ids=[os.path.basename(c) for c in CASES])
-def test_model_node_case(case_dir, dev):
+def test_model_node_case(case_dir, any_dev):
     name = os.path.basename(case_dir)
     got = adapt(case_dir)
     if isinstance(got, str):
@@ -119,7 +119,7 @@ def test_model_node_case(case_dir, dev):
     tol = NODE_TOL if prec == "fp32" else DEFAULT_TOL[prec]
     reason = MODEL_DEVIATIONS.get(name) or FAMILY_DEVIATIONS.get(name)
     try:
-        cm = clss.Model(model, device=dev, precision=prec)
+        cm = clss.Model(model, device=any_dev, precision=prec)
     except UnsupportedModelError as e:
         if reason:
             pytest.xfail(reason)

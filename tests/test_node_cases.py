@@ -36,7 +36,7 @@ def test_node_cases_found():
 
 
 @pytest.mark.parametrize("case_dir", CASES, ids=[os.path.basename(c) for c in CASES])
-def test_node_case(case_dir, dev):
+def test_node_case(case_dir, any_dev):
     name = os.path.basename(case_dir)
     model = onnx.load(os.path.join(case_dir, "model.onnx"))
     node = model.graph.node[0]
@@ -52,16 +52,16 @@ def test_node_case(case_dir, dev):
         pytest.skip(f"{sorted(map(str, other))[0]} tensors: the kernels are float32/float16 only")
     # float16 data: half storage (precision fp16) and its tolerance
     prec, tol = ("fp16", DEFAULT_TOL["fp16"]) if np.dtype(np.float16) in floats else ("fp32", NODE_TOL)
-    dev_inputs = [None if x is None else (x if i in handler.const_inputs else dev.to_device(x, prec))
+    dev_inputs = [None if x is None else (x if i in handler.const_inputs else any_dev.to_device(x, prec))
                   for i, x in enumerate(inputs)]
     attrs = node_attrs(node)
     if node.op_type == "Split":  # opset 18 splits into as many parts as the node has outputs
         attrs.setdefault("num_outputs", len(node.output))
     try:
-        outs = handler.fn(dev, prec, attrs, dev_inputs)
+        outs = handler.fn(any_dev, prec, attrs, dev_inputs)
     except Unsupported as e:
         pytest.fail(f"{name}: Unsupported ({e}) and not listed in NODE_DEVIATIONS")
-    outs = [dev.to_host(o) for o in outs]
+    outs = [any_dev.to_host(o) for o in outs]
     assert len(outs) >= len(expected)
     for i, (o, r) in enumerate(zip(outs, expected)):
         assert o.shape == r.shape, f"output {i}: shape {o.shape} != expected {r.shape}"

@@ -9,8 +9,8 @@ CASES = mlp.cases("full")
 
 @pytest.mark.parametrize("precision", PRECISIONS)
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, dev):
-    assert_case(case, dev, precision)
+def test_against_onnxruntime(case, precision, any_dev):
+    assert_case(case, any_dev, precision)
 
 
 def test_packed_weights_reused_and_equal_to_layer_list(dev):

@@ -10,8 +10,8 @@ CASES = W.cases("full")
 
 @pytest.mark.parametrize("precision", PRECISIONS)
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, dev):
-    assert_case(case, dev, precision)
+def test_against_onnxruntime(case, precision, any_dev):
+    assert_case(case, any_dev, precision)
 
 
 # Both spellings of every mode (opset 16 names, opset 20 names), every padding and

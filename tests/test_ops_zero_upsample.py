@@ -11,8 +11,8 @@ CASES = zu.cases("full")
 
 @pytest.mark.parametrize("precision", PRECISIONS)
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, dev):
-    assert_case(case, dev, precision)
+def test_against_onnxruntime(case, precision, any_dev):
+    assert_case(case, any_dev, precision)
 
 
 @settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))

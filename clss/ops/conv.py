@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import selfcheck, tuning as tuning_db
 from ..device import Device
-from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .base import (DEFAULT_TOL, Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op,
+                   rng)
 from .twin import make_model, node_model
 from onnx import helper
 
@@ -16,8 +18,11 @@ ACTIVATIONS = {"none": 0, "relu": 1, "leaky_relu": 2, "sigmoid": 3, "tanh": 4}
 # throughput on AVX2) with 6 loads per 8 FMAs; see the report's timings.
 TUNING = {"XV": 2, "CB": 4, "LX": 8, "LZ": 16, "S2K3": 1}
 # S2K3: kernels/conv.cl -DCONV_S2K3 (de-interleaved stride-2 3-tap rows) where
-# the layer allows it (stride 2, kernel width 3, dilation 1 along x); 0 selects
-# the reference per-tap loads.
+# the layer allows it (stride 2, kernel width 3, dilation 1 along x) and the
+# self-check (conv.stride2_taps) lets it; 0 selects the reference per-tap loads.
+# What `clss tune` searches (bench/tune.py), per op; the engine reads the winner back
+# from the tuning database (clss/tuning.py) at each launch (_tunables).
+TUNABLES = {op: {"XV": (1, 2), "CB": (1, 2, 4, 8)} for op in ("conv2d", "conv_transpose2d")}
 
 _F_BIAS, _F_RES_BEFORE, _F_RES_AFTER = 1, 2, 4
 
@@ -26,6 +31,19 @@ def builtin_free(dev: Device) -> int:
     """-DCLSS_CLANG_VECTORS for kernels/conv.cl and mlp.cl: PoCL's CPU devices call
     their OpenCL builtins out of line, so those kernels use clang vector loads there."""
     return int("portable computing language" in dev.info.platform.lower())
+
+
+def load_defines(dev: Device, prec: str, stem: str) -> dict:
+    """The load variant of kernels/<stem>.cl (conv or mlp): builtin-free loads where
+    builtin_free() asks for them and the self-check (clss/selfcheck.py) lets them,
+    the common.h macros otherwise."""
+    if not builtin_free(dev):
+        return {"CLSS_CLANG_VECTORS": 0}
+    return selfcheck.defines(dev, prec, f"{stem}.builtin_free_loads")
+
+
+def _fast_defines(dev: Device, prec: str) -> dict:
+    return {**load_defines(dev, prec, "conv"), **selfcheck.defines(dev, prec, "conv.stride2_deinterleave")}
 
 
 def _weights(dev: Device, prec: str, w):
@@ -90,6 +108,21 @@ def _sizes(gs, nzin, t):
     return tuple(-(-g // l) * l for g, l in zip(gs, (lx, 1, lz))), (lx, 1, lz)
 
 
+def _tunables(dev: Device, prec: str, op: str, x, w, strides, explicit, groups: int = 1) -> dict:
+    """The register block for this launch: defaults < the tuning database's entry for
+    (device, op, shapes, stride, precision) < the caller's `tuning=`."""
+    key = tuning_db.shape_key(tuple(x.shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec)
+    # The defaults are the per-layer ones (shape_tuning) laid over TUNING.
+    defaults = {**TUNING, **(shape_tuning(w.shape[2], w.shape[3], w.shape[0] // groups)
+                             if op == "conv2d" else {})}
+    t = tuning_db.lookup(dev, op, key, defaults, explicit=explicit, allowed=TUNABLES[op])
+    # A register block is a fast path too: the default one is self-checked against one
+    # output per work-item (tuned ones were checked by `clss tune` before being stored).
+    if (t["XV"], t["CB"]) != (1, 1) and not selfcheck.enabled(dev, prec, "conv.register_block"):
+        t.update(selfcheck.REGISTRY["conv.register_block"].reference)
+    return t
+
+
 def _flags(b, residual, residual_before_act):
     f = _F_BIAS if b is not None else 0
     if residual is not None:
@@ -138,16 +171,17 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     out = out if out is not None else dev.empty((n, cout, ho, wo), prec)
     # A pointwise conv with unit stride and no padding is a GEMM over flattened
     # pixels: one row of H*W, so only the image's last block takes the edge path.
+    cout_g = cout // group
+    t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning, group)
     if kh == kw == 1 and sy == sx == 1 and pt == pl == pb == pr == 0:
         h, wd, ho, wo = 1, h * wd, 1, ho * wo
-    cout_g = cout // group
-    t = {**TUNING, **shape_tuning(kh, kw, cout_g), **(tuning or {})}
     cb = _channel_block(cout_g, t["CB"])
     xb = 8 * t["XV"]
     ncb = -(-cout_g // cb)
-    s2k3 = int(bool(t["S2K3"]) and sx == 2 and kw == 3 and dx == 1)
+    s2k3 = int(bool(t["S2K3"]) and sx == 2 and kw == 3 and dx == 1
+               and selfcheck.enabled(dev, prec, "conv.stride2_taps"))
     k = dev.kernel("conv", "conv2d", prec, KH=kh, KW=kw, SX=sx,
-                   XV=t["XV"], CB=cb, ACT=_act(activation), CLSS_CLANG_VECTORS=builtin_free(dev),
+                   XV=t["XV"], CB=cb, ACT=_act(activation), **_fast_defines(dev, prec),
                    CONV_S2K3=s2k3)
     nz = n * group * ncb
     gs, ls = _sizes((-(-wo // xb), ho, nz), ncb, t)
@@ -194,12 +228,12 @@ def conv_transpose2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pa
         raise ValueError(f"conv_transpose2d: output would be {ho}x{wo} for input {h}x{wd}")
     _check_common(x, w, b, residual, prec, (n, cout, ho, wo), cout)
     out = out if out is not None else dev.empty((n, cout, ho, wo), prec)
-    t = {**TUNING, **(tuning or {})}
+    t = _tunables(dev, prec, "conv_transpose2d", x, w, (sy, sx), tuning)
     cb = _channel_block(cout_g, t["CB"])
     xb = 8 * t["XV"]
     ncb = -(-cout_g // cb)
     k = dev.kernel("conv", "conv_transpose2d", prec, KH=kh, KW=kw, XV=t["XV"], CB=cb,
-                   ACT=_act(activation), CLSS_CLANG_VECTORS=builtin_free(dev))
+                   ACT=_act(activation), **_fast_defines(dev, prec))
     nz = n * group * ncb * sx
     nt = -(-wo // sx)
     gs, ls = _sizes((-(-nt // xb), ho, nz), ncb * sx, t)
@@ -212,6 +246,35 @@ def conv_transpose2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pa
                 np.int32(_flags(b, residual, residual_before_act)), np.float32(alpha), np.int32(nz)),
                local_size=ls)
     return out
+
+
+def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
+    """conv2d at strides 1 and 2 (rows wide enough for the vector paths, a ragged
+    tail) and conv_transpose2d: every load path of kernels/conv.cl once."""
+    g = rng("conv selfcheck")
+    x = dev.to_device(g.standard_normal((1, 5, 9, 75)).astype(np.float32), prec)
+    w = dev.to_device(g.standard_normal((6, 5, 3, 3)).astype(np.float32) * 0.3, prec)
+    b = dev.to_device(g.standard_normal(6).astype(np.float32), prec)
+    wt = dev.to_device(g.standard_normal((5, 3, 3, 3)).astype(np.float32) * 0.3, prec)
+    outs = [conv2d(dev, prec, x, w, b, pads=(1, 1, 1, 1), activation="relu"),
+            conv2d(dev, prec, x, w, None, strides=(2, 2), pads=(1, 0, 1, 2)),
+            conv_transpose2d(dev, prec, x, wt, None, strides=(2, 2), pads=(1, 1, 0, 0))]
+    return [dev.to_host(o) for o in outs]
+
+
+for _name, _fast, _ref, _what, _applies in (
+        ("conv.builtin_free_loads", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
+         "loads and stores as clang vector types instead of vload/vstore builtins (PoCL)", builtin_free),
+        ("conv.stride2_deinterleave", {"CONV_DEINTERLEAVE": 1}, {"CONV_DEINTERLEAVE": 0},
+         "stride-2 rows as two vector loads and .even", lambda dev: True),
+        ("conv.stride2_taps", {"CONV_S2K3": 1}, {"CONV_S2K3": 0},
+         "stride-2 3-tap rows: one load per row and channel, taps by de-interleaving",
+         lambda dev: True),
+        ("conv.register_block", {k: TUNING[k] for k in ("XV", "CB")}, {"XV": 1, "CB": 1},
+         "8*XV outputs times CB channels per work-item (default block) / one vector, one channel",
+         lambda dev: True)):
+    selfcheck.register(selfcheck.FastPath(_name, "conv", _fast, _ref, check=_selfcheck_run,
+                                          tolerance=DEFAULT_TOL.__getitem__, what=_what, applies=_applies))
 
 
 # --- ONNX -----------------------------------------------------------------------

@@ -9,9 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 from onnx import helper
 
+from .. import selfcheck, tuning as tuning_db
 from ..device import Device, storage_dtype
-from .base import Case, check_storage, host_call, rng
-from .conv import ACTIVATIONS, builtin_free
+from .base import DEFAULT_TOL, Case, check_storage, host_call, rng
+from .conv import ACTIVATIONS, builtin_free, load_defines
 from .twin import make_model
 
 # Widest layer (input channels included) one kernel keeps in private memory:
@@ -21,6 +22,8 @@ MAX_WIDTH = 128
 # Layers per kernel; longer chains run as several kernels through global memory.
 MAX_LAYERS = 8
 TUNING = {"XV": 1, "LX": 16}
+# What `clss tune` searches; the engine reads the winner back per (device, shape, widths).
+TUNABLES = {"mlp": {"XV": (1, 2), "LX": (8, 16, 32)}}
 
 
 @dataclass(frozen=True)
@@ -104,13 +107,14 @@ def mlp(dev: Device, prec: str, x, layers, out=None, tuning=None):
     n, c, h, w = x.shape
     if c != net.widths[0]:
         raise ValueError(f"mlp: input has {c} channels, the first layer takes {net.widths[0]}")
-    t = {**TUNING, **(tuning or {})}
+    key = tuning_db.shape_key(tuple(x.shape), tuple(net.widths), prec)
+    t = tuning_db.lookup(dev, "mlp", key, TUNING, explicit=tuning, allowed=TUNABLES["mlp"])
     xv = t["XV"]
     cur = x
     for i, ch in enumerate(net.chunks):
         last = i == len(net.chunks) - 1
         dst = out if (last and out is not None) else dev.empty((n, ch.widths[-1], h, w), prec)
-        defines = dict(NL=len(ch.acts), CMAX=max(ch.widths), XV=xv, CLSS_CLANG_VECTORS=builtin_free(dev))
+        defines = dict(NL=len(ch.acts), CMAX=max(ch.widths), XV=xv, **load_defines(dev, prec, "mlp"))
         for k, wd in enumerate(ch.widths):
             defines[f"C{k}"] = wd
         for k, (a, al, off) in enumerate(zip(ch.acts, ch.alphas, ch.offsets), 1):
@@ -123,6 +127,22 @@ def mlp(dev: Device, prec: str, x, layers, out=None, tuning=None):
                    local_size=(t["LX"], 1))
         cur = dst
     return cur
+
+
+def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
+    """A two-layer network over whole pixel vectors and a ragged last block."""
+    g = rng("mlp selfcheck")
+    x = dev.to_device(g.standard_normal((1, 6, 5, 7)).astype(np.float32), prec)
+    layers = [(g.standard_normal((9, 6)).astype(np.float32) * 0.4, g.standard_normal(9).astype(np.float32),
+               "relu"),
+              (g.standard_normal((3, 9)).astype(np.float32) * 0.4, None, "sigmoid")]
+    return [dev.to_host(mlp(dev, prec, x, layers))]
+
+
+selfcheck.register(selfcheck.FastPath(
+    "mlp.builtin_free_loads", "mlp", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
+    check=_selfcheck_run, tolerance=DEFAULT_TOL.__getitem__, applies=builtin_free,
+    what="loads and stores as clang vector types instead of vload/vstore builtins (PoCL)"))
 
 
 # --- twins and cases ------------------------------------------------------------

@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import selfcheck
 from ..device import Device
-from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .base import (DEFAULT_TOL, EXACT, Case, Tolerance, Unsupported, as_str, check_storage, host_call,
+                   onnx_op, rng)
 from .conv import builtin_free
 from .twin import node_model
 
@@ -159,16 +161,31 @@ def _global(dev, prec, x, mode, chunk, out):
     chunk = int(chunk or GLOBAL_CHUNK)
     nchunks = -(-hw // chunk)
     count = np.float32(hw)
+    lanes = selfcheck.defines(dev, prec, "pool.global_vector_lanes")
     if nchunks == 1:
-        k = dev.kernel("pool", "global_pool_partial", prec, MODE=mode, CHUNK=chunk, FINAL=1)
+        k = dev.kernel("pool", "global_pool_partial", prec, MODE=mode, CHUNK=chunk, FINAL=1, **lanes)
         dev.launch(k, (1, nc), (x.data, out.data, np.int32(hw), np.int32(1), np.int32(nc), count))
         return out
     part = dev.empty((nc, nchunks), dtype=np.float32)
-    k1 = dev.kernel("pool", "global_pool_partial", prec, MODE=mode, CHUNK=chunk)
+    k1 = dev.kernel("pool", "global_pool_partial", prec, MODE=mode, CHUNK=chunk, **lanes)
     dev.launch(k1, (nchunks, nc), (x.data, part.data, np.int32(hw), np.int32(nchunks), np.int32(nc), count))
     k2 = dev.kernel("pool", "global_pool_final", prec, MODE=mode)
     dev.launch(k2, (nc,), (part.data, out.data, np.int32(nchunks), np.int32(nc), count))
     return out
+
+
+def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
+    """Global max and average, in one pass and in two (chunks of 24), rows off multiples of 8."""
+    x = dev.to_device(rng("global pool selfcheck").standard_normal((1, 3, 7, 13)).astype(np.float32), prec)
+    return [dev.to_host(f(dev, prec, x, chunk)) for f in (global_max_pool, global_avg_pool)
+            for chunk in (None, 24)]
+
+
+# max selects a stored value (bit-exact); the average's lanes reorder the sum.
+selfcheck.register(selfcheck.FastPath(
+    "pool.global_vector_lanes", "pool", {"GLOBAL_LANES": 8}, {"GLOBAL_LANES": 1}, check=_selfcheck_run,
+    tolerance=lambda prec: [EXACT, EXACT, DEFAULT_TOL[prec], DEFAULT_TOL[prec]],
+    what="global pooling accumulates 8 vector lanes"))
 
 
 def global_avg_pool(dev: Device, prec: str, x, chunk: int | None = None, out=None):

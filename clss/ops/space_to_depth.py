@@ -4,8 +4,9 @@ from __future__ import annotations
 import numpy as np
 from onnx import helper
 
+from .. import selfcheck
 from ..device import Device
-from .base import Case, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .base import EXACT, Case, Unsupported, as_str, check_storage, host_call, onnx_op, rng
 from .twin import make_model, node_model
 
 MODES = ("DCR", "CRD")
@@ -25,7 +26,8 @@ def space_to_depth(dev: Device, prec: str, x, block: int, mode: str = "DCR", out
         raise ValueError(f"space_to_depth: input {x.shape} height/width not divisible by block {block}")
     h, w = hh // block, ww // block
     out = out if out is not None else dev.empty((n, c * block * block, h, w), prec)
-    k = dev.kernel("space_to_depth", "space_to_depth", prec, CRD=_mode(mode))
+    k = dev.kernel("space_to_depth", "space_to_depth", prec, CRD=_mode(mode),
+                   **selfcheck.defines(dev, prec, "space_to_depth.b2_vector_loads"))
     dev.launch(k, (-(-w // 8), h, n * c * block),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(block),
                 np.int32(n * c * block)))
@@ -45,6 +47,19 @@ def depth_to_space(dev: Device, prec: str, x, block: int, mode: str = "DCR", out
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(block),
                 np.int32(n * c)))
     return out
+
+
+def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
+    """Both B = 2 paths (whole 8-column runs and the scalar tail) in both channel orders."""
+    x = rng("s2d selfcheck").standard_normal((1, 3, 4, 2 * 11)).astype(np.float32)
+    xd = dev.to_device(x, prec)
+    return [dev.to_host(space_to_depth(dev, prec, xd, 2, m)) for m in MODES]
+
+
+selfcheck.register(selfcheck.FastPath(
+    "space_to_depth.b2_vector_loads", "space_to_depth", fast={"S2D_VEC": 1}, reference={"S2D_VEC": 0},
+    check=_selfcheck_run, tolerance=lambda prec: EXACT,
+    what="B = 2 de-interleave through two vload8 and .even/.odd"))
 
 
 # --- ONNX -----------------------------------------------------------------------

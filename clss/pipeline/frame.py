@@ -30,7 +30,9 @@ import pyopencl as cl
 import pyopencl.array as cla
 from onnx import numpy_helper
 
+from .. import selfcheck
 from ..device import Device
+from ..ops.base import DEFAULT_TOL
 from ..ops.conv import builtin_free
 from .contract import PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size
 from .oracle import DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS
@@ -45,16 +47,62 @@ NONFINITE_BITS = 15
 STAGES = ("prepare", "depth_diff", "resolve", "classifier", "compose")
 
 
-def pixels_per_item(dev: Device) -> int:
+def pixels_per_item(dev: Device, prec: str = "fp32", mode: str = "rule") -> int:
     """VEC of kernels/frame.cl: CPUs get 8 pixels per work-item as explicit vectors (what
-    their OpenCL compilers vectorise), other devices one (a work-item is already a lane).
-    $CLSS_FRAME_VEC (1, 4 or 8) overrides it."""
+    their OpenCL compilers vectorise) once the fast-path self-check has compared that
+    with VEC = 1 on the device (clss/selfcheck.py), other devices one (a work-item is
+    already a lane). $CLSS_FRAME_VEC (1, 4 or 8) overrides it, unchecked."""
     env = os.environ.get("CLSS_FRAME_VEC", "").strip()
     if env:
         if env not in ("1", "4", "8"):
             raise ValueError(f"CLSS_FRAME_VEC: expected 1, 4 or 8, got {env!r}")
         return int(env)
-    return 8 if dev.cl_device.type & cl.device_type.CPU else 1
+    if not dev.cl_device.type & cl.device_type.CPU:
+        return 1
+    return selfcheck.defines(dev, prec, f"frame.pixel_vectors.{mode}")["VEC"]
+
+
+def clang_vectors(dev: Device, prec: str = "fp32", mode: str = "rule") -> int:
+    """-DCLSS_CLANG_VECTORS of kernels/frame.cl: half loads and stores as clang vector
+    conversions where builtin_free() asks for them (PoCL calls vload_half out of line)
+    and the self-check lets them, else the vload_half/vstore_half reference."""
+    if not builtin_free(dev):
+        return 0
+    return selfcheck.defines(dev, prec, f"frame.builtin_free_loads.{mode}")["CLSS_CLANG_VECTORS"]
+
+
+def _selfcheck_run(mode: str):
+    """Two frames (the second blends the warped history) at a render size whose output
+    rows end in a partial vector, through the Upscaler in `mode`."""
+    def run(dev: Device, prec: str) -> list[np.ndarray]:
+        from ..ops.base import rng
+        from .upscaler import Upscaler
+        g = rng("frame selfcheck", mode)
+        h, w = 6, 13
+        up = Upscaler(2.0, "rules" if mode == "rule" else "net", device=dev, precision=prec)
+        outs = []
+        for jitter in ((0.25, -0.25), (-0.25, 0.25)):
+            color = g.uniform(0, 4, (h, w, 3)).astype(np.float32)
+            depth = g.uniform(0.1, 0.9, (h, w)).astype(np.float32)
+            motion = g.uniform(-1.5, 1.5, (h, w, 2)).astype(np.float32)
+            outs.append(up.step(color, depth, motion, jitter))
+        return outs
+    return run
+
+
+# The vector form and VEC = 1 compute the same formulas; per-lane builtins (pow, exp)
+# may round differently from their vector forms, hence the op tolerance, not bit-exact.
+for _mode in ("rule", "net"):
+    selfcheck.register(selfcheck.FastPath(
+        f"frame.pixel_vectors.{_mode}", "frame", {"VEC": 8, "NET": int(_mode == "net")},
+        {"VEC": 1, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode),
+        tolerance=DEFAULT_TOL.__getitem__, what=f"8 output pixels per work-item as vectors ({_mode} mode)",
+        applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU)))
+    selfcheck.register(selfcheck.FastPath(
+        f"frame.builtin_free_loads.{_mode}", "frame", {"CLSS_CLANG_VECTORS": 1, "NET": int(_mode == "net")},
+        {"CLSS_CLANG_VECTORS": 0, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode),
+        tolerance=DEFAULT_TOL.__getitem__,
+        what=f"half loads/stores as clang vector conversions ({_mode} mode)", applies=builtin_free))
 
 
 def pad16(n: int) -> int:
@@ -165,9 +213,9 @@ class FrameStep:
         self.sanitize = bool(sanitize)
         self.profile = bool(profile)
         net = mode == "net"
-        self.vec = pixels_per_item(dev)
+        self.vec = pixels_per_item(dev, prec, mode)
         defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec,
-                       CLSS_CLANG_VECTORS=builtin_free(dev))
+                       CLSS_CLANG_VECTORS=clang_vectors(dev, prec, mode))
         if not net:
             defines["CLIP_EPS"] = float(RULE_CLIP_EPS)
         h, w, H, W = self.h, self.w, self.H, self.W

@@ -1,0 +1,337 @@
+"""Fast paths that check themselves.
+
+A fast path is a build variant of one kernel source (``-D`` options) that is
+faster on some compilers (vector de-interleaves, builtin-free loads, several
+pixels per work-item) and has a portable reference variant on the same source.
+Compilers miscompile fast paths (PoCL 3.0-rc2 on AVX-512 returned garbage from
+``uint16.even``), so before the engine first uses a fast variant on a (device,
+driver, kernel source, build options), it runs the op once on a small seeded
+input with the fast and with the reference variant and compares the two:
+bit-exact for data movement, the op's tolerance otherwise. A variant that
+disagrees (or fails to build) is disabled with one warning naming the kernel,
+the variant and the device, and the op uses the reference variant.
+
+Verdicts are kept on disk ($CLSS_CACHE_DIR/selfcheck.json, default
+~/.cache/clss/selfcheck.json), keyed like the program cache: device, driver,
+hash of the kernel source, build options. ``CLSS_SELFCHECK`` chooses:
+
+    auto   (default) check once, then trust the cached verdict
+    force  check again in this process, whatever is cached
+    skip   no check: fast variants are used as they are
+
+Ops ask with ``defines(dev, prec, name)`` (or ``enabled``) and size their
+launches from the answer, since a variant may change the work per work-item.
+Each op module registers its fast paths with ``register(FastPath(...))``.
+"""
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+import os
+import threading
+import warnings
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+MODES = ("auto", "force", "skip")
+
+
+class FastPathDisabled(UserWarning):
+    """A fast variant disagreed with its reference on this device and is not used."""
+
+
+@dataclass(frozen=True)
+class FastPath:
+    """One fast variant of kernels/<kernel>.cl and its portable reference.
+
+    ``check(dev, prec) -> list of host arrays`` runs the op on a small seeded
+    input; the registry calls it once with the fast and once with the reference
+    variant forced. ``tolerance(prec)`` is EXACT for data movement, else the op's
+    Tolerance (clss/ops/base.py), or a list of those, one per output."""
+    name: str
+    kernel: str
+    fast: dict
+    reference: dict
+    check: Callable = field(compare=False)
+    tolerance: Callable = field(compare=False)
+    what: str = ""
+    isolate: bool = True     # check in a child process (see _check_isolated)
+    applies: Callable = field(default=lambda dev: True, compare=False)   # does the op use it on dev?
+
+    def options(self, fast: bool) -> str:
+        d = self.fast if fast else self.reference
+        return " ".join(f"-D{k}={v}" for k, v in sorted(d.items()))
+
+
+@dataclass
+class Verdict:
+    name: str
+    kernel: str
+    precision: str
+    device: str
+    ok: bool
+    detail: str = ""
+    options: str = ""
+    checked: str = ""
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+REGISTRY: dict[str, FastPath] = {}
+_lock = threading.RLock()
+_local = threading.local()          # .forced: {name: bool} while a check runs a variant
+_verdicts: dict[tuple, Verdict] = {}   # (device key, name, options) -> verdict, this process
+_checked_here: set = set()          # keys checked in this process (CLSS_SELFCHECK=force)
+_warned: set = set()
+_memo: dict = {}                    # (device id, prec, name, mode, extra options) -> ok
+
+
+def register(fp: FastPath) -> FastPath:
+    REGISTRY[fp.name] = fp
+    return fp
+
+
+def mode() -> str:
+    m = os.environ.get("CLSS_SELFCHECK", "auto").strip().lower() or "auto"
+    if m not in MODES:
+        raise ValueError(f"CLSS_SELFCHECK={m!r}: expected one of {', '.join(MODES)}")
+    return m
+
+
+def cache_path() -> Path:
+    base = os.environ.get("CLSS_CACHE_DIR")
+    return (Path(base).expanduser() if base else Path.home() / ".cache" / "clss") / "selfcheck.json"
+
+
+@contextmanager
+def forcing(name: str, fast: bool):
+    """Inside the block, variant `name` is used (fast) or not (reference), unchecked."""
+    forced = _forced()
+    old = forced.get(name)
+    forced[name] = fast
+    try:
+        yield
+    finally:
+        if old is None:
+            forced.pop(name, None)
+        else:
+            forced[name] = old
+
+
+def _forced() -> dict:
+    """{name: fast?} of the variants a running check forces in this thread; a check's
+    child process inherits its parent's ($CLSS_SELFCHECK_FORCED, "name=0,name=1"), so a
+    variant another variant's check uses is not checked again in a loop of processes."""
+    forced = getattr(_local, "forced", None)
+    if forced is None:
+        inherited = os.environ.get("CLSS_SELFCHECK_FORCED", "")
+        forced = _local.forced = {k: v == "1" for k, _, v in
+                                  (item.partition("=") for item in inherited.split(",") if item)}
+    return forced
+
+
+def defines(dev, prec: str, name: str) -> dict:
+    """The -D options for variant `name`: its fast ones when they are enabled on
+    dev in prec, else the reference ones."""
+    fp = REGISTRY[name]
+    return dict(fp.fast if enabled(dev, prec, name) else fp.reference)
+
+
+def enabled(dev, prec: str, name: str) -> bool:
+    """Whether the fast variant `name` may be used on dev in prec (checking it first if
+    no verdict is known)."""
+    forced = _forced()
+    if name in forced:
+        return forced[name]
+    m = mode()
+    if m == "skip":
+        return True
+    # The real device: a model's dry run hands its ops a PlannedDevice whose launches do nothing.
+    dev = getattr(dev, "base", dev)
+    memo = (id(dev), prec, name, m, os.environ.get("CLSS_BUILD_OPTIONS", ""))
+    ok = _memo.get(memo)
+    if ok is not None:       # ops ask at every launch: no source hashing after the first
+        return ok
+    fp = REGISTRY[name]
+    key = _key(dev, prec, fp)
+    with _lock:
+        v = _verdicts.get(key)
+        if v is None or (m == "force" and key not in _checked_here):
+            rec = None if m == "force" else _load().get(_disk_key(key))
+            try:
+                v = Verdict(**rec) if isinstance(rec, dict) else None
+            except TypeError:   # a record of another clss version: check again
+                v = None
+            if v is None:
+                v = _check_isolated(dev, prec, fp) if fp.isolate else _run_check(dev, prec, fp)
+                _checked_here.add(key)
+                _store(_disk_key(key), v)
+            _verdicts[key] = v
+        if not v.ok and key not in _warned:
+            _warned.add(key)
+            warnings.warn(f"fast path {fp.name} ({fp.options(True)}) of kernels/{fp.kernel}.cl disabled "
+                          f"on {v.device} [{prec}]: {v.detail}; using the reference variant "
+                          f"({fp.options(False)})", FastPathDisabled, stacklevel=3)
+        _memo[memo] = v.ok
+        return v.ok
+
+
+def check_all(dev, precisions, kernels=None) -> list[Verdict]:
+    """Verdicts of every registered fast path on dev (of `kernels`, stems of
+    kernels/*.cl, if given), checking what is not yet known."""
+    _import_registrations()
+    dev = getattr(dev, "base", dev)
+    out = []
+    for name in sorted(REGISTRY):
+        if (kernels is not None and REGISTRY[name].kernel not in kernels) or not REGISTRY[name].applies(dev):
+            continue
+        for prec in precisions:
+            if prec == "fp16-native" and not dev.has_fp16:
+                continue
+            enabled(dev, prec, name)
+            out.append(_verdicts.get(_key(dev, prec, REGISTRY[name])) or Verdict(
+                name, REGISTRY[name].kernel, prec, _device_name(dev), True, "not checked (CLSS_SELFCHECK=skip)"))
+    return out
+
+
+def disabled(dev=None) -> list[Verdict]:
+    """The variants disabled in this process (on dev, if given)."""
+    name = None if dev is None else _device_name(dev)
+    return [v for v in _verdicts.values() if not v.ok and (name is None or v.device == name)]
+
+
+def forget() -> None:
+    """Drop this process's verdicts (the disk cache stays): the next use checks or reloads."""
+    with _lock:
+        for d in (_verdicts, _memo):
+            d.clear()
+        _checked_here.clear()
+        _warned.clear()
+
+
+# --- internals -------------------------------------------------------------------
+
+def _device_name(dev) -> str:
+    return f"{dev.info.platform} / {dev.info.name} ({dev.info.driver})"
+
+
+def _key(dev, prec: str, fp: FastPath) -> tuple:
+    """(device, driver, source hash, build options of the fast variant): as the program cache."""
+    src = dev.source(fp.kernel)
+    opts = dev.build_options(prec, **fp.fast)
+    return (_device_name(dev), fp.name, hashlib.sha1(src.encode()).hexdigest()[:16], opts)
+
+
+def _disk_key(key: tuple) -> str:
+    return " | ".join(key)
+
+
+def _run_check(dev, prec: str, fp: FastPath) -> Verdict:
+    from .ops.base import compare
+    now = datetime.datetime.now().isoformat(timespec="seconds")
+    v = Verdict(fp.name, fp.kernel, prec, _device_name(dev), True, "", fp.options(True), now)
+    with forcing(fp.name, False):
+        ref = fp.check(dev, prec)      # a reference that fails is the op's own error: raised
+    try:
+        with forcing(fp.name, True):
+            out = fp.check(dev, prec)
+    except Exception as e:  # the fast variant does not build or run here: disable it
+        v.ok, v.detail = False, f"fails: {type(e).__name__}: {str(e).splitlines()[0][:200]}"
+        return v
+    tols = fp.tolerance(prec)    # one for every output, or a list, one per output
+    for i, (o, r) in enumerate(zip(out, ref)):
+        c = compare(np.asarray(o), np.asarray(r), tols[i] if isinstance(tols, list) else tols)
+        if not c.passed:
+            v.ok = False
+            v.detail = f"differs from the reference variant (output {i}: {c.detail or c.tol})"
+            break
+    if len(out) != len(ref):
+        v.ok, v.detail = False, f"{len(out)} outputs, the reference variant {len(ref)}"
+    return v
+
+
+def _check_isolated(dev, prec: str, fp: FastPath) -> Verdict:
+    """_run_check in a child process (`python -m clss.selfcheck`): a miscompiled fast
+    variant can crash the process rather than give wrong numbers (Debian's PoCL 3.1
+    segfaults in pool.cl's 8-lane fp16 global max), and a crash must cost the variant,
+    not the caller. The child prints its verdict as JSON on its last line."""
+    import subprocess
+    from .device import list_devices
+    index = next(i for i, (_, d) in enumerate(list_devices()) if d == dev.cl_device)
+    now = datetime.datetime.now().isoformat(timespec="seconds")
+    try:
+        env = dict(os.environ, CLSS_SELFCHECK_FORCED=",".join(
+            f"{k}={int(v)}" for k, v in sorted(_forced().items())))
+        r = subprocess.run(_child_command(index, prec, fp.name), capture_output=True, text=True,
+                           timeout=_CHILD_TIMEOUT_S, env=env)
+        last = r.stdout.strip().splitlines()[-1] if r.stdout.strip() else ""
+        if r.returncode == 0 and last.startswith("{"):
+            return Verdict(**json.loads(last))
+        err = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
+        why = (f"signal {-r.returncode}" if r.returncode < 0 else f"exit status {r.returncode}")
+        detail = f"its self-check process died ({why})" + (f": {err[-1][:200]}" if err else "")
+    except subprocess.TimeoutExpired:
+        detail = f"its self-check process did not finish in {_CHILD_TIMEOUT_S} s"
+    return Verdict(fp.name, fp.kernel, prec, _device_name(dev), False, detail, fp.options(True), now)
+
+
+_CHILD_TIMEOUT_S = 600
+
+
+def _child_command(index: int, prec: str, name: str) -> list[str]:
+    import sys
+    return [sys.executable, "-m", "clss.selfcheck", str(index), prec, name]
+
+
+def _child_main(argv) -> int:
+    """python -m clss.selfcheck DEVICE_INDEX PRECISION NAME: check one variant here."""
+    from .device import get_device
+    index, prec, name = argv
+    _import_registrations()
+    v = _run_check(get_device(index), prec, REGISTRY[name])
+    print(json.dumps(v.as_dict()))
+    return 0
+
+
+def _import_registrations() -> None:
+    """Import every module that registers fast paths."""
+    import warnings as w
+    from .ops import load_all
+    with w.catch_warnings():
+        w.simplefilter("ignore")
+        load_all()
+    from .pipeline import frame  # noqa: F401
+
+
+def _load() -> dict:
+    try:
+        data = json.loads(cache_path().read_text())
+        return data if isinstance(data, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def _store(key: str, v: Verdict) -> None:
+    """Merge one verdict into the file (atomically; an unwritable cache only costs a re-check)."""
+    path = cache_path()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data = _load()
+        data[key] = v.as_dict()
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
+        tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
+        os.replace(tmp, path)
+    except OSError:
+        pass
+
+
+if __name__ == "__main__":
+    import sys
+    from clss import selfcheck as _registry_module   # not __main__: the ops register there
+    sys.exit(_registry_module._child_main(sys.argv[1:]))
