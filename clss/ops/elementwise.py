@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import selfcheck
 from ..device import Device, storage_dtype
-from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
+from .base import (DEFAULT_TOL, EXACT, Case, Tolerance, Unsupported, as_str, check_storage, host_call,
+                   onnx_op, rng)
 from .conv import builtin_free
 from .twin import node_model
 
@@ -114,7 +116,8 @@ def binary(dev: Device, prec: str, op: str, a, b, out=None):
     dims, (sa, sb) = coalesce(shape, [_broadcast_strides(a.shape, shape), _broadcast_strides(b.shape, shape)])
     dims, (sa, sb) = _four(dims, [sa, sb], op)
     gs, dargs = _grid(dims)
-    if BCAST_VEC and sa[3] in (0, 1) and sb[3] in (0, 1) and dims[3] >= 8:
+    if (BCAST_VEC and sa[3] in (0, 1) and sb[3] in (0, 1) and dims[3] >= 8
+            and selfcheck.enabled(dev, prec, "elementwise.bcast8")):
         k = dev.kernel("elementwise", "binary_bcast8", prec, OP=BINARY[op],
                        CLSS_CLANG_VECTORS=builtin_free(dev))
         dev.launch(k, (-(-gs[0] // 8), gs[1], gs[2]), (a.data, b.data, out.data, *dargs, *_i32(*sa, *sb)))
@@ -436,13 +439,14 @@ def pad(dev: Device, prec: str, x, pads, mode: str = "constant", value: float = 
         raise ValueError(f"pad: needs {len(dims)} dimensions after coalescing; the kernels take 4")
     dims = [[1, 0, 1]] * (4 - len(dims)) + dims
     gs, dargs = _grid([d[2] for d in dims])
-    if PAD_VEC:
+    vec = bool(PAD_VEC) and selfcheck.enabled(dev, prec, "elementwise.pad8")
+    if vec:
         gs = (-(-gs[0] // (8 * PAD_BLOCKS)), gs[1], gs[2])
     bits = np.array(value, dtype=storage_dtype(prec))
     bits = bits.view(np.uint32 if bits.itemsize == 4 else np.uint16)
     # An empty input is never read (constant mode pads everything) but needs a buffer.
     src = x if x.size else dev.empty((1,), prec)
-    if PAD_VEC:
+    if vec:
         k = dev.kernel("elementwise", "pad8", prec, PAD_MODE=PAD_MODES[mode], PAD_BLOCKS=PAD_BLOCKS,
                        CLSS_CLANG_VECTORS=builtin_free(dev))
     else:
@@ -994,3 +998,30 @@ def cases(level: str = "quick") -> list[Case]:
         flatten_case((2, 3, 7, 13), 2),
     ]
     return out
+
+
+# --- fast paths (clss/selfcheck.py): each against its one-output-per-work-item kernel
+
+def _selfcheck_pad(dev: Device, prec: str) -> list[np.ndarray]:
+    """Constant, edge and reflect pads of rows off multiples of 8 (tails, both ends)."""
+    x = dev.to_device(rng("pad selfcheck").standard_normal((1, 3, 5, 21)).astype(np.float32), prec)
+    return [dev.to_host(pad(dev, prec, x, [0, 0, 1, 3, 0, 0, 2, 12], mode)) for mode in
+            ("constant", "edge", "reflect")]
+
+
+def _selfcheck_bcast(dev: Device, prec: str) -> list[np.ndarray]:
+    """Broadcasts along channels and rows, contiguous innermost axes of 21 (a ragged tail)."""
+    g = rng("bcast selfcheck")
+    a = dev.to_device(g.standard_normal((1, 3, 5, 21)).astype(np.float32), prec)
+    b = dev.to_device(g.standard_normal((1, 1, 5, 21)).astype(np.float32), prec)
+    c = dev.to_device(g.standard_normal((1, 3, 1, 21)).astype(np.float32), prec)
+    return [dev.to_host(binary(dev, prec, op, a, o)) for op in ("add", "mul") for o in (b, c)]
+
+
+selfcheck.register(selfcheck.FastPath(
+    "elementwise.pad8", "elementwise", {"PAD_VEC": 1}, {"PAD_VEC": 0}, check=_selfcheck_pad,
+    tolerance=lambda prec: EXACT, what="pad: 8 x PAD_BLOCKS outputs per work-item (kernel pad8)"))
+selfcheck.register(selfcheck.FastPath(
+    "elementwise.bcast8", "elementwise", {"BCAST_VEC": 1}, {"BCAST_VEC": 0}, check=_selfcheck_bcast,
+    tolerance=DEFAULT_TOL.__getitem__,
+    what="broadcasting binary ops: 8 outputs per work-item (kernel binary_bcast8)"))

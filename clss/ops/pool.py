@@ -113,7 +113,7 @@ def _pool(dev, prec, x, mode, kernel, stride, pads, dilation, ceil_mode, auto_pa
     if indices:
         defines["INDICES"] = 1
     if (POOL_ROW8 and mode == 0 and not indices and len(sp) == 2 and K[2] == 3 and S[2] == 1
-            and D[2] == 1):
+            and D[2] == 1 and selfcheck.enabled(dev, prec, "pool.row8")):
         # fp16: vload_half8 measured faster here than the clang conversion (PoCL 3.0)
         kern = dev.kernel("pool", "max_pool_row8", prec,
                           CLSS_CLANG_VECTORS=builtin_free(dev) if prec != "fp16" else 0)
@@ -186,6 +186,18 @@ selfcheck.register(selfcheck.FastPath(
     "pool.global_vector_lanes", "pool", {"GLOBAL_LANES": 8}, {"GLOBAL_LANES": 1}, check=_selfcheck_run,
     tolerance=lambda prec: [EXACT, EXACT, DEFAULT_TOL[prec], DEFAULT_TOL[prec]],
     what="global pooling accumulates 8 vector lanes"))
+
+
+def _selfcheck_row8(dev: Device, prec: str) -> list[np.ndarray]:
+    """3x3 max pools (padded and not, row stride 1 and 2) of rows off multiples of 8."""
+    x = dev.to_device(rng("max_pool_row8 selfcheck").standard_normal((1, 3, 9, 21)).astype(np.float32), prec)
+    return [dev.to_host(max_pool(dev, prec, x, (3, 3), stride=s, pads=p))
+            for s, p in (((1, 1), (1, 1, 1, 1)), ((2, 1), (0, 0, 0, 0)))]
+
+
+selfcheck.register(selfcheck.FastPath(
+    "pool.row8", "pool", {"POOL_ROW8": 1}, {"POOL_ROW8": 0}, check=_selfcheck_row8,
+    tolerance=lambda prec: EXACT, what="3-wide max pool: 8 outputs per work-item (kernel max_pool_row8)"))
 
 
 def global_avg_pool(dev: Device, prec: str, x, chunk: int | None = None, out=None):

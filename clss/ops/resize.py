@@ -28,9 +28,11 @@ from collections import OrderedDict
 import numpy as np
 import pyopencl.cltypes as clt
 
+from .. import selfcheck
 from ..device import Device
-from .base import Case, Tolerance, Unsupported, as_str, check_storage, host_call, onnx_op, rng
-from .conv import builtin_free
+from .base import (DEFAULT_TOL, Case, Tolerance, Unsupported, as_str, check_storage, host_call,
+                   onnx_op, rng)
+from .conv import builtin_free, load_defines
 from .twin import node_model
 
 MODES = ("nearest", "linear", "cubic")
@@ -178,9 +180,10 @@ def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "lin
         # edge pixel, which clamping gives too, so one build serves both.
         defines["EXCLUDE"] = int(bool(exclude_outside) and (mode == "cubic" or antialias))
     coord, idx, wt = _axis_tables(dev, prec, defines, mode, (ho, wo, h, w), (sy, sx), off, r, cubic_a)
-    x8 = bool(RESIZE_X8) and mode != "nearest" and not antialias and defines["COORD"] != 4
+    x8 = (bool(RESIZE_X8) and mode != "nearest" and not antialias and defines["COORD"] != 4
+          and selfcheck.enabled(dev, prec, "resize.x8"))
     k = dev.kernel("resize", "resize_x8" if x8 else "resize", prec, **defines,
-                   CLSS_CLANG_VECTORS=builtin_free(dev))
+                   **load_defines(dev, prec, "resize"))
     cb = -(-c // CHANNELS_PER_ITEM)
     dev.launch(k, (-(-wo // 8) if x8 else wo, ho, n * cb),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(ho), np.int32(wo),
@@ -443,3 +446,21 @@ def cases(level: str = "quick") -> list[Case]:
         for sc in ((2, 3), (1.5, 2.5), (0.5, 0.6)):
             full.append(case(1, 3, 7, 13, mode=mode, scales=sc, legacy=True))
     return full
+
+
+# --- fast paths (clss/selfcheck.py) ----------------------------------------------
+
+def _selfcheck_resize(dev: Device, prec: str) -> list[np.ndarray]:
+    """Linear and cubic up- and down-sampling of rows off multiples of 8."""
+    x = dev.to_device(rng("resize selfcheck").standard_normal((1, 3, 7, 13)).astype(np.float32), prec)
+    return [dev.to_host(resize(dev, prec, x, hw, mode=m)) for m in ("linear", "cubic")
+            for hw in ((14, 27), (5, 9))]
+
+
+for _name, _fast, _ref, _what, _applies in (
+        ("resize.x8", {"RESIZE_X8": 1}, {"RESIZE_X8": 0},
+         "linear/cubic resize: 8 outputs along x per work-item (kernel resize_x8)", lambda dev: True),
+        ("resize.builtin_free_loads", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
+         "half loads/stores as clang vector conversions (PoCL)", builtin_free)):
+    selfcheck.register(selfcheck.FastPath(_name, "resize", _fast, _ref, check=_selfcheck_resize,
+                                          tolerance=DEFAULT_TOL.__getitem__, what=_what, applies=_applies))

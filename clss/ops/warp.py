@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 from onnx import helper
 
+from .. import selfcheck
 from ..device import Device
 from .base import DEFAULT_TOL, Case, Tolerance, Unsupported, as_str, check_storage, onnx_op, rng
-from .conv import builtin_free
+from .conv import builtin_free, load_defines
 from .twin import make_model, node_model, run_ort
 
 MODES = ("nearest", "bilinear", "bicubic")
@@ -64,7 +65,7 @@ def grid_sample(dev: Device, prec: str, x, grid, mode: str = "bilinear", padding
         return _zero_fill(dev, out)
     cpb, nblk = _blocks(c, channels_per_item)
     k = dev.kernel("warp", "grid_sample", prec, **_options(mode, padding, cubic_channels),
-                   CLSS_CLANG_VECTORS=builtin_free(dev))
+                   **load_defines(dev, prec, "warp"))
     dev.launch(k, (wo, ho, n * nblk), (x.data, grid.data, out.data,
                                        *map(np.int32, (c, hi, wi, ho, wo, cpb, nblk, n, bool(align_corners)))))
     return out
@@ -97,7 +98,7 @@ def warp(dev: Device, prec: str, x, motion, *, motion_scale=(1.0, 1.0), scale: f
     cpb, nblk = _blocks(c, channels_per_item)
     kx, ky = (float(s) * float(scale) for s in motion_scale)
     k = dev.kernel("warp", "warp_motion", prec, **_options(mode, padding, cubic_channels),
-                   CLSS_CLANG_VECTORS=builtin_free(dev))
+                   **load_defines(dev, prec, "warp"))
     dev.launch(k, (wo, ho, n * nblk),
                (x.data, motion.data, out.data, *map(np.int32, (c, hi, wi, ho, wo, cpb, nblk, n)),
                 np.float32(wi / wo), np.float32(hi / ho), np.float32(kx), np.float32(ky)))
@@ -353,3 +354,21 @@ def cases(level: str = "quick") -> list[Case]:
     out.append(motion_case(2, 1, 1, 1, 31, 27, "bicubic", "zeros", reach=0.7))
     out.append(motion_case(1, 23, 9, 7, 31, 27, "nearest", "zeros", reach=4.0))
     return out
+
+
+def _selfcheck_warp(dev: Device, prec: str) -> list[np.ndarray]:
+    """GridSample bilinear and bicubic and the motion warp (3 bicubic + 2 bilinear
+    channels), off-screen taps included."""
+    g = rng("warp selfcheck")
+    x = dev.to_device(g.standard_normal((1, 5, 7, 13)).astype(np.float32), prec)
+    grid = dev.to_device(g.uniform(-1.2, 1.2, (1, 9, 11, 2)).astype(np.float32), "fp32")
+    motion = dev.to_device(g.uniform(-3, 3, (1, 2, 7, 13)).astype(np.float32), prec)
+    outs = [grid_sample(dev, prec, x, grid, m) for m in ("bilinear", "bicubic")]
+    outs.append(warp(dev, prec, x, motion, cubic_channels=3, mode="bilinear"))
+    return [dev.to_host(o) for o in outs]
+
+
+selfcheck.register(selfcheck.FastPath(
+    "warp.builtin_free_loads", "warp", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
+    check=_selfcheck_warp, tolerance=DEFAULT_TOL.__getitem__,
+    what="half loads/stores as clang vector conversions (PoCL)", applies=builtin_free))

@@ -33,7 +33,7 @@ from onnx import numpy_helper
 from .. import selfcheck
 from ..device import Device
 from ..ops.base import DEFAULT_TOL
-from ..ops.conv import builtin_free
+from ..ops.conv import builtin_free, load_defines
 from .contract import PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size
 from .oracle import DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS
 
@@ -60,15 +60,6 @@ def pixels_per_item(dev: Device, prec: str = "fp32", mode: str = "rule") -> int:
     if not dev.cl_device.type & cl.device_type.CPU:
         return 1
     return selfcheck.defines(dev, prec, f"frame.pixel_vectors.{mode}")["VEC"]
-
-
-def clang_vectors(dev: Device, prec: str = "fp32", mode: str = "rule") -> int:
-    """-DCLSS_CLANG_VECTORS of kernels/frame.cl: half loads and stores as clang vector
-    conversions where builtin_free() asks for them (PoCL calls vload_half out of line)
-    and the self-check lets them, else the vload_half/vstore_half reference."""
-    if not builtin_free(dev):
-        return 0
-    return selfcheck.defines(dev, prec, f"frame.builtin_free_loads.{mode}")["CLSS_CLANG_VECTORS"]
 
 
 def _selfcheck_run(mode: str):
@@ -99,7 +90,7 @@ for _mode in ("rule", "net"):
         tolerance=DEFAULT_TOL.__getitem__, what=f"8 output pixels per work-item as vectors ({_mode} mode)",
         applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU)))
     selfcheck.register(selfcheck.FastPath(
-        f"frame.builtin_free_loads.{_mode}", "frame", {"CLSS_CLANG_VECTORS": 1, "NET": int(_mode == "net")},
+        f"frame.{_mode}.builtin_free_loads", "frame", {"CLSS_CLANG_VECTORS": 1, "NET": int(_mode == "net")},
         {"CLSS_CLANG_VECTORS": 0, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode),
         tolerance=DEFAULT_TOL.__getitem__,
         what=f"half loads/stores as clang vector conversions ({_mode} mode)", applies=builtin_free))
@@ -215,7 +206,7 @@ class FrameStep:
         net = mode == "net"
         self.vec = pixels_per_item(dev, prec, mode)
         defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec,
-                       CLSS_CLANG_VECTORS=clang_vectors(dev, prec, mode))
+                       CLSS_CLANG_VECTORS=load_defines(dev, prec, f"frame.{mode}")["CLSS_CLANG_VECTORS"])
         if not net:
             defines["CLIP_EPS"] = float(RULE_CLIP_EPS)
         h, w, H, W = self.h, self.w, self.H, self.W
