@@ -461,7 +461,7 @@ def add_parser(sub):
     t.add_argument("--seed", type=int, default=0)
     # Defaults sized for ~45-60 min on the shared 2-core machine (~7 s a step there).
     t.add_argument("--cls-steps", type=int, default=300, help="classifier steps")
-    t.add_argument("--comp-steps", type=int, default=120, help="composition steps")
+    t.add_argument("--comp-steps", type=int, default=400, help="composition steps")
     t.add_argument("--batch", type=int, default=4, help="windows per step")
     t.add_argument("--patch", type=int, default=64, help="patch size, output pixels")
     t.add_argument("--frames", type=int, default=8, help="recurrent frames per window")
