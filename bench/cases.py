@@ -13,7 +13,7 @@ multiple of 16 (1088x1920 at 1080p), after SpaceToDepth(2) at 544x960; its conv
 layers are read from weights_tools.networks so they follow the network's widths.
 
 A family's cases appear once its module exists in clss/ops (they land one by one);
-network cases once clss/model.py exists, the frame step once clss.pipeline has an
+network cases once clss/model/__init__.py exists, the frame step once clss.pipeline has an
 OpenCL Upscaler.
 """
 from __future__ import annotations
@@ -584,7 +584,7 @@ FAMILY_CASES = {
 # --- networks and the frame step (optional) -------------------------------------------
 
 def network_cases(tier):
-    """The two CLSS networks through clss.Model, once clss/model.py exists."""
+    """The two CLSS networks through clss.Model, once clss/model/__init__.py exists."""
     if not _has("clss.model"):
         return []
     from weights_tools.networks import build_classifier, build_composition, count_flops
@@ -635,7 +635,7 @@ def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list
                 cases += fn(tier)
             except Exception as e:   # a family whose API moved: report, keep benchmarking the rest
                 missing.append((f"{fam} [{tier}]", f"{type(e).__name__}: {e}"))
-        for what, fn, mod in (("networks", network_cases, "clss/model.py"),
+        for what, fn, mod in (("networks", network_cases, "clss/model/__init__.py"),
                               ("frame step", frame_cases, "clss/pipeline/frame.py")):
             try:
                 got = fn(tier)

@@ -70,7 +70,7 @@ def cmd_info(argv) -> int:
     m = _load(a.model, a.device, a.precision, shapes, "clss info")
     if m is None:
         return 2
-    from .model_info import format_summary, summary
+    from .model.info import format_summary, summary
     s = summary(m)
     print(format_summary(s, os.path.basename(a.model)))
     if a.json:

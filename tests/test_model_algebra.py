@@ -1,4 +1,4 @@
-"""The conv-through-resize graph pass (clss/model_passes.py: conv_through_resize)
+"""The conv-through-resize graph pass (clss/model/passes.py: conv_through_resize)
 against onnxruntime: Conv1x1(Concat(Resize(e_i)..., e0)) rewritten as a sum of
 1x1 convolutions run before the Resize. Random level counts, channel counts,
 odd sizes, resize modes (nearest, linear, cubic), scales or sizes, bias or none,

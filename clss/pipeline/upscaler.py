@@ -69,7 +69,7 @@ def load_networks(weights=None):
     path = os.fspath(weights)
     if os.path.isdir(path):
         def net(name, build):
-            from ..model_graph import load_proto      # a corrupt file: an error naming it
+            from ..model.graph import load_proto      # a corrupt file: an error naming it
             p = os.path.join(path, name)
             return load_proto(p) if os.path.isfile(p) else build()
         cls = net("classifier.onnx", build_classifier)

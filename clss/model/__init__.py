@@ -21,10 +21,10 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from .device import Device, get_device, storage_dtype
-from .model_exec import Executor
-from .model_graph import FLOAT_TYPES, InputError, ModelError, UnsupportedModelError, build
-from .model_passes import run_passes
+from ..device import Device, get_device, storage_dtype
+from .execute import Executor
+from .graph import FLOAT_TYPES, InputError, ModelError, UnsupportedModelError, build
+from .passes import run_passes
 
 __all__ = ["Model", "ModelError", "InputError", "UnsupportedModelError"]
 
@@ -40,7 +40,7 @@ class Model:
 
     def __init__(self, model, device=None, precision: str = "fp32", input_shapes: dict | None = None,
                  *, fuse: bool = True):
-        from .ops import load_all
+        from ..ops import load_all
         self.device: Device = get_device(device)
         self.device.require(precision)
         self.precision = precision
@@ -66,7 +66,7 @@ class Model:
 
     @property
     def plan(self):
-        """The memory plan (clss.model_plan.Plan): peak_bytes, buffers, ..."""
+        """The memory plan (clss.model.plan.Plan): peak_bytes, buffers, ..."""
         return self._exec.plan
 
     def memory(self) -> dict:
@@ -169,7 +169,7 @@ class Model:
 
     def _device_dtype(self, name):
         want = self._in_dtypes[name]
-        if name in self._exec.fp32_inputs:   # GridSample grids stay float32 (model_exec)
+        if name in self._exec.fp32_inputs:   # GridSample grids stay float32 (model/execute.py)
             return np.dtype(np.float32)
         return storage_dtype(self.precision) if want.kind == "f" else want
 

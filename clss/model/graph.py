@@ -14,7 +14,7 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from .errors import UserError
+from ..errors import UserError
 
 # Opsets 22-25 only widened the type constraints of the ops clss runs (bfloat16,
 # float8, float4, int2; checked with onnx.defs.get_schema), so their float32/float16
@@ -202,7 +202,7 @@ def _checkable(m: onnx.ModelProto) -> onnx.ModelProto:
     probe.ir_version = min(probe.ir_version, onnx.IR_VERSION)
     if not fill:
         return probe
-    from .ops.twin import fill_output_shapes
+    from ..ops.twin import fill_output_shapes
     for o in probe.graph.output:
         o.type.tensor_type.SetInParent()   # an output with no type at all: inference fills it
     try:
@@ -339,8 +339,8 @@ def refuse_unknown_ops(m: onnx.ModelProto, opset: int, note: str) -> None:
     run nor rewrite, when there is any. Called where such a node shows up as
     something else (a shape inference cannot resolve, say), so that the user
     hears first what is unsupported; ``note`` tells what else went wrong."""
-    from .model_passes import LOWERED_OPS
-    from .ops import ONNX_HANDLERS, load_all
+    from .passes import LOWERED_OPS
+    from ..ops import ONNX_HANDLERS, load_all
     load_all()   # the handlers register when their family is imported
     opsets = {o.domain or "": o.version for o in m.opset_import}
     bad = []

@@ -1,4 +1,4 @@
-"""Load-time graph rewrites on the static Graph (clss/model_graph.py).
+"""Load-time graph rewrites on the static Graph (clss/model/graph.py).
 
 Each pass keeps the graph's meaning exactly (up to float rounding where
 weights are refolded) and every tensor's recorded shape. Order matters and is
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model_graph import FLOAT_TYPES, Graph, Node
+from .graph import FLOAT_TYPES, Graph, Node
 
 ACT_OPS = {"Relu": "relu", "LeakyRelu": "leaky_relu", "Sigmoid": "sigmoid", "Tanh": "tanh"}
 

@@ -1,6 +1,6 @@
 """Static device-memory planning: which intermediate buffers share storage.
 
-The load-time dry run (model_exec.trace) records every allocation each node
+The load-time dry run (model.execute.trace) records every allocation each node
 makes, in call order, and which of them back the node's outputs. An
 allocation lives from its node to the last node reading any tensor stored in
 it (views included); scratch lives for its node only. Allocations whose

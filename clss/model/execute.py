@@ -17,11 +17,11 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from .device import Device, storage_dtype
-from .model_graph import NO_KERNEL, Graph, ModelError, Node, UnsupportedModelError, custom_domain_reason
-from .model_passes import LOWERED_OPS
-from .model_plan import Alloc, Plan, assign_slots, check_plan
-from .ops.base import ONNX_HANDLERS, OnnxHandler, Unsupported
+from ..device import Device, storage_dtype
+from ..ops.base import ONNX_HANDLERS, OnnxHandler, Unsupported
+from .graph import NO_KERNEL, Graph, ModelError, Node, UnsupportedModelError, custom_domain_reason
+from .passes import LOWERED_OPS
+from .plan import Alloc, Plan, assign_slots, check_plan
 
 # --- internal ops -------------------------------------------------------------------
 
@@ -59,7 +59,7 @@ def _copy(dev, prec, attrs, inputs):
 @internal_op("clss.SpaceToDepth")
 def _s2d(dev, prec, attrs, inputs):
     """pixel_unshuffle (CRD), which ONNX SpaceToDepth (DCR only) cannot say."""
-    from .ops.space_to_depth import space_to_depth
+    from ..ops.space_to_depth import space_to_depth
     return [space_to_depth(dev, prec, inputs[0], int(attrs["blocksize"]), attrs.get("mode", "DCR"))]
 
 

@@ -81,7 +81,7 @@ def parameters(m: onnx.ModelProto) -> int:
     """Elements of the float initializers that are weights: those read by some
     node at a position its clss handler does not take as a load-time setting
     (Resize scales, Pad pads, Clip bounds are settings, not parameters)."""
-    from .ops import ONNX_HANDLERS
+    from ..ops import ONNX_HANDLERS
     settings_only: dict[str, bool] = {}
     for n in m.graph.node:
         h = ONNX_HANDLERS.get(n.op_type)
