@@ -54,7 +54,6 @@ oclgrind: $(STAMP)
 
 # Generated training data (weights_tools/scenegen.py): the training set and a held-out
 # set with another seed (never trained on). A few minutes on 2 cores.
-DATA ?= $(OUT)/data
 train-data: $(STAMP)
 	$(BIN)/python -m weights_tools gen --out $(DATA)/train --sequences 96 --frames 12 --seed 0 --size 72x128
 	$(BIN)/python -m weights_tools gen --out $(DATA)/heldout --sequences 16 --frames 12 --seed 1000 --size 90x160

@@ -18,7 +18,8 @@ from ..errors import cli_message
 
 PRECISION_CHOICES = ("fp32", "fp16")
 WEIGHTS_HELP = ("network weights for --mode net: a directory from `python -m weights_tools build` "
-                "or a .safetensors file; 'untrained' for the seeded, untrained networks")
+                "or a .safetensors file (default: the trained weights shipped in the package); "
+                "'untrained' for the seeded, untrained networks")
 
 
 def add_upscaler_args(p: argparse.ArgumentParser, scale=True):
