@@ -192,6 +192,16 @@ class PlannedDevice(Device):
 
 # --- prepared nodes -----------------------------------------------------------------
 
+
+def _last_use(g: Graph) -> dict[str, int]:
+    """Index of the last node that reads each tensor."""
+    last: dict[str, int] = {}
+    for i, node in enumerate(g.nodes):
+        for t in node.inputs:
+            if t:
+                last[t] = i
+    return last
+
 @dataclass
 class Step:
     """A node ready to call: handler, and where each input comes from."""
@@ -310,11 +320,7 @@ class Executor:
         for t, shape in g.shapes.items():
             dt = g.dtypes.get(t, np.dtype(np.float32))
             size[t] = int(np.prod(shape, dtype=np.int64)) * (st if dt.kind == "f" else dt.itemsize)
-        last: dict[str, int] = {}
-        for i, n in enumerate(g.nodes):
-            for t in n.inputs:
-                if t:
-                    last[t] = i
+        last = _last_use(g)
         end = len(g.nodes)
         for t in g.outputs:
             last[t] = end
@@ -441,11 +447,7 @@ class Executor:
     def _plan(self, records, outmap) -> None:
         g = self.g
         n = len(g.nodes)
-        last: dict[str, int] = {}
-        for i, node in enumerate(g.nodes):
-            for t in node.inputs:
-                if t:
-                    last[t] = i
+        last = _last_use(g)
         outputs = set(g.outputs)
         root: dict[str, tuple | None] = {}
         allocs: dict[tuple[int, int], Alloc] = {}

@@ -169,10 +169,10 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
         raise ValueError(f"conv2d: output would be {ho}x{wo} for input {h}x{wd}")
     _check_common(x, w, b, residual, prec, (n, cout, ho, wo), cout)
     out = out if out is not None else dev.empty((n, cout, ho, wo), prec)
-    # A pointwise conv with unit stride and no padding is a GEMM over flattened
-    # pixels: one row of H*W, so only the image's last block takes the edge path.
     cout_g = cout // group
     t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning, group)
+    # A pointwise conv with unit stride and no padding is a GEMM over flattened
+    # pixels: one row of H*W, so only the image's last block takes the edge path.
     if kh == kw == 1 and sy == sx == 1 and pt == pl == pb == pr == 0:
         h, wd, ho, wo = 1, h * wd, 1, ho * wo
     cb = _channel_block(cout_g, t["CB"])
@@ -250,14 +250,19 @@ def conv_transpose2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pa
 
 def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
     """conv2d at strides 1 and 2 (rows wide enough for the vector paths, a ragged
-    tail) and conv_transpose2d: every load path of kernels/conv.cl once."""
+    tail), with few and with >= 32 output channels (both default register blocks),
+    and conv_transpose2d: every load path of kernels/conv.cl once."""
     g = rng("conv selfcheck")
     x = dev.to_device(g.standard_normal((1, 5, 9, 75)).astype(np.float32), prec)
     w = dev.to_device(g.standard_normal((6, 5, 3, 3)).astype(np.float32) * 0.3, prec)
     b = dev.to_device(g.standard_normal(6).astype(np.float32), prec)
     wt = dev.to_device(g.standard_normal((5, 3, 3, 3)).astype(np.float32) * 0.3, prec)
+    # 33 outputs: the per-layer block of deep 3x3 layers (shape_tuning, CB=8) too
+    w33 = dev.to_device(g.standard_normal((33, 5, 3, 3)).astype(np.float32) * 0.3, prec)
     outs = [conv2d(dev, prec, x, w, b, pads=(1, 1, 1, 1), activation="relu"),
             conv2d(dev, prec, x, w, None, strides=(2, 2), pads=(1, 0, 1, 2)),
+            conv2d(dev, prec, x, w33, None, strides=(2, 2), pads=(1, 1, 1, 1)),
+            conv2d(dev, prec, x, w33, b=None, pads=(1, 1, 1, 1), activation="relu"),
             conv_transpose2d(dev, prec, x, wt, None, strides=(2, 2), pads=(1, 1, 0, 0))]
     return [dev.to_host(o) for o in outs]
 
