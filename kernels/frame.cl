@@ -4,12 +4,13 @@
  *   clear                     zeroes the depth reconstruction and the flags
  *   prepare      render res   entry conversions, validity flags, transfer function,
  *                             dilation (s2), scatter of the previous depth (s3)
- *   depth_diff   render res   bilinear of the reconstructed depth -> dd (s4); rule mode:
- *                             the 3x3 box of the encoded colour (s9)
+ *   depth_diff   render res   bilinear of the reconstructed depth -> dd (s4); the clamp
+ *                             box of the encoded colour over 3x3 (s9)
  *   resolve      output res   jitter-aware upsampling (s5), the 16-channel history warp
- *                             (s6); rule mode: ghost test, aux update, clip and blend
- *                             (s8, s9) in the same pass; net mode: the classifier input,
- *                             padded to multiples of 16 by edge replication (s7)
+ *                             (s6), the history clip (s9); rule mode: ghost test, aux
+ *                             update and blend (s8, s9) in the same pass; net mode: the
+ *                             classifier input, padded to multiples of 16 by edge
+ *                             replication (s7), and the clipped history for compose
  *   compose      output res   net mode: logits x2 (s7), aux update (s8), composition
  *                             MLP and blend (s9)
  *
@@ -21,7 +22,8 @@
  *   -DNET=0|1       resolve: rule mode (0) or classifier input (1)
  *   -DSANITIZE=0|1  replace non-finite inputs instead of refusing the frame
  *   -DHIDDEN=n      compose: hidden width of the composition MLP
- *   -DCLIP_EPS=x    resolve (rule): contract.RULE_CLIP_EPS, see the history clip (s9)
+ *   -DCLIP_EPS=x    resolve: contract.RULE_CLIP_EPS, see the history clip (s9)
+ *   -DCLIP_GAMMA=x  depth_diff: contract.CLIP_GAMMA, the clamp box's std multiple (s9)
  *   -DCLSS_CLANG_VECTORS=0|1  half loads/stores (LDV/STV, st_plane, neighbourhood
  *                   reads) through common.h's FLD/FLD8/FST/FST8, inline clang vector
  *                   conversions, instead of vload_halfN and vstore_halfN (out-of-line calls
@@ -60,6 +62,9 @@
 #endif
 #ifndef CLIP_EPS
 #define CLIP_EPS 1e-6f
+#endif
+#ifndef CLIP_GAMMA
+#define CLIP_GAMMA 1.25f
 #endif
 
 /* flags[0]: what was found (bits); flags[1..4]: non-finite element counts */
@@ -444,9 +449,8 @@ __kernel void prepare(__global const float *color, __global const float *depth,
 }
 
 /* Stage 3: the reconstructed previous depth read bilinearly at p + motion (taps that
- * were refused by the scatter are still read; off-screen taps read far). Rule mode's
- * clamp box rides along: it needs the whole encoded colour, which only exists after
- * `prepare`. */
+ * were refused by the scatter are still read; off-screen taps read far). The clamp box
+ * rides along: it needs the whole encoded colour, which only exists after `prepare`. */
 __kernel void depth_diff(__global const uint *recon, __global const T *X, __global float *lr,
                          int w, int h)
 {
@@ -467,12 +471,15 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
         }
     lr[L_DD * hw + p] = clamp((rs - d) / fmax(rs, 1e-6f), -1.0f, 1.0f);
 
-#if !NET
-    /* rule mode's clamp box: min and max of the encoded colour over the 3x3 window,
-     * off-screen neighbours left out */
+    /* the clamp box: min and max of the encoded colour over the 3x3 window, narrowed to
+     * mean +- CLIP_GAMMA std (off-screen neighbours left out of all four). The moments
+     * are taken of the differences to the centre pixel, in the oracle's order (rows,
+     * then columns): E[x^2] - E[x]^2 of the values themselves cancels to the point where
+     * float rounding moved the box by 1e-4. */
     for (int c = 0; c < 3; ++c) {
         __global const T *x = X + c * hw;
-        float lo = FLD(x, p), hi = lo;
+        const float xc = FLD(x, p);
+        float lo = xc, hi = xc, s1 = 0.0f, s2 = 0.0f, cnt = 0.0f;
         for (int dy = -1; dy <= 1; ++dy) {
             const int ii = i + dy;
             if (ii < 0 || ii >= h) continue;
@@ -482,12 +489,18 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
                 const float n = FLD(x, ii * w + jj);
                 lo = fmin(lo, n);
                 hi = fmax(hi, n);
+                const float d = n - xc;
+                s1 = s1 + d;
+                s2 = s2 + d * d;
+                cnt = cnt + 1.0f;
             }
         }
-        lr[(L_NMIN + c) * hw + p] = lo;
-        lr[(L_NMAX + c) * hw + p] = hi;
+        const float md = s1 / cnt;
+        const float sd = CLIP_GAMMA * sqrt(fmax(s2 / cnt - md * md, 0.0f));
+        const float mu = xc + md;
+        lr[(L_NMIN + c) * hw + p] = fmax(lo, mu - sd);
+        lr[(L_NMAX + c) * hw + p] = fmin(hi, mu + sd);
     }
-#endif
 }
 
 /* What stages 4 and 5 give VEC output pixels. */
@@ -495,9 +508,7 @@ typedef struct {
     fv up[3], col[3], mn[3], mx[3], lg[6];
     fv depth, mvx, mvy, dd, react, cnt;
     iv valid;
-#if !NET
     fv bmin[3], bmax[3];
-#endif
 } Gathered;
 
 /* Stages 4 and 5 at output pixels (I, J[lane]). bx, by: (J + 0.5) w / W - 0.5 per column
@@ -520,12 +531,10 @@ inline Gathered gather(int I, iv J, __global const T *X, __global const float *l
     g.mvy = linear_f(lr + L_MY * hw, lx, ly) * sy;
     g.dd = linear_f(lr + L_DD * hw, lx, ly);
     g.react = linear_f(lr + L_REACTIVE * hw, lx, ly);
-#if !NET
     for (int c = 0; c < 3; ++c) {
         g.bmin[c] = linear_f(lr + (L_NMIN + c) * hw, lx, ly);
         g.bmax[c] = linear_f(lr + (L_NMAX + c) * hw, lx, ly);
     }
-#endif
 
     /* s6: the history at P + motion; off-screen or reset pixels start afresh */
     const fv su = CONVERT_FV(J) + g.mvx, sv = (float)I + g.mvy;
@@ -554,6 +563,24 @@ inline Gathered gather(int I, iv J, __global const T *X, __global const float *l
             g.lg[c] = select(g.lg[c], linear_T(hist + (10 + c) * HW, gx, gy), g.valid);
     }
     return g;
+}
+
+/* s9 history clip: up + t (hist - up), t the largest fraction in [0, 1] that keeps all
+ * three channels inside the clamp box when up is (channels at most CLIP_EPS from up do
+ * not limit it); one t for the three keeps the history's hue, which a per-channel clamp
+ * shifts differently each frame as the jittered box moves (flicker) */
+inline void clip_history(const Gathered *g, fv hc[3])
+{
+    fv t = FV(1.0f);
+    for (int c = 0; c < 3; ++c) {
+        const fv d = g->col[c] - g->up[c];
+        const fv lim = select(g->bmin[c] - g->up[c], g->bmax[c] - g->up[c], d > 0.0f);
+        const iv big = fabs(d) > CLIP_EPS;
+        const fv tc = select(FV(1.0f), lim / select(FV(1.0f), d, big), big);
+        t = fmin(t, fmax(tc, 0.0f));
+    }
+    for (int c = 0; c < 3; ++c)
+        hc[c] = g->up[c] + t * (g->col[c] - g->up[c]);
 }
 
 inline void keep_history(__global const T *hist, __global T *hist_out, int q, int HW)
@@ -592,23 +619,12 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     const iv ghost = (g.dd > depth_threshold) | (g.valid == (iv)(0));
     const fv cnt = select(fmin(g.cnt + 1.0f, cap), FV(0.0f), ghost);
     const fv wgt = fmax(1.0f / (1.0f + cnt), g.react);
-    /* s9 history clip: up + t (hist - up), t the largest fraction in [0, 1] that keeps all
-     * three channels inside the clamp box when up is (channels at most CLIP_EPS from up do
-     * not limit it); one t for the three keeps the history's hue, which a per-channel clamp
-     * shifts differently each frame as the jittered box moves (flicker) */
-    fv t = FV(1.0f);
-    for (int c = 0; c < 3; ++c) {
-        const fv d = g.col[c] - g.up[c];
-        const fv lim = select(g.bmin[c] - g.up[c], g.bmax[c] - g.up[c], d > 0.0f);
-        const iv big = fabs(d) > CLIP_EPS;
-        const fv tc = select(FV(1.0f), lim / select(FV(1.0f), d, big), big);
-        t = fmin(t, fmax(tc, 0.0f));
-    }
+    fv hc[3];
+    clip_history(&g, hc);
     fv o[3];
     for (int c = 0; c < 3; ++c) {
         const fv u = g.up[c];
-        const fv hc = u + t * (g.col[c] - u);
-        o[c] = wgt * u + (1.0f - wgt) * hc;
+        o[c] = wgt * u + (1.0f - wgt) * hc[c];
         st_plane(hist_out, c * HW + q, o[c], n);
         st_plane(hist_out, (4 + c) * HW + q, select(fmin(g.mn[c], u), u, ghost), n);
         st_plane(hist_out, (7 + c) * HW + q, select(fmax(g.mx[c], u), u, ghost), n);
@@ -632,8 +648,8 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
 #else
 /* Net mode, stages 4-6: the classifier input at the padded size (W16, H16), VEC pixels
  * per work-item (W16 is a multiple of 16, so rows hold whole vectors); pixels past
- * (W, H) replicate the edge (ONNX Pad "edge"). aux [3, H16, W16] T: warped counter,
- * valid, reactive for `compose`. */
+ * (W, H) replicate the edge (ONNX Pad "edge"). aux [6, H16, W16] T: warped counter,
+ * valid, reactive and the clipped history colour (3) for `compose`. */
 __kernel void resolve(__global const T *X, __global const float *lr, __global const float *bx,
                       __global const float *by, float jx, float jy, int w, int h, int W, int H,
                       float sx, float sy, int reset, __global const T *hist,
@@ -664,6 +680,10 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     STV(aux, r, g.cnt);
     STV(aux, P + r, select(FV(0.0f), FV(1.0f), g.valid));
     STV(aux, 2 * P + r, g.react);
+    fv hc[3];
+    clip_history(&g, hc);
+    for (int c = 0; c < 3; ++c)
+        STV(aux, (3 + c) * P + r, hc[c]);
 }
 
 /* Net mode, stages 6 (logits x2), 7, 8, 9 in one pass, VEC pixels per work-item.
@@ -702,7 +722,7 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
     for (int c = 0; c < 3; ++c) {
         const fv u = LDV(cls_in, c * P + r);
         x[c] = u;
-        x[3 + c] = LDV(cls_in, (3 + c) * P + r);
+        x[3 + c] = LDV(aux, (3 + c) * P + r);       /* the clipped history */
         x[10 + c] = select(fmin(LDV(cls_in, (10 + c) * P + r), u), u, ghost);
         x[13 + c] = select(fmax(LDV(cls_in, (13 + c) * P + r), u), u, ghost);
     }

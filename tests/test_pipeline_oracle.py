@@ -226,7 +226,9 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
     up = np.clip(np_sample(X, u, v, True), 0, 1)
     pad = np.pad(X, ((0, 0), (1, 1), (1, 1)), constant_values=np.nan)
     win = np.stack([pad[:, 1 + dy:1 + dy + hh, 1 + dx:1 + dx + ww] for dx, dy in OFFS])
-    nmin, nmax = np.nanmin(win, 0), np.nanmax(win, 0)
+    # the clamp box: min/max narrowed to mean +- CLIP_GAMMA std (float64 here)
+    mu, sd = np.nanmean(win, 0), C.CLIP_GAMMA * np.nanstd(win, 0)
+    nmin, nmax = np.maximum(np.nanmin(win, 0), mu - sd), np.minimum(np.nanmax(win, 0), mu + sd)
     aux = np_sample(np.concatenate([d_dil[None], m_dil, dd[None], reactive[None], nmin, nmax]),
                     u, v, False)
     mhr = aux[1:3] * np.array([W / ww, H / hh])[:, None, None]

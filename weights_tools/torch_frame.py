@@ -30,7 +30,8 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from clss.pipeline.contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS,
-                                    PQ_PEAK_NITS, RULE_CLIP_EPS, output_size, to_internal,
+                                    PQ_PEAK_NITS, RULE_CLIP_EPS, CLIP_GAMMA, output_size,
+                                    to_internal,
                                     validate_frame)
 from clss.pipeline.oracle import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
                                   HISTORY_CHANNELS, SCATTER_WEIGHT_THRESHOLD)
@@ -216,6 +217,10 @@ class FrameStep(nn.Module):
     jitter [B,2], reset [B] bool, history [B,16,H,W] (read only where not reset),
     reactive [B,1,h,w] or None.
 
+    clip: pull the warped history into the current frame's clamp box before the blend
+    (s9, both modes at run time); the classifier's training turns it off (the paper's
+    rule-based composition has no clamp, so ghosting stays visible to learn from).
+
     Training extras (net mode): blend="rule" makes the paper's rule-based composition
     (w = 1/(1+counter), no clamp) instead of the composition network; `rule_color`
     [B,3,H,W] (PQ) is a second colour history made by that rule blend, which then feeds
@@ -225,7 +230,7 @@ class FrameStep(nn.Module):
 
     def __init__(self, mode, render_size, scale=2.0, classifier=None, composition=None,
                  cap=None, *, depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
-                 blend="net"):
+                 blend="net", clip=True):
         super().__init__()
         if mode not in MODES:
             raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
@@ -234,6 +239,7 @@ class FrameStep(nn.Module):
         if mode == "net" and (classifier is None or (composition is None and blend == "net")):
             raise ValueError("mode 'net' needs a classifier and (unless blend='rule') a composition")
         self.mode, self.blend = mode, blend
+        self.clip = bool(clip)
         self.h, self.w = int(render_size[0]), int(render_size[1])
         self.H, self.W = output_size(self.h, self.w, scale)
         self.cap = float(DEFAULT_CAP[mode] if cap is None else cap)
@@ -309,14 +315,27 @@ class FrameStep(nn.Module):
         if reactive is None:
             reactive = torch.zeros_like(depth)
         lr = [d_dil, m_dil, dd, reactive]
-        if self.mode == "rule":
-            # s9 clamp box: 3x3 render-res min/max (max_pool pads with -inf).
-            lr += [-F.max_pool2d(-X, 3, 1, 1), F.max_pool2d(X, 3, 1, 1)]
+        if self.clip:
+            # s9 clamp box: 3x3 render-res min/max (max_pool pads with -inf) narrowed to
+            # mean +- CLIP_GAMMA std of the in-bounds neighbours, the moments taken of the
+            # differences to the centre pixel in the kernel's order (as the oracle).
+            px = F.pad(X, (1, 1, 1, 1), mode="replicate")
+            on = F.pad(torch.ones_like(X[:1, :1]), (1, 1, 1, 1))
+            s1 = s2 = cnt = 0.0
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    m = on[:, :, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                    d = (px[:, :, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w] - X) * m
+                    s1, s2, cnt = s1 + d, s2 + d * d, cnt + m
+            md = s1 / cnt
+            gsd = CLIP_GAMMA * torch.sqrt(torch.clamp(s2 / cnt - md * md, min=0.0))
+            lr += [torch.maximum(-F.max_pool2d(-X, 3, 1, 1), X + md - gsd),
+                   torch.minimum(F.max_pool2d(X, 3, 1, 1), X + md + gsd)]
         aux = _sample(torch.cat(lr, 1), grid, False)
         return {"up": up, "depth_hr": aux[:, 0:1], "motion_hr": aux[:, 1:3] * self.motion_ratio,
                 "dd_hr": aux[:, 3:4], "reactive_hr": aux[:, 4:5],
-                "clamp_min": aux[:, 5:8] if self.mode == "rule" else None,
-                "clamp_max": aux[:, 8:11] if self.mode == "rule" else None,
+                "clamp_min": aux[:, 5:8] if self.clip else None,
+                "clamp_max": aux[:, 8:11] if self.clip else None,
                 "depth_diff": dd, "recon": recon[:, :h * w].reshape(B, 1, h, w)}
 
     # -- stages 5-9 ------------------------------------------------------------------------
@@ -380,17 +399,21 @@ class FrameStep(nn.Module):
                 w_rule = torch.maximum(inv_cnt, react)
                 rule_out = w_rule * up + (1.0 - w_rule) * cls_col
                 res["rule_color"] = rule_out
+            blend_hist = w_col
+            if self.clip:
+                blend_hist = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
             if self.blend == "net":
-                comp_in = torch.cat([up, w_col, p["depth_hr"], motion_hr, inv_cnt, c_min, c_max,
-                                     logits], 1)
+                comp_in = torch.cat([up, blend_hist, p["depth_hr"], motion_hr, inv_cnt, c_min,
+                                     c_max, logits], 1)
                 w0 = self.composition(comp_in.contiguous(memory_format=torch.channels_last))
             else:
                 w0 = inv_cnt
-            blend_hist = w_col
             new_logits = logits
         else:
             w0 = inv_cnt
-            blend_hist = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
+            blend_hist = w_col
+            if self.clip:
+                blend_hist = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
             new_logits = torch.zeros(B, len(LOGITS), H, W, device=up.device)
         wgt = torch.maximum(w0, react)
         out = wgt * up + (1.0 - wgt) * blend_hist
@@ -411,10 +434,10 @@ class TorchUpscaler:
 
     def __init__(self, scale=2.0, mode="net", weights=None, cap=None, *, device=None,
                  depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
-                 depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0):
+                 depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0, clip=True):
         self.scale, self.mode = float(scale), {"rules": "rule"}.get(mode, mode)
         self.device = pick_device(device)
-        self.kw = dict(cap=cap, depth_threshold=depth_threshold, hdr=hdr, nits=nits)
+        self.kw = dict(cap=cap, depth_threshold=depth_threshold, hdr=hdr, nits=nits, clip=clip)
         self.contract = dict(depth_inverted=depth_inverted, motion_scale=motion_scale,
                              exposure=exposure)
         self.nets = (None, None)

@@ -25,8 +25,8 @@ leaves open (ours, marked *):
   regions (labelled aliasing and no ghosting, predicted ghosting) takes the weight of the
   predicted ghosting class (s3.4 "the same weights as ghosting pixels").
 * Stage 2, composition, classifier frozen: composition done twice per frame, the rule
-  blend's colour history feeds the classifier, the network's blend makes the output and
-  its own history.  Losses (each averaged over its pixels over the whole window, then
+  blend's colour history feeds the classifier, the network's blend (current colour and
+  clipped history, as at run time) makes the output and its own history.  Losses (each averaged over its pixels over the whole window, then
   summed): L1 between the blend weight and 1/(1+counter) on geometry-aliasing pixels the
   classifier got right; nothing on misclassified aliasing or false-positive aliasing;
   L1 between output and reference in the PQ domain on the rest.
@@ -224,7 +224,7 @@ def composition_parts(r, lg, la, ref_pq):
     return ((lw * good_geo).sum(), good_geo.sum(), (li * rest).sum(), rest.sum())
 
 
-def run_window(step, batch, stage, wg=None, wa=None):
+def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0):
     """The recurrent pass over one batch of windows -> (loss, stats)."""
     T, B = batch["depth"].shape[:2]
     hist = step.initial_history(B)
@@ -247,7 +247,7 @@ def run_window(step, batch, stage, wg=None, wa=None):
         return loss, {}
     lw = acc[0] / acc[1].clamp(min=1)
     li = acc[2] / acc[3].clamp(min=1)
-    return lw + li, {"weight_l1": float(lw.detach()), "image_l1": float(li.detach())}
+    return weight_loss * lw + li, {"weight_l1": float(lw.detach()), "image_l1": float(li.detach())}
 
 
 # ---- the run -----------------------------------------------------------------------------
@@ -387,7 +387,8 @@ def train(args):
         net = cls if train_cls else comp
         step = torch_frame.FrameStep("net", (rsize, rsize), float(seqs[0]["scale"]), cls,
                                      None if train_cls else comp,
-                                     blend="rule" if train_cls else "net").to(device)
+                                     blend="rule" if train_cls else "net",
+                                     clip=not train_cls, cap=args.cap).to(device)
         opt = torch.optim.Adam(net.parameters(), lr=args.lr)
         if opt_state is not None and si == start["stage"]:
             opt.load_state_dict(opt_state)
@@ -400,7 +401,7 @@ def train(args):
             batch = make_batch(seqs, [items[i] for i in pick], rsize, args.frames, device)
             for pg in opt.param_groups:
                 pg["lr"] = _lr(args.lr, it, total)
-            loss, parts = run_window(step, batch, stage, wg, wa)
+            loss, parts = run_window(step, batch, stage, wg, wa, args.weight_loss)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -468,6 +469,10 @@ def add_parser(sub):
     t.add_argument("--candidates", type=int, default=4000, help="random windows scored")
     t.add_argument("--keep", type=float, default=0.25, help="fraction of candidates kept")
     t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--cap", type=float, default=None,
+                   help="net mode's counter cap while training (default: the runtime's)")
+    t.add_argument("--weight-loss", type=float, default=1.0,
+                   help="factor of the blend-weight L1 term of the composition loss")
     t.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     t.add_argument("--device", default=None, help="torch device (default: cuda if present)")
     t.add_argument("--init", default=None, help="start from these weights (.safetensors)")

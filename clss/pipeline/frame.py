@@ -34,11 +34,11 @@ from .. import selfcheck
 from ..device import Device
 from ..ops.base import DEFAULT_TOL
 from ..ops.conv import builtin_free, load_defines
-from .contract import PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size
+from .contract import CLIP_GAMMA, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size
 from .oracle import DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS
 
 CLASSIFIER_CHANNELS = 23
-LR_CHANNELS = {"rule": 11, "net": 5}
+LR_CHANNELS = 11  # depth, motion 2, dd, reactive, clamp box low 3 and high 3
 # flags[0] bits, as kernels/frame.cl
 FLAG_BITS = {1: ("color", "non-finite"), 2: ("depth", "non-finite"), 4: ("motion", "non-finite"),
              8: ("reactive", "non-finite"), 16: ("depth", "outside [0, 1]"),
@@ -207,8 +207,7 @@ class FrameStep:
         self.vec = pixels_per_item(dev, prec, mode)
         defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec,
                        CLSS_CLANG_VECTORS=load_defines(dev, prec, f"frame.{mode}")["CLSS_CLANG_VECTORS"])
-        if not net:
-            defines["CLIP_EPS"] = float(RULE_CLIP_EPS)
+        defines.update(CLIP_EPS=float(RULE_CLIP_EPS), CLIP_GAMMA=float(CLIP_GAMMA))
         h, w, H, W = self.h, self.w, self.H, self.W
         f32 = np.float32
         e = dev.empty
@@ -219,7 +218,7 @@ class FrameStep:
         self.in_reactive = e((h, w), dtype=f32)
         self.recon = e((h * w,), dtype=np.uint32)
         self.X = e((3, h, w), prec)
-        self.lr = e((LR_CHANNELS[mode], h, w), dtype=f32)
+        self.lr = e((LR_CHANNELS, h, w), dtype=f32)
         self.flags = e((8,), dtype=np.uint32)
         self.history = [e((HISTORY_CHANNELS, H, W), prec), e((HISTORY_CHANNELS, H, W), prec)]
         self.out = e((H, W, 3), dtype=f32)
@@ -238,7 +237,8 @@ class FrameStep:
             defines["HIDDEN"] = w1.shape[0]
             self.mlp = [dev.to_device(a) for a in (w1, b1, w2, b2)]
             self.cls_in = e((1, CLASSIFIER_CHANNELS, self.H16, self.W16), prec)
-            self.aux = e((3, self.H16, self.W16), prec)
+            # warped counter, valid, reactive, clipped history colour (3)
+            self.aux = e((6, self.H16, self.W16), prec)
             self.classifier = ClassifierRunner(dev, prec, classifier, self.cls_in.shape,
                                                force=classifier_backend)
         self.k = {name: dev.kernel("frame", name, prec, **defines) for name in

@@ -20,7 +20,8 @@ from onnx import TensorProto, helper, numpy_helper
 
 from ..ops.twin import fill_output_shapes
 from .contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
-                       RULE_CLIP_EPS, output_size, to_internal, validate_frame)
+                       RULE_CLIP_EPS, CLIP_GAMMA, output_size, to_internal,
+                       validate_frame)
 
 IR_VERSION = 10
 OPSET = 18
@@ -58,11 +59,10 @@ DEBUG_OUTPUTS = {
     "dbg_counter": "[1,1,H,W] stage 7 new sample counter",
     "dbg_w": "[1,1,H,W] stage 8 blend weight of the current frame",
     "dbg_blend_history": "[1,3,H,W] stage 9 history colour entering the blend (PQ)",
+    "dbg_clamp_min": "[1,3,H,W] stage 4 bilinear clamp box low (3x3 render-res, PQ)",
+    "dbg_clamp_max": "[1,3,H,W] stage 4 bilinear clamp box high (3x3 render-res, PQ)",
 }
-DEBUG_OUTPUTS_RULE = {
-    "dbg_clamp_min": "[1,3,H,W] rule: bilinear 3x3 render-res neighbourhood min (PQ)",
-    "dbg_clamp_max": "[1,3,H,W] rule: bilinear 3x3 render-res neighbourhood max (PQ)",
-}
+DEBUG_OUTPUTS_RULE = {}
 DEBUG_OUTPUTS_NET = {
     "dbg_cls_input": "[1,23,H,W] stage 6 classifier input, before padding",
     "dbg_logits": "[1,6,H,W] stage 6 current logits after the bilinear x2 and crop",
@@ -351,22 +351,46 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
                         g.op("Expand", g.reshape(gy, [1, H, 1, 1]), shape_hw1)], axis=3)
     up = g.clip(g.grid_sample(X, grid_up, cubic=True), 0.0, 1.0)
     up = g.op("Identity", up, name="upsampled")
-    lr = [d_dil, m_dil, dd, "reactive"]
-    if mode == "rule":
-        # 3x3 neighbourhood box of the current frame; MaxPool pads with -inf, so the
-        # border neighbourhoods are just smaller.
-        nmax = g.op("MaxPool", X, kernel_shape=[3, 3], pads=[1, 1, 1, 1], strides=[1, 1])
-        nmin = g.op("Neg", g.op("MaxPool", g.op("Neg", X), kernel_shape=[3, 3],
-                                pads=[1, 1, 1, 1], strides=[1, 1]))
-        lr += [nmin, nmax]
-    aux = g.grid_sample(g.concat(lr), grid_up, cubic=False)
+    # 3x3 neighbourhood box of the current frame (both modes clip the history into it):
+    # min/max narrowed to mean +- CLIP_GAMMA std, off-screen neighbours left out (MaxPool
+    # pads with -inf; the moments use in-bounds masks). The moments are those of the
+    # differences to the centre pixel, summed row by row as the kernel does: the moments
+    # of the values themselves cancel (E[x^2] - E[x]^2) badly enough in float to move the
+    # box by 1e-4.
+    win = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1], strides=[1, 1])
+    nmax = g.op("MaxPool", X, **win)
+    nmin = g.op("Neg", g.op("MaxPool", g.op("Neg", X), **win))
+    px = g.op("Pad", X, pads, mode="edge")
+    s1 = s2 = None
+    count = np.zeros((1, 1, h, w), np.float32)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            on = np.zeros((h + 2, w + 2), np.float32)
+            on[1:h + 1, 1:w + 1] = 1.0
+            on = on[1 + dy:1 + dy + h, 1 + dx:1 + dx + w].reshape(1, 1, h, w)
+            count += on
+            d = g.mul(g.sub(shifted(px, dx, dy), X), g.const(on, hint="in_bounds"))
+            s1 = d if s1 is None else g.add(s1, d)
+            s2 = g.mul(d, d) if s2 is None else g.add(s2, g.mul(d, d))
+    cnt = g.const(count, hint="neighbours")
+    md = g.div(s1, cnt)
+    var = g.sub(g.div(s2, cnt), g.mul(md, md))
+    gsd = g.mul(g.const(CLIP_GAMMA), g.op("Sqrt", g.op("Max", var, g.const(0.0))))
+    mu = g.add(X, md)
+    nmin = g.op("Max", nmin, g.sub(mu, gsd))
+    nmax = g.op("Min", nmax, g.add(mu, gsd))
+    aux = g.grid_sample(g.concat([d_dil, m_dil, dd, "reactive", nmin, nmax]), grid_up,
+                        cubic=False)
     depth_hr = g.chan(aux, slice(0, 1))
     motion_hr = g.mul(g.chan(aux, slice(1, 3)),
                       g.const(np.array([W / w, H / h], np.float32).reshape(1, 2, 1, 1)))
     dd_hr = g.chan(aux, slice(3, 4))
     react_hr = g.chan(aux, slice(4, 5))
+    c_lo = g.chan(aux, slice(5, 8))
+    c_hi = g.chan(aux, slice(8, 11))
     dbg.update(dbg_upsampled=up, dbg_depth_hr=depth_hr, dbg_motion_hr=motion_hr,
-               dbg_depth_diff_hr=dd_hr, dbg_reactive_hr=react_hr)
+               dbg_depth_diff_hr=dd_hr, dbg_reactive_hr=react_hr, dbg_clamp_min=c_lo,
+               dbg_clamp_max=c_hi)
 
     # ---- stage 5: warp the history at P + motion_hr ----
     JJ = g.const(np.arange(W, dtype=np.float32).reshape(1, 1, 1, W), hint="JJ")
@@ -391,6 +415,9 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     w_log = g.where(valid, g.chan(hist_o, slice(7, 13)), zero)
     dbg["dbg_valid"] = g.op("Cast", valid, to=TensorProto.FLOAT)
     dbg["dbg_warped"] = g.concat([w_col, w_cnt, w_min, w_max, w_log])
+    # s9 the history the blend uses: clipped into the current neighbourhood's box
+    blend_hist = _clip_towards(g, w_col, up, c_lo, c_hi)
+    dbg["dbg_blend_history"] = blend_hist
     one = g.const(1.0)
 
     def inv_counter(c):
@@ -431,25 +458,19 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
 
     # ---- stage 8: blend weight ----
     if mode == "net":
-        comp_in = g.concat([up, w_col, depth_hr, motion_hr, inv_counter(cnt), c_min, c_max,
+        comp_in = g.concat([up, blend_hist, depth_hr, motion_hr, inv_counter(cnt), c_min, c_max,
                             logits])
         dbg["dbg_comp_input"] = comp_in
         ci, co, dims = _real_input(composition, "composition", 22)
         _check_static_hw("composition", dims, (H, W))
         wgt = g._name("comp_w")
         g.inline(composition, "composition", {ci: comp_in}, {co: wgt})
-        blend_hist = w_col
         new_logits = logits
     else:
         wgt = inv_counter(cnt)
-        c_lo = g.chan(aux, slice(5, 8))
-        c_hi = g.chan(aux, slice(8, 11))
-        dbg["dbg_clamp_min"], dbg["dbg_clamp_max"] = c_lo, c_hi
-        blend_hist = _clip_towards(g, w_col, up, c_lo, c_hi)
         new_logits = g.op("Expand", zero, g.i64([1, 6, H, W]))
     wgt = g.op("Max", wgt, react_hr, name="w")
     dbg["dbg_w"] = wgt
-    dbg["dbg_blend_history"] = blend_hist
 
     # ---- stage 9: blend, decode ----
     out = g.add(g.mul(wgt, up), g.mul(g.sub(one, wgt), blend_hist))
