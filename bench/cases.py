@@ -30,6 +30,7 @@ from onnx import helper
 from clss.device import Device, DeviceError, storage_dtype
 from clss.ops.base import DEFAULT_TOL, EXACT, Tolerance, rng
 from clss.ops.twin import make_model, node_model
+from clss.pipeline.contract import output_size
 
 TIERS = {"540p": ((540, 960), 2.0), "1080p": ((1080, 1920), 2.0),
          # a smoke test of the bench itself (tests, --tiny): every case, numbers meaningless
@@ -210,7 +211,7 @@ def conv_twin(x_name, w, b, strides, pads, act, residual, opset=18):
 
 def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1")):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     conv = _family("conv")
     out = []
     for L in classifier_layers(H, W):
@@ -283,7 +284,7 @@ def _conv_transpose_case(conv, tier, h, w):
 
 def s2d_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = pad16(round(h * scale)), pad16(round(w * scale))
+    H, W = map(pad16, output_size(h, w, scale))
     s2d = _family("space_to_depth")
     x_shape, o_shape = (1, 23, H, W), (1, 92, H // 2, W // 2)
 
@@ -301,7 +302,7 @@ def _resize_flops(mode, out_elems):
 
 def resize_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     Hp, Wp = pad16(H), pad16(W)
     rs = _family("resize")
     specs = [  # name, input shape, scale, mode, quick
@@ -346,7 +347,7 @@ def smooth_motion(key, shape, amplitude=4.0):
 
 def warp_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     wp = _family("warp")
     out = []
     # Stage 5: the 16-channel history (colour bicubic, the rest bilinear) at output res,
@@ -461,7 +462,7 @@ def _handlers_for(model_ops) -> bool:
 
 def elementwise_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     Hp, Wp = pad16(H), pad16(W)
     out = []
     if _handlers_for(["Add", "Relu"]):
@@ -535,7 +536,7 @@ MLP_TUNABLES = {"XV": (1, 2)}
 
 def mlp_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     mlp = _family("mlp")
     from weights_tools.networks import build_composition
     m = build_composition(height=H, width=W)
@@ -590,7 +591,7 @@ def network_cases(tier):
     from weights_tools.networks import build_classifier, build_composition, count_flops
     from . import netcases
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     Hp, Wp = pad16(H), pad16(W)
     cls = build_classifier(height=Hp, width=Wp)
     comp = build_composition(height=H, width=W)

@@ -82,11 +82,18 @@ def jitter_phase_count(scale) -> int:
     return int(math.ceil(8.0 * s * s - 1e-9))
 
 
+def jitter_at(index: int, scale) -> tuple[float, float]:
+    """(jx, jy) in [-0.5, 0.5) render pixels for frame `index`, as Python floats (the
+    sample scene traces at these positions): Halton(2,3) starting at 1 (as FSR2),
+    cycling with length jitter_phase_count(scale)."""
+    k = int(index) % jitter_phase_count(scale) + 1
+    return (halton(k, 2) - 0.5, halton(k, 3) - 0.5)
+
+
 def jitter_sequence(scale) -> np.ndarray:
     """[n, 2] float32 (jx, jy) in render pixels: Halton(2,3) from index 1, minus 0.5."""
     n = jitter_phase_count(scale)
-    return np.array([(halton(i + 1, 2) - 0.5, halton(i + 1, 3) - 0.5) for i in range(n)],
-                    np.float32)
+    return np.array([jitter_at(i, scale) for i in range(n)], np.float32)
 
 
 def jitter_for_frame(frame_index: int, scale) -> np.ndarray:
