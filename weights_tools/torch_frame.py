@@ -29,17 +29,16 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from clss.pipeline.contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS,
-                                    PQ_PEAK_NITS, RULE_CLIP_EPS, output_size, to_internal,
+from clss.pipeline.contract import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
+                                    HISTORY_CHANNELS, MODES, PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2,
+                                    PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
+                                    SCATTER_WEIGHT_THRESHOLD, output_size, to_internal,
                                     validate_frame)
-from clss.pipeline.oracle import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
-                                  HISTORY_CHANNELS, SCATTER_WEIGHT_THRESHOLD)
 
 from .networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_MLP_HIDDEN,
                        DEFAULT_WIDTHS, LOGITS, build_classifier, build_composition)
 from .weights import WeightsError, model_weights, torch_to_onnx_name
 
-MODES = ("rule", "net")
 # Net mode's blend: "net" = the composition network (inference), "rule" = w = 1/(1+counter)
 # without a clamp, the paper's rule-based composition for training the classifier (s3.4).
 BLENDS = ("net", "rule")

@@ -51,6 +51,24 @@ PQ_NITS = 100.0
 RULE_CLIP_EPS = 1e-6
 
 
+# The frame step's constants, shared by the OpenCL path (frame.py, upscaler.py), the
+# ONNX oracle (oracle.py) and the torch twin (weights_tools/torch_frame.py).
+MODES = ("rule", "net")
+HISTORY_CHANNELS = 16
+# Channel slices of the history tensor.
+H_COLOR, H_COUNTER, H_MIN, H_MAX, H_LOGITS = (slice(0, 3), slice(3, 4), slice(4, 7),
+                                               slice(7, 10), slice(10, 16))
+DEFAULT_CAP = {"rule": 4, "net": 32}
+# Relative view-depth jump that rejects history in rule mode.  Grazing surfaces and the
+# horizon jump by several % per pixel; on clss.scene (136x240 -> 272x480, cap 4) 0.05
+# rejected 8 % of pixels (33.06 dB), 0.1 6 % (33.23 dB), 0.2 4 % (33.30 dB).
+DEPTH_THRESHOLD = 0.1
+SCATTER_WEIGHT_THRESHOLD = 0.01
+DEPTH_EPS = 1e-6
+# Dilation neighbour order (dx, dy), FSR2's: the centre first, so that on equal depths
+# (flat areas) a pixel keeps its own motion; the first maximum in this order wins.
+DILATE_OFFSETS = ((0, 0), (1, 0), (0, 1), (0, -1), (-1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1))
+
 class FrameInputError(UserError):
     """A frame input that breaks the contract; the message names the input."""
 

@@ -34,8 +34,8 @@ from .. import selfcheck
 from ..device import Device
 from ..ops.base import DEFAULT_TOL
 from ..ops.conv import builtin_free, load_defines
-from .contract import PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size
-from .oracle import DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS
+from .contract import (DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, PQ_PEAK_NITS,
+                       RULE_CLIP_EPS, output_size)
 
 CLASSIFIER_CHANNELS = 23
 LR_CHANNELS = {"rule": 11, "net": 5}

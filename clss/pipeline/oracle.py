@@ -19,26 +19,14 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 from ..ops.twin import fill_output_shapes
-from .contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
-                       RULE_CLIP_EPS, output_size, to_internal, validate_frame)
+# (H_* and the other constants are also read as oracle.NAME by tests and tools.)
+from .contract import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS, H_COLOR,
+                       H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MODES, PQ_C1,
+                       PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
+                       SCATTER_WEIGHT_THRESHOLD, output_size, to_internal, validate_frame)
 
 IR_VERSION = 10
 OPSET = 18
-HISTORY_CHANNELS = 16
-# Channel slices of the history tensor.
-H_COLOR, H_COUNTER, H_MIN, H_MAX, H_LOGITS = (slice(0, 3), slice(3, 4), slice(4, 7),
-                                               slice(7, 10), slice(10, 16))
-DEFAULT_CAP = {"rule": 4, "net": 32}
-# Relative view-depth jump that rejects history in rule mode.  Grazing surfaces and the
-# horizon jump by several % per pixel; on clss.scene (136x240 -> 272x480, cap 4) 0.05
-# rejected 8 % of pixels (33.06 dB), 0.1 6 % (33.23 dB), 0.2 4 % (33.30 dB).
-DEPTH_THRESHOLD = 0.1
-SCATTER_WEIGHT_THRESHOLD = 0.01
-DEPTH_EPS = 1e-6
-# Dilation neighbour order (dx, dy), FSR2's: the centre first, so that on equal depths
-# (flat areas) a pixel keeps its own motion; the first maximum in this order wins.
-DILATE_OFFSETS = ((0, 0), (1, 0), (0, 1), (0, -1), (-1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1))
-MODES = ("rule", "net")
 
 DEBUG_OUTPUTS = {
     # render resolution

@@ -29,10 +29,9 @@ import numpy as np
 import pyopencl.array as cla
 
 from ..device import Device, get_device
-from .contract import (PQ_NITS, FrameInputError, check_exposure, check_motion_scale,
-                       output_size, validate_frame)
+from .contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
+                       check_exposure, check_motion_scale, output_size, validate_frame)
 from .frame import STAGES, FrameStep, pad16
-from .oracle import DEPTH_THRESHOLD, HISTORY_CHANNELS
 
 MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
 # The trained networks shipped in the package (`make train` writes them; recipe in
