@@ -153,7 +153,7 @@ def classifier_layers(height: int, width: int) -> list[dict]:
     """The conv layers of weights_tools' classifier for an output frame of
     height x width (padded to 16), with their input shapes, seeded weights, and
     the fused epilogue (ReLU, residual Add before the ReLU)."""
-    from weights_tools.networks import build_classifier
+    from clss.networks import build_classifier
     H, W = pad16(height), pad16(width)
     m = build_classifier(height=H, width=W)
     inferred = onnx.shape_inference.infer_shapes(m)
@@ -538,7 +538,7 @@ def mlp_cases(tier):
     (h, w), scale = TIERS[tier]
     H, W = output_size(h, w, scale)
     mlp = _family("mlp")
-    from weights_tools.networks import build_composition
+    from clss.networks import build_composition
     m = build_composition(height=H, width=W)
     inits = {t.name: onnx.numpy_helper.to_array(t) for t in m.graph.initializer}
     w1, b1 = inits["comp.fc1.weight"], inits["comp.fc1.bias"]
@@ -588,7 +588,7 @@ def network_cases(tier):
     """The two CLSS networks through clss.Model, once clss/model/__init__.py exists."""
     if not _has("clss.model"):
         return []
-    from weights_tools.networks import build_classifier, build_composition, count_flops
+    from clss.networks import build_classifier, build_composition, count_flops
     from . import netcases
     (h, w), scale = TIERS[tier]
     H, W = output_size(h, w, scale)

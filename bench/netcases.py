@@ -67,7 +67,7 @@ def synthetic_frame(h: int, w: int):
 def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
     from clss.pipeline import build_frame_graph
     from clss.pipeline.contract import output_size
-    from weights_tools.networks import build_classifier, build_composition, frame_flops
+    from clss.networks import build_classifier, build_composition, frame_flops
     h, w = render_size
     H, W = output_size(h, w, scale)
     flops = 0.0

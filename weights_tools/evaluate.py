@@ -117,7 +117,7 @@ def _networks(weights):
     """Upscaler keyword arguments for --weights: None = the package default, `untrained`
     = the seeded init asked for explicitly, else a directory or .safetensors file."""
     if weights == UNTRAINED:
-        from weights_tools.networks import build_classifier, build_composition
+        from clss.networks import build_classifier, build_composition
         return {"classifier": build_classifier(), "composition": build_composition()}, False
     from clss.pipeline.upscaler import load_networks
     if weights is None:

@@ -35,9 +35,9 @@ from clss.pipeline.contract import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DIL
                                     SCATTER_WEIGHT_THRESHOLD, output_size, to_internal,
                                     validate_frame)
 
-from .networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_MLP_HIDDEN,
+from clss.networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_MLP_HIDDEN,
                        DEFAULT_WIDTHS, LOGITS, build_classifier, build_composition)
-from .weights import WeightsError, model_weights, torch_to_onnx_name
+from clss.networks import WeightsError, model_weights, torch_to_onnx_name
 
 # Net mode's blend: "net" = the composition network (inference), "rule" = w = 1/(1+counter)
 # without a clamp, the paper's rule-based composition for training the classifier (s3.4).
@@ -419,7 +419,7 @@ class TorchUpscaler:
         self.nets = (None, None)
         if self.mode == "net":
             if isinstance(weights, (str, bytes)) or hasattr(weights, "__fspath__"):
-                from .weights import load_weights
+                from clss.networks import load_weights
                 weights = load_weights(weights)
             self.nets = tuple(n.to(self.device).eval() for n in networks_from_tensors(weights))
         self.step_fn = None

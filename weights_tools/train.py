@@ -53,7 +53,7 @@ import numpy as np
 import torch
 
 from . import torch_frame
-from .weights import load_weights, save_weights
+from clss.networks import load_weights, save_weights
 
 CLASS_WEIGHT_RATIO = 100.0
 GHOST_NONE, ALIAS_GEOMETRY, ALIAS_NONE = 2, 0, 2

@@ -491,7 +491,7 @@ class OracleUpscaler:
         self.scale = float(scale)
         self.output_size = output_size(*self.render_size, self.scale)
         if mode == "net" and (classifier is None or composition is None):
-            from weights_tools.networks import build_classifier, build_composition
+            from ..networks import build_classifier, build_composition
             classifier = classifier or build_classifier()
             composition = composition or build_composition()
         self.mode = mode

@@ -52,8 +52,8 @@ def load_networks(weights=None):
       architectures), then weights.safetensors (or the only *.safetensors) applied;
     a .safetensors file: applied to the default architectures (every tensor must fit).
     """
-    from weights_tools.networks import build_classifier, build_composition
-    from weights_tools.weights import apply_weights, load_weights
+    from ..networks import build_classifier, build_composition
+    from ..networks import apply_weights, load_weights
     if weights is None:
         if os.path.isfile(SHIPPED_WEIGHTS):
             weights = SHIPPED_WEIGHTS
