@@ -10,7 +10,7 @@ Shapes come from the frame step at a render size and scale 2 (clss-frame.md):
 tier "540p" is 540x960 -> 1080x1920 (the default set), tier "1080p" is
 1080x1920 -> 2160x3840 (--full). The classifier runs on the output padded to a
 multiple of 16 (1088x1920 at 1080p), after SpaceToDepth(2) at 544x960; its conv
-layers are read from weights_tools.networks so they follow the network's widths.
+layers are read from clss.networks so they follow the network's widths.
 
 A family's cases appear once its module exists in clss/ops (they land one by one);
 network cases once clss/model/__init__.py exists, the frame step once clss.pipeline has an
@@ -28,6 +28,7 @@ import onnx
 from onnx import helper
 
 from clss.device import Device, DeviceError, storage_dtype
+from clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, COMPOSITION_CHANNELS, pad16
 from clss.ops.base import DEFAULT_TOL, EXACT, Tolerance, rng
 from clss.ops.twin import make_model, node_model
 from clss.pipeline.contract import output_size
@@ -77,10 +78,6 @@ class BenchCase:
 
 
 # --- helpers ----------------------------------------------------------------------
-
-def pad16(n: int) -> int:
-    return -(-n // 16) * 16
-
 
 def _normal(key, shape, scale=1.0):
     return (rng(*key).standard_normal(shape, dtype=np.float32) * np.float32(scale))
@@ -286,7 +283,7 @@ def s2d_cases(tier):
     (h, w), scale = TIERS[tier]
     H, W = map(pad16, output_size(h, w, scale))
     s2d = _family("space_to_depth")
-    x_shape, o_shape = (1, 23, H, W), (1, 92, H // 2, W // 2)
+    x_shape, o_shape = (1, CLASSIFIER_CHANNELS, H, W), (1, 4 * CLASSIFIER_CHANNELS, H // 2, W // 2)
 
     def build(dev, prec, params):
         return make_setup(dev, prec, {"x": _normal(("bench s2d",), x_shape)},
@@ -486,9 +483,8 @@ def elementwise_cases(tier):
                      "wt": rng("bench blend w").uniform(0, 1, ws).astype(np.float32)}, [s],
             shape=_shape(*s)))
     if _handlers_for(["Concat"]):
-        parts = [("bicubic_color", 3), ("warped_color", 3), ("depth", 1), ("motion", 2), ("inv_counter", 1),
-                 ("color_min", 3), ("color_max", 3), ("depth_difference", 1), ("warped_logits", 6)]
-        s = (1, 23, H, W)
+        parts = CLASSIFIER_INPUTS
+        s = (1, CLASSIFIER_CHANNELS, H, W)
         out.append(graph_case(
             "concat classifier input 9->23ch", "elementwise", "memory", tier, 0.0,
             lambda host: make_model([helper.make_node("Concat", [n for n, _ in parts], ["y0"], axis=1)],
@@ -496,7 +492,7 @@ def elementwise_cases(tier):
             lambda: {n: _normal(("bench concat", n), (1, c, H, W)) for n, c in parts}, [s],
             shape=_shape(*s), exact=True))
     if _handlers_for(["Pad"]) and Hp != H:
-        s, so = (1, 23, H, W), (1, 23, Hp, Wp)
+        s, so = (1, CLASSIFIER_CHANNELS, H, W), (1, CLASSIFIER_CHANNELS, Hp, Wp)
         pads = np.array([0, 0, 0, 0, 0, 0, Hp - H, Wp - W], np.int64)
         out.append(graph_case(
             f"pad classifier input {H}->{Hp}", "elementwise", "memory", tier, 0.0,
@@ -595,9 +591,9 @@ def network_cases(tier):
     Hp, Wp = pad16(H), pad16(W)
     cls = build_classifier(height=Hp, width=Wp)
     comp = build_composition(height=H, width=W)
-    return [netcases.model_case("network classifier", cls, {"x": (1, 23, Hp, Wp)}, tier,
+    return [netcases.model_case("network classifier", cls, {"x": (1, CLASSIFIER_CHANNELS, Hp, Wp)}, tier,
                                 count_flops(cls, Hp, Wp), quick=False),
-            netcases.model_case("network composition", comp, {"x": (1, 22, H, W)}, tier,
+            netcases.model_case("network composition", comp, {"x": (1, COMPOSITION_CHANNELS, H, W)}, tier,
                                 count_flops(comp, H, W), quick=False)]
 
 

@@ -8,9 +8,10 @@ import numpy as np
 import onnx
 
 from clss.device import storage_dtype
+from clss.networks import pad16
 from clss.ops.base import Tolerance, rng
 
-from .cases import BenchCase, Setup, _nbytes, _rounded, pad16, smooth_motion
+from .cases import BenchCase, Setup, _nbytes, _rounded, smooth_motion
 
 # Whole networks and frames chain dozens of roundings and an in-graph bilinear and
 # sigmoid; the check is a sanity check here (the op and pipeline tests are the strict ones).

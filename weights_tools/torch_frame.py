@@ -18,8 +18,8 @@ upstream of it is learned.  The integer decisions (argmax reject, counter reset,
 validity) are piecewise constant, as in the engine.
 
 Networks: `Classifier` and `Composition` are torch modules named as
-weights_tools.weights.TORCH_NAME_MAP expects, so their parameters load from and export
-to the safetensors names of weights_tools.networks (`cls.<layer>.*`, `comp.<layer>.*`):
+clss.networks.TORCH_NAME_MAP expects, so their parameters load from and export
+to the safetensors names of clss.networks (`cls.<layer>.*`, `comp.<layer>.*`):
 `networks_from_tensors`, `tensors_from_networks`.
 """
 from __future__ import annotations
@@ -35,6 +35,7 @@ from clss.pipeline.contract import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DIL
                                     SCATTER_WEIGHT_THRESHOLD, output_size, to_internal,
                                     validate_frame)
 
+from clss.networks import pad16 as _pad16
 from clss.networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_MLP_HIDDEN,
                        DEFAULT_WIDTHS, LOGITS, build_classifier, build_composition)
 from clss.networks import WeightsError, model_weights, torch_to_onnx_name
@@ -88,7 +89,7 @@ class Bottleneck(nn.Module):
 
 
 class Classifier(nn.Module):
-    """weights_tools.networks.build_classifier as a torch module (same graph)."""
+    """clss.networks.build_classifier as a torch module (same graph)."""
 
     def __init__(self, widths=DEFAULT_WIDTHS, in_channels=CLASSIFIER_CHANNELS):
         super().__init__()
@@ -145,7 +146,7 @@ def _widths_from(tensors):
 
 def networks_from_tensors(tensors=None, seed=0):
     """(Classifier, Composition) holding `tensors` (name -> array, the safetensors names;
-    None: the seeded init of weights_tools.networks, identical to the ONNX graphs')."""
+    None: the seeded init of clss.networks, identical to the ONNX graphs')."""
     if tensors is None:
         tensors = {**model_weights(build_classifier(seed=seed)),
                    **model_weights(build_composition(seed=seed))}
@@ -199,10 +200,6 @@ def _sample(x, grid, cubic):
     # Bicubic is Keys a = -0.75 in torch as in ONNX; border padding clamps each tap.
     return F.grid_sample(x, grid, mode="bicubic" if cubic else "bilinear",
                          padding_mode="border", align_corners=False)
-
-
-def _pad16(n):
-    return -(-n // 16) * 16
 
 
 class FrameStep(nn.Module):

@@ -32,12 +32,12 @@ from onnx import numpy_helper
 
 from .. import selfcheck
 from ..device import Device
+from ..networks import CLASSIFIER_CHANNELS, pad16
 from ..ops.base import DEFAULT_TOL
 from ..ops.conv import builtin_free, load_defines
 from .contract import (DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, PQ_PEAK_NITS,
                        RULE_CLIP_EPS, output_size)
 
-CLASSIFIER_CHANNELS = 23
 LR_CHANNELS = {"rule": 11, "net": 5}
 # flags[0] bits, as kernels/frame.cl
 FLAG_BITS = {1: ("color", "non-finite"), 2: ("depth", "non-finite"), 4: ("motion", "non-finite"),
@@ -94,10 +94,6 @@ for _mode in ("rule", "net"):
         {"CLSS_CLANG_VECTORS": 0, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode),
         tolerance=DEFAULT_TOL.__getitem__,
         what=f"half loads/stores as clang vector conversions ({_mode} mode)", applies=builtin_free))
-
-
-def pad16(n: int) -> int:
-    return -(-int(n) // 16) * 16
 
 
 def composition_weights(model: onnx.ModelProto):

@@ -18,6 +18,8 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
+from ..networks import CLASSIFIER_CHANNELS
+from ..networks import pad16 as _pad16
 from ..ops.twin import fill_output_shapes
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
 from .contract import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS, H_COLOR,
@@ -190,10 +192,6 @@ def _check_static_hw(what, dims, hw):
                                  f"feeds {want} (build it with height/width None or {hw})")
 
 
-def _pad16(n):
-    return -(-n // 16) * 16
-
-
 def _pq_encode(g, x, nits):
     y = g.clip(g.mul(x, g.const(nits / PQ_PEAK_NITS)), 0.0, 1.0)
     ym = g.op("Pow", y, g.const(PQ_M1))
@@ -231,7 +229,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     mode "rule": no networks, ghost = off-screen or reset or depth difference >
     `depth_threshold`, w = 1/(1+counter), history clipped towards the current colour
     into the current 3x3 neighbourhood's box.  mode "net": `classifier` and `composition` (onnx.ModelProto from
-    weights_tools.networks) are inlined.  `render_size` = (h, w).  `cap`: counter cap
+    clss.networks) are inlined.  `render_size` = (h, w).  `cap`: counter cap
     (default 4 for rule, 32 for net).  `hdr=False`: LDR in/out, no PQ (values clamped
     to [0,1]).  `debug=True` adds the DEBUG_OUTPUTS(_RULE|_NET) graph outputs.
     """
@@ -390,7 +388,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
                            dd_hr, w_log])
         dbg["dbg_cls_input"] = cls_in
         H16, W16 = _pad16(H), _pad16(W)
-        cin, cout, dims = _real_input(classifier, "classifier", 23)
+        cin, cout, dims = _real_input(classifier, "classifier", CLASSIFIER_CHANNELS)
         _check_static_hw("classifier", dims, (H16, W16))
         x = cls_in
         if (H16, W16) != (H, W):

@@ -29,9 +29,10 @@ import numpy as np
 import pyopencl.array as cla
 
 from ..device import Device, get_device
+from ..networks import CLASSIFIER_CHANNELS, pad16
 from .contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
                        check_exposure, check_motion_scale, output_size, validate_frame)
-from .frame import STAGES, FrameStep, pad16
+from .frame import STAGES, FrameStep
 
 MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
 # The trained networks shipped in the package (`make train` writes them; recipe in
@@ -47,7 +48,7 @@ def load_networks(weights=None):
 
     None: the shipped trained weights (SHIPPED_WEIGHTS); if the package has none, the
       untrained init with one warning;
-    "untrained": the seeded weights_tools networks (untrained, trained = False);
+    "untrained": the seeded clss.networks (untrained, trained = False);
     a directory: classifier.onnx and composition.onnx if present (else the default
       architectures), then weights.safetensors (or the only *.safetensors) applied;
     a .safetensors file: applied to the default architectures (every tensor must fit).
@@ -91,7 +92,7 @@ def load_networks(weights=None):
         n = len(apply_weights(cls, t)) + len(apply_weights(comp, t))
         if n == 0:
             raise ValueError(f"weights: {path} has no tensor named like the networks' "
-                             "(cls.* / comp.*; see weights_tools.weights)")
+                             "(cls.* / comp.*; see clss/networks/weights.py)")
         return cls, comp, True
     raise ValueError(f"weights: expected a directory or a .safetensors file, got {path!r}"
                      + ("" if os.path.exists(path) else " (does not exist)"))
@@ -101,8 +102,8 @@ def _check_classifier_size(model, H16, W16):
     dims = model.graph.input[0].type.tensor_type.shape.dim
     got = [d.dim_value if d.HasField("dim_value") else None for d in dims]
     if len(got) == 4:
-        if got[1] not in (None, 23):
-            raise ValueError(f"classifier: expected 23 input channels, got {got[1]}")
+        if got[1] not in (None, CLASSIFIER_CHANNELS):
+            raise ValueError(f"classifier: expected {CLASSIFIER_CHANNELS} input channels, got {got[1]}")
         for g, want, axis in zip(got[2:], (H16, W16), "HW"):
             if g is not None and g != want:
                 raise ValueError(f"classifier: built for a fixed {axis} = {g}, this frame size "
