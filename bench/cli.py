@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from clss.cli import DEVICE_HELP, register
-from clss.cli_args import (ArgParser, UsageError, check_output_file, device_spec, positive_float,
+from clss.cli.args import (ArgParser, UsageError, check_output_file, device_spec, positive_float,
                            positive_int, prepare_output_dir)
 from clss.errors import cli_message
 

@@ -93,7 +93,7 @@ class _Bicubic:
     """Plain bicubic, jitter-unaware (one instance per output size)."""
 
     def __init__(self, dev, out_hw):
-        from clss.demo import Bicubic
+        from clss.cli.demo import Bicubic
         self.up = Bicubic(dev, out_hw)
 
     def __call__(self, seq, t):
@@ -256,7 +256,7 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
 
 
 def _nearest(img, H, W):
-    from clss.demo import _nearest as nearest
+    from clss.cli.demo import _nearest as nearest
     from clss import metrics
     return metrics.display(nearest(np.asarray(img, np.float32), H, W))
 

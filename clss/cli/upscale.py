@@ -10,10 +10,10 @@ import time
 
 import numpy as np
 
-from ..cli import DEVICE_HELP, register
-from ..cli_args import (ArgParser, UsageError, device_spec, motion_scale, positive_float,
+from .main import DEVICE_HELP, register
+from .args import (ArgParser, UsageError, device_spec, motion_scale, positive_float,
                         positive_int, prepare_output_dir, resolve_motion_scale, start_output)
-from ..cli_args import scale as scale_arg
+from .args import scale as scale_arg
 from ..errors import cli_message
 
 PRECISION_CHOICES = ("fp32", "fp16")
@@ -208,8 +208,8 @@ def cmd_upscale(argv) -> int:
     a = p.parse_args(argv)
     from ..io import read_sequence, write_exr, write_png
     from ..progress import progress
-    from .contract import FrameInputError
-    from .upscaler import Upscaler
+    from ..pipeline.contract import FrameInputError
+    from ..pipeline.upscaler import Upscaler
 
     check_weights_mode(a.weights, a.mode == "net")
     channels = parse_channels(a.channels)
@@ -285,7 +285,7 @@ def cmd_upscale(argv) -> int:
 
 
 def cmd_demo(argv) -> int:
-    from ..demo import main
+    from .demo import main
     return main(argv)
 
 

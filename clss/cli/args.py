@@ -10,7 +10,7 @@ import os
 import re
 import tempfile
 
-from .errors import UserError
+from ..errors import UserError
 
 
 class UsageError(UserError):

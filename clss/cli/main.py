@@ -9,7 +9,7 @@ import sys
 import time
 import warnings
 
-from .cli_args import ArgParser, check_output_file, device_spec
+from .args import ArgParser, check_output_file, device_spec
 
 DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
                "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device)")
@@ -29,7 +29,7 @@ def cmd_devices(argv) -> int:
     a = p.parse_args(argv)
     if a.json is not None:
         check_output_file(a.json, "--json")
-    from .device import DeviceInfo, get_device, list_devices
+    from ..device import DeviceInfo, get_device, list_devices
     found = list_devices()
     default = get_device().cl_device
     rows = []
@@ -41,7 +41,7 @@ def cmd_devices(argv) -> int:
         print(f"      OpenCL {info.version}; driver {info.driver}; {info.compute_units} compute units; "
               f"{info.global_mem / 2**30:.1f} GiB global memory (max alloc {info.max_alloc / 2**30:.1f} GiB); "
               f"fp16 arithmetic (cl_khr_fp16): {'yes' if info.fp16 else 'no'}")
-    from .device import default_reason
+    from ..device import default_reason
     print(f"* = default device: {default_reason()}; choose another with --device or $CLSS_DEVICE")
     if a.json:
         with open(a.json, "w") as f:
@@ -71,9 +71,9 @@ def cmd_verify(argv) -> int:
     a = p.parse_args(argv)
     if a.json is not None:
         check_output_file(a.json, "--json")
-    from .conformance import check, format_table
-    from .device import DeviceError, get_device
-    from .ops import all_cases
+    from ..conformance import check, format_table
+    from ..device import DeviceError, get_device
+    from ..ops import all_cases
     try:
         dev = get_device(a.device)
     except DeviceError as e:
@@ -88,7 +88,7 @@ def cmd_verify(argv) -> int:
         except DeviceError as e:
             print(f"clss verify: {e}", file=sys.stderr)
             return 2
-    from .ops import FAMILIES
+    from ..ops import FAMILIES
     if a.family and a.family not in FAMILIES:
         print(f"clss verify: unknown family {a.family!r}; families: {', '.join(FAMILIES)}", file=sys.stderr)
         return 2
@@ -102,7 +102,7 @@ def cmd_verify(argv) -> int:
           f"{len(cases)} cases x {len(precs)} precision(s)", file=sys.stderr)
     t0 = time.perf_counter()
     rows = []
-    from .progress import progress
+    from ..progress import progress
     for case in progress(cases, desc="verify", unit="case"):
         for prec in precs:
             rows.append(check(case, dev, prec))
@@ -110,8 +110,8 @@ def cmd_verify(argv) -> int:
     print(format_table(shown))
     fails = sum(not r.passed for r in rows)
     print(f"\n{len(rows) - fails} passed, {fails} failed ({len(rows)} rows, {time.perf_counter() - t0:.1f} s)")
-    from .conformance import format_fast_paths
-    from .selfcheck import check_all
+    from ..conformance import format_fast_paths
+    from ..selfcheck import check_all
     fast = check_all(dev, precs, [a.family] if a.family else None)
     print("\n" + format_fast_paths(fast))
     if a.json:
@@ -135,7 +135,7 @@ def register(name: str, fn, summary: str) -> None:
 def _load_plugins() -> None:
     # Subcommands that live with their subsystem; absent ones are simply not offered.
     import importlib
-    for mod in ("clss.model_cli", "clss.pipeline.cli", "bench.cli"):
+    for mod in ("clss.cli.model", "clss.cli.upscale", "bench.cli"):
         try:
             importlib.import_module(mod)
         except ModuleNotFoundError as e:
@@ -144,7 +144,7 @@ def _load_plugins() -> None:
 
 
 def _version() -> str:
-    from . import __version__
+    from .. import __version__
     return __version__
 
 
@@ -155,7 +155,7 @@ USER_ERRORS = (ValueError, OSError)
 
 
 def _user_errors():
-    from .device import DeviceError
+    from ..device import DeviceError
     return USER_ERRORS + (DeviceError,)
 
 
@@ -186,7 +186,7 @@ def run_command(prog: str, fn, argv) -> int:
     """fn(argv) with the command line's error policy: a user's mistake is one line on
     stderr and status 2, Ctrl-C is status 130 (commands that write files say first how
     far they got), `--help` and parser errors return their status instead of exiting."""
-    from .errors import cli_message
+    from ..errors import cli_message
     try:
         return fn(argv) or 0
     except SystemExit as e:             # argparse: --help (0), or a mistake already printed (2)

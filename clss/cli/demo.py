@@ -49,8 +49,8 @@ class Bicubic:
         self.dev, self.out_hw = dev, out_hw
 
     def __call__(self, color):
-        from .ops.resize import resize
-        from .pipeline.contract import pq_decode, pq_encode
+        from ..ops.resize import resize
+        from ..pipeline.contract import pq_decode, pq_encode
         x = self.dev.to_device(pq_encode(color).transpose(2, 0, 1)[None])
         y = resize(self.dev, "fp32", x, out_hw=self.out_hw, mode="cubic")
         return pq_decode(np.clip(y.get()[0].transpose(1, 2, 0), 0, 1))
@@ -69,8 +69,8 @@ OUTPUT_SET = ("input/*", "bicubic/*", "rules/*", "net/*", "debug/*", "side_by_si
 
 
 def main(argv=None) -> int:
-    from .cli_args import ArgParser, positive_int, prepare_output_dir, start_output
-    from .pipeline.cli import (WEIGHTS_HELP, FrameFiles, add_upscaler_args, check_weights_mode,
+    from .args import ArgParser, positive_int, prepare_output_dir, start_output
+    from .upscale import (WEIGHTS_HELP, FrameFiles, add_upscaler_args, check_weights_mode,
                                format_stage_table, write_debug_views)
     p = ArgParser(
         prog="clss demo",
@@ -98,13 +98,13 @@ def main(argv=None) -> int:
         p.error(f"--modes: expected a subset of rules,net, got {a.modes!r}")
     check_weights_mode(a.weights, "net" in modes)
 
-    from . import io as cio
-    from . import metrics
-    from .device import get_device
-    from .pipeline import Upscaler
-    from .pipeline.contract import output_size
-    from .progress import progress
-    from .scene import iter_sequence
+    from .. import io as cio
+    from .. import metrics
+    from ..device import get_device
+    from ..pipeline import Upscaler
+    from ..pipeline.contract import output_size
+    from ..progress import progress
+    from ..scene import iter_sequence
 
     h, w = a.size
     H, W = output_size(h, w, a.scale)
