@@ -13,6 +13,11 @@ import tempfile
 from ..errors import UserError
 
 
+# The --device help, the same in every subcommand that runs on a device.
+DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
+               "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device)")
+
+
 class UsageError(UserError):
     """A command-line mistake; the message names the flag."""
 

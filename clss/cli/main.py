@@ -1,146 +1,40 @@
-"""The `clss` command line. Subcommands live in small functions registered in
-COMMANDS; each parses its own arguments so `clss X --help` teaches X alone."""
+"""The `clss` command line: the command table and the error policy. Each subcommand is
+a function fn(argv) -> status in the module of its command group (devices.py, model.py,
+upscale.py, demo.py; bench/cli.py for bench and tune) and parses its own arguments, so
+`clss X --help` teaches X alone."""
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import sys
-import time
 import warnings
 
-from .args import ArgParser, check_output_file, device_spec
-
-DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
-               "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device)")
+from . import demo, devices, model, upscale
 
 
-def _add_device(p: argparse.ArgumentParser, precision: bool = True) -> None:
-    p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
-    if precision:
-        p.add_argument("--precision", "-p", default="fp32", choices=("fp32", "fp16", "fp16-native", "all"),
-                       help="fp32; fp16 = half storage, float arithmetic (every device); "
-                            "fp16-native = half arithmetic (needs cl_khr_fp16); all = every one the device supports")
+# The one upward edge from the runtime: `clss bench` and `clss tune` live in the top-level
+# bench package (which imports clss). It is imported only when one of them runs, so
+# `import clss` never loads it; .importlinter names this as the only allowed exception.
+def _bench(argv) -> int:
+    from bench.cli import bench_main
+    return bench_main(argv)
 
 
-def cmd_devices(argv) -> int:
-    p = ArgParser(prog="clss devices", description="List OpenCL platforms and devices.")
-    p.add_argument("--json", metavar="FILE", help="also write the list as JSON")
-    a = p.parse_args(argv)
-    if a.json is not None:
-        check_output_file(a.json, "--json")
-    from ..device import DeviceInfo, get_device, list_devices
-    found = list_devices()
-    default = get_device().cl_device
-    rows = []
-    for i, (plat, dev) in enumerate(found):
-        info = DeviceInfo.of(dev)
-        rows.append(info.__dict__ | {"index": i, "default": dev == default})
-        mark = "*" if dev == default else " "
-        print(f"{mark}[{i}] {info.platform} / {info.name}")
-        print(f"      OpenCL {info.version}; driver {info.driver}; {info.compute_units} compute units; "
-              f"{info.global_mem / 2**30:.1f} GiB global memory (max alloc {info.max_alloc / 2**30:.1f} GiB); "
-              f"fp16 arithmetic (cl_khr_fp16): {'yes' if info.fp16 else 'no'}")
-    from ..device import default_reason
-    print(f"* = default device: {default_reason()}; choose another with --device or $CLSS_DEVICE")
-    if a.json:
-        with open(a.json, "w") as f:
-            json.dump(rows, f, indent=2)
-    return 0
+def _tune(argv) -> int:
+    from bench.cli import tune_main
+    return tune_main(argv)
 
 
-def cmd_verify(argv) -> int:
-    p = ArgParser(
-        prog="clss verify",
-        description="Run every kernel on the chosen device and diff it against onnxruntime "
-                    "(the ONNX twin of each op, fed the same inputs). Prints one row per op variant "
-                    "and precision; exits non-zero if any row fails. This is the command to run "
-                    "when porting clss to a new OpenCL device.",
-        epilog="examples:\n  clss verify\n  clss verify --device 1 --precision all --json verify.json\n"
-               "  clss verify --filter conv --level full",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
-    _add_device(p)
-    p.add_argument("--json", metavar="FILE", help="write every row (and the device) as JSON")
-    p.add_argument("--filter", "-k", default=None, help="only ops whose name contains this substring")
-    p.add_argument("--family", default=None,
-                   help="only one kernel family (a stem of kernels/*.cl, e.g. conv, resize, warp)")
-    p.add_argument("--level", default="quick", choices=("tiny", "quick", "full"),
-                   help="case set: tiny (smallest shapes, used under oclgrind), quick (default), "
-                        "full (odd shapes and parameter sweeps, as the tests)")
-    p.add_argument("--failures-only", action="store_true", help="print only failing rows")
-    a = p.parse_args(argv)
-    if a.json is not None:
-        check_output_file(a.json, "--json")
-    from ..conformance import check, format_table
-    from ..device import DeviceError, get_device
-    from ..ops import all_cases
-    try:
-        dev = get_device(a.device)
-    except DeviceError as e:
-        print(f"clss verify: {e}", file=sys.stderr)
-        return 2
-    if a.precision == "all":
-        precs = ["fp32", "fp16"] + (["fp16-native"] if dev.has_fp16 else [])
-    else:
-        precs = [a.precision]
-        try:
-            dev.require(a.precision)
-        except DeviceError as e:
-            print(f"clss verify: {e}", file=sys.stderr)
-            return 2
-    from ..ops import FAMILIES
-    if a.family and a.family not in FAMILIES:
-        print(f"clss verify: unknown family {a.family!r}; families: {', '.join(FAMILIES)}", file=sys.stderr)
-        return 2
-    cases = [c for c in all_cases(a.level, [a.family] if a.family else None)
-             if not a.filter or a.filter in c.op]
-    if not cases:
-        print(f"clss verify: --filter {a.filter!r} matches no op (see `clss verify --level tiny` "
-              "for the list)", file=sys.stderr)
-        return 2
-    print(f"device: {dev.info.platform} / {dev.info.name} (driver {dev.info.driver}); "
-          f"{len(cases)} cases x {len(precs)} precision(s)", file=sys.stderr)
-    t0 = time.perf_counter()
-    rows = []
-    from ..progress import progress
-    for case in progress(cases, desc="verify", unit="case"):
-        for prec in precs:
-            rows.append(check(case, dev, prec))
-    shown = [r for r in rows if not r.passed] if a.failures_only else rows
-    print(format_table(shown))
-    fails = sum(not r.passed for r in rows)
-    print(f"\n{len(rows) - fails} passed, {fails} failed ({len(rows)} rows, {time.perf_counter() - t0:.1f} s)")
-    from ..conformance import format_fast_paths
-    from ..selfcheck import check_all
-    fast = check_all(dev, precs, [a.family] if a.family else None)
-    print("\n" + format_fast_paths(fast))
-    if a.json:
-        with open(a.json, "w") as f:
-            json.dump({"device": dev.info.__dict__, "rows": [r.as_dict() for r in rows],
-                       "fast_paths": [v.as_dict() for v in fast]}, f, indent=2, default=float)
-    return 1 if fails else 0
-
-
+# name: (function, one-line summary for `clss --help`), in the order --help lists them.
 COMMANDS = {
-    "devices": (cmd_devices, "list OpenCL platforms and devices"),
-    "verify": (cmd_verify, "diff every kernel against onnxruntime on a device (PASS/FAIL table)"),
+    "devices": (devices.cmd_devices, "list OpenCL platforms and devices"),
+    "verify": (devices.cmd_verify, "diff every kernel against onnxruntime on a device (PASS/FAIL table)"),
+    "info": (model.cmd_info, "ops, parameters, FLOPs and planned device memory of an ONNX model"),
+    "run": (model.cmd_run, "run an ONNX model on a device (--compare-ort: diff and time vs onnxruntime)"),
+    "upscale": (upscale.cmd_upscale, "upscale an EXR sequence with CLSS (net or rules), per-stage times"),
+    "demo": (demo.main, "render the built-in sample scene, upscale it, write pictures and metrics"),
+    "bench": (_bench, "benchmark kernels/networks/frame step against onnxruntime (table, JSON, roofline)"),
+    "tune": (_tune, "search work-group sizes and kernel tunables per device; store the best"),
 }
-
-
-def register(name: str, fn, summary: str) -> None:
-    """Other modules add subcommands here (bench, upscale, ...)."""
-    COMMANDS[name] = (fn, summary)
-
-
-def _load_plugins() -> None:
-    # Subcommands that live with their subsystem; absent ones are simply not offered.
-    import importlib
-    for mod in ("clss.cli.model", "clss.cli.upscale", "bench.cli"):
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as e:
-            if e.name != mod and not mod.startswith(e.name or "\0"):
-                raise
 
 
 def _version() -> str:
@@ -161,7 +55,6 @@ def _user_errors():
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    _load_plugins()
     if argv and argv[0] == "--version":
         print(f"clss {_version()}")
         return 0

@@ -11,9 +11,8 @@ import time
 
 import numpy as np
 
-from .main import DEVICE_HELP, register
-from .args import ArgParser, check_output_file, device_spec, positive_int
 from ..errors import cli_message
+from .args import DEVICE_HELP, ArgParser, check_output_file, device_spec, positive_int
 
 # Defaults of --atol/--rtol for --compare-ort (|d| <= atol*max|ref| + rtol*|ref|):
 # fp16 stores every intermediate tensor with an 11-bit mantissa, and the
@@ -266,7 +265,3 @@ def _compare(a, m, feeds, outs, report) -> int:
 def _ort_version() -> str:
     import onnxruntime
     return onnxruntime.__version__
-
-
-register("info", cmd_info, "ops, parameters, FLOPs and planned device memory of an ONNX model")
-register("run", cmd_run, "run an ONNX model on a device (--compare-ort: diff and time vs onnxruntime)")
