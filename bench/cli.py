@@ -117,7 +117,7 @@ def bench_main(argv=None) -> int:
 
     from clss.device import DeviceError, get_device
     from clss.progress import progress
-    from .cases import all_cases
+    from .suite import all_cases
     from .peak import measure
     from .runner import OrtRunner, Settings, run_case
 
@@ -225,7 +225,7 @@ def tune_main(argv=None) -> int:
     from clss import tuning
     from clss.device import DeviceError, get_device
     from clss.progress import progress
-    from .cases import all_cases
+    from .suite import all_cases
     from .tune import format_results, tune_case
 
     level = _level(a)

@@ -106,7 +106,7 @@ def cmd_verify(argv) -> int:
     fails = sum(not r.passed for r in rows)
     print(f"\n{len(rows) - fails} passed, {fails} failed ({len(rows)} rows, {time.perf_counter() - t0:.1f} s)")
     from ..conformance import format_fast_paths
-    from ..selfcheck import check_all
+    from ..selfcheck_runner import check_all
     fast = check_all(dev, precs, [a.family] if a.family else None)
     print("\n" + format_fast_paths(fast))
     if a.json:

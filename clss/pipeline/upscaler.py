@@ -33,6 +33,7 @@ from ..networks import CLASSIFIER_CHANNELS, pad16
 from .contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
                        check_exposure, check_motion_scale, output_size, validate_frame)
 from .frame import STAGES, FrameStep
+from .frame_selfcheck import register_fast_paths
 
 MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
 # The trained networks shipped in the package (`make train` writes them; recipe in
@@ -386,3 +387,7 @@ def _check_jitter(jitter) -> np.ndarray:
         raise FrameInputError(f"jitter: expected 2 finite floats in [-0.5, 0.5] render pixels, "
                               f"got {j.tolist()}")
     return j.astype(np.float32)
+
+
+# The frame step's fast-path checks run two frames through this class.
+register_fast_paths(Upscaler)
