@@ -210,14 +210,7 @@ def validate_frame(color, depth, motion, jitter, reactive=None, *, render_size=N
     if reactive is not None:
         reactive = _check_array("reactive", reactive, (), hw)
 
-    try:
-        j = np.asarray(jitter, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        _fail("jitter", "2 floats (jx, jy) in render pixels", repr(jitter))
-    if j.shape != (2,):
-        _fail("jitter", "2 floats (jx, jy) in render pixels", f"{j.size} values")
-    if not np.all(np.isfinite(j)) or np.any(np.abs(j) > 0.5):
-        _fail("jitter", "2 finite floats in [-0.5, 0.5] render pixels", f"{j.tolist()}")
+    jitter = check_jitter(jitter)
 
     report = {}
     out = {}
@@ -232,9 +225,22 @@ def validate_frame(color, depth, motion, jitter, reactive=None, *, render_size=N
         out["reactive"] = r
     else:
         out["reactive"] = None
-    out["jitter"] = j.astype(np.float32)
+    out["jitter"] = jitter
     out["sanitized"] = report
     return out
+
+
+def check_jitter(jitter) -> np.ndarray:
+    """(jx, jy) as float32, refused unless 2 finite floats in [-0.5, 0.5] render pixels."""
+    try:
+        j = np.asarray(jitter, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        _fail("jitter", "2 floats (jx, jy) in render pixels", repr(jitter))
+    if j.shape != (2,):
+        _fail("jitter", "2 floats (jx, jy) in render pixels", f"{j.size} values")
+    if not np.all(np.isfinite(j)) or np.any(np.abs(j) > 0.5):
+        _fail("jitter", "2 finite floats in [-0.5, 0.5] render pixels", f"{j.tolist()}")
+    return j.astype(np.float32)
 
 
 def check_motion_scale(motion_scale) -> np.ndarray:

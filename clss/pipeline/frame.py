@@ -266,7 +266,6 @@ class FrameStep:
                 self.flags.data, f(self.cap), inv_pq, expo, i32(self.debug), self.dbg.data))))
         if self.profile:
             self.events.extend(ev)
-        self._last_out = out
         return flag_ev
 
     def verdict(self) -> tuple[list[tuple[str, str]], dict]:

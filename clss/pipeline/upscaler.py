@@ -31,7 +31,8 @@ import pyopencl.array as cla
 from ..device import Device, get_device
 from ..networks import CLASSIFIER_CHANNELS, pad16
 from .contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
-                       check_exposure, check_motion_scale, output_size, validate_frame)
+                       check_exposure, check_jitter, check_motion_scale, output_size,
+                       validate_frame)
 from .frame import STAGES, FrameStep
 from .frame_selfcheck import register_fast_paths
 
@@ -308,7 +309,7 @@ class Upscaler:
         if out is not None and (out.shape != (fs.H, fs.W, 3) or out.dtype != np.float32):
             raise FrameInputError(f"out: expected a float32 array of shape {(fs.H, fs.W, 3)}, got "
                                   f"{out.dtype} {out.shape}")
-        j = _check_jitter(jitter)
+        j = check_jitter(jitter)
         self._run(fs, color, depth, motion, reactive, j, reset, out, device_inputs=True)
         return out if out is not None else fs.out
 
@@ -375,18 +376,6 @@ class Upscaler:
             views["ghost_class"] = np.argmax(hist[10:13], 0).astype(np.float32)
             views["alias_class"] = np.argmax(hist[13:16], 0).astype(np.float32)
         return views
-
-
-def _check_jitter(jitter) -> np.ndarray:
-    try:
-        j = np.asarray(jitter, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise FrameInputError(f"jitter: expected 2 floats (jx, jy) in render pixels, got "
-                              f"{jitter!r}") from None
-    if j.shape != (2,) or not np.all(np.isfinite(j)) or np.any(np.abs(j) > 0.5):
-        raise FrameInputError(f"jitter: expected 2 finite floats in [-0.5, 0.5] render pixels, "
-                              f"got {j.tolist()}")
-    return j.astype(np.float32)
 
 
 # The frame step's fast-path checks run two frames through this class.
