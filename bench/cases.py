@@ -10,7 +10,7 @@ Shapes come from the frame step at a render size and scale 2 (clss-frame.md):
 tier "540p" is 540x960 -> 1080x1920 (the default set), tier "1080p" is
 1080x1920 -> 2160x3840 (--full). The classifier runs on the output padded to a
 multiple of 16 (1088x1920 at 1080p), after SpaceToDepth(2) at 544x960; its conv
-layers are read from weights_tools.networks so they follow the network's widths.
+layers are read from clss.networks so they follow the network's widths.
 
 A family's cases appear once its module exists in clss/ops (they land one by one);
 network cases once clss/model/__init__.py exists, the frame step once clss.pipeline has an
@@ -28,8 +28,10 @@ import onnx
 from onnx import helper
 
 from clss.device import Device, DeviceError, storage_dtype
+from clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, pad16
 from clss.ops.base import DEFAULT_TOL, EXACT, Tolerance, rng
 from clss.ops.twin import make_model, node_model
+from clss.pipeline.contract import output_size
 
 TIERS = {"540p": ((540, 960), 2.0), "1080p": ((1080, 1920), 2.0),
          # a smoke test of the bench itself (tests, --tiny): every case, numbers meaningless
@@ -76,10 +78,6 @@ class BenchCase:
 
 
 # --- helpers ----------------------------------------------------------------------
-
-def pad16(n: int) -> int:
-    return -(-n // 16) * 16
-
 
 def _normal(key, shape, scale=1.0):
     return (rng(*key).standard_normal(shape, dtype=np.float32) * np.float32(scale))
@@ -152,7 +150,7 @@ def classifier_layers(height: int, width: int) -> list[dict]:
     """The conv layers of weights_tools' classifier for an output frame of
     height x width (padded to 16), with their input shapes, seeded weights, and
     the fused epilogue (ReLU, residual Add before the ReLU)."""
-    from weights_tools.networks import build_classifier
+    from clss.networks import build_classifier
     H, W = pad16(height), pad16(width)
     m = build_classifier(height=H, width=W)
     inferred = onnx.shape_inference.infer_shapes(m)
@@ -210,7 +208,7 @@ def conv_twin(x_name, w, b, strides, pads, act, residual, opset=18):
 
 def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1")):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     conv = _family("conv")
     out = []
     for L in classifier_layers(H, W):
@@ -283,9 +281,9 @@ def _conv_transpose_case(conv, tier, h, w):
 
 def s2d_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = pad16(round(h * scale)), pad16(round(w * scale))
+    H, W = map(pad16, output_size(h, w, scale))
     s2d = _family("space_to_depth")
-    x_shape, o_shape = (1, 23, H, W), (1, 92, H // 2, W // 2)
+    x_shape, o_shape = (1, CLASSIFIER_CHANNELS, H, W), (1, 4 * CLASSIFIER_CHANNELS, H // 2, W // 2)
 
     def build(dev, prec, params):
         return make_setup(dev, prec, {"x": _normal(("bench s2d",), x_shape)},
@@ -301,7 +299,7 @@ def _resize_flops(mode, out_elems):
 
 def resize_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     Hp, Wp = pad16(H), pad16(W)
     rs = _family("resize")
     specs = [  # name, input shape, scale, mode, quick
@@ -346,7 +344,7 @@ def smooth_motion(key, shape, amplitude=4.0):
 
 def warp_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     wp = _family("warp")
     out = []
     # Stage 5: the 16-channel history (colour bicubic, the rest bilinear) at output res,
@@ -461,7 +459,7 @@ def _handlers_for(model_ops) -> bool:
 
 def elementwise_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     Hp, Wp = pad16(H), pad16(W)
     out = []
     if _handlers_for(["Add", "Relu"]):
@@ -485,9 +483,8 @@ def elementwise_cases(tier):
                      "wt": rng("bench blend w").uniform(0, 1, ws).astype(np.float32)}, [s],
             shape=_shape(*s)))
     if _handlers_for(["Concat"]):
-        parts = [("bicubic_color", 3), ("warped_color", 3), ("depth", 1), ("motion", 2), ("inv_counter", 1),
-                 ("color_min", 3), ("color_max", 3), ("depth_difference", 1), ("warped_logits", 6)]
-        s = (1, 23, H, W)
+        parts = CLASSIFIER_INPUTS
+        s = (1, CLASSIFIER_CHANNELS, H, W)
         out.append(graph_case(
             "concat classifier input 9->23ch", "elementwise", "memory", tier, 0.0,
             lambda host: make_model([helper.make_node("Concat", [n for n, _ in parts], ["y0"], axis=1)],
@@ -495,7 +492,7 @@ def elementwise_cases(tier):
             lambda: {n: _normal(("bench concat", n), (1, c, H, W)) for n, c in parts}, [s],
             shape=_shape(*s), exact=True))
     if _handlers_for(["Pad"]) and Hp != H:
-        s, so = (1, 23, H, W), (1, 23, Hp, Wp)
+        s, so = (1, CLASSIFIER_CHANNELS, H, W), (1, CLASSIFIER_CHANNELS, Hp, Wp)
         pads = np.array([0, 0, 0, 0, 0, 0, Hp - H, Wp - W], np.int64)
         out.append(graph_case(
             f"pad classifier input {H}->{Hp}", "elementwise", "memory", tier, 0.0,
@@ -535,9 +532,9 @@ MLP_TUNABLES = {"XV": (1, 2)}
 
 def mlp_cases(tier):
     (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
+    H, W = output_size(h, w, scale)
     mlp = _family("mlp")
-    from weights_tools.networks import build_composition
+    from clss.networks import build_composition
     m = build_composition(height=H, width=W)
     inits = {t.name: onnx.numpy_helper.to_array(t) for t in m.graph.initializer}
     w1, b1 = inits["comp.fc1.weight"], inits["comp.fc1.bias"]
@@ -579,72 +576,3 @@ FAMILY_CASES = {
     "elementwise": elementwise_cases,
     "scatter": scatter_cases,
 }
-
-
-# --- networks and the frame step (optional) -------------------------------------------
-
-def network_cases(tier):
-    """The two CLSS networks through clss.Model, once clss/model/__init__.py exists."""
-    if not _has("clss.model"):
-        return []
-    from weights_tools.networks import build_classifier, build_composition, count_flops
-    from . import netcases
-    (h, w), scale = TIERS[tier]
-    H, W = round(h * scale), round(w * scale)
-    Hp, Wp = pad16(H), pad16(W)
-    cls = build_classifier(height=Hp, width=Wp)
-    comp = build_composition(height=H, width=W)
-    return [netcases.model_case("network classifier", cls, {"x": (1, 23, Hp, Wp)}, tier,
-                                count_flops(cls, Hp, Wp), quick=False),
-            netcases.model_case("network composition", comp, {"x": (1, 22, H, W)}, tier,
-                                count_flops(comp, H, W), quick=False)]
-
-
-def frame_cases(tier):
-    """The whole frame step (net and rule modes) against the oracle graph, once the
-    OpenCL pipeline exists."""
-    if not _has("clss.pipeline.frame"):
-        return []
-    from . import netcases
-    (h, w), scale = TIERS[tier]
-    return [netcases.frame_case(mode, (h, w), scale, tier) for mode in ("net", "rule")]
-
-
-# --- the suite ------------------------------------------------------------------------
-
-def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list[tuple[str, str]]]:
-    """(cases, unavailable): the suite for a level ("quick", "default", "full"), and
-    (what, why) for the parts that cannot be built yet (a family not landed, an API
-    that failed). `tiers` replaces the level's shape tiers (e.g. ("tiny",))."""
-    if level not in LEVEL_TIERS:
-        raise ValueError(f"level must be one of {', '.join(LEVEL_TIERS)}")
-    tiers = tuple(tiers or LEVEL_TIERS[level])
-    from clss.ops import load_all
-    import warnings
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        mods = load_all()
-    cases, missing = [], []
-    for tier in tiers:
-        for fam, fn in FAMILY_CASES.items():
-            if fam not in mods:
-                if tier == tiers[0]:
-                    missing.append((fam, f"clss/ops/{fam}.py not present yet"))
-                continue
-            try:
-                cases += fn(tier)
-            except Exception as e:   # a family whose API moved: report, keep benchmarking the rest
-                missing.append((f"{fam} [{tier}]", f"{type(e).__name__}: {e}"))
-        for what, fn, mod in (("networks", network_cases, "clss/model/__init__.py"),
-                              ("frame step", frame_cases, "clss/pipeline/frame.py")):
-            try:
-                got = fn(tier)
-            except Exception as e:
-                missing.append((f"{what} [{tier}]", f"{type(e).__name__}: {e}"))
-                continue
-            if not got and tier == tiers[0]:
-                missing.append((what, f"{mod} not present yet"))
-            cases += got
-    if level == "quick":
-        cases = [c for c in cases if c.quick]
-    return cases, missing

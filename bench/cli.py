@@ -7,8 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from clss.cli import DEVICE_HELP, register
-from clss.cli_args import (ArgParser, UsageError, check_output_file, device_spec, positive_float,
+from clss.cli.args import (DEVICE_HELP, ArgParser, UsageError, check_output_file, device_spec, positive_float,
                            positive_int, prepare_output_dir)
 from clss.errors import cli_message
 
@@ -118,7 +117,7 @@ def bench_main(argv=None) -> int:
 
     from clss.device import DeviceError, get_device
     from clss.progress import progress
-    from .cases import all_cases
+    from .suite import all_cases
     from .peak import measure
     from .runner import OrtRunner, Settings, run_case
 
@@ -226,7 +225,7 @@ def tune_main(argv=None) -> int:
     from clss import tuning
     from clss.device import DeviceError, get_device
     from clss.progress import progress
-    from .cases import all_cases
+    from .suite import all_cases
     from .tune import format_results, tune_case
 
     level = _level(a)
@@ -262,7 +261,3 @@ def tune_main(argv=None) -> int:
     stored = sum(len(r.stored) for r in results)
     print(f"\n{stored} entries {'would be ' if a.dry_run else ''}stored in {db}")
     return 1 if failed else 0
-
-
-register("bench", bench_main, "benchmark kernels/networks/frame step against onnxruntime (table, JSON, roofline)")
-register("tune", tune_main, "search work-group sizes and kernel tunables per device; store the best")

@@ -8,9 +8,10 @@ import numpy as np
 import onnx
 
 from clss.device import storage_dtype
+from clss.networks import pad16
 from clss.ops.base import Tolerance, rng
 
-from .cases import BenchCase, Setup, _nbytes, _rounded, pad16, smooth_motion
+from .cases import BenchCase, Setup, _nbytes, _rounded, smooth_motion
 
 # Whole networks and frames chain dozens of roundings and an in-graph bilinear and
 # sigmoid; the check is a sanity check here (the op and pipeline tests are the strict ones).
@@ -67,7 +68,7 @@ def synthetic_frame(h: int, w: int):
 def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
     from clss.pipeline import build_frame_graph
     from clss.pipeline.contract import output_size
-    from weights_tools.networks import build_classifier, build_composition, frame_flops
+    from clss.networks import build_classifier, build_composition, frame_flops
     h, w = render_size
     H, W = output_size(h, w, scale)
     flops = 0.0

@@ -29,6 +29,7 @@ import tempfile
 import numpy as np
 
 from .errors import UserError
+from .filemode import current_umask, new_file_mode  # noqa: F401 (also clss.io API)
 from .scene import Frame, halton_jitter
 
 try:
@@ -84,18 +85,6 @@ def tonemap(linear, exposure=1.0):
 def _require_oiio():
     if oiio is None:
         raise RuntimeError("OpenImageIO (python module OpenImageIO) is not installed")
-
-
-def current_umask() -> int:
-    """The process umask (reading it means setting it; set straight back)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def new_file_mode() -> int:
-    """What open() would give a new file: 0666 less the umask (mkstemp gives 0600)."""
-    return 0o666 & ~current_umask()
 
 
 def _atomic_write(path, write):

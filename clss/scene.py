@@ -28,6 +28,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+# The jitter sequence and the output size are the frame contract's: the scene renders
+# exactly the samples and the size clss.Upscaler expects. (halton_jitter and
+# jitter_sequence_length are the names scene users have always called them by.)
+from .pipeline.contract import jitter_at as halton_jitter
+from .pipeline.contract import jitter_phase_count as jitter_sequence_length  # noqa: F401
+from .pipeline.contract import output_size as contract_output_size
+
 NEAR = 0.1                      # reversed-Z near plane (scene units, metres)
 TAN_HALF_FOV = math.tan(math.radians(30.0))  # vertical field of view 60 degrees
 SUN_DIR = np.array([-0.45, 0.75, 0.48]) / np.linalg.norm([-0.45, 0.75, 0.48])
@@ -70,27 +77,6 @@ class Frame:
 
     def __getitem__(self, key):
         return getattr(self, key)
-
-
-def halton(index, base):
-    """Radical inverse of index (>= 1) in base."""
-    f, r = 1.0, 0.0
-    while index > 0:
-        f /= base
-        r += f * (index % base)
-        index //= base
-    return r
-
-
-def jitter_sequence_length(scale):
-    return int(math.ceil(8.0 * scale * scale - 1e-9))
-
-
-def halton_jitter(index, scale):
-    """(jx, jy) in [-0.5, 0.5) for frame `index`: Halton(2,3) starting at 1 (as FSR2),
-    cycling with length ceil(8 * scale^2)."""
-    k = index % jitter_sequence_length(scale) + 1
-    return (halton(k, 2) - 0.5, halton(k, 3) - 0.5)
 
 
 # ---------------------------------------------------------------- camera
@@ -693,8 +679,8 @@ def trace_points(view, u, v):
 # ---------------------------------------------------------------- frames
 
 def output_size(render_size, scale):
-    h, w = render_size
-    return int(round(h * scale)), int(round(w * scale))
+    """(H, W) of the reference frames: the contract's, the size clss.Upscaler outputs."""
+    return contract_output_size(render_size[0], render_size[1], scale)
 
 
 def render_frame(index, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):

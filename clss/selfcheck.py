@@ -184,8 +184,9 @@ def enabled(dev, prec: str, name: str) -> bool:
 
 def check_all(dev, precisions, kernels=None) -> list[Verdict]:
     """Verdicts of every registered fast path on dev (of `kernels`, stems of
-    kernels/*.cl, if given), checking what is not yet known."""
-    _import_registrations()
+    kernels/*.cl, if given), checking what is not yet known. Only the variants
+    registered so far: clss.selfcheck_runner.check_all imports every registering
+    module first."""
     dev = getattr(dev, "base", dev)
     out = []
     for name in sorted(REGISTRY):
@@ -233,7 +234,7 @@ def _disk_key(key: tuple) -> str:
 
 
 def _run_check(dev, prec: str, fp: FastPath) -> Verdict:
-    from .ops.base import compare
+    from .tolerance import compare
     now = datetime.datetime.now().isoformat(timespec="seconds")
     v = Verdict(fp.name, fp.kernel, prec, _device_name(dev), True, "", fp.options(True), now)
     with forcing(fp.name, False):
@@ -257,7 +258,7 @@ def _run_check(dev, prec: str, fp: FastPath) -> Verdict:
 
 
 def _check_isolated(dev, prec: str, fp: FastPath) -> Verdict:
-    """_run_check in a child process (`python -m clss.selfcheck`): a miscompiled fast
+    """_run_check in a child process (`python -m clss.selfcheck_runner`): a miscompiled fast
     variant can crash the process rather than give wrong numbers (Debian's PoCL 3.1
     segfaults in pool.cl's 8-lane fp16 global max), and a crash must cost the variant,
     not the caller. The child prints its verdict as JSON on its last line."""
@@ -286,27 +287,17 @@ _CHILD_TIMEOUT_S = 600
 
 def _child_command(index: int, prec: str, name: str) -> list[str]:
     import sys
-    return [sys.executable, "-m", "clss.selfcheck", str(index), prec, name]
+    return [sys.executable, "-m", "clss.selfcheck_runner", str(index), prec, name]
 
 
 def _child_main(argv) -> int:
-    """python -m clss.selfcheck DEVICE_INDEX PRECISION NAME: check one variant here."""
+    """DEVICE_INDEX PRECISION NAME: check one variant here (the child process, run as
+    `python -m clss.selfcheck_runner`, which has imported every registration)."""
     from .device import get_device
     index, prec, name = argv
-    _import_registrations()
     v = _run_check(get_device(index), prec, REGISTRY[name])
     print(json.dumps(v.as_dict()))
     return 0
-
-
-def _import_registrations() -> None:
-    """Import every module that registers fast paths."""
-    import warnings as w
-    from .ops import load_all
-    with w.catch_warnings():
-        w.simplefilter("ignore")
-        load_all()
-    from .pipeline import frame  # noqa: F401
 
 
 def _load() -> dict:
@@ -330,8 +321,3 @@ def _store(key: str, v: Verdict) -> None:
     except OSError:
         pass
 
-
-if __name__ == "__main__":
-    import sys
-    from clss import selfcheck as _registry_module   # not __main__: the ops register there
-    sys.exit(_registry_module._child_main(sys.argv[1:]))

@@ -10,7 +10,8 @@ import pytest
 
 from bench import report
 from bench.capture import Capture, fit_local
-from bench.cases import BenchCase, all_cases, make_setup
+from bench.cases import BenchCase, make_setup
+from bench.suite import all_cases
 from bench.cli import bench_main
 from bench.peak import fma_gflops, stream_gbs
 from bench.tune import tune_case

@@ -281,7 +281,7 @@ def test_motion_scale_in_render_sizes(work, tmp_path, capsys):
     rc, cap = _run(["upscale", work / "seq", "-o", tmp_path / "a", "--mode", "rules",
                     "--motion-scale", "-W,H", "-n", "2"], capsys)
     assert rc == 0, cap.err
-    from clss.cli_args import motion_scale, resolve_motion_scale
+    from clss.cli.args import motion_scale, resolve_motion_scale
     assert resolve_motion_scale(motion_scale("-W,H"), (9, 13)) == (-13.0, 9.0)
     assert resolve_motion_scale(motion_scale("0.5,-1"), (9, 13)) == (0.5, -1.0)
 

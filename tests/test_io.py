@@ -195,7 +195,7 @@ def test_png_tonemap(tmp_path):
 
 def test_writes_respect_the_umask(tmp_path, frames):
     """Atomic writes (mkstemp, then rename) give files the mode open() would."""
-    from weights_tools.weights import save_weights
+    from clss.networks import save_weights
     old = os.umask(0o007)
     try:
         paths = cio.write_sample_sequence(frames[:1], str(tmp_path / "seq"))

@@ -75,7 +75,7 @@ def test_conv_through_resize_fires_on_the_clss_decoder():
     import clss
     from clss.ops.base import Tolerance, compare
     from clss.ops.twin import run_ort
-    from weights_tools.networks import build_classifier
+    from clss.networks import build_classifier
     m = build_classifier(height=48, width=80)
     x = np.random.default_rng(1).standard_normal((1, 23, 48, 80)).astype(np.float32)
     cm = clss.Model(m)

@@ -25,7 +25,7 @@ from onnx import numpy_helper
 
 import clss
 from clss.model.graph import MAX_OPSET, MIN_OPSET, UnsupportedModelError
-from clss.model.passes import LOWERED_OPS
+from clss.model.graph import LOWERED_OPS
 from clss.ops import ONNX_HANDLERS, load_all
 from clss.ops.base import DEFAULT_TOL, Tolerance, compare
 from node_cases import load_case_data, single_node_cases
@@ -35,7 +35,7 @@ FAMILY_DEVIATIONS = {k: v for m in FAMILIES.values() for k, v in getattr(m, "NOD
 NODE_TOL = Tolerance(1e-5, 1e-4)
 
 # Inputs that must be constant at load for the ops clss.Model runs without a
-# handler of that name (model.passes.LOWERED_OPS).
+# handler of that name (model.graph.LOWERED_OPS).
 LOWERED_CONST_INPUTS = {"Dropout": (1, 2), "Reshape": (1,), "Squeeze": (1,), "Unsqueeze": (1,),
                         "BatchNormalization": (1, 2, 3, 4), "Gemm": (1, 2)}
 # Data inputs that are legitimately not float.

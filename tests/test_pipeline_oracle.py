@@ -354,7 +354,7 @@ class _VisibilityFromDepthDiff:
     @staticmethod
     def build():
         from onnx import helper, numpy_helper, TensorProto
-        from weights_tools.networks import CLASSIFIER_INPUTS, channel_slices
+        from clss.networks import CLASSIFIER_INPUTS, channel_slices
         wgt = np.zeros((6, 23, 2, 2), np.float32)
         # 40 x the average of the 2x2 block of depth_difference
         wgt[0, channel_slices(CLASSIFIER_INPUTS)["depth_difference"]] = 40.0 / 4
@@ -370,7 +370,7 @@ class _VisibilityFromDepthDiff:
 
 
 def _networks(handmade=False):
-    from weights_tools.networks import build_classifier, build_composition
+    from clss.networks import build_classifier, build_composition
     cls = _VisibilityFromDepthDiff.build() if handmade else build_classifier(widths=(4, 8, 8, 8))
     return dict(classifier=cls, composition=build_composition(hidden=8))
 
@@ -471,7 +471,7 @@ def test_net_graph_inlines_networks_exactly():
     """Odd output size (42 x 54 pads to 48 x 64): the inlined classifier's logits equal
     running it alone on the edge-padded input, bilinear x2 and cropped; the composition
     likewise."""
-    from weights_tools.networks import build_classifier, build_composition
+    from clss.networks import build_classifier, build_composition
     cls, comp = build_classifier(widths=(4, 8, 8, 8), seed=1), build_composition(hidden=8, seed=1)
     up = O.OracleUpscaler((21, 27), 2.0, "net", cls, comp, debug=True, session_options=_opts())
     rng = np.random.default_rng(0)
@@ -556,7 +556,7 @@ def test_graph_is_plain_onnx():
     onnx.checker.check_model(m, full_check=True)
     with pytest.raises(ValueError, match="needs both"):
         O.build_frame_graph("net", (8, 8), 2.0)
-    from weights_tools.networks import build_classifier, build_composition
+    from clss.networks import build_classifier, build_composition
     # A classifier built for a fixed size must match the padded output size (21x27 -> 48x64).
     comp = build_composition(hidden=4)
     O.build_frame_graph("net", (21, 27), 2.0, build_classifier((2, 2, 2, 2), height=48, width=64), comp)

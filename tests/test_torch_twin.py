@@ -22,8 +22,8 @@ torch = pytest.importorskip("torch")
 
 from clss.pipeline import Upscaler  # noqa: E402
 from weights_tools import torch_frame  # noqa: E402
-from weights_tools.networks import build_classifier, build_composition  # noqa: E402
-from weights_tools.weights import apply_weights, model_weights  # noqa: E402
+from clss.networks import build_classifier, build_composition  # noqa: E402
+from clss.networks import apply_weights, model_weights  # noqa: E402
 
 from test_pipeline_frame import FRAMES, RENDER, RESET_AT, compare_frame, frames  # noqa: E402
 

@@ -12,7 +12,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from weights_tools.__main__ import main  # noqa: E402
-from weights_tools.weights import load_weights  # noqa: E402
+from clss.networks import load_weights  # noqa: E402
 
 RENDER = (16, 24)
 
@@ -69,8 +69,8 @@ def test_train_smoke(tiny_data, tmp_path, capsys):
     assert all(np.array_equal(again[k], v) for k, v in trained.items())
 
     # the weights moved away from the seeded init
-    from weights_tools.networks import build_classifier, build_composition
-    from weights_tools.weights import model_weights
+    from clss.networks import build_classifier, build_composition
+    from clss.networks import model_weights
     init = {**model_weights(build_classifier()), **model_weights(build_composition())}
     assert sorted(trained) == sorted(init)
     for prefix in ("cls.", "comp."):

@@ -195,8 +195,8 @@ def test_load_networks_default_and_untrained(monkeypatch, tmp_path):
     import warnings
 
     from clss.pipeline import upscaler
-    from weights_tools.networks import build_classifier
-    from weights_tools.weights import model_weights
+    from clss.networks import build_classifier
+    from clss.networks import model_weights
     seeded = model_weights(build_classifier())
     cls, _, trained = upscaler.load_networks("untrained")
     assert not trained

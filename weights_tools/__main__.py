@@ -8,7 +8,10 @@ import sys
 import numpy as np
 import onnx
 
-from . import evaluate, networks, weights
+from clss.networks import graphs as networks
+from clss.networks import weights
+
+from . import evaluate
 
 RESOLUTIONS = (("540p", 540, 960), ("1080p", 1080, 1920), ("2160p", 2160, 3840))
 

@@ -7,7 +7,7 @@ Sequences are .npz files in the format of weights_tools/DATA.md (inputs in clss'
 contract plus the supersampled reference). Methods, all at the sequence's scale:
 
     bicubic    plain Keys bicubic (a = -0.75) of each render frame, jitter-unaware, in the
-               PQ domain (clss.demo.Bicubic): a spatial upscaler that ignores the jitter
+               PQ domain (clss.pipeline.baselines.Bicubic): a spatial upscaler that ignores the jitter
     jbicubic   jitter-aware bicubic: the frame step's upsampled colour without history
                (rule mode reset every frame, so out = up; reference.md s5)
     rules      CLSS rule mode (clss.Upscaler(mode="rules"))
@@ -93,7 +93,7 @@ class _Bicubic:
     """Plain bicubic, jitter-unaware (one instance per output size)."""
 
     def __init__(self, dev, out_hw):
-        from clss.demo import Bicubic
+        from clss.pipeline.baselines import Bicubic
         self.up = Bicubic(dev, out_hw)
 
     def __call__(self, seq, t):
@@ -117,7 +117,7 @@ def _networks(weights):
     """Upscaler keyword arguments for --weights: None = the package default, `untrained`
     = the seeded init asked for explicitly, else a directory or .safetensors file."""
     if weights == UNTRAINED:
-        from weights_tools.networks import build_classifier, build_composition
+        from clss.networks import build_classifier, build_composition
         return {"classifier": build_classifier(), "composition": build_composition()}, False
     from clss.pipeline.upscaler import load_networks
     if weights is None:
@@ -256,7 +256,7 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
 
 
 def _nearest(img, H, W):
-    from clss.demo import _nearest as nearest
+    from clss.pipeline.baselines import nearest
     from clss import metrics
     return metrics.display(nearest(np.asarray(img, np.float32), H, W))
 

@@ -18,8 +18,8 @@ upstream of it is learned.  The integer decisions (argmax reject, counter reset,
 validity) are piecewise constant, as in the engine.
 
 Networks: `Classifier` and `Composition` are torch modules named as
-weights_tools.weights.TORCH_NAME_MAP expects, so their parameters load from and export
-to the safetensors names of weights_tools.networks (`cls.<layer>.*`, `comp.<layer>.*`):
+clss.networks.TORCH_NAME_MAP expects, so their parameters load from and export
+to the safetensors names of clss.networks (`cls.<layer>.*`, `comp.<layer>.*`):
 `networks_from_tensors`, `tensors_from_networks`.
 """
 from __future__ import annotations
@@ -29,18 +29,17 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from clss.pipeline.contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS,
-                                    PQ_PEAK_NITS, RULE_CLIP_EPS, CLIP_GAMMA, output_size,
-                                    to_internal,
+from clss.pipeline.contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD,
+                                    DILATE_OFFSETS, HISTORY_CHANNELS, MODES, PQ_C1, PQ_C2, PQ_C3,
+                                    PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
+                                    SCATTER_WEIGHT_THRESHOLD, output_size, to_internal,
                                     validate_frame)
-from clss.pipeline.oracle import (DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
-                                  HISTORY_CHANNELS, SCATTER_WEIGHT_THRESHOLD)
 
-from .networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_MLP_HIDDEN,
+from clss.networks import pad16 as _pad16
+from clss.networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_MLP_HIDDEN,
                        DEFAULT_WIDTHS, LOGITS, build_classifier, build_composition)
-from .weights import WeightsError, model_weights, torch_to_onnx_name
+from clss.networks import WeightsError, model_weights, torch_to_onnx_name
 
-MODES = ("rule", "net")
 # Net mode's blend: "net" = the composition network (inference), "rule" = w = 1/(1+counter)
 # without a clamp, the paper's rule-based composition for training the classifier (s3.4).
 BLENDS = ("net", "rule")
@@ -90,7 +89,7 @@ class Bottleneck(nn.Module):
 
 
 class Classifier(nn.Module):
-    """weights_tools.networks.build_classifier as a torch module (same graph)."""
+    """clss.networks.build_classifier as a torch module (same graph)."""
 
     def __init__(self, widths=DEFAULT_WIDTHS, in_channels=CLASSIFIER_CHANNELS):
         super().__init__()
@@ -147,7 +146,7 @@ def _widths_from(tensors):
 
 def networks_from_tensors(tensors=None, seed=0):
     """(Classifier, Composition) holding `tensors` (name -> array, the safetensors names;
-    None: the seeded init of weights_tools.networks, identical to the ONNX graphs')."""
+    None: the seeded init of clss.networks, identical to the ONNX graphs')."""
     if tensors is None:
         tensors = {**model_weights(build_classifier(seed=seed)),
                    **model_weights(build_composition(seed=seed))}
@@ -201,10 +200,6 @@ def _sample(x, grid, cubic):
     # Bicubic is Keys a = -0.75 in torch as in ONNX; border padding clamps each tap.
     return F.grid_sample(x, grid, mode="bicubic" if cubic else "bilinear",
                          padding_mode="border", align_corners=False)
-
-
-def _pad16(n):
-    return -(-n // 16) * 16
 
 
 class FrameStep(nn.Module):
@@ -443,7 +438,7 @@ class TorchUpscaler:
         self.nets = (None, None)
         if self.mode == "net":
             if isinstance(weights, (str, bytes)) or hasattr(weights, "__fspath__"):
-                from .weights import load_weights
+                from clss.networks import load_weights
                 weights = load_weights(weights)
             self.nets = tuple(n.to(self.device).eval() for n in networks_from_tensors(weights))
         self.step_fn = None

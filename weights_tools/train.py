@@ -33,12 +33,12 @@ leaves open (ours, marked *):
 * Optimiser: *Adam (the paper used Ranger, lr 5e-4 over 180 + 120 epochs), lr 1e-3
   because the budget here is a few hundred steps, cosine decay to 10 % over each stage; batches drawn from a generator seeded by (seed, stage, step), so a resumed
   run draws the same batches as an uninterrupted one.
-* Network widths: weights_tools.networks defaults (16, 32, 64, 128; MLP 32).
+* Network widths: clss.networks defaults (16, 32, 64, 128; MLP 32).
 
 Progress lines every few seconds, loss.png (matplotlib) refreshed as it goes, a
 checkpoint (checkpoint.pt, torch's weights_only format) every minute and at the end of
 each stage; --resume continues from it.  The result: weights.safetensors in --out (the
-names of weights_tools.networks; `clss.Upscaler(mode="net", weights=PATH)` runs it) and
+names of clss.networks; `clss.Upscaler(mode="net", weights=PATH)` runs it) and
 train.json (settings, class weights, per-step times, losses, held-out PSNR).
 """
 from __future__ import annotations
@@ -53,7 +53,7 @@ import numpy as np
 import torch
 
 from . import torch_frame
-from .weights import load_weights, save_weights
+from clss.networks import load_weights, save_weights
 
 CLASS_WEIGHT_RATIO = 100.0
 GHOST_NONE, ALIAS_GEOMETRY, ALIAS_NONE = 2, 0, 2

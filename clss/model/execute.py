@@ -19,8 +19,7 @@ import pyopencl.array as cla
 
 from ..device import Device, storage_dtype
 from ..ops.base import ONNX_HANDLERS, OnnxHandler, Unsupported
-from .graph import NO_KERNEL, Graph, ModelError, Node, UnsupportedModelError, custom_domain_reason
-from .passes import LOWERED_OPS
+from .graph import LOWERED_OPS, NO_KERNEL, Graph, ModelError, Node, UnsupportedModelError, custom_domain_reason
 from .plan import Alloc, Plan, assign_slots, check_plan
 
 # --- internal ops -------------------------------------------------------------------

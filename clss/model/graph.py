@@ -28,6 +28,10 @@ MAX_ELEMENTS = 2**31 - 1
 MAX_FOLD_ELEMENTS = 2**26
 
 FLOAT_TYPES = (onnx.TensorProto.FLOAT, onnx.TensorProto.FLOAT16)
+# ONNX ops with no handler of their name that the passes (passes.py) rewrite into ones that
+# have (some only in some forms: the dry run names the rest unsupported).
+LOWERED_OPS = frozenset({"Identity", "Dropout", "Cast", "CastLike", "Reshape", "Flatten", "Squeeze",
+                         "Unsqueeze", "BatchNormalization", "Gemm", "MatMul", "Constant"})
 
 
 # How `clss info` / `clss run` users give input_shapes.
@@ -339,7 +343,6 @@ def refuse_unknown_ops(m: onnx.ModelProto, opset: int, note: str) -> None:
     run nor rewrite, when there is any. Called where such a node shows up as
     something else (a shape inference cannot resolve, say), so that the user
     hears first what is unsupported; ``note`` tells what else went wrong."""
-    from .passes import LOWERED_OPS
     from ..ops import ONNX_HANDLERS, load_all
     load_all()   # the handlers register when their family is imported
     opsets = {o.domain or "": o.version for o in m.opset_import}

@@ -16,12 +16,6 @@ from .graph import FLOAT_TYPES, Graph, Node
 
 ACT_OPS = {"Relu": "relu", "LeakyRelu": "leaky_relu", "Sigmoid": "sigmoid", "Tanh": "tanh"}
 
-# ONNX ops with no handler of their name that the passes rewrite into ones that
-# have (some only in some forms: the dry run names the rest unsupported).
-LOWERED_OPS = frozenset({"Identity", "Dropout", "Cast", "CastLike", "Reshape", "Flatten", "Squeeze",
-                         "Unsqueeze", "BatchNormalization", "Gemm", "MatMul", "Constant"})
-
-
 def run_passes(g: Graph, conv_fusion: bool = True, mlp_fusion: bool = True) -> list[str]:
     """Apply every pass; returns a log of what each changed (for `clss info`)."""
     log = []

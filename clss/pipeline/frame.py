@@ -32,12 +32,11 @@ from onnx import numpy_helper
 
 from .. import selfcheck
 from ..device import Device
-from ..ops.base import DEFAULT_TOL
-from ..ops.conv import builtin_free, load_defines
-from .contract import CLIP_GAMMA, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size
-from .oracle import DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS
+from ..networks import CLASSIFIER_CHANNELS, pad16
+from ..ops.conv import load_defines
+from .contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
+                       PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
 
-CLASSIFIER_CHANNELS = 23
 LR_CHANNELS = 11  # depth, motion 2, dd, reactive, clamp box low 3 and high 3
 # flags[0] bits, as kernels/frame.cl
 FLAG_BITS = {1: ("color", "non-finite"), 2: ("depth", "non-finite"), 4: ("motion", "non-finite"),
@@ -60,44 +59,6 @@ def pixels_per_item(dev: Device, prec: str = "fp32", mode: str = "rule") -> int:
     if not dev.cl_device.type & cl.device_type.CPU:
         return 1
     return selfcheck.defines(dev, prec, f"frame.pixel_vectors.{mode}")["VEC"]
-
-
-def _selfcheck_run(mode: str):
-    """Two frames (the second blends the warped history) at a render size whose output
-    rows end in a partial vector, through the Upscaler in `mode`."""
-    def run(dev: Device, prec: str) -> list[np.ndarray]:
-        from ..ops.base import rng
-        from .upscaler import Upscaler
-        g = rng("frame selfcheck", mode)
-        h, w = 6, 13
-        up = Upscaler(2.0, "rules" if mode == "rule" else "net", device=dev, precision=prec)
-        outs = []
-        for jitter in ((0.25, -0.25), (-0.25, 0.25)):
-            color = g.uniform(0, 4, (h, w, 3)).astype(np.float32)
-            depth = g.uniform(0.1, 0.9, (h, w)).astype(np.float32)
-            motion = g.uniform(-1.5, 1.5, (h, w, 2)).astype(np.float32)
-            outs.append(up.step(color, depth, motion, jitter))
-        return outs
-    return run
-
-
-# The vector form and VEC = 1 compute the same formulas; per-lane builtins (pow, exp)
-# may round differently from their vector forms, hence the op tolerance, not bit-exact.
-for _mode in ("rule", "net"):
-    selfcheck.register(selfcheck.FastPath(
-        f"frame.pixel_vectors.{_mode}", "frame", {"VEC": 8, "NET": int(_mode == "net")},
-        {"VEC": 1, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode),
-        tolerance=DEFAULT_TOL.__getitem__, what=f"8 output pixels per work-item as vectors ({_mode} mode)",
-        applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU)))
-    selfcheck.register(selfcheck.FastPath(
-        f"frame.{_mode}.builtin_free_loads", "frame", {"CLSS_CLANG_VECTORS": 1, "NET": int(_mode == "net")},
-        {"CLSS_CLANG_VECTORS": 0, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode),
-        tolerance=DEFAULT_TOL.__getitem__,
-        what=f"half loads/stores as clang vector conversions ({_mode} mode)", applies=builtin_free))
-
-
-def pad16(n: int) -> int:
-    return -(-int(n) // 16) * 16
 
 
 def composition_weights(model: onnx.ModelProto):
@@ -305,7 +266,6 @@ class FrameStep:
                 self.flags.data, f(self.cap), inv_pq, expo, i32(self.debug), self.dbg.data))))
         if self.profile:
             self.events.extend(ev)
-        self._last_out = out
         return flag_ev
 
     def verdict(self) -> tuple[list[tuple[str, str]], dict]:

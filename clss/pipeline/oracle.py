@@ -18,28 +18,17 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
+from ..networks import CLASSIFIER_CHANNELS
+from ..networks import pad16 as _pad16
 from ..ops.twin import fill_output_shapes
-from .contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
-                       RULE_CLIP_EPS, CLIP_GAMMA, output_size, to_internal,
-                       validate_frame)
+# (H_* and the other constants are also read as oracle.NAME by tests and tools.)
+from .contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
+                       H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MODES,
+                       PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
+                       SCATTER_WEIGHT_THRESHOLD, output_size, to_internal, validate_frame)
 
 IR_VERSION = 10
 OPSET = 18
-HISTORY_CHANNELS = 16
-# Channel slices of the history tensor.
-H_COLOR, H_COUNTER, H_MIN, H_MAX, H_LOGITS = (slice(0, 3), slice(3, 4), slice(4, 7),
-                                               slice(7, 10), slice(10, 16))
-DEFAULT_CAP = {"rule": 4, "net": 32}
-# Relative view-depth jump that rejects history in rule mode.  Grazing surfaces and the
-# horizon jump by several % per pixel; on clss.scene (136x240 -> 272x480, cap 4) 0.05
-# rejected 8 % of pixels (33.06 dB), 0.1 6 % (33.23 dB), 0.2 4 % (33.30 dB).
-DEPTH_THRESHOLD = 0.1
-SCATTER_WEIGHT_THRESHOLD = 0.01
-DEPTH_EPS = 1e-6
-# Dilation neighbour order (dx, dy), FSR2's: the centre first, so that on equal depths
-# (flat areas) a pixel keeps its own motion; the first maximum in this order wins.
-DILATE_OFFSETS = ((0, 0), (1, 0), (0, 1), (0, -1), (-1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1))
-MODES = ("rule", "net")
 
 DEBUG_OUTPUTS = {
     # render resolution
@@ -202,10 +191,6 @@ def _check_static_hw(what, dims, hw):
                                  f"feeds {want} (build it with height/width None or {hw})")
 
 
-def _pad16(n):
-    return -(-n // 16) * 16
-
-
 def _pq_encode(g, x, nits):
     y = g.clip(g.mul(x, g.const(nits / PQ_PEAK_NITS)), 0.0, 1.0)
     ym = g.op("Pow", y, g.const(PQ_M1))
@@ -243,7 +228,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     mode "rule": no networks, ghost = off-screen or reset or depth difference >
     `depth_threshold`, w = 1/(1+counter), history clipped towards the current colour
     into the current 3x3 neighbourhood's box.  mode "net": `classifier` and `composition` (onnx.ModelProto from
-    weights_tools.networks) are inlined.  `render_size` = (h, w).  `cap`: counter cap
+    clss.networks) are inlined.  `render_size` = (h, w).  `cap`: counter cap
     (default 4 for rule, 32 for net).  `hdr=False`: LDR in/out, no PQ (values clamped
     to [0,1]).  `debug=True` adds the DEBUG_OUTPUTS(_RULE|_NET) graph outputs.
     """
@@ -429,7 +414,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
                            dd_hr, w_log])
         dbg["dbg_cls_input"] = cls_in
         H16, W16 = _pad16(H), _pad16(W)
-        cin, cout, dims = _real_input(classifier, "classifier", 23)
+        cin, cout, dims = _real_input(classifier, "classifier", CLASSIFIER_CHANNELS)
         _check_static_hw("classifier", dims, (H16, W16))
         x = cls_in
         if (H16, W16) != (H, W):
@@ -524,7 +509,7 @@ class OracleUpscaler:
         self.scale = float(scale)
         self.output_size = output_size(*self.render_size, self.scale)
         if mode == "net" and (classifier is None or composition is None):
-            from weights_tools.networks import build_classifier, build_composition
+            from ..networks import build_classifier, build_composition
             classifier = classifier or build_classifier()
             composition = composition or build_composition()
         self.mode = mode

@@ -29,10 +29,12 @@ import numpy as np
 import pyopencl.array as cla
 
 from ..device import Device, get_device
-from .contract import (PQ_NITS, FrameInputError, check_exposure, check_motion_scale,
-                       output_size, validate_frame)
-from .frame import STAGES, FrameStep, pad16
-from .oracle import DEPTH_THRESHOLD, HISTORY_CHANNELS
+from ..networks import CLASSIFIER_CHANNELS, pad16
+from .contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
+                       check_exposure, check_jitter, check_motion_scale, output_size,
+                       validate_frame)
+from .frame import STAGES, FrameStep
+from .frame_selfcheck import register_fast_paths
 
 MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
 # The trained networks shipped in the package (`make train` writes them; recipe in
@@ -48,13 +50,13 @@ def load_networks(weights=None):
 
     None: the shipped trained weights (SHIPPED_WEIGHTS); if the package has none, the
       untrained init with one warning;
-    "untrained": the seeded weights_tools networks (untrained, trained = False);
+    "untrained": the seeded clss.networks (untrained, trained = False);
     a directory: classifier.onnx and composition.onnx if present (else the default
       architectures), then weights.safetensors (or the only *.safetensors) applied;
     a .safetensors file: applied to the default architectures (every tensor must fit).
     """
-    from weights_tools.networks import build_classifier, build_composition
-    from weights_tools.weights import apply_weights, load_weights
+    from ..networks import build_classifier, build_composition
+    from ..networks import apply_weights, load_weights
     if weights is None:
         if os.path.isfile(SHIPPED_WEIGHTS):
             weights = SHIPPED_WEIGHTS
@@ -92,7 +94,7 @@ def load_networks(weights=None):
         n = len(apply_weights(cls, t)) + len(apply_weights(comp, t))
         if n == 0:
             raise ValueError(f"weights: {path} has no tensor named like the networks' "
-                             "(cls.* / comp.*; see weights_tools.weights)")
+                             "(cls.* / comp.*; see clss/networks/weights.py)")
         return cls, comp, True
     raise ValueError(f"weights: expected a directory or a .safetensors file, got {path!r}"
                      + ("" if os.path.exists(path) else " (does not exist)"))
@@ -102,8 +104,8 @@ def _check_classifier_size(model, H16, W16):
     dims = model.graph.input[0].type.tensor_type.shape.dim
     got = [d.dim_value if d.HasField("dim_value") else None for d in dims]
     if len(got) == 4:
-        if got[1] not in (None, 23):
-            raise ValueError(f"classifier: expected 23 input channels, got {got[1]}")
+        if got[1] not in (None, CLASSIFIER_CHANNELS):
+            raise ValueError(f"classifier: expected {CLASSIFIER_CHANNELS} input channels, got {got[1]}")
         for g, want, axis in zip(got[2:], (H16, W16), "HW"):
             if g is not None and g != want:
                 raise ValueError(f"classifier: built for a fixed {axis} = {g}, this frame size "
@@ -307,7 +309,7 @@ class Upscaler:
         if out is not None and (out.shape != (fs.H, fs.W, 3) or out.dtype != np.float32):
             raise FrameInputError(f"out: expected a float32 array of shape {(fs.H, fs.W, 3)}, got "
                                   f"{out.dtype} {out.shape}")
-        j = _check_jitter(jitter)
+        j = check_jitter(jitter)
         self._run(fs, color, depth, motion, reactive, j, reset, out, device_inputs=True)
         return out if out is not None else fs.out
 
@@ -376,13 +378,5 @@ class Upscaler:
         return views
 
 
-def _check_jitter(jitter) -> np.ndarray:
-    try:
-        j = np.asarray(jitter, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise FrameInputError(f"jitter: expected 2 floats (jx, jy) in render pixels, got "
-                              f"{jitter!r}") from None
-    if j.shape != (2,) or not np.all(np.isfinite(j)) or np.any(np.abs(j) > 0.5):
-        raise FrameInputError(f"jitter: expected 2 finite floats in [-0.5, 0.5] render pixels, "
-                              f"got {j.tolist()}")
-    return j.astype(np.float32)
+# The frame step's fast-path checks run two frames through this class.
+register_fast_paths(Upscaler)

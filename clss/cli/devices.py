@@ -1,18 +1,13 @@
-"""The `clss` command line. Subcommands live in small functions registered in
-COMMANDS; each parses its own arguments so `clss X --help` teaches X alone."""
+"""`clss devices` (the OpenCL devices and the default) and `clss verify` (every kernel
+against onnxruntime on one device: the command a kernel porter runs first)."""
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
-import warnings
 
-from .cli_args import ArgParser, check_output_file, device_spec
-
-DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
-               "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device)")
+from .args import DEVICE_HELP, ArgParser, check_output_file, device_spec
 
 
 def _add_device(p: argparse.ArgumentParser, precision: bool = True) -> None:
@@ -29,7 +24,7 @@ def cmd_devices(argv) -> int:
     a = p.parse_args(argv)
     if a.json is not None:
         check_output_file(a.json, "--json")
-    from .device import DeviceInfo, get_device, list_devices
+    from ..device import DeviceInfo, get_device, list_devices
     found = list_devices()
     default = get_device().cl_device
     rows = []
@@ -41,7 +36,7 @@ def cmd_devices(argv) -> int:
         print(f"      OpenCL {info.version}; driver {info.driver}; {info.compute_units} compute units; "
               f"{info.global_mem / 2**30:.1f} GiB global memory (max alloc {info.max_alloc / 2**30:.1f} GiB); "
               f"fp16 arithmetic (cl_khr_fp16): {'yes' if info.fp16 else 'no'}")
-    from .device import default_reason
+    from ..device import default_reason
     print(f"* = default device: {default_reason()}; choose another with --device or $CLSS_DEVICE")
     if a.json:
         with open(a.json, "w") as f:
@@ -71,9 +66,9 @@ def cmd_verify(argv) -> int:
     a = p.parse_args(argv)
     if a.json is not None:
         check_output_file(a.json, "--json")
-    from .conformance import check, format_table
-    from .device import DeviceError, get_device
-    from .ops import all_cases
+    from ..conformance import check, format_table
+    from ..device import DeviceError, get_device
+    from ..ops import all_cases
     try:
         dev = get_device(a.device)
     except DeviceError as e:
@@ -88,7 +83,7 @@ def cmd_verify(argv) -> int:
         except DeviceError as e:
             print(f"clss verify: {e}", file=sys.stderr)
             return 2
-    from .ops import FAMILIES
+    from ..ops import FAMILIES
     if a.family and a.family not in FAMILIES:
         print(f"clss verify: unknown family {a.family!r}; families: {', '.join(FAMILIES)}", file=sys.stderr)
         return 2
@@ -102,7 +97,7 @@ def cmd_verify(argv) -> int:
           f"{len(cases)} cases x {len(precs)} precision(s)", file=sys.stderr)
     t0 = time.perf_counter()
     rows = []
-    from .progress import progress
+    from ..progress import progress
     for case in progress(cases, desc="verify", unit="case"):
         for prec in precs:
             rows.append(check(case, dev, prec))
@@ -110,8 +105,8 @@ def cmd_verify(argv) -> int:
     print(format_table(shown))
     fails = sum(not r.passed for r in rows)
     print(f"\n{len(rows) - fails} passed, {fails} failed ({len(rows)} rows, {time.perf_counter() - t0:.1f} s)")
-    from .conformance import format_fast_paths
-    from .selfcheck import check_all
+    from ..conformance import format_fast_paths
+    from ..selfcheck_runner import check_all
     fast = check_all(dev, precs, [a.family] if a.family else None)
     print("\n" + format_fast_paths(fast))
     if a.json:
@@ -119,90 +114,3 @@ def cmd_verify(argv) -> int:
             json.dump({"device": dev.info.__dict__, "rows": [r.as_dict() for r in rows],
                        "fast_paths": [v.as_dict() for v in fast]}, f, indent=2, default=float)
     return 1 if fails else 0
-
-
-COMMANDS = {
-    "devices": (cmd_devices, "list OpenCL platforms and devices"),
-    "verify": (cmd_verify, "diff every kernel against onnxruntime on a device (PASS/FAIL table)"),
-}
-
-
-def register(name: str, fn, summary: str) -> None:
-    """Other modules add subcommands here (bench, upscale, ...)."""
-    COMMANDS[name] = (fn, summary)
-
-
-def _load_plugins() -> None:
-    # Subcommands that live with their subsystem; absent ones are simply not offered.
-    import importlib
-    for mod in ("clss.model_cli", "clss.pipeline.cli", "bench.cli"):
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as e:
-            if e.name != mod and not mod.startswith(e.name or "\0"):
-                raise
-
-
-def _version() -> str:
-    from . import __version__
-    return __version__
-
-
-# What a user's mistake raises (a bad flag value, file, device, model or frame); each
-# ends the command with one line and exit status 2. Anything else is a bug in clss and
-# keeps its traceback. CLSS_TRACEBACK=1 shows the traceback of these too.
-USER_ERRORS = (ValueError, OSError)
-
-
-def _user_errors():
-    from .device import DeviceError
-    return USER_ERRORS + (DeviceError,)
-
-
-def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
-    _load_plugins()
-    if argv and argv[0] == "--version":
-        print(f"clss {_version()}")
-        return 0
-    if not argv or argv[0] in ("-h", "--help"):
-        print("usage: clss COMMAND [options]   (clss COMMAND --help for each)\n\n"
-              "clss runs neural temporal supersampling networks on any OpenCL 1.2 device.\n\ncommands:")
-        for name, (_, summary) in COMMANDS.items():
-            print(f"  {name:10s} {summary}")
-        print("\n  --version  print the version and exit")
-        return 0 if argv else 2
-    name, rest = argv[0], argv[1:]
-    # pyopencl warns about any compiler output (PoCL prints notes for valid kernels); a
-    # build that fails raises KernelBuildError with the whole log instead.
-    warnings.filterwarnings("ignore", message="Non-empty compiler output")
-    if name not in COMMANDS:
-        print(f"clss: unknown command {name!r}; try `clss --help`", file=sys.stderr)
-        return 2
-    return run_command(f"clss {name}", COMMANDS[name][0], rest)
-
-
-def run_command(prog: str, fn, argv) -> int:
-    """fn(argv) with the command line's error policy: a user's mistake is one line on
-    stderr and status 2, Ctrl-C is status 130 (commands that write files say first how
-    far they got), `--help` and parser errors return their status instead of exiting."""
-    from .errors import cli_message
-    try:
-        return fn(argv) or 0
-    except SystemExit as e:             # argparse: --help (0), or a mistake already printed (2)
-        if isinstance(e.code, int) or e.code is None:
-            return e.code or 0
-        print(e.code, file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"\n{prog}: interrupted", file=sys.stderr)
-        return 130
-    except _user_errors() as e:
-        if os.environ.get("CLSS_TRACEBACK"):
-            raise
-        print(f"{prog}: {cli_message(e)}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

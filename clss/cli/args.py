@@ -10,7 +10,12 @@ import os
 import re
 import tempfile
 
-from .errors import UserError
+from ..errors import UserError
+
+
+# The --device help, the same in every subcommand that runs on a device.
+DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
+               "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device)")
 
 
 class UsageError(UserError):

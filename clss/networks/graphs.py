@@ -235,12 +235,14 @@ def count_params(model):
                    if not t.name.endswith(".scales")))
 
 
-def _pad16(n):
-    return -(-n // 16) * 16
+def pad16(n: int) -> int:
+    """n rounded up to a multiple of 16: the classifier's input sides must be (SpaceToDepth(2)
+    then three stride-2 levels), so the pipeline pads its input to this and crops the logits."""
+    return -(-int(n) // 16) * 16
 
 
 def frame_flops(classifier, composition, height, width):
     """(classifier, composition) conv FLOPs for one output frame, the classifier run
     on the frame padded up to multiples of 16 as the pipeline does."""
-    return (count_flops(classifier, _pad16(height), _pad16(width)),
+    return (count_flops(classifier, pad16(height), pad16(width)),
             count_flops(composition, height, width))

@@ -12,7 +12,7 @@ reference), upscales every frame four ways and writes to OUT (default out/demo):
     metrics.json           PSNR / SSIM per frame and their means, per-stage milliseconds
 
 "bicubic" is a plain (not jitter-aware) Keys bicubic of each render frame in the PQ
-domain (clss.ops.resize), i.e. what a spatial upscaler without history gives.
+domain (clss.pipeline.baselines), i.e. what a spatial upscaler without history gives.
 Metrics compare tone-mapped display values (clss.metrics) from frame SKIP on, once the
 history has warmed up. The net mode runs the trained weights shipped in the package
 (clss/weights/clss_trained.safetensors, from `make train`) unless --weights is given
@@ -41,21 +41,6 @@ def _size(text):
     return h, w
 
 
-class Bicubic:
-    """Plain bicubic (Keys a = -0.75, half-pixel centres) of one frame, on the device,
-    in the PQ domain so that it rings like the pipeline's colour would."""
-
-    def __init__(self, dev, out_hw):
-        self.dev, self.out_hw = dev, out_hw
-
-    def __call__(self, color):
-        from .ops.resize import resize
-        from .pipeline.contract import pq_decode, pq_encode
-        x = self.dev.to_device(pq_encode(color).transpose(2, 0, 1)[None])
-        y = resize(self.dev, "fp32", x, out_hw=self.out_hw, mode="cubic")
-        return pq_decode(np.clip(y.get()[0].transpose(1, 2, 0), 0, 1))
-
-
 def _crop_box(H, W):
     """A region with the fence and wires (upper middle of the frame), 1/4 of each side."""
     ch, cw = max(H // 4, 8), max(W // 4, 8)
@@ -69,9 +54,9 @@ OUTPUT_SET = ("input/*", "bicubic/*", "rules/*", "net/*", "debug/*", "side_by_si
 
 
 def main(argv=None) -> int:
-    from .cli_args import ArgParser, positive_int, prepare_output_dir, start_output
-    from .pipeline.cli import (WEIGHTS_HELP, FrameFiles, add_upscaler_args, check_weights_mode,
-                               format_stage_table, write_debug_views)
+    from .args import ArgParser, positive_int, prepare_output_dir, start_output
+    from .upscaler_common import (FrameFiles, add_upscaler_args, check_weights_mode,
+                                  format_stage_table, write_debug_views)
     p = ArgParser(
         prog="clss demo",
         description="Render the built-in sample scene, upscale it with bicubic, CLSS rules and "
@@ -98,13 +83,14 @@ def main(argv=None) -> int:
         p.error(f"--modes: expected a subset of rules,net, got {a.modes!r}")
     check_weights_mode(a.weights, "net" in modes)
 
-    from . import io as cio
-    from . import metrics
-    from .device import get_device
-    from .pipeline import Upscaler
-    from .pipeline.contract import output_size
-    from .progress import progress
-    from .scene import iter_sequence
+    from .. import io as cio
+    from .. import metrics
+    from ..device import get_device
+    from ..pipeline import Upscaler
+    from ..pipeline.baselines import Bicubic, nearest
+    from ..pipeline.contract import output_size
+    from ..progress import progress
+    from ..scene import iter_sequence
 
     h, w = a.size
     H, W = output_size(h, w, a.scale)
@@ -167,7 +153,7 @@ def main(argv=None) -> int:
                 lines[m].append(img[row:row + 1])
             files.done()
             lines["reference"].append(f.reference[row:row + 1])
-            last = dict(results, reference=f.reference, input=_nearest(f.color, H, W))
+            last = dict(results, reference=f.reference, input=nearest(f.color, H, W))
             t = time.perf_counter()
     except KeyboardInterrupt:
         files.discard()
@@ -231,14 +217,6 @@ def main(argv=None) -> int:
     print(f"\nscene rendering {render_s:.1f} s, total {total_s:.1f} s; pictures: {side}")
     cio.write_json(os.path.join(out, "metrics.json"), summary)
     return 0
-
-
-def _nearest(img, H, W):
-    """Render-resolution image enlarged to H x W by nearest neighbour (any scale)."""
-    h, w = img.shape[:2]
-    iy = np.minimum(((np.arange(H) + 0.5) * h / H).astype(np.int64), h - 1)
-    ix = np.minimum(((np.arange(W) + 0.5) * w / W).astype(np.int64), w - 1)
-    return img[iy][:, ix]
 
 
 if __name__ == "__main__":

@@ -67,7 +67,7 @@ def save_weights(model_or_tensors, path, half=False):
     Accepts a ModelProto, a dict name -> array, or a list of either. Atomic."""
     from safetensors.numpy import save_file
 
-    from clss.io import new_file_mode
+    from ..filemode import new_file_mode
     items = model_or_tensors if isinstance(model_or_tensors, (list, tuple)) else [model_or_tensors]
     tensors = {}
     for it in items:

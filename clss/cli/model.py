@@ -11,9 +11,8 @@ import time
 
 import numpy as np
 
-from .cli import DEVICE_HELP, register
-from .cli_args import ArgParser, check_output_file, device_spec, positive_int
-from .errors import cli_message
+from ..errors import cli_message
+from .args import DEVICE_HELP, ArgParser, check_output_file, device_spec, positive_int
 
 # Defaults of --atol/--rtol for --compare-ort (|d| <= atol*max|ref| + rtol*|ref|):
 # fp16 stores every intermediate tensor with an 11-bit mantissa, and the
@@ -36,8 +35,8 @@ def _shapes(specs) -> dict:
 
 
 def _load(path, device, precision, input_shapes, prog):
-    from .device import DeviceError
-    from .model import Model, ModelError
+    from ..device import DeviceError
+    from ..model import Model, ModelError
     try:
         return Model(path, device=device, precision=precision, input_shapes=input_shapes or None)
     except (ModelError, DeviceError) as e:
@@ -70,7 +69,7 @@ def cmd_info(argv) -> int:
     m = _load(a.model, a.device, a.precision, shapes, "clss info")
     if m is None:
         return 2
-    from .model.info import format_summary, summary
+    from ..model.info import format_summary, summary
     s = summary(m)
     print(format_summary(s, os.path.basename(a.model)))
     if a.json:
@@ -98,7 +97,7 @@ def _declared_symbolic(path, shapes: dict) -> dict:
 def _check_output_dir(path, inputs):
     """--output-dir: a directory (created if missing) that can be written, checked before
     the model runs."""
-    from .cli_args import UsageError
+    from .args import UsageError
     if os.path.exists(path) and not os.path.isdir(path):
         raise UsageError(f"--output-dir {path}: is a file, expected a directory")
     try:
@@ -182,7 +181,7 @@ def cmd_run(argv) -> int:
     m = _load(a.model, a.device, a.precision, _declared_symbolic(a.model, shapes), "clss run")
     if m is None:
         return 2
-    from .model import InputError
+    from ..model import InputError
     missing = [k for k in m.input_names if k not in feeds]
     if missing and a.random_inputs:
         g = np.random.default_rng(0)
@@ -217,8 +216,8 @@ def cmd_run(argv) -> int:
 
 
 def _compare(a, m, feeds, outs, report) -> int:
-    from .ops.base import Tolerance, compare
-    from .ops.twin import session
+    from ..ops.base import Tolerance, compare
+    from ..ops.twin import session
     atol, rtol = COMPARE_TOL[a.precision]
     tol = Tolerance(a.atol if a.atol is not None else atol, a.rtol if a.rtol is not None else rtol)
     import onnx
@@ -266,7 +265,3 @@ def _compare(a, m, feeds, outs, report) -> int:
 def _ort_version() -> str:
     import onnxruntime
     return onnxruntime.__version__
-
-
-register("info", cmd_info, "ops, parameters, FLOPs and planned device memory of an ONNX model")
-register("run", cmd_run, "run an ONNX model on a device (--compare-ort: diff and time vs onnxruntime)")
