@@ -193,6 +193,33 @@ inline void st_out8(__global T *p, long o, int os, int n, A8 v)
 
 /* x: [N, Cin, H, W]; w: [Cout, Cin/groups, KH, KW]; y, res: [N, Cout, Ho, Wo].
  * NDRange: (ceil(Wo / XB), Ho, N * groups * ncb) with ncb = ceil((Cout/groups) / CB). */
+/** @param[in]  x       [N, Cin, H, W] input
+ *  @param[in]  w       weights, [Cout, Cin/groups, KH, KW] (TW: float when fp16 storage converted them)
+ *  @param[in]  bias    [Cout] bias (read when flags has 1)
+ *  @param[in]  res     [N, Cout, Ho, Wo] residual (read when flags has 2 or 4)
+ *  @param[out] y       [N, Cout, Ho, Wo] output
+ *  @param[in]  Cin     input channels
+ *  @param[in]  H       input height
+ *  @param[in]  W       input width
+ *  @param[in]  Cout    output channels
+ *  @param[in]  Ho      output height
+ *  @param[in]  Wo      output width
+ *  @param[in]  Cin_g   input channels per group
+ *  @param[in]  Cout_g  output channels per group
+ *  @param[in]  ncb     output-channel blocks per group, ceil(Cout_g / CB)
+ *  @param[in]  groups  groups
+ *  @param[in]  sy      stride along y
+ *  @param[in]  pt      top pad
+ *  @param[in]  pl      left pad
+ *  @param[in]  dy      dilation along y
+ *  @param[in]  dx      dilation along x
+ *  @param[in]  flags   1 bias, 2 residual added before the activation, 4 after it
+ *  @param[in]  alpha   the activation's parameter (leaky_relu slope)
+ *  @param[in]  nz      the extent of NDRange dimension 2 that is real work
+ *  @note -DKH, -DKW: kernel size, -DSX: x stride; -DXV=1|2, -DCB=1..8: the register block (tunable); -DACT: the fused activation
+ *  @note -DCONV_S2K3=0|1, -DCONV_DEINTERLEAVE=0|1, -DCLSS_CLANG_VECTORS=0|1: fast paths and their references
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void conv2d(__global const T *x, __global const TW *w, __global const T *bias,
                      __global const T *res, __global T *y,
                      int Cin, int H, int W, int Cout, int Ho, int Wo,
@@ -292,6 +319,34 @@ __kernel void conv2d(__global const T *x, __global const TW *w, __global const T
  *
  * x: [N, Cin, H, W]; w: [Cin, Cout/groups, KH, KW]; y, res: [N, Cout, Ho, Wo].
  * NDRange: (ceil(ceil(Wo/sx) / XB), Ho, N * groups * ncb * sx). */
+/** @param[in]  x       [N, Cin, H, W] input
+ *  @param[in]  w       weights, [Cin, Cout/groups, KH, KW] (TW: float when fp16 storage converted them)
+ *  @param[in]  bias    [Cout] bias (read when flags has 1)
+ *  @param[in]  res     [N, Cout, Ho, Wo] residual (read when flags has 2 or 4)
+ *  @param[out] y       [N, Cout, Ho, Wo] output
+ *  @param[in]  Cin     input channels
+ *  @param[in]  H       input height
+ *  @param[in]  W       input width
+ *  @param[in]  Cout    output channels
+ *  @param[in]  Ho      output height
+ *  @param[in]  Wo      output width
+ *  @param[in]  Cin_g   input channels per group
+ *  @param[in]  Cout_g  output channels per group
+ *  @param[in]  ncb     output-channel blocks per group, ceil(Cout_g / CB)
+ *  @param[in]  groups  groups
+ *  @param[in]  sy      stride along y
+ *  @param[in]  sx      stride along x
+ *  @param[in]  pt      top pad
+ *  @param[in]  pl      left pad
+ *  @param[in]  dy      dilation along y
+ *  @param[in]  dx      dilation along x
+ *  @param[in]  flags   1 bias, 2 residual added before the activation, 4 after it
+ *  @param[in]  alpha   the activation's parameter (leaky_relu slope)
+ *  @param[in]  nz      the extent of NDRange dimension 2 that is real work
+ *  @note -DKH, -DKW: kernel size; -DXV=1|2, -DCB=1..8: the register block (tunable); -DACT: the fused activation
+ *  @note -DCLSS_CLANG_VECTORS=0|1: builtin-free loads
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void conv_transpose2d(__global const T *x, __global const TW *w, __global const T *bias,
                                __global const T *res, __global T *y,
                                int Cin, int H, int W, int Cout, int Ho, int Wo,
@@ -355,6 +410,11 @@ __kernel void conv_transpose2d(__global const T *x, __global const TW *w, __glob
 }
 
 /* Half weights to float for the kernels above (fp16 storage mode), exact. */
+/** @param[in]  w    [n] half weights
+ *  @param[out] out  [n] the same as float (exact)
+ *  @param[in]  n    elements
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void weights_to_float(__global const T *w, __global float *out, int n)
 {
     const int i = get_global_id(0);

@@ -90,6 +90,13 @@ typedef T O;
 
 /* Same-shape operands (or one of them a single element): eight elements per
  * work-item through vector loads, then a scalar tail. NDRange ceil(n / 8). */
+/** @param[in]  a    [n] first operand (one element with -DA_SCALAR=1)
+ *  @param[in]  b    [n] second operand (one element with -DB_SCALAR=1)
+ *  @param[out] out  [n] a OP b (uchar for comparisons and logic, else T)
+ *  @param[in]  n    elements
+ *  @note -DOP=n: the operator (OP_* above); -DA_SCALAR, -DB_SCALAR; -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void binary_flat(__global const T *a, __global const T *b, __global O *out, int n)
 {
     const int i = get_global_id(0) * 8;
@@ -114,6 +121,16 @@ __kernel void binary_flat(__global const T *a, __global const T *b, __global O *
     }
 }
 
+/** @param[in]  a    first operand
+ *  @param[in]  b    second operand
+ *  @param[out] out  [D0, D1, D2, D3] a OP b (uchar for comparisons and logic, else T)
+ *  @param[in]  D1, D2, D3  the output's coalesced shape [D0, D1, D2, D3] (dimensions 1-3)
+ *  @param[in]  D01     D0 * D1, the extent of NDRange dimension 2
+ *  @param[in]  a0..a3  a's element strides per output dimension (0 where a broadcasts)
+ *  @param[in]  b0..b3  b's element strides
+ *  @note -DOP=n: the operator (OP_* above); -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void binary_bcast(__global const T *a, __global const T *b, __global O *out,
                            int D1, int D2, int D3, int D01,
                            int a0, int a1, int a2, int a3, int b0, int b1, int b2, int b3)
@@ -131,6 +148,16 @@ __kernel void binary_bcast(__global const T *a, __global const T *b, __global O 
  * innermost stride is 0 (broadcast: one load, splat) or 1 (one vector load):
  * the host's fast path (BCAST_VEC=1 in clss/ops/elementwise.py; binary_bcast
  * is its reference). Same arguments; NDRange (ceil(D3 / 8), D2, D0*D1). */
+/** @param[in]  a    first operand
+ *  @param[in]  b    second operand
+ *  @param[out] out  [D0, D1, D2, D3] a OP b (uchar for comparisons and logic, else T)
+ *  @param[in]  D1, D2, D3  the output's coalesced shape [D0, D1, D2, D3] (dimensions 1-3)
+ *  @param[in]  D01     D0 * D1, the extent of NDRange dimension 2
+ *  @param[in]  a0..a3  a's element strides per output dimension (0 where a broadcasts)
+ *  @param[in]  b0..b3  b's element strides
+ *  @note -DOP=n: the operator (OP_* above); -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void binary_bcast8(__global const T *a, __global const T *b, __global O *out,
                             int D1, int D2, int D3, int D01,
                             int a0, int a1, int a2, int a3, int b0, int b1, int b2, int b3)
@@ -161,6 +188,17 @@ __kernel void binary_bcast8(__global const T *a, __global const T *b, __global O
 }
 
 /* where(cond, a, b): selects raw bits, so it is bit-exact. */
+/** @param[in]  c    the condition (uchar, nonzero = true)
+ *  @param[in]  a    taken where c is true (raw bits)
+ *  @param[in]  b    taken where c is false
+ *  @param[out] out  [D0, D1, D2, D3] output
+ *  @param[in]  D1, D2, D3  the output's coalesced shape [D0, D1, D2, D3] (dimensions 1-3)
+ *  @param[in]  D01     D0 * D1, the extent of NDRange dimension 2
+ *  @param[in]  c0..c3  c's element strides per output dimension (0 where it broadcasts)
+ *  @param[in]  a0..a3  a's element strides
+ *  @param[in]  b0..b3  b's element strides
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void where_bcast(__global const uchar *c, __global const TB *a, __global const TB *b,
                           __global TB *out, int D1, int D2, int D3, int D01,
                           int c0, int c1, int c2, int c3, int a0, int a1, int a2, int a3,
@@ -223,6 +261,14 @@ __kernel void where_bcast(__global const uchar *c, __global const TB *a, __globa
 #endif
 
 /* NDRange ceil(n / 8): eight elements per work-item, then a scalar tail. */
+/** @param[in]  in   [n] input
+ *  @param[out] out  [n] UOP(in)
+ *  @param[in]  n    elements
+ *  @param[in]  p0   the operator's first parameter (clip's low bound, leaky_relu's slope, ...)
+ *  @param[in]  p1   the second (clip's high bound)
+ *  @note -DUOP=n: the operator (UOP_* above); -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void unary(__global const T *in, __global T *out, int n, float p0, float p1)
 {
     const int i = get_global_id(0) * 8;
@@ -242,6 +288,16 @@ __kernel void unary(__global const T *in, __global T *out, int n, float p0, floa
 
 /* rows x len block copy between row-strided views: concat, split, identity.
  * NDRange (ceil(len / 8), rows). */
+/** @param[in]  src         source (raw bits)
+ *  @param[out] dst         destination
+ *  @param[in]  len         elements per row
+ *  @param[in]  rows        rows
+ *  @param[in]  src_stride  elements between source rows
+ *  @param[in]  src_off     first source element
+ *  @param[in]  dst_stride  elements between destination rows
+ *  @param[in]  dst_off     first destination element
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void copy_rows(__global const TB *src, __global TB *dst, int len, int rows,
                         int src_stride, int src_off, int dst_stride, int dst_off)
 {
@@ -259,6 +315,14 @@ __kernel void copy_rows(__global const TB *src, __global TB *dst, int len, int r
 
 /* out[i0, i1, i2, i3] = src[base + i0*s0 + i1*s1 + i2*s2 + i3*s3]: slice with any
  * steps (negative included). */
+/** @param[in]  src     source (raw bits)
+ *  @param[out] dst     [D0, D1, D2, D3] output
+ *  @param[in]  D1, D2, D3  the output's coalesced shape [D0, D1, D2, D3] (dimensions 1-3)
+ *  @param[in]  D01     D0 * D1, the extent of NDRange dimension 2
+ *  @param[in]  base    source element of output (0, 0, 0, 0)
+ *  @param[in]  s0..s3  source element strides per output dimension (negative for reversed steps)
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void gather(__global const TB *src, __global TB *dst, int D1, int D2, int D3, int D01,
                      long base, int s0, int s1, int s2, int s3)
 {
@@ -294,6 +358,16 @@ inline int pad_src(int o, int p, int n)
 #endif
 }
 
+/** @param[in]  src     [N0, N1, N2, N3] input (raw bits)
+ *  @param[out] dst     [D0, D1, D2, D3] output
+ *  @param[in]  D1, D2, D3  the output's coalesced shape [D0, D1, D2, D3] (dimensions 1-3)
+ *  @param[in]  D01     D0 * D1, the extent of NDRange dimension 2
+ *  @param[in]  N0..N3  the input's shape
+ *  @param[in]  P0..P3  begin pads
+ *  @param[in]  value   the constant of PAD_MODE 0, as raw bits
+ *  @note -DPAD_MODE=0..3: constant, edge, reflect, wrap
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void pad(__global const TB *src, __global TB *dst, int D1, int D2, int D3, int D01,
                   int N0, int N1, int N2, int N3, int P0, int P1, int P2, int P3, TB value)
 {
@@ -327,6 +401,17 @@ typedef TB TBv8 __attribute__((ext_vector_type(8), aligned(sizeof(TB))));
 #ifndef PAD_BLOCKS
 #define PAD_BLOCKS 8
 #endif
+/** @param[in]  src     [N0, N1, N2, N3] input (raw bits)
+ *  @param[out] dst     [D0, D1, D2, D3] output
+ *  @param[in]  D1, D2, D3  the output's coalesced shape [D0, D1, D2, D3] (dimensions 1-3)
+ *  @param[in]  D01     D0 * D1, the extent of NDRange dimension 2
+ *  @param[in]  N0..N3  the input's shape
+ *  @param[in]  P0..P3  begin pads
+ *  @param[in]  value   the constant of PAD_MODE 0, as raw bits
+ *  @note -DPAD_MODE=0..3: constant, edge, reflect, wrap
+ *  @note -DPAD_BLOCKS=n: blocks of 8 outputs per work-item (default 8); -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void pad8(__global const TB *src, __global TB *dst, int D1, int D2, int D3, int D01,
                    int N0, int N1, int N2, int N3, int P0, int P1, int P2, int P3, TB value)
 {
@@ -363,6 +448,13 @@ __kernel void pad8(__global const TB *src, __global TB *dst, int D1, int D2, int
  * (channel softmax over NCHW). */
 
 /* Numerically stable: exp(x - max) / sum exp(x - max). */
+/** @param[in]  in     [outer, L, inner] input
+ *  @param[out] out    the same shape
+ *  @param[in]  L      length of the softmax axis
+ *  @param[in]  inner  elements after the axis (NDRange dimension 0)
+ *  @param[in]  outer  elements before the axis (NDRange dimension 1)
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void softmax(__global const T *in, __global T *out, int L, int inner, int outer)
 {
     const int j = get_global_id(0), o = get_global_id(1);
@@ -384,6 +476,14 @@ __kernel void softmax(__global const T *in, __global T *out, int L, int inner, i
 #define LAST 0
 #endif
 
+/** @param[in]  in     [outer, L, inner] input
+ *  @param[out] out    [outer, inner] index of the maximum along the axis (long)
+ *  @param[in]  L      length of the axis
+ *  @param[in]  inner  elements after the axis (NDRange dimension 0)
+ *  @param[in]  outer  elements before the axis (NDRange dimension 1)
+ *  @note -DLAST=0|1: the first or the last index of a tied maximum
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void argmax(__global const T *in, __global long *out, int L, int inner, int outer)
 {
     const int j = get_global_id(0), o = get_global_id(1);

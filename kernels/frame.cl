@@ -341,6 +341,11 @@ LINEAR_SAMPLER(linear_f, float, LDF)
 /* Zeroes a[0, na) and b[0, nb) (32-bit words): the depth reconstruction and the flags
  * before each frame, the history once. (A kernel rather than clEnqueueFillBuffer, which
  * oclgrind's uninitialised-memory check does not see.) */
+/** @param[out] a   [na] 32-bit words set to 0
+ *  @param[in]  na  words of a
+ *  @param[out] b   [nb] 32-bit words set to 0
+ *  @param[in]  nb  words of b
+ */
 __kernel void clear(__global uint *a, int na, __global uint *b, int nb)
 {
     const int i = get_global_id(0);
@@ -352,6 +357,23 @@ __kernel void clear(__global uint *a, int na, __global uint *b, int nb)
  * pass over the render-res inputs; VEC pixels of a row per work-item (the transfer
  * function runs on them as a vector).
  * recon: h*w uint, cleared to 0 (far) before this kernel; X: 3 planes T; lr: stack. */
+/** @param[in]  color         h x w x 3 float, image layout
+ *  @param[in]  depth         h x w float
+ *  @param[in]  motion        h x w x 2 float, render pixels
+ *  @param[in]  reactive      h x w float (any valid buffer when has_reactive = 0)
+ *  @param[in]  has_reactive  1 if reactive holds the caller's mask, else 0 (read as 0)
+ *  @param[in]  w, h          render width and height
+ *  @param[in]  depth_inverted 1: reversed-Z input (near = 1), 0: standard Z (converted)
+ *  @param[in]  msx, msy      motion_scale (render pixels per motion unit)
+ *  @param[in]  inv_exposure  1 / exposure
+ *  @param[in]  pq_scale      nits / 10000 (linear 1.0 in PQ's units)
+ *  @param[out] recon         [h*w] uint previous-depth reconstruction (s3), cleared beforehand
+ *  @param[out] X             [3, h, w] T the encoded colour
+ *  @param[out] lr            [L_CHANNELS, h, w] float the render-res stack: dilated depth, motion, ...
+ *  @param[out] flags         [8] uint: flags[0] |= what was found, flags[1..4] non-finite counts
+ *  @note -DHDR=0|1: PQ or clamp; -DSANITIZE=0|1: replace non-finite inputs or refuse; -DVEC=8|4|1: pixels per work-item
+ *  @note -DCLSS_FP16=1: X in half (T)
+ */
 __kernel void prepare(__global const float *color, __global const float *depth,
                       __global const float *motion, __global const float *reactive,
                       int has_reactive, int w, int h, int depth_inverted, float msx, float msy,
@@ -451,6 +473,13 @@ __kernel void prepare(__global const float *color, __global const float *depth,
 /* Stage 3: the reconstructed previous depth read bilinearly at p + motion (taps that
  * were refused by the scatter are still read; off-screen taps read far). The clamp box
  * rides along: it needs the whole encoded colour, which only exists after `prepare`. */
+/** @param[in]     recon  [h*w] uint the reconstructed previous depth (prepare)
+ *  @param[in]     X      [3, h, w] T the encoded colour (for the clamp box)
+ *  @param[in,out] lr     the render-res stack: gets the depth difference and the clamp box
+ *  @param[in]     w, h   render width and height
+ *  @note -DCLIP_GAMMA=x: the box's std multiple (contract.CLIP_GAMMA)
+ *  @note -DCLSS_FP16=1: X in half (T)
+ */
 __kernel void depth_diff(__global const uint *recon, __global const T *X, __global float *lr,
                          int w, int h)
 {
@@ -603,6 +632,28 @@ inline void keep_history(__global const T *hist, __global T *hist_out, int q, in
 #if !NET
 /* Rule mode: stages 4-9 in one pass (reference.md s8, s9 "rule"), VEC pixels of a row
  * per work-item. */
+/** @param[in]  X       [3, h, w] T the encoded colour
+ *  @param[in]  lr      [L_CHANNELS, h, w] float the render-res stack
+ *  @param[in]  bx      [W] float render x of each output column's centre, (X + 0.5) * w / W - 0.5
+ *  @param[in]  by      [H] float likewise for the rows
+ *  @param[in]  jx, jy  the frame's jitter, render pixels
+ *  @param[in]  w, h    render width and height
+ *  @param[in]  W, H    output width and height
+ *  @param[in]  sx, sy  W / w and H / h (motion to output pixels)
+ *  @param[in]  reset   1 on a camera cut (the history is not used)
+ *  @param[in]  hist    [16, H, W] T the history
+ *  @param[out] hist_out [16, H, W] T the next history
+ *  @param[out] out      H x W x 3 float, linear, image layout
+ *  @param[in]  flags    prepare's flags (a refused frame copies the history through)
+ *  @param[in]  depth_threshold  relative depth jump that rejects history (contract.DEPTH_THRESHOLD)
+ *  @param[in]  cap      sample counter cap
+ *  @param[in]  inv_pq_scale 10000 / nits
+ *  @param[in]  exposure the output is multiplied back by it
+ *  @param[in]  debug    1: write the debug planes to dbg
+ *  @param[out] dbg      [3, H, W] float blend weight, ghost, depth difference (debug = 1)
+ *  @note -DNET=0 (this variant); -DHDR=0|1; -DCLIP_EPS=x (contract.RULE_CLIP_EPS); -DVEC=8|4|1
+ *  @note -DCLSS_FP16=1: half storage of X, the history, cls_in, aux and logits (T); -DCLSS_CLANG_VECTORS=0|1: builtin-free half loads
+ */
 __kernel void resolve(__global const T *X, __global const float *lr, __global const float *bx,
                       __global const float *by, float jx, float jy, int w, int h, int W, int H,
                       float sx, float sy, int reset, __global const T *hist,
@@ -650,6 +701,23 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
  * per work-item (W16 is a multiple of 16, so rows hold whole vectors); pixels past
  * (W, H) replicate the edge (ONNX Pad "edge"). aux [6, H16, W16] T: warped counter,
  * valid, reactive and the clipped history colour (3) for `compose`. */
+/** @param[in]  X       [3, h, w] T the encoded colour
+ *  @param[in]  lr      [L_CHANNELS, h, w] float the render-res stack
+ *  @param[in]  bx      [W] float render x of each output column's centre, (X + 0.5) * w / W - 0.5
+ *  @param[in]  by      [H] float likewise for the rows
+ *  @param[in]  jx, jy  the frame's jitter, render pixels
+ *  @param[in]  w, h    render width and height
+ *  @param[in]  W, H    output width and height
+ *  @param[in]  sx, sy  W / w and H / h (motion to output pixels)
+ *  @param[in]  reset   1 on a camera cut (the history is not used)
+ *  @param[in]  hist    [16, H, W] T the history
+ *  @param[out] cls_in   [23, H16, W16] T the classifier input, edge-replicated past (W, H)
+ *  @param[out] aux      [6, H16, W16] T warped counter, valid, reactive, clipped history colour 3 (for compose)
+ *  @param[in]  flags    prepare's flags
+ *  @param[in]  W16, H16 W and H rounded up to multiples of 16
+ *  @note -DNET=1 (this variant); -DHDR=0|1; -DVEC=8|4|1; -DCLIP_EPS=x
+ *  @note -DCLSS_FP16=1: half storage of X, the history, cls_in, aux and logits (T); -DCLSS_CLANG_VECTORS=0|1: builtin-free half loads
+ */
 __kernel void resolve(__global const T *X, __global const float *lr, __global const float *bx,
                       __global const float *by, float jx, float jy, int w, int h, int W, int H,
                       float sx, float sy, int reset, __global const T *hist,
@@ -690,6 +758,25 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
  * logits: [6, H16/2, W16/2] T from the classifier; bilinear x2 (Resize linear,
  * half_pixel) evaluated at the output pixels only, which crops by construction.
  * w1: [HIDDEN, 22], b1: [HIDDEN], w2: [HIDDEN], b2: [1] (the composition MLP). */
+/** @param[in]  cls_in   [23, H16, W16] T resolve's classifier input (the composition reads up, depth, motion and the colour range from it)
+ *  @param[in]  aux      [6, H16, W16] T resolve's warped counter, valid, reactive, clipped history colour (3)
+ *  @param[in]  logits   [6, H16/2, W16/2] T the classifier's output
+ *  @param[in]  W, H     output width and height
+ *  @param[in]  W16, H16 the padded size
+ *  @param[in]  w1, b1   [HIDDEN, 22], [HIDDEN] the composition MLP's first layer
+ *  @param[in]  w2, b2   [HIDDEN], [1] its second layer
+ *  @param[in]  hist     [16, H, W] T the history
+ *  @param[out] hist_out [16, H, W] T the next history
+ *  @param[out] out      H x W x 3 float, linear, image layout
+ *  @param[in]  flags    prepare's flags (a refused frame copies the history through)
+ *  @param[in]  cap      sample counter cap
+ *  @param[in]  inv_pq_scale 10000 / nits
+ *  @param[in]  exposure the output is multiplied back by it
+ *  @param[in]  debug    1: write the debug planes to dbg
+ *  @param[out] dbg      [3, H, W] float blend weight, ghost, depth difference (debug = 1)
+ *  @note -DNET=1 only; -DHIDDEN=n: the MLP's hidden width; -DHDR=0|1; -DVEC=8|4|1
+ *  @note -DCLSS_FP16=1: half storage of X, the history, cls_in, aux and logits (T); -DCLSS_CLANG_VECTORS=0|1: builtin-free half loads
+ */
 __kernel void compose(__global const T *cls_in, __global const T *aux,
                       __global const T *logits, int W, int H, int W16, int H16,
                       __constant float *w1, __constant float *b1, __constant float *w2,

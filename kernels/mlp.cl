@@ -87,6 +87,14 @@ inline A8 act8(A8 v, int kind, float alpha)
                     OUT[o + j][v] = act8(a[j][v], (ACTK), (ALPHAK));           \
     }
 
+/** @param[in]  x    [N, C0, H, W] input
+ *  @param[in]  wp   the packed weights: per layer k, W [Ck][Ck-1] row-major then b [Ck], at OFFk
+ *  @param[out] y    [N, Cn, H, W] output
+ *  @param[in]  HW   pixels per image (H * W)
+ *  @note -DNL=n, -DC0..-DCn, -DACTk, -DALPHAk, -DOFFk, -DCMAX: the network, baked in (see the top of this file)
+ *  @note -DXV=1|2: A8 pixel vectors per work-item (tunable)
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void mlp(__global const T *x, __global const TW *wp, __global T *y, int HW)
 {
     const int pb = get_global_id(0), n = get_global_id(1);

@@ -69,6 +69,12 @@ typedef float16 V;
 #endif
 
 /* FLOPs per work-item: iters * REPEAT * CHAINS * VW * 2. */
+/** @param[out] out    [global size] one float per work-item (keeps the chains live)
+ *  @param[in]  m      the multiplier of each FMA
+ *  @param[in]  c      the addend
+ *  @param[in]  iters  loop iterations
+ *  @note -DVW=1|2|4|8|16: vector width; -DCHAINS=1|2|4|8: independent chains; -DREPEAT=n: FMAs per chain per iteration
+ */
 __kernel void fma_peak(__global float *out, float m, float c, int iters)
 {
     const int gid = get_global_id(0);
@@ -87,6 +93,10 @@ __kernel void fma_peak(__global float *out, float m, float c, int iters)
 
 /* Stream kernels (McCalpin's STREAM, float4 per work-item): bytes moved per
  * element are counted as STREAM does (copy 2, triad 3 accesses; no write-allocate). */
+/** @param[in]  a   [n4] source
+ *  @param[out] c   [n4] destination
+ *  @param[in]  n4  float4 elements
+ */
 __kernel void stream_copy(__global const float4 *a, __global float4 *c, int n4)
 {
     const int i = get_global_id(0);
@@ -94,6 +104,12 @@ __kernel void stream_copy(__global const float4 *a, __global float4 *c, int n4)
     c[i] = a[i];
 }
 
+/** @param[out] a   [n4] a = b + s * c
+ *  @param[in]  b   [n4]
+ *  @param[in]  c   [n4]
+ *  @param[in]  s   the scalar
+ *  @param[in]  n4  float4 elements
+ */
 __kernel void stream_triad(__global float4 *a, __global const float4 *b,
                            __global const float4 *c, float s, int n4)
 {

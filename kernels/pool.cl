@@ -53,6 +53,21 @@ inline int2 tap_range(int start, int K, int dil, int lo, int hi)
 
 /* in: [NC, ID, IH, IW] -> out: [NC, OD, OH, OW]; NDRange (OW, OH, NC*OD).
  * P* are the begin pads, E* = in + end pad (the padded extent, for COUNT_PAD). */
+/** @param[in]  in          [NC, ID, IH, IW] input (2-D pooling: ID = 1)
+ *  @param[out] out         [NC, OD, OH, OW] output
+ *  @param[out] indices     (-DINDICES=1 only) [NC, OD, OH, OW] flat index of each maximum
+ *  @param[in]  column_major (-DINDICES=1 only) ONNX storage_order = 1: indices counted column-major
+ *  @param[in]  ID, IH, IW  input depth, height, width
+ *  @param[in]  OD, OH, OW  output depth, height, width
+ *  @param[in]  KD, KH, KW  window size
+ *  @param[in]  SD, SH, SW  strides
+ *  @param[in]  PD, PH, PW  begin pads
+ *  @param[in]  DD, DH, DW  dilations
+ *  @param[in]  ED, EH, EW  input size + end pad (the padded extent, for COUNT_PAD)
+ *  @param[in]  NCOD        NC * OD, the extent of NDRange dimension 2
+ *  @note -DMODE=0|1: max | average; -DCOUNT_PAD=0|1; -DINDICES=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void pool(__global const T *in, __global T *out,
 #if INDICES
                    __global long *indices, int column_major,
@@ -135,6 +150,21 @@ __kernel void pool(__global const T *in, __global T *out,
 #define PLD8 LD8
 #define PST8 ST8
 #endif
+/** @param[in]  in   [NC, IH, IW] input
+ *  @param[out] out  [NC, OH, OW] output
+ *  @param[in]  IH   input height
+ *  @param[in]  IW   input width
+ *  @param[in]  OH   output height
+ *  @param[in]  OW   output width
+ *  @param[in]  KH   window height (the width is 3)
+ *  @param[in]  SH   stride along y
+ *  @param[in]  PH   begin pad along y
+ *  @param[in]  PW   begin pad along x
+ *  @param[in]  DH   dilation along y
+ *  @param[in]  NC   N * C, the extent of NDRange dimension 2
+ *  @note -DMODE=0 only; -DCLSS_CLANG_VECTORS=0|1: builtin-free loads and stores
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void max_pool_row8(__global const T *in, __global T *out, int IH, int IW, int OH, int OW,
                             int KH, int SH, int PH, int PW, int DH, int NC)
 {
@@ -191,6 +221,16 @@ __kernel void max_pool_row8(__global const T *in, __global T *out, int IH, int I
 #define INIT A_ZERO
 #endif
 
+/** @param[in]  in       [NC, HW] input rows
+ *  @param[out] out      (-DFINAL=1 only) [NC] the result, when one chunk covers a row
+ *  @param[out] part     (-DFINAL=0 only) [NC, nchunks] float partial results
+ *  @param[in]  HW       elements per row
+ *  @param[in]  nchunks  chunks per row (NDRange dimension 0)
+ *  @param[in]  NC       rows (NDRange dimension 1)
+ *  @param[in]  count    the average's divisor (HW)
+ *  @note -DMODE=0|1: max | average; -DCHUNK=n; -DFINAL=0|1; -DGLOBAL_LANES=8|1 (fast path | reference)
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void global_pool_partial(__global const T *in,
 #if FINAL
                                   __global T *out,
@@ -226,6 +266,14 @@ __kernel void global_pool_partial(__global const T *in,
 }
 
 /* Global pooling, pass 2: one work-item per row combines its chunk results. */
+/** @param[in]  part     [NC, nchunks] the partial results of pass 1
+ *  @param[out] out      [NC] output
+ *  @param[in]  nchunks  chunks per row
+ *  @param[in]  NC       rows
+ *  @param[in]  count    the average's divisor
+ *  @note -DMODE=0|1: max | average
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void global_pool_final(__global const float *part, __global T *out,
                                 int nchunks, int NC, float count)
 {

@@ -183,6 +183,21 @@ static void axis_taps(float x, int in, float a, float *w, int *idx)
  *   coord[n] float   the source coordinate
  *   idx[n * TAPS]    int tap indices, edge-clamped (nearest: idx[o] is the pixel)
  *   wt[n * TAPS]     float tap weights (linear/cubic without antialias) */
+/** @param[in]  Ho      output height (work-items [0, Ho) are rows)
+ *  @param[in]  Wo      output width (work-items [Ho, Ho + Wo) are columns)
+ *  @param[in]  H       input height
+ *  @param[in]  W       input width
+ *  @param[in]  sy      scale along y (output / input)
+ *  @param[in]  sx      scale along x
+ *  @param[in]  oy      coordinate offset along y (half_pixel_symmetric), from the host
+ *  @param[in]  ox      coordinate offset along x
+ *  @param[in]  roi     tf_crop_and_resize region (y0, x0, y1, x1), normalised
+ *  @param[in]  cubic_a the cubic coefficient (ONNX cubic_coeff_a)
+ *  @param[out] coord   [Ho + Wo] source coordinate of each output row and column
+ *  @param[out] idx     [(Ho + Wo) * TAPS] edge-clamped tap indices
+ *  @param[out] wt      [(Ho + Wo) * TAPS] tap weights
+ *  @note -DMODE, -DCOORD, -DNEAREST_Y, -DNEAREST_X, -DEXCLUDE, -DANTIALIAS: as for resize (top of this file)
+ */
 __kernel void axis_tables(int Ho, int Wo, int H, int W, float sy, float sx, float oy, float ox,
                           float4 roi, float cubic_a, __global float *coord, __global int *idx,
                           __global float *wt)
@@ -209,6 +224,25 @@ __kernel void axis_tables(int Ho, int Wo, int H, int W, float sy, float sx, floa
 }
 
 /* tab: axis_tables' output for this resize (rows at 0, columns at Ho). */
+/** @param[in]  in      [N, C, H, W] input
+ *  @param[out] out     [N, C, Ho, Wo] output
+ *  @param[in]  C       channels
+ *  @param[in]  H       input height
+ *  @param[in]  W       input width
+ *  @param[in]  Ho      output height
+ *  @param[in]  Wo      output width
+ *  @param[in]  NCb     N * ceil(C / CPT), the extent of NDRange dimension 2
+ *  @param[in]  sy      scale along y (output / input)
+ *  @param[in]  sx      scale along x
+ *  @param[in]  extrap  tf_crop_and_resize extrapolation value (outside the input)
+ *  @param[in]  cubic_a the cubic coefficient (ONNX cubic_coeff_a)
+ *  @param[in]  coord   axis_tables' source coordinates
+ *  @param[in]  idx     axis_tables' tap indices
+ *  @param[in]  wt      axis_tables' tap weights
+ *  @note -DMODE=0|1|2, -DCOORD=0..5, -DNEAREST_Y/-DNEAREST_X, -DEXCLUDE, -DANTIALIAS: the ONNX attributes (top of this file)
+ *  @note -DCPT=n: channels per work-item; -DCLSS_CLANG_VECTORS=0|1: builtin-free loads
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void resize(__global const T *in, __global T *out,
                      int C, int H, int W, int Ho, int Wo, int NCb,
                      float sy, float sx, float extrap, float cubic_a,
@@ -306,6 +340,25 @@ __kernel void resize(__global const T *in, __global T *out,
  * outputs is one 8-wide store per channel. Same arguments as `resize`;
  * NDRange (ceil(Wo / 8), Ho, N * ceil(C / CPT)). */
 #if MODE != 0 && !ANTIALIAS && COORD != 4
+/** @param[in]  in      [N, C, H, W] input
+ *  @param[out] out     [N, C, Ho, Wo] output
+ *  @param[in]  C       channels
+ *  @param[in]  H       input height
+ *  @param[in]  W       input width
+ *  @param[in]  Ho      output height
+ *  @param[in]  Wo      output width
+ *  @param[in]  NCb     N * ceil(C / CPT), the extent of NDRange dimension 2
+ *  @param[in]  sy      scale along y (output / input)
+ *  @param[in]  sx      scale along x
+ *  @param[in]  extrap  tf_crop_and_resize extrapolation value (outside the input)
+ *  @param[in]  cubic_a the cubic coefficient (ONNX cubic_coeff_a)
+ *  @param[in]  coord   axis_tables' source coordinates
+ *  @param[in]  idx     axis_tables' tap indices
+ *  @param[in]  wt      axis_tables' tap weights
+ *  @note -DMODE=0|1|2, -DCOORD=0..5, -DNEAREST_Y/-DNEAREST_X, -DEXCLUDE, -DANTIALIAS: the ONNX attributes (top of this file)
+ *  @note -DCPT=n: channels per work-item; -DCLSS_CLANG_VECTORS=0|1: builtin-free loads
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void resize_x8(__global const T *in, __global T *out,
                         int C, int H, int W, int Ho, int Wo, int NCb,
                         float sy, float sx, float extrap, float cubic_a,

@@ -45,6 +45,10 @@ typedef int IDX;
 inline uint float_key(uint b) { return b ^ ((b >> 31) ? 0xFFFFFFFFu : 0x80000000u); }
 inline uint key_float(uint k) { return k ^ ((k >> 31) ? 0x80000000u : 0xFFFFFFFFu); }
 
+/** @param[out] buf    [n] buffer to fill
+ *  @param[in]  value  the 32-bit value written to every element
+ *  @param[in]  n      elements
+ */
 __kernel void fill_u32(__global uint *buf, uint value, int n)
 {
     const int i = get_global_id(0);
@@ -53,6 +57,12 @@ __kernel void fill_u32(__global uint *buf, uint value, int n)
 
 /* acc[i] = data[i] as float32 bits (keyed for max/min). acc may alias data in fp32:
  * each work-item reads and writes only its own element. */
+/** @param[in]  data  [n] the data tensor
+ *  @param[out] acc   [n] float32 bits of data (order-keyed for max/min); may alias data in fp32
+ *  @param[in]  n     elements
+ *  @note -DRED=0..4: the reduction (keys for max and min)
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void scatter_init(__global const T *data, __global uint *acc, int n)
 {
     const int i = get_global_id(0);
@@ -66,6 +76,12 @@ __kernel void scatter_init(__global const T *data, __global uint *acc, int n)
 }
 
 /* out[i] = acc[i] back in the storage type (the only rounding in fp16). */
+/** @param[in]  acc  [n] the accumulator
+ *  @param[out] out  [n] acc in the storage type
+ *  @param[in]  n    elements
+ *  @note -DRED=0..4: the reduction (keys for max and min)
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void scatter_final(__global const uint *acc, __global T *out, int n)
 {
     const int i = get_global_id(0);
@@ -84,6 +100,17 @@ __kernel void scatter_final(__global const uint *acc, __global T *out, int n)
  * data's element strides in the same order, 0 at the scatter axis, whose stride is
  * astride. Negative indices count from the end; out-of-range ones are dropped (ONNX
  * calls them an error; a kernel cannot raise, and must not write out of bounds). */
+/** @param[in]     indices  indices, the shape ishape (int or long)
+ *  @param[in]     updates  updates, the same shape
+ *  @param[in,out] acc      the data as float32 bits (scatter_init), updated in place
+ *  @param[in]     n        elements of indices
+ *  @param[in]     ishape   the indices' shape, innermost dimension in s0, padded with 1
+ *  @param[in]     dstride  the data's element strides in that order, 0 at the scatter axis
+ *  @param[in]     adim     the data's extent along the scatter axis
+ *  @param[in]     astride  the data's stride along the scatter axis
+ *  @note -DRED=0..4: none, add, mul, max, min; -DIDX64=0|1: int or long indices
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void scatter_elements(__global const IDX *indices, __global const T *updates,
                                __global uint *acc, int n, int8 ishape, int8 dstride,
                                int adim, int astride)
@@ -127,6 +154,16 @@ __kernel void scatter_elements(__global const IDX *indices, __global const T *up
  * nearest = largest) or min. buf [N,1,H,W] holds float bits, cleared beforehand to the
  * far plane, the identity of the reduction. Negative or NaN depths are not scattered
  * (their bits would not order), and -0 is stored as +0. */
+/** @param[in]  depth   [N, 1, H, W] depth (reversed-Z by default)
+ *  @param[in]  motion  [N, 2, H, W] motion in render pixels
+ *  @param[out] buf     [N, 1, H, W] float bits, cleared beforehand to the far plane
+ *  @param[in]  H       height
+ *  @param[in]  W       width
+ *  @param[in]  N       batch
+ *  @param[in]  wmin    bilinear weight a tap must exceed to receive the depth (FSR2: 0.01)
+ *  @note -DDEPTH_MAX=0|1: keep the min or the max (reversed-Z: nearest = max)
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void scatter_depth(__global const T *depth, __global const T *motion, __global uint *buf,
                             int H, int W, int N, float wmin)
 {

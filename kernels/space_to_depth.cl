@@ -40,6 +40,17 @@ inline int s2d_channel(int c, int by, int bx, int C, int B)
  * B runs of 8 contiguous outputs, one per bx, so both sides stream through memory
  * (one element per work-item made every read a stride-B gather). B = 2, the CLSS
  * classifier's case, de-interleaves with vector loads; other B loop. */
+/** @param[in]  in   [N, C, H*B, W*B] input, moved as raw bits (TB)
+ *  @param[out] out  [N, C*B*B, H, W] output
+ *  @param[in]  C    input channels
+ *  @param[in]  H    output height (input height / B)
+ *  @param[in]  W    output width (input width / B)
+ *  @param[in]  B    block size
+ *  @param[in]  NCB  N * C * B, the extent of NDRange dimension 2
+ *  @note -DCRD=0|1: DCR or CRD channel order
+ *  @note -DS2D_VEC=1|0|2: B = 2 vector de-interleave (fast path) | scalar reference | deliberately wrong (self-check test only)
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void space_to_depth(__global const TB *in, __global TB *out,
                              int C, int H, int W, int B, int NCB)
 {
@@ -70,6 +81,16 @@ __kernel void space_to_depth(__global const TB *in, __global TB *out,
 }
 
 /* in: [N, C*B*B, H, W] -> out: [N, C, H*B, W*B] */
+/** @param[in]  in   [N, C*B*B, H, W] input, moved as raw bits (TB)
+ *  @param[out] out  [N, C, H*B, W*B] output
+ *  @param[in]  C    output channels
+ *  @param[in]  H    input height
+ *  @param[in]  W    input width
+ *  @param[in]  B    block size
+ *  @param[in]  NC   N * C, the extent of NDRange dimension 2
+ *  @note -DCRD=0|1: DCR or CRD channel order
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void depth_to_space(__global const TB *in, __global TB *out,
                              int C, int H, int W, int B, int NC)
 {

@@ -189,6 +189,22 @@ inline void sample(__global const T *x, __global T *y, int c0, int c1, long HWo,
 
 /* x: [N, C, Hi, Wi] T; grid: [N, Ho, Wo, 2] float (x then y, normalised to [-1, 1]);
  * y: [N, C, Ho, Wo] T. cpb channels per work-item, nblk = ceil(C / cpb). */
+/** @param[in]  x      [N, C, Hi, Wi] input
+ *  @param[in]  grid   [N, Ho, Wo, 2] float sample positions (x, y), normalised to [-1, 1]
+ *  @param[out] y      [N, C, Ho, Wo] output
+ *  @param[in]  C      channels
+ *  @param[in]  Hi     input height
+ *  @param[in]  Wi     input width
+ *  @param[in]  Ho     output height
+ *  @param[in]  Wo     output width
+ *  @param[in]  cpb    channels per work-item
+ *  @param[in]  nblk   ceil(C / cpb)
+ *  @param[in]  N      batch
+ *  @param[in]  align  ONNX align_corners (0 or 1)
+ *  @note -DMODE=0|1|2: nearest | bilinear | bicubic; -DPAD=0|1|2: zeros | border | reflection
+ *  @note -DCUBIC_CHANNELS=k: channels [0, k) bicubic; -DCLSS_CLANG_VECTORS=0|1: builtin-free loads
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void grid_sample(__global const T *x, __global const float *grid, __global T *y,
                           int C, int Hi, int Wi, int Ho, int Wo, int cpb, int nblk, int N, int align)
 {
@@ -209,6 +225,24 @@ __kernel void grid_sample(__global const T *x, __global const float *grid, __glo
  *   gx = (2X + 1) / Wo - 1 + 2 * mx * kx / Wi,
  * computed here directly in pixels, which keeps full float precision at any size.
  * motion: [N, 2, Ho, Wo] T. */
+/** @param[in]  x       [N, C, Hi, Wi] input
+ *  @param[in]  motion  [N, 2, Ho, Wo] motion (mx, my)
+ *  @param[out] y       [N, C, Ho, Wo] output
+ *  @param[in]  C       channels
+ *  @param[in]  Hi      input height
+ *  @param[in]  Wi      input width
+ *  @param[in]  Ho      output height
+ *  @param[in]  Wo      output width
+ *  @param[in]  cpb     channels per work-item
+ *  @param[in]  nblk    ceil(C / cpb)
+ *  @param[in]  N       batch
+ *  @param[in]  sx      Wi / Wo
+ *  @param[in]  sy      Hi / Ho
+ *  @param[in]  kx      motion_scale * scale along x (input pixels per motion unit)
+ *  @param[in]  ky      likewise along y
+ *  @note -DMODE, -DPAD, -DCUBIC_CHANNELS, -DCLSS_CLANG_VECTORS: as grid_sample
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void warp_motion(__global const T *x, __global const T *motion, __global T *y,
                           int C, int Hi, int Wi, int Ho, int Wo, int cpb, int nblk, int N,
                           float sx, float sy, float kx, float ky)
@@ -227,6 +261,10 @@ __kernel void warp_motion(__global const T *x, __global const T *motion, __globa
 
 /* A float16 grid (an fp16 ONNX model's storage) widened to the float grid the samplers
  * read; vload_half is core OpenCL, so this builds in every precision. */
+/** @param[in]  src  [n] half values
+ *  @param[out] dst  [n] the same as float
+ *  @param[in]  n    elements
+ */
 __kernel void widen_half(__global const half *src, __global float *dst, int n)
 {
     const int i = get_global_id(0);

@@ -49,6 +49,25 @@ static int source_of(int X, int n, int si, int o, float s, float jit)
     return -1;
 }
 
+/** @param[in]  in   [N, C, h, w] render-resolution samples, moved as raw bits (TB)
+ *  @param[out] out  [N, C, Ho, Wo] output, zero where no sample lands
+ *  @param[in]  C    channels
+ *  @param[in]  h    input height
+ *  @param[in]  w    input width
+ *  @param[in]  Ho   output height
+ *  @param[in]  Wo   output width
+ *  @param[in]  NCb  N * ceil(C / CPT), the extent of NDRange dimension 2
+ *  @param[in]  siy  integer scale along y, or 0 for a non-integer one (then sy is used)
+ *  @param[in]  six  integer scale along x, or 0
+ *  @param[in]  oy   integer-scale offset along y, min(floor((0.5 + jy) * siy), siy - 1), from the host
+ *  @param[in]  ox   integer-scale offset along x
+ *  @param[in]  sy   scale along y (non-integer form)
+ *  @param[in]  sx   scale along x (non-integer form)
+ *  @param[in]  jy   jitter along y in render pixels, in [-0.5, 0.5]
+ *  @param[in]  jx   jitter along x in render pixels
+ *  @note -DCPT=n: channels per work-item (default 4)
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
 __kernel void zero_upsample(__global const TB *in, __global TB *out,
                             int C, int h, int w, int Ho, int Wo, int NCb,
                             int siy, int six, int oy, int ox, float sy, float sx, float jy, float jx)

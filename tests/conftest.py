@@ -13,11 +13,7 @@ import re
 
 import pytest
 
-from clss.conformance import check
 from clss.device import DeviceError, get_device, list_devices
-
-PRECISIONS = ("fp32", "fp16")
-
 
 @pytest.fixture(scope="session")
 def dev():
@@ -56,14 +52,6 @@ CONFORMANCE_DEVICES = conformance_devices()
                 ids=[i for i, _ in CONFORMANCE_DEVICES])
 def any_dev(request):
     return get_device(request.param)
-
-
-def assert_case(case, dev, precision):
-    """Diff one conformance case against onnxruntime; the failure message is the row."""
-    row = check(case, dev, precision)
-    assert row.passed, (f"{case.name} {precision}: max abs {row.max_abs:.3g}, max rel {row.max_rel:.3g}, "
-                        f"err/tol {row.ratio:.3g} (tol {row.tolerance}) {row.detail}")
-    return row
 
 
 def pytest_configure(config):

@@ -1,5 +1,5 @@
 """The ONNX backend node test cases shipped with onnx 1.22.0: discovery and loading,
-shared by test_node_cases.py (the kernels) and test_model_nodes.py (clss.Model)."""
+shared by test_node_cases_kernels.py (the kernels) and test_node_cases_model.py (clss.Model)."""
 from __future__ import annotations
 
 import glob

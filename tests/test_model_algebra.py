@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from onnx import helper
 
-from test_model_random import CHAIN_TOL, SETTINGS, check
+from helpers import CHAIN_TOL, SETTINGS, check_graph
 
 
 @st.composite
@@ -65,7 +65,7 @@ def decoder(draw):
 @given(case=decoder())
 def test_conv_through_resize(prec, case):
     nodes, feeds, outputs, inits, fires = case
-    cm = check(nodes, feeds, outputs, inits, prec, CHAIN_TOL)
+    cm = check_graph(nodes, feeds, outputs, inits, prec, CHAIN_TOL)
     assert any(line.startswith("conv_resize") for line in cm.pass_log) == fires, cm.pass_log
 
 

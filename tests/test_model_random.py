@@ -9,46 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import given, settings, strategies as st
 from onnx import helper
 
-import clss
-from clss.ops.base import Tolerance, compare
-from clss.ops.twin import make_model, run_ort
+from clss.ops.base import Tolerance
+from helpers import CHAIN_TOL, SETTINGS, check_graph
 
 TOL = {"fp32": Tolerance(1e-5, 1e-4), "fp16": Tolerance(1e-3, 1e-3)}
 # Chains store every intermediate in fp16: one rounding per op compounds.
-CHAIN_TOL = {"fp32": Tolerance(2e-5, 2e-4), "fp16": Tolerance(5e-3, 5e-3)}
-SETTINGS = dict(deadline=None, derandomize=True, suppress_health_check=list(HealthCheck), database=None)
-
 CHANNELS = st.sampled_from([1, 2, 3, 5, 7, 8, 13])
 SIDE = st.integers(1, 11)
-
-
-def _half(a):
-    return a.astype(np.float16).astype(np.float32) if a.dtype == np.float32 else a
-
-
-def check(nodes, feeds, outputs, inits, prec, tol, opset=18, shapeless=False):
-    """shapeless: the graph outputs declare no shape (as onnxruntime allows)."""
-    if prec != "fp32":
-        inits = {k: _half(v) for k, v in inits.items()}
-        feeds = {k: _half(v) for k, v in feeds.items()}
-    model = make_model(nodes, feeds, outputs, initializers=inits, opset=opset)
-    if shapeless:
-        for o in model.graph.output:
-            o.type.tensor_type.ClearField("shape")
-    cm = clss.Model(model, precision=prec)
-    outs = cm.run(feeds)
-    refs = run_ort(model, feeds)
-    for name, r in zip(cm.output_names, refs):
-        if r.dtype.kind in "biu":
-            assert np.array_equal(outs[name], r), f"{name}: integer outputs differ"
-            continue
-        c = compare(outs[name], r, tol[prec])
-        assert c.passed, f"{name} {prec}: max abs {c.max_abs:.3g} err/tol {c.ratio:.3g} {c.detail}\n" \
-                         f"{[(n.op_type, dict((a.name, helper.get_attribute_value(a)) for a in n.attribute)) for n in nodes]}"
-    return cm
 
 
 # --- single ops ---------------------------------------------------------------------------
@@ -216,7 +186,7 @@ def test_random_single_op(prec, case, shapeless):
     tol = dict(TOL)
     if nodes[0].op_type == "GridSample" and prec == "fp16":
         tol["fp16"] = Tolerance(2e-3, 2e-3)   # bicubic: 16 taps with negative lobes
-    check(nodes, feeds, ["y"], inits, prec, tol, shapeless=shapeless)
+    check_graph(nodes, feeds, ["y"], inits, prec, tol, shapeless=shapeless)
 
 
 # --- multi-op graphs --------------------------------------------------------------------------
@@ -311,4 +281,4 @@ def test_random_graph(prec, case, shapeless):
     used = {t for n in nodes for t in n.input}
     # Tensors nobody reads are graph outputs too, so every node is checked.
     dangling = [t for n in nodes for t in n.output if t not in used and t not in outs]
-    check(nodes, feeds, outs + dangling, inits, prec, CHAIN_TOL, shapeless=shapeless)
+    check_graph(nodes, feeds, outs + dangling, inits, prec, CHAIN_TOL, shapeless=shapeless)

@@ -12,24 +12,7 @@ import sys
 import pytest
 
 from clss.ops import FAMILIES
-
-ICD = "/usr/lib/oclgrind/liboclgrind-rt-icd.so"
-DIAGNOSTIC = re.compile(r"Invalid (read|write)|data race|Uninitiali[sz]ed|OCLGRIND FATAL", re.I)
-
-
-def oclgrind_env(tmp_path):
-    vendors = tmp_path / "vendors"
-    vendors.mkdir()
-    (vendors / "oclgrind.icd").write_text(ICD + "\n")
-    env = dict(os.environ)
-    env.update(OCL_ICD_VENDORS=str(vendors), OCLGRIND_DATA_RACES="1", OCLGRIND_UNINITIALIZED="1",
-               # no OCLGRIND_CHECK_API: pyopencl probes OpenCL 3.0 device queries that oclgrind
-               # (1.2) answers with CL_INVALID_VALUE, which is noise, not a kernel fault
-               # oclgrind's uninitialised-value plugin rejects LLVM's `freeze`, which the optimiser emits
-               CLSS_BUILD_OPTIONS="-cl-opt-disable", CLSS_DEVICE="oclgrind")
-    env.pop("PYOPENCL_CTX", None)
-    return env
-
+from helpers import DIAGNOSTIC, ICD, oclgrind_env
 
 @pytest.mark.oclgrind
 @pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")

@@ -4,16 +4,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import conv
 from clss.conformance import check
-from conftest import PRECISIONS, assert_case
-
-CASES = conv.cases("full")
-
-
-@pytest.mark.parametrize("precision", PRECISIONS)
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, any_dev):
-    assert_case(case, any_dev, precision)
-
+from helpers import PRECISIONS, assert_case
 
 # Parameter combinations: kernel sizes, strides and activations come from small
 # sets so the kernel builds are shared across examples (each distinct -D set

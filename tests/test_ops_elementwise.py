@@ -8,18 +8,9 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import elementwise as ew
 from clss.ops.base import DEFAULT_TOL, compare
-from conftest import PRECISIONS, assert_case
-from test_oclgrind import ICD, oclgrind_env
-from test_ops_pool import FP16_NATIVE_BUILD
+from helpers import FP16_NATIVE_BUILD, ICD, PRECISIONS, assert_case, oclgrind_env
 
-CASES = ew.cases("full")
 SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-
-
-@pytest.mark.parametrize("precision", PRECISIONS)
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, any_dev):
-    assert_case(case, any_dev, precision)
 
 
 @st.composite

@@ -2,15 +2,6 @@ import numpy as np
 import pytest
 
 from clss.ops import mlp
-from conftest import PRECISIONS, assert_case
-
-CASES = mlp.cases("full")
-
-
-@pytest.mark.parametrize("precision", PRECISIONS)
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, any_dev):
-    assert_case(case, any_dev, precision)
 
 
 def test_packed_weights_reused_and_equal_to_layer_list(dev):

@@ -7,16 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import pool
-from conftest import PRECISIONS, assert_case
-from test_oclgrind import ICD, oclgrind_env
-
-CASES = pool.cases("full")
-
-
-@pytest.mark.parametrize("precision", PRECISIONS)
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, any_dev):
-    assert_case(case, any_dev, precision)
+from helpers import FP16_NATIVE_BUILD, ICD, assert_case, oclgrind_env
 
 
 @st.composite
@@ -97,21 +88,6 @@ def test_bad_arguments_raise(dev):
         pool.avg_pool(dev, "fp32", x, 2, auto_pad="SAME")
     with pytest.raises(TypeError, match="float16 storage"):
         pool.global_avg_pool(dev, "fp16", x)
-
-
-FP16_NATIVE_BUILD = """
-import sys, pyopencl as cl
-from clss.device import Device
-from clss.ops import {module} as m
-ctx = cl.Context([cl.get_platforms()[0].get_devices()[0]])
-src = Device.source("{stem}")
-for d in m.BUILD_VARIANTS:
-    opts = " ".join(f"-D{{k}}={{v}}" for k, v in {{"CLSS_FP16_NATIVE": 1, **d}}.items())
-    try:
-        cl.Program(ctx, src).build(options=opts)
-    except cl.Error as e:
-        sys.exit(f"{{opts}}: {{e}}")
-"""
 
 
 @pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")

@@ -5,15 +5,9 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from clss.conformance import check
 from clss.ops import resize as rs
 from clss.ops.base import Unsupported
-from conftest import PRECISIONS, assert_case
+from helpers import PRECISIONS, assert_case
 
 CASES = rs.cases("full")
-
-
-@pytest.mark.parametrize("precision", PRECISIONS)
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, any_dev):
-    assert_case(case, any_dev, precision)
 
 
 def test_case_names_unique():

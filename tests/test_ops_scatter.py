@@ -3,15 +3,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import scatter as S
-from conftest import PRECISIONS, assert_case
-
-CASES = S.cases("full")
-
-
-@pytest.mark.parametrize("precision", PRECISIONS)
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, any_dev):
-    assert_case(case, any_dev, precision)
+from helpers import PRECISIONS, assert_case
 
 
 @st.composite

@@ -3,16 +3,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import warp as W
-from conftest import PRECISIONS, assert_case
-
-CASES = W.cases("full")
-
-
-@pytest.mark.parametrize("precision", PRECISIONS)
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, any_dev):
-    assert_case(case, any_dev, precision)
-
+from helpers import PRECISIONS, assert_case
 
 # Both spellings of every mode (opset 16 names, opset 20 names), every padding and
 # align_corners, odd shapes including 1-pixel axes, grids reaching far off the image.

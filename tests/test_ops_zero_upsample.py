@@ -4,15 +4,6 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.conformance import check
 from clss.ops import zero_upsample as zu
-from conftest import PRECISIONS, assert_case
-
-CASES = zu.cases("full")
-
-
-@pytest.mark.parametrize("precision", PRECISIONS)
-@pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
-def test_against_onnxruntime(case, precision, any_dev):
-    assert_case(case, any_dev, precision)
 
 
 @settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))

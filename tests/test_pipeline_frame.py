@@ -19,28 +19,7 @@ import numpy as np
 import pytest
 
 from clss.pipeline import OracleUpscaler, Upscaler
-from clss.scene import render_sequence
-
-RENDER = (23, 37)          # -> 46 x 74, padded to 48 x 80 for the classifier
-FRAMES = 8
-RESET_AT = 4
-_seq = {}
-_nets = {}
-
-
-def frames(render=RENDER, n=FRAMES, scale=2.0):
-    key = (render, n, scale)
-    if key not in _seq:
-        _seq[key] = render_sequence(n, render, scale, spp_ref=0)
-    return _seq[key]
-
-
-def networks():
-    if not _nets:
-        from clss.networks import build_classifier, build_composition
-        _nets["cls"], _nets["comp"] = build_classifier(), build_composition()
-    return _nets["cls"], _nets["comp"]
-
+from helpers import RENDER, RESET_AT, compare_frame, frames, networks
 
 def _oracle(render, scale, mode, **kw):
     import onnxruntime as ort
@@ -55,30 +34,6 @@ def _ours(scale, mode, precision, **kw):
     if mode == "net":
         kw["classifier"], kw["composition"] = networks()
     return Upscaler(scale, mode="rules" if mode == "rule" else "net", precision=precision, **kw)
-
-
-def compare_frame(a, b, ha, hb, precision, mode, where):
-    """a, b: outputs H x W x 3; ha, hb: histories [16, H, W] (ours, oracle)."""
-    # The counter is warped bilinearly, so it can be fractional; half storage rounds it
-    # by up to 2^-7 at 16..32.
-    cnt_diff = np.abs(ha[3] - hb[3]) > (1e-4 if precision == "fp32" else 0.02)
-    frac = float(cnt_diff.mean())
-    agree = ~cnt_diff
-    if precision == "fp32":
-        assert frac <= 0.01, f"{where}: counters differ on {frac:.2%} of pixels"
-        bound = 1e-4 * np.abs(b).max() + 1e-4 * np.abs(b)
-        bad = (np.abs(a - b) > bound).any(-1) & agree
-        assert not bad.any(), (f"{where}: output differs at {np.argwhere(bad)[:3].tolist()}, "
-                               f"max |d| {np.abs(a - b)[bad].max():.3g}")
-        d = np.abs(ha - hb)[:, agree]
-        assert d.max() <= 1e-4, f"{where}: history channel {int(d.max(1).argmax())} differs by {d.max():.3g}"
-    else:
-        assert frac <= (0.01 if mode == "rule" else 0.15), f"{where}: counters differ on {frac:.2%}"
-        bound = 1e-2 * np.abs(b).max() + 1e-2 * np.abs(b)
-        ok = (np.abs(a - b) <= bound).all(-1).mean()
-        assert ok >= 0.99, f"{where}: only {ok:.2%} of output pixels within tolerance"
-        d = np.abs(ha[:3] - hb[:3])[:, agree]
-        assert np.percentile(d, 99) <= 2e-3, f"{where}: history colour differs by {np.percentile(d, 99):.3g}"
 
 
 @pytest.mark.parametrize("precision", ["fp32", "fp16"])
@@ -202,7 +157,7 @@ def test_frame_kernels_clean_under_oclgrind(vec, tmp_path):
     import os
     import subprocess
     import sys
-    from test_oclgrind import DIAGNOSTIC, ICD, oclgrind_env
+    from helpers import DIAGNOSTIC, ICD, oclgrind_env
     if not os.path.exists(ICD):
         pytest.skip("oclgrind not installed (apt-get install oclgrind)")
     env = oclgrind_env(tmp_path)

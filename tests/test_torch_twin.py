@@ -25,7 +25,7 @@ from weights_tools import torch_frame  # noqa: E402
 from clss.networks import build_classifier, build_composition  # noqa: E402
 from clss.networks import apply_weights, model_weights  # noqa: E402
 
-from test_pipeline_frame import FRAMES, RENDER, RESET_AT, compare_frame, frames  # noqa: E402
+from helpers import FRAMES, RENDER, RESET_AT, compare_frame, frames  # noqa: E402
 
 SEED = 3
 

@@ -225,6 +225,8 @@ class FrameStep:
         out = self.out if out is None else out
         hist, hist_out = self.history[self.cur], self.history[1 - self.cur]
         ev = []
+        # Each launch passes its kernel's arguments positionally, in the order of the
+        # @param lines at that __kernel in kernels/frame.cl (which name and explain them).
         ev.append(("prepare", self._clear(self.recon, self.flags)))
         pq_scale = self.nits / PQ_PEAK_NITS
         has_r = reactive is not None
@@ -237,6 +239,7 @@ class FrameStep:
         ev.append(("depth_diff", dev.launch(self.k["depth_diff"], (w, h),
                                             (self.recon.data, self.X.data, self.lr.data, i32(w),
                                              i32(h)))))
+        # resolve's arguments X .. hist, the same in both modes
         common = (self.X.data, self.lr.data, self.bx.data, self.by.data, f(jitter[0]),
                   f(jitter[1]), i32(w), i32(h), i32(W), i32(H), f(W / w), f(H / h),
                   i32(bool(reset)), hist.data)

@@ -1,0 +1,145 @@
+"""Helpers the test modules share (conftest.py holds only fixtures and hooks): the
+conformance check, the oclgrind environment, the graph checker of the clss.Model tests
+and the frame sequence and comparison of the frame-step tests."""
+from __future__ import annotations
+
+import os
+import re
+
+import numpy as np
+from hypothesis import HealthCheck
+from onnx import helper
+
+import clss
+from clss.conformance import check
+from clss.ops.base import Tolerance, compare
+from clss.ops.twin import make_model, run_ort
+from clss.scene import render_sequence
+
+# --- conformance: ops against onnxruntime ----------------------------------------------
+
+PRECISIONS = ("fp32", "fp16")
+
+
+def assert_case(case, dev, precision):
+    """Diff one conformance case against onnxruntime; the failure message is the row."""
+    row = check(case, dev, precision)
+    assert row.passed, (f"{case.name} {precision}: max abs {row.max_abs:.3g}, max rel {row.max_rel:.3g}, "
+                        f"err/tol {row.ratio:.3g} (tol {row.tolerance}) {row.detail}")
+    return row
+
+
+# --- oclgrind ----------------------------------------------------------------------------
+
+ICD = "/usr/lib/oclgrind/liboclgrind-rt-icd.so"
+DIAGNOSTIC = re.compile(r"Invalid (read|write)|data race|Uninitiali[sz]ed|OCLGRIND FATAL", re.I)
+
+
+def oclgrind_env(tmp_path):
+    vendors = tmp_path / "vendors"
+    vendors.mkdir()
+    (vendors / "oclgrind.icd").write_text(ICD + "\n")
+    env = dict(os.environ)
+    env.update(OCL_ICD_VENDORS=str(vendors), OCLGRIND_DATA_RACES="1", OCLGRIND_UNINITIALIZED="1",
+               # no OCLGRIND_CHECK_API: pyopencl probes OpenCL 3.0 device queries that oclgrind
+               # (1.2) answers with CL_INVALID_VALUE, which is noise, not a kernel fault
+               # oclgrind's uninitialised-value plugin rejects LLVM's `freeze`, which the optimiser emits
+               CLSS_BUILD_OPTIONS="-cl-opt-disable", CLSS_DEVICE="oclgrind")
+    env.pop("PYOPENCL_CTX", None)
+    return env
+
+
+# A script that builds every BUILD_VARIANTS entry of an ops module with half arithmetic.
+FP16_NATIVE_BUILD = """
+import sys, pyopencl as cl
+from clss.device import Device
+from clss.ops import {module} as m
+ctx = cl.Context([cl.get_platforms()[0].get_devices()[0]])
+src = Device.source("{stem}")
+for d in m.BUILD_VARIANTS:
+    opts = " ".join(f"-D{{k}}={{v}}" for k, v in {{"CLSS_FP16_NATIVE": 1, **d}}.items())
+    try:
+        cl.Program(ctx, src).build(options=opts)
+    except cl.Error as e:
+        sys.exit(f"{{opts}}: {{e}}")
+"""
+
+
+# --- random graphs through clss.Model ----------------------------------------------------
+
+# Chains store every intermediate in fp16: one rounding per op compounds.
+CHAIN_TOL = {"fp32": Tolerance(2e-5, 2e-4), "fp16": Tolerance(5e-3, 5e-3)}
+SETTINGS = dict(deadline=None, derandomize=True, suppress_health_check=list(HealthCheck), database=None)
+
+
+def _half(a):
+    return a.astype(np.float16).astype(np.float32) if a.dtype == np.float32 else a
+
+
+def check_graph(nodes, feeds, outputs, inits, prec, tol, opset=18, shapeless=False):
+    """shapeless: the graph outputs declare no shape (as onnxruntime allows)."""
+    if prec != "fp32":
+        inits = {k: _half(v) for k, v in inits.items()}
+        feeds = {k: _half(v) for k, v in feeds.items()}
+    model = make_model(nodes, feeds, outputs, initializers=inits, opset=opset)
+    if shapeless:
+        for o in model.graph.output:
+            o.type.tensor_type.ClearField("shape")
+    cm = clss.Model(model, precision=prec)
+    outs = cm.run(feeds)
+    refs = run_ort(model, feeds)
+    for name, r in zip(cm.output_names, refs):
+        if r.dtype.kind in "biu":
+            assert np.array_equal(outs[name], r), f"{name}: integer outputs differ"
+            continue
+        c = compare(outs[name], r, tol[prec])
+        assert c.passed, f"{name} {prec}: max abs {c.max_abs:.3g} err/tol {c.ratio:.3g} {c.detail}\n" \
+                         f"{[(n.op_type, dict((a.name, helper.get_attribute_value(a)) for a in n.attribute)) for n in nodes]}"
+    return cm
+
+
+# --- the frame step: a short sequence and the per-frame comparison ------------------------
+
+RENDER = (23, 37)          # -> 46 x 74, padded to 48 x 80 for the classifier
+FRAMES = 8
+RESET_AT = 4
+_seq = {}
+_nets = {}
+
+
+def frames(render=RENDER, n=FRAMES, scale=2.0):
+    key = (render, n, scale)
+    if key not in _seq:
+        _seq[key] = render_sequence(n, render, scale, spp_ref=0)
+    return _seq[key]
+
+
+def networks():
+    if not _nets:
+        from clss.networks import build_classifier, build_composition
+        _nets["cls"], _nets["comp"] = build_classifier(), build_composition()
+    return _nets["cls"], _nets["comp"]
+
+
+def compare_frame(a, b, ha, hb, precision, mode, where):
+    """a, b: outputs H x W x 3; ha, hb: histories [16, H, W] (ours, oracle)."""
+    # The counter is warped bilinearly, so it can be fractional; half storage rounds it
+    # by up to 2^-7 at 16..32.
+    cnt_diff = np.abs(ha[3] - hb[3]) > (1e-4 if precision == "fp32" else 0.02)
+    frac = float(cnt_diff.mean())
+    agree = ~cnt_diff
+    if precision == "fp32":
+        assert frac <= 0.01, f"{where}: counters differ on {frac:.2%} of pixels"
+        bound = 1e-4 * np.abs(b).max() + 1e-4 * np.abs(b)
+        bad = (np.abs(a - b) > bound).any(-1) & agree
+        assert not bad.any(), (f"{where}: output differs at {np.argwhere(bad)[:3].tolist()}, "
+                               f"max |d| {np.abs(a - b)[bad].max():.3g}")
+        d = np.abs(ha - hb)[:, agree]
+        assert d.max() <= 1e-4, f"{where}: history channel {int(d.max(1).argmax())} differs by {d.max():.3g}"
+    else:
+        assert frac <= (0.01 if mode == "rule" else 0.15), f"{where}: counters differ on {frac:.2%}"
+        bound = 1e-2 * np.abs(b).max() + 1e-2 * np.abs(b)
+        ok = (np.abs(a - b) <= bound).all(-1).mean()
+        assert ok >= 0.99, f"{where}: only {ok:.2%} of output pixels within tolerance"
+        d = np.abs(ha[:3] - hb[:3])[:, agree]
+        assert np.percentile(d, 99) <= 2e-3, f"{where}: history colour differs by {np.percentile(d, 99):.3g}"
