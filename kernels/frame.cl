@@ -61,7 +61,7 @@
 #define HIDDEN 32
 #endif
 #ifndef CLIP_EPS
-#define CLIP_EPS 1e-6f
+#define CLIP_EPS 0.0019550342f
 #endif
 #ifndef CLIP_GAMMA
 #define CLIP_GAMMA 1.25f
@@ -595,17 +595,19 @@ inline Gathered gather(int I, iv J, __global const T *X, __global const float *l
 }
 
 /* s9 history clip: up + t (hist - up), t the largest fraction in [0, 1] that keeps all
- * three channels inside the clamp box when up is (channels at most CLIP_EPS from up do
- * not limit it); one t for the three keeps the history's hue, which a per-channel clamp
- * shifts differently each frame as the jittered box moves (flicker) */
+ * three channels inside the clamp box widened by CLIP_EPS when up is inside it; one t
+ * for the three keeps the history's hue, which a per-channel clamp shifts differently
+ * each frame as the jittered box moves (flicker). The widening keeps t continuous and
+ * bounds how much a channel with a tiny difference d amplifies rounding (by 1/eps). */
 inline void clip_history(const Gathered *g, fv hc[3])
 {
     fv t = FV(1.0f);
     for (int c = 0; c < 3; ++c) {
         const fv d = g->col[c] - g->up[c];
-        const fv lim = select(g->bmin[c] - g->up[c], g->bmax[c] - g->up[c], d > 0.0f);
-        const iv big = fabs(d) > CLIP_EPS;
-        const fv tc = select(FV(1.0f), lim / select(FV(1.0f), d, big), big);
+        const fv lim = select((g->bmin[c] - CLIP_EPS) - g->up[c],
+                              (g->bmax[c] + CLIP_EPS) - g->up[c], d > 0.0f);
+        const iv nz = d != 0.0f;
+        const fv tc = select(FV(1.0f), lim / select(FV(1.0f), d, nz), nz);
         t = fmin(t, fmax(tc, 0.0f));
     }
     for (int c = 0; c < 3; ++c)

@@ -246,13 +246,13 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
     wgt = np.maximum(1 / (1 + cnt), aux[4])
     # history clip: up + t (wcol - up), one t in [0, 1] for the three channels
     d = wcol - up
-    lim = np.where(d > 0, aux[8:11] - up, aux[5:8] - up)
-    big = np.abs(d) > C.RULE_CLIP_EPS
-    tc = np.where(big, lim / np.where(big, d, 1), 1)
+    eps = C.RULE_CLIP_EPS     # the box widened by eps on every side
+    lim = np.where(d > 0, aux[8:11] + eps - up, aux[5:8] - eps - up)
+    tc = np.where(d != 0, lim / np.where(d != 0, d, 1), 1)
     t = np.minimum(np.maximum(tc, 0).min(0), 1)
     hist = up + t * d
     inside = np.all((up >= aux[5:8]) & (up <= aux[8:11]), 0)   # up may overshoot the box
-    assert np.all(((hist >= aux[5:8] - 1e-6) & (hist <= aux[8:11] + 1e-6)) | ~inside)
+    assert np.all(((hist >= aux[5:8] - eps - 1e-6) & (hist <= aux[8:11] + eps + 1e-6)) | ~inside)
     out = wgt * up + (1 - wgt) * hist
     return dict(dbg_dilated_depth=d_dil, dbg_dilated_motion=m_dil, dbg_recon_depth=R,
                 dbg_depth_diff=dd, dbg_upsampled=up, dbg_motion_hr=mhr, dbg_valid=valid,
@@ -280,8 +280,9 @@ def test_rule_history_clip_hand_cases():
     # box, history further out (t = 0) | history equal to up
     up = np.array([[.5, .5, .5], [.5, .5, .5], [.9, .5, .5], [.5, .5, .5]], np.float32)
     hist = np.array([[.6, .45, .5], [.6, .7, .4], [.95, .5, .5], [.5, .5, .5]], np.float32)
-    lo = np.full((4, 3), .4, np.float32)
-    hi = np.full((4, 3), .6, np.float32)
+    # the clip widens the box by eps on every side: fed narrowed by eps, it is [.4, .6]
+    lo = np.full((4, 3), .4 + C.RULE_CLIP_EPS, np.float32)
+    hi = np.full((4, 3), .6 - C.RULE_CLIP_EPS, np.float32)
     want = np.array([[.6, .45, .5], [.55, .6, .45], [.9, .5, .5], [.5, .5, .5]], np.float32)
     feed = {k: np.ascontiguousarray(v.T.reshape(1, 3, 1, 4))
             for k, v in (("hist", hist), ("up", up), ("lo", lo), ("hi", hi))}

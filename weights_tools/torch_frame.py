@@ -46,12 +46,12 @@ BLENDS = ("net", "rule")
 
 
 def clip_towards(hist, up, lo, hi):
-    """Rule mode's history clip (reference.md s9): up + t (hist - up) with one t in [0, 1]
-    for the three channels, the largest that keeps every channel inside [lo, hi]."""
+    """The history clip (reference.md s9): up + t (hist - up) with one t in [0, 1] for the
+    three channels, the largest that keeps every channel inside [lo - eps, hi + eps]."""
     d = hist - up
-    lim = torch.where(d > 0, hi - up, lo - up)
-    big = d.abs() > RULE_CLIP_EPS
-    tc = torch.where(big, lim / torch.where(big, d, torch.ones_like(d)), torch.ones_like(d))
+    lim = torch.where(d > 0, (hi + RULE_CLIP_EPS) - up, (lo - RULE_CLIP_EPS) - up)
+    nz = d != 0
+    tc = torch.where(nz, lim / torch.where(nz, d, torch.ones_like(d)), torch.ones_like(d))
     t = torch.clamp(tc, min=0.0).amin(1, keepdim=True).clamp(max=1.0)
     return up + t * d
 

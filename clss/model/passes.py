@@ -597,19 +597,26 @@ def _canonical_transpose(g: Graph, n: Node) -> bool:
         g.nodes[idx] = Node("clss.Conv", [x, w, b, ""], list(n.outputs), attrs, n.name, n.opset,
                             sources=n.sources, unfused=[n])
         return True
-    xs, ys = g.shapes[x], g.shapes[n.outputs[0]]
+    _lower_1d(g, n, idx, b, attrs, "ConvTranspose", {"output_padding": opad})
+    return True
+
+
+def _lower_1d(g: Graph, n: Node, idx: int, b: str, attrs: dict, op: str, extra: dict):
+    """Replace the 1-D convolution `n` (at g.nodes[idx]) by a clss.Conv on [N,C,1,L] views
+    of its input, weight and output; the fallback is ONNX `op` on the same 2-D views."""
+    x, w, y = n.inputs[0], n.inputs[1], n.outputs[0]
+    xs, ys = g.shapes[x], g.shapes[y]
     v1, x4 = _view(g, x, (xs[0], xs[1], 1, xs[2]), name=f"{n.name} (2-D)", sources=n.sources)
     vw, w4 = _weight_2d(g, n, w)
-    y = n.outputs[0]
     t = g.fresh(y)
     g.shapes[t], g.dtypes[t] = (ys[0], ys[1], 1, ys[2]), g.dtypes[y]
     conv = Node("clss.Conv", [x4, w4, b, ""], [t], attrs, n.name, n.opset, sources=n.sources)
-    conv.unfused = [Node("ConvTranspose", [x4, w4, b], [t],
-                         {"strides": strides, "pads": pads, "dilations": dil, "output_padding": opad,
-                          "group": attrs["group"]}, n.name, n.opset, sources=n.sources)]
+    conv.unfused = [Node(op, [x4, w4, b], [t],
+                         {"strides": list(attrs["strides"]), "pads": list(attrs["pads"]),
+                          "dilations": list(attrs["dilations"]), "group": attrs["group"], **extra},
+                         n.name, n.opset, sources=n.sources)]
     v2, _ = _view(g, t, ys, out=y, name=f"{n.name} (back)", sources=n.sources)
     g.nodes[idx:idx + 1] = vw + [v1, conv, v2]
-    return True
 
 
 def _weight_2d(g: Graph, n: Node, w: str):
@@ -636,7 +643,7 @@ def canonical_convs(g: Graph) -> int:
             continue
         x, w = n.inputs[0], n.inputs[1]
         b = n.inputs[2] if len(n.inputs) > 2 else ""
-        xs, ws, ys = g.shapes[x], g.shapes[w], g.shapes[n.outputs[0]]
+        xs, ws = g.shapes[x], g.shapes[w]
         nd = len(xs) - 2
         if nd not in (1, 2) or len(ws) != nd + 2:
             continue
@@ -661,19 +668,7 @@ def canonical_convs(g: Graph) -> int:
             g.nodes[idx] = Node("clss.Conv", [x, w, b, ""], list(n.outputs), attrs, n.name, n.opset,
                                 sources=n.sources, unfused=[n])
         else:
-            v1, x4 = _view(g, x, (xs[0], xs[1], 1, xs[2]), name=f"{n.name} (2-D)", sources=n.sources)
-            vw, w4 = _weight_2d(g, n, w)
-            y = n.outputs[0]
-            t = g.fresh(y)
-            g.shapes[t], g.dtypes[t] = (ys[0], ys[1], 1, ys[2]), g.dtypes[y]
-            conv = Node("clss.Conv", [x4, w4, b, ""], [t], attrs, n.name, n.opset, sources=n.sources)
-            v2, _ = _view(g, t, ys, out=y, name=f"{n.name} (back)", sources=n.sources)
-            # Falls back to the ONNX Conv handler on the same 2-D views.
-            conv.unfused = [Node("Conv", [x4, w4, b], [t],
-                                 {"strides": list(attrs["strides"]), "pads": list(attrs["pads"]),
-                                  "dilations": list(attrs["dilations"]), "group": attrs["group"]},
-                                 n.name, n.opset, sources=n.sources)]
-            g.nodes[idx:idx + 1] = vw + [v1, conv, v2]
+            _lower_1d(g, n, idx, b, attrs, "Conv", {})
         changed += 1
     return changed
 

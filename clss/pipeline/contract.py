@@ -44,11 +44,16 @@ PQ_PEAK_NITS = 10000.0
 PQ_NITS = 100.0
 
 
-# Rule mode's history clip (reference.md s9): the warped history is pulled towards the
-# current upsampled colour `up` along the segment up -> history until it lies inside the
-# clamp box, all three channels by the same fraction. A history channel closer to `up`
-# than this (PQ code values) does not limit the fraction (nothing to clip, and no 0/0).
-RULE_CLIP_EPS = 1e-6
+# The history clip (reference.md s9): the warped history is pulled towards the current
+# upsampled colour `up` along the segment up -> history until it lies inside the clamp
+# box widened by this on every side (PQ code values: 2 steps of 10-bit PQ, invisible), all
+# three channels by the same fraction t. The widening keeps t continuous (a channel whose
+# difference d to `up` is below eps cannot limit it) and bounds how much the shared t
+# amplifies rounding: the limiting channel sets t = lim / d for all three, so the others
+# move by d_other / d times an error in lim. With an unwidened box and a 1e-6 cut-off,
+# the vector and scalar exp2/log2 of the PQ encode (last-bit differences) came out of the
+# net-mode clip 1.3e-4 apart (4e-5 without the clip); widened by 2/1023, 4e-5 again.
+RULE_CLIP_EPS = 2.0 / 1023.0
 # The clamp box (reference.md s9) is the 3x3 neighbourhood's min/max narrowed to its mean
 # +- CLIP_GAMMA standard deviations (variance clipping, Salvi 2016): thin bright features
 # widen a min/max box so far that it keeps their ghosts. Rule mode, cap 4, mean over the

@@ -51,7 +51,6 @@ DEBUG_OUTPUTS = {
     "dbg_clamp_min": "[1,3,H,W] stage 4 bilinear clamp box low (3x3 render-res, PQ)",
     "dbg_clamp_max": "[1,3,H,W] stage 4 bilinear clamp box high (3x3 render-res, PQ)",
 }
-DEBUG_OUTPUTS_RULE = {}
 DEBUG_OUTPUTS_NET = {
     "dbg_cls_input": "[1,23,H,W] stage 6 classifier input, before padding",
     "dbg_logits": "[1,6,H,W] stage 6 current logits after the bilinear x2 and crop",
@@ -208,13 +207,16 @@ def _pq_decode(g, e, nits, name):
 
 
 def _clip_towards(g, hist, up, lo, hi):
-    """Rule mode's history clip (reference.md s9): up + t (hist - up), one t in [0, 1] for
-    the three channels, the largest that keeps every channel inside [lo, hi] (when `up`
-    is inside; an `up` outside only stops the history from moving further out)."""
+    """The history clip (reference.md s9): up + t (hist - up), one t in [0, 1] for the
+    three channels, the largest that keeps every channel inside [lo - eps, hi + eps]
+    (when `up` is inside; an `up` outside only stops the history from moving further
+    out)."""
+    eps = g.const(RULE_CLIP_EPS)
     d = g.sub(hist, up)
-    lim = g.where(g.op("Greater", d, g.const(0.0)), g.sub(hi, up), g.sub(lo, up))
-    big = g.op("Greater", g.op("Abs", d), g.const(RULE_CLIP_EPS))
-    tc = g.where(big, g.div(lim, g.where(big, d, g.const(1.0))), g.const(1.0))
+    lim = g.where(g.op("Greater", d, g.const(0.0)), g.sub(g.add(hi, eps), up),
+                  g.sub(g.sub(lo, eps), up))
+    nz = g.op("Not", g.op("Equal", d, g.const(0.0)))
+    tc = g.where(nz, g.div(lim, g.where(nz, d, g.const(1.0))), g.const(1.0))
     t = g.op("Min", g.op("ReduceMin", g.op("Max", tc, g.const(0.0)), g.i64([1]), keepdims=1),
              g.const(1.0))
     return g.add(up, g.mul(t, d))
@@ -230,7 +232,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     into the current 3x3 neighbourhood's box.  mode "net": `classifier` and `composition` (onnx.ModelProto from
     clss.networks) are inlined.  `render_size` = (h, w).  `cap`: counter cap
     (default 4 for rule, 32 for net).  `hdr=False`: LDR in/out, no PQ (values clamped
-    to [0,1]).  `debug=True` adds the DEBUG_OUTPUTS(_RULE|_NET) graph outputs.
+    to [0,1]).  `debug=True` adds the DEBUG_OUTPUTS(_NET) graph outputs.
     """
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
