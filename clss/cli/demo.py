@@ -25,6 +25,7 @@ import json
 import os
 import sys
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -53,10 +54,9 @@ OUTPUT_SET = ("input/*", "bicubic/*", "rules/*", "net/*", "debug/*", "side_by_si
               "side_by_side_crop.png", "temporal_profile.png", "metrics.json")
 
 
-def main(argv=None) -> int:
-    from .args import ArgParser, positive_int, prepare_output_dir, start_output
-    from .upscaler_common import (FrameFiles, add_upscaler_args, check_weights_mode,
-                                  format_stage_table, write_debug_views)
+def _parser():
+    from .args import ArgParser, positive_int
+    from .upscaler_common import add_upscaler_args
     p = ArgParser(
         prog="clss demo",
         description="Render the built-in sample scene, upscale it with bicubic, CLSS rules and "
@@ -77,6 +77,13 @@ def main(argv=None) -> int:
     p.add_argument("--spp", type=positive_int, default=16, help="reference samples per output pixel")
     p.add_argument("--modes", default="rules,net", help="comma-separated subset of rules,net")
     p.add_argument("--workers", type=positive_int, default=2, help="processes rendering the scene")
+    return p
+
+
+def main(argv=None) -> int:
+    from .args import prepare_output_dir, start_output
+    from .upscaler_common import FrameFiles, check_weights_mode
+    p = _parser()
     a = p.parse_args(argv)
     modes = [m.strip() for m in a.modes.split(",") if m.strip()]
     if not modes or any(m not in ("rules", "net") for m in modes):
@@ -84,13 +91,9 @@ def main(argv=None) -> int:
     check_weights_mode(a.weights, "net" in modes)
 
     from .. import io as cio
-    from .. import metrics
     from ..device import get_device
     from ..pipeline import Upscaler
-    from ..pipeline.baselines import Bicubic, nearest
     from ..pipeline.contract import output_size
-    from ..progress import progress
-    from ..scene import iter_sequence
 
     h, w = a.size
     H, W = output_size(h, w, a.scale)
@@ -104,59 +107,18 @@ def main(argv=None) -> int:
     print(f"clss demo: {a.frames} frames {w}x{h} -> {W}x{H} (x{a.scale:g}), {a.precision}, "
           f"device {dev.info.name}; writing to {out}", file=sys.stderr)
 
-    bicubic = Bicubic(dev, (H, W))
     methods = ["bicubic"] + modes
-    scores = {m: {"psnr": [], "ssim": []} for m in methods}
-    row = int(H * 0.55)                          # the profile's scanline: ground and fence
-    lines = {m: [] for m in methods + ["reference"]}
-    wall = {m: 0.0 for m in methods}
-    render_s = 0.0
-    last = {}
+    # What the frames leave for the pictures and the summary.
+    run = _Run(scores={m: {"psnr": [], "ssim": []} for m in methods},
+               lines={m: [] for m in methods + ["reference"]}, wall={m: 0.0 for m in methods})
     t_all = time.perf_counter()
-    frames = iter_sequence(a.frames, (h, w), a.scale, spp_ref=a.spp, workers=a.workers)
     in_dir = os.path.join(out, "input")
-    sidecar = None
-    t = time.perf_counter()
     files = FrameFiles()
     try:
-        for f in progress(frames, desc="demo", unit="frame", total=a.frames):
-            render_s += time.perf_counter() - t
-            # One frame at a time (the references are large); write_sample_sequence writes a
-            # one-frame jitter.json each time, gathered into the sequence's sidecar, which is
-            # rewritten after every frame so that input/ is always a readable sequence.
-            files.add(*[q for q in cio.write_sample_sequence([f], in_dir)
-                        if not q.endswith("jitter.json")])
-            with open(os.path.join(in_dir, "jitter.json")) as fh:
-                one = json.load(fh)
-            if sidecar is None:
-                sidecar = dict(one, frames=[], jitter=[], resets=[])
-            sidecar["frames"] += one["frames"]
-            sidecar["jitter"] += one["jitter"]
-            sidecar["resets"] += one["resets"]
-            cio.write_json(os.path.join(in_dir, "jitter.json"), sidecar)
-            results = {}
-            t = time.perf_counter()
-            results["bicubic"] = bicubic(f.color)
-            wall["bicubic"] += time.perf_counter() - t
-            for m in modes:
-                t = time.perf_counter()
-                results[m] = ups[m].step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
-                wall[m] += time.perf_counter() - t
-            for m, img in results.items():
-                stem = os.path.join(out, m, f"frame.{f.index:04d}")
-                files.add(stem + ".exr", stem + ".png")
-                cio.write_exr(stem + ".exr", img)
-                cio.write_png(stem + ".png", img)
-                if f.index >= min(SKIP, a.frames - 1):
-                    scores[m]["psnr"].append(metrics.psnr(img, f.reference))
-                    scores[m]["ssim"].append(metrics.ssim(img, f.reference))
-                lines[m].append(img[row:row + 1])
-            files.done()
-            lines["reference"].append(f.reference[row:row + 1])
-            last = dict(results, reference=f.reference, input=nearest(f.color, H, W))
-            t = time.perf_counter()
+        _upscale_frames(a, dev, ups, modes, (H, W), in_dir, files, run)
     except KeyboardInterrupt:
         files.discard()
+        sidecar = run.sidecar
         if sidecar is not None:     # the sidecar of the whole frames only
             k = files.done_frames
             cio.write_json(os.path.join(in_dir, "jitter.json"),
@@ -166,25 +128,108 @@ def main(argv=None) -> int:
               "(no pictures or metrics)", file=sys.stderr)
         return 130
     total_s = time.perf_counter() - t_all
+    side = _write_pictures(a, ups, modes, trained, (H, W), run)
+    _write_summary(a, dev, ups, modes, trained, (h, w), (H, W), run, total_s, side)
+    return 0
 
-    # pictures
+
+@dataclass
+class _Run:
+    """The per-method state a demo run gathers frame by frame."""
+    scores: dict            # method: {"psnr": [...], "ssim": [...]} from frame SKIP on
+    lines: dict             # method (and "reference"): the profile scanline of each frame
+    wall: dict              # method: seconds upscaling
+    render_s: float = 0.0   # seconds rendering the scene
+    last: dict = field(default_factory=dict)    # the last frame's pictures, by name
+    sidecar: dict | None = None                 # input/jitter.json so far
+
+
+def _upscale_frames(a, dev, ups, modes, out_hw, in_dir, files, run):
+    """Render, write the input, upscale with every method and score each frame."""
+    from .. import io as cio
+    from .. import metrics
+    from ..pipeline.baselines import Bicubic, nearest
+    from ..progress import progress
+    from ..scene import iter_sequence
+    H, W = out_hw
+    out = a.out
+    bicubic = Bicubic(dev, (H, W))
+    scores, lines, wall = run.scores, run.lines, run.wall
+    row = int(H * 0.55)                          # the profile's scanline: ground and fence
+    frames = iter_sequence(a.frames, a.size, a.scale, spp_ref=a.spp, workers=a.workers)
+    t = time.perf_counter()
+    for f in progress(frames, desc="demo", unit="frame", total=a.frames):
+        run.render_s += time.perf_counter() - t
+        # One frame at a time (the references are large); write_sample_sequence writes a
+        # one-frame jitter.json each time, gathered into the sequence's sidecar, which is
+        # rewritten after every frame so that input/ is always a readable sequence.
+        files.add(*[q for q in cio.write_sample_sequence([f], in_dir)
+                    if not q.endswith("jitter.json")])
+        with open(os.path.join(in_dir, "jitter.json")) as fh:
+            one = json.load(fh)
+        if run.sidecar is None:
+            run.sidecar = dict(one, frames=[], jitter=[], resets=[])
+        sidecar = run.sidecar
+        sidecar["frames"] += one["frames"]
+        sidecar["jitter"] += one["jitter"]
+        sidecar["resets"] += one["resets"]
+        cio.write_json(os.path.join(in_dir, "jitter.json"), sidecar)
+        results = {}
+        t = time.perf_counter()
+        results["bicubic"] = bicubic(f.color)
+        wall["bicubic"] += time.perf_counter() - t
+        for m in modes:
+            t = time.perf_counter()
+            results[m] = ups[m].step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
+            wall[m] += time.perf_counter() - t
+        for m, img in results.items():
+            stem = os.path.join(out, m, f"frame.{f.index:04d}")
+            files.add(stem + ".exr", stem + ".png")
+            cio.write_exr(stem + ".exr", img)
+            cio.write_png(stem + ".png", img)
+            if f.index >= min(SKIP, a.frames - 1):
+                scores[m]["psnr"].append(metrics.psnr(img, f.reference))
+                scores[m]["ssim"].append(metrics.ssim(img, f.reference))
+            lines[m].append(img[row:row + 1])
+        files.done()
+        lines["reference"].append(f.reference[row:row + 1])
+        run.last = dict(results, reference=f.reference, input=nearest(f.color, H, W))
+        t = time.perf_counter()
+
+
+def _write_pictures(a, ups, modes, trained, out_hw, run) -> str:
+    """The side-by-side (whole and a crop), the temporal profile and the debug views;
+    returns the side-by-side's path."""
+    from .. import metrics
+    from .upscaler_common import write_debug_views
+    H, W = out_hw
+    out = a.out
+    methods = ["bicubic"] + modes
     order = ["input"] + methods + ["reference"]
     labels = ["input (nearest)", "bicubic"] + [f"CLSS {m}" for m in modes] + [f"reference {a.spp} spp"]
     if "net" in modes and not trained:
         labels[order.index("net")] = "CLSS net (untrained)"
-    pics = [last[k] for k in order]
+    pics = [run.last[k] for k in order]
     side = os.path.join(out, "side_by_side.png")
     metrics.save_side_by_side(side, pics, labels)
     metrics.save_side_by_side(os.path.join(out, "side_by_side_crop.png"), pics, labels,
                               crop=_crop_box(H, W), zoom=3)
     span = (W // 4, W // 4 + min(W // 2, 240))
     metrics.save_temporal_profiles(os.path.join(out, "temporal_profile.png"),
-                                   [lines[m] for m in methods + ["reference"]], labels[1:],
+                                   [run.lines[m] for m in methods + ["reference"]], labels[1:],
                                    row=0, span=span, repeat=max(1, 240 // a.frames))
     for m in modes:
         write_debug_views(os.path.join(out, "debug"), ups[m], a.frames - 1, prefix=f"{m}_")
+    return side
 
-    # summary
+
+def _write_summary(a, dev, ups, modes, trained, render_hw, out_hw, run, total_s, side):
+    """The metrics table and per-stage times on stdout, and metrics.json."""
+    from .. import io as cio
+    from .upscaler_common import format_stage_table
+    (h, w), (H, W) = render_hw, out_hw
+    methods = ["bicubic"] + modes
+    scores, wall, render_s = run.scores, run.wall, run.render_s
     stage = {m: ups[m].stage_ms() for m in modes}
     summary = {"frames": a.frames, "render_size": [h, w], "output_size": [H, W], "scale": a.scale,
                "precision": a.precision, "device": dev.info.name, "metrics_from_frame":
@@ -215,8 +260,7 @@ def main(argv=None) -> int:
     if "net" in ups:
         print(f"classifier backend: {summary['classifier_backend']}")
     print(f"\nscene rendering {render_s:.1f} s, total {total_s:.1f} s; pictures: {side}")
-    cio.write_json(os.path.join(out, "metrics.json"), summary)
-    return 0
+    cio.write_json(os.path.join(a.out, "metrics.json"), summary)
 
 
 if __name__ == "__main__":

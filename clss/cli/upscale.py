@@ -52,7 +52,7 @@ def format_sanitized(report: list, frames: int) -> str:
             + ", ".join(each) + more)
 
 
-def cmd_upscale(argv) -> int:
+def _parser() -> ArgParser:
     p = ArgParser(
         prog="clss upscale",
         description="Upscale a rendered EXR sequence with CLSS temporal supersampling. INPUT is "
@@ -98,10 +98,12 @@ def cmd_upscale(argv) -> int:
                    help="replace NaN/Inf inputs and report how many, in which frames "
                         "(default: refuse such frames and stop)")
     p.dash_values = ("--motion-scale",)
-    a = p.parse_args(argv)
-    from ..io import read_sequence, write_exr, write_png
-    from ..progress import progress
-    from ..pipeline.contract import FrameInputError
+    return p
+
+
+def cmd_upscale(argv) -> int:
+    a = _parser().parse_args(argv)
+    from ..io import read_sequence
     from ..pipeline.upscaler import Upscaler
 
     check_weights_mode(a.weights, a.mode == "net")
@@ -117,7 +119,6 @@ def cmd_upscale(argv) -> int:
                   hdr=not a.ldr, exposure=a.exposure, sanitize=a.sanitize, profile=True,
                   debug=a.debug_views)
     start_output(a.out, stale)
-    dbg_dir = os.path.join(a.out, "debug")
     print(f"clss upscale: {n} frames from {a.input}, mode {a.mode}, x{a.scale:g}, "
           f"{a.precision}, device {up.dev.info.name}", file=sys.stderr)
     if a.mode == "net" and not up.trained:
@@ -129,28 +130,7 @@ def cmd_upscale(argv) -> int:
     def written():
         return f"{files.done_frames} frames written to {a.out}"
     try:
-        for i in progress(range(n), desc="upscale", unit="frame", total=n):
-            f = first if i == 0 else seq[i]
-            number = f.meta.get("frame", i)
-            try:
-                out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
-            except FrameInputError as e:
-                where = f.meta.get("files", {}).get("color", "?")
-                raise UsageError(f"frame {number} ({where}): {cli_message(e)}; {written()}") from None
-            if up.last_report:
-                sanitized.append((number, dict(up.last_report)))
-            stem = os.path.join(a.out, f"frame.{number:04d}")
-            files.add(stem + ".exr")
-            write_exr(stem + ".exr", out)
-            if a.png:
-                files.add(stem + ".png")
-                write_png(stem + ".png", out)
-            if a.debug_views:
-                write_debug_views(dbg_dir, up, number, paths=files.pending)
-            files.done()
-            if f.reference is not None and f.reference.shape == out.shape:
-                from ..metrics import psnr, ssim
-                scores.append((psnr(out, f.reference), ssim(out, f.reference)))
+        _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written)
     except KeyboardInterrupt:
         files.discard()
         print(f"\nclss upscale: interrupted; {written()}", file=sys.stderr)
@@ -162,6 +142,41 @@ def cmd_upscale(argv) -> int:
         raise UsageError(f"{cli_message(e)}; {written()}") from None
     done = files.done_frames
     dt = time.perf_counter() - t0
+    _print_summary(a, up, done, dt, sanitized, scores)
+    return 0
+
+
+def _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written):
+    """Upscale and write frames 0..n-1; a refused frame ends the run with a UsageError."""
+    from ..io import write_exr, write_png
+    from ..pipeline.contract import FrameInputError
+    from ..progress import progress
+    dbg_dir = os.path.join(a.out, "debug")
+    for i in progress(range(n), desc="upscale", unit="frame", total=n):
+        f = first if i == 0 else seq[i]
+        number = f.meta.get("frame", i)
+        try:
+            out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
+        except FrameInputError as e:
+            where = f.meta.get("files", {}).get("color", "?")
+            raise UsageError(f"frame {number} ({where}): {cli_message(e)}; {written()}") from None
+        if up.last_report:
+            sanitized.append((number, dict(up.last_report)))
+        stem = os.path.join(a.out, f"frame.{number:04d}")
+        files.add(stem + ".exr")
+        write_exr(stem + ".exr", out)
+        if a.png:
+            files.add(stem + ".png")
+            write_png(stem + ".png", out)
+        if a.debug_views:
+            write_debug_views(dbg_dir, up, number, paths=files.pending)
+        files.done()
+        if f.reference is not None and f.reference.shape == out.shape:
+            from ..metrics import psnr, ssim
+            scores.append((psnr(out, f.reference), ssim(out, f.reference)))
+
+
+def _print_summary(a, up, done, dt, sanitized, scores):
     print(f"\n{done} frames {up.render_size[1]}x{up.render_size[0]} -> "
           f"{up.output_size[1]}x{up.output_size[0]} in {dt:.1f} s ({done / dt:.2f} frames/s) "
           f"-> {a.out}")
@@ -174,5 +189,3 @@ def cmd_upscale(argv) -> int:
     if scores:
         ps, ss = np.array(scores).T
         print(f"against the reference frames: PSNR {ps.mean():.2f} dB, SSIM {ss.mean():.4f}")
-    return 0
-
