@@ -60,7 +60,7 @@ def _logger(bar):
     return log
 
 
-def bench_main(argv=None) -> int:
+def _bench_parser() -> ArgParser:
     p = ArgParser(
         prog="clss bench",
         description="Benchmark every clss kernel (and, once they exist, the CLSS networks and the whole "
@@ -97,7 +97,11 @@ def bench_main(argv=None) -> int:
     p.add_argument("--no-check", action="store_true", help="skip the one-time output check per case")
     p.add_argument("--list", action="store_true", help="list the cases and exit")
     p.add_argument("--compare", nargs=2, metavar=("A.json", "B.json"), help="compare two runs and exit")
-    a = p.parse_args(argv)
+    return p
+
+
+def bench_main(argv=None) -> int:
+    a = _bench_parser().parse_args(argv)
 
     level = _level(a)
     if a.json is not None:
@@ -116,10 +120,7 @@ def bench_main(argv=None) -> int:
         return 0
 
     from clss.device import DeviceError, get_device
-    from clss.progress import progress
     from .suite import all_cases
-    from .peak import measure
-    from .runner import OrtRunner, Settings, run_case
 
     _quiet_family_warnings()
     try:
@@ -140,6 +141,19 @@ def bench_main(argv=None) -> int:
         for what, why in unavailable:
             print(f"(not available) {what}: {why}")
         return 0
+    settings = _settings(a, level)
+    _announce(dev, cases, precs, settings, unavailable)
+    rows, peak, t0 = _run_all(a, dev, cases, precs, settings, level)
+    doc = report.document(rows, dev, peak, settings, level + ("-tiny" if a.tiny else ""), unavailable,
+                          extra={"seconds": round(time.perf_counter() - t0, 1)})
+    _write_results(a, doc, rows, peak)
+    bad = [r for r in rows if r.status != "ok" and not r.status.startswith("skipped")]
+    return 1 if bad else 0
+
+
+def _settings(a, level):
+    """The runner settings from the options."""
+    from .runner import Settings
     settings = Settings(runs=a.runs, budget_s=a.budget or (1.5 if level == "quick" else 4.0),
                         check=not a.no_check)
     if level == "quick":
@@ -147,11 +161,23 @@ def bench_main(argv=None) -> int:
     if a.ort_threads:
         settings.ort_threads = a.ort_threads
     settings.ort_spinning = a.ort_spinning
+    return settings
+
+
+def _announce(dev, cases, precs, settings, unavailable):
     print(f"device: {dev.info.platform} / {dev.info.name} (driver {dev.info.driver}); {len(cases)} cases x "
           f"{len(precs)} precision(s) [{', '.join(precs)}]; onnxruntime threads {settings.ort_threads}",
           file=sys.stderr)
     for what, why in unavailable:
         print(f"not benchmarked: {what}: {why}", file=sys.stderr)
+
+
+def _run_all(a, dev, cases, precs, settings, level):
+    """Peak probes, then every (case, precision), alternating with onnxruntime; returns
+    (rows, peak, t0)."""
+    from clss.progress import progress
+    from .peak import measure
+    from .runner import OrtRunner, run_case
     t0 = time.perf_counter()
     peak = None
     if not a.no_peak:
@@ -170,8 +196,12 @@ def bench_main(argv=None) -> int:
                 f"ort {row.ort_ms:.2f} ms, {row.speedup_vs_ort:.2f}x, check {row.check}")
         else:
             log(f"{case.label} {prec}: {row.status}")
-    doc = report.document(rows, dev, peak, settings, level + ("-tiny" if a.tiny else ""), unavailable,
-                          extra={"seconds": round(time.perf_counter() - t0, 1)})
+    return rows, peak, t0
+
+
+def _write_results(a, doc, rows, peak):
+    """The table on stdout, then bench.json, bench.md, roofline.png and --json."""
+    from . import report
     print(report.format_table(rows))
     if peak:
         print("\n" + report.format_peak(peak))
@@ -193,8 +223,6 @@ def bench_main(argv=None) -> int:
         written.append(Path(a.json))
     if written:
         print("wrote " + ", ".join(str(w) for w in written))
-    bad = [r for r in rows if r.status != "ok" and not r.status.startswith("skipped")]
-    return 1 if bad else 0
 
 
 def tune_main(argv=None) -> int:
