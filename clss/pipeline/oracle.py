@@ -14,11 +14,13 @@ debug=True the intermediate buffers listed in DEBUG_OUTPUTS.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from ..networks import CLASSIFIER_CHANNELS
+from ..networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
 from ..networks import pad16 as _pad16
 from ..ops.twin import fill_output_shapes
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
@@ -265,18 +267,81 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     else:
         X = g.clip("color", 0.0, 1.0)
 
-    # ---- stage 1: dilate (render res) ----
+    d_dil, m_dil = _stage1_dilate(g, h, w, dbg)
+    taps, recon = _stage2_reconstruct(g, h, w, d_dil, m_dil, dbg)
+    dd = _stage3_depth_diff(g, taps, recon, d_dil, dbg)
+    hr = _stage4_upsample(g, (h, w), (H, W), X, d_dil, m_dil, dd, dbg)
+    warped = _stage5_warp(g, (H, W), hr, dbg)
+    ghost, logits = _stage6_classify(g, mode, (H, W), classifier, depth_threshold, hr, warped,
+                                     dbg)
+    cnt, c_min, c_max = _stage7_aux(g, cap, ghost, hr.up, warped, dbg)
+    wgt, new_logits = _stage8_blend_weight(g, mode, (H, W), composition, hr, warped,
+                                           (cnt, c_min, c_max), logits, dbg)
+    _stage9_blend(g, hdr, nits, wgt, hr.up, warped.blend_hist, (cnt, c_min, c_max), new_logits)
+
+    outputs = [helper.make_tensor_value_info("output", f32, [1, 3, H, W]),
+               helper.make_tensor_value_info("history_out", f32, [1, HISTORY_CHANNELS, H, W])]
+    if debug:
+        for name, t in dbg.items():
+            g.op("Identity", t, name=name)
+            outputs.append(helper.make_tensor_value_info(name, f32, None))
+    graph = helper.make_graph(g.nodes, f"clss_frame_{mode}", inputs, outputs,
+                              initializer=g.inits)
+    model = helper.make_model(graph, producer_name="clss.pipeline.oracle",
+                              opset_imports=[helper.make_opsetid("", opset)],
+                              doc_string=f"CLSS frame step, mode={mode}, render {h}x{w} -> "
+                                         f"{H}x{W}, cap={cap:g}, hdr={hdr}, nits={nits:g}")
+    model.ir_version = IR_VERSION
+    if debug:
+        fill_output_shapes(model)
+    onnx.checker.check_model(model)
+    return model
+
+
+# The stages of build_frame_graph, numbered as in reference.md. Each adds its nodes to g
+# (in the order the graph lists them) and its debug outputs to dbg.
+
+class _Upsampled(NamedTuple):
+    """Stage 4's output-resolution tensors."""
+    up: str          # [1,3,H,W] jitter-aware bicubic colour (encoded)
+    depth: str       # [1,1,H,W] bilinear dilated depth
+    motion: str      # [1,2,H,W] bilinear dilated motion, output pixels
+    depth_diff: str  # [1,1,H,W]
+    reactive: str    # [1,1,H,W]
+    box_lo: str      # [1,3,H,W] the current 3x3 neighbourhood's clamp box
+    box_hi: str
+
+
+class _Warped(NamedTuple):
+    """Stage 5's warped history (invalid pixels re-initialised) and its validity."""
+    valid: str       # [1,1,H,W] bool
+    color: str
+    counter: str
+    c_min: str
+    c_max: str
+    logits: str
+    blend_hist: str  # the colour clipped into the box (s9), the one the blend uses
+
+
+def _shifted(g, x, dx, dy, h, w):
+    """The [h,w] window of x (padded by 1 on each side) shifted by (dx, dy)."""
+    return g.op("Slice", x, g.i64([1 + dy, 1 + dx]), g.i64([1 + dy + h, 1 + dx + w]),
+                g.i64([2, 3]))
+
+
+def _inv_counter(g, c):
+    one = g.const(1.0)
+    return g.div(one, g.add(one, c))
+
+
+def _stage1_dilate(g, h, w, dbg):
+    """Stage 1 (render res): depth and motion of the nearest of the 3x3 neighbourhood."""
     pads = g.i64([0, 0, 1, 1, 0, 0, 1, 1])
     # -1 is nearer to nothing: off-screen neighbours never win.
     pd = g.op("Pad", "depth", pads, g.const(-1.0), mode="constant")
     pm = g.op("Pad", "motion", pads, g.const(0.0), mode="constant")
-
-    def shifted(x, dx, dy):
-        return g.op("Slice", x, g.i64([1 + dy, 1 + dx]), g.i64([1 + dy + h, 1 + dx + w]),
-                    g.i64([2, 3]))
-
-    d9 = g.concat([shifted(pd, dx, dy) for dx, dy in DILATE_OFFSETS])            # [1,9,h,w]
-    m9 = g.concat([g.op("Unsqueeze", shifted(pm, dx, dy), g.i64([1]))
+    d9 = g.concat([_shifted(g, pd, dx, dy, h, w) for dx, dy in DILATE_OFFSETS])  # [1,9,h,w]
+    m9 = g.concat([g.op("Unsqueeze", _shifted(g, pm, dx, dy, h, w), g.i64([1]))
                    for dx, dy in DILATE_OFFSETS])                                # [1,9,2,h,w]
     nearest = g.op("ArgMax", d9, axis=1, keepdims=1, select_last_index=0)         # [1,1,h,w]
     d_dil = g.op("GatherElements", d9, nearest, axis=1, name="dilated_depth")
@@ -284,8 +349,12 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     m_dil = g.op("Squeeze", g.op("GatherElements", m9, idx5, axis=1), g.i64([1]),
                  name="dilated_motion")                                          # [1,2,h,w]
     dbg["dbg_dilated_depth"], dbg["dbg_dilated_motion"] = d_dil, m_dil
+    return d_dil, m_dil
 
-    # ---- stage 2: reconstruct previous depth (scatter-max, reversed-Z) ----
+def _stage2_reconstruct(g, h, w, d_dil, m_dil, dbg):
+    """Stage 2: the previous frame's depth, scatter-max of the dilated depth along the
+    motion (reversed-Z). Returns the bilinear taps (weight, on-screen, index, scatter
+    index) and the flat reconstruction [h*w + 1]."""
     jj = g.const(np.arange(w, dtype=np.float32).reshape(1, 1, 1, w), hint="jj")
     ii = g.const(np.arange(h, dtype=np.float32).reshape(1, 1, h, 1), hint="ii")
     ux = g.add(jj, g.chan(m_dil, slice(0, 1)))
@@ -317,8 +386,11 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
                  sidx, upd, axis=0, reduction="max")
     recon_img = g.reshape(g.slice(recon, 0, 0, h * w), [1, 1, h, w])
     dbg["dbg_recon_depth"] = recon_img
+    return taps, recon
 
-    # ---- stage 3: depth difference, bilinear of the reconstruction at p + motion ----
+
+def _stage3_depth_diff(g, taps, recon, d_dil, dbg):
+    """Stage 3: depth difference, bilinear of the reconstruction at p + motion."""
     rs = None
     for wk, on, lin, _ in taps:
         v = g.mul(g.mul(g.op("Gather", recon, lin, axis=0), g.op("Cast", on, to=TensorProto.FLOAT)), wk)
@@ -326,8 +398,12 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     dd = g.clip(g.div(g.sub(rs, d_dil), g.op("Max", rs, g.const(DEPTH_EPS))), -1.0, 1.0)
     dd = g.op("Identity", dd, name="depth_diff")
     dbg["dbg_depth_diff"] = dd
+    return dd
 
-    # ---- stage 4: upsample at output pixel centres, jitter-aware ----
+
+def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, dbg) -> _Upsampled:
+    """Stage 4: upsample at output pixel centres, jitter-aware; the clamp box."""
+    (h, w), (H, W) = hw, HW
     jx, jy = g.slice("jitter", 0, 0, 1), g.slice("jitter", 0, 1, 2)
     bx = ((np.arange(W, dtype=np.float64) + 0.5) * w / W - 0.5).astype(np.float32)
     by = ((np.arange(H, dtype=np.float64) + 0.5) * h / H - 0.5).astype(np.float32)
@@ -347,7 +423,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     win = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1], strides=[1, 1])
     nmax = g.op("MaxPool", X, **win)
     nmin = g.op("Neg", g.op("MaxPool", g.op("Neg", X), **win))
-    px = g.op("Pad", X, pads, mode="edge")
+    px = g.op("Pad", X, g.i64([0, 0, 1, 1, 0, 0, 1, 1]), mode="edge")
     s1 = s2 = None
     count = np.zeros((1, 1, h, w), np.float32)
     for dy in (-1, 0, 1):
@@ -356,7 +432,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
             on[1:h + 1, 1:w + 1] = 1.0
             on = on[1 + dy:1 + dy + h, 1 + dx:1 + dx + w].reshape(1, 1, h, w)
             count += on
-            d = g.mul(g.sub(shifted(px, dx, dy), X), g.const(on, hint="in_bounds"))
+            d = g.mul(g.sub(_shifted(g, px, dx, dy, h, w), X), g.const(on, hint="in_bounds"))
             s1 = d if s1 is None else g.add(s1, d)
             s2 = g.mul(d, d) if s2 is None else g.add(s2, g.mul(d, d))
     cnt = g.const(count, hint="neighbours")
@@ -378,12 +454,16 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     dbg.update(dbg_upsampled=up, dbg_depth_hr=depth_hr, dbg_motion_hr=motion_hr,
                dbg_depth_diff_hr=dd_hr, dbg_reactive_hr=react_hr, dbg_clamp_min=c_lo,
                dbg_clamp_max=c_hi)
+    return _Upsampled(up, depth_hr, motion_hr, dd_hr, react_hr, c_lo, c_hi)
 
-    # ---- stage 5: warp the history at P + motion_hr ----
+
+def _stage5_warp(g, HW, hr: _Upsampled, dbg) -> _Warped:
+    """Stage 5: warp the history at P + motion_hr; and (s9) the colour the blend uses."""
+    H, W = HW
     JJ = g.const(np.arange(W, dtype=np.float32).reshape(1, 1, 1, W), hint="JJ")
     II = g.const(np.arange(H, dtype=np.float32).reshape(1, 1, H, 1), hint="II")
-    su = g.add(JJ, g.chan(motion_hr, slice(0, 1)))
-    sv = g.add(II, g.chan(motion_hr, slice(1, 2)))
+    su = g.add(JJ, g.chan(hr.motion, slice(0, 1)))
+    sv = g.add(II, g.chan(hr.motion, slice(1, 2)))
     off = g.op("Or",
                g.op("Or", g.op("Less", su, g.const(-0.5)), g.op("Greater", su, g.const(W - 0.5))),
                g.op("Or", g.op("Less", sv, g.const(-0.5)), g.op("Greater", sv, g.const(H - 0.5))))
@@ -394,7 +474,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     grid_w = g.op("Transpose", g.concat([gxw, gyw]), perm=[0, 2, 3, 1])
     hist_c = g.clip(g.grid_sample(g.chan("history", H_COLOR), grid_w, cubic=True), 0.0, 1.0)
     hist_o = g.grid_sample(g.chan("history", slice(3, HISTORY_CHANNELS)), grid_w, cubic=False)
-    zero = g.const(0.0)
+    up, zero = hr.up, g.const(0.0)
     w_col = g.where(valid, hist_c, up)
     w_cnt = g.where(valid, g.chan(hist_o, slice(0, 1)), zero)
     w_min = g.where(valid, g.chan(hist_o, slice(1, 4)), up)
@@ -403,17 +483,21 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     dbg["dbg_valid"] = g.op("Cast", valid, to=TensorProto.FLOAT)
     dbg["dbg_warped"] = g.concat([w_col, w_cnt, w_min, w_max, w_log])
     # s9 the history the blend uses: clipped into the current neighbourhood's box
-    blend_hist = _clip_towards(g, w_col, up, c_lo, c_hi)
+    blend_hist = _clip_towards(g, w_col, up, hr.box_lo, hr.box_hi)
     dbg["dbg_blend_history"] = blend_hist
-    one = g.const(1.0)
+    return _Warped(valid, w_col, w_cnt, w_min, w_max, w_log, blend_hist)
 
-    def inv_counter(c):
-        return g.div(one, g.add(one, c))
 
-    # ---- stage 6: classification ----
+def _stage6_classify(g, mode, HW, classifier, depth_threshold, hr: _Upsampled,
+                     warped: _Warped, dbg):
+    """Stage 6: which pixels reject their history (ghost); the classifier's logits in
+    mode "net" (None in mode "rule")."""
+    H, W = HW
+    logits = None
     if mode == "net":
-        cls_in = g.concat([up, w_col, depth_hr, motion_hr, inv_counter(w_cnt), w_min, w_max,
-                           dd_hr, w_log])
+        cls_in = g.concat([hr.up, warped.color, hr.depth, hr.motion,
+                           _inv_counter(g, warped.counter), warped.c_min, warped.c_max,
+                           hr.depth_diff, warped.logits])
         dbg["dbg_cls_input"] = cls_in
         H16, W16 = _pad16(H), _pad16(W)
         cin, cout, dims = _real_input(classifier, "classifier", CLASSIFIER_CHANNELS)
@@ -433,58 +517,54 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
                    select_last_index=0)
         reject = g.op("Equal", vis, g.i64(0))
     else:
-        reject = g.op("Greater", dd_hr, g.const(float(depth_threshold)))
-    ghost = g.op("Or", reject, g.op("Not", valid))
+        reject = g.op("Greater", hr.depth_diff, g.const(float(depth_threshold)))
+    ghost = g.op("Or", reject, g.op("Not", warped.valid))
     dbg["dbg_ghost"] = g.op("Cast", ghost, to=TensorProto.FLOAT)
+    return ghost, logits
 
-    # ---- stage 7: auxiliary buffers ----
-    cnt = g.where(ghost, zero, g.op("Min", g.add(w_cnt, one), g.const(cap)), name="counter")
-    c_min = g.where(ghost, up, g.op("Min", w_min, up))
-    c_max = g.where(ghost, up, g.op("Max", w_max, up))
+
+def _stage7_aux(g, cap, ghost, up, warped: _Warped, dbg):
+    """Stage 7: the new counter and colour min / max."""
+    zero, one = g.const(0.0), g.const(1.0)
+    cnt = g.where(ghost, zero, g.op("Min", g.add(warped.counter, one), g.const(cap)),
+                  name="counter")
+    c_min = g.where(ghost, up, g.op("Min", warped.c_min, up))
+    c_max = g.where(ghost, up, g.op("Max", warped.c_max, up))
     dbg["dbg_counter"] = cnt
+    return cnt, c_min, c_max
 
-    # ---- stage 8: blend weight ----
+
+def _stage8_blend_weight(g, mode, HW, composition, hr: _Upsampled, warped: _Warped, aux,
+                         logits, dbg):
+    """Stage 8: the current frame's blend weight, and the logits the history keeps."""
+    H, W = HW
+    cnt, c_min, c_max = aux
     if mode == "net":
-        comp_in = g.concat([up, blend_hist, depth_hr, motion_hr, inv_counter(cnt), c_min, c_max,
-                            logits])
+        comp_in = g.concat([hr.up, warped.blend_hist, hr.depth, hr.motion, _inv_counter(g, cnt),
+                            c_min, c_max, logits])
         dbg["dbg_comp_input"] = comp_in
-        ci, co, dims = _real_input(composition, "composition", 22)
+        ci, co, dims = _real_input(composition, "composition", COMPOSITION_CHANNELS)
         _check_static_hw("composition", dims, (H, W))
         wgt = g._name("comp_w")
         g.inline(composition, "composition", {ci: comp_in}, {co: wgt})
         new_logits = logits
     else:
-        wgt = inv_counter(cnt)
-        new_logits = g.op("Expand", zero, g.i64([1, 6, H, W]))
-    wgt = g.op("Max", wgt, react_hr, name="w")
+        wgt = _inv_counter(g, cnt)
+        new_logits = g.op("Expand", g.const(0.0), g.i64([1, 6, H, W]))
+    wgt = g.op("Max", wgt, hr.reactive, name="w")
     dbg["dbg_w"] = wgt
+    return wgt, new_logits
 
-    # ---- stage 9: blend, decode ----
-    out = g.add(g.mul(wgt, up), g.mul(g.sub(one, wgt), blend_hist))
+
+def _stage9_blend(g, hdr, nits, wgt, up, blend_hist, aux, new_logits):
+    """Stage 9: blend, the next history, decode."""
+    cnt, c_min, c_max = aux
+    out = g.add(g.mul(wgt, up), g.mul(g.sub(g.const(1.0), wgt), blend_hist))
     g.concat([out, cnt, c_min, c_max, new_logits], name="history_out")
     if hdr:
         _pq_decode(g, out, nits, name="output")
     else:
         g.op("Identity", out, name="output")
-
-    outputs = [helper.make_tensor_value_info("output", f32, [1, 3, H, W]),
-               helper.make_tensor_value_info("history_out", f32, [1, HISTORY_CHANNELS, H, W])]
-    if debug:
-        for name, t in dbg.items():
-            g.op("Identity", t, name=name)
-            outputs.append(helper.make_tensor_value_info(name, f32, None))
-    graph = helper.make_graph(g.nodes, f"clss_frame_{mode}", inputs, outputs,
-                              initializer=g.inits)
-    model = helper.make_model(graph, producer_name="clss.pipeline.oracle",
-                              opset_imports=[helper.make_opsetid("", opset)],
-                              doc_string=f"CLSS frame step, mode={mode}, render {h}x{w} -> "
-                                         f"{H}x{W}, cap={cap:g}, hdr={hdr}, nits={nits:g}")
-    model.ir_version = IR_VERSION
-    if debug:
-        fill_output_shapes(model)
-    onnx.checker.check_model(model)
-    return model
-
 
 def initial_history(output_hw) -> np.ndarray:
     """A zero history; it is only ever read together with reset = 1."""
