@@ -5,7 +5,6 @@ Skipped (with the reason shown) where oclgrind is not installed; .ci/run install
 from __future__ import annotations
 
 import os
-import re
 import subprocess
 import sys
 
