@@ -29,8 +29,10 @@ from onnx import helper
 
 from clss.device import Device, DeviceError, storage_dtype
 from clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, pad16
-from clss.ops.base import DEFAULT_TOL, EXACT, Tolerance, rng
-from clss.ops.twin import make_model, node_model
+from clss.ops.base import rng
+from clss.tolerance import DEFAULT_TOL, EXACT, Tolerance
+from clss.verify.cases import warp as warp_twins
+from clss.verify.twin import make_model, node_model
 from clss.pipeline.contract import output_size
 
 TIERS = {"540p": ((540, 960), 2.0), "1080p": ((1080, 1920), 2.0),
@@ -354,8 +356,8 @@ def warp_cases(tier):
     def build_hist(dev, prec, params):
         arrays = {"x": _normal(("bench warp x",), x_shape), "motion": smooth_motion(("bench warp",), m_shape)}
         return make_setup(dev, prec, arrays,
-                          lambda host: wp.twin_warp(host["x"], host["motion"], "bilinear", "border",
-                                                    cubic_channels=3),
+                          lambda host: warp_twins.twin_warp(host["x"], host["motion"], "bilinear", "border",
+                                                            cubic_channels=3),
                           lambda d: wp.warp(dev, prec, d["x"], d["motion"], mode="bilinear", padding="border",
                                             cubic_channels=3),
                           [x_shape], tol=_warp_tol(prec, H, W))

@@ -9,7 +9,8 @@ import onnx
 
 from clss.device import storage_dtype
 from clss.networks import pad16
-from clss.ops.base import Tolerance, rng
+from clss.ops.base import rng
+from clss.tolerance import Tolerance
 
 from .cases import BenchCase, Setup, _nbytes, _rounded, smooth_motion
 

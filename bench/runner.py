@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from clss.device import Device, DeviceError
-from clss.ops.base import EXACT, compare
+from clss.tolerance import compare
 
 from .capture import Capture
 from .cases import BenchCase, Setup

@@ -52,7 +52,7 @@ class FastPath:
     ``check(dev, prec) -> list of host arrays`` runs the op on a small seeded
     input; the registry calls it once with the fast and once with the reference
     variant forced. ``tolerance(prec)`` is EXACT for data movement, else the op's
-    Tolerance (clss/ops/base.py), or a list of those, one per output."""
+    Tolerance (clss/tolerance.py), or a list of those, one per output."""
     name: str
     kernel: str
     fast: dict

@@ -1,5 +1,5 @@
 """How close an output must be to its reference: Tolerance (or EXACT), the defaults per
-precision, and compare(). Used by the conformance cases (clss/ops), the fast-path
+precision, and compare(). Used by the conformance cases (clss/verify), the fast-path
 self-check at run time (clss/selfcheck.py) and the frame step's self-check."""
 from __future__ import annotations
 

@@ -11,10 +11,10 @@ from hypothesis import HealthCheck
 from onnx import helper
 
 import clss
-from clss.conformance import check
-from clss.ops.base import Tolerance, compare
-from clss.ops.twin import make_model, run_ort
 from clss.scene import render_sequence
+from clss.tolerance import Tolerance, compare
+from clss.verify.conformance import check
+from clss.verify.twin import make_model, run_ort
 
 # --- conformance: ops against onnxruntime ----------------------------------------------
 

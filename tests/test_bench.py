@@ -17,7 +17,7 @@ from bench.peak import fma_gflops, stream_gbs
 from bench.tune import tune_case
 from clss import tuning
 from clss.ops.space_to_depth import space_to_depth
-from clss.ops.twin import node_model
+from clss.verify.twin import node_model
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,8 @@ from onnx import TensorProto, helper, numpy_helper
 
 import clss
 from clss.model import InputError, ModelError, UnsupportedModelError
-from clss.ops.base import Tolerance, compare
-from clss.ops.twin import make_model, run_ort
+from clss.tolerance import Tolerance, compare
+from clss.verify.twin import make_model, run_ort
 
 TOL = {"fp32": Tolerance(1e-5, 1e-4), "fp16": Tolerance(3e-3, 3e-3)}
 

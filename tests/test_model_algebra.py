@@ -73,8 +73,8 @@ def test_conv_through_resize_fires_on_the_clss_decoder():
     """The CLSS classifier's decoder fuse (Concat of enc0 and three up-sampled
     levels -> Conv1x1 240->16) is rewritten, and the network still matches."""
     import clss
-    from clss.ops.base import Tolerance, compare
-    from clss.ops.twin import run_ort
+    from clss.tolerance import Tolerance, compare
+    from clss.verify.twin import run_ort
     from clss.networks import build_classifier
     m = build_classifier(height=48, width=80)
     x = np.random.default_rng(1).standard_normal((1, 23, 48, 80)).astype(np.float32)

@@ -26,8 +26,8 @@ import pytest
 from onnx import helper, numpy_helper
 
 import clss
-from clss.ops.base import Tolerance, compare
-from clss.ops.twin import make_model, run_ort
+from clss.tolerance import Tolerance, compare
+from clss.verify.twin import make_model, run_ort
 
 # Deep networks: accumulation order differs from onnxruntime's and compounds
 # over ~20 layers (fp32); in fp16 every intermediate tensor is stored rounded to

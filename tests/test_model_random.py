@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from onnx import helper
 
-from clss.ops.base import Tolerance
+from clss.tolerance import Tolerance
 from helpers import CHAIN_TOL, SETTINGS, check_graph
 
 TOL = {"fp32": Tolerance(1e-5, 1e-4), "fp16": Tolerance(1e-3, 1e-3)}

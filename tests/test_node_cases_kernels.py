@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from clss.ops import ONNX_HANDLERS, Unsupported, load_all
-from clss.ops.base import DEFAULT_TOL, Tolerance, compare, node_attrs
+from clss.ops.base import node_attrs
+from clss.tolerance import DEFAULT_TOL, Tolerance, compare
 
 onnx = pytest.importorskip("onnx")
 from node_cases import NODE_DIR, load_case_data, single_node_cases  # noqa: E402

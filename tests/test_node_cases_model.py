@@ -27,7 +27,7 @@ import clss
 from clss.model.graph import MAX_OPSET, MIN_OPSET, UnsupportedModelError
 from clss.model.graph import LOWERED_OPS
 from clss.ops import ONNX_HANDLERS, load_all
-from clss.ops.base import DEFAULT_TOL, Tolerance, compare
+from clss.tolerance import DEFAULT_TOL, Tolerance, compare
 from node_cases import load_case_data, single_node_cases
 
 FAMILIES = load_all()
@@ -132,7 +132,7 @@ def test_model_node_case(case_dir, any_dev):
         if reason:
             pytest.xfail(reason)
         raise
-    from clss.ops.twin import run_ort
+    from clss.verify.twin import run_ort
     try:
         refs = run_ort(model, feeds)
     except Exception as e:  # onnxruntime lacks a few (op, opset) pairs

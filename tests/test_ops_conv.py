@@ -3,7 +3,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import conv
-from clss.conformance import check
+from clss.verify.cases import conv as conv_cases
+from clss.verify.conformance import check
 from helpers import PRECISIONS, assert_case
 
 # Parameter combinations: kernel sizes, strides and activations come from small
@@ -25,9 +26,9 @@ def test_parameter_combinations(dev, op, n, cpg, opg, group, h, w, k, s, d, pads
         if (s * (h - 1) + (k - 1) * d + 1 - pads[0] - pads[2] < 1
                 or s * (w - 1) + (k - 1) * d + 1 - pads[1] - pads[3] < 1):
             return
-    case = conv.make_case(op, n=n, cin=cpg * group, h=h, w=w, cout=opg * group, k=(k, k), strides=(s, s),
-                          pads=pads, dilations=(d, d), group=group, bias=bias, activation=act,
-                          residual=residual)
+    case = conv_cases.make_case(op, n=n, cin=cpg * group, h=h, w=w, cout=opg * group, k=(k, k), strides=(s, s),
+                                pads=pads, dilations=(d, d), group=group, bias=bias, activation=act,
+                                residual=residual)
     assert_case(case, dev, "fp32")
 
 
@@ -35,9 +36,9 @@ def test_parameter_combinations(dev, op, n, cpg, opg, group, h, w, k, s, d, pads
                          ids=lambda t: f"XV{t['XV']}-CB{t['CB']}")
 def test_other_register_blocks(dev, tuning):
     # The -D tunables change the work-item's block; every block must give the same result.
-    for c in (conv.make_case(cin=6, h=9, w=29, cout=7, activation="relu", residual="before"),
-              conv.make_case("convT", cin=5, h=5, w=11, cout=6, strides=(2, 2), pads=(1, 1, 1, 1),
-                             output_padding=(1, 1))):
+    for c in (conv_cases.make_case(cin=6, h=9, w=29, cout=7, activation="relu", residual="before"),
+              conv_cases.make_case("convT", cin=5, h=5, w=11, cout=6, strides=(2, 2), pads=(1, 1, 1, 1),
+                                   output_padding=(1, 1))):
         fn = c.run
         c.run = lambda d, p, i, fn=fn: _with_tuning(tuning, fn, d, p, i)
         row = check(c, dev, "fp32")
@@ -49,9 +50,9 @@ def test_other_register_blocks(dev, tuning):
                          ids=lambda t: "-".join(f"{k}{v}" for k, v in t.items()))
 def test_stride2_reference_and_fast_variants(dev, tuning, precision):
     # -DCONV_S2K3=0 is the reference the fast de-interleaved path is checked against.
-    for c in (conv.make_case(cin=5, h=13, w=71, cout=11, strides=(2, 2), activation="relu"),
-              conv.make_case(cin=3, h=7, w=37, cout=13, strides=(2, 2), pads=(0, 1, 2, 0),
-                             residual="after")):
+    for c in (conv_cases.make_case(cin=5, h=13, w=71, cout=11, strides=(2, 2), activation="relu"),
+              conv_cases.make_case(cin=3, h=7, w=37, cout=13, strides=(2, 2), pads=(0, 1, 2, 0),
+                                   residual="after")):
         fn = c.run
         c.run = lambda d, p, i, fn=fn: _with_tuning(tuning, fn, d, p, i)
         row = check(c, dev, precision)
@@ -97,8 +98,8 @@ def test_bad_arguments_raise(dev):
 
 
 def test_onnx_auto_pad_same_and_valid(dev):
-    from clss.ops.base import ONNX_HANDLERS
-    from clss.ops.twin import node_model, run_ort
+    from clss.ops import ONNX_HANDLERS
+    from clss.verify.twin import node_model, run_ort
     g = np.random.default_rng(5)
     x = g.standard_normal((1, 2, 7, 10)).astype(np.float32)
     w = g.standard_normal((3, 2, 4, 3)).astype(np.float32)

@@ -7,7 +7,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import elementwise as ew
-from clss.ops.base import DEFAULT_TOL, compare
+from clss.verify.cases import elementwise as ew_cases
+from clss.tolerance import DEFAULT_TOL, compare
 from helpers import FP16_NATIVE_BUILD, ICD, PRECISIONS, assert_case, oclgrind_env
 
 SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -34,7 +35,7 @@ def test_broadcast_shapes(shapes, op, precision, dev):
     sa, sb = shapes
     if op == "prelu":  # the slope broadcasts to x, not the other way round
         sa = tuple(np.broadcast_shapes(sa, sb))
-    assert_case(ew.binary_case(op, sa, sb), dev, precision)
+    assert_case(ew_cases.binary_case(op, sa, sb), dev, precision)
 
 
 @SETTINGS
@@ -42,7 +43,7 @@ def test_broadcast_shapes(shapes, op, precision, dev):
 def test_where_broadcast(shapes, cond_first, dev):
     sa, sb = shapes
     sc = sa if cond_first else sb
-    assert_case(ew.where_case(sc, sa, sb), dev, "fp32")
+    assert_case(ew_cases.where_case(sc, sa, sb), dev, "fp32")
 
 
 @st.composite
@@ -66,7 +67,7 @@ def slices(draw):
 @given(params=slices())
 def test_slice_parameters(params, dev):
     shape, starts, ends, axes, steps = params
-    assert_case(ew.slice_case(shape, starts, ends, axes, steps), dev, "fp32")
+    assert_case(ew_cases.slice_case(shape, starts, ends, axes, steps), dev, "fp32")
 
 
 @SETTINGS
@@ -80,7 +81,7 @@ def test_pad_parameters(shape, mode, data, dev):
         pads = [min(p, shape[i % len(shape)] - 1) for i, p in enumerate(pads)]
     if min(n + pads[i] + pads[i + len(shape)] for i, n in enumerate(shape)) < 0:
         return
-    assert_case(ew.pad_case(tuple(shape), pads, mode, 0.75), dev, "fp32")
+    assert_case(ew_cases.pad_case(tuple(shape), pads, mode, 0.75), dev, "fp32")
 
 
 def _nan_payload(shape):
@@ -201,10 +202,10 @@ def test_fp16_native_variants_build(tmp_path):
 def test_pad_fast_and_reference_kernels(vec, precision, dev, monkeypatch):
     # PAD_VEC=0 is the reference kernel the 8-wide pad8 is checked against.
     monkeypatch.setattr(ew, "PAD_VEC", vec)
-    for c in (ew.pad_case((1, 5, 11, 67), [0, 0, 0, 0, 0, 0, 5, 13], "edge"),
-              ew.pad_case((1, 3, 13, 41), [0, 0, 3, 5, 0, 0, 2, 0], "constant", -2.5),
-              ew.pad_case((2, 2, 5, 37), [0, 0, 1, 11, 0, 0, 1, 3], "reflect"),
-              ew.pad_case((3, 17), [1, 9, 2, 0], "wrap")):
+    for c in (ew_cases.pad_case((1, 5, 11, 67), [0, 0, 0, 0, 0, 0, 5, 13], "edge"),
+              ew_cases.pad_case((1, 3, 13, 41), [0, 0, 3, 5, 0, 0, 2, 0], "constant", -2.5),
+              ew_cases.pad_case((2, 2, 5, 37), [0, 0, 1, 11, 0, 0, 1, 3], "reflect"),
+              ew_cases.pad_case((3, 17), [1, 9, 2, 0], "wrap")):
         assert_case(c, dev, precision)
 
 
@@ -217,4 +218,4 @@ def test_binary_bcast_fast_and_reference_kernels(vec, precision, dev, monkeypatc
     for op, sa, sb in (("mul", (1, 1, 7, 37), (1, 3, 7, 37)), ("sub", (2, 3, 5, 1), (2, 3, 5, 29)),
                        ("add", (3, 1, 41), (3, 5, 41)), ("max", (1, 5, 1, 13), (1, 5, 3, 13)),
                        ("greater", (1, 1, 6, 23), (1, 4, 6, 23)), ("div", (2, 1, 9), (2, 7, 9))):
-        assert_case(ew.binary_case(op, sa, sb), dev, precision)
+        assert_case(ew_cases.binary_case(op, sa, sb), dev, precision)

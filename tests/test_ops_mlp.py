@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from clss.ops import mlp
+from clss.verify.cases import mlp as mlp_cases
 
 
 def test_packed_weights_reused_and_equal_to_layer_list(dev):
@@ -23,7 +24,7 @@ def test_packed_weights_reused_and_equal_to_layer_list(dev):
 
 
 def test_xv2_block_matches(dev):
-    case = mlp.make_case((22, 32, 1), ("relu", "sigmoid"), h=7, w=13)
+    case = mlp_cases.make_case((22, 32, 1), ("relu", "sigmoid"), h=7, w=13)
     xd = dev.to_device(case.inputs["x"])
     ls = [(case.inputs[f"w{i}"], case.inputs[f"b{i}"], a) for i, a in enumerate(("relu", "sigmoid"))]
     a = mlp.mlp(dev, "fp32", xd, ls).get()

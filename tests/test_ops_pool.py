@@ -7,6 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import pool
+from clss.verify.cases import pool as pool_cases
 from helpers import FP16_NATIVE_BUILD, ICD, assert_case, oclgrind_env
 
 
@@ -36,9 +37,9 @@ def test_window_parameters(w, ceil, cip, avg, auto, dev):
         s = [min(a, b) for a, b in zip(s, k)]  # onnxruntime rejects the negative SAME pads of stride > kernel
     shape = (2, 3, *sizes)
     if avg:
-        case = pool.avg_pool_case(shape, k, s, p, d, ceil, cip, auto)
+        case = pool_cases.avg_pool_case(shape, k, s, p, d, ceil, cip, auto)
     else:
-        case = pool.max_pool_case(shape, k, s, p, d, ceil, auto, indices=auto == "NOTSET")
+        case = pool_cases.max_pool_case(shape, k, s, p, d, ceil, auto, indices=auto == "NOTSET")
     assert_case(case, dev, "fp32")
 
 
@@ -108,8 +109,8 @@ def test_max_pool_fast_and_reference_kernels(row8, precision, dev, monkeypatch):
     x = np.random.default_rng(3).standard_normal((1, 2, 9, 43)).astype(np.float32)
     x[0, 0, 4, 17] = np.nan
     x[0, 1, 2, 5:9] = [0.0, -0.0, -0.0, 0.0]
-    for c in (pool.max_pool_case((1, 3, 13, 71), 3, 1, 1),
-              pool.max_pool_case((2, 2, 11, 37), (5, 3), (2, 1), (2, 0, 1, 2), dilation=(2, 1))):
+    for c in (pool_cases.max_pool_case((1, 3, 13, 71), 3, 1, 1),
+              pool_cases.max_pool_case((2, 2, 11, 37), (5, 3), (2, 1), (2, 0, 1, 2), dilation=(2, 1))):
         assert_case(c, dev, precision)
     ref = None
     for flag in (0, row8):

@@ -2,12 +2,12 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from clss.conformance import check
-from clss.ops import resize as rs
-from clss.ops.base import Unsupported
+from clss.ops import Unsupported, resize as rs
+from clss.verify.cases import resize as rs_cases
+from clss.verify.conformance import check
 from helpers import PRECISIONS, assert_case
 
-CASES = rs.cases("full")
+CASES = rs_cases.cases("full")
 
 
 def test_case_names_unique():
@@ -26,11 +26,11 @@ def test_case_names_unique():
 def test_random_against_onnxruntime(dev, n, c, h, w, sy, sx, mode, coord, by_sizes, precision):
     if by_sizes:
         sizes = (max(1, int(round(h * sy))), max(1, int(round(w * sx))))
-        case = rs.case(n, c, h, w, mode=mode, coord=coord, sizes=sizes)
+        case = rs_cases.case(n, c, h, w, mode=mode, coord=coord, sizes=sizes)
     else:
         if int(np.float32(sy) * h) < 1 or int(np.float32(sx) * w) < 1:
             return
-        case = rs.case(n, c, h, w, mode=mode, coord=coord, scales=(sy, sx))
+        case = rs_cases.case(n, c, h, w, mode=mode, coord=coord, scales=(sy, sx))
     row = check(case, dev, precision)
     assert row.passed, f"{case.name} {precision}: {row.detail}"
 
@@ -81,7 +81,7 @@ def test_onnx_handler_refuses_channel_and_batch_scales(dev):
 
 def test_onnx_handler_rank3_and_axes(dev):
     # Leading axes fold into planes; axes picks the resized ones.
-    from clss.ops.twin import node_model, run_ort
+    from clss.verify.twin import node_model, run_ort
     g = np.random.default_rng(3)
     x = g.standard_normal((3, 5, 7)).astype(np.float32)
     sc = np.array([2.0, 1.5], np.float32)
@@ -99,8 +99,8 @@ def test_resize_x8_fast_and_reference_kernels(x8, precision, dev, monkeypatch):
     # RESIZE_X8=0 is the reference kernel the 8-outputs-per-work-item resize_x8 is checked
     # against: tails (widths off multiples of 8), both filters, up and down, channels off CPT.
     monkeypatch.setattr(rs, "RESIZE_X8", x8)
-    for c in (rs.case(1, 5, 7, 13, mode="linear", scales=(2.0, 2.0)),
-              rs.case(2, 3, 11, 29, mode="cubic", scales=(1.5, 3.0)),
-              rs.case(1, 7, 17, 41, mode="linear", coord="align_corners", scales=(0.5, 0.75)),
-              rs.case(1, 2, 5, 9, mode="linear", coord="asymmetric", scales=(8.0, 8.0))):
+    for c in (rs_cases.case(1, 5, 7, 13, mode="linear", scales=(2.0, 2.0)),
+              rs_cases.case(2, 3, 11, 29, mode="cubic", scales=(1.5, 3.0)),
+              rs_cases.case(1, 7, 17, 41, mode="linear", coord="align_corners", scales=(0.5, 0.75)),
+              rs_cases.case(1, 2, 5, 9, mode="linear", coord="asymmetric", scales=(8.0, 8.0))):
         assert_case(c, dev, precision)

@@ -3,6 +3,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import scatter as S
+from clss.verify.cases import scatter as scatter_cases
 from helpers import PRECISIONS, assert_case
 
 
@@ -23,8 +24,8 @@ def scatter_args(draw):
 @given(args=scatter_args(), negative=st.booleans(), idx32=st.booleans(), precision=st.sampled_from(PRECISIONS))
 def test_scatter_elements_hypothesis(dev, args, negative, idx32, precision):
     dshape, ishape, axis, reduction = args
-    case = S.elements_case(dshape, ishape, axis, reduction, negative=negative,
-                           idx_dtype=np.int32 if idx32 else np.int64)
+    case = scatter_cases.elements_case(dshape, ishape, axis, reduction, negative=negative,
+                                       idx_dtype=np.int32 if idx32 else np.int64)
     assert_case(case, dev, precision)
 
 
@@ -33,7 +34,7 @@ def test_scatter_elements_hypothesis(dev, args, negative, idx32, precision):
 @given(n=st.integers(1, 2), h=st.sampled_from([1, 9]), w=st.sampled_from([1, 11]), mode=st.sampled_from(S.DEPTH_MODES),
        reach=st.sampled_from([0.5, 1.5, 4.0, 20.0]), snap=st.booleans(), precision=st.sampled_from(PRECISIONS))
 def test_scatter_depth_hypothesis(dev, n, h, w, mode, reach, snap, precision):
-    assert_case(S.depth_case(n, h, w, mode, reach, snap=snap), dev, precision)
+    assert_case(scatter_cases.depth_case(n, h, w, mode, reach, snap=snap), dev, precision)
 
 
 @pytest.mark.parametrize("reduction", ["max", "min"])

@@ -3,6 +3,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import warp as W
+from clss.verify.cases import warp as warp_cases
 from helpers import PRECISIONS, assert_case
 
 # Both spellings of every mode (opset 16 names, opset 20 names), every padding and
@@ -15,7 +16,8 @@ from helpers import PRECISIONS, assert_case
        hi=st.integers(1, 9), wi=st.integers(1, 9), reach=st.sampled_from([0.5, 1.0, 1.5, 4.0]),
        precision=st.sampled_from(PRECISIONS))
 def test_grid_sample_hypothesis(dev, mode, padding, ac, opset, n, c, hi, wi, reach, precision):
-    assert_case(W.grid_case(n, c, hi, wi, 3, 4, mode, padding, ac, opset=opset, reach=reach), dev, precision)
+    case = warp_cases.grid_case(n, c, hi, wi, 3, 4, mode, padding, ac, opset=opset, reach=reach)
+    assert_case(case, dev, precision)
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -23,7 +25,8 @@ def test_grid_sample_hypothesis(dev, mode, padding, ac, opset, n, c, hi, wi, rea
        k=st.sampled_from([0, 3]), h=st.integers(1, 9), w=st.integers(1, 9),
        scale=st.sampled_from([1.0, 2.0]), precision=st.sampled_from(PRECISIONS))
 def test_warp_hypothesis(dev, mode, padding, c, k, h, w, scale, precision):
-    assert_case(W.motion_case(1, c, h, w, 5, 6, mode, padding, scale=scale, cubic_channels=k), dev, precision)
+    case = warp_cases.motion_case(1, c, h, w, 5, 6, mode, padding, scale=scale, cubic_channels=k)
+    assert_case(case, dev, precision)
 
 
 @pytest.mark.parametrize("mode", W.MODES)

@@ -2,8 +2,9 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from clss.conformance import check
 from clss.ops import zero_upsample as zu
+from clss.verify.cases import zero_upsample as zu_cases
+from clss.verify.conformance import check
 
 
 @settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
@@ -11,7 +12,7 @@ from clss.ops import zero_upsample as zu
        sy=st.sampled_from([1, 1.25, 1.5, 2, 2.5, 3, 4]), sx=st.sampled_from([1, 1.5, 2, 3, 3.3]),
        jy=st.floats(-0.5, 0.5), jx=st.floats(-0.5, 0.5))
 def test_random_placements(dev, h, w, sy, sx, jy, jx):
-    c = zu.case(1, 3, h, w, (sy, sx), (jy, jx))
+    c = zu_cases.case(1, 3, h, w, (sy, sx), (jy, jx))
     row = check(c, dev, "fp32")
     assert row.passed, row
 

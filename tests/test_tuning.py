@@ -5,7 +5,7 @@ import pytest
 
 from bench.capture import Capture
 from clss import device as D, tuning
-from clss.ops import DEFAULT_TOL, compare
+from clss.tolerance import DEFAULT_TOL, compare
 from clss.ops import conv, mlp, space_to_depth as s2d
 
 

@@ -66,9 +66,9 @@ def cmd_verify(argv) -> int:
     a = p.parse_args(argv)
     if a.json is not None:
         check_output_file(a.json, "--json")
-    from ..conformance import check, format_table
     from ..device import DeviceError, get_device
-    from ..ops import all_cases
+    from ..verify.cases import all_cases
+    from ..verify.conformance import check, format_table
     try:
         dev = get_device(a.device)
     except DeviceError as e:
@@ -105,7 +105,7 @@ def cmd_verify(argv) -> int:
     print(format_table(shown))
     fails = sum(not r.passed for r in rows)
     print(f"\n{len(rows) - fails} passed, {fails} failed ({len(rows)} rows, {time.perf_counter() - t0:.1f} s)")
-    from ..conformance import format_fast_paths
+    from ..verify.conformance import format_fast_paths
     from ..selfcheck_runner import check_all
     fast = check_all(dev, precs, [a.family] if a.family else None)
     print("\n" + format_fast_paths(fast))

@@ -216,8 +216,8 @@ def cmd_run(argv) -> int:
 
 
 def _compare(a, m, feeds, outs, report) -> int:
-    from ..ops.base import Tolerance, compare
-    from ..ops.twin import session
+    from ..tolerance import Tolerance, compare
+    from ..verify.twin import session
     atol, rtol = COMPARE_TOL[a.precision]
     tol = Tolerance(a.atol if a.atol is not None else atol, a.rtol if a.rtol is not None else rtol)
     import onnx

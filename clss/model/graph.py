@@ -206,7 +206,6 @@ def _checkable(m: onnx.ModelProto) -> onnx.ModelProto:
     probe.ir_version = min(probe.ir_version, onnx.IR_VERSION)
     if not fill:
         return probe
-    from ..ops.twin import fill_output_shapes
     for o in probe.graph.output:
         o.type.tensor_type.SetInParent()   # an output with no type at all: inference fills it
     try:
@@ -214,6 +213,19 @@ def _checkable(m: onnx.ModelProto) -> onnx.ModelProto:
     except Exception:   # inference itself fails: the checker, then _infer, say why
         pass
     return probe
+
+
+def fill_output_shapes(model: onnx.ModelProto) -> None:
+    """Graph outputs are declared without a shape; take the inferred one
+    (the checker wants a shape field, and a wrong guess would be worse)."""
+    inferred = onnx.shape_inference.infer_shapes(model)
+    known = {v.name: v for v in list(inferred.graph.value_info) + list(inferred.graph.output)}
+    for out in model.graph.output:
+        v = known.get(out.name)
+        if v is not None and v.type.tensor_type.HasField("shape"):
+            out.type.CopyFrom(v.type)
+        elif not out.type.tensor_type.HasField("shape"):
+            out.type.tensor_type.shape.SetInParent()  # unknown rank would fail the checker
 
 
 def check_opset(m: onnx.ModelProto, opset: int) -> None:

@@ -1,11 +1,11 @@
-"""Kernel families. Each module shares its stem with kernels/<stem>.cl and
+"""Kernel families: kernel launchers and ONNX handlers. Each module shares its stem with
+kernels/<stem>.cl, clss/verify/cases/<stem>.py (its conformance cases) and
 tests/test_ops_<stem>.py; see base.py for what a family module provides."""
 from __future__ import annotations
 
 import importlib
 
-from .base import (Case, Tolerance, Unsupported, ONNX_HANDLERS, DEFAULT_TOL, EXACT,
-                   compare, onnx_op, round_inputs)
+from .base import ONNX_HANDLERS, Unsupported, onnx_op
 
 FAMILIES = (
     "conv",
@@ -40,14 +40,4 @@ def load_all() -> dict:
     return mods
 
 
-def all_cases(level: str = "quick", families=None) -> list[Case]:
-    mods = load_all()
-    out = []
-    for name in families or FAMILIES:
-        if name in mods:
-            out.extend(mods[name].cases(level))
-    return out
-
-
-__all__ = ["Case", "Tolerance", "Unsupported", "ONNX_HANDLERS", "DEFAULT_TOL", "EXACT",
-           "compare", "onnx_op", "round_inputs", "FAMILIES", "family", "load_all", "all_cases"]
+__all__ = ["Unsupported", "ONNX_HANDLERS", "onnx_op", "FAMILIES", "family", "load_all"]

@@ -22,7 +22,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from ..networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
 from ..networks import pad16 as _pad16
-from ..ops.twin import fill_output_shapes
+from ..model.graph import fill_output_shapes
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
 from .contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
                        H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MODES,
@@ -351,6 +351,7 @@ def _stage1_dilate(g, h, w, dbg):
     dbg["dbg_dilated_depth"], dbg["dbg_dilated_motion"] = d_dil, m_dil
     return d_dil, m_dil
 
+
 def _stage2_reconstruct(g, h, w, d_dil, m_dil, dbg):
     """Stage 2: the previous frame's depth, scatter-max of the dilated depth along the
     motion (reversed-Z). Returns the bilinear taps (weight, on-screen, index, scatter
@@ -565,6 +566,7 @@ def _stage9_blend(g, hdr, nits, wgt, up, blend_hist, aux, new_logits):
         _pq_decode(g, out, nits, name="output")
     else:
         g.op("Identity", out, name="output")
+
 
 def initial_history(output_hw) -> np.ndarray:
     """A zero history; it is only ever read together with reset = 1."""

@@ -1,4 +1,5 @@
-"""Building ONNX twins and running them on onnxruntime, the numerical oracle."""
+"""Building ONNX twins and running them on onnxruntime, the numerical oracle of the
+conformance cases."""
 from __future__ import annotations
 
 import hashlib
@@ -7,7 +8,9 @@ from typing import Sequence
 
 import numpy as np
 import onnx
-from onnx import helper, TensorProto
+from onnx import helper
+
+from ..model.graph import fill_output_shapes
 
 # onnx >= 1.23 writes IR 14 by default, which onnxruntime <= 1.31 rejects.
 # IR 10 carries every opset clss runs (11-25; onnxruntime 1.32 runs them under it).
@@ -43,20 +46,6 @@ def make_model(nodes: Sequence[onnx.NodeProto], inputs: dict, outputs, *,
     fill_output_shapes(model)
     onnx.checker.check_model(model)
     return model
-
-
-def fill_output_shapes(model: onnx.ModelProto) -> None:
-    """Graph outputs are declared without a shape; take the inferred one
-    (the checker wants a shape field, and a wrong guess would be worse)."""
-    inferred = onnx.shape_inference.infer_shapes(model)
-    known = {v.name: v for v in list(inferred.graph.value_info) + list(inferred.graph.output)}
-    for out in model.graph.output:
-        v = known.get(out.name)
-        if v is not None and v.type.tensor_type.HasField("shape"):
-            out.type.CopyFrom(v.type)
-        elif not out.type.tensor_type.HasField("shape"):
-            out.type.tensor_type.shape.SetInParent()  # unknown rank would fail the checker
-
 
 
 def node_model(op_type: str, inputs: dict, n_outputs: int = 1, *, out_dtypes=None,

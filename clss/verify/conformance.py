@@ -7,9 +7,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .device import Device
-from .ops.base import Case, compare, round_inputs
-from .ops.twin import run_ort
+from ..device import Device
+from ..tolerance import compare
+from .case import Case, round_inputs
+from .twin import run_ort
 
 
 @dataclass
@@ -88,7 +89,7 @@ def format_fast_paths(verdicts) -> str:
     names = sorted({v.name for v in verdicts})
     lines = [f"fast paths: {len(names)} variant(s) self-checked against their reference variants "
              f"(clss/selfcheck.py); {len(bad)} disabled on this device"]
-    from .selfcheck import REGISTRY
+    from ..selfcheck import REGISTRY
     for v in bad:
         fp = REGISTRY.get(v.name)
         ref = f", using {fp.options(False)}" if fp else ""
