@@ -1,4 +1,5 @@
-"""Bench cases: each kernel at the shapes the CLSS frame step uses, with its ONNX twin.
+"""Bench cases: each kernel at the shapes the CLSS frame step uses, with its ONNX twin
+(built by the twin builders of the conformance cases, clss/verify/cases/<family>.py).
 
 A BenchCase names one workload; ``case.build(dev, prec, params)`` uploads seeded
 inputs and returns a Setup: the engine callable (enqueues on device arrays, returns
@@ -31,9 +32,11 @@ from clss.device import Device, DeviceError, storage_dtype
 from clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, pad16
 from clss.ops.base import rng
 from clss.tolerance import DEFAULT_TOL, EXACT, Tolerance
+from clss.pipeline.contract import output_size
+from clss.verify.cases import conv as conv_twins, mlp as mlp_twins, resize as resize_twins
+from clss.verify.cases import scatter as scatter_twins, space_to_depth as s2d_twins
 from clss.verify.cases import warp as warp_twins
 from clss.verify.twin import make_model, node_model
-from clss.pipeline.contract import output_size
 
 TIERS = {"540p": ((540, 960), 2.0), "1080p": ((1080, 1920), 2.0),
          # a smoke test of the bench itself (tests, --tiny): every case, numbers meaningless
@@ -191,23 +194,6 @@ def _conv_out(x_shape, w, strides, pads):
     return (n, w.shape[0], ho, wo)
 
 
-def conv_twin(x_name, w, b, strides, pads, act, residual, opset=18):
-    def fn(host):
-        nodes = [helper.make_node("Conv", [x_name, "w", "b"], ["c"], kernel_shape=list(w.shape[2:]),
-                                  strides=list(strides), pads=list(pads))]
-        y = "c"
-        if residual:
-            nodes.append(helper.make_node("Add", [y, "r"], ["s"]))
-            y = "s"
-        if act == "relu":
-            nodes.append(helper.make_node("Relu", [y], ["a"]))
-            y = "a"
-        nodes[-1].output[0] = "y0"
-        inputs = {x_name: host[x_name]} | ({"r": host["r"]} if residual else {})
-        return make_model(nodes, inputs, ["y0"], initializers={"w": host["w"], "b": host["b"]}, opset=opset)
-    return fn
-
-
 def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1")):
     (h, w), scale = TIERS[tier]
     H, W = output_size(h, w, scale)
@@ -238,9 +224,12 @@ def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1")
                                    **({"tuning": tuning} if tuning else {}))
             # Long dot products: the reference's summation order differs (fp32: 9*C terms).
             tol = {"fp32": Tolerance(1e-5, 1e-4), "fp16": Tolerance(2e-3, 2e-3)}.get(prec)
-            return make_setup(dev, prec, arrays, conv_twin("x", L["w"], L["b"], L["strides"], L["pads"],
-                                                            L["act"], L["residual"]),
-                              engine, [o_shape], tol=tol)
+            def twin(host):
+                return conv_twins.twin("Conv", {k: host.get(k) for k in ("x", "w", "b", "r")},
+                                       activation=L["act"], consts=("w", "b"),
+                                       kernel_shape=list(L["w"].shape[2:]), strides=list(L["strides"]),
+                                       pads=list(L["pads"]))
+            return make_setup(dev, prec, arrays, twin, engine, [o_shape], tol=tol)
         # conv.cl: XV in {1, 2} (A8 vectors along x), CB output channels per work-item.
         tunables = {"XV": (1, 2), "CB": (1, 2, 4, 8)} if hasattr(conv, "TUNING") else {}
         out.append(BenchCase(name, "conv", "conv", tier, flops, build,
@@ -268,10 +257,8 @@ def _conv_transpose_case(conv, tier, h, w):
                   "b": g.uniform(-0.05, 0.05, 32).astype(np.float32)}
 
         def twin(host):
-            return make_model([helper.make_node("ConvTranspose", ["x", "w", "b"], ["c"], kernel_shape=[2, 2],
-                                                strides=[2, 2]),
-                               helper.make_node("Relu", ["c"], ["y0"])],
-                              {"x": host["x"]}, ["y0"], initializers={"w": host["w"], "b": host["b"]})
+            return conv_twins.twin("ConvTranspose", {k: host[k] for k in ("x", "w", "b")}, activation="relu",
+                                   consts=("w", "b"), kernel_shape=[2, 2], strides=[2, 2])
         return make_setup(dev, prec, arrays, twin,
                           lambda d: conv.conv_transpose2d(dev, prec, d["x"], d["w"], d["b"], strides=(2, 2),
                                                           activation="relu"), [o_shape])
@@ -289,7 +276,7 @@ def s2d_cases(tier):
 
     def build(dev, prec, params):
         return make_setup(dev, prec, {"x": _normal(("bench s2d",), x_shape)},
-                          lambda host: node_model("SpaceToDepth", {"x": host["x"]}, blocksize=2),
+                          lambda host: s2d_twins.twin("s2d", host["x"], 2, "DCR"),
                           lambda d: s2d.space_to_depth(dev, prec, d["x"], 2), [o_shape], exact=True)
     return [BenchCase("space_to_depth b2 23ch (classifier input)", "space_to_depth", "memory", tier, 0.0,
                       build, quick=True, shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}")]
@@ -319,10 +306,8 @@ def resize_cases(tier):
 
         def build(dev, prec, params, x_shape=x_shape, o_shape=o_shape, s=s, mode=mode, scales=scales, name=name):
             def twin(host):
-                return make_model([helper.make_node("Resize", ["x", "", "scales"], ["y0"], mode=mode,
-                                                    coordinate_transformation_mode="half_pixel",
-                                                    cubic_coeff_a=-0.75)],
-                                  {"x": host["x"]}, ["y0"], initializers={"scales": scales})
+                return resize_twins.twin(host["x"], scales=scales, opset=18, mode=mode,
+                                         coordinate_transformation_mode="half_pixel", cubic_coeff_a=-0.75)
             return make_setup(dev, prec, {"x": _normal(("bench resize", name), x_shape)}, twin,
                               lambda d: rs.resize(dev, prec, d["x"], scales=(s, s), mode=mode,
                                                   coord="half_pixel", cubic_a=-0.75),
@@ -374,8 +359,8 @@ def warp_cases(tier):
         grid = np.stack(np.broadcast_arrays(gx[None, :], gy[:, None]), -1)[None].astype(np.float32)
         arrays = {"x": _normal(("bench gs x",), c_shape), "grid": grid}
         return make_setup(dev, prec, arrays,
-                          lambda host: node_model("GridSample", {"x": host["x"], "grid": host["grid"]}, opset=16,
-                                                  mode="bicubic", padding_mode="border", align_corners=0),
+                          lambda host: warp_twins.twin_grid_sample(host["x"], host["grid"], "bicubic", "border",
+                                                                   False),
                           lambda d: wp.grid_sample(dev, prec, d["x"], d["grid"], "bicubic", "border", False),
                           [(1, 3, H, W)], fp32=("grid",), tol=_warp_tol(prec, h, w))
     out.append(BenchCase("grid_sample bicubic colour upsample", "warp", "memory", tier, 32.0 * 3 * H * W,
@@ -384,7 +369,7 @@ def warp_cases(tier):
 
 
 def _warp_tol(prec, h, w):
-    # The twin forms normalised grids in float32; see clss/ops/warp.py.
+    # The twin forms normalised grids in float32; see clss/verify/cases/warp.py.
     if prec == "fp32":
         return Tolerance(max(1e-5, 4e-7 * max(h, w)), 1e-4)
     return DEFAULT_TOL[prec]
@@ -523,9 +508,8 @@ def scatter_cases(tier):
         return {"data": np.zeros((1, n), np.float32), "indices": idx.reshape(1, -1),
                 "updates": upd.reshape(1, -1)}
     return [graph_case("scatter max depth reconstruction (4 taps)", "scatter", "memory", tier, 4.0 * n,
-                       lambda host: node_model("ScatterElements", {"data": host["data"], "indices": host["indices"],
-                                                                   "updates": host["updates"]},
-                                               axis=1, reduction="max"),
+                       lambda host: scatter_twins.twin_scatter_elements(host["data"], host["indices"],
+                                                                        host["updates"], 1, "max"),
                        arrays, [(1, n)], shape=f"{h}x{w} x4 taps", exact=True)]
 
 
@@ -547,12 +531,8 @@ def mlp_cases(tier):
 
     def build(dev, prec, params):
         def twin(host):
-            return make_model([helper.make_node("Conv", ["x", "w1", "b1"], ["h"], kernel_shape=[1, 1]),
-                               helper.make_node("Relu", ["h"], ["hr"]),
-                               helper.make_node("Conv", ["hr", "w2", "b2"], ["z"], kernel_shape=[1, 1]),
-                               helper.make_node("Sigmoid", ["z"], ["y0"])],
-                              {"x": host["x"]}, ["y0"],
-                              initializers={k: host[k] for k in ("w1", "b1", "w2", "b2")})
+            return mlp_twins.twin(host["x"], [(host["w1"], host["b1"], "relu"), (host["w2"], host["b2"], "sigmoid")],
+                                  consts=True)
         arrays = {"x": _normal(("bench mlp",), x_shape), "w1": w1, "b1": b1, "w2": w2, "b2": b2}
         # Packed once, as a network would be; the device copies in `arrays` only count the bytes.
         net = mlp.pack(dev, prec, [(w1, b1, "relu"), (w2, b2, "sigmoid")])

@@ -15,9 +15,11 @@ from ..twin import make_model
 _ACT_NODES = {"relu": ("Relu", {}), "sigmoid": ("Sigmoid", {}), "tanh": ("Tanh", {})}
 
 
-def twin(op: str, inputs: dict, *, activation="none", alpha=0.01, residual_before_act=True, **attrs):
+def twin(op: str, inputs: dict, *, activation="none", alpha=0.01, residual_before_act=True,
+         consts=(), **attrs):
     """ONNX twin of a fused conv: Conv/ConvTranspose -> [Add(r)] -> act -> [Add(r)].
-    inputs: x, w, optional b, optional r (residual)."""
+    inputs: x, w, optional b, optional r (residual). `consts`: the inputs that are
+    initializers, not graph inputs (a network's weights, as the bench runs them)."""
     names = ["x", "w"] + (["b"] if inputs.get("b") is not None else [])
     nodes = [helper.make_node(op, names, ["c"], **attrs)]
     cur = "c"
@@ -35,7 +37,8 @@ def twin(op: str, inputs: dict, *, activation="none", alpha=0.01, residual_befor
         nodes.append(helper.make_node("Add", [cur, "r"], ["s2"]))
         cur = "s2"
     nodes.append(helper.make_node("Identity", [cur], ["y0"]))
-    return make_model(nodes, {k: v for k, v in inputs.items() if v is not None}, ["y0"])
+    return make_model(nodes, {k: v for k, v in inputs.items() if v is not None and k not in consts},
+                      ["y0"], initializers={k: inputs[k] for k in consts})
 
 
 def make_case(op="conv", n=1, cin=3, h=7, w=13, cout=5, k=(3, 3), strides=(1, 1), pads=(1, 1, 1, 1),

@@ -15,9 +15,10 @@ from ..twin import make_model
 _ACT_OPS = {"relu": "Relu", "sigmoid": "Sigmoid", "tanh": "Tanh", "leaky_relu": "LeakyRelu"}
 
 
-def twin(x: np.ndarray, layers) -> "onnx.ModelProto":
+def twin(x: np.ndarray, layers, *, consts=False) -> "onnx.ModelProto":
     """Conv 1x1 -> activation per layer; weights and biases are graph inputs
-    (w0, b0, w1, ...) so fp16 runs feed onnxruntime the same rounded values."""
+    (w0, b0, w1, ...) so fp16 runs feed onnxruntime the same rounded values, or with
+    `consts` initializers (a network's weights, as the bench runs them)."""
     nodes, inputs, cur = [], {"x": x}, "x"
     for i, (w, b, act) in enumerate(layers):
         name, alpha = (act, 0.01) if isinstance(act, str) else act
@@ -30,7 +31,9 @@ def twin(x: np.ndarray, layers) -> "onnx.ModelProto":
             nodes.append(helper.make_node(_ACT_OPS[name], [cur], [f"a{i}"], **attrs))
             cur = f"a{i}"
     nodes.append(helper.make_node("Identity", [cur], ["y0"]))
-    return make_model(nodes, inputs, ["y0"])
+    if not consts:
+        return make_model(nodes, inputs, ["y0"])
+    return make_model(nodes, {"x": x}, ["y0"], initializers={k: v for k, v in inputs.items() if k != "x"})
 
 
 def make_case(widths, acts, n=1, h=7, w=13, name="") -> Case:
