@@ -221,14 +221,19 @@ class Upscaler:
         """Bytes of the device buffers this upscaler holds (the classifier's own aside)."""
         return 0 if self._fs is None else self._fs.device_bytes()
 
-    def _frame_step(self, hw, reset):
-        if self._fs is not None and (self._fs.h, self._fs.w) == tuple(hw):
-            return self._fs
-        if self._fs is not None and not reset:
+    def _check_render_size(self, hw, reset):
+        """A render size other than the sequence's needs a reset (a camera cut)."""
+        if self._fs is not None and not reset and (self._fs.h, self._fs.w) != tuple(hw):
             h, w = self._fs.h, self._fs.w
             raise FrameInputError(
                 f"color: the frame is {hw[0]}x{hw[1]} (h x w) but this sequence renders at "
                 f"{h}x{w}; a new render size needs reset=True (a camera cut)")
+
+    def _frame_step(self, hw, reset):
+        """The FrameStep for render size hw, built anew (buffers, programs) when it changes."""
+        self._check_render_size(hw, reset)
+        if self._fs is not None and (self._fs.h, self._fs.w) == tuple(hw):
+            return self._fs
         h, w = int(hw[0]), int(hw[1])
         if h < 1 or w < 1:
             raise FrameInputError(f"color: expected a non-empty h x w x 3 frame, got {h}x{w}")
@@ -252,9 +257,9 @@ class Upscaler:
         """One frame from host arrays; returns the H x W x 3 float32 linear output."""
         if reset:
             self._pending_reset = True          # kept if this frame is refused
-        hw = color.shape[:2] if isinstance(color, np.ndarray) and color.ndim == 3 else None
-        if hw is not None and self._fs is not None and not reset:
-            self._frame_step(hw, reset)         # a size change without reset: a clear error
+        if isinstance(color, np.ndarray) and color.ndim == 3:
+            # before validate_frame, whose shape error would not say that a reset is missing
+            self._check_render_size(color.shape[:2], reset)
         frame = validate_frame(color, depth, motion, jitter, reactive,
                                render_size=None if reset or self._fs is None else self.render_size,
                                sanitize=self.sanitize, depth_inverted=self.depth_inverted)
