@@ -88,10 +88,12 @@
 #define L_REACTIVE 4
 #define L_NMIN 5
 #define L_NMAX 8
-#define L_CHANNELS 11
 
-#define HIST 16
-#define CLS_IN 23
+/* The buffer widths come from the host, where they are defined once: L_CHANNELS and HIST
+ * from clss.pipeline.contract, CLS_IN and COMP_IN from clss.networks' channel layouts. */
+#if !defined(L_CHANNELS) || !defined(HIST) || !defined(CLS_IN) || !defined(COMP_IN)
+#error "frame.cl: build with -DL_CHANNELS -DHIST -DCLS_IN -DCOMP_IN (clss/pipeline/frame.py)"
+#endif
 
 /* SMPTE ST 2084 */
 #define PQ_M1 0.1593017578125f
@@ -713,7 +715,7 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
  *  @param[in]  sx, sy  W / w and H / h (motion to output pixels)
  *  @param[in]  reset   1 on a camera cut (the history is not used)
  *  @param[in]  hist    [16, H, W] T the history
- *  @param[out] cls_in   [23, H16, W16] T the classifier input, edge-replicated past (W, H)
+ *  @param[out] cls_in   [CLS_IN, H16, W16] T the classifier input, edge-replicated past (W, H)
  *  @param[out] aux      [6, H16, W16] T warped counter, valid, reactive, clipped history colour 3 (for compose)
  *  @param[in]  flags    prepare's flags
  *  @param[in]  W16, H16 W and H rounded up to multiples of 16
@@ -759,13 +761,13 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
 /* Net mode, stages 6 (logits x2), 7, 8, 9 in one pass, VEC pixels per work-item.
  * logits: [6, H16/2, W16/2] T from the classifier; bilinear x2 (Resize linear,
  * half_pixel) evaluated at the output pixels only, which crops by construction.
- * w1: [HIDDEN, 22], b1: [HIDDEN], w2: [HIDDEN], b2: [1] (the composition MLP). */
-/** @param[in]  cls_in   [23, H16, W16] T resolve's classifier input (the composition reads up, depth, motion and the colour range from it)
+ * w1: [HIDDEN, COMP_IN], b1: [HIDDEN], w2: [HIDDEN], b2: [1] (the composition MLP). */
+/** @param[in]  cls_in   [CLS_IN, H16, W16] T resolve's classifier input (the composition reads up, depth, motion and the colour range from it)
  *  @param[in]  aux      [6, H16, W16] T resolve's warped counter, valid, reactive, clipped history colour (3)
  *  @param[in]  logits   [6, H16/2, W16/2] T the classifier's output
  *  @param[in]  W, H     output width and height
  *  @param[in]  W16, H16 the padded size
- *  @param[in]  w1, b1   [HIDDEN, 22], [HIDDEN] the composition MLP's first layer
+ *  @param[in]  w1, b1   [HIDDEN, COMP_IN], [HIDDEN] the composition MLP's first layer
  *  @param[in]  w2, b2   [HIDDEN], [1] its second layer
  *  @param[in]  hist     [16, H, W] T the history
  *  @param[out] hist_out [16, H, W] T the next history
@@ -807,7 +809,7 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
     const fv cnt = select(fmin(LDV(aux, r) + 1.0f, cap), FV(0.0f), ghost);
 
     /* the composition MLP on COMPOSITION_INPUTS, in their order */
-    fv x[22];
+    fv x[COMP_IN];
     for (int c = 0; c < 3; ++c) {
         const fv u = LDV(cls_in, c * P + r);
         x[c] = u;
@@ -824,8 +826,8 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
     fv z = FV(b2[0]);
     for (int k = 0; k < HIDDEN; ++k) {
         fv a = FV(b1[k]);
-        for (int c = 0; c < 22; ++c)
-            a = mad(FV(w1[k * 22 + c]), x[c], a);
+        for (int c = 0; c < COMP_IN; ++c)
+            a = mad(FV(w1[k * COMP_IN + c]), x[c], a);
         z = mad(FV(w2[k]), fmax(a, 0.0f), z);
     }
     const fv wgt = fmax(1.0f / (1.0f + exp(-z)), LDV(aux, 2 * P + r));

@@ -32,7 +32,7 @@ from onnx import numpy_helper
 
 from .. import selfcheck
 from ..device import Device
-from ..networks import CLASSIFIER_CHANNELS, pad16
+from ..networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from ..ops.conv import load_defines
 from .contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
                        PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
@@ -168,7 +168,9 @@ class FrameStep:
         self.vec = pixels_per_item(dev, prec, mode)
         defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec,
                        CLSS_CLANG_VECTORS=load_defines(dev, prec, f"frame.{mode}")["CLSS_CLANG_VECTORS"])
-        defines.update(CLIP_EPS=float(RULE_CLIP_EPS), CLIP_GAMMA=float(CLIP_GAMMA))
+        defines.update(CLIP_EPS=float(RULE_CLIP_EPS), CLIP_GAMMA=float(CLIP_GAMMA),
+                       L_CHANNELS=LR_CHANNELS, HIST=HISTORY_CHANNELS,
+                       CLS_IN=CLASSIFIER_CHANNELS, COMP_IN=COMPOSITION_CHANNELS)
         h, w, H, W = self.h, self.w, self.H, self.W
         f32 = np.float32
         e = dev.empty
