@@ -38,6 +38,9 @@ from .contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNEL
                        PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
 
 LR_CHANNELS = 11  # depth, motion 2, dd, reactive, clamp box low 3 and high 3
+# The buffer widths kernels/frame.cl is built with (it has no defaults for them).
+WIDTH_DEFINES = dict(L_CHANNELS=LR_CHANNELS, HIST=HISTORY_CHANNELS,
+                     CLS_IN=CLASSIFIER_CHANNELS, COMP_IN=COMPOSITION_CHANNELS)
 # flags[0] bits, as kernels/frame.cl
 FLAG_BITS = {1: ("color", "non-finite"), 2: ("depth", "non-finite"), 4: ("motion", "non-finite"),
              8: ("reactive", "non-finite"), 16: ("depth", "outside [0, 1]"),
@@ -169,8 +172,7 @@ class FrameStep:
         defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec,
                        CLSS_CLANG_VECTORS=load_defines(dev, prec, f"frame.{mode}")["CLSS_CLANG_VECTORS"])
         defines.update(CLIP_EPS=float(RULE_CLIP_EPS), CLIP_GAMMA=float(CLIP_GAMMA),
-                       L_CHANNELS=LR_CHANNELS, HIST=HISTORY_CHANNELS,
-                       CLS_IN=CLASSIFIER_CHANNELS, COMP_IN=COMPOSITION_CHANNELS)
+                       **WIDTH_DEFINES)
         h, w, H, W = self.h, self.w, self.H, self.W
         f32 = np.float32
         e = dev.empty
