@@ -150,6 +150,56 @@ __kernel void pool(__global const T *in, __global T *out,
 #define PLD8 LD8
 #define PST8 ST8
 #endif
+#ifndef POOL_ROWS
+#define POOL_ROWS 1
+#endif
+
+/* The strict-`>` maximum of window columns 0, 1, 2 of one input row for the 8
+ * outputs from w0 on, visited in the reference's order; -inf outside the row. */
+inline A8 row_max8(const __global T *row, int w0, int IW, int inside)
+{
+    A8 a;
+    A b0, b1;
+    if (inside) {
+        a = PLD8(row, w0);
+        b0 = FLD(row, w0 + 8);
+        b1 = FLD(row, w0 + 9);
+    } else {
+        union { A8 v; A e[8]; } u;
+        for (int e = 0; e < 8; ++e) {
+            const int p = w0 + e;
+            u.e[e] = (p >= 0 && p < IW) ? FLD(row, p) : (A)(-INFINITY);
+        }
+        a = u.v;
+        b0 = (w0 + 8 >= 0 && w0 + 8 < IW) ? FLD(row, w0 + 8) : (A)(-INFINITY);
+        b1 = (w0 + 9 >= 0 && w0 + 9 < IW) ? FLD(row, w0 + 9) : (A)(-INFINITY);
+    }
+    const A8 t1 = (A8)(a.s123, a.s4567, b0);
+    const A8 t2 = (A8)(a.s23, a.s4567, b0, b1);
+    A8 h = (A8)(-INFINITY);
+    h = a > h ? a : h;
+    h = t1 > h ? t1 : h;
+    h = t2 > h ? t2 : h;
+    return h;
+}
+
+inline void store_row8(__global T *o, int n, A8 m)
+{
+    if (n >= 8) {
+        PST8(o, 0, m);
+    } else {
+        union { A8 v; A e[8]; } u;
+        u.v = m;
+        for (int e = 0; e < n; ++e)
+            FST(o, e, u.e[e]);
+    }
+}
+
+/* Row maxima first, then the maximum over the window's rows: with the strict `>`
+ * in both, the first maximum in row-major order wins, as in the reference.
+ * -DPOOL_ROWS=R > 1 (host: only for unit stride and dilation along y): R output
+ * rows per work-item share the R + KH - 1 row maxima they need, each input row
+ * read and reduced once instead of KH times. */
 /** @param[in]  in   [NC, IH, IW] input
  *  @param[out] out  [NC, OH, OW] output
  *  @param[in]  IH   input height
@@ -157,57 +207,56 @@ __kernel void pool(__global const T *in, __global T *out,
  *  @param[in]  OH   output height
  *  @param[in]  OW   output width
  *  @param[in]  KH   window height (the width is 3)
- *  @param[in]  SH   stride along y
+ *  @param[in]  SH   stride along y (1 when POOL_ROWS > 1)
  *  @param[in]  PH   begin pad along y
  *  @param[in]  PW   begin pad along x
- *  @param[in]  DH   dilation along y
+ *  @param[in]  DH   dilation along y (1 when POOL_ROWS > 1)
  *  @param[in]  NC   N * C, the extent of NDRange dimension 2
  *  @note -DMODE=0 only; -DCLSS_CLANG_VECTORS=0|1: builtin-free loads and stores
+ *  @note -DPOOL_ROWS=R: output rows per work-item (NDRange (ceil(OW / 8), ceil(OH / R), NC))
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
  */
 __kernel void max_pool_row8(__global const T *in, __global T *out, int IH, int IW, int OH, int OW,
                             int KH, int SH, int PH, int PW, int DH, int NC)
 {
-    const int ox0 = get_global_id(0) * 8, oy = get_global_id(1), nc = get_global_id(2);
-    if (ox0 >= OW || oy >= OH || nc >= NC) return;
-    const int h0 = oy * SH - PH, w0 = ox0 - PW;
-    const int2 kh = tap_range(h0, KH, DH, 0, IH);
+    const int ox0 = get_global_id(0) * 8, oy0 = get_global_id(1) * POOL_ROWS, nc = get_global_id(2);
+    if (ox0 >= OW || oy0 >= OH || nc >= NC) return;
+    const int w0 = ox0 - PW;
     const __global T *base = in + (long)nc * IH * IW;
     const int inside = w0 >= 0 && w0 + 10 <= IW;
+    __global T *o = out + ((long)nc * OH + oy0) * OW + ox0;
+#if POOL_ROWS == 1
+    const int h0 = oy0 * SH - PH;
+    const int2 kh = tap_range(h0, KH, DH, 0, IH);
     A8 m = (A8)(-INFINITY);
     for (int j = kh.x; j <= kh.y; ++j) {
-        const __global T *row = base + (long)(h0 + j * DH) * IW;
-        A8 a;
-        A b0, b1;
-        if (inside) {
-            a = PLD8(row, w0);
-            b0 = FLD(row, w0 + 8);
-            b1 = FLD(row, w0 + 9);
-        } else {
-            union { A8 v; A e[8]; } u;
-            for (int e = 0; e < 8; ++e) {
-                const int p = w0 + e;
-                u.e[e] = (p >= 0 && p < IW) ? FLD(row, p) : (A)(-INFINITY);
-            }
-            a = u.v;
-            b0 = (w0 + 8 >= 0 && w0 + 8 < IW) ? FLD(row, w0 + 8) : (A)(-INFINITY);
-            b1 = (w0 + 9 >= 0 && w0 + 9 < IW) ? FLD(row, w0 + 9) : (A)(-INFINITY);
+        const A8 h = row_max8(base + (long)(h0 + j * DH) * IW, w0, IW, inside);
+        m = h > m ? h : m;
+    }
+    store_row8(o, OW - ox0, m);
+#else
+    A8 m[POOL_ROWS];
+#pragma unroll
+    for (int r = 0; r < POOL_ROWS; ++r)
+        m[r] = (A8)(-INFINITY);
+    const int y0 = oy0 - PH;
+    for (int i = 0; i < POOL_ROWS + KH - 1; ++i) {
+        const int y = y0 + i;
+        if (y < 0 || y >= IH)
+            continue;
+        const A8 h = row_max8(base + (long)y * IW, w0, IW, inside);
+#pragma unroll
+        for (int r = 0; r < POOL_ROWS; ++r) {
+            const int j = i - r;     /* window row of input row y for output row oy0 + r */
+            if (j >= 0 && j < KH)
+                m[r] = h > m[r] ? h : m[r];
         }
-        const A8 t1 = (A8)(a.s123, a.s4567, b0);
-        const A8 t2 = (A8)(a.s23, a.s4567, b0, b1);
-        m = a > m ? a : m;
-        m = t1 > m ? t1 : m;
-        m = t2 > m ? t2 : m;
     }
-    __global T *o = out + ((long)nc * OH + oy) * OW + ox0;
-    if (ox0 + 8 <= OW) {
-        PST8(o, 0, m);
-    } else {
-        union { A8 v; A e[8]; } u;
-        u.v = m;
-        for (int e = 0; e < OW - ox0; ++e)
-            FST(o, e, u.e[e]);
-    }
+#pragma unroll
+    for (int r = 0; r < POOL_ROWS; ++r)
+        if (oy0 + r < OH)
+            store_row8(o + (long)r * OW, OW - ox0, m[r]);
+#endif
 }
 
 /* Global pooling, pass 1: one work-item reduces CHUNK contiguous elements of

@@ -87,6 +87,10 @@ def _as3(v, fill):
 # 1, the frame's neighbourhood max): kernel max_pool_row8, 8 outputs per
 # work-item; 0 selects the reference kernel `pool` for every case.
 POOL_ROW8 = 1
+# Output rows per max_pool_row8 work-item when the window has unit stride and
+# dilation along y (the 3x3 / 1 / 1 neighbourhood max): each input row is read and
+# reduced once for all of them. 1 keeps one row per work-item.
+POOL_ROWS = 4
 
 
 def _pool(dev, prec, x, mode, kernel, stride, pads, dilation, ceil_mode, auto_pad,
@@ -114,9 +118,10 @@ def _pool(dev, prec, x, mode, kernel, stride, pads, dilation, ceil_mode, auto_pa
     if (POOL_ROW8 and mode == 0 and not indices and len(sp) == 2 and K[2] == 3 and S[2] == 1
             and D[2] == 1 and selfcheck.enabled(dev, prec, "pool.row8")):
         # fp16: vload_half8 measured faster here than the clang conversion (PoCL 3.0)
-        kern = dev.kernel("pool", "max_pool_row8", prec,
+        rows = POOL_ROWS if S[1] == 1 and D[1] == 1 else 1
+        kern = dev.kernel("pool", "max_pool_row8", prec, POOL_ROWS=rows,
                           CLSS_CLANG_VECTORS=builtin_free(dev) if prec != "fp16" else 0)
-        dev.launch(kern, (-(-OW // 8), OH, n * c),
+        dev.launch(kern, (-(-OW // 8), -(-OH // rows), n * c),
                    (x.data, out.data, *(np.int32(v) for v in (IH, IW, OH, OW, K[1], S[1], P[1], P[2],
                                                                D[1], n * c))))
         return out

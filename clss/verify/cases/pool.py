@@ -134,6 +134,8 @@ def cases(level: str = "quick") -> list[Case]:
         max_pool_case((1, 3, 13, 71), 3, 1, 1),
         max_pool_case((2, 2, 11, 37), (5, 3), (2, 1), (2, 0, 1, 2), dilation=(2, 1)),
         max_pool_case((1, 2, 9, 19), 3, 1, (0, 0, 1, 1), ceil_mode=True),
+        # POOL_ROWS: 4 output rows per work-item, a 5-row window, uneven pads, 10 % 4 rows
+        max_pool_case((1, 2, 10, 23), (5, 3), 1, (2, 1, 1, 1)),
         max_pool_case((2, 3, 7, 13), (2, 3), (3, 2), auto_pad="SAME_LOWER"),
         max_pool_case((2, 3, 7, 13), (2, 3), (3, 2), auto_pad="VALID"),
         max_pool_case((2, 3, 7, 13), 3, 2, 1, indices=True),
