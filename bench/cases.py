@@ -417,9 +417,11 @@ def run_nodes(dev, prec, model: onnx.ModelProto, values: dict, consts: dict):
 
 
 def graph_case(name, family, kind, tier, flops, twin_fn, arrays_fn, out_shapes, *, quick=False,
-               shape="", exact=False, const_names=()):
-    """A case whose engine runs the twin's nodes through the ONNX handlers.
-    `const_names`: initializers handed to handlers as numpy (shape-like inputs)."""
+               shape="", exact=False, const_names=(), via_model=False):
+    """A case whose engine runs the twin's nodes through the ONNX handlers, one by one
+    (`via_model`: through clss.Model, its fusion passes included, as a user running
+    that graph gets). `const_names`: initializers handed to handlers as numpy
+    (shape-like inputs)."""
     def build(dev, prec, params):
         arrays = arrays_fn()
         holder = {}
@@ -430,6 +432,12 @@ def graph_case(name, family, kind, tier, flops, twin_fn, arrays_fn, out_shapes, 
 
         def engine(d):
             m = holder["m"]
+            if via_model:
+                if "model" not in holder:
+                    from clss.model import Model
+                    holder["model"] = Model(m, device=dev, precision=prec,
+                                            input_shapes={k: tuple(v.shape) for k, v in d.items()})
+                return list(holder["model"].run_device(d).values())
             inits = {t.name: onnx.numpy_helper.to_array(t) for t in m.graph.initializer}
             dev_inits = holder.setdefault("dev_inits", {k: dev.to_device(v, prec) if v.dtype.kind == "f"
                                                         else dev.to_device(v) for k, v in inits.items()
@@ -457,7 +465,7 @@ def elementwise_cases(tier):
                                      helper.make_node("Relu", ["t"], ["y0"])],
                                     {"a": host["a"], "b": host["b"]}, ["y0"]),
             lambda: {"a": _normal(("bench add a",), s), "b": _normal(("bench add b",), s)}, [s],
-            quick=True, shape=_shape(*s)))
+            quick=True, shape=_shape(*s), via_model=True))
     if _handlers_for(["Sub", "Mul", "Add"]):
         s, ws = (1, 3, H, W), (1, 1, H, W)
         out.append(graph_case(

@@ -76,6 +76,22 @@
 #define BINOP(x, y) ((x) <= (y))
 #endif
 
+/* -DRELU=1: the result goes through Relu before it is stored (clss.Model's
+ * binary_relu pass: an arithmetic op whose only consumer is a Relu), one pass over
+ * memory instead of two. The same formula as the unary kernel's UOP_RELU. */
+#ifndef RELU
+#define RELU 0
+#endif
+#if RELU && OP >= OP_GREATER
+#error "elementwise.cl: -DRELU=1 is for the arithmetic operators"
+#endif
+#if RELU
+#define OUTOP(x, y) RELU_OF(BINOP(x, y))
+#define RELU_OF(v) (((v) < (A)0) ? (A)0 : (v))
+#else
+#define OUTOP(x, y) BINOP(x, y)
+#endif
+
 /* Comparisons store bool as uchar 0/1: a scalar comparison yields 1, a vector
  * one -1 per true component. */
 #if OP >= OP_GREATER
@@ -94,7 +110,7 @@ typedef T O;
  *  @param[in]  b    [n] second operand (one element with -DB_SCALAR=1)
  *  @param[out] out  [n] a OP b (uchar for comparisons and logic, else T)
  *  @param[in]  n    elements
- *  @note -DOP=n: the operator (OP_* above); -DA_SCALAR, -DB_SCALAR; -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DOP=n: the operator (OP_* above); -DA_SCALAR, -DB_SCALAR; -DCLSS_CLANG_VECTORS=0|1; -DRELU=0|1
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
  */
 __kernel void binary_flat(__global const T *a, __global const T *b, __global O *out, int n)
@@ -112,12 +128,12 @@ __kernel void binary_flat(__global const T *a, __global const T *b, __global O *
 #else
         const A8 y = FLD8(b, i);
 #endif
-        STO8(out, i, BINOP(x, y));
+        STO8(out, i, OUTOP(x, y));
         return;
     }
     for (int j = i; j < n; ++j) {
         const A x = FLD(a, A_SCALAR ? 0 : j), y = FLD(b, B_SCALAR ? 0 : j);
-        STO(out, j, BINOP(x, y));
+        STO(out, j, OUTOP(x, y));
     }
 }
 
@@ -128,7 +144,7 @@ __kernel void binary_flat(__global const T *a, __global const T *b, __global O *
  *  @param[in]  D01     D0 * D1, the extent of NDRange dimension 2
  *  @param[in]  a0..a3  a's element strides per output dimension (0 where a broadcasts)
  *  @param[in]  b0..b3  b's element strides
- *  @note -DOP=n: the operator (OP_* above); -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DOP=n: the operator (OP_* above); -DCLSS_CLANG_VECTORS=0|1; -DRELU=0|1
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
  */
 __kernel void binary_bcast(__global const T *a, __global const T *b, __global O *out,
@@ -141,7 +157,7 @@ __kernel void binary_bcast(__global const T *a, __global const T *b, __global O 
     const long ia = (long)i0 * a0 + (long)i1 * a1 + (long)i2 * a2 + (long)i3 * a3;
     const long ib = (long)i0 * b0 + (long)i1 * b1 + (long)i2 * b2 + (long)i3 * b3;
     const A x = LD(a, ia), y = LD(b, ib);
-    STO(out, ((long)z * D2 + i2) * D3 + i3, BINOP(x, y));
+    STO(out, ((long)z * D2 + i2) * D3 + i3, OUTOP(x, y));
 }
 
 /* binary_bcast with 8 outputs along D3 per work-item, for operands whose
@@ -155,7 +171,7 @@ __kernel void binary_bcast(__global const T *a, __global const T *b, __global O 
  *  @param[in]  D01     D0 * D1, the extent of NDRange dimension 2
  *  @param[in]  a0..a3  a's element strides per output dimension (0 where a broadcasts)
  *  @param[in]  b0..b3  b's element strides
- *  @note -DOP=n: the operator (OP_* above); -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DOP=n: the operator (OP_* above); -DCLSS_CLANG_VECTORS=0|1; -DRELU=0|1
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
  */
 __kernel void binary_bcast8(__global const T *a, __global const T *b, __global O *out,
@@ -178,12 +194,12 @@ __kernel void binary_bcast8(__global const T *a, __global const T *b, __global O
             y = FLD8(b, ib);
         else
             y = (A8)(FLD(b, ib));
-        STO8(out, o, BINOP(x, y));
+        STO8(out, o, OUTOP(x, y));
         return;
     }
     for (int e = 0; i3 + e < D3; ++e) {
         const A x = FLD(a, ia + (long)e * a3), y = FLD(b, ib + (long)e * b3);
-        STO(out, o + e, BINOP(x, y));
+        STO(out, o + e, OUTOP(x, y));
     }
 }
 

@@ -434,6 +434,26 @@ def test_pointwise_chain_mlp(prec):
     assert ops.get("MLP(3 layers)") == 1 or ops == {"Conv+relu": 1, "Conv+tanh": 1, "Conv+sigmoid": 1}, ops
 
 
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+def test_binary_relu_fusion(prec):
+    # Add/Sub/Mul/Div -> Relu is one kernel (flat, broadcast and bcast8 launches); a sum
+    # that another node also reads, and a comparison, stay unfused.
+    a, b = rnd(2, 3, 7, 13, seed=1), rnd(2, 3, 7, 13, seed=2)
+    row, col = rnd(1, 3, 1, 13, seed=3), rnd(2, 1, 7, 1, seed=4)
+    nodes = [helper.make_node("Add", ["a", "b"], ["s0"]), helper.make_node("Relu", ["s0"], ["y0"]),
+             helper.make_node("Sub", ["a", "row"], ["s1"]), helper.make_node("Relu", ["s1"], ["y1"]),
+             helper.make_node("Mul", ["col", "b"], ["s2"]), helper.make_node("Relu", ["s2"], ["y2"]),
+             helper.make_node("Div", ["a", "b"], ["s3"]), helper.make_node("Relu", ["s3"], ["r3"]),
+             helper.make_node("Add", ["r3", "s3"], ["y3"]),
+             helper.make_node("Max", ["a", "b"], ["s4"]), helper.make_node("Relu", ["s4"], ["y4"])]
+    feeds = {"a": a, "b": b, "row": row, "col": col}
+    cm = assert_matches(make_model(nodes, feeds, ["y0", "y1", "y2", "y3", "y4"]), feeds, prec)
+    assert any(p.startswith("binary_relu: 3") for p in cm.pass_log), cm.pass_log
+    ops = cm.execution_ops()
+    assert ops["Add+relu"] == 1 and ops["Sub+relu"] == 1 and ops["Mul+relu"] == 1, ops
+    assert ops["Div"] == 1 and ops["Relu"] == 2, ops
+
+
 @pytest.mark.parametrize("mode,direction", [("CRD", "d2s"), ("DCR", "d2s"), ("CRD", "s2d"), ("DCR", "s2d")])
 def test_pixel_shuffle_patterns(mode, direction):
     n, c, h, w, r = 1, 3, 5, 7, 2

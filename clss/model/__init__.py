@@ -228,6 +228,8 @@ def _label(n) -> str:
         return s
     if n.op == "clss.MLP":
         return f"MLP({len(n.attrs['layers'])} layers)"
+    if n.op == "clss.BinaryRelu":
+        return n.attrs["op"].capitalize() + "+relu"
     if n.op == "clss.View":
         return "view (no kernel)"
     return n.op.replace("clss.", "")

@@ -86,6 +86,13 @@ def _conv(dev, prec, attrs, inputs):
     return [conv.conv2d(dev, prec, x, w, b, **kw)]
 
 
+@internal_op("clss.BinaryRelu")
+def _binary_relu(dev, prec, attrs, inputs):
+    """Relu(a op b) in one kernel (the binary_relu pass)."""
+    elementwise = _family("elementwise")
+    return [elementwise.binary(dev, prec, attrs["op"], inputs[0], inputs[1], relu=True)]
+
+
 @internal_op("clss.MaxPool")
 def _max_pool(dev, prec, attrs, inputs):
     """MaxPool whose Indices output nobody reads: the values alone."""

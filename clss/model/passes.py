@@ -831,6 +831,38 @@ def fuse_conv_epilogues(g: Graph) -> int:
     return changed
 
 
+_RELU_BINARY = {"Add": "add", "Sub": "sub", "Mul": "mul", "Div": "div"}
+
+
+def fuse_binary_relu(g: Graph) -> int:
+    """Add/Sub/Mul/Div whose float output only a Relu reads -> one clss.BinaryRelu:
+    the sum (a residual not fused into a convolution, say) is not written and read
+    back for the Relu. Runs after the convolution and MLP fusions, which take
+    their own epilogues first."""
+    changed = 0
+    again = True
+    while again:
+        again = False
+        uses = g.consumers()
+        for n in g.nodes:
+            if n.op not in _RELU_BINARY or len(n.inputs) != 2 or not all(n.inputs):
+                continue
+            y = n.outputs[0]
+            if not _single_use(g, y, uses) or g.dtypes[y].kind != "f":
+                continue
+            nxt = g.nodes[uses[y][0]]
+            if nxt.op != "Relu":
+                continue
+            fused = Node("clss.BinaryRelu", list(n.inputs), list(nxt.outputs), {"op": _RELU_BINARY[n.op]},
+                         n.name, n.opset, sources=n.sources + nxt.sources, unfused=[n, nxt])
+            g.nodes.remove(n)
+            g.nodes[g.nodes.index(nxt)] = fused
+            changed += 1
+            again = True
+            break
+    return changed
+
+
 def _activations_before_views(g: Graph) -> int:
     """conv -> view -> activation becomes conv -> activation -> view (the
     activation is elementwise), so the activation can fuse into the conv."""
@@ -962,6 +994,7 @@ PASSES = [
     ("conv_resize", conv_through_resize),
     ("conv_epilogue", fuse_conv_epilogues),
     ("mlp", fuse_mlp),
+    ("binary_relu", fuse_binary_relu),
     ("maxpool", maxpool_values_only),
     ("dead", remove_dead),
 ]

@@ -93,10 +93,14 @@ def _i32(*vs):
 BCAST_VEC = 1
 
 
-def binary(dev: Device, prec: str, op: str, a, b, out=None):
-    """ONNX-broadcasting binary op. Comparisons return a bool (uchar) tensor."""
+def binary(dev: Device, prec: str, op: str, a, b, out=None, relu: bool = False):
+    """ONNX-broadcasting binary op. Comparisons return a bool (uchar) tensor.
+    relu: Relu(a op b) in the same pass (arithmetic ops only; clss.Model's
+    binary_relu pass)."""
     if op not in BINARY:
         raise ValueError(f"unknown binary op {op!r}; one of {sorted(BINARY)}")
+    if relu and op in COMPARISONS:
+        raise ValueError(f"relu: {op} is a comparison")
     check_storage("a", a, prec)
     check_storage("b", b, prec)
     shape = tuple(np.broadcast_shapes(a.shape, b.shape))
@@ -108,7 +112,7 @@ def binary(dev: Device, prec: str, op: str, a, b, out=None):
     if n == 0:
         return out
     if (a.shape == shape or a.size == 1) and (b.shape == shape or b.size == 1):
-        k = dev.kernel("elementwise", "binary_flat", prec, OP=BINARY[op],
+        k = dev.kernel("elementwise", "binary_flat", prec, OP=BINARY[op], RELU=int(relu),
                        A_SCALAR=int(a.shape != shape), B_SCALAR=int(b.shape != shape))
         dev.launch(k, (-(-n // _VEC),), (a.data, b.data, out.data, np.int32(n)))
         return out
@@ -117,11 +121,11 @@ def binary(dev: Device, prec: str, op: str, a, b, out=None):
     gs, dargs = _grid(dims)
     if (BCAST_VEC and sa[3] in (0, 1) and sb[3] in (0, 1) and dims[3] >= 8
             and selfcheck.enabled(dev, prec, "elementwise.bcast8")):
-        k = dev.kernel("elementwise", "binary_bcast8", prec, OP=BINARY[op],
+        k = dev.kernel("elementwise", "binary_bcast8", prec, OP=BINARY[op], RELU=int(relu),
                        CLSS_CLANG_VECTORS=builtin_free(dev))
         dev.launch(k, (-(-gs[0] // 8), gs[1], gs[2]), (a.data, b.data, out.data, *dargs, *_i32(*sa, *sb)))
         return out
-    k = dev.kernel("elementwise", "binary_bcast", prec, OP=BINARY[op])
+    k = dev.kernel("elementwise", "binary_bcast", prec, OP=BINARY[op], RELU=int(relu))
     dev.launch(k, gs, (a.data, b.data, out.data, *dargs, *_i32(*sa, *sb)))
     return out
 
