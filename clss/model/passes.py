@@ -793,42 +793,52 @@ def conv_through_resize(g: Graph) -> int:
     return changed
 
 
-def fuse_conv_epilogues(g: Graph) -> int:
-    """clss.Conv followed by Add (a residual of the output's shape) and/or an
-    activation (Relu, LeakyRelu, Sigmoid, Tanh) -> one clss.Conv."""
-    changed = _activations_before_views(g)
+def _fuse_pairs(g: Graph, fuse) -> int:
+    """Replace a node and the one consumer of its first output by fuse(n, nxt) (a
+    Node, or None to leave the pair), until nothing more fuses. The fused node runs
+    where the consumer ran: every input is ready there."""
+    changed = 0
     again = True
     while again:
         again = False
         uses = g.consumers()
         for n in g.nodes:
-            if n.op != "clss.Conv":
+            if not n.outputs or not _single_use(g, n.outputs[0], uses):
                 continue
-            y = n.outputs[0]
-            if not _single_use(g, y, uses):
+            nxt = g.nodes[uses[n.outputs[0]][0]]
+            fused = fuse(n, nxt)
+            if fused is None:
                 continue
-            nxt = g.nodes[uses[y][0]]
-            attrs, inputs = dict(n.attrs), list(n.inputs)
-            if nxt.op in ACT_OPS and n.attrs["activation"] == "none":
-                attrs["activation"] = ACT_OPS[nxt.op]
-                attrs["alpha"] = float(nxt.attrs.get("alpha", 0.01))
-            elif (nxt.op == "Add" and not n.inputs[3] and n.attrs["activation"] == "none"
-                  and len(nxt.inputs) == 2 and nxt.inputs[0] != nxt.inputs[1]):
-                other = nxt.inputs[1] if nxt.inputs[0] == y else nxt.inputs[0]
-                if tuple(g.shapes[other]) != tuple(g.shapes[y]) or g.dtypes[other].kind != "f":
-                    continue
-                inputs[3] = other
-            else:
-                continue
-            fused = Node("clss.Conv", inputs, list(nxt.outputs), attrs, n.name, n.opset,
-                         sources=n.sources + nxt.sources, unfused=[n, nxt])
-            # The fused node runs where the consumer ran: every input is ready there.
             g.nodes.remove(n)
             g.nodes[g.nodes.index(nxt)] = fused
             changed += 1
             again = True
             break
     return changed
+
+
+def fuse_conv_epilogues(g: Graph) -> int:
+    """clss.Conv followed by Add (a residual of the output's shape) and/or an
+    activation (Relu, LeakyRelu, Sigmoid, Tanh) -> one clss.Conv."""
+    def fuse(n, nxt):
+        if n.op != "clss.Conv":
+            return None
+        y = n.outputs[0]
+        attrs, inputs = dict(n.attrs), list(n.inputs)
+        if nxt.op in ACT_OPS and n.attrs["activation"] == "none":
+            attrs["activation"] = ACT_OPS[nxt.op]
+            attrs["alpha"] = float(nxt.attrs.get("alpha", 0.01))
+        elif (nxt.op == "Add" and not n.inputs[3] and n.attrs["activation"] == "none"
+              and len(nxt.inputs) == 2 and nxt.inputs[0] != nxt.inputs[1]):
+            other = nxt.inputs[1] if nxt.inputs[0] == y else nxt.inputs[0]
+            if tuple(g.shapes[other]) != tuple(g.shapes[y]) or g.dtypes[other].kind != "f":
+                return None
+            inputs[3] = other
+        else:
+            return None
+        return Node("clss.Conv", inputs, list(nxt.outputs), attrs, n.name, n.opset,
+                    sources=n.sources + nxt.sources, unfused=[n, nxt])
+    return _activations_before_views(g) + _fuse_pairs(g, fuse)
 
 
 _RELU_BINARY = {"Add": "add", "Sub": "sub", "Mul": "mul", "Div": "div"}
@@ -839,28 +849,13 @@ def fuse_binary_relu(g: Graph) -> int:
     the sum (a residual not fused into a convolution, say) is not written and read
     back for the Relu. Runs after the convolution and MLP fusions, which take
     their own epilogues first."""
-    changed = 0
-    again = True
-    while again:
-        again = False
-        uses = g.consumers()
-        for n in g.nodes:
-            if n.op not in _RELU_BINARY or len(n.inputs) != 2 or not all(n.inputs):
-                continue
-            y = n.outputs[0]
-            if not _single_use(g, y, uses) or g.dtypes[y].kind != "f":
-                continue
-            nxt = g.nodes[uses[y][0]]
-            if nxt.op != "Relu":
-                continue
-            fused = Node("clss.BinaryRelu", list(n.inputs), list(nxt.outputs), {"op": _RELU_BINARY[n.op]},
-                         n.name, n.opset, sources=n.sources + nxt.sources, unfused=[n, nxt])
-            g.nodes.remove(n)
-            g.nodes[g.nodes.index(nxt)] = fused
-            changed += 1
-            again = True
-            break
-    return changed
+    def fuse(n, nxt):
+        if (n.op not in _RELU_BINARY or len(n.inputs) != 2 or not all(n.inputs)
+                or g.dtypes[n.outputs[0]].kind != "f" or nxt.op != "Relu"):
+            return None
+        return Node("clss.BinaryRelu", list(n.inputs), list(nxt.outputs), {"op": _RELU_BINARY[n.op]},
+                    n.name, n.opset, sources=n.sources + nxt.sources, unfused=[n, nxt])
+    return _fuse_pairs(g, fuse)
 
 
 def _activations_before_views(g: Graph) -> int:
