@@ -203,13 +203,19 @@ def _range(name, a, lo, hi):
 
 
 def validate_frame(color, depth, motion, jitter, reactive=None, *, render_size=None,
-                   sanitize: bool = False, depth_inverted: bool = True) -> dict:
+                   sanitize: bool = False, depth_inverted: bool = True,
+                   values: bool = True) -> dict:
     """Check one frame against the contract; return float32 copies in the caller's layout.
 
     Returns {"color", "depth", "motion", "jitter", "reactive" (None if not given),
     "sanitized": {input: count replaced}}.  `render_size` = (h, w) when the caller
     has fixed it; otherwise the colour's shape defines it.  `depth_inverted` only tells
     sanitize where "far" is (0 when inverted, 1 otherwise).
+
+    values=False checks the layout only (shapes, dtypes, jitter) and leaves the values
+    (finite, depth and reactive in [0, 1]) to the caller: clss.Upscaler's prepare kernel
+    checks them on the device for both of its paths, and calls this again with
+    values=True only to explain a frame it refused.
     """
     if render_size is not None:
         hw = (int(render_size[0]), int(render_size[1]))
@@ -227,6 +233,13 @@ def validate_frame(color, depth, motion, jitter, reactive=None, *, render_size=N
 
     report = {}
     out = {}
+    if not values:
+        out.update(color=color.astype(np.float32, copy=False),
+                   depth=depth.astype(np.float32, copy=False),
+                   motion=motion.astype(np.float32, copy=False),
+                   reactive=None if reactive is None else reactive.astype(np.float32, copy=False),
+                   jitter=jitter, sanitized=report)
+        return out
     far = 0.0 if depth_inverted else 1.0
     out["color"] = _nonfinite("color", color.astype(np.float32), sanitize, 0.0, report)
     out["depth"] = _nonfinite("depth", depth.astype(np.float32), sanitize, far, report)

@@ -183,6 +183,7 @@ class Upscaler:
             else:
                 self.classifier_model, self.composition_model, self.trained = load_networks(weights)
         self._fs: FrameStep | None = None
+        self._fs_accepted = False          # has self._fs accepted a frame (holds a state)?
         self._pending_reset = True
         self.frame_index = 0
         self.last_report: dict = {}
@@ -211,8 +212,8 @@ class Upscaler:
     @property
     def state(self) -> dict:
         """{"history": [1,16,H,W] float32} (a host copy), or {"history": None} before the
-        first frame."""
-        if self._fs is None:
+        first accepted frame (of this render size)."""
+        if self._fs is None or not self._fs_accepted:
             return {"history": None}
         hist = self.dev.to_host(self._fs.state).astype(np.float32)
         return {"history": hist.reshape((1, HISTORY_CHANNELS) + self.output_size)}
@@ -249,6 +250,7 @@ class Upscaler:
                              classifier=self.classifier_model, composition=self.composition_model,
                              classifier_backend=self.classifier_backend, profile=self.profile)
         self._fs.debug = self.debug
+        self._fs_accepted = False
         self._pending_reset = True
         return self._fs
 
@@ -260,9 +262,11 @@ class Upscaler:
         if isinstance(color, np.ndarray) and color.ndim == 3:
             # before validate_frame, whose shape error would not say that a reset is missing
             self._check_render_size(color.shape[:2], reset)
+        # The layout here; the values (finite, ranges) once, by the prepare kernel's flags,
+        # as on the device path (_run explains a refusal with the host check).
         frame = validate_frame(color, depth, motion, jitter, reactive,
                                render_size=None if reset or self._fs is None else self.render_size,
-                               sanitize=self.sanitize, depth_inverted=self.depth_inverted)
+                               depth_inverted=self.depth_inverted, values=False)
         fs = self._frame_step(frame["depth"].shape, reset)
         fs.in_color.set(frame["color"])
         fs.in_depth.set(frame["depth"])
@@ -272,8 +276,7 @@ class Upscaler:
             fs.in_reactive.set(frame["reactive"])
             reactive = fs.in_reactive
         self._run(fs, fs.in_color, fs.in_depth, fs.in_motion, reactive, frame["jitter"], reset,
-                  None)
-        self.last_report = frame["sanitized"]
+                  None, host=frame)
         return fs.out.get()
 
     # -- the device path -----------------------------------------------------------------
@@ -315,11 +318,14 @@ class Upscaler:
             raise FrameInputError(f"out: expected a float32 array of shape {(fs.H, fs.W, 3)}, got "
                                   f"{out.dtype} {out.shape}")
         j = check_jitter(jitter)
-        self._run(fs, color, depth, motion, reactive, j, reset, out, device_inputs=True)
+        self._run(fs, color, depth, motion, reactive, j, reset, out)
         return out if out is not None else fs.out
 
     # -- shared --------------------------------------------------------------------------
-    def _run(self, fs, color, depth, motion, reactive, jitter, reset, out, device_inputs=False):
+    def _run(self, fs, color, depth, motion, reactive, jitter, reset, out, host=None):
+        """Run the frame; the prepare kernel's flags decide on the values. `host`: the
+        host arrays of step() (None on the device path, which copies them back only to
+        explain a refusal)."""
         use_reset = self._pending_reset
         ev = fs.run(color, depth, motion, reactive, jitter,
                     use_reset, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
@@ -327,19 +333,21 @@ class Upscaler:
         ev.wait()
         refused, sanitized = fs.verdict()
         if refused:
-            # The kernels already copied the history through; explain with the host check.
-            if device_inputs:
-                validate_frame(color.get(), depth.get(), motion.get(), jitter,
-                               None if reactive is None else reactive.get(),
-                               render_size=(fs.h, fs.w), sanitize=self.sanitize,
-                               depth_inverted=self.depth_inverted)
+            # The kernels already copied the history through; explain with the host check,
+            # whose error names the input, the count and the first bad pixel.
+            if host is None:
+                host = {"color": color.get(), "depth": depth.get(), "motion": motion.get(),
+                        "reactive": None if reactive is None else reactive.get()}
+            validate_frame(host["color"], host["depth"], host["motion"], jitter,
+                           host["reactive"], render_size=(fs.h, fs.w), sanitize=self.sanitize,
+                           depth_inverted=self.depth_inverted)
             what = "; ".join(f"{n}: {w} values" for n, w in refused)
             raise FrameInputError(f"frame refused ({what}); the history is unchanged")
         fs.accept()
+        self._fs_accepted = True
         self._pending_reset = False
         self.frame_index += 1
-        if device_inputs:
-            self.last_report = sanitized
+        self.last_report = sanitized
         if self.profile:
             self._timed_frames += 1
 
