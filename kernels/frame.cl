@@ -823,13 +823,35 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
     x[9] = 1.0f / (1.0f + cnt);
     for (int c = 0; c < 6; ++c)
         x[16 + c] = lg[c];
+    /* a*b + c, contracted to an FMA, and ReLU as a select: mad() and fmax() are
+     * out-of-line calls on PoCL 3.0 (common.h), 700 of them per work-item here. */
     fv z = FV(b2[0]);
+#if HIDDEN % 4 == 0
+    /* four hidden units per pass over the inputs: each x[c] load feeds 4 FMAs */
+    for (int k = 0; k < HIDDEN; k += 4) {
+        fv a0 = FV(b1[k]), a1 = FV(b1[k + 1]), a2 = FV(b1[k + 2]), a3 = FV(b1[k + 3]);
+        __constant const float *wk = w1 + k * COMP_IN;
+#pragma unroll
+        for (int c = 0; c < COMP_IN; ++c) {
+            const fv xc = x[c];
+            a0 = FV(wk[c]) * xc + a0;
+            a1 = FV(wk[COMP_IN + c]) * xc + a1;
+            a2 = FV(wk[2 * COMP_IN + c]) * xc + a2;
+            a3 = FV(wk[3 * COMP_IN + c]) * xc + a3;
+        }
+        z = FV(w2[k]) * select(FV(0.0f), a0, a0 > 0.0f) + z;
+        z = FV(w2[k + 1]) * select(FV(0.0f), a1, a1 > 0.0f) + z;
+        z = FV(w2[k + 2]) * select(FV(0.0f), a2, a2 > 0.0f) + z;
+        z = FV(w2[k + 3]) * select(FV(0.0f), a3, a3 > 0.0f) + z;
+    }
+#else
     for (int k = 0; k < HIDDEN; ++k) {
         fv a = FV(b1[k]);
         for (int c = 0; c < COMP_IN; ++c)
-            a = mad(FV(w1[k * COMP_IN + c]), x[c], a);
-        z = mad(FV(w2[k]), fmax(a, 0.0f), z);
+            a = FV(w1[k * COMP_IN + c]) * x[c] + a;
+        z = FV(w2[k]) * select(FV(0.0f), a, a > 0.0f) + z;
     }
+#endif
     const fv wgt = fmax(1.0f / (1.0f + exp(-z)), LDV(aux, 2 * P + r));
 
     fv o[3];
