@@ -60,6 +60,8 @@
 #ifndef HIDDEN
 #define HIDDEN 32
 #endif
+/* hidden units of the composition MLP per pass over its inputs (compose) */
+#define MLP_KB (HIDDEN % 4 == 0 ? 4 : 1)
 #ifndef CLIP_EPS
 #define CLIP_EPS 0.0019550342f
 #endif
@@ -824,34 +826,26 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
     for (int c = 0; c < 6; ++c)
         x[16 + c] = lg[c];
     /* a*b + c, contracted to an FMA, and ReLU as a select: mad() and fmax() are
-     * out-of-line calls on PoCL 3.0 (common.h), 700 of them per work-item here. */
+     * out-of-line calls on PoCL 3.0 (common.h), 700 of them per work-item here.
+     * MLP_KB hidden units per pass over the inputs, so each x[c] load feeds MLP_KB
+     * FMAs; each unit still sums its inputs in order, and z its units in order. */
     fv z = FV(b2[0]);
-#if HIDDEN % 4 == 0
-    /* four hidden units per pass over the inputs: each x[c] load feeds 4 FMAs */
-    for (int k = 0; k < HIDDEN; k += 4) {
-        fv a0 = FV(b1[k]), a1 = FV(b1[k + 1]), a2 = FV(b1[k + 2]), a3 = FV(b1[k + 3]);
-        __constant const float *wk = w1 + k * COMP_IN;
+    for (int k = 0; k < HIDDEN; k += MLP_KB) {
+        fv a[MLP_KB];
+#pragma unroll
+        for (int u = 0; u < MLP_KB; ++u)
+            a[u] = FV(b1[k + u]);
 #pragma unroll
         for (int c = 0; c < COMP_IN; ++c) {
             const fv xc = x[c];
-            a0 = FV(wk[c]) * xc + a0;
-            a1 = FV(wk[COMP_IN + c]) * xc + a1;
-            a2 = FV(wk[2 * COMP_IN + c]) * xc + a2;
-            a3 = FV(wk[3 * COMP_IN + c]) * xc + a3;
+#pragma unroll
+            for (int u = 0; u < MLP_KB; ++u)
+                a[u] = FV(w1[(k + u) * COMP_IN + c]) * xc + a[u];
         }
-        z = FV(w2[k]) * select(FV(0.0f), a0, a0 > 0.0f) + z;
-        z = FV(w2[k + 1]) * select(FV(0.0f), a1, a1 > 0.0f) + z;
-        z = FV(w2[k + 2]) * select(FV(0.0f), a2, a2 > 0.0f) + z;
-        z = FV(w2[k + 3]) * select(FV(0.0f), a3, a3 > 0.0f) + z;
+#pragma unroll
+        for (int u = 0; u < MLP_KB; ++u)
+            z = FV(w2[k + u]) * select(FV(0.0f), a[u], a[u] > 0.0f) + z;
     }
-#else
-    for (int k = 0; k < HIDDEN; ++k) {
-        fv a = FV(b1[k]);
-        for (int c = 0; c < COMP_IN; ++c)
-            a = FV(w1[k * COMP_IN + c]) * x[c] + a;
-        z = FV(w2[k]) * select(FV(0.0f), a, a > 0.0f) + z;
-    }
-#endif
     const fv wgt = fmax(1.0f / (1.0f + exp(-z)), LDV(aux, 2 * P + r));
 
     fv o[3];

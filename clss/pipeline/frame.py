@@ -194,6 +194,7 @@ class FrameStep:
         self.debug = False
         self.dbg = e((3, H, W), dtype=f32)
         self.cur = 0
+        self.accepted = False       # holds a state once a frame was accepted
         self.classifier = None
         if net:
             if classifier is None or composition is None:
@@ -290,6 +291,7 @@ class FrameStep:
     def accept(self):
         """The frame was accepted: the new history becomes the state."""
         self.cur = 1 - self.cur
+        self.accepted = True
 
     @property
     def state(self) -> cla.Array:

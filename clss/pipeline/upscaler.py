@@ -183,7 +183,6 @@ class Upscaler:
             else:
                 self.classifier_model, self.composition_model, self.trained = load_networks(weights)
         self._fs: FrameStep | None = None
-        self._fs_accepted = False          # has self._fs accepted a frame (holds a state)?
         self._pending_reset = True
         self.frame_index = 0
         self.last_report: dict = {}
@@ -213,7 +212,7 @@ class Upscaler:
     def state(self) -> dict:
         """{"history": [1,16,H,W] float32} (a host copy), or {"history": None} before the
         first accepted frame (of this render size)."""
-        if self._fs is None or not self._fs_accepted:
+        if self._fs is None or not self._fs.accepted:
             return {"history": None}
         hist = self.dev.to_host(self._fs.state).astype(np.float32)
         return {"history": hist.reshape((1, HISTORY_CHANNELS) + self.output_size)}
@@ -250,7 +249,6 @@ class Upscaler:
                              classifier=self.classifier_model, composition=self.composition_model,
                              classifier_backend=self.classifier_backend, profile=self.profile)
         self._fs.debug = self.debug
-        self._fs_accepted = False
         self._pending_reset = True
         return self._fs
 
@@ -344,7 +342,6 @@ class Upscaler:
             what = "; ".join(f"{n}: {w} values" for n, w in refused)
             raise FrameInputError(f"frame refused ({what}); the history is unchanged")
         fs.accept()
-        self._fs_accepted = True
         self._pending_reset = False
         self.frame_index += 1
         self.last_report = sanitized
