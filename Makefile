@@ -6,16 +6,30 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup test test-large demo eval verify devices bench bench-quick oclgrind clean \
+.PHONY: setup opencl-driver test test-large demo eval verify devices bench bench-quick oclgrind clean \
 	train-data validation-data train
 
 $(STAMP): setup.cfg pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'
+	@$(BIN)/clss devices >/dev/null 2>&1 || $(MAKE) --no-print-directory opencl-driver
 	touch $@
 
 setup: $(STAMP)
+
+# pip's PoCL 3.0 (LLVM 14) cannot build for a CPU its LLVM does not know (AMD Zen 5:
+# "unknown target CPU 'generic'"). Where no OpenCL device here builds a kernel, setup
+# installs Debian's PoCL (as root or with sudo), then lists the devices: it fails,
+# saying why, if none builds even then.
+opencl-driver:
+	@echo "setup: no OpenCL device here builds kernels; trying Debian's pocl-opencl-icd"
+	@if command -v apt-get >/dev/null 2>&1; then \
+	  S=""; [ "$$(id -u)" = 0 ] || S="sudo -n"; \
+	  { $$S apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$S apt-get install -y -qq pocl-opencl-icd >/dev/null; } \
+	    || echo "setup: could not install pocl-opencl-icd (needs root or sudo)"; \
+	fi
+	$(BIN)/clss devices
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -ra --durations=15

@@ -6,6 +6,11 @@ the default (`default_reason`): the CPU device of the PoCL that pip installs
 (pocl-binary-distribution, a dependency of clss), else any PoCL CPU device,
 else the first device found. A spec is an index into `list_devices()` or a
 case-insensitive substring of "platform / device (driver)".
+
+The default passes over a device whose compiler cannot build a one-line kernel
+(`compiler_problem`): pip's PoCL 3.0 (LLVM 14) on a processor its LLVM does not
+know, AMD Zen 5 for one, names the CPU "generic" and fails every build with
+"unknown target CPU 'generic'". A device chosen explicitly is used as asked.
 """
 from __future__ import annotations
 
@@ -95,12 +100,55 @@ def default_reason() -> str:
     for var in ("CLSS_DEVICE", "PYOPENCL_CTX"):
         if os.environ.get(var):
             return f"chosen by ${var}={os.environ[var]!r}"
-    if any(is_pip_pocl(p) for p, _ in list_devices()):
+    found = list_devices()
+    if any(is_pip_pocl(p) and not compiler_problem(d) for p, d in found):
         return (f"the CPU device of the PoCL pip installs (pocl-binary-distribution {pip_pocl_version()}): "
                 "every clss install has it and CI proves every kernel on it")
-    if any(_is_pocl_cpu(p, d) for p, d in list_devices()):
-        return "the first PoCL CPU device (pip's PoCL is not installed)"
-    return "the first device found (no PoCL installed)"
+    broken = "; ".join(f"[{i}] passed over: {why.split(';')[0]}" for i, why in skipped_defaults())
+    if any(_is_pocl_cpu(p, d) and not compiler_problem(d) for p, d in found):
+        why = broken or "pip's PoCL is not installed"
+        return f"the first PoCL CPU device that builds kernels ({why})"
+    return "the first device that builds kernels" + (f" ({broken})" if broken else " (no PoCL installed)")
+
+
+_PROBE_SOURCE = "__kernel void clss_probe(__global float *a) { a[get_global_id(0)] *= 2.0f; }"
+_probed: dict[int, str | None] = {}
+
+
+def compiler_problem(device: cl.Device) -> str | None:
+    """None if the device builds a one-line kernel, else why not (the build log's first
+    line, with what to do where the cause is known). Probed once per device and process."""
+    key = device.int_ptr
+    if key not in _probed:
+        problem = None
+        try:
+            prog = cl.Program(cl.Context([device]), _PROBE_SOURCE)
+            try:
+                prog.build()
+            except cl.RuntimeError as e:
+                log = (_build_log(prog, device) or str(e)).strip()
+                problem = next((ln.strip() for ln in log.splitlines() if ln.strip()), "build failed")
+        except cl.Error as e:
+            problem = f"no context ({e})"
+        _probed[key] = problem if problem is None else problem + _build_hint(problem)
+    return _probed[key]
+
+
+def _build_hint(log: str) -> str:
+    """What to do about a build failure whose cause is known."""
+    if "unknown target CPU" in log:
+        return ("; this PoCL's LLVM does not know the processor (pip's PoCL 3.0 has LLVM 14, older than "
+                "AMD Zen 5): install a newer PoCL, e.g. Debian's `apt-get install pocl-opencl-icd`")
+    return ""
+
+
+def skipped_defaults() -> list[tuple[int, str]]:
+    """(index, why) of the devices the default passed over because they cannot build."""
+    out = []
+    for i, (p, d) in enumerate(list_devices()):
+        if _is_pocl_cpu(p, d) and compiler_problem(d):
+            out.append((i, compiler_problem(d)))
+    return out
 
 
 def _pick(spec: str | None) -> cl.Device:
@@ -118,11 +166,13 @@ def _pick(spec: str | None) -> cl.Device:
         except (ValueError, IndexError) as e:
             raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} names no device") from e
     if spec is None:
-        for rule in (lambda p, d: _is_pocl_cpu(p, d) and is_pip_pocl(p), _is_pocl_cpu):
+        for rule in (lambda p, d: _is_pocl_cpu(p, d) and is_pip_pocl(p), _is_pocl_cpu,
+                     lambda p, d: "oclgrind" not in p.name.lower()):
             for p, d in found:
-                if rule(p, d):
+                if rule(p, d) and not compiler_problem(d):
                     return d
-        return found[0][1]
+        raise DeviceError("no OpenCL device here can build a kernel:\n  " + "\n  ".join(
+            f"{describe(j, p, d)}: {compiler_problem(d)}" for j, (p, d) in enumerate(found)))
     spec = str(spec).strip()
     if spec.isdigit():
         i = int(spec)
@@ -223,7 +273,7 @@ class Device:
                         log = _build_log(prog, self.cl_device) or str(e)
                         raise KernelBuildError(
                             f"kernel source kernels/{stem}.cl failed to build on {self.info.name} "
-                            f"({self.info.driver}) with options '{options}':\n{log}") from None
+                            f"({self.info.driver}) with options '{options}':\n{log}{_build_hint(log)}") from None
                     self._programs[key] = prog
         return prog
 

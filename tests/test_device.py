@@ -17,6 +17,8 @@ def test_default_is_pips_pocl_whatever_the_platform_order(monkeypatch):
     pip = [(p, d) for p, d in found if D.is_pip_pocl(p)]
     if not pip:
         pytest.skip("pip's PoCL (pocl-binary-distribution) is not installed")
+    if D.compiler_problem(pip[0][1]):
+        pytest.skip(f"pip's PoCL cannot build kernels on this machine: {D.compiler_problem(pip[0][1])}")
     assert D._pick(None) == pip[0][1]
     monkeypatch.setattr(D, "list_devices", lambda: found[::-1])
     assert D._pick(None) == pip[0][1]
@@ -24,6 +26,35 @@ def test_default_is_pips_pocl_whatever_the_platform_order(monkeypatch):
     for p, d in found:
         if "+debian" in d.driver_version:
             assert not D.is_pip_pocl(p)
+
+
+def test_default_passes_over_a_device_that_cannot_build(monkeypatch):
+    # pip's PoCL 3.0 (LLVM 14) fails every build on a CPU its LLVM does not know (AMD Zen 5:
+    # "unknown target CPU 'generic'"); the default moves on to a device that builds, says why,
+    # and with none left the error lists every device and its reason.
+    monkeypatch.delenv("CLSS_DEVICE", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    found = [(p, d) for p, d in D.list_devices() if "oclgrind" not in p.name.lower()]
+    why = "error: unknown target CPU 'generic'" + D._build_hint("unknown target CPU")
+    target = found[-1][1]
+    fake = {d.int_ptr: why for p, d in found if d != target}
+    monkeypatch.setattr(D, "compiler_problem", lambda d: fake.get(d.int_ptr))
+    assert D._pick(None) == target
+    if any(D._is_pocl_cpu(p, d) for p, d in found if d != target) and not D.is_pip_pocl(found[-1][0]):
+        assert "passed over: error: unknown target CPU 'generic'" in D.default_reason()
+    for p, d in found:
+        fake.setdefault(d.int_ptr, "error: unknown target CPU 'generic'" + D._build_hint("unknown target CPU"))
+    with pytest.raises(D.DeviceError, match="(?s)no OpenCL device here can build a kernel.*apt-get install pocl-opencl-icd"):
+        D._pick(None)
+
+
+def test_every_device_builds_or_says_why():
+    # Which devices this machine's conformance tests leave out, and why (a visible skip).
+    broken = [(D.describe(i, p, d), D.compiler_problem(d)) for i, (p, d) in enumerate(D.list_devices())
+              if D.compiler_problem(d)]
+    if broken:
+        pytest.skip("left out of the conformance tests (cannot build kernels): "
+                    + "; ".join(f"{n}: {why}" for n, why in broken))
 
 
 def test_spec_by_index_and_substring():

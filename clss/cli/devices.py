@@ -24,24 +24,34 @@ def cmd_devices(argv) -> int:
     a = p.parse_args(argv)
     if a.json is not None:
         check_output_file(a.json, "--json")
-    from ..device import DeviceInfo, get_device, list_devices
+    from ..device import DeviceError, DeviceInfo, compiler_problem, get_device, list_devices
     found = list_devices()
-    default = get_device().cl_device
+    try:
+        default = get_device().cl_device
+    except DeviceError:   # none builds: list them with the reasons, then fail
+        default = None
     rows = []
     for i, (plat, dev) in enumerate(found):
         info = DeviceInfo.of(dev)
-        rows.append(info.__dict__ | {"index": i, "default": dev == default})
+        problem = compiler_problem(dev)
+        rows.append(info.__dict__ | {"index": i, "default": dev == default, "builds_kernels": problem is None,
+                                     "build_problem": problem})
         mark = "*" if dev == default else " "
         print(f"{mark}[{i}] {info.platform} / {info.name}")
         print(f"      OpenCL {info.version}; driver {info.driver}; {info.compute_units} compute units; "
               f"{info.global_mem / 2**30:.1f} GiB global memory (max alloc {info.max_alloc / 2**30:.1f} GiB); "
               f"fp16 arithmetic (cl_khr_fp16): {'yes' if info.fp16 else 'no'}")
+        if problem:
+            print(f"      cannot build kernels: {problem}")
     from ..device import default_reason
-    print(f"* = default device: {default_reason()}; choose another with --device or $CLSS_DEVICE")
+    if default is None:
+        print("clss devices: no device here can build kernels (see above)", file=sys.stderr)
+    else:
+        print(f"* = default device: {default_reason()}; choose another with --device or $CLSS_DEVICE")
     if a.json:
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=2)
-    return 0
+    return 0 if default is not None else 2
 
 
 def cmd_verify(argv) -> int:
