@@ -15,7 +15,7 @@ from ..errors import UserError
 
 # The --device help, the same in every subcommand that runs on a device.
 DEVICE_HELP = ("OpenCL device: an index from `clss devices` or a substring of "
-               "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device)")
+               "'platform / device (driver)' (default: $CLSS_DEVICE, $PYOPENCL_CTX, else pip's PoCL CPU device, or the next PoCL CPU device that builds kernels)")
 
 
 class UsageError(UserError):
