@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup opencl-driver test test-large demo eval verify devices bench bench-quick oclgrind clean \
+.PHONY: setup opencl-driver test test-large demo eval eval-scales verify devices bench bench-quick oclgrind clean \
 	train-data validation-data train
 
 $(STAMP): setup.cfg pyproject.toml
@@ -50,6 +50,17 @@ EVAL_SEQS ?= $(wildcard $(DATA)/heldout/*.npz) \
 eval: $(STAMP)
 	@test -n "$(strip $(EVAL_SEQS))" || { echo "make eval: no sequences (make train-data validation-data, or EVAL_SEQS=\"a.npz b.npz\")"; exit 2; }
 	$(BIN)/python -m weights_tools eval $(EVAL_SEQS) --out $(OUT)/eval $(EVAL_ARGS)
+
+# The held-out scenes 0-7 (seed 1000, render 90x160) at 1.5x, 2x, 3x and 4x: how each method
+# holds up across scales (README, Evaluation). About 5 minutes on 2 cores.
+SCALES ?= 1.5 2 3 4
+eval-scales: $(STAMP)
+	@for s in $(SCALES); do \
+	  test -f $(DATA)/scales/x$$s/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/scales/x$$s \
+	    --sequences 8 --frames 12 --seed 1000 --size 90x160 --scale $$s --quiet || exit 1; \
+	  $(BIN)/python -m weights_tools eval $(DATA)/scales/x$$s/seq_*.npz --out $(OUT)/eval-scales/x$$s \
+	    --flip-every 4 $(EVAL_ARGS) || exit 1; \
+	done
 
 verify: $(STAMP)
 	$(BIN)/clss verify --precision all
