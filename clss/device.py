@@ -100,12 +100,13 @@ def default_reason() -> str:
     for var in ("CLSS_DEVICE", "PYOPENCL_CTX"):
         if os.environ.get(var):
             return f"chosen by ${var}={os.environ[var]!r}"
-    found = list_devices()
-    if any(is_pip_pocl(p) and not compiler_problem(d) for p, d in found):
+    chosen = _pick(None)
+    platform = next(p for p, d in list_devices() if d == chosen)
+    if is_pip_pocl(platform):
         return (f"the CPU device of the PoCL pip installs (pocl-binary-distribution {pip_pocl_version()}): "
                 "every clss install has it and CI proves every kernel on it")
     broken = "; ".join(f"[{i}] passed over: {why.split(';')[0]}" for i, why in skipped_defaults())
-    if any(_is_pocl_cpu(p, d) and not compiler_problem(d) for p, d in found):
+    if _is_pocl_cpu(platform, chosen):
         why = broken or "pip's PoCL is not installed"
         return f"the first PoCL CPU device that builds kernels ({why})"
     return "the first device that builds kernels" + (f" ({broken})" if broken else " (no PoCL installed)")
