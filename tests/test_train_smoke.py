@@ -106,3 +106,38 @@ def test_train_bad_data_is_one_line(tmp_path, capsys):
     assert main(["train", "--data", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error: --data:") and "Traceback" not in err
+
+
+def test_seeds_trains_scores_and_picks(tiny_data, tmp_path, capsys):
+    """`seeds`: two seeds trained in two processes, each scored against rules on the
+    groups, the best on --pick copied to --out; a second call trains nothing again."""
+    from weights_tools import seeds
+    assert seeds.parse_seeds("0-2,5,1") == [0, 1, 2, 5]
+    for bad in ("3-1", "a", ","):
+        with pytest.raises(ValueError, match="--seeds"):
+            seeds.parse_seeds(bad)
+    out = str(tmp_path / "s")
+    train = " ".join(ARGS[2:])         # all but --seed
+    seq = os.path.join(tiny_data, "a.npz")
+    argv = ["seeds", "--data", tiny_data, "--out", out, "--seeds", "0-1", "--jobs", "2",
+            "--score", f"val={seq}", "--score", f"other={seq}", "--train", train,
+            "--warmup", "1", "--device", "cpu"]
+    assert main(argv + ["--pick", "nope"]) == 1
+    assert "--pick nope: not one of the --score groups (val, other)" in capsys.readouterr().err
+    assert main(argv + ["--pick", "val"]) == 0
+    table = capsys.readouterr().out
+    rec = json.load(open(os.path.join(out, "seeds.json")))
+    assert sorted(rec["seeds"]) == ["0", "1"] and rec["failed"] == []
+    best = rec["picked"]["seed"]
+    assert rec["seeds"][str(best)]["val"][0] == max(v["val"][0] for v in rec["seeds"].values())
+    picked = load_weights(os.path.join(out, "weights.safetensors"))
+    same = load_weights(os.path.join(out, f"seed_{best}", "weights.safetensors"))
+    assert all(np.array_equal(picked[k], same[k]) for k in same)
+    for g in ("val", "other"):
+        d = [v[g][0] - rec["rules"][g][0] for v in rec["seeds"].values()]
+        assert rec["summary"][g]["psnr"]["min"] == pytest.approx(min(d))
+    assert f"picked seed {best}" in table and "mean" in table and "rules" in table
+    # finished seeds are not trained again
+    stamp = os.path.getmtime(os.path.join(out, "seed_0", "weights.safetensors"))
+    assert main(argv + ["--pick", "val"]) == 0
+    assert os.path.getmtime(os.path.join(out, "seed_0", "weights.safetensors")) == stamp

@@ -156,6 +156,8 @@ def _add_train(sub):
         t.set_defaults(fn=no_torch)
         return
     add_parser(sub)
+    from .seeds import add_parser as add_seeds
+    add_seeds(sub)
 
 
 def main(argv=None):
