@@ -98,8 +98,9 @@ def train_seeds(args, seeds, log=None):
             d = os.path.join(args.out, f"seed_{s}")
             os.makedirs(d, exist_ok=True)
             f = open(os.path.join(d, "log.txt"), "a")
-            running[s] = (subprocess.Popen(_train_cmd(args, s), stdout=f,
-                                           stderr=subprocess.STDOUT), f)
+            # unbuffered, so that log.txt shows the progress lines as they come
+            running[s] = (subprocess.Popen(_train_cmd(args, s), stdout=f, stderr=subprocess.STDOUT,
+                                           env=dict(os.environ, PYTHONUNBUFFERED="1")), f)
             print(f"[seeds] seed {s} started ({_tail(d)})", file=log, flush=True)
         time.sleep(2.0)
         for s, (p, f) in list(running.items()):
