@@ -141,3 +141,14 @@ def test_seeds_trains_scores_and_picks(tiny_data, tmp_path, capsys):
     stamp = os.path.getmtime(os.path.join(out, "seed_0", "weights.safetensors"))
     assert main(argv + ["--pick", "val"]) == 0
     assert os.path.getmtime(os.path.join(out, "seed_0", "weights.safetensors")) == stamp
+
+
+def test_seeds_bad_arguments_are_one_line(tiny_data, tmp_path, capsys):
+    seq = os.path.join(tiny_data, "a.npz")
+    for argv, msg in ((["--data", str(tmp_path / "nope"), "--score", f"v={seq}"], "--data"),
+                      (["--data", tiny_data, "--score", "v=/nowhere/*.npz"], "--score v=/nowhere"),
+                      (["--data", tiny_data, "--score", f"v={seq}", "--seeds", "4-2"], "--seeds"),
+                      (["--data", tiny_data, "--score", f"v={seq}", "--jobs", "0"], "--jobs")):
+        assert main(["seeds", "--out", str(tmp_path / "o")] + argv) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: {msg}") and "Traceback" not in err, err

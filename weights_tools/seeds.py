@@ -28,6 +28,7 @@ quoted by.
 """
 from __future__ import annotations
 
+import argparse
 import glob
 import json
 import os
@@ -165,6 +166,8 @@ def run(args, log=None):
     if args.pick and args.pick not in groups:
         raise ValueError(f"--pick {args.pick}: not one of the --score groups "
                          f"({', '.join(groups)})")
+    if not args.score_only and not os.path.isdir(args.data):
+        raise ValueError(f"--data {args.data}: not a folder (of DATA.md .npz training sequences)")
     if args.jobs < 1:
         raise ValueError(f"--jobs: expected >= 1, got {args.jobs}")
     os.makedirs(args.out, exist_ok=True)
@@ -229,10 +232,28 @@ def format_table(rec, seeds):
     return "\n".join(lines)
 
 
+EXAMPLES = """examples:
+  # what make train does: seeds 0-3, the best on the validation set kept
+  python -m weights_tools seeds --data out/data/train --out out/train_run --seeds 0-3 \\
+      --score 'val=out/data/val/*.npz' --score 'heldout=out/data/heldout/*.npz' --pick val
+  # a recipe's spread over 8 seeds, 8 at once on a GPU
+  python -m weights_tools seeds --data out/data/train --out out/s --seeds 0-7 --jobs 8 \\
+      --device cuda --score 'heldout=out/data/heldout/*.npz' --train "--comp-steps 1200 --threads 1"
+  # score finished runs again on other sequences
+  python -m weights_tools seeds --data out/data/train --out out/s --seeds 0-7 --score-only \\
+      --score foliage=weights_tools/validation/foliage.npz
+
+The table gives net - rules (PSNR / tPSNR dB, torch twin) per seed and group, then mean, std,
+min and max over the seeds; seeds.json holds every figure. A finished seed (its
+weights.safetensors exists) is not trained again; an interrupted one resumes."""
+
+
 def add_parser(sub):
     p = sub.add_parser("seeds", help="train one recipe with several seeds and score each "
                        "against rule mode (mean, spread, worst seed)",
-                       description=__doc__.split("\n\n")[0])
+                       description=__doc__.split("\n\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=EXAMPLES)
     p.add_argument("--data", required=True, help="training sequences (DATA.md .npz folder)")
     p.add_argument("--out", required=True, help="folder for seed_N/ runs and seeds.json")
     p.add_argument("--seeds", default="0-3", help="e.g. 0-7 or 0,3,5 (default 0-3)")
