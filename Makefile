@@ -97,7 +97,7 @@ validation-data: $(STAMP)
 # weights_tools/seeds.py): data, then the recipe trained with seeds $(TRAIN_SEEDS) (torch, the
 # [train] extra), each scored against rule mode, and the seed with the best PSNR on the
 # validation set copied into the package. The held-out and Blender scores are printed, not
-# picked on. About 20 minutes on the 2-core machine. An interrupted run resumes (finished
+# picked on. About 10 minutes on the 2-core machine. An interrupted run resumes (finished
 # seeds are kept, a running one continues from its checkpoint); `rm -rf $(TRAIN_RUN)` starts
 # afresh.
 TRAIN_RUN ?= $(OUT)/train_run
