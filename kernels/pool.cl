@@ -15,7 +15,8 @@
  *                of the fast-path self-check: Debian's PoCL 3.1 crashes on the
  *                8-lane fp16 max on an AVX-512 EPYC)
  *
- *   -DCLSS_CLANG_VECTORS=1  max_pool_row8's loads and stores as clang vectors
+ *   -DCLSS_CLANG_VECTORS=1  max_pool_row8's and global pooling's loads (and
+ *                max_pool_row8's stores) as clang vectors
  *
  * A 2-D tensor is pooled as 3-D with depth 1, so one kernel serves
  * MaxPool/AveragePool over 1, 2 and 3 spatial dimensions.
@@ -259,6 +260,16 @@ __kernel void max_pool_row8(__global const T *in, __global T *out, int IH, int I
 #endif
 }
 
+/* Global pooling's 8-wide loads: on PoCL (-DCLSS_CLANG_VECTORS=1) clang vector
+ * loads, element-aligned. PoCL 3.1 and 5.0 built for skylake-avx512 crash
+ * (SIGSEGV) on vload_half8 here when a row does not start on a 16-byte
+ * boundary (HW % 8 != 0), an alignment OpenCL does not require of vload_half8. */
+#if defined(__clang__) && CLSS_CLANG_VECTORS
+#define GLD8 FLD8
+#else
+#define GLD8 LD8
+#endif
+
 /* Global pooling, pass 1: one work-item reduces CHUNK contiguous elements of
  * one row (NDRange (nchunks, NC)); eight lanes accumulate side by side, which
  * is both the vector load and a first level of pairwise summation. */
@@ -296,7 +307,7 @@ __kernel void global_pool_partial(__global const T *in,
 #if GLOBAL_LANES == 8
     A8 acc = (A8)INIT;
     for (; i + 8 <= hi; i += 8)
-        acc = COMBINE(acc, LD8(p, i));
+        acc = COMBINE(acc, GLD8(p, i));
     A4 a4 = COMBINE(acc.lo, acc.hi);
     A r = COMBINE(COMBINE(a4.x, a4.y), COMBINE(a4.z, a4.w));
 #else

@@ -121,3 +121,31 @@ def test_max_pool_fast_and_reference_kernels(row8, precision, dev, monkeypatch):
         if ref is None:
             ref = bits
         assert np.array_equal(bits, ref)
+
+
+GLOBAL_FAST_CHILD = """
+import sys, numpy as np, clss
+from clss.ops.pool import global_max_pool, global_avg_pool
+dev = clss.get_device(sys.argv[1])
+x = np.random.default_rng(7).standard_normal((2, 3, 1, 17)).astype(np.float32)
+for prec in ("fp32", "fp16"):
+    xr = x.astype(np.float16).astype(np.float32) if prec == "fp16" else x
+    d = dev.to_device(x, prec)
+    got = dev.to_host(global_max_pool(dev, prec, d)).ravel()
+    assert np.array_equal(got, xr.max(axis=(2, 3)).ravel()), (prec, got)
+    avg = dev.to_host(global_avg_pool(dev, prec, d)).ravel()
+    assert np.allclose(avg, xr.mean(axis=(2, 3)).ravel(), rtol=2e-3, atol=2e-3), (prec, avg)
+print("ok")
+"""
+
+
+def test_global_pool_fast_path_on_unaligned_rows(any_dev, tmp_path):
+    """The 8-lane global pooling, forced on (no self-check), over rows of 17 elements: each
+    row after the first starts off a 16-byte boundary. PoCL 3.1 / 5.0 (skylake-avx512)
+    crashed there on vload_half8; the kernel now loads through clang vectors on PoCL."""
+    spec = next(i for i, d in enumerate(__import__("clss").list_devices())
+                if d[1] == any_dev.cl_device)
+    env = dict(os.environ, CLSS_SELFCHECK="skip", CLSS_CACHE_DIR=str(tmp_path))
+    p = subprocess.run([sys.executable, "-c", GLOBAL_FAST_CHILD, str(spec)], env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0 and "ok" in p.stdout, (p.returncode, p.stderr[-2000:])

@@ -165,7 +165,8 @@ def _global(dev, prec, x, mode, chunk, out):
     chunk = int(chunk or GLOBAL_CHUNK)
     nchunks = -(-hw // chunk)
     count = np.float32(hw)
-    lanes = selfcheck.defines(dev, prec, "pool.global_vector_lanes")
+    lanes = dict(selfcheck.defines(dev, prec, "pool.global_vector_lanes"),
+                 CLSS_CLANG_VECTORS=builtin_free(dev))
     if nchunks == 1:
         k = dev.kernel("pool", "global_pool_partial", prec, MODE=mode, CHUNK=chunk, FINAL=1, **lanes)
         dev.launch(k, (1, nc), (x.data, out.data, np.int32(hw), np.int32(1), np.int32(nc), count))
