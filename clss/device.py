@@ -145,11 +145,8 @@ def _build_hint(log: str) -> str:
 
 def skipped_defaults() -> list[tuple[int, str]]:
     """(index, why) of the devices the default passed over because they cannot build."""
-    out = []
-    for i, (p, d) in enumerate(list_devices()):
-        if _is_pocl_cpu(p, d) and compiler_problem(d):
-            out.append((i, compiler_problem(d)))
-    return out
+    return [(i, compiler_problem(d)) for i, (p, d) in enumerate(list_devices())
+            if _is_pocl_cpu(p, d) and compiler_problem(d)]
 
 
 def _pick(spec: str | None) -> cl.Device:

@@ -12,11 +12,14 @@
  *                result directly and pass 2 is skipped
  *   -DGLOBAL_LANES=8 (default) global pooling pass 1 accumulates in 8 vector lanes
  *                (the fast path); =1 one scalar accumulator (the portable reference
- *                of the fast-path self-check: Debian's PoCL 3.1 crashes on the
- *                8-lane fp16 max on an AVX-512 EPYC)
+ *                of the fast-path self-check)
  *
- *   -DCLSS_CLANG_VECTORS=1  max_pool_row8's and global pooling's loads (and
- *                max_pool_row8's stores) as clang vectors
+ *   -DCLSS_CLANG_VECTORS=1  max_pool_row8's and global pooling's 8-wide loads and
+ *                stores as clang vectors (common.h FLD8/FST8; else vload8/vload_half8).
+ *                Global pooling needs it on PoCL: PoCL 3.1 and 5.0 built for
+ *                skylake-avx512 crash (SIGSEGV) on vload_half8 from a row that does
+ *                not start on a 16-byte boundary (HW % 8 != 0), an alignment OpenCL
+ *                does not require of vload_half8.
  *
  * A 2-D tensor is pooled as 3-D with depth 1, so one kernel serves
  * MaxPool/AveragePool over 1, 2 and 3 spatial dimensions.
@@ -144,13 +147,6 @@ __kernel void pool(__global const T *in, __global T *out,
  * never selected), so the result is the same stored value; inputs outside the
  * row read as -inf, which `>` never selects.
  * in: [NC, IH, IW] -> out: [NC, OH, OW]; NDRange (ceil(OW / 8), OH, NC). */
-#if defined(__clang__) && CLSS_CLANG_VECTORS
-#define PLD8 FLD8
-#define PST8 FST8
-#else
-#define PLD8 LD8
-#define PST8 ST8
-#endif
 #ifndef POOL_ROWS
 #define POOL_ROWS 1
 #endif
@@ -162,7 +158,7 @@ inline A8 row_max8(const __global T *row, int w0, int IW, int inside)
     A8 a;
     A b0, b1;
     if (inside) {
-        a = PLD8(row, w0);
+        a = FLD8(row, w0);
         b0 = FLD(row, w0 + 8);
         b1 = FLD(row, w0 + 9);
     } else {
@@ -187,7 +183,7 @@ inline A8 row_max8(const __global T *row, int w0, int IW, int inside)
 inline void store_row8(__global T *o, int n, A8 m)
 {
     if (n >= 8) {
-        PST8(o, 0, m);
+        FST8(o, 0, m);
     } else {
         union { A8 v; A e[8]; } u;
         u.v = m;
@@ -260,16 +256,6 @@ __kernel void max_pool_row8(__global const T *in, __global T *out, int IH, int I
 #endif
 }
 
-/* Global pooling's 8-wide loads: on PoCL (-DCLSS_CLANG_VECTORS=1) clang vector
- * loads, element-aligned. PoCL 3.1 and 5.0 built for skylake-avx512 crash
- * (SIGSEGV) on vload_half8 here when a row does not start on a 16-byte
- * boundary (HW % 8 != 0), an alignment OpenCL does not require of vload_half8. */
-#if defined(__clang__) && CLSS_CLANG_VECTORS
-#define GLD8 FLD8
-#else
-#define GLD8 LD8
-#endif
-
 /* Global pooling, pass 1: one work-item reduces CHUNK contiguous elements of
  * one row (NDRange (nchunks, NC)); eight lanes accumulate side by side, which
  * is both the vector load and a first level of pairwise summation. */
@@ -307,7 +293,7 @@ __kernel void global_pool_partial(__global const T *in,
 #if GLOBAL_LANES == 8
     A8 acc = (A8)INIT;
     for (; i + 8 <= hi; i += 8)
-        acc = COMBINE(acc, GLD8(p, i));
+        acc = COMBINE(acc, FLD8(p, i));   /* element-aligned: see -DCLSS_CLANG_VECTORS */
     A4 a4 = COMBINE(acc.lo, acc.hi);
     A r = COMBINE(COMBINE(a4.x, a4.y), COMBINE(a4.z, a4.w));
 #else

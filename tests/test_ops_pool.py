@@ -143,8 +143,8 @@ def test_global_pool_fast_path_on_unaligned_rows(any_dev, tmp_path):
     """The 8-lane global pooling, forced on (no self-check), over rows of 17 elements: each
     row after the first starts off a 16-byte boundary. PoCL 3.1 / 5.0 (skylake-avx512)
     crashed there on vload_half8; the kernel now loads through clang vectors on PoCL."""
-    spec = next(i for i, d in enumerate(__import__("clss").list_devices())
-                if d[1] == any_dev.cl_device)
+    from clss.device import list_devices
+    spec = next(i for i, (_, d) in enumerate(list_devices()) if d == any_dev.cl_device)
     env = dict(os.environ, CLSS_SELFCHECK="skip", CLSS_CACHE_DIR=str(tmp_path))
     p = subprocess.run([sys.executable, "-c", GLOBAL_FAST_CHILD, str(spec)], env=env,
                        capture_output=True, text=True, timeout=300)

@@ -100,8 +100,9 @@ class _Bicubic:
         return self.up(seq["color"][t].astype(np.float32))
 
 
-class _Pipeline:
-    """clss.Upscaler over a sequence; `always_reset` turns rule mode into the
+class Pipeline:
+    """An upscaler with clss.Upscaler's `step` (clss.Upscaler, or the torch twin's
+    TorchUpscaler in `seeds`) over a sequence; `always_reset` turns rule mode into the
     jitter-aware bicubic (reset: no history, out = up)."""
 
     def __init__(self, upscaler, always_reset=False):
@@ -133,10 +134,10 @@ def make_method(name, seq, dev, precision="fp32", net_kwargs=None):
     if name == "bicubic":
         return _Bicubic(dev, output_size(h, w, seq["scale"]))
     if name in ("jbicubic", "rules"):
-        return _Pipeline(Upscaler(seq["scale"], mode="rules", device=dev, precision=precision),
+        return Pipeline(Upscaler(seq["scale"], mode="rules", device=dev, precision=precision),
                          always_reset=name == "jbicubic")
     if name == "net":
-        return _Pipeline(Upscaler(seq["scale"], mode="net", device=dev, precision=precision,
+        return Pipeline(Upscaler(seq["scale"], mode="net", device=dev, precision=precision,
                                   **(net_kwargs or {})))
     raise ValueError(f"method: expected one of {', '.join(METHODS)}, got {name!r}")
 
@@ -184,9 +185,11 @@ def _crop_box(ref_display, frac=4):
 
 
 def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwargs=None,
-                      net_trained=None, out_dir=None, flip_every=1, log=sys.stderr):
+                      net_trained=None, out_dir=None, flip_every=1, log=sys.stderr, run=None):
     """Run every method over `seq` (load_sequence's dict) and score it. Returns the
-    sequence's JSON record; writes the pictures under `out_dir` when given."""
+    sequence's JSON record; writes the pictures under `out_dir` when given.
+    `run`: {method: callable(seq, t) -> frame} to score instead of make_method's OpenCL
+    runners (`seeds` passes the torch twin's); `flip_every=0` leaves FLIP out (None)."""
     from clss import metrics
     from clss.progress import progress
     T, h, w = seq["color"].shape[:3]
@@ -196,7 +199,8 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
         raise ValueError(f"{seq['path']}: no frame left to score after a warm-up of {warmup} "
                          f"frames per reset ({T} frames); lower --warmup")
     scored_set = set(scored)
-    run = {m: make_method(m, seq, dev, precision, net_kwargs) for m in methods}
+    if run is None:
+        run = {m: make_method(m, seq, dev, precision, net_kwargs) for m in methods}
     if "net" in run and net_trained is None:       # the package's default weights
         net_trained = run["net"].up.trained
     acc = {m: {"psnr": [], "ssim": [], "flip": [], "tpsnr": metrics.TemporalPSNR(), "s": 0.0}
@@ -205,7 +209,7 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
     place = None
     lines = {m: [] for m in names}
     last = None
-    flip_frames = scored[::max(int(flip_every), 1)]
+    flip_frames = scored[::int(flip_every)] if flip_every else []
     for t in progress(range(T), desc=seq["name"], unit="frame", total=T, file=log):
         ref = metrics.display(seq["reference"][t])
         if place is None and t in scored_set:
@@ -242,7 +246,7 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
         a = acc[m]
         record["methods"][m] = {
             "psnr": float(np.mean(a["psnr"])), "ssim": float(np.mean(a["ssim"])),
-            "tpsnr": a["tpsnr"].value(), "flip": float(np.mean(a["flip"])),
+            "tpsnr": a["tpsnr"].value(), "flip": float(np.mean(a["flip"])) if a["flip"] else None,
             "ms_per_frame": a["s"] / max(T - 1, 1) * 1e3,
             "psnr_frames": a["psnr"], "ssim_frames": a["ssim"], "flip_frames": a["flip"]}
         record["tpsnr_pairs"] = a["tpsnr"].pairs // (H * W * 3)

@@ -79,9 +79,17 @@ def parse_groups(items):
 
 # ---- training ------------------------------------------------------------------------------
 
+def seed_dir(out, seed):
+    return os.path.join(out, f"seed_{seed}")
+
+
+def _weights(out, seed):
+    return os.path.join(seed_dir(out, seed), "weights.safetensors")
+
+
 def _train_cmd(args, seed):
     return ([sys.executable, "-m", "weights_tools", "train", "--data", args.data,
-             "--out", os.path.join(args.out, f"seed_{seed}"), "--seed", str(seed), "--resume"]
+             "--out", seed_dir(args.out, seed), "--seed", str(seed), "--resume"]
             + (["--device", args.device] if args.device else [])
             + shlex.split(args.train or ""))
 
@@ -90,19 +98,19 @@ def train_seeds(args, seeds, log=None):
     """Run the missing seeds' trainings, at most args.jobs at once; returns the seeds
     whose run failed."""
     log = log or sys.stderr
-    todo = [s for s in seeds
-            if not os.path.isfile(os.path.join(args.out, f"seed_{s}", "weights.safetensors"))]
+    todo = [s for s in seeds if not os.path.isfile(_weights(args.out, s))]
     running, failed, t0 = {}, [], time.time()
     while todo or running:
         while todo and len(running) < args.jobs:
             s = todo.pop(0)
-            d = os.path.join(args.out, f"seed_{s}")
+            d = seed_dir(args.out, s)
             os.makedirs(d, exist_ok=True)
             f = open(os.path.join(d, "log.txt"), "a")
             # unbuffered, so that log.txt shows the progress lines as they come
             running[s] = (subprocess.Popen(_train_cmd(args, s), stdout=f, stderr=subprocess.STDOUT,
                                            env=dict(os.environ, PYTHONUNBUFFERED="1")), f)
-            print(f"[seeds] seed {s} started ({_tail(d)})", file=log, flush=True)
+            state = "resuming" if os.path.isfile(os.path.join(d, "checkpoint.pt")) else "fresh"
+            print(f"[seeds] seed {s} started ({state})", file=log, flush=True)
         time.sleep(2.0)
         for s, (p, f) in list(running.items()):
             if p.poll() is None:
@@ -113,42 +121,29 @@ def train_seeds(args, seeds, log=None):
             if not ok:
                 failed.append(s)
             print(f"[seeds] seed {s} {'done' if ok else f'FAILED (exit {p.returncode})'} "
-                  f"after {time.time() - t0:.0f} s; see {args.out}/seed_{s}/log.txt",
+                  f"after {time.time() - t0:.0f} s; see {seed_dir(args.out, s)}/log.txt",
                   file=log, flush=True)
     return failed
 
 
-def _tail(d):
-    return "resuming" if os.path.isfile(os.path.join(d, "checkpoint.pt")) else "fresh"
-
-
 # ---- scoring -------------------------------------------------------------------------------
 
-def score_sequence(path, mode, weights, device, warmup):
-    """(PSNR, tPSNR) of `mode` ("rules" or "net" with `weights`) on one DATA.md sequence,
-    through the torch twin; display values, frames `warmup` or more after a reset."""
-    from clss import metrics
-    from .evaluate import load_sequence, scored_frames
+def score_sequence(seq, mode, weights, device, warmup):
+    """(PSNR, tPSNR) of `mode` ("rules" or "net" with `weights`) on one sequence
+    (evaluate.load_sequence's dict): `eval`'s scoring (evaluate.evaluate_sequence) of the
+    torch twin, FLIP left out."""
+    from .evaluate import Pipeline, evaluate_sequence
     from .torch_frame import TorchUpscaler
-    seq = load_sequence(path)
-    scored = set(scored_frames(seq["reset"], warmup))
     up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None, device=device)
-    psnr, tp = [], metrics.TemporalPSNR()
-    for t in range(len(seq["reset"])):
-        out = up.step(seq["color"][t], seq["depth"][t], seq["motion"][t],
-                      tuple(float(v) for v in seq["jitter"][t]), reset=bool(seq["reset"][t]))
-        if t not in scored:
-            tp.cut()
-            continue
-        a, b = metrics.display(out), metrics.display(seq["reference"][t])
-        psnr.append(metrics.psnr(a, b, tonemapped=True))
-        tp.add(a, b)
-    return float(np.mean(psnr)), tp.value()
+    with open(os.devnull, "w") as quiet:
+        rec = evaluate_sequence(seq, [mode], None, warmup=warmup, run={mode: Pipeline(up)},
+                                net_trained=True, flip_every=0, log=quiet)
+    return rec["methods"][mode]["psnr"], rec["methods"][mode]["tpsnr"]
 
 
-def score_group(paths, mode, weights, device, warmup):
+def score_group(seqs, mode, weights, device, warmup):
     """Mean PSNR and mean tPSNR over a group's sequences."""
-    s = [score_sequence(p, mode, weights, device, warmup) for p in paths]
+    s = [score_sequence(q, mode, weights, device, warmup) for q in seqs]
     return float(np.mean([a for a, _ in s])), float(np.mean([b for _, b in s]))
 
 
@@ -161,6 +156,7 @@ def summary(values):
 def run(args, log=None):
     log = log or sys.stderr
     from clss.networks import load_weights
+    from .evaluate import load_sequence
     seeds = parse_seeds(args.seeds)
     groups = parse_groups(args.score)
     if args.pick and args.pick not in groups:
@@ -172,20 +168,20 @@ def run(args, log=None):
         raise ValueError(f"--jobs: expected >= 1, got {args.jobs}")
     os.makedirs(args.out, exist_ok=True)
     failed = [] if args.score_only else train_seeds(args, seeds, log)
-    done = [s for s in seeds if s not in failed and os.path.isfile(
-        os.path.join(args.out, f"seed_{s}", "weights.safetensors"))]
+    done = [s for s in seeds if s not in failed and os.path.isfile(_weights(args.out, s))]
     if not done:
         raise ValueError(f"no seed has weights in {args.out} (train logs: {args.out}/seed_N/log.txt)")
     rec = {"settings": {k: v for k, v in vars(args).items() if k != "fn"},
            "groups": groups, "rules": {}, "seeds": {}, "failed": failed}
-    for g, paths in groups.items():
-        rec["rules"][g] = score_group(paths, "rules", None, args.device, args.warmup)
+    loaded = {g: [load_sequence(p) for p in paths] for g, paths in groups.items()}  # once
+    for g, seqs in loaded.items():
+        rec["rules"][g] = score_group(seqs, "rules", None, args.device, args.warmup)
         print(f"[seeds] rules on {g}: {rec['rules'][g][0]:.2f} / {rec['rules'][g][1]:.2f} dB",
               file=log, flush=True)
     for s in done:
-        w = load_weights(os.path.join(args.out, f"seed_{s}", "weights.safetensors"))
-        rec["seeds"][s] = {g: score_group(p, "net", w, args.device, args.warmup)
-                           for g, p in groups.items()}
+        w = load_weights(_weights(args.out, s))
+        rec["seeds"][s] = {g: score_group(q, "net", w, args.device, args.warmup)
+                           for g, q in loaded.items()}
         print(f"[seeds] seed {s} scored", file=log, flush=True)
     rec["summary"] = {g: {k: summary([rec["seeds"][s][g][i] - rec["rules"][g][i] for s in done])
                           for i, k in enumerate(("psnr", "tpsnr"))} for g in groups}
@@ -206,7 +202,7 @@ def pick(rec, seeds, group, out):
     out/weights.safetensors.  Picking on a validation group the scores of which are not
     quoted elsewhere keeps the held-out figures honest."""
     best = max(seeds, key=lambda s: rec["seeds"][s][group][0])
-    src = os.path.join(out, f"seed_{best}", "weights.safetensors")
+    src = _weights(out, best)
     dst = os.path.join(out, "weights.safetensors")
     shutil.copyfile(src, dst + ".tmp")
     os.replace(dst + ".tmp", dst)
