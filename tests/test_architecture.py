@@ -1,4 +1,4 @@
-"""The arrows between the rooms (README "Architecture"): the import-linter contracts of
+"""The arrows between the rooms (docs/architecture.md): the import-linter contracts of
 .importlinter, and no import cycles among the modules of clss, bench and weights_tools."""
 import os
 import subprocess
