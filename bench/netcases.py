@@ -1,6 +1,6 @@
 """Whole-network and whole-frame bench cases: clss.Model against onnxruntime on the
 same network graph, and clss.Upscaler's device path against onnxruntime running
-the frame-step ONNX graph (clss/pipeline/oracle.py). Imported only once those
+the frame-step ONNX graph (clss/methods/clss/oracle.py). Imported only once those
 modules exist."""
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ def synthetic_frame(h: int, w: int):
 
 
 def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
-    from clss.pipeline import build_frame_graph
+    from clss.methods.clss.oracle import build_frame_graph
     from clss.pipeline.contract import output_size
     from clss.networks import build_classifier, build_composition, frame_flops
     h, w = render_size
@@ -77,7 +77,7 @@ def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
         flops = float(sum(frame_flops(build_classifier(), build_composition(), H, W)))
 
     def build(dev, prec, params):
-        from clss.pipeline import Upscaler
+        from clss import Upscaler
         cls = build_classifier(height=pad16(H), width=pad16(W)) if mode == "net" else None
         comp = build_composition() if mode == "net" else None
         up = Upscaler(scale=scale, mode=mode, device=dev, precision=prec,

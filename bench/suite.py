@@ -30,7 +30,7 @@ def network_cases(tier):
 def frame_cases(tier):
     """The whole frame step (net and rule modes) against the oracle graph, once the
     OpenCL pipeline exists."""
-    if not _has("clss.pipeline.frame"):
+    if not _has("clss.methods.clss.frame"):
         return []
     (h, w), scale = TIERS[tier]
     return [netcases.frame_case(mode, (h, w), scale, tier) for mode in ("net", "rule")]
@@ -62,7 +62,7 @@ def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list
             except Exception as e:   # a family whose API moved: report, keep benchmarking the rest
                 missing.append((f"{fam} [{tier}]", f"{type(e).__name__}: {e}"))
         for what, fn, mod in (("networks", network_cases, "clss/model/__init__.py"),
-                              ("frame step", frame_cases, "clss/pipeline/frame.py")):
+                              ("frame step", frame_cases, "clss/methods/clss/frame.py")):
             try:
                 got = fn(tier)
             except Exception as e:

@@ -10,7 +10,7 @@ def __getattr__(name):
         from .model import Model
         return Model
     if name == "Upscaler":
-        from .pipeline import Upscaler
+        from .upscaler import Upscaler
         return Upscaler
     raise AttributeError(f"module 'clss' has no attribute {name!r}")
 

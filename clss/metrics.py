@@ -253,3 +253,12 @@ def save_temporal_profiles(path, sequences, labels=None, row=None, col=None, spa
     side in one PNG."""
     profs = [temporal_profile(s, row=row, col=col, span=span, repeat=repeat) for s in sequences]
     return save_side_by_side(path, profs, labels, exposure=exposure, **kw)
+
+
+def nearest(img, H, W):
+    """Render-resolution image enlarged to H x W by nearest neighbour (any scale): how the
+    input looks at output size, the first panel of the side-by-sides."""
+    h, w = img.shape[:2]
+    iy = np.minimum(((np.arange(H) + 0.5) * h / H).astype(np.int64), h - 1)
+    ix = np.minimum(((np.arange(W) + 0.5) * w / W).astype(np.int64), w - 1)
+    return img[iy][:, ix]

@@ -17,7 +17,7 @@ def load_registrations() -> None:
     with w.catch_warnings():
         w.simplefilter("ignore")
         load_all()
-    from .pipeline import upscaler  # noqa: F401 (registers the frame step's, frame_selfcheck.py)
+    from .methods.clss import upscaler  # noqa: F401 (registers the frame step's, frame_selfcheck.py)
 
 
 def check_all(dev, precisions, kernels=None) -> list:

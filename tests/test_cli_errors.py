@@ -366,15 +366,15 @@ def test_demo_ctrl_c_leaves_whole_frames(frames, tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(scene, "iter_sequence", lambda n, *a, **k: iter(frames[:n]))
 
     def write_png(path, *a, **k):
-        if os.path.join("rules", "frame.0001") in str(path):
+        if os.path.join("clss-rules", "frame.0001") in str(path):
             raise KeyboardInterrupt
         return real(path, *a, **k)
     monkeypatch.setattr(clss.io, "write_png", write_png)
     out = tmp_path / "demo"
-    rc, cap = _run(["demo", "-o", out, "-n", "3", "--size", "13x9", "--modes", "rules",
-                    "--workers", "1", "--spp", "1"], capsys)
+    rc, cap = _run(["demo", "-o", out, "-n", "3", "--size", "13x9", "--methods",
+                    "bicubic,clss-rules", "--workers", "1", "--spp", "1"], capsys)
     assert rc == 130 and "interrupted; 1 frames written" in cap.err
-    for d in ("bicubic", "rules"):
+    for d in ("bicubic", "clss-rules"):
         assert sorted(os.listdir(out / d)) == ["frame.0000.exr", "frame.0000.png"]
     assert sorted(os.listdir(out / "input")) == ["frame.0000.exr", "jitter.json", "reference.0000.exr"]
     side = json.loads((out / "input" / "jitter.json").read_text())

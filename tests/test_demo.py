@@ -21,23 +21,31 @@ def test_demo_outputs(demo_dir, capsys):
     for name in ("side_by_side.png", "side_by_side_crop.png", "temporal_profile.png", "metrics.json",
                  "input/jitter.json", "input/frame.0005.exr", "input/reference.0005.exr"):
         assert (demo_dir / name).is_file(), name
-    for m in ("bicubic", "rules", "net"):
+    # every method the scene can feed, each in a folder of its name
+    from clss.cli.demo import scene_methods
+    assert {"bicubic", "jbicubic", "clss-rules", "clss"} <= set(scene_methods())
+    for m in scene_methods():
         for ext in ("png", "exr"):
             assert (demo_dir / m / f"frame.0005.{ext}").is_file()
     for v in ("ghost", "blend_weight", "counter", "depth_difference"):
-        assert (demo_dir / "debug" / f"rules_{v}.0005.png").is_file()
-        assert (demo_dir / "debug" / f"net_{v}.0005.png").is_file()
-    assert (demo_dir / "debug" / "net_ghost_class.0005.png").is_file()
-    assert (demo_dir / "debug" / "net_alias_class.0005.png").is_file()
+        assert (demo_dir / "debug" / f"clss-rules_{v}.0005.png").is_file()
+        assert (demo_dir / "debug" / f"clss_{v}.0005.png").is_file()
+    assert (demo_dir / "debug" / "clss_ghost_class.0005.png").is_file()
+    assert (demo_dir / "debug" / "clss_alias_class.0005.png").is_file()
     summary = json.loads((demo_dir / "metrics.json").read_text())
-    from clss.pipeline.upscaler import SHIPPED_WEIGHTS
+    from clss.methods.clss.upscaler import SHIPPED_WEIGHTS
     assert summary["net_weights"] == ("trained" if os.path.isfile(SHIPPED_WEIGHTS)
                                       else "untrained (seeded)")
-    ps = {m: summary["methods"][m]["psnr_mean"] for m in ("bicubic", "rules", "net")}
+    ps = {m: summary["methods"][m]["psnr_mean"] for m in scene_methods()}
     assert all(np.isfinite(v) and v > 10 for v in ps.values()), ps
-    assert ps["rules"] > ps["bicubic"], ps
-    assert set(summary["stage_ms"]["net"]) == {"prepare", "depth_diff", "resolve", "classifier",
-                                               "compose"}
+    assert ps["clss-rules"] > ps["bicubic"], ps
+    assert set(summary["stage_ms"]["clss"]) == {"prepare", "depth_diff", "resolve", "classifier",
+                                                "compose"}
+    # warm step times apart from the first frame's (which builds the kernels) and the I/O
+    for m in scene_methods():
+        r = summary["methods"][m]
+        assert len(r["step_ms"]) == 6 and r["ms_per_frame"] > 0 and r["first_frame_ms"] > 0
+    assert summary["io_s"] > 0
     side = json.loads((demo_dir / "input" / "jitter.json").read_text())
     assert side["frames"] == list(range(6)) and len(side["jitter"]) == 6 and side["resets"] == [0]
 
@@ -55,7 +63,7 @@ def test_upscale_cli(demo_dir, tmp_path, capsys):
     # the same frames as the demo's rule mode (same inputs, read back from half EXR)
     from clss.io import read_exr
     a, _ = read_exr(out / "frame.0005.exr")
-    b, _ = read_exr(demo_dir / "rules" / "frame.0005.exr")
+    b, _ = read_exr(demo_dir / "clss-rules" / "frame.0005.exr")
     assert np.abs(a - b).max() <= 2e-3 * max(np.abs(b).max(), 1)
 
 

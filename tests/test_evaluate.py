@@ -112,11 +112,11 @@ def test_eval_writes_table_json_pictures(tiny_seq, tmp_path, capsys):
 
 def test_eval_resets_and_subset(tmp_path, capsys):
     p = _tiny_sequence(tmp_path / "cut.npz", n=7, reset_at=(4,))
-    r = evaluate.run_eval([p], ["jbicubic", "rules"], warmup=1, out_dir=None)
+    r = evaluate.run_eval([p], ["jbicubic", "rules"], warmup=1, out_dir=None)   # rules: an alias
     seq = r["sequences"][0]
     assert seq["scored_frames"] == [1, 2, 3, 5, 6] and seq["resets"] == 2
     assert seq["tpsnr_pairs"] == 3            # (1,2) (2,3) (5,6): none across the cut
-    assert list(seq["methods"]) == ["jbicubic", "rules"]
+    assert list(seq["methods"]) == ["jbicubic", "clss-rules"]
     assert not (tmp_path / "cut").exists()
 
 

@@ -9,7 +9,8 @@ import pyopencl.array as cla
 import pytest
 
 import clss
-from clss.pipeline import FrameInputError, Upscaler, jitter_sequence
+from clss import Upscaler
+from clss.pipeline import FrameInputError, jitter_sequence
 from clss.scene import render_sequence
 
 RENDER = (12, 20)

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from clss.pipeline import OracleUpscaler, Upscaler
+from clss import Upscaler
+from clss.methods.clss.oracle import OracleUpscaler
 from helpers import RENDER, RESET_AT, compare_frame, frames, networks
 
 def _oracle(render, scale, mode, **kw):
@@ -121,7 +122,7 @@ def test_pixels_per_work_item_variants_agree(mode, monkeypatch):
 
 OCLGRIND_SCRIPT = r"""
 import numpy as np
-from clss.pipeline import Upscaler
+from clss import Upscaler
 from clss.scene import render_sequence
 seq = render_sequence(2, (5, 7), 2.0, spp_ref=0)
 ups = []
@@ -134,7 +135,7 @@ for prec in ("fp32", "fp16"):
             assert np.isfinite(out).all()
 # The refused frames come last: oclgrind 21.10 flags the encoded-colour reads of a net-mode
 # Upscaler created *after* a rule-mode one refused a frame (each alone is clean, and the
-# values match the oracle); not understood yet, see the README's oclgrind notes.
+# values match the oracle); not understood yet, see docs/verify.md (oclgrind).
 for up in ups:
     bad = seq[1].color.copy()
     bad[0, 0, 0] = np.nan

@@ -1,4 +1,4 @@
-"""The frame contract and the ONNX frame-step oracle (clss/pipeline/reference.md).
+"""The frame contract and the ONNX frame-step oracle (clss/methods/clss/reference.md).
 
 A numpy transcription of reference.md is checked against the graph's debug outputs, so
 the written spec, the oracle and (later) the OpenCL frame path stay one thing."""
@@ -10,7 +10,7 @@ import onnxruntime as ort
 import pytest
 
 from clss.pipeline import contract as C
-from clss.pipeline import oracle as O
+from clss.methods.clss import oracle as O
 
 h, w = 24, 32          # render size of the synthetic sequences
 OFFS = O.DILATE_OFFSETS

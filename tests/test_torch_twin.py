@@ -20,7 +20,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from clss.pipeline import Upscaler  # noqa: E402
+from clss import Upscaler  # noqa: E402
 from weights_tools import torch_frame  # noqa: E402
 from clss.networks import build_classifier, build_composition  # noqa: E402
 from clss.networks import apply_weights, model_weights  # noqa: E402

@@ -77,7 +77,7 @@ def test_train_smoke(tiny_data, tmp_path, capsys):
         assert any(not np.array_equal(trained[k], init[k]) for k in init if k.startswith(prefix))
 
     # they run in clss.Upscaler, agreeing with the torch twin
-    from clss.pipeline import Upscaler
+    from clss import Upscaler
     from clss.scene import render_sequence
     from weights_tools.torch_frame import TorchUpscaler
     up = Upscaler(2.0, mode="net", weights=os.path.join(out, "weights.safetensors"))

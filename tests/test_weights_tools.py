@@ -194,7 +194,7 @@ def test_load_networks_default_and_untrained(monkeypatch, tmp_path):
     warning; "untrained": the seeded init on request."""
     import warnings
 
-    from clss.pipeline import upscaler
+    from clss.methods.clss import upscaler
     from clss.networks import build_classifier
     from clss.networks import model_weights
     seeded = model_weights(build_classifier())

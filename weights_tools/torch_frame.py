@@ -1,7 +1,7 @@
 """The CLSS frame step in PyTorch: a differentiable twin of clss.Upscaler for training.
 
-Every stage follows clss/pipeline/reference.md (section numbers below) in the evaluation
-order of the oracle graph (clss/pipeline/oracle.py), so that what is trained is what
+Every stage follows clss/methods/clss/reference.md (section numbers below) in the evaluation
+order of the oracle graph (clss/methods/clss/oracle.py), so that what is trained is what
 clss runs; tests/test_torch_twin.py checks it against clss.Upscaler frame by frame.
 
 Tensors are NCHW float32 with a batch dimension B (patches); the state between frames

@@ -1,20 +1,21 @@
-"""`clss demo`: the built-in sample scene through bicubic, CLSS rules and CLSS net.
+"""`clss demo`: the built-in sample scene through every method it can feed.
 
-Renders clss.scene (jittered render-resolution frames and a 16-spp output-resolution
-reference), upscales every frame four ways and writes to OUT (default out/demo):
+Renders clss.scene (jittered render-resolution frames, its G-buffers and a 16-spp
+output-resolution reference), upscales every frame with each method (`clss methods`; by
+default every method whose inputs the scene provides) and writes to OUT (default out/demo):
 
     input/                 the rendered sequence as EXR + jitter.json (`clss upscale` reads it)
-    bicubic/ rules/ net/   output frames, EXR (half) and PNG
-    side_by_side.png       last frame: input (nearest), bicubic, rules, net, reference
+    METHOD/                output frames of each method, EXR (half) and PNG
+    side_by_side.png       last frame: input (nearest), each method, reference
     side_by_side_crop.png  a 3x enlarged crop of the same
     temporal_profile.png   one scanline over time for each method (flicker shows as noise)
-    debug/                 rules_* and net_* debug views of the last frame
-    metrics.json           PSNR / SSIM per frame and their means, per-stage milliseconds
+    debug/                 METHOD_* debug views of the last frame (the methods that have them)
+    metrics.json           PSNR / SSIM per frame and their means, times, per-stage milliseconds
 
-"bicubic" is a plain (not jitter-aware) Keys bicubic of each render frame in the PQ
-domain (clss.pipeline.baselines), i.e. what a spatial upscaler without history gives.
 Metrics compare tone-mapped display values (clss.metrics) from frame SKIP on, once the
-history has warmed up. The net mode runs the trained weights shipped in the package
+history has warmed up. The ms/frame column is the warm time of one `step` (frames after
+the first two: the first builds the kernels); the build and the file I/O are printed apart.
+CLSS net runs the trained weights shipped in the package
 (clss/weights/clss_trained.safetensors, from `make train`) unless --weights is given
 (`--weights untrained`: the seeded init, which shows the machinery, not the method).
 """
@@ -49,9 +50,19 @@ def _crop_box(H, W):
     return (min(y0, H - ch), min(y0, H - ch) + ch, min(x0, W - cw), min(x0, W - cw) + cw)
 
 
-# What a demo run writes into OUT: replaced as a whole by --overwrite.
-OUTPUT_SET = ("input/*", "bicubic/*", "rules/*", "net/*", "debug/*", "side_by_side.png",
+# What a demo run writes into OUT: replaced as a whole by --overwrite (the method folders
+# are added by name; rules/ and net/ are where earlier versions wrote CLSS).
+OUTPUT_SET = ("input/*", "rules/*", "net/*", "debug/*", "side_by_side.png",
               "side_by_side_crop.png", "temporal_profile.png", "metrics.json")
+WARM_FROM = 2      # frames before this pay for builds and first allocations
+
+
+def scene_methods():
+    """The methods the sample scene can feed (it writes every G-buffer of the contract)."""
+    from .. import methods
+    from ..pipeline import contract
+    have = set(getattr(contract, "GBUFFERS", ()))
+    return [n for n in methods.names() if set(methods.spec(n).gbuffers) <= have]
 
 
 def _parser():
@@ -59,9 +70,12 @@ def _parser():
     from .upscaler_common import add_upscaler_args
     p = ArgParser(
         prog="clss demo",
-        description="Render the built-in sample scene, upscale it with bicubic, CLSS rules and "
-                    "CLSS net, and write frames, a side-by-side, a temporal profile, debug views "
-                    "and PSNR/SSIM against the scene's 16-spp reference.")
+        description="Render the built-in sample scene, upscale it with every method it can feed "
+                    "(`clss methods`), and write frames, a side-by-side, a temporal profile, "
+                    "debug views and PSNR/SSIM against the scene's 16-spp reference.",
+        epilog="examples:\n  clss demo\n  clss demo --methods jbicubic,clss-rules,clss -n 12\n"
+               "  clss demo --size 240x136 --scale 3 --precision fp16",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-o", "--out", default=os.path.join("out", "demo"),
                    help="output directory (default out/demo): created if missing, refused if "
                         "not empty unless --overwrite")
@@ -75,47 +89,82 @@ def _parser():
                    help="network weights: a .safetensors file or a directory (default: the "
                         "trained weights shipped in the package; 'untrained': the seeded init)")
     p.add_argument("--spp", type=positive_int, default=16, help="reference samples per output pixel")
-    p.add_argument("--modes", default="rules,net", help="comma-separated subset of rules,net")
+    p.add_argument("--methods", "-m", default=None,
+                   help="comma-separated methods (default: every method the scene can feed; "
+                        "`clss methods` lists them)")
+    p.add_argument("--modes", default=None, help="older spelling of --methods (rules,net)")
     p.add_argument("--workers", type=positive_int, default=2, help="processes rendering the scene")
     return p
+
+
+def _pick_methods(p, a):
+    from .. import methods
+    text = a.methods if a.methods is not None else a.modes
+    if a.methods is not None and a.modes is not None:
+        p.error("give --methods or --modes, not both")
+    if text is None:
+        return scene_methods()
+    flag = "--methods" if a.methods is not None else "--modes"
+    try:
+        picked = []
+        for m in (m.strip() for m in text.split(",") if m.strip()):
+            c = methods.canonical(m)
+            if c not in picked:
+                picked.append(c)
+    except ValueError as e:
+        p.error(f"{flag}: {e}")
+    if not picked:
+        p.error(f"{flag}: expected methods, e.g. {','.join(scene_methods())}")
+    feedable = scene_methods()
+    for m in picked:
+        if m not in feedable:
+            p.error(f"{flag}: the sample scene cannot feed {m!r} (it needs "
+                    f"{', '.join(methods.spec(m).gbuffers)})")
+    return picked
 
 
 def main(argv=None) -> int:
     from .args import prepare_output_dir, start_output
     from .upscaler_common import FrameFiles, check_weights_mode
+    from .. import methods as registry
     p = _parser()
     a = p.parse_args(argv)
-    modes = [m.strip() for m in a.modes.split(",") if m.strip()]
-    if not modes or any(m not in ("rules", "net") for m in modes):
-        p.error(f"--modes: expected a subset of rules,net, got {a.modes!r}")
-    check_weights_mode(a.weights, "net" in modes)
+    names = _pick_methods(p, a)
+    trainable = [m for m in names if registry.spec(m).weights() != "none needed"]
+    check_weights_mode(a.weights, bool(trainable))
 
     from .. import io as cio
     from ..device import get_device
-    from ..pipeline import Upscaler
+    from ..upscaler import Upscaler
     from ..pipeline.contract import output_size
 
     h, w = a.size
     H, W = output_size(h, w, a.scale)
-    stale = prepare_output_dir(a.out, "-o", overwrite=a.overwrite, outputs=OUTPUT_SET)
+    outputs = OUTPUT_SET + tuple(f"{m}/*" for m in names)
+    stale = prepare_output_dir(a.out, "-o", overwrite=a.overwrite, outputs=outputs)
     dev = get_device(a.device)
-    ups = {m: Upscaler(a.scale, mode=m, weights=a.weights if m == "net" else None, device=dev,
-                       precision=a.precision, profile=True, debug=True) for m in modes}
+    ups = {}
+    for m in names:
+        kw = {"weights": a.weights} if m in trainable else {}
+        if m.startswith("clss") or m == "jbicubic":
+            kw["debug"] = m != "jbicubic"
+        ups[m] = Upscaler(method=m, scale=a.scale, device=dev, precision=a.precision,
+                          profile=True, **kw)
     start_output(a.out, stale)
-    trained = ups["net"].trained if "net" in ups else None
+    trained = getattr(ups.get("clss"), "trained", None)
     out = a.out
     print(f"clss demo: {a.frames} frames {w}x{h} -> {W}x{H} (x{a.scale:g}), {a.precision}, "
-          f"device {dev.info.name}; writing to {out}", file=sys.stderr)
+          f"device {dev.info.name}, methods {','.join(names)}; writing to {out}",
+          file=sys.stderr)
 
-    methods = ["bicubic"] + modes
     # What the frames leave for the pictures and the summary.
-    run = _Run(scores={m: {"psnr": [], "ssim": []} for m in methods},
-               lines={m: [] for m in methods + ["reference"]}, wall={m: 0.0 for m in methods})
+    run = _Run(scores={m: {"psnr": [], "ssim": []} for m in names},
+               lines={m: [] for m in names + ["reference"]}, step_s={m: [] for m in names})
     t_all = time.perf_counter()
     in_dir = os.path.join(out, "input")
     files = FrameFiles()
     try:
-        _upscale_frames(a, dev, ups, modes, (H, W), in_dir, files, run)
+        _upscale_frames(a, ups, names, (H, W), in_dir, files, run)
     except KeyboardInterrupt:
         files.discard()
         sidecar = run.sidecar
@@ -128,8 +177,8 @@ def main(argv=None) -> int:
               "(no pictures or metrics)", file=sys.stderr)
         return 130
     total_s = time.perf_counter() - t_all
-    side = _write_pictures(a, ups, modes, trained, (H, W), run)
-    _write_summary(a, dev, ups, modes, trained, (h, w), (H, W), run, total_s, side)
+    side = _write_pictures(a, ups, names, trained, (H, W), run)
+    _write_summary(a, dev, ups, names, trained, (h, w), (H, W), run, total_s, side)
     return 0
 
 
@@ -138,28 +187,28 @@ class _Run:
     """The per-method state a demo run gathers frame by frame."""
     scores: dict            # method: {"psnr": [...], "ssim": [...]} from frame SKIP on
     lines: dict             # method (and "reference"): the profile scanline of each frame
-    wall: dict              # method: seconds upscaling
+    step_s: dict            # method: seconds of each frame's step
     render_s: float = 0.0   # seconds rendering the scene
+    io_s: float = 0.0       # seconds writing files
     last: dict = field(default_factory=dict)    # the last frame's pictures, by name
     sidecar: dict | None = None                 # input/jitter.json so far
 
 
-def _upscale_frames(a, dev, ups, modes, out_hw, in_dir, files, run):
+def _upscale_frames(a, ups, names, out_hw, in_dir, files, run):
     """Render, write the input, upscale with every method and score each frame."""
     from .. import io as cio
     from .. import metrics
-    from ..pipeline.baselines import Bicubic, nearest
     from ..progress import progress
     from ..scene import iter_sequence
     H, W = out_hw
     out = a.out
-    bicubic = Bicubic(dev, (H, W))
-    scores, lines, wall = run.scores, run.lines, run.wall
+    scores, lines = run.scores, run.lines
     row = int(H * 0.55)                          # the profile's scanline: ground and fence
     frames = iter_sequence(a.frames, a.size, a.scale, spp_ref=a.spp, workers=a.workers)
     t = time.perf_counter()
     for f in progress(frames, desc="demo", unit="frame", total=a.frames):
         run.render_s += time.perf_counter() - t
+        t_io = time.perf_counter()
         # One frame at a time (the references are large); write_sample_sequence writes a
         # one-frame jitter.json each time, gathered into the sequence's sidecar, which is
         # rewritten after every frame so that input/ is always a readable sequence.
@@ -174,14 +223,15 @@ def _upscale_frames(a, dev, ups, modes, out_hw, in_dir, files, run):
         sidecar["jitter"] += one["jitter"]
         sidecar["resets"] += one["resets"]
         cio.write_json(os.path.join(in_dir, "jitter.json"), sidecar)
+        run.io_s += time.perf_counter() - t_io
         results = {}
-        t = time.perf_counter()
-        results["bicubic"] = bicubic(f.color)
-        wall["bicubic"] += time.perf_counter() - t
-        for m in modes:
+        gbuffers = getattr(f, "gbuffers", None) or {}
+        for m in names:
             t = time.perf_counter()
-            results[m] = ups[m].step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
-            wall[m] += time.perf_counter() - t
+            results[m] = ups[m].step(f.color, f.depth, f.motion, f.jitter, reset=f.reset,
+                                     **gbuffers)
+            run.step_s[m].append(time.perf_counter() - t)
+        t_io = time.perf_counter()
         for m, img in results.items():
             stem = os.path.join(out, m, f"frame.{f.index:04d}")
             files.add(stem + ".exr", stem + ".png")
@@ -192,23 +242,29 @@ def _upscale_frames(a, dev, ups, modes, out_hw, in_dir, files, run):
                 scores[m]["ssim"].append(metrics.ssim(img, f.reference))
             lines[m].append(img[row:row + 1])
         files.done()
+        run.io_s += time.perf_counter() - t_io
         lines["reference"].append(f.reference[row:row + 1])
-        run.last = dict(results, reference=f.reference, input=nearest(f.color, H, W))
+        run.last = dict(results, reference=f.reference, input=metrics.nearest(f.color, H, W))
         t = time.perf_counter()
 
 
-def _write_pictures(a, ups, modes, trained, out_hw, run) -> str:
+def _label(m, trained):
+    from .. import methods
+    lab = methods.spec(m).label
+    return lab + " (untrained)" if m == "clss" and not trained else lab
+
+
+def _write_pictures(a, ups, names, trained, out_hw, run) -> str:
     """The side-by-side (whole and a crop), the temporal profile and the debug views;
     returns the side-by-side's path."""
     from .. import metrics
     from .upscaler_common import write_debug_views
     H, W = out_hw
     out = a.out
-    methods = ["bicubic"] + modes
+    methods = list(names)
     order = ["input"] + methods + ["reference"]
-    labels = ["input (nearest)", "bicubic"] + [f"CLSS {m}" for m in modes] + [f"reference {a.spp} spp"]
-    if "net" in modes and not trained:
-        labels[order.index("net")] = "CLSS net (untrained)"
+    labels = (["input (nearest)"] + [_label(m, trained) for m in methods]
+              + [f"reference {a.spp} spp"])
     pics = [run.last[k] for k in order]
     side = os.path.join(out, "side_by_side.png")
     metrics.save_side_by_side(side, pics, labels)
@@ -218,48 +274,54 @@ def _write_pictures(a, ups, modes, trained, out_hw, run) -> str:
     metrics.save_temporal_profiles(os.path.join(out, "temporal_profile.png"),
                                    [run.lines[m] for m in methods + ["reference"]], labels[1:],
                                    row=0, span=span, repeat=max(1, 240 // a.frames))
-    for m in modes:
-        write_debug_views(os.path.join(out, "debug"), ups[m], a.frames - 1, prefix=f"{m}_")
+    for m in methods:
+        if getattr(ups[m], "debug", False):
+            write_debug_views(os.path.join(out, "debug"), ups[m], a.frames - 1, prefix=f"{m}_")
     return side
 
 
-def _write_summary(a, dev, ups, modes, trained, render_hw, out_hw, run, total_s, side):
-    """The metrics table and per-stage times on stdout, and metrics.json."""
+def _write_summary(a, dev, ups, names, trained, render_hw, out_hw, run, total_s, side):
+    """The metrics table, times and per-stage times on stdout, and metrics.json."""
     from .. import io as cio
     from .upscaler_common import format_stage_table
     (h, w), (H, W) = render_hw, out_hw
-    methods = ["bicubic"] + modes
-    scores, wall, render_s = run.scores, run.wall, run.render_s
-    stage = {m: ups[m].stage_ms() for m in modes}
+    scores = run.scores
+    stage = {m: ups[m].stage_ms() for m in names}
+    stage = {m: v for m, v in stage.items() if v}
     summary = {"frames": a.frames, "render_size": [h, w], "output_size": [H, W], "scale": a.scale,
                "precision": a.precision, "device": dev.info.name, "metrics_from_frame":
-               min(SKIP, a.frames - 1), "net_weights": "trained" if trained else "untrained (seeded)",
-               "methods": {}, "stage_ms": stage, "render_s": render_s, "total_s": total_s}
-    if "net" in ups:
-        summary["classifier_backend"] = ups["net"].classifier_backend_name
+               min(SKIP, a.frames - 1), "net_weights": None if trained is None else
+               ("trained" if trained else "untrained (seeded)"),
+               "methods": {}, "stage_ms": stage, "render_s": run.render_s, "io_s": run.io_s,
+               "total_s": total_s, "warm_from_frame": min(WARM_FROM, a.frames - 1)}
+    if "clss" in ups:
+        summary["classifier_backend"] = ups["clss"].classifier_backend_name
     print(f"\nsample scene, {a.frames} frames {w}x{h} -> {W}x{H}; metrics on tone-mapped frames "
-          f"{summary['metrics_from_frame']}..{a.frames - 1} against the {a.spp}-spp reference")
-    print(f"{'method':22s} {'PSNR dB':>8s} {'SSIM':>7s} {'ms/frame':>9s}")
-    for m in methods:
+          f"{summary['metrics_from_frame']}..{a.frames - 1} against the {a.spp}-spp reference; "
+          f"ms/frame: the median step from frame {summary['warm_from_frame']} on (warm); "
+          "first frame: the step that built the kernels")
+    print(f"{'method':26s} {'PSNR dB':>8s} {'SSIM':>7s} {'ms/frame':>9s} {'first frame ms':>15s}")
+    for m in names:
         ps, ss = np.mean(scores[m]["psnr"]), np.mean(scores[m]["ssim"])
-        ms = wall[m] / a.frames * 1e3
-        name = "bicubic" if m == "bicubic" else f"CLSS {m}"
-        if m == "net" and not trained:
-            name += " (untrained)"
-        print(f"{name:22s} {ps:8.2f} {ss:7.4f} {ms:9.1f}")
+        st = run.step_s[m]
+        warm = float(np.median(st[summary["warm_from_frame"]:])) * 1e3
+        first = st[0] * 1e3
+        print(f"{_label(m, trained):26s} {ps:8.2f} {ss:7.4f} {warm:9.1f} {first:15.1f}")
         summary["methods"][m] = {"psnr": scores[m]["psnr"], "ssim": scores[m]["ssim"],
                                  "psnr_mean": float(ps), "ssim_mean": float(ss),
-                                 "ms_per_frame": ms}
-    if "net" in modes and not trained:
+                                 "ms_per_frame": warm, "first_frame_ms": first,
+                                 "step_ms": [v * 1e3 for v in st]}
+    if "clss" in names and not trained:
         print("note: the net weights are untrained (seeded He init); its numbers show the "
               "pipeline runs, not the quality of a trained CLSS")
-    for m in modes:
-        print(f"\nCLSS {m}, per-stage time per frame ({dev.info.name}; OpenCL events, "
+    for m, st in stage.items():
+        print(f"\n{_label(m, trained)}, per-stage time per frame ({dev.info.name}; OpenCL events, "
               f"classifier wall time):")
-        print(format_stage_table(stage[m]))
-    if "net" in ups:
+        print(format_stage_table(st))
+    if "clss" in ups:
         print(f"classifier backend: {summary['classifier_backend']}")
-    print(f"\nscene rendering {render_s:.1f} s, total {total_s:.1f} s; pictures: {side}")
+    print(f"\nscene rendering {run.render_s:.1f} s, file writing {run.io_s:.1f} s, total "
+          f"{total_s:.1f} s; pictures: {side}")
     cio.write_json(os.path.join(a.out, "metrics.json"), summary)
 
 

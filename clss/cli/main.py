@@ -8,7 +8,7 @@ import os
 import sys
 import warnings
 
-from . import demo, devices, model, upscale
+from . import demo, devices, methods, model, upscale
 
 
 # The one upward edge from the runtime: `clss bench` and `clss tune` live in the top-level
@@ -30,8 +30,10 @@ COMMANDS = {
     "verify": (devices.cmd_verify, "diff every kernel against onnxruntime on a device (PASS/FAIL table)"),
     "info": (model.cmd_info, "ops, parameters, FLOPs and planned device memory of an ONNX model"),
     "run": (model.cmd_run, "run an ONNX model on a device (--compare-ort: diff and time vs onnxruntime)"),
-    "upscale": (upscale.cmd_upscale, "upscale an EXR sequence with CLSS (net or rules), per-stage times"),
-    "demo": (demo.main, "render the built-in sample scene, upscale it, write pictures and metrics"),
+    "methods": (methods.cmd_methods, "list the upscaling methods: inputs, scales, precisions, weights"),
+    "upscale": (upscale.cmd_upscale, "upscale an EXR sequence with a method (--method), per-stage times"),
+    "demo": (demo.main, "render the built-in sample scene, upscale it with every method, write pictures and metrics"),
+    "eval": (methods.cmd_eval, "score methods on your own sequences against their references (PSNR, SSIM, tPSNR, FLIP)"),
     "bench": (_bench, "benchmark kernels/networks/frame step against onnxruntime (table, JSON, roofline)"),
     "tune": (_tune, "search work-group sizes and kernel tunables per device; store the best"),
 }

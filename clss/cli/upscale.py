@@ -1,4 +1,4 @@
-"""`clss upscale`: an EXR sequence through clss.Upscaler, per-stage times."""
+"""`clss upscale`: an EXR sequence through any method's clss.Upscaler, per-stage times."""
 from __future__ import annotations
 
 import argparse
@@ -55,13 +55,16 @@ def format_sanitized(report: list, frames: int) -> str:
 def _parser() -> ArgParser:
     p = ArgParser(
         prog="clss upscale",
-        description="Upscale a rendered EXR sequence with CLSS temporal supersampling. INPUT is "
+        description="Upscale a rendered EXR sequence with one of clss's methods (`clss methods` "
+                    "lists them; default clss, CLSS's trained networks). INPUT is "
                     "a directory of EXR frames (one multichannel file per frame, or color.* / "
                     "depth.* / motion.* files), a glob or a numbered pattern; jitter comes from "
                     "jitter.json / jitter.csv beside the frames, else the Halton(2,3) sequence. "
                     "Outputs are named by the input frame numbers. The input contract (units, "
                     "signs, sidecars, engine conventions) is in docs/input-contract.md.",
-        epilog="example:\n  clss upscale shots/ -o out/ --mode rules --png",
+        epilog="examples:\n  clss upscale shots/ -o out/ --png\n"
+               "  clss upscale shots/ -o out/ --method clss-rules --scale 3\n"
+               "  clss upscale 'shots/frame.####.exr' -o out/ --method jbicubic --frames 10",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("input", help="directory, glob ('shots/*.exr') or numbered pattern "
                                  "('shots/frame.%%04d.exr', 'shots/frame.####.exr')")
@@ -71,8 +74,11 @@ def _parser() -> ArgParser:
     p.add_argument("--overwrite", action="store_true",
                    help="replace a previous run's output in OUT (its frame.* and debug/ files)")
     add_upscaler_args(p)
-    p.add_argument("--mode", "-m", default="net", choices=("net", "rules"),
-                   help="net (classifier + composition networks) or rules (no networks)")
+    p.add_argument("--method", default=None,
+                   help="the method (`clss methods` lists them: bicubic, jbicubic, clss-rules, "
+                        "clss); default clss")
+    p.add_argument("--mode", "-m", default=None, choices=("net", "rules"),
+                   help="older spelling: net = --method clss, rules = --method clss-rules")
     p.add_argument("--weights", "-w", default=None, help=WEIGHTS_HELP)
     p.add_argument("--debug-views", action="store_true",
                    help="also write ghosting/aliasing class maps, blend weight, sample counter "
@@ -80,7 +86,8 @@ def _parser() -> ArgParser:
     p.add_argument("--png", action="store_true", help="also write tone-mapped PNGs")
     p.add_argument("--channels", default=None,
                    help="channel names, e.g. 'color=R,G,B;depth=depth.Z;motion=mv.x,mv.y' "
-                        "(buffers: color, depth, motion, reference)")
+                        "(buffers: color, depth, motion, reference and the G-buffers of "
+                        "docs/input-contract.md, e.g. albedo, normal)")
     p.add_argument("--jitter", default=None,
                    help="jitter sidecar (JSON/CSV), 'halton' or 'zero' (default: sidecar, else halton)")
     p.add_argument("--frames", "-n", type=positive_int, default=None, help="only the first N frames")
@@ -102,26 +109,43 @@ def _parser() -> ArgParser:
 
 
 def cmd_upscale(argv) -> int:
-    a = _parser().parse_args(argv)
+    p = _parser()
+    a = p.parse_args(argv)
+    from .. import methods
     from ..io import read_sequence
-    from ..pipeline.upscaler import Upscaler
+    from ..upscaler import Upscaler, method_name
 
-    check_weights_mode(a.weights, a.mode == "net")
+    try:
+        name = method_name(a.method, a.mode)
+    except ValueError as e:
+        p.error(f"--method: {e}" if a.method is not None else str(e))
+    spec = methods.spec(name)
+    clss_frame = name in ("clss", "clss-rules")
+    check_weights_mode(a.weights, spec.weights() != "none needed")
+    if a.debug_views and not clss_frame:
+        raise UsageError(f"--debug-views: the method {name} has no debug views (clss and "
+                         "clss-rules have them)")
     channels = parse_channels(a.channels)
     seq = read_sequence(a.input, channels=channels, jitter=a.jitter, scale=a.scale)
-    inputs = seq.files + ([a.jitter] if a.jitter and os.path.isfile(a.jitter) else [])
-    stale = prepare_output_dir(a.out, "-o", inputs, a.overwrite, OUTPUT_SET)
     n = len(seq) if a.frames is None else min(len(seq), a.frames)
     first = seq[0]
-    up = Upscaler(a.scale, mode=a.mode, weights=a.weights, device=a.device,
-                  precision=a.precision, depth_inverted=not a.depth_standard,
-                  motion_scale=resolve_motion_scale(a.motion_scale, first.color.shape[:2]),
-                  hdr=not a.ldr, exposure=a.exposure, sanitize=a.sanitize, profile=True,
-                  debug=a.debug_views)
+    _check_gbuffers(name, spec, first, a.scale)     # before anything is written
+    inputs = seq.files + ([a.jitter] if a.jitter and os.path.isfile(a.jitter) else [])
+    stale = prepare_output_dir(a.out, "-o", inputs, a.overwrite, OUTPUT_SET)
+    kw = dict(depth_inverted=not a.depth_standard,
+              motion_scale=resolve_motion_scale(a.motion_scale, first.color.shape[:2]),
+              exposure=a.exposure, sanitize=a.sanitize, profile=True)
+    if a.weights is not None:
+        kw["weights"] = a.weights
+    if clss_frame or name == "jbicubic":
+        kw.update(hdr=not a.ldr)
+    if clss_frame:
+        kw.update(debug=a.debug_views)
+    up = Upscaler(method=name, scale=a.scale, device=a.device, precision=a.precision, **kw)
     start_output(a.out, stale)
-    print(f"clss upscale: {n} frames from {a.input}, mode {a.mode}, x{a.scale:g}, "
+    print(f"clss upscale: {n} frames from {a.input}, method {name}, x{a.scale:g}, "
           f"{a.precision}, device {up.dev.info.name}", file=sys.stderr)
-    if a.mode == "net" and not up.trained:
+    if name == "clss" and not up.trained:
         print("clss upscale: note: the networks are untrained (seeded init)", file=sys.stderr)
     scores, sanitized = [], []
     t0 = time.perf_counter()
@@ -146,6 +170,22 @@ def cmd_upscale(argv) -> int:
     return 0
 
 
+def _check_gbuffers(name, spec, first, scale):
+    """A method's G-buffers must be in the sequence: say which and where they are read
+    from before any file is written."""
+    if not spec.gbuffers:
+        return
+    from ..pipeline import contract
+    from ..pipeline.contract import output_size
+    h, w = first.color.shape[:2]
+    given = dict(getattr(first, "gbuffers", None) or {})
+    try:
+        contract.validate_gbuffers(name, spec.gbuffers, spec.optional, given, (h, w),
+                                   output_size(h, w, scale))
+    except contract.FrameInputError as e:
+        raise UsageError(f"{cli_message(e)}; nothing was written") from None
+
+
 def _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written):
     """Upscale and write frames 0..n-1; a refused frame ends the run with a UsageError."""
     from ..io import write_exr, write_png
@@ -156,7 +196,8 @@ def _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written):
         f = first if i == 0 else seq[i]
         number = f.meta.get("frame", i)
         try:
-            out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)
+            out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset,
+                          **(getattr(f, "gbuffers", None) or {}))
         except FrameInputError as e:
             where = f.meta.get("files", {}).get("color", "?")
             raise UsageError(f"frame {number} ({where}): {cli_message(e)}; {written()}") from None
@@ -182,10 +223,12 @@ def _print_summary(a, up, done, dt, sanitized, scores):
           f"-> {a.out}")
     if a.sanitize:
         print(format_sanitized(sanitized, done))
-    if a.mode == "net":
+    if up.method == "clss":
         print(f"classifier: {up.classifier_backend_name}")
-    print("per-stage time per frame (OpenCL events; classifier: wall time):")
-    print(format_stage_table(up.stage_ms()))
+    stages = up.stage_ms()
+    if stages:
+        print("per-stage time per frame (OpenCL events; classifier: wall time):")
+        print(format_stage_table(stages))
     if scores:
         ps, ss = np.array(scores).T
         print(f"against the reference frames: PSNR {ps.mean():.2f} dB, SSIM {ss.mean():.4f}")

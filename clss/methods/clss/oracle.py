@@ -1,6 +1,6 @@
 """The whole CLSS frame step as one ONNX graph, run by onnxruntime: the oracle.
 
-Every formula here is written down in clss/pipeline/reference.md (stage numbers match);
+Every formula here is written down in clss/methods/clss/reference.md (stage numbers match);
 the OpenCL frame path is checked against this graph.  State is explicit: the graph takes
 the history tensor [1,16,H,W] and returns the next one, nothing is hidden in the session.
 
@@ -20,11 +20,11 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
 
-from ..networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
-from ..networks import pad16 as _pad16
-from ..model.graph import fill_output_shapes
+from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
+from ...networks import pad16 as _pad16
+from ...model.graph import fill_output_shapes
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
-from .contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
+from ...pipeline.contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
                        H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MODES,
                        PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
                        SCATTER_WEIGHT_THRESHOLD, output_size, to_internal, validate_frame)
@@ -287,7 +287,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
             outputs.append(helper.make_tensor_value_info(name, f32, None))
     graph = helper.make_graph(g.nodes, f"clss_frame_{mode}", inputs, outputs,
                               initializer=g.inits)
-    model = helper.make_model(graph, producer_name="clss.pipeline.oracle",
+    model = helper.make_model(graph, producer_name="clss.methods.clss.oracle",
                               opset_imports=[helper.make_opsetid("", opset)],
                               doc_string=f"CLSS frame step, mode={mode}, render {h}x{w} -> "
                                          f"{H}x{W}, cap={cap:g}, hdr={hdr}, nits={nits:g}")
@@ -593,7 +593,7 @@ class OracleUpscaler:
         self.scale = float(scale)
         self.output_size = output_size(*self.render_size, self.scale)
         if mode == "net" and (classifier is None or composition is None):
-            from ..networks import build_classifier, build_composition
+            from ...networks import build_classifier, build_composition
             classifier = classifier or build_classifier()
             composition = composition or build_composition()
         self.mode = mode

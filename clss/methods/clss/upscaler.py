@@ -1,6 +1,9 @@
-"""clss.Upscaler: CLSS temporal supersampling on an OpenCL device, frame by frame.
+"""CLSS temporal supersampling on an OpenCL device, frame by frame: the upscaler of the
+methods "clss" (net mode), "clss-rules" (rule mode) and "jbicubic" (rule mode without
+history: the jitter-aware upsampled colour alone).
 
-    up = clss.Upscaler(scale=2.0, mode="net")          # or mode="rules"
+    up = clss.Upscaler(method="clss", scale=2.0)       # or method="clss-rules"
+    up = clss.Upscaler(scale=2.0, mode="net")          # the same, as before (mode="rules")
     for f in frames:
         out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset)   # H x W x 3
 
@@ -28,19 +31,20 @@ import warnings
 import numpy as np
 import pyopencl.array as cla
 
-from ..device import Device, get_device
-from ..networks import CLASSIFIER_CHANNELS, pad16
-from .contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
-                       check_exposure, check_jitter, check_motion_scale, output_size,
-                       validate_frame)
+from ...device import Device
+from ...networks import CLASSIFIER_CHANNELS, pad16
+from ...pipeline.contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
+                                 check_jitter, output_size, validate_frame)
+from ...pipeline.method import MethodSpec, MethodUpscaler
 from .frame import STAGES, FrameStep
 from .frame_selfcheck import register_fast_paths
 
 MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
 # The trained networks shipped in the package (`make train` writes them; recipe in
 # weights_tools/train.py), the default of mode "net".
-SHIPPED_WEIGHTS = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                               "weights", "clss_trained.safetensors")
+SHIPPED_WEIGHTS = os.path.join(
+    os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
+    "weights", "clss_trained.safetensors")
 UNTRAINED = "untrained"
 _warned_no_shipped = []
 
@@ -55,8 +59,8 @@ def load_networks(weights=None):
       architectures), then weights.safetensors (or the only *.safetensors) applied;
     a .safetensors file: applied to the default architectures (every tensor must fit).
     """
-    from ..networks import build_classifier, build_composition
-    from ..networks import apply_weights, load_weights
+    from ...networks import build_classifier, build_composition
+    from ...networks import apply_weights, load_weights
     if weights is None:
         if os.path.isfile(SHIPPED_WEIGHTS):
             weights = SHIPPED_WEIGHTS
@@ -71,7 +75,7 @@ def load_networks(weights=None):
     path = os.fspath(weights)
     if os.path.isdir(path):
         def net(name, build):
-            from ..model.graph import load_proto      # a corrupt file: an error naming it
+            from ...model.graph import load_proto      # a corrupt file: an error naming it
             p = os.path.join(path, name)
             return load_proto(p) if os.path.isfile(p) else build()
         cls = net("classifier.onnx", build_classifier)
@@ -113,7 +117,7 @@ def _check_classifier_size(model, H16, W16):
                                  "sizes (weights_tools build without --height/--width)")
 
 
-class Upscaler:
+class ClssUpscaler(MethodUpscaler):
     """CLSS temporal supersampling (see the module doc).
 
     scale: output / render size (>= 1; 1.5, 2, 3, 4 ...). mode: "net" (classifier +
@@ -140,34 +144,22 @@ class Upscaler:
         if mode not in MODE_NAMES:
             raise ValueError(f"mode: expected 'net' or 'rules', got {mode!r}")
         self.mode = MODE_NAMES[mode]
-        try:
-            s = float(scale)
-        except (TypeError, ValueError):
-            raise ValueError(f"scale: expected a number >= 1, got {scale!r}") from None
-        if not math.isfinite(s) or s < 1.0 or s > 16.0:
-            raise ValueError(f"scale: expected a number in [1, 16], got {scale!r}")
-        self.scale = s
-        self.dev: Device = get_device(device)
-        if precision not in ("fp32", "fp16", "fp16-native"):
-            raise ValueError(f"precision: expected 'fp32' or 'fp16', got {precision!r}")
+        self.spec = SPECS["clss" if self.mode == "net" else "clss-rules"]
         if precision == "fp16-native":
             # frame.cl's arithmetic is float by design (PQ, coordinates); only storage halves.
             raise ValueError("precision: the frame kernels support 'fp32' and 'fp16' "
                              "(half storage, float arithmetic); 'fp16-native' is for clss.Model")
-        self.precision = precision
-        self.depth_inverted = bool(depth_inverted)
-        self.motion_scale = tuple(float(v) for v in check_motion_scale(motion_scale))
+        self._init_common(scale, device, precision, depth_inverted=depth_inverted,
+                          motion_scale=motion_scale, exposure=exposure, sanitize=sanitize,
+                          profile=profile)
         self.hdr = bool(hdr)
         if cap is not None and not (isinstance(cap, (int, float)) and math.isfinite(cap) and cap >= 1):
             raise ValueError(f"cap: expected a number >= 1 (samples), got {cap!r}")
         self.cap = cap
-        self.exposure = check_exposure(exposure)
         self.nits = float(nits)
         if not (math.isfinite(self.nits) and self.nits > 0):
             raise ValueError(f"nits: expected a number > 0, got {nits!r}")
         self.depth_threshold = float(depth_threshold)
-        self.sanitize = bool(sanitize)
-        self.profile = bool(profile)
         self.debug = bool(debug)
         self.classifier_backend = classifier_backend
         self.trained = None
@@ -183,9 +175,6 @@ class Upscaler:
             else:
                 self.classifier_model, self.composition_model, self.trained = load_networks(weights)
         self._fs: FrameStep | None = None
-        self._pending_reset = True
-        self.frame_index = 0
-        self.last_report: dict = {}
         self._totals: dict[str, float] = {}
         self._timed_frames = 0
 
@@ -204,10 +193,6 @@ class Upscaler:
             return None
         return None if self._fs is None else self._fs.classifier.backend
 
-    def reset(self):
-        """The next frame starts afresh (a camera cut)."""
-        self._pending_reset = True
-
     @property
     def state(self) -> dict:
         """{"history": [1,16,H,W] float32} (a host copy), or {"history": None} before the
@@ -220,14 +205,6 @@ class Upscaler:
     def device_bytes(self) -> int:
         """Bytes of the device buffers this upscaler holds (the classifier's own aside)."""
         return 0 if self._fs is None else self._fs.device_bytes()
-
-    def _check_render_size(self, hw, reset):
-        """A render size other than the sequence's needs a reset (a camera cut)."""
-        if self._fs is not None and not reset and (self._fs.h, self._fs.w) != tuple(hw):
-            h, w = self._fs.h, self._fs.w
-            raise FrameInputError(
-                f"color: the frame is {hw[0]}x{hw[1]} (h x w) but this sequence renders at "
-                f"{h}x{w}; a new render size needs reset=True (a camera cut)")
 
     def _frame_step(self, hw, reset):
         """The FrameStep for render size hw, built anew (buffers, programs) when it changes."""
@@ -253,8 +230,10 @@ class Upscaler:
         return self._fs
 
     # -- the host path ----------------------------------------------------------------
-    def step(self, color, depth, motion, jitter, reset=False, reactive=None) -> np.ndarray:
-        """One frame from host arrays; returns the H x W x 3 float32 linear output."""
+    def step(self, color, depth, motion, jitter, reset=False, reactive=None,
+             **gbuffers) -> np.ndarray:
+        """One frame from host arrays; returns the H x W x 3 float32 linear output.
+        G-buffers (keyword arguments) are not used by CLSS and are ignored."""
         if reset:
             self._pending_reset = True          # kept if this frame is refused
         if isinstance(color, np.ndarray) and color.ndim == 3:
@@ -278,7 +257,8 @@ class Upscaler:
         return fs.out.get()
 
     # -- the device path -----------------------------------------------------------------
-    def step_device(self, color, depth, motion, jitter, reset=False, reactive=None, out=None):
+    def step_device(self, color, depth, motion, jitter, reset=False, reactive=None, out=None,
+                    **gbuffers):
         """One frame from pyopencl arrays in image layout (float32; float16 is converted,
         which allocates): color h x w x 3, depth h x w, motion h x w x 2, reactive h x w.
         Returns the H x W x 3 float32 output on the device: `out` if given, else an
@@ -388,5 +368,44 @@ class Upscaler:
         return views
 
 
+class JitterBicubic(ClssUpscaler):
+    """The jitter-aware bicubic baseline: CLSS's rule-mode frame step reset on every frame,
+    so its output is the upsampled current colour alone (reference.md s5: each render
+    sample placed where its jitter put it, a cubic over them, in the PQ domain). It is
+    how a spatial upscaler that knows the jitter but keeps no history does."""
+
+    def __init__(self, scale=2.0, device=None, precision="fp32", **kwargs):
+        super().__init__(scale, "rules", None, device, precision, **kwargs)
+        self.spec = SPECS["jbicubic"]
+
+    def step(self, color, depth, motion, jitter, reset=False, reactive=None, **gbuffers):
+        return super().step(color, depth, motion, jitter, True, reactive)
+
+    def step_device(self, color, depth, motion, jitter, reset=False, reactive=None, out=None,
+                    **gbuffers):
+        return super().step_device(color, depth, motion, jitter, True, reactive, out)
+
+
 # The frame step's fast-path checks run two frames through this class.
-register_fast_paths(Upscaler)
+register_fast_paths(ClssUpscaler)
+
+
+def _net_weights():
+    return "trained" if os.path.isfile(SHIPPED_WEIGHTS) else "untrained"
+
+
+DOC = "docs/methods/clss.md"
+SPECS = {
+    "clss": MethodSpec(
+        "clss", "CLSS net", "CLSS (Guo et al. 2022): a classifier of ghosting and aliasing, "
+        "auxiliary history, a per-pixel MLP blend weight",
+        lambda **kw: ClssUpscaler(mode="net", **kw), weights=_net_weights, doc=DOC),
+    "clss-rules": MethodSpec(
+        "clss-rules", "CLSS rules", "CLSS's frame step with rules instead of networks: depth "
+        "test, variance clamp, 1/(1+n) blend (TAAU-like)",
+        lambda **kw: ClssUpscaler(mode="rules", **kw), doc=DOC),
+    "jbicubic": MethodSpec(
+        "jbicubic", "jitter-aware bicubic", "each render sample placed at its jittered "
+        "position, a cubic over them; no history", lambda **kw: JitterBicubic(**kw),
+        temporal=False, doc="docs/methods/baselines.md"),
+}

@@ -30,11 +30,11 @@ import pyopencl as cl
 import pyopencl.array as cla
 from onnx import numpy_helper
 
-from .. import selfcheck
-from ..device import Device
-from ..networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
-from ..ops.conv import load_defines
-from .contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
+from ... import selfcheck
+from ...device import Device
+from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
+from ...ops.conv import load_defines
+from ...pipeline.contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
                        PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
 
 LR_CHANNELS = 11  # depth, motion 2, dd, reactive, clamp box low 3 and high 3
@@ -104,7 +104,7 @@ class ClassifierRunner:
         err = None
         if force != "onnxruntime":
             try:
-                from ..model import Model
+                from ...model import Model
                 self._model = Model(model, device=dev, precision=prec,
                                     input_shapes={self.input_name: list(self.shape)})
                 self.backend = "clss.Model"

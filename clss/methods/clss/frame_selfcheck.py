@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 import pyopencl as cl
 
-from .. import selfcheck
-from ..device import Device
-from ..ops.base import rng
-from ..ops.conv import builtin_free
-from ..tolerance import DEFAULT_TOL
+from ... import selfcheck
+from ...device import Device
+from ...ops.base import rng
+from ...ops.conv import builtin_free
+from ...tolerance import DEFAULT_TOL
 
 
 def _selfcheck_run(mode: str, Upscaler):

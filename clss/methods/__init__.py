@@ -1,0 +1,53 @@
+"""The upscaling methods, one room each; no room imports another (tests/test_architecture.py).
+
+    clss/methods/clss/     CLSS: net mode "clss", rule mode "clss-rules", and "jbicubic"
+    clss/methods/bicubic.py  the plain bicubic baseline
+
+A room exports SPECS {name: clss.pipeline.method.MethodSpec}. This registry names the
+room of each method and imports it only when the method is asked for, so listing the
+methods (`clss methods`) costs one import per room and no device.
+"""
+from __future__ import annotations
+
+import importlib
+
+# name -> room (a module under clss.methods), in the order `clss methods` lists them:
+# the baselines first, then by increasing cost.
+ROOMS = {"bicubic": "bicubic", "jbicubic": "clss", "clss-rules": "clss", "clss": "clss"}
+# Names that earlier versions used (`--mode rules|net`, eval's `rules` / `net`).
+ALIASES = {"rules": "clss-rules", "rule": "clss-rules", "net": "clss", "clss-net": "clss"}
+# Methods the paper seeds describe that are not built yet (`clss methods` lists them as such).
+PLANNED = {"nsrr": "NSRR (Xiao et al. 2020), issue 20",
+           "nsrd": "NSRD (Li et al. 2024), issue 21",
+           "mlp": "the shader MLP upscaler (Spencer 2022), issue 22"}
+
+
+def names() -> list[str]:
+    return list(ROOMS)
+
+
+def canonical(name: str) -> str:
+    """The registry name of `name` (aliases resolved); a ValueError lists the methods."""
+    key = str(name).strip().lower()
+    key = ALIASES.get(key, key)
+    if key in ROOMS:
+        return key
+    if key in PLANNED:
+        raise ValueError(f"method: {key!r} is not built yet ({PLANNED[key]}); available: "
+                         f"{', '.join(ROOMS)}")
+    raise ValueError(f"method: expected one of {', '.join(ROOMS)}, got {name!r}")
+
+
+def spec(name: str):
+    """The MethodSpec of `name`."""
+    key = canonical(name)
+    return importlib.import_module(f"{__name__}.{ROOMS[key]}").SPECS[key]
+
+
+def specs() -> list:
+    return [spec(n) for n in ROOMS]
+
+
+def create(name: str, **kwargs):
+    """The upscaler of method `name` (keyword arguments as clss.Upscaler's)."""
+    return spec(name).create(**kwargs)

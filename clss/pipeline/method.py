@@ -1,0 +1,132 @@
+"""What a method says about itself, and what every method's upscaler shares.
+
+A method (clss/methods/<room>/) describes itself with a `MethodSpec`: the inputs of the
+frame contract it reads, the G-buffers it needs or uses, the scales and precisions it
+supports, whether its weights are trained, and how to build its upscaler. `clss methods`
+prints the specs; `clss.Upscaler(method=NAME)` builds through them.
+
+Every method's upscaler derives from `MethodUpscaler`, which holds what they share and
+must not be copied into each room: the argument checks (scale, precision, exposure,
+motion scale), the pending reset of a camera cut, the rule that a new render size needs
+a reset, and the G-buffer check of the contract (a missing one is a named error before
+anything runs).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+from .contract import FrameInputError, check_exposure, check_motion_scale
+
+# The frame contract's inputs (docs/input-contract.md) in the order `step` takes them.
+CONTRACT_INPUTS = ("color", "depth", "motion", "jitter")
+PRECISIONS = ("fp32", "fp16")
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """One method, as `clss methods` lists it and `clss.Upscaler(method=...)` builds it.
+
+    name: the registry name (`--method NAME`); label: how tables and pictures call it;
+    summary: one line; inputs: the contract inputs it reads; gbuffers: the optional
+    inputs it needs (refused without them); optional: those it uses when given;
+    scales: (lowest, highest) scale; precisions: what `precision=` accepts; temporal:
+    whether it carries a history between frames; weights: callable -> "trained",
+    "untrained" or "none needed" (the state of the package's weights); create:
+    callable(**kwargs) -> MethodUpscaler; doc: its page under docs/."""
+    name: str
+    label: str
+    summary: str
+    create: Callable = field(repr=False)
+    inputs: tuple = CONTRACT_INPUTS
+    gbuffers: tuple = ()
+    optional: tuple = ()
+    scales: tuple = (1.0, 16.0)
+    precisions: tuple = PRECISIONS
+    temporal: bool = True
+    weights: Callable = field(default=lambda: "none needed", repr=False)
+    doc: str = ""
+
+    def check_scale(self, scale) -> float:
+        try:
+            s = float(scale)
+        except (TypeError, ValueError):
+            raise ValueError(f"scale: expected a number >= 1, got {scale!r}") from None
+        lo, hi = self.scales
+        if not math.isfinite(s) or s < lo or s > hi:
+            raise ValueError(f"scale: expected a number in [{lo:g}, {hi:g}] (method "
+                             f"{self.name!r}), got {scale!r}")
+        return s
+
+    def check_precision(self, precision) -> str:
+        if precision not in self.precisions:
+            raise ValueError(f"precision: expected {' or '.join(repr(p) for p in self.precisions)} "
+                             f"(method {self.name!r}), got {precision!r}")
+        return precision
+
+
+class MethodUpscaler:
+    """The part of every method's upscaler that is the same for all (see the module doc).
+
+    Subclasses set `spec` and implement `step` / `step_device` with the contract's
+    arguments (color, depth, motion, jitter, reset=False, reactive=None, **gbuffers),
+    `render_size` / `output_size` (None before the first frame) and, where they time
+    their stages, `stage_ms` / `reset_timings`."""
+    spec: MethodSpec
+
+    def _init_common(self, scale, device, precision, *, depth_inverted=True,
+                     motion_scale=(1, 1), exposure=1.0, sanitize=False, profile=False):
+        from ..device import get_device
+        self.scale = self.spec.check_scale(scale)
+        self.dev = get_device(device)
+        self.precision = self.spec.check_precision(precision)
+        self.depth_inverted = bool(depth_inverted)
+        self.motion_scale = tuple(float(v) for v in check_motion_scale(motion_scale))
+        self.exposure = check_exposure(exposure)
+        self.sanitize = bool(sanitize)
+        self.profile = bool(profile)
+        self._pending_reset = True
+        self.frame_index = 0
+        self.last_report: dict = {}
+
+    @property
+    def method(self) -> str:
+        return self.spec.name
+
+    def reset(self):
+        """The next frame starts afresh (a camera cut)."""
+        self._pending_reset = True
+
+    def _check_render_size(self, hw, reset):
+        """A render size other than the sequence's needs a reset (a camera cut)."""
+        have = self.render_size
+        if have is not None and not reset and tuple(have) != tuple(int(v) for v in hw):
+            raise FrameInputError(
+                f"color: the frame is {hw[0]}x{hw[1]} (h x w) but this sequence renders at "
+                f"{have[0]}x{have[1]}; a new render size needs reset=True (a camera cut)")
+
+    def _gbuffers(self, given: dict, render_size, output_size) -> dict:
+        """The G-buffers this method needs or uses, checked against the contract; a
+        missing needed one is a named error (nothing has run yet). Buffers the method
+        does not use are ignored, so one caller can feed every method the same frame."""
+        spec = self.spec
+        if not spec.gbuffers and not spec.optional:
+            return {}
+        from . import contract
+        return contract.validate_gbuffers(spec.name, spec.gbuffers, spec.optional,
+                                          {k: v for k, v in given.items() if v is not None},
+                                          render_size, output_size, sanitize=self.sanitize)
+
+    # -- timings: methods without stage events report none ---------------------------
+    def reset_timings(self):
+        """Start the per-stage statistics afresh."""
+
+    def stage_ms(self) -> dict:
+        """Mean milliseconds per frame of each stage (needs profile=True)."""
+        if not self.profile:
+            raise RuntimeError("stage_ms needs Upscaler(..., profile=True)")
+        return {}
+
+    def device_bytes(self) -> int:
+        return 0
