@@ -7,6 +7,13 @@ Reading (`read_sequence`) accepts
   * one file per buffer: ``{"color": "color.%04d.exr", "depth": "depth.%04d.exr",
     "motion": "motion.%04d.exr"}`` (optionally "reference"); a directory holding
     ``color.*.exr`` / ``depth.*.exr`` / ``motion.*.exr`` is recognised as this layout.
+Optional G-buffers (`clss.pipeline.contract.GBUFFERS`: albedo, normal at render size;
+albedo_hr, depth_hr, normal_hr at output size) come as channels of the frame file
+(render-size ones; `GBUFFER_CANDIDATES` lists the names tried, `channels=` names others)
+or as per-buffer files ``<name>.NNNN.exr`` beside the frames (``albedo.0003.exr``,
+``depth_hr.0003.exr``; also ``gbuffers={name: pattern}`` or the per-buffer `source`
+dict). Frames expose those they have as `Frame.gbuffers` ({name: array}); a G-buffer
+the sequence lacks is not an error here (a method that needs it says so).
 Pixels outside an EXR's data window are 0; the data window is placed inside the display
 window. Jitter comes from a sidecar (``jitter.json`` or ``jitter.csv`` next to the
 frames), an explicit file or array, or the Halton(2,3) sequence (`jitter="halton"`
@@ -30,6 +37,7 @@ import numpy as np
 
 from .errors import UserError
 from .filemode import current_umask, new_file_mode  # noqa: F401 (also clss.io API)
+from .pipeline.contract import GBUFFERS, output_size
 from .scene import Frame, halton_jitter
 
 try:
@@ -62,8 +70,39 @@ SINGLE_BUFFER_CANDIDATES = {
     "motion": [("R", "G"), ("x", "y"), ("X", "Y"), ("u", "v"), ("U", "V")],
     "reference": [("R", "G", "B")],
 }
-BUFFER_CHANNELS = {"color": 3, "depth": 1, "motion": 2, "reference": 3}
+# G-buffers: the contract's default names first, then names renderers use for the same
+# thing. Only names that say what they hold: Blender's DiffCol and GlossCol are each half
+# of the albedo (their sum is; add them before writing, or let
+# weights_tools/blender/convert.py do it), and Blender's Normal pass is in world space,
+# which the contract's camera-space `normal` is not (docs/input-contract.md section 5).
+GBUFFER_CANDIDATES = {
+    "albedo": [GBUFFERS["albedo"].exr_channels, ("Albedo.R", "Albedo.G", "Albedo.B"),
+               ("albedo.r", "albedo.g", "albedo.b"), ("albedo.X", "albedo.Y", "albedo.Z"),
+               ("BaseColor.R", "BaseColor.G", "BaseColor.B"),
+               ("basecolor.R", "basecolor.G", "basecolor.B")],
+    "normal": [GBUFFERS["normal"].exr_channels, ("normal.x", "normal.y", "normal.z"),
+               ("normal.R", "normal.G", "normal.B"), ("Normal.X", "Normal.Y", "Normal.Z"),
+               ("Normal.R", "Normal.G", "Normal.B"), ("N.X", "N.Y", "N.Z"),
+               ("N.x", "N.y", "N.z")],
+    "albedo_hr": [GBUFFERS["albedo_hr"].exr_channels, GBUFFERS["albedo"].exr_channels,
+                  ("Albedo.R", "Albedo.G", "Albedo.B")],
+    "depth_hr": [GBUFFERS["depth_hr"].exr_channels, ("depth_hr.R",), ("depth.Z",),
+                 ("Depth.Z",)],
+    "normal_hr": [GBUFFERS["normal_hr"].exr_channels, GBUFFERS["normal"].exr_channels,
+                  ("Normal.X", "Normal.Y", "Normal.Z")],
+}
+CHANNEL_CANDIDATES.update(GBUFFER_CANDIDATES)
+_GENERIC_XYZ = [("X", "Y", "Z"), ("x", "y", "z"), ("R", "G", "B")]
+SINGLE_BUFFER_CANDIDATES.update({
+    "albedo": [("R", "G", "B")], "normal": _GENERIC_XYZ, "albedo_hr": [("R", "G", "B")],
+    "depth_hr": [("Z",), ("R",), ("Y",), ("V",)], "normal_hr": _GENERIC_XYZ})
+BUFFER_CHANNELS = {"color": 3, "depth": 1, "motion": 2, "reference": 3,
+                   **{name: g.channels for name, g in GBUFFERS.items()}}
 SIDECARS = ("jitter.json", "jitter.csv")
+# Per-buffer G-buffer files: <name>.NNNN.exr or <name>_NNNN.exr, exactly (albedo_hr.* is
+# not an albedo file, nor depth_hr.* a depth file).
+_GBUFFER_FILE = re.compile(r"^(" + "|".join(sorted(GBUFFERS, key=len, reverse=True))
+                           + r")[._](\d+)\.exr$")
 
 
 # ---------------------------------------------------------------- tone mapping
@@ -179,20 +218,37 @@ def write_png_ldr(path, display_rgb):
     _write_oiio(path, np.ascontiguousarray((a * 255 + 0.5).astype(np.uint8)), "uint8")
 
 
-def write_sample_sequence(frames, directory, half=True):
+def write_sample_sequence(frames, directory, half=True, gbuffers=False):
     """Write frames (clss.scene.Frame or dicts with color, depth, motion, jitter and
     optionally reference) as ``frame.%04d.exr`` (R, G, B [half], Z, mv.x, mv.y [float]),
     ``reference.%04d.exr`` and ``jitter.json``, which `read_sequence(directory)` reads
-    back. Returns the list of paths written."""
+    back. gbuffers=True also writes the frames' G-buffers (`Frame.gbuffers`, or a dict's
+    G-buffer keys): the render-size ones as channels of the frame file (albedo.R,G,B
+    [half when `half`], normal.X,Y,Z [float]), the output-size ones as
+    ``<name>.%04d.exr`` (float) with the contract's channel names. Returns the list of
+    paths written."""
     os.makedirs(directory, exist_ok=True)
     paths, jit, numbers, resets, meta = [], [], [], [], {}
     for pos, f in enumerate(frames):
         n = int(f["index"]) if _has(f, "index") else pos
-        img = np.concatenate([f["color"], f["depth"][..., None], f["motion"]], -1)
+        gbs = _frame_gbuffers(f) if gbuffers else {}
+        parts = [f["color"], f["depth"][..., None], f["motion"]]
+        names, halves = ["R", "G", "B", "Z", "mv.x", "mv.y"], [half] * 3 + [False] * 3
+        for name, g in GBUFFERS.items():
+            if g.resolution == "render" and name in gbs:
+                parts.append(np.asarray(gbs[name], np.float32).reshape(
+                    gbs[name].shape[:2] + (g.channels,)))
+                names += list(g.exr_channels)
+                halves += [half and name == "albedo"] * g.channels
+        img = np.concatenate(parts, -1)
         p = os.path.join(directory, f"frame.{n:04d}.exr")
-        write_exr(p, img, half=[half] * 3 + [False] * 3,
-                  channel_names=["R", "G", "B", "Z", "mv.x", "mv.y"])
+        write_exr(p, img, half=halves, channel_names=names)
         paths.append(p)
+        for name, g in GBUFFERS.items():
+            if g.resolution == "output" and name in gbs:
+                p = os.path.join(directory, f"{name}.{n:04d}.exr")
+                write_exr(p, gbs[name], half=False, channel_names=g.exr_channels)
+                paths.append(p)
         ref = f["reference"] if _has(f, "reference") else None
         if ref is not None:
             p = os.path.join(directory, f"reference.{n:04d}.exr")
@@ -227,6 +283,15 @@ def _has(f, key):
     if isinstance(f, dict):
         return key in f
     return hasattr(f, key)
+
+
+def _frame_gbuffers(f):
+    """{name: array} of the G-buffers a frame (Frame or dict) carries."""
+    if isinstance(f, dict):
+        found = dict(f.get("gbuffers") or {})
+        found.update({k: f[k] for k in GBUFFERS if f.get(k) is not None})
+        return found
+    return {k: v for k, v in (getattr(f, "gbuffers", None) or {}).items() if v is not None}
 
 
 # ---------------------------------------------------------------- reading
@@ -280,8 +345,9 @@ def _layer_candidates(names, n):
     return found
 
 
-def _pick(path, names, buffer, channels, single):
-    """Channel names of `buffer` in a file with channel list `names`."""
+def _pick(path, names, buffer, channels, single, optional=False):
+    """Channel names of `buffer` in a file with channel list `names`; with `optional`,
+    None when the search (not an explicit `channels` entry) finds nothing."""
     n = BUFFER_CHANNELS[buffer]
     if channels and buffer in channels:
         want = _as_names(channels[buffer])
@@ -307,6 +373,8 @@ def _pick(path, names, buffer, channels, single):
             return layers[0]
     if single and len(names) == n:
         return tuple(names)
+    if optional:
+        return None
     tried = "; ".join(",".join(c) for c in cands)
     what = f"{path}: no {buffer} channel found (tried {tried}; file has {', '.join(names)})"
     example = ",".join(names[:n])
@@ -314,8 +382,10 @@ def _pick(path, names, buffer, channels, single):
                      cli=f"{what}; name it with --channels '{buffer}={example}'")
 
 
-def _extract(path, data, names, buffer, channels, single):
-    sel = _pick(path, names, buffer, channels, single)
+def _extract(path, data, names, buffer, channels, single, optional=False):
+    sel = _pick(path, names, buffer, channels, single, optional)
+    if sel is None:
+        return None
     idx = [names.index(c) for c in sel]
     out = data[..., idx]
     return out[..., 0] if BUFFER_CHANNELS[buffer] == 1 else np.ascontiguousarray(out)
@@ -407,17 +477,33 @@ def _detect_layout(directory):
     for b, stems in (("color", ("color", "colour", "beauty")), ("depth", ("depth",)),
                      ("motion", ("motion", "mv", "velocity")), ("reference", ("reference",))):
         for s in stems:
-            hits = glob.glob(os.path.join(glob.escape(directory), s + "[._]*[0-9].exr"))
+            hits = [p for p in glob.glob(os.path.join(glob.escape(directory), s + "[._]*[0-9].exr"))
+                    if not _is_gbuffer_file(p)]
             if hits:
                 per[b] = sorted(hits)
                 break
     if all(b in per for b in ("color", "depth", "motion")):
         return per
     refs = set(per.get("reference", []))
-    files = [p for p in glob.glob(os.path.join(glob.escape(directory), "*.exr")) if p not in refs]
+    files = [p for p in glob.glob(os.path.join(glob.escape(directory), "*.exr"))
+             if p not in refs and not _is_gbuffer_file(p)]
     if not files:
         raise InputError(f"{directory}: no .exr files")
     return sorted(files), (sorted(refs) if refs else None)
+
+
+def _is_gbuffer_file(path):
+    return _GBUFFER_FILE.match(os.path.basename(path)) is not None
+
+
+def _detect_gbuffer_files(directory):
+    """{G-buffer name: [files]} of the per-buffer G-buffer files in `directory`."""
+    found = {}
+    for p in glob.glob(os.path.join(glob.escape(directory), "*.exr")):
+        m = _GBUFFER_FILE.match(os.path.basename(p))
+        if m:
+            found.setdefault(m.group(1), []).append(p)
+    return {k: sorted(v) for k, v in found.items()}
 
 
 def _read_jitter_file(path):
@@ -469,8 +555,9 @@ class FrameSequence:
     """Lazily read frames: len(), indexing and iteration give clss.scene.Frame with
     meta {"frame": file number, "files": {buffer: path}} plus sidecar metadata."""
 
-    def __init__(self, entries, channels, jitter, resets, meta, single):
+    def __init__(self, entries, channels, jitter, resets, meta, single, scale=None):
         self._entries = entries            # [(number, {buffer: path})]
+        self._scale = scale
         self._channels = channels
         self._jitter = jitter              # list of (jx, jy), aligned with entries
         self._resets = resets
@@ -503,15 +590,24 @@ class FrameSequence:
             raise IndexError(i)
         number, files = self._entries[i]
         bufs, cache = {}, {}
-        for b in ("color", "depth", "motion", "reference"):
-            if b not in files:
+        for b in ("color", "depth", "motion", "reference") + tuple(GBUFFERS):
+            if b in files:
+                p = files[b]
+                single = self._single or b not in ("color", "depth", "motion")
+            elif GBUFFERS.get(b) is not None and GBUFFERS[b].resolution == "render":
+                # Render-size G-buffers may be channels of the frame (or colour) file; the
+                # search there is by the names that say what they hold (not R,G,B), and
+                # finding none is no error unless `channels` named them.
+                p, single = files["color"], False
+            else:
                 continue
-            p = files[b]
             if p not in cache:
                 cache[p] = read_exr(p)
             data, names = cache[p]
-            single = self._single or b == "reference"
-            bufs[b] = _extract(p, data, names, b, self._channels, single)
+            optional = b in GBUFFERS and b not in files
+            got = _extract(p, data, names, b, self._channels, single, optional)
+            if got is not None:
+                bufs[b] = got
         h, w = bufs["color"].shape[:2]
         for b in ("depth", "motion"):
             if bufs[b].shape[:2] != (h, w):
@@ -522,26 +618,59 @@ class FrameSequence:
         elif self._size[:2] != (h, w):
             raise InputError(f"{files['color']}: frame is {w}x{h}, the sequence's first "
                              f"frame ({self._size[2]}) is {self._size[1]}x{self._size[0]}")
+        gbuffers = {b: bufs[b] for b in GBUFFERS if b in bufs}
+        self._check_gbuffer_sizes(gbuffers, files, (h, w), bufs.get("reference"))
         return Frame(index=i, color=bufs["color"], depth=bufs["depth"], motion=bufs["motion"],
                      jitter=self._jitter[i], reset=(i == 0) or number in self._resets,
                      reference=bufs.get("reference"),
-                     meta={"frame": number, "files": dict(files), **self.meta})
+                     meta={"frame": number, "files": dict(files), **self.meta},
+                     gbuffers=gbuffers)
+
+    def _check_gbuffer_sizes(self, gbuffers, files, hw, reference):
+        """Render-size G-buffers are h x w; output-size ones agree with each other, with
+        the reference, and with the scale when the sequence knows it."""
+        out_hw, out_from = None, None
+        if self._scale is not None:
+            out_hw, out_from = output_size(hw[0], hw[1], self._scale), f"scale {self._scale:g}"
+        elif reference is not None:
+            out_hw, out_from = reference.shape[:2], f"the reference ({files['reference']})"
+        for b, a in gbuffers.items():
+            where = files.get(b, files["color"])
+            if GBUFFERS[b].resolution == "render":
+                if a.shape[:2] != tuple(hw):
+                    raise InputError(f"{where}: {b} is {a.shape[1]}x{a.shape[0]}, colour "
+                                     f"({files['color']}) is {hw[1]}x{hw[0]}")
+                continue
+            if out_hw is None:
+                out_hw, out_from = a.shape[:2], f"{where}"
+            elif a.shape[:2] != tuple(out_hw):
+                raise InputError(f"{where}: {b} is {a.shape[1]}x{a.shape[0]}, the output size "
+                                 f"({out_from}) is {out_hw[1]}x{out_hw[0]}")
 
 
-def read_sequence(source, channels=None, jitter=None, scale=None, reference=None):
+def read_sequence(source, channels=None, jitter=None, scale=None, reference=None,
+                  gbuffers=None):
     """Open a frame sequence (see the module docstring); frames are read on access.
 
     source: directory, glob, numbered pattern, list of files, or {buffer: pattern} with
-      color, depth, motion (and optionally reference).
+      color, depth, motion (and optionally reference and G-buffers).
     channels: {buffer: "A,B,C" or (names)} overriding the channel search.
     jitter: None (sidecar jitter.json / jitter.csv beside the frames, else Halton when
       `scale` is given), "halton" (needs scale), "zero", a path to a JSON/CSV sidecar,
       or an (n, 2) array.
     reference: optional numbered pattern of reference images (R, G, B).
+    gbuffers: optional {G-buffer name: numbered pattern} of per-buffer G-buffer files
+      (a directory source finds ``<name>.NNNN.exr`` beside the frames by itself).
+      Render-size G-buffers are also searched among the frame file's channels.
     """
     check_channels(channels)
+    unknown = [b for b in (gbuffers or {}) if b not in GBUFFERS]
+    if unknown:
+        raise InputError(f"gbuffers: unknown G-buffer {unknown[0]!r}; the G-buffers are "
+                         f"{', '.join(GBUFFERS)}")
     single = isinstance(source, dict)
     ref_pat = reference
+    gb_pats, gb_dir = {}, None
     if single:
         pats = dict(source)
     elif isinstance(source, (list, tuple)):
@@ -553,10 +682,28 @@ def read_sequence(source, channels=None, jitter=None, scale=None, reference=None
         else:
             pats = {"frame": layout[0]}
             ref_pat = ref_pat or layout[1]
+        gb_dir = os.fspath(source)
     else:
-        pats = {"frame": os.fspath(source)}
+        pats = {"frame": _without_gbuffer_files(os.fspath(source))}
+        gb_dir = os.path.dirname(os.fspath(source)) or "."
     if ref_pat is not None:
         pats["reference"] = ref_pat
+    # Per-buffer G-buffer files: named (gbuffers=, or the source dict), or found beside
+    # the frames of a directory, glob or numbered pattern (never an error when absent).
+    explicit = {b for b in pats if b in GBUFFERS} | set(gbuffers or {})
+    pats.update(gbuffers or {})
+    if gb_dir is not None and os.path.isdir(gb_dir):
+        for b, found in _detect_gbuffer_files(gb_dir).items():
+            pats.setdefault(b, found)
+    lost = [b for b in (channels or {}) if b in GBUFFERS
+            and GBUFFERS[b].resolution == "output" and b not in pats]
+    if lost:
+        b = lost[0]
+        raise InputError(f"channels names {b}, but there are no {b} files (an output-size "
+                         f"buffer comes in its own files, {b}.NNNN.exr beside the frames, or "
+                         f"read_sequence(gbuffers={{{b!r}: pattern}}))",
+                         cli=f"--channels names {b}, but there are no {b} files ({b}.NNNN.exr "
+                             "beside the frames)")
     missing = [b for b in ("color", "depth", "motion") if single and b not in pats]
     if missing:
         raise InputError(f"per-buffer source lacks {', '.join(missing)}: {pats}")
@@ -564,6 +711,9 @@ def read_sequence(source, channels=None, jitter=None, scale=None, reference=None
     key = "color" if single else "frame"
     if not listed[key]:
         raise InputError(f"{_describe(pats[key])}: no files match")
+    for b in sorted(explicit):
+        if not listed[b]:
+            raise InputError(f"{_describe(pats[b])}: no {b} files match")
     entries = []
     for n in sorted(listed[key]):
         files = {}
@@ -582,7 +732,19 @@ def read_sequence(source, channels=None, jitter=None, scale=None, reference=None
     first_dir = os.path.dirname(os.path.abspath(entries[0][1]["color"]))
     jit, meta = _resolve_jitter(jitter, scale, numbers, first_dir)
     resets = _resets(meta.get("resets", []), meta.get("sidecar", "jitter sidecar"))
-    return FrameSequence(entries, channels, jit, resets, meta, single)
+    return FrameSequence(entries, channels, jit, resets, meta, single, scale)
+
+
+def _without_gbuffer_files(pattern):
+    """A glob source (``shots/*.exr``) less the per-buffer G-buffer files it matches
+    (``albedo.0003.exr`` beside the frames is not a frame); the pattern itself when it
+    matches none of them (or is a numbered pattern, which selects exactly)."""
+    if _NUMBERED.search(pattern):
+        return pattern
+    hits = glob.glob(pattern)
+    if not any(_is_gbuffer_file(p) for p in hits):
+        return pattern
+    return sorted(p for p in hits if not _is_gbuffer_file(p))
 
 
 def _describe(pattern):

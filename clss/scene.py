@@ -34,6 +34,7 @@ import numpy as np
 from .pipeline.contract import jitter_at as halton_jitter
 from .pipeline.contract import jitter_phase_count as jitter_sequence_length  # noqa: F401
 from .pipeline.contract import output_size as contract_output_size
+from .pipeline.contract import GBUFFERS
 
 NEAR = 0.1                      # reversed-Z near plane (scene units, metres)
 TAN_HALF_FOV = math.tan(math.radians(30.0))  # vertical field of view 60 degrees
@@ -65,7 +66,11 @@ SKY_ID, GROUND_ID = -2, -1       # primitive ids of the sky and the ground plane
 
 @dataclass
 class Frame:
-    """One rendered frame; ``reference`` is None when no reference was rendered."""
+    """One rendered frame; ``reference`` is None when no reference was rendered.
+    ``gbuffers``: the optional inputs of clss.pipeline.contract.GBUFFERS the frame
+    carries, {name: float32 array} (albedo, normal: h x w x 3; albedo_hr, normal_hr:
+    H x W x 3; depth_hr: H x W); empty when none. ``frame["albedo"]`` reads one of them
+    (None when absent), so code that indexes frames by key reaches them too."""
     index: int
     color: np.ndarray            # h x w x 3 float32, linear HDR
     depth: np.ndarray            # h x w float32, reversed-Z
@@ -74,8 +79,11 @@ class Frame:
     reset: bool = False
     reference: np.ndarray | None = None   # H x W x 3 float32
     meta: dict = field(default_factory=dict)
+    gbuffers: dict = field(default_factory=dict)
 
     def __getitem__(self, key):
+        if key in GBUFFERS:
+            return self.gbuffers.get(key)
         return getattr(self, key)
 
 
@@ -496,17 +504,22 @@ def _ground_band(view, A, B, rows):
     return _ground_color(view, x, z, t, rows)
 
 
+def _ground_class(g, x, z):
+    """Texture class (index into g.albedo's columns) of ground points (x, 0, z)."""
+    # float32 keeps 4 fractional bits at 2^20, enough to floor to whole texels.
+    scale, off = _F(g.texels_per_metre), _F(2 ** 20)
+    ix = (x * scale + off).astype(np.int32) & (_TEX - 1)
+    iz = (z * scale + off).astype(np.int32) & (_TEX - 1)
+    return np.where(np.abs(x - _F(g.path_x)) < g.path_half, np.take(_STRIPE_CLASS, iz),
+                    np.take(_TILE_CLASS, (iz << 8) | ix))
+
+
 def _ground_color(view, x, z, t, rows=None):
     """Ground colour (3 arrays shaped like x) at ground points (x, 0, z) seen at ray
     parameter t. `rows`: the image rows of a band (x, z are (rows, w) and the casters'
     screen rectangles crop the shadow tests), or None for arbitrary points."""
-    # float32 keeps 4 fractional bits at 2^20, enough to floor to whole texels.
     g = view.ground
-    scale, off = _F(g.texels_per_metre), _F(2 ** 20)
-    ix = (x * scale + off).astype(np.int32) & (_TEX - 1)
-    iz = (z * scale + off).astype(np.int32) & (_TEX - 1)
-    cls = np.where(np.abs(x - _F(g.path_x)) < g.path_half, np.take(_STRIPE_CLASS, iz),
-                   np.take(_TILE_CLASS, (iz << 8) | ix))
+    cls = _ground_class(g, x, z)
     fog = np.exp(t * -HAZE)
     L = view.light.sun_dir.tolist()
     sun, ambient, hor = view.light.sun, view.light.ambient, view.light.horizon
@@ -559,17 +572,11 @@ def _shade(o, hits, d, t, light=DEFAULT_LIGHT):
     return light.horizon + (col - light.horizon) * fog
 
 
-def _trace(view, us, vs, prev_cam=None, out=None):
-    """Planar colour (3, h, w) for one sample per pixel taken at column positions
-    us (w,) and row positions vs (h,) (each within +-1 pixel of the pixel centre);
-    with prev_cam also view depth (h, w) and motion (h, w, 2). A dict `out` receives
-    what labelling needs: "t" (view depth, inf for sky), "ids" (int16 index into
-    view.prims, GROUND_ID or SKY_ID) and, with prev_cam, "prev_z" (the hit point's view
-    depth in the previous frame).
-
-    Sample positions that vary per column and per row, not per pixel, make the ray
-    directions separable, d = A[:, col] + B[:, row], and the ground depth a function
-    of the row alone (the camera never rolls), which is what makes numpy fast here."""
+def _cast(view, us, vs):
+    """The separable rays of _trace and their closest hits: (o, A, B, rg, tbest, ids)
+    with o the camera position, A (3, w) and B (3, h) the ray terms (d = A[:, col] +
+    B[:, row]), rg the first ground row, tbest (h, w) the ray parameter of the closest
+    hit (inf for sky) and ids (h, w) its primitive (-1: ground or sky)."""
     cam, W, H = view.cam, view.w, view.h
     o = cam.pos.tolist()
     sx = ((2.0 / W) * us - 1.0) * _F(TAN_HALF_FOV * cam.aspect)
@@ -592,15 +599,12 @@ def _trace(view, us, vs, prev_cam=None, out=None):
         closer = t < tb
         tb[closer] = t[closer]
         ib[closer] = k
-    color = np.empty((3, H, W), _F)
-    if rg > 0:
-        color[:, :rg] = _sky([A[j] + B[j][:rg, None] for j in range(3)], view.light)
-    if rg < H:
-        color[:, rg:] = _ground(view, A, B, slice(rg, H))
-    want_motion = prev_cam is not None
-    if want_motion:
-        far = np.where(np.isfinite(tbest), tbest, 1e7)
-        prev = [o[j] + far * (A[j] + B[j][:, None]).astype(np.float64) for j in range(3)]
+    return o, A, B, rg, tbest, ids
+
+
+def _gather(view, ids):
+    """The pixels each primitive won: (rr, cc, hits), rows and columns concatenated over
+    the primitives and hits = [(primitive, slice of rr/cc)]; (None, None, []) if none."""
     sel, hits, n = [], [], 0
     for k, p in enumerate(view.prims):
         rect = view.rects[k]
@@ -612,9 +616,36 @@ def _trace(view, us, vs, prev_cam=None, out=None):
             sel.append((rr + r0, cc + c0))
             hits.append((p, slice(n, n + rr.size)))
             n += rr.size
+    if not hits:
+        return None, None, hits
+    return (np.concatenate([a for a, _ in sel]), np.concatenate([b for _, b in sel]), hits)
+
+
+def _trace(view, us, vs, prev_cam=None, out=None, gbuffers=None):
+    """Planar colour (3, h, w) for one sample per pixel taken at column positions
+    us (w,) and row positions vs (h,) (each within +-1 pixel of the pixel centre);
+    with prev_cam also view depth (h, w) and motion (h, w, 2). A dict `out` receives
+    what labelling needs: "t" (view depth, inf for sky), "ids" (int16 index into
+    view.prims, GROUND_ID or SKY_ID) and, with prev_cam, "prev_z" (the hit point's view
+    depth in the previous frame). A dict `gbuffers` receives the G-buffers of the same
+    samples (see _gbuffers; the colour, depth and motion do not change).
+
+    Sample positions that vary per column and per row, not per pixel, make the ray
+    directions separable, d = A[:, col] + B[:, row], and the ground depth a function
+    of the row alone (the camera never rolls), which is what makes numpy fast here."""
+    W, H = view.w, view.h
+    o, A, B, rg, tbest, ids = _cast(view, us, vs)
+    color = np.empty((3, H, W), _F)
+    if rg > 0:
+        color[:, :rg] = _sky([A[j] + B[j][:rg, None] for j in range(3)], view.light)
+    if rg < H:
+        color[:, rg:] = _ground(view, A, B, slice(rg, H))
+    want_motion = prev_cam is not None
+    if want_motion:
+        far = np.where(np.isfinite(tbest), tbest, 1e7)
+        prev = [o[j] + far * (A[j] + B[j][:, None]).astype(np.float64) for j in range(3)]
+    rr, cc, hits = _gather(view, ids)
     if hits:
-        rr = np.concatenate([a for a, _ in sel])
-        cc = np.concatenate([b for _, b in sel])
         t = tbest[rr, cc]
         dk = [A[j][cc] + B[j][rr] for j in range(3)]
         color[:, rr, cc] = _shade(o, hits, dk, t, view.light).T
@@ -624,6 +655,8 @@ def _trace(view, us, vs, prev_cam=None, out=None):
                 Pp = p.to_prev(P)
                 for j in range(3):
                     prev[j][rr[s], cc[s]] = Pp[j]
+    if gbuffers is not None:
+        gbuffers.update(_gbuffers(view, o, A, B, rg, tbest, rr, cc, hits))
     if out is not None:
         out["t"] = tbest
         out["ids"] = np.where(np.isfinite(tbest), ids, np.int16(SKY_ID)).astype(np.int16)
@@ -634,6 +667,58 @@ def _trace(view, us, vs, prev_cam=None, out=None):
     if out is not None:
         out["prev_z"] = zp
     return color, tbest, motion
+
+
+def reversed_z(t):
+    """View depth (inf where nothing was hit) -> the contract's reversed-Z depth,
+    NEAR / z (near plane = 1, sky = 0), float32."""
+    with np.errstate(divide="ignore"):
+        return np.where(np.isfinite(t), _F(NEAR) / t, _F(0)).astype(_F)
+
+
+def _gbuffers(view, o, A, B, rg, tbest, rr, cc, hits):
+    """The G-buffers (clss.pipeline.contract.GBUFFERS) of the samples _cast traced:
+    {"albedo": (h, w, 3) diffuse texture colour plus the scalar specular factor ks
+    (the surface's, before haze; emitters keep theirs; 0 for sky), "normal": (h, w, 3)
+    unit normal in camera space (+x right, +y up, +z toward the camera; 0 for sky),
+    "depth": (h, w) reversed-Z as render_frame's}. The surfaces are evaluated again
+    (not taken from _shade), so the colour path stays exactly as it was."""
+    H, W = tbest.shape
+    cam = view.cam
+    to_cam = np.stack([cam.right, cam.up, -cam.fwd]).T.astype(_F)   # world row @ -> camera
+    alb = np.zeros((H, W, 3), _F)
+    nrm = np.zeros((H, W, 3), _F)
+    if rg < H:
+        table = np.ascontiguousarray(view.ground.albedo.T, _F)      # class -> RGB
+        for r in range(rg, H, _BAND):
+            band = slice(r, min(r + _BAND, H))
+            b = [B[k][band, None] for k in range(3)]
+            t = -o[1] / b[1]                   # as _ground_band: the same texels
+            x = (o[0] + t * b[0]) + t * A[0]
+            z = (o[2] + t * b[2]) + t * A[2]
+            alb[band] = table[_ground_class(view.ground, x, z)]
+        nrm[rg:] = np.array([0.0, 1.0, 0.0], _F) @ to_cam         # the ground faces up
+    if hits:
+        t = tbest[rr, cc]
+        dk = [A[j][cc] + B[j][rr] for j in range(3)]
+        P = [o[j] + t * dk[j] for j in range(3)]
+        for p, s in hits:
+            n, a = p.surface([q[s] for q in P], [q[s] for q in dk])
+            n = np.asarray(n, _F)
+            # Some surfaces' normals are only nearly unit (Cylinder without thin_safe).
+            n = n / np.maximum(np.sqrt(np.sum(n * n, -1, keepdims=True)), _F(1e-12))
+            alb[rr[s], cc[s]] = np.asarray(a, _F) + _F(p.spec[0])
+            nrm[rr[s], cc[s]] = n @ to_cam
+    return {"albedo": alb, "normal": nrm, "depth": reversed_z(tbest)}
+
+
+def trace_gbuffers(view, us, vs):
+    """The G-buffers (see _gbuffers) of one sample per pixel at column positions us and
+    row positions vs, without shading: what a renderer's cheap full-resolution feature
+    pass gives (the output-resolution G-buffers, at the output pixel centres)."""
+    o, A, B, rg, tbest, ids = _cast(view, us, vs)
+    rr, cc, hits = _gather(view, ids)
+    return _gbuffers(view, o, A, B, rg, tbest, rr, cc, hits)
 
 
 def trace_points(view, u, v):
@@ -683,8 +768,11 @@ def output_size(render_size, scale):
     return contract_output_size(render_size[0], render_size[1], scale)
 
 
-def render_frame(index, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):
-    """Frame `index` of the sequence (each frame is independent of the others)."""
+def render_frame(index, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0,
+                 gbuffers=True):
+    """Frame `index` of the sequence (each frame is independent of the others).
+    gbuffers=True fills Frame.gbuffers with every G-buffer of the contract (see
+    `frame_gbuffers`); colour, depth, motion and the reference do not depend on it."""
     h, w = render_size
     H, W = output_size(render_size, scale)
     aspect = w / h
@@ -693,17 +781,32 @@ def render_frame(index, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0):
     jx, jy = halton_jitter(index, scale)
     us = np.arange(w, dtype=_F) + _F(0.5 + jx)
     vs = np.arange(h, dtype=_F) + _F(0.5 + jy)
-    color, z, motion = _trace(_View(prims, cam, w, h), us, vs, prev_cam)
+    gb = {} if gbuffers else None
+    color, z, motion = _trace(_View(prims, cam, w, h), us, vs, prev_cam, gbuffers=gb)
     with np.errstate(divide="ignore"):
         depth = np.where(np.isfinite(z), _F(NEAR) / z, _F(0)).astype(_F)
+    out_view = _View(prims, cam, W, H)
     ref = None
     if spp_ref > 0:
-        ref = render_reference(_View(prims, cam, W, H), spp_ref,
-                               np.random.default_rng([seed, index]))
+        ref = render_reference(out_view, spp_ref, np.random.default_rng([seed, index]))
     return Frame(index=index, color=np.ascontiguousarray(color.transpose(1, 2, 0)),
                  depth=depth, motion=motion, jitter=(float(jx), float(jy)),
                  reset=index == 0, reference=ref,
-                 meta={"scale": scale, "spp_ref": spp_ref, "near": NEAR})
+                 meta={"scale": scale, "spp_ref": spp_ref, "near": NEAR},
+                 gbuffers={} if gb is None else frame_gbuffers(gb, out_view))
+
+
+def frame_gbuffers(render_gb, out_view):
+    """Every G-buffer of the contract for one frame: albedo and normal from `render_gb`
+    (what _trace(..., gbuffers=) gave for the render-resolution samples, at the jittered
+    positions, like the colour), albedo_hr, depth_hr and normal_hr traced at the output
+    pixel centres of `out_view` (unjittered, one sample per output pixel, no shading:
+    the cheap full-resolution feature pass a renderer would add). Conventions in
+    _gbuffers and docs/input-contract.md section 5."""
+    hr = trace_gbuffers(out_view, np.arange(out_view.w, dtype=_F) + _F(0.5),
+                        np.arange(out_view.h, dtype=_F) + _F(0.5))
+    return {"albedo": render_gb["albedo"], "normal": render_gb["normal"],
+            "albedo_hr": hr["albedo"], "depth_hr": hr["depth"], "normal_hr": hr["normal"]}
 
 
 def render_reference(view, spp, rng, on_sample=None):
@@ -731,10 +834,11 @@ def render_reference(view, spp, rng, on_sample=None):
 
 
 def iter_sequence(n_frames=30, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0,
-                  workers=1):
+                  workers=1, gbuffers=True):
     """Frames one at a time, in order. `workers` > 1 renders that many frames ahead in
-    worker processes (frames are independent)."""
-    args = (render_size, scale, spp_ref, seed)
+    worker processes (frames are independent). gbuffers=False leaves Frame.gbuffers
+    empty (a little faster; nothing else changes)."""
+    args = (render_size, scale, spp_ref, seed, gbuffers)
     if workers <= 1 or n_frames <= 1:
         for i in range(n_frames):
             yield render_frame(i, *args)
@@ -747,9 +851,11 @@ def iter_sequence(n_frames=30, render_size=(270, 480), scale=2.0, spp_ref=16, se
 
 
 def render_sequence(n_frames=30, render_size=(270, 480), scale=2.0, spp_ref=16, seed=0,
-                    workers=1):
+                    workers=1, gbuffers=True):
     """List of `n_frames` Frames (`iter_sequence` holds one at a time). Frame 0 has
     reset=True. Deterministic; the seed only moves the reference's sample positions.
     The default (480x270 -> 960x540, 16 spp, 30 frames) takes about 20 s of one core;
-    `workers=2` splits it over two processes."""
-    return list(iter_sequence(n_frames, render_size, scale, spp_ref, seed, workers))
+    `workers=2` splits it over two processes. Frame.gbuffers holds every G-buffer
+    unless gbuffers=False."""
+    return list(iter_sequence(n_frames, render_size, scale, spp_ref, seed, workers,
+                              gbuffers))

@@ -24,6 +24,8 @@ padding is "far"), motion multiplied by motion_scale (render pixels).
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -319,3 +321,152 @@ def to_internal(frame: dict, *, depth_inverted: bool = True, motion_scale=(1.0, 
         "jitter": np.asarray(frame["jitter"], np.float32).reshape(2),
         "reactive": np.ascontiguousarray(reactive[None, None], np.float32),
     }
+
+
+# ---------------------------------------------------------------- G-buffers
+# Optional per-frame inputs beyond colour, depth, motion and jitter (issue 19). A method
+# declares the ones it needs (and the ones it can use) by these names; clss.Upscaler.step
+# takes them as keywords (`step(..., albedo=a, normal=n)`), `.npz` sequences
+# (weights_tools/DATA.md) under the same keys, EXR sequences (clss.io) as channels or
+# per-buffer files. docs/input-contract.md section 5 is the long form of this table.
+#
+# Not a G-buffer: NSRD's occlusion-aware motion mask. It comes from a reprojected-depth
+# test against the previous frame's depth, which the method keeps itself (it has seen
+# that frame), so it needs no input beyond depth and motion.
+
+GBUFFER_RESOLUTIONS = ("render", "output")
+
+
+@dataclass(frozen=True)
+class GBuffer:
+    """One optional frame input: its name (the Python keyword, the `.npz` key, the
+    `--channels` key and the stem of its per-buffer EXR files), the resolution it comes
+    at ("render": h x w like colour; "output": H x W like the upscaled frame), its
+    channel count, the EXR channel names it is found under by default, and what it is."""
+    name: str
+    resolution: str
+    channels: int
+    exr_channels: tuple
+    meaning: str
+
+    @property
+    def layout(self) -> str:
+        hw = "h x w" if self.resolution == "render" else "H x W"
+        return hw + (f" x {self.channels}" if self.channels > 1 else "")
+
+    def shape(self, render_size, output_size) -> tuple:
+        """The array shape this buffer must have for a frame of these sizes."""
+        hw = render_size if self.resolution == "render" else output_size
+        hw = (int(hw[0]), int(hw[1]))
+        return hw + ((self.channels,) if self.channels > 1 else ())
+
+
+def _gb(name, resolution, channels, exr, meaning):
+    return name, GBuffer(name, resolution, channels, tuple(exr), meaning)
+
+
+# Order: render resolution first, then output resolution; a method's message lists
+# missing inputs in this order.
+GBUFFERS = OrderedDict([
+    _gb("albedo", "render", 3, ("albedo.R", "albedo.G", "albedo.B"),
+        "material component: diffuse + specular albedo (or a pre-integrated BRDF), "
+        "linear, >= 0; 0 where nothing was hit (sky)"),
+    _gb("normal", "render", 3, ("normal.X", "normal.Y", "normal.Z"),
+        "unit surface normal in camera space (+x right, +y up, +z toward the camera); "
+        "0 where nothing was hit (sky)"),
+    _gb("albedo_hr", "output", 3, ("albedo_hr.R", "albedo_hr.G", "albedo_hr.B"),
+        "the albedo at output resolution, one sample at each output pixel centre "
+        "(unjittered)"),
+    _gb("depth_hr", "output", 1, ("depth_hr.Z",),
+        "depth at output resolution, same convention as depth (reversed-Z by default), "
+        "one sample at each output pixel centre"),
+    _gb("normal_hr", "output", 3, ("normal_hr.X", "normal_hr.Y", "normal_hr.Z"),
+        "the normal at output resolution, one sample at each output pixel centre"),
+])
+
+
+class MissingInputError(FrameInputError):
+    """A method needs a G-buffer the frame does not carry; the message names the method,
+    every missing input, and where each is read from."""
+
+
+def gbuffer_sources(name: str, cli: bool = False) -> str:
+    """Where G-buffer `name` is read from, in words (for messages): the Python keyword,
+    the .npz key, the EXR channels or per-buffer file and the --channels flag."""
+    g = GBUFFERS[name]
+    names = ",".join(g.exr_channels)
+    if g.resolution == "render":
+        exr = (f"EXR channels {names} in each frame file (or a per-buffer file "
+               f"{name}.NNNN.exr)")
+    else:
+        exr = (f"a per-buffer file {name}.NNNN.exr at output resolution (channels "
+               f"{names}, or {','.join(_GENERIC[g.channels])})")
+    flag = f"clss upscale --channels '{name}={','.join(_EXAMPLE[g.channels])}'"
+    if cli:
+        return f"{name} ({g.layout}): {exr}, or name its channels with {flag[13:]}"
+    return f"{name} ({g.layout}): keyword {name}=, .npz key '{name}', {exr}, or {flag}"
+
+
+# Placeholder channel names in messages, and the generic names a per-buffer file may use.
+_EXAMPLE = {1: ("A",), 3: ("A", "B", "C")}
+_GENERIC = {1: ("Z",), 3: ("R", "G", "B")}
+
+
+def _gb_array(name, a, want):
+    """One G-buffer checked for type, dtype and shape; returned as float32 of shape want."""
+    if not isinstance(a, np.ndarray):
+        _fail(name, "a numpy array", type(a).__name__)
+    if a.dtype not in ACCEPTED_DTYPES:
+        _fail(name, "dtype float16 or float32", f"{a.dtype} (convert explicitly; integer "
+              "and float64 inputs are refused so a wrong unit cannot slip through)")
+    got = a.shape
+    # One-channel buffers may come as H x W x 1, like depth.
+    if len(want) == 2 and a.ndim == 3 and a.shape[2] == 1:
+        got = a.shape[:2]
+    if tuple(got) != tuple(want):
+        g = GBUFFERS[name]
+        res = "render" if g.resolution == "render" else "output"
+        _fail(name, f"shape {tuple(want)} ({g.layout}, {res} resolution)", f"{a.shape}")
+    return np.ascontiguousarray(a.reshape(want), np.float32)
+
+
+def validate_gbuffers(method: str, needs: tuple, optional: tuple, given: dict,
+                      render_size, output_size, *, sanitize: bool = False,
+                      report: dict | None = None) -> dict:
+    """The G-buffers `method` needs (`needs`) and can use (`optional`) out of `given`
+    ({name: array}; None counts as absent), checked against the contract: returns
+    {name: C-contiguous float32 array of GBUFFERS[name].shape(...)} for those present.
+
+    Raises MissingInputError naming the method, every missing needed buffer and where
+    each comes from; FrameInputError naming the buffer for a wrong type, dtype or shape,
+    or non-finite values (with sanitize=True these become 0 instead: 0 albedo and 0
+    normal are what the contract writes where nothing was hit, and 0 depth is far in
+    reversed-Z; `report`, a dict, receives {name: count replaced}, as validate_frame's
+    "sanitized").
+    A buffer given that the method neither needs nor uses is left out of the result
+    without an error (the caller may warn). Values are not range-checked: albedo may
+    exceed 1 (specular), and a depth_hr in standard Z is the caller's convention.
+    """
+    needs, optional = tuple(needs or ()), tuple(optional or ())
+    unknown = [n for n in needs + optional if n not in GBUFFERS]
+    if unknown:
+        raise ValueError(f"{method}: unknown G-buffer name(s) {', '.join(unknown)}; the "
+                         f"names are {', '.join(GBUFFERS)}")
+    given = {k: v for k, v in (given or {}).items() if v is not None}
+    missing = [n for n in GBUFFERS if n in needs and n not in given]
+    if missing:
+        names = ", ".join(missing)
+        raise MissingInputError(
+            f"method {method!r} needs {names}, which the frame does not carry; pass "
+            + "; ".join(gbuffer_sources(n) for n in missing),
+            cli=f"method {method!r} needs {names}, which the input does not carry; give "
+                + "; ".join(gbuffer_sources(n, cli=True) for n in missing))
+    out = {}
+    report = {} if report is None else report
+    for name in GBUFFERS:
+        if name not in given or (name not in needs and name not in optional):
+            continue
+        a = _gb_array(name, given[name], GBUFFERS[name].shape(render_size, output_size))
+        out[name] = _nonfinite(name, a, sanitize, 0.0, report)
+    return out
+
