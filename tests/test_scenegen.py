@@ -57,7 +57,11 @@ def test_format(random_seq, tmp_path):
             "motion": (np.float32, (T, h, w, 2)), "jitter": (np.float32, (T, 2)),
             "reset": (np.bool_, (T,)), "reference": (np.float32, (T, H, W, 3)),
             "label_ghost": (np.uint8, (T, H, W)), "label_alias": (np.uint8, (T, H, W)),
-            "scale": (np.float32, ())}
+            "scale": (np.float32, ()),
+            # The G-buffers (tests/test_gbuffers.py checks their contents).
+            "albedo": (np.float32, (T, h, w, 3)), "normal": (np.float32, (T, h, w, 3)),
+            "albedo_hr": (np.float32, (T, H, W, 3)), "depth_hr": (np.float32, (T, H, W)),
+            "normal_hr": (np.float32, (T, H, W, 3))}
     assert set(d.files) == set(want) | {"meta"}
     for k, (dt, shape) in want.items():
         assert d[k].dtype == dt and d[k].shape == shape, k

@@ -63,7 +63,8 @@ import numpy as np
 from clss import scene
 from clss.pipeline.contract import output_size
 from clss.scene import (NEAR, Box, Camera, Cylinder, Ground, Light, Sphere, _box_corners, _Rigid,
-                        _trace, _View, halton_jitter, render_reference, trace_points)
+                        _trace, _View, frame_gbuffers, halton_jitter, render_reference,
+                        trace_points)
 
 LABEL_RULES_VERSION = 1
 DEPTH_TOL = 0.01        # relative view-depth difference: the same surface point or not
@@ -560,8 +561,11 @@ class _AliasStats:
                         np.where(std > TEXTURE_TOL, ALIAS_TEXTURE, ALIAS_NONE)).astype(np.uint8)
 
 
-def render_frame(spec, i, render_size, scale, spp):
-    """Frame i of the sequence `spec`: a dict of the DATA.md per-frame arrays."""
+def render_frame(spec, i, render_size, scale, spp, gbuffers=True):
+    """Frame i of the sequence `spec`: a dict of the DATA.md per-frame arrays; with
+    `gbuffers` also the G-buffers (albedo, normal at the colour's jittered samples, from
+    the same ray cast; albedo_hr, depth_hr, normal_hr at the output pixel centres).
+    The other arrays do not depend on `gbuffers`."""
     h, w = render_size
     H, W = output_size(h, w, scale)
     aspect = w / h
@@ -576,23 +580,31 @@ def render_frame(spec, i, render_size, scale, spp):
     us = np.arange(w, dtype=_F) + _F(0.5 + jx)
     vs = np.arange(h, dtype=_F) + _F(0.5 + jy)
     ground = ground_of(spec)
-    color, z, motion = _trace(_View(prims, cam, w, h, light, ground), us, vs, prev_cam)
+    gb = {} if gbuffers else None
+    color, z, motion = _trace(_View(prims, cam, w, h, light, ground), us, vs, prev_cam,
+                              gbuffers=gb)
     with np.errstate(divide="ignore"):
         depth = np.where(np.isfinite(z), _F(NEAR) / z, _F(0)).astype(_F)
     out_view = _View(prims, cam, W, H, light, ground)
     stats = _AliasStats()
     ref = render_reference(out_view, spp, np.random.default_rng([spec.seed, spec.index, i, 1]),
                            on_sample=stats)
-    return dict(color=np.ascontiguousarray(color.transpose(1, 2, 0)), depth=depth,
+    data = dict(color=np.ascontiguousarray(color.transpose(1, 2, 0)), depth=depth,
                 motion=motion, jitter=np.array([jx, jy], _F), reset=i == 0 or i == spec.cut,
                 reference=ref, label_ghost=_ghost_labels(spec, i, out_view, prims_prev,
                                                          light_prev, prev_cam),
                 label_alias=stats.labels())
+    if gb is not None:
+        data.update(frame_gbuffers(gb, out_view))
+    return data
 
 
-def render_sequence(spec, render_size, scale, spp):
-    """The DATA.md arrays (dict) of one sequence."""
-    frames = [render_frame(spec, i, render_size, scale, spp) for i in range(spec.frames)]
+def render_sequence(spec, render_size, scale, spp, gbuffers=True):
+    """The DATA.md arrays (dict) of one sequence; gbuffers=False leaves out the
+    G-buffer keys (albedo, normal, albedo_hr, depth_hr, normal_hr) and changes nothing
+    else."""
+    frames = [render_frame(spec, i, render_size, scale, spp, gbuffers)
+              for i in range(spec.frames)]
     data = {k: np.stack([f[k] for f in frames]) for k in frames[0]}
     data["reset"] = data["reset"].astype(bool)
     data["scale"] = np.array(scale, _F)
