@@ -108,7 +108,7 @@ $(TRAIN_STAMP): $(STAMP)
 	touch $@
 
 train: train-data $(TRAIN_STAMP)
-	$(BIN)/python -m weights_tools seeds --data $(DATA)/train --out $(TRAIN_RUN) --seeds $(TRAIN_SEEDS) \
+	$(BIN)/python -m weights_tools seeds clss --data $(DATA)/train --out $(TRAIN_RUN) --seeds $(TRAIN_SEEDS) \
 		--score 'val=$(DATA)/val/*.npz' --score 'heldout=$(DATA)/heldout/*.npz' \
 		--score foliage=weights_tools/validation/foliage.npz \
 		--score interior=weights_tools/validation/interior.npz --pick val

@@ -92,7 +92,7 @@ def test_train_resumes(tiny_data, tmp_path):
     """An interrupted run (classifier done, composition not) resumes to the same weights
     as an uninterrupted one."""
     a, b = str(tmp_path / "a"), str(tmp_path / "b")
-    assert main(["train", "--data", tiny_data, "--out", a] + ARGS) == 0
+    assert main(["train", "clss", "--data", tiny_data, "--out", a] + ARGS) == 0
     short = [v if ARGS[i - 1] != "--comp-steps" else "0" for i, v in enumerate(ARGS)]
     assert main(["train", "--data", tiny_data, "--out", b] + short) == 0
     assert main(["train", "--data", tiny_data, "--out", b, "--resume"] + ARGS) == 0
@@ -119,7 +119,7 @@ def test_seeds_trains_scores_and_picks(tiny_data, tmp_path, capsys):
     out = str(tmp_path / "s")
     train = " ".join(ARGS[2:])         # all but --seed
     seq = os.path.join(tiny_data, "a.npz")
-    argv = ["seeds", "--data", tiny_data, "--out", out, "--seeds", "0-1", "--jobs", "2",
+    argv = ["seeds", "clss", "--data", tiny_data, "--out", out, "--seeds", "0-1", "--jobs", "2",
             "--score", f"val={seq}", "--score", f"other={seq}", "--train", train,
             "--warmup", "1", "--device", "cpu"]
     assert main(argv + ["--pick", "nope"]) == 1
@@ -152,3 +152,29 @@ def test_seeds_bad_arguments_are_one_line(tiny_data, tmp_path, capsys):
         assert main(["seeds", "--out", str(tmp_path / "o")] + argv) == 1
         err = capsys.readouterr().err
         assert err.startswith(f"error: {msg}") and "Traceback" not in err, err
+
+
+def test_train_method_without_recipe_says_why(capsys):
+    # train METHOD: a planned method and a baseline answer in one line, exit 2
+    assert main(["train", "nsrr", "--data", "x", "--out", "y"]) == 2
+    assert "not built yet" in capsys.readouterr().err
+    assert main(["train", "bicubic"]) == 2
+    assert "nothing to train" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["train", "taa", "--data", "x"])
+    assert "invalid choice" in capsys.readouterr().err
+
+
+def test_trainloop_losses():
+    import torch
+    from weights_tools import trainloop
+    g = torch.Generator().manual_seed(0)
+    a = torch.rand(2, 3, 17, 19, generator=g)
+    b = torch.rand(2, 3, 17, 19, generator=g)
+    assert float(trainloop.ssim(a, a)) == pytest.approx(1.0, abs=1e-5)
+    assert float(trainloop.ssim(a, b)) < 0.2
+    assert float(trainloop.l1(a, a)) == 0.0
+    m = torch.zeros(2, 1, 17, 19)
+    m[:, :, :4] = 1
+    assert float(trainloop.l1(a, b, m)) == pytest.approx(float((a - b).abs()[:, :, :4].mean()), rel=1e-5)
+    assert float(trainloop.temporal(a, b, a + 1, b + 1)) == pytest.approx(0.0, abs=1e-6)

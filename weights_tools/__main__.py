@@ -1,4 +1,5 @@
-"""python -m weights_tools build --out DIR [...] | inspect FILE | gen --out DIR [...] | eval SEQ.npz [...]"""
+"""python -m weights_tools build --out DIR [...] | inspect FILE | gen --out DIR [...] |
+eval SEQ.npz [--methods a,b,c] | train METHOD --data DIR --out DIR [...] | seeds METHOD [...]"""
 from __future__ import annotations
 
 import argparse
@@ -144,7 +145,7 @@ def _add_train(sub):
     """`train` (weights_tools/train.py) needs torch, the [train] extra; without it the
     subcommand says so instead of breaking the others."""
     try:
-        from .train import add_parser
+        from .recipes import add_train_parser
     except ModuleNotFoundError as e:
         missing = e.name
 
@@ -155,7 +156,7 @@ def _add_train(sub):
         t.add_argument("rest", nargs=argparse.REMAINDER)
         t.set_defaults(fn=no_torch)
         return
-    add_parser(sub)
+    add_train_parser(sub)
     from .seeds import add_parser as add_seeds
     add_seeds(sub)
 
@@ -177,8 +178,8 @@ def main(argv=None):
     i = sub.add_parser("inspect", help="describe a .onnx or .safetensors file")
     i.add_argument("file")
     i.set_defaults(fn=cmd_inspect)
-    e = sub.add_parser("eval", help="score bicubic, jitter-aware bicubic, rules and net on "
-                       "sequences (PSNR, SSIM, tPSNR, FLIP) and write pictures and JSON")
+    e = sub.add_parser("eval", help="score any set of methods on sequences (PSNR, SSIM, tPSNR, "
+                       "FLIP) and write pictures and JSON (the scoring of `clss eval`)")
     evaluate.add_arguments(e)
     e.set_defaults(fn=lambda a: evaluate.main_args(a, e))
     g = sub.add_parser("gen", help="generate labelled training sequences (DATA.md .npz)")
@@ -193,6 +194,9 @@ def main(argv=None):
     g.add_argument("--quiet", action="store_true")
     g.set_defaults(fn=cmd_gen)
     _add_train(sub)
+    from .recipes import with_default_method
+    argv = with_default_method(sys.argv[1:] if argv is None else argv, "train")
+    argv = with_default_method(argv, "seeds")
     args = p.parse_args(argv)
     try:
         return args.fn(args)

@@ -88,7 +88,7 @@ def _weights(out, seed):
 
 
 def _train_cmd(args, seed):
-    return ([sys.executable, "-m", "weights_tools", "train", "--data", args.data,
+    return ([sys.executable, "-m", "weights_tools", "train", args.method, "--data", args.data,
              "--out", seed_dir(args.out, seed), "--seed", str(seed), "--resume"]
             + (["--device", args.device] if args.device else [])
             + shlex.split(args.train or ""))
@@ -250,6 +250,10 @@ def add_parser(sub):
                        description=__doc__.split("\n\n")[0],
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog=EXAMPLES)
+    from .recipes import RECIPES
+    p.add_argument("method", metavar="METHOD", choices=sorted(RECIPES),
+                   help=f"the method whose recipe is trained ({', '.join(sorted(RECIPES))}; "
+                        "without it, clss)")
     p.add_argument("--data", required=True, help="training sequences (DATA.md .npz folder)")
     p.add_argument("--out", required=True, help="folder for seed_N/ runs and seeds.json")
     p.add_argument("--seeds", default="0-3", help="e.g. 0-7 or 0,3,5 (default 0-3)")

@@ -54,18 +54,15 @@ import numpy as np
 import torch
 
 from . import torch_frame
+from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, lr_cosine,
+                        save_checkpoint)
+from .trainloop import load_sequences as _load_sequences
+from .trainloop import plot_losses as _plot_losses
 from clss.networks import load_weights, save_weights
 
 CLASS_WEIGHT_RATIO = 100.0
 GHOST_NONE, ALIAS_GEOMETRY, ALIAS_NONE = 2, 0, 2
 STAGES = ("classifier", "composition")
-PROGRESS_S = 5.0
-CHECKPOINT_S = 60.0
-PLOT_S = 30.0
-
-
-class TrainError(ValueError):
-    """A user's mistake (bad directory, bad data, bad option): one line, no traceback."""
 
 
 # ---- data --------------------------------------------------------------------------------
@@ -77,46 +74,11 @@ REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "label_g
 def load_sequences(data_dir, frames):
     """The DATA.md sequences of `data_dir` with at least `frames` frames, as dicts of
     arrays (reference PQ-encoded in float16 to halve the memory)."""
-    if not os.path.isdir(data_dir):
-        raise TrainError(f"--data: {data_dir} is not a directory")
-    paths = sorted(glob.glob(os.path.join(data_dir, "*.npz")))
-    if not paths:
-        raise TrainError(f"--data: no .npz sequences in {data_dir} "
-                         "(write some with `python -m weights_tools gen`)")
-    seqs, skipped = [], 0
-    for p in paths:
-        try:
-            z = np.load(p, allow_pickle=False)
-            missing = [k for k in REQUIRED if k not in z.files]
-            if missing:
-                raise TrainError(f"--data: {p} lacks {', '.join(missing)} (see weights_tools/DATA.md)")
-            s = {k: z[k] for k in REQUIRED}
-        except (OSError, ValueError) as e:
-            if isinstance(e, TrainError):
-                raise
-            raise TrainError(f"--data: {p} is not a readable .npz sequence ({e})") from None
-        T, h, w = s["depth"].shape
-        scale = float(s["scale"])
-        H, W = s["reference"].shape[1:3]
-        if abs(scale - round(scale)) > 1e-6 or (H, W) != (h * round(scale), w * round(scale)):
-            raise TrainError(f"--data: {p} has scale {scale:g} ({h}x{w} -> {H}x{W}); training "
-                             "cuts patches at an integer scale only")
-        if T < frames:
-            skipped += 1
-            continue
+    def prepare(s):
         with torch.no_grad():
             s["reference"] = torch_frame.pq_encode(torch.from_numpy(s["reference"])).numpy() \
                 .astype(np.float16)
-        s["scale"], s["name"] = int(round(scale)), os.path.basename(p)
-        seqs.append(s)
-    if not seqs:
-        raise TrainError(f"--data: no sequence in {data_dir} has {frames} frames (--frames)")
-    scales = {s["scale"] for s in seqs}
-    if len(scales) > 1:
-        raise TrainError(f"--data: sequences at several scales {sorted(scales)}; train one scale")
-    if skipped:
-        print(f"skipped {skipped} sequences shorter than {frames} frames")
-    return seqs
+    return _load_sequences(data_dir, frames, REQUIRED, prepare)
 
 
 def select_patches(seqs, patch, frames, candidates, keep, rng):
@@ -271,41 +233,8 @@ def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0):
 
 # ---- the run -----------------------------------------------------------------------------
 
-def _fmt_s(s):
-    s = int(max(s, 0))
-    return f"{s // 3600}h{s // 60 % 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
-
-
 def plot_losses(history, path):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.5))
-    for ax, stage in zip(axes, STAGES):
-        ys = np.asarray(history.get(stage, []), np.float64)
-        if len(ys):
-            ax.plot(ys, lw=0.5, alpha=0.4, color="C0")
-            k = max(1, len(ys) // 50)
-            sm = np.convolve(ys, np.ones(k) / k, mode="valid")
-            ax.plot(np.arange(len(sm)) + k - 1, sm, color="C1", label=f"mean of {k}")
-            ax.legend()
-        ax.set_title(f"{stage} loss")
-        ax.set_xlabel("step")
-    fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    os.replace(tmp, path)
-
-
-def _lr(base, step, total):
-    return base * (0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(step / max(total, 1), 1.0))))
-
-
-def _save_checkpoint(path, state):
-    tmp = path + ".tmp"
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    _plot_losses(history, path, STAGES)
 
 
 def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
@@ -419,7 +348,7 @@ def train(args):
             pick = g.choice(len(items), size=min(args.batch, len(items)), replace=False)
             batch = make_batch(seqs, [items[i] for i in pick], rsize, args.frames, device)
             for pg in opt.param_groups:
-                pg["lr"] = _lr(args.lr, it, total)
+                pg["lr"] = lr_cosine(args.lr, it, total)
             loss, parts = run_window(step, batch, stage, wg, wa, args.weight_loss)
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -438,7 +367,7 @@ def train(args):
                 recent = np.mean(log["losses"][stage][-20:])
                 extra = "".join(f"  {k} {v:.4f}" for k, v in parts.items())
                 print(f"[{stage}] step {it + 1}/{total}  loss {lv:.4f} (last 20: {recent:.4f})"
-                      f"{extra}  {rate:.2f} it/s  ETA {_fmt_s((total - it - 1) / rate)}",
+                      f"{extra}  {rate:.2f} it/s  ETA {fmt_s((total - it - 1) / rate)}",
                       flush=True)
                 t_print = now
                 log["step_s"][stage] = 1.0 / rate
@@ -447,7 +376,7 @@ def train(args):
                 t_plot = now
             if now - t_ckpt >= CHECKPOINT_S or last:
                 nxt = (si, it + 1) if not last else (si + 1, 0)
-                _save_checkpoint(ckpt_path, {"stage": nxt[0], "step": nxt[1],
+                save_checkpoint(ckpt_path, {"stage": nxt[0], "step": nxt[1],
                                              "cls": cls.state_dict(), "comp": comp.state_dict(),
                                              "opt": opt.state_dict() if not last else None,
                                              "log": json.dumps(log)})
@@ -472,9 +401,8 @@ def train(args):
     return 0
 
 
-def add_parser(sub):
-    t = sub.add_parser("train", help="train the classifier, then the composition network "
-                                     "(needs the [train] extra: torch)")
+def add_arguments(t):
+    """The CLSS recipe's options (`train clss ...`)."""
     t.add_argument("--data", required=True, help="directory of DATA.md .npz sequences")
     t.add_argument("--out", required=True, help="directory for checkpoints, loss.png, "
                                                 "weights.safetensors, train.json")
@@ -506,7 +434,6 @@ def add_parser(sub):
     t.add_argument("--resume", action="store_true", help="continue from --out/checkpoint.pt")
     t.add_argument("--export", action="store_true",
                    help="only write --out/weights.safetensors from its checkpoint, no training")
-    t.set_defaults(fn=cmd_train)
 
 
 def cmd_train(args):

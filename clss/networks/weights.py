@@ -79,8 +79,11 @@ def save_weights(model_or_tensors, path, half=False):
     fd, tmp = tempfile.mkstemp(suffix=".safetensors.tmp", dir=d)
     os.close(fd)
     try:
-        save_file(tensors, tmp, metadata={"producer": "weights_tools",
-                                          "dtype": "float16" if half else "float32"})
+        # One metadata entry: safetensors keeps the metadata in a hash map whose order
+        # changes from process to process, so two entries made the same tensors into
+        # files that differed in their header (and `make train` byte-identical by chance).
+        save_file(tensors, tmp, metadata={
+            "producer": f"weights_tools ({'float16' if half else 'float32'})"})
         os.chmod(tmp, new_file_mode())       # mkstemp's 0600 would ignore the umask
         os.replace(tmp, path)
     except BaseException:

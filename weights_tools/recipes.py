@@ -1,0 +1,57 @@
+"""`python -m weights_tools train METHOD` and `seeds METHOD`: one command for every method's
+training. A recipe is a module with `add_arguments(parser)` (its options) and
+`cmd_train(args)`; what recipes share (data loading, schedule, progress, loss.png,
+checkpoints, losses) is weights_tools/trainloop.py. `train --data ...` without a method
+is CLSS's recipe, as before."""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# method (a name of clss.methods) -> the module of its recipe
+RECIPES = {"clss": "weights_tools.train"}
+DEFAULT = "clss"
+
+
+def _no_recipe(name, why):
+    def fn(args):
+        print(f"error: train {name}: {why}", file=sys.stderr)
+        return 2
+    return fn
+
+
+def add_train_parser(sub):
+    """`train METHOD [options]`: one sub-command per method of clss.methods."""
+    from clss import methods
+    t = sub.add_parser("train", help="train a method's networks (needs the [train] extra)",
+                       description="Train a method's networks: `train METHOD --data DIR --out DIR "
+                                   "[recipe options]` (`train METHOD --help` lists a recipe's "
+                                   "options). Without METHOD, CLSS's recipe.")
+    per = t.add_subparsers(dest="method", metavar="METHOD", required=True)
+    for name in methods.names() + list(methods.PLANNED):
+        if name in RECIPES:
+            mod = importlib.import_module(RECIPES[name])
+            p = per.add_parser(name, help=f"the {name} recipe ({RECIPES[name].replace('.', '/')}.py)",
+                               formatter_class=argparse.RawDescriptionHelpFormatter,
+                               description=(mod.__doc__ or "").split("\n\n")[0])
+            mod.add_arguments(p)
+            p.set_defaults(fn=mod.cmd_train)
+        else:
+            why = (f"not built yet ({methods.PLANNED[name]})" if name in methods.PLANNED
+                   else "a method without trained weights: nothing to train")
+            p = per.add_parser(name, help=why)
+            p.set_defaults(fn=_no_recipe(name, why))
+    return t
+
+
+def with_default_method(argv, command="train"):
+    """`train --data X` (no method) -> `train clss --data X`: the older spelling."""
+    argv = list(argv)
+    if len(argv) >= 2 and argv[0] == command and argv[1].startswith("-") \
+            and argv[1] not in ("-h", "--help"):
+        argv.insert(1, DEFAULT)
+    if command == "train" and len(argv) > 2 and argv[1] not in RECIPES \
+            and not argv[1].startswith("-"):
+        argv = argv[:2]     # a method without a recipe: its one-line answer, whatever follows
+    return argv
