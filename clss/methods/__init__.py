@@ -1,7 +1,7 @@
 """The upscaling methods, one room each; no room imports another (tests/test_architecture.py).
 
     clss/methods/clss/     CLSS: net mode "clss", rule mode "clss-rules", and "jbicubic"
-    clss/methods/bicubic.py  the plain bicubic baseline
+    clss/methods/bicubic/  the plain bicubic baseline
 
 A room exports SPECS {name: clss.pipeline.method.MethodSpec}. This registry names the
 room of each method and imports it only when the method is asked for, so listing the
@@ -51,3 +51,14 @@ def specs() -> list:
 def create(name: str, **kwargs):
     """The upscaler of method `name` (keyword arguments as clss.Upscaler's)."""
     return spec(name).create(**kwargs)
+
+
+def twin(name: str, render_size, scale, **kwargs):
+    """The whole-frame ONNX twin of method `name` (onnxruntime), with the same `step` as
+    its upscaler: the oracle that tests hold the OpenCL frame step to."""
+    s = spec(name)
+    if not s.twin:
+        raise ValueError(f"method {s.name!r} has no ONNX twin")
+    module, attr = s.twin.split(":")
+    return getattr(importlib.import_module(module), attr)(
+        method=s.name, render_size=render_size, scale=scale, **kwargs)

@@ -34,7 +34,9 @@ class MethodSpec:
     scales: (lowest, highest) scale; precisions: what `precision=` accepts; temporal:
     whether it carries a history between frames; weights: callable -> "trained",
     "untrained" or "none needed" (the state of the package's weights); create:
-    callable(**kwargs) -> MethodUpscaler; doc: its page under docs/."""
+    callable(**kwargs) -> MethodUpscaler; doc: its page under docs/; twin: "module:name"
+    of its whole-frame ONNX twin, a callable(method, render_size, scale, **kwargs) -> a
+    runner with the same `step` on onnxruntime (clss.methods.twin builds it)."""
     name: str
     label: str
     summary: str
@@ -47,6 +49,7 @@ class MethodSpec:
     temporal: bool = True
     weights: Callable = field(default=lambda: "none needed", repr=False)
     doc: str = ""
+    twin: str = ""
 
     def check_scale(self, scale) -> float:
         try:

@@ -18,11 +18,14 @@ from typing import NamedTuple
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper, numpy_helper
+from onnx import TensorProto, helper
 
 from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
 from ...networks import pad16 as _pad16
 from ...model.graph import fill_output_shapes
+from ...pipeline.twin import GraphBuilder as _Graph
+from ...pipeline.twin import pq_decode as _pq_decode
+from ...pipeline.twin import pq_encode as _pq_encode
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
 from ...pipeline.contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
                        H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MODES,
@@ -60,111 +63,6 @@ DEBUG_OUTPUTS_NET = {
 }
 
 
-class _Graph:
-    """Node list with generated names and deduplicated constants."""
-
-    def __init__(self, opset):
-        self.opset = opset
-        self.nodes, self.inits = [], []
-        self._n = 0
-        self._consts = {}
-
-    def _name(self, hint):
-        self._n += 1
-        return f"{hint}_{self._n}"
-
-    def op(self, op_type, *inputs, name=None, **attrs):
-        out = name or self._name(op_type.lower())
-        self.nodes.append(helper.make_node(op_type, list(inputs), [out], name=out, **attrs))
-        return out
-
-    def const(self, value, dtype=np.float32, hint="c"):
-        arr = np.asarray(value, dtype)
-        key = (arr.dtype.str, arr.shape, arr.tobytes())
-        if key not in self._consts:
-            name = self._name(hint)
-            self.inits.append(numpy_helper.from_array(arr, name))
-            self._consts[key] = name
-        return self._consts[key]
-
-    def i64(self, values):
-        return self.const(values, np.int64, "i")
-
-    # small vocabulary
-    def add(self, a, b): return self.op("Add", a, b)
-    def sub(self, a, b): return self.op("Sub", a, b)
-    def mul(self, a, b): return self.op("Mul", a, b)
-    def div(self, a, b): return self.op("Div", a, b)
-
-    def clip(self, x, lo, hi):
-        return self.op("Clip", x, self.const(lo), self.const(hi))
-
-    def slice(self, x, axis, start, end):
-        return self.op("Slice", x, self.i64([start]), self.i64([end]), self.i64([axis]))
-
-    def chan(self, x, s: slice):
-        return self.slice(x, 1, s.start, s.stop)
-
-    def concat(self, xs, axis=1, name=None):
-        return self.op("Concat", *xs, axis=axis, name=name)
-
-    def reshape(self, x, shape):
-        return self.op("Reshape", x, self.i64(shape))
-
-    def where(self, cond, a, b, name=None):
-        return self.op("Where", cond, a, b, name=name)
-
-    def normalised(self, u, n):
-        """GridSample align_corners=0 coordinate of pixel-index coordinate u: (2u+1)/n - 1."""
-        return self.sub(self.div(self.add(self.mul(u, self.const(2.0)), self.const(1.0)),
-                                 self.const(float(n))), self.const(1.0))
-
-    def grid_sample(self, x, grid, cubic):
-        if self.opset >= 20:
-            mode = "cubic" if cubic else "linear"
-        else:
-            mode = "bicubic" if cubic else "bilinear"
-        return self.op("GridSample", x, grid, mode=mode, padding_mode="border", align_corners=0)
-
-    def inline(self, model: onnx.ModelProto, prefix, inputs: dict, outputs: dict):
-        """Copy `model`'s nodes and initializers in, tensors renamed `prefix/...`;
-        `inputs`/`outputs` map the model's graph input/output names to ours."""
-        g = model.graph
-        init_names = {t.name for t in g.initializer}
-        rename = dict(inputs)
-        rename.update(outputs)
-
-        def r(n):
-            if n == "":
-                return n
-            return rename.get(n, f"{prefix}/{n}")
-
-        for t in g.initializer:
-            t2 = onnx.TensorProto()
-            t2.CopyFrom(t)
-            t2.name = r(t.name)
-            self.inits.append(t2)
-        for nd in g.node:
-            if nd.domain not in ("", "ai.onnx"):
-                raise ValueError(f"{prefix}: node {nd.name} uses domain {nd.domain!r}; only "
-                                 "the default ONNX domain can be inlined")
-            if any(a.type in (onnx.AttributeProto.GRAPH, onnx.AttributeProto.GRAPHS)
-                   for a in nd.attribute):
-                raise ValueError(f"{prefix}: node {nd.name} ({nd.op_type}) has a subgraph")
-            n2 = onnx.NodeProto()
-            n2.CopyFrom(nd)
-            n2.name = f"{prefix}/{nd.name or nd.op_type}"
-            del n2.input[:]
-            del n2.output[:]
-            n2.input.extend(r(i) for i in nd.input)
-            n2.output.extend(r(o) for o in nd.output)
-            self.nodes.append(n2)
-        missing = [n for n in list(inputs) if n not in
-                   {i.name for i in g.input if i.name not in init_names}]
-        if missing:
-            raise ValueError(f"{prefix}: model has no graph input named {missing}")
-
-
 def _model_opset(model):
     if model is None:
         return 0
@@ -190,22 +88,6 @@ def _check_static_hw(what, dims, hw):
             if got is not None and got != want:
                 raise ValueError(f"{what}: built for a fixed {axis} = {got}, the pipeline "
                                  f"feeds {want} (build it with height/width None or {hw})")
-
-
-def _pq_encode(g, x, nits):
-    y = g.clip(g.mul(x, g.const(nits / PQ_PEAK_NITS)), 0.0, 1.0)
-    ym = g.op("Pow", y, g.const(PQ_M1))
-    num = g.add(g.const(PQ_C1), g.mul(g.const(PQ_C2), ym))
-    den = g.add(g.const(1.0), g.mul(g.const(PQ_C3), ym))
-    return g.op("Pow", g.div(num, den), g.const(PQ_M2))
-
-
-def _pq_decode(g, e, nits, name):
-    ep = g.op("Pow", g.clip(e, 0.0, 1.0), g.const(1.0 / PQ_M2))
-    num = g.op("Max", g.sub(ep, g.const(PQ_C1)), g.const(0.0))
-    den = g.sub(g.const(PQ_C2), g.mul(g.const(PQ_C3), ep))
-    y = g.op("Pow", g.div(num, den), g.const(1.0 / PQ_M1))
-    return g.op("Mul", y, g.const(PQ_PEAK_NITS / nits), name=name)
 
 
 def _clip_towards(g, hist, up, lo, hi):
@@ -633,7 +515,8 @@ class OracleUpscaler:
     def reset(self):
         self._history = None
 
-    def step(self, color, depth, motion, jitter, reset=False, reactive=None) -> np.ndarray:
+    def step(self, color, depth, motion, jitter, reset=False, reactive=None,
+             **gbuffers) -> np.ndarray:
         frame = validate_frame(color, depth, motion, jitter, reactive,
                                render_size=self.render_size, sanitize=self.sanitize,
                                depth_inverted=self.depth_inverted)
@@ -651,3 +534,18 @@ class OracleUpscaler:
         if self.exposure != 1.0:
             out = out * np.float32(self.exposure)
         return np.ascontiguousarray(out[0].transpose(1, 2, 0))
+
+
+class _AlwaysReset(OracleUpscaler):
+    """jbicubic's twin: the rule-mode graph reset on every frame."""
+
+    def step(self, color, depth, motion, jitter, reset=False, reactive=None, **gbuffers):
+        return super().step(color, depth, motion, jitter, True, reactive)
+
+
+def twin(method, render_size, scale=2.0, **kwargs):
+    """The twin of a method of this room (clss.methods.twin): the frame graph in the
+    method's mode; `kwargs` as OracleUpscaler's."""
+    if method == "jbicubic":
+        return _AlwaysReset(render_size, scale, "rule", **kwargs)
+    return OracleUpscaler(render_size, scale, "net" if method == "clss" else "rule", **kwargs)

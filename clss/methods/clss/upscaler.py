@@ -395,17 +395,21 @@ def _net_weights():
 
 
 DOC = "docs/methods/clss.md"
+# The whole-frame ONNX twin, named rather than imported: the frame step never loads its
+# oracle (.importlinter), whoever asks for the twin does (clss.methods.twin).
+TWIN = "clss.methods.clss.oracle:twin"
 SPECS = {
     "clss": MethodSpec(
         "clss", "CLSS net", "CLSS (Guo et al. 2022): a classifier of ghosting and aliasing, "
         "auxiliary history, a per-pixel MLP blend weight",
-        lambda **kw: ClssUpscaler(mode="net", **kw), weights=_net_weights, doc=DOC),
+        lambda **kw: ClssUpscaler(mode="net", **kw), weights=_net_weights, doc=DOC,
+        twin=TWIN),
     "clss-rules": MethodSpec(
         "clss-rules", "CLSS rules", "CLSS's frame step with rules instead of networks: depth "
         "test, variance clamp, 1/(1+n) blend (TAAU-like)",
-        lambda **kw: ClssUpscaler(mode="rules", **kw), doc=DOC),
+        lambda **kw: ClssUpscaler(mode="rules", **kw), doc=DOC, twin=TWIN),
     "jbicubic": MethodSpec(
         "jbicubic", "jitter-aware bicubic", "each render sample placed at its jittered "
         "position, a cubic over them; no history", lambda **kw: JitterBicubic(**kw),
-        temporal=False, doc="docs/methods/baselines.md"),
+        temporal=False, doc="docs/methods/baselines.md", twin=TWIN),
 }

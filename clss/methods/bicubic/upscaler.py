@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..pipeline.contract import output_size, pq_decode, pq_encode, validate_frame
-from ..pipeline.method import MethodSpec, MethodUpscaler
+from ...pipeline.contract import output_size, pq_decode, pq_encode, validate_frame
+from ...pipeline.method import MethodSpec, MethodUpscaler
 
 
 class Bicubic:
@@ -17,7 +17,7 @@ class Bicubic:
         self.dev, self.out_hw, self.precision = dev, out_hw, precision
 
     def __call__(self, color):
-        from ..ops.resize import resize
+        from ...ops.resize import resize
         x = self.dev.to_device(pq_encode(color).transpose(2, 0, 1)[None], self.precision)
         y = resize(self.dev, self.precision, x, out_hw=self.out_hw, mode="cubic")
         y = self.dev.to_host(y)
@@ -78,5 +78,6 @@ class BicubicUpscaler(MethodUpscaler):
 SPEC = MethodSpec(
     "bicubic", "bicubic", "plain Keys bicubic of each frame, jitter-unaware, in the PQ domain",
     lambda **kw: BicubicUpscaler(**kw), inputs=("color",), precisions=("fp32", "fp16"),
-    temporal=False, doc="docs/methods/baselines.md")
+    temporal=False, doc="docs/methods/baselines.md",
+    twin="clss.methods.bicubic.oracle:OracleBicubic")
 SPECS = {"bicubic": SPEC}
