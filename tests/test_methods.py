@@ -153,3 +153,39 @@ def test_clss_methods_lists_every_method(capsys):
     assert [m["name"] for m in rec["methods"]] == methods.names()
     assert all(set(m) >= {"inputs", "gbuffers", "scales", "precisions", "weights"}
                for m in rec["methods"])
+
+
+def test_clss_eval_scores_without_torch(tmp_path, capsys):
+    # `clss eval`: the scoring of weights_tools eval from the runtime's own command
+    from clss.cli import main
+    from clss.scene import render_frame
+    fr = [render_frame(30 + i, (9, 14), 2.0, spp_ref=2) for i in range(4)]
+    p = tmp_path / "cap.npz"
+    np.savez(p, color=np.stack([f.color for f in fr]), depth=np.stack([f.depth for f in fr]),
+             motion=np.stack([f.motion for f in fr]), jitter=np.array([f.jitter for f in fr],
+                                                                       np.float32),
+             reset=np.array([True, False, False, False]),
+             reference=np.stack([f.reference for f in fr]), scale=np.float32(2.0))
+    rc = main(["eval", str(p), "--methods", "bicubic,rules", "--warmup", "1", "--flip-every",
+               "3", "--out", str(tmp_path / "ev")])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert "bicubic" in cap.out and "CLSS rules" in cap.out and "tPSNR" in cap.out
+    rec = json.loads((tmp_path / "ev" / "eval.json").read_text())
+    assert list(rec["sequences"][0]["methods"]) == ["bicubic", "clss-rules"]
+    assert main(["eval", str(p), "--methods", "nsrr"]) == 2
+    assert "not built yet" in capsys.readouterr().err
+
+
+def test_upscale_refuses_a_method_without_its_gbuffers_before_writing(tmp_path):
+    from clss.cli.args import UsageError
+    from clss.cli.upscale import _check_gbuffers
+    from clss.io import FrameSequence  # noqa: F401  (the frames _check_gbuffers reads)
+    f = frames(RENDER, 1)[0]
+
+    class Frame:
+        color, gbuffers = f.color, {k: v for k, v in f.gbuffers.items() if k != "albedo"}
+    spec = MethodSpec("needy", "needy", "", lambda **kw: None, gbuffers=("albedo", "depth_hr"))
+    with pytest.raises(UsageError, match="needs albedo") as e:
+        _check_gbuffers("needy", spec, Frame, 2.0)
+    assert "nothing was written" in str(e.value) and "--channels 'albedo=" in str(e.value)
