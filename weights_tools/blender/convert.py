@@ -18,6 +18,16 @@ small: readers cast with .astype(np.float32); depth and motion stay float32). Co
     shift (jitter), as DATA.md requires: Cycles projects the previous position with
     the current projection, shift included, and the shift cancels in the difference;
   * reference: the Combined pass of the unshifted scale x render.
+G-buffers (docs/input-contract.md section 5), when the EXRs carry the passes (renders
+made before render_validation.py enabled them do not: their .npz have no G-buffer keys):
+  * albedo: DiffCol + GlossCol (Cycles' diffuse and glossy colour passes: the BSDF's
+    diffuse and specular albedo), 0 where nothing was hit;
+  * normal: Cycles' Normal pass is the world-space shading normal (Blender's world, +z
+    up); the contract wants camera space (+x right, +y up, +z toward the camera), which
+    is the Blender camera's own frame (it looks along its local -z): normal = R^T n
+    with R the camera's world rotation (frames.json `camera_rotation`); 0 on background;
+  * albedo_hr, depth_hr, normal_hr: the same from hr_FFFF.exr (output resolution,
+    point-sampled at the unshifted pixel centres); depth_hr as depth.
 `--check` also prints, per scene, how well the low-resolution colour matches the
 reference sampled at the jittered sample positions, with the jitter's sign as recorded
 and flipped (the recorded sign must win clearly).
@@ -59,22 +69,78 @@ def _rgb(ch, path):
         raise OSError(f"{path}: no Combined pass (channels: {', '.join(ch)})") from None
 
 
+def depth_from_pass(z, near):
+    """Cycles' Depth pass (planar view depth, 1e10 where nothing was hit) -> reversed-Z
+    NEAR / z in [0, 1], 0 where nothing was hit."""
+    with np.errstate(divide="ignore"):
+        return np.where(z < NO_HIT_DEPTH, np.minimum(near / z, 1.0), 0.0)
+
+
+def motion_from_pass(ch):
+    """Cycles' Vector pass -> DATA.md motion: (X, Y) is previous - current raster
+    position in pixels with raster +y up (Cycles' primitive_motion_vector returns
+    (pre - center, center - post); Z, W point to the next frame), so (X, -Y)."""
+    return np.stack([ch["Vector.X"], -ch["Vector.Y"]], -1)
+
+
+GBUFFER_PASSES = ("DiffCol.R", "DiffCol.G", "DiffCol.B", "GlossCol.R", "GlossCol.G",
+                  "GlossCol.B", "Normal.X", "Normal.Y", "Normal.Z")
+
+
+def has_gbuffer_passes(ch):
+    return all(c in ch for c in GBUFFER_PASSES)
+
+
+def gbuffers_from_passes(ch, camera_rotation, near):
+    """{"albedo", "normal", "depth"} in the contract's conventions from one EXR's
+    passes (`read_exr`'s dict): albedo = DiffCol + GlossCol (>= 0), normal = the
+    world-space Normal pass in the camera's frame (camera_rotation: 3 x 3, columns the
+    camera's x, y, z axes in the world), renormalised, 0 where the pass is 0
+    (background), depth as `depth_from_pass`."""
+    albedo = np.stack([ch["DiffCol." + c] + ch["GlossCol." + c] for c in "RGB"], -1)
+    n = np.stack([ch["Normal." + c] for c in "XYZ"], -1).astype(np.float64)
+    R = np.asarray(camera_rotation, np.float64).reshape(3, 3)
+    n = n @ R                       # row vectors: (R^T n)^T = n^T R
+    length = np.sqrt(np.sum(n * n, -1, keepdims=True))
+    hit = length > 1e-6
+    n = np.where(hit, n / np.where(hit, length, 1.0), 0.0)
+    return {"albedo": np.maximum(albedo, 0).astype(np.float32),
+            "normal": n.astype(np.float32),
+            "depth": depth_from_pass(ch["Depth.Z"], near).astype(np.float32)}
+
+
 def convert_scene(src):
-    """The DATA.md arrays (dict) of one rendered scene directory."""
+    """The DATA.md arrays (dict) of one rendered scene directory; with the G-buffer keys
+    when every frame's EXRs carry the passes (and frames.json the camera rotation)."""
     with open(os.path.join(src, "frames.json")) as fh:
         rec = json.load(fh)
     near = rec["near"]
     color, depth, motion, ref = [], [], [], []
+    gbs = {k: [] for k in ("albedo", "normal", "albedo_hr", "depth_hr", "normal_hr")}
     for fr in rec["frames"]:
         lr_path = os.path.join(src, fr["lr"])
         ch = read_exr(lr_path)
         color.append(_rgb(ch, lr_path))
-        z = ch["Depth.Z"]
-        with np.errstate(divide="ignore"):
-            depth.append(np.where(z < NO_HIT_DEPTH, np.minimum(near / z, 1.0), 0.0))
-        motion.append(np.stack([ch["Vector.X"], -ch["Vector.Y"]], -1))
+        depth.append(depth_from_pass(ch["Depth.Z"], near))
+        motion.append(motion_from_pass(ch))
         ref_path = os.path.join(src, fr["ref"])
         ref.append(_rgb(read_exr(ref_path), ref_path))
+        rot = fr.get("camera_rotation")
+        if rot is not None and has_gbuffer_passes(ch):
+            g = gbuffers_from_passes(ch, rot, near)
+            gbs["albedo"].append(g["albedo"])
+            gbs["normal"].append(g["normal"])
+        hr = fr.get("hr")
+        if rot is not None and hr is not None:
+            hr_path = os.path.join(src, hr)
+            hch = read_exr(hr_path)
+            if not has_gbuffer_passes(hch):
+                raise OSError(f"{hr_path}: no G-buffer passes (need {', '.join(GBUFFER_PASSES)}"
+                              f"; channels: {', '.join(hch)})")
+            g = gbuffers_from_passes(hch, rot, near)
+            gbs["albedo_hr"].append(g["albedo"])
+            gbs["depth_hr"].append(g["depth"])
+            gbs["normal_hr"].append(g["normal"])
     meta = dict(generator="weights_tools/blender/render_validation.py",
                 renderer=f"Blender {rec['blender']} Cycles (CPU)", scene=rec["scene"],
                 content=rec["description"], render_size=rec["render_size"],
@@ -83,7 +149,11 @@ def convert_scene(src):
                 sampling="colour: spp samples of a 0.01 px box filter at the jittered "
                          "pixel centre (converged point sample); reference: ref_spp "
                          "samples, 1-pixel box filter")
-    return dict(color=np.stack(color).astype(np.float32),
+    if any(v and len(v) == len(rec["frames"]) for v in gbs.values()):
+        meta["gbuffers"] = ("albedo = DiffCol + GlossCol; normal = Normal pass rotated into "
+                            "camera space; *_hr from hr_FFFF.exr, point samples at the "
+                            "output pixel centres")
+    data = dict(color=np.stack(color).astype(np.float32),
                 depth=np.stack(depth).astype(np.float32),
                 motion=np.stack(motion).astype(np.float32),
                 jitter=np.array([f["jitter"] for f in rec["frames"]], np.float32),
@@ -91,6 +161,11 @@ def convert_scene(src):
                 reference=np.stack(ref).astype(np.float32),
                 scale=np.array(rec["scale"], np.float32),
                 meta=np.array(json.dumps(meta)))
+    # A G-buffer goes in only when every frame has it (a key is the whole sequence's).
+    for k, frames in gbs.items():
+        if frames and len(frames) == len(rec["frames"]):
+            data[k] = np.stack(frames)
+    return data
 
 
 def _bilinear(img, x, y):

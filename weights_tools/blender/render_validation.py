@@ -4,14 +4,16 @@ Run inside Blender (its Python has bpy, not numpy or clss):
 
     blender -b -P weights_tools/blender/render_validation.py -- --out DIR \\
         [--scenes interior,foliage] [--frames 16] [--size 90x160] [--scale 2] \\
-        [--spp 64] [--ref-spp 96]
+        [--spp 64] [--ref-spp 96] [--hr-spp 4]
 
 then convert the EXRs to the DATA.md .npz with `python -m weights_tools.blender.convert`
 (`make validation-data` does both).
 
 Per scene, DIR/<scene>/ receives for every frame f (Blender frame f + 1):
   * lr_FFFF.exr: multilayer EXR at render size with the Combined, Depth and Vector
-    passes. Point sampling: Cycles' box pixel filter of width 0.01 px puts every sample
+    passes, and the G-buffer passes DiffCol, GlossCol (their sum is the albedo) and
+    Normal (world space; convert.py rotates it into the camera's frame with the
+    camera_rotation recorded below). Point sampling: Cycles' box pixel filter of width 0.01 px puts every sample
     within +-0.005 px of the (jittered) pixel centre; `--spp` such samples average away
     the path-tracing noise, so the colour is the converged radiance at one point per
     pixel, as a rasteriser's would be (one path-traced sample would be noise, not
@@ -21,7 +23,15 @@ Per scene, DIR/<scene>/ receives for every frame f (Blender frame f + 1):
     (j + 0.5 + jx, i + 0.5 + jy) of the unshifted image.
   * ref_FFFF.exr: the reference at scale x the render size, unshifted, `--ref-spp`
     samples per pixel with a box filter 1 output pixel wide.
-  * frames.json: jitter, reset, size, scale, the camera's clip start (NEAR), timings.
+  * hr_FFFF.exr: the output-resolution G-buffers (albedo_hr, depth_hr, normal_hr): a
+    render at scale x the render size, unshifted, point-sampled like lr (0.01 px box
+    filter) with `--hr-spp` samples, so each output pixel holds its centre's Depth,
+    Normal, DiffCol and GlossCol, as a renderer's full-resolution feature pass would
+    (the reference's passes would be averages over the pixel, and its normals not of
+    unit length). Its Combined pass is not used.
+  * frames.json: jitter, reset, size, scale, the camera's clip start (NEAR), timings,
+    and per frame `camera_rotation`: the camera's world rotation (3 x 3 rows; its
+    columns are the camera's x right, y up, z backward axes in Blender's world).
 Motion blur is off (Cycles fills the Vector pass only then) and all animation is
 keyframed on every frame, so Cycles' motion pass (scene at frame - 1 and + 1) is exact.
 
@@ -91,6 +101,11 @@ def new_scene():
     vl = scene.view_layers[0]
     vl.use_pass_z = True
     vl.use_pass_vector = True
+    # G-buffers (docs/input-contract.md section 5): the albedo is DiffCol + GlossCol, the
+    # normal Cycles' world-space Normal pass (convert.py puts both in the contract's form).
+    vl.use_pass_diffuse_color = True
+    vl.use_pass_glossy_color = True
+    vl.use_pass_normal = True
     s = scene.render.image_settings
     s.file_format = "OPEN_EXR_MULTILAYER"
     s.color_depth = "32"
@@ -446,7 +461,16 @@ SCENES = {"interior": scene_interior, "foliage": scene_foliage, "pan_test": scen
 
 # ---------------------------------------------------------------- rendering
 
-def render_scene(name, out_dir, frames, size, scale, spp, ref_spp):
+def camera_rotation(cam_obj):
+    """The camera's world rotation as 3 lists (rows), scale removed: column k is the
+    camera's local axis k (x right, y up, z backward: Blender cameras look along -z) in
+    world coordinates, which is what turns world normals into the contract's camera
+    space (normal_camera = R^T normal_world)."""
+    m = cam_obj.matrix_world.to_3x3().normalized()
+    return [[float(m[i][j]) for j in range(3)] for i in range(3)]
+
+
+def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4):
     scene = new_scene()
     description = SCENES[name](scene, frames)
     w, h = size
@@ -456,7 +480,7 @@ def render_scene(name, out_dir, frames, size, scale, spp, ref_spp):
     record = dict(scene=name, description=description, render_size=[h, w],
                   output_size=[H, W], scale=scale, near=NEAR, spp=spp, ref_spp=ref_spp,
                   blender=bpy.app.version_string, frames=[])
-    t_lr = t_ref = 0.0
+    t_lr = t_ref = t_hr = 0.0
     for f in range(frames):
         scene.frame_set(f + 1)
         jx, jy = halton_jitter(f, scale)
@@ -479,14 +503,22 @@ def render_scene(name, out_dir, frames, size, scale, spp, ref_spp):
         t0 = time.time()
         bpy.ops.render.render(write_still=True)
         t_ref += time.time() - t0
+        # Output-resolution G-buffers: point samples at the unshifted output pixel centres.
+        scene.cycles.samples = hr_spp
+        scene.cycles.filter_width = 0.01
+        scene.render.filepath = os.path.join(out_dir, f"hr_{f:04d}.exr")
+        t0 = time.time()
+        bpy.ops.render.render(write_still=True)
+        t_hr += time.time() - t0
         record["frames"].append(dict(lr=f"lr_{f:04d}.exr", ref=f"ref_{f:04d}.exr",
-                                     jitter=[jx, jy], reset=f == 0))
+                                     hr=f"hr_{f:04d}.exr", jitter=[jx, jy], reset=f == 0,
+                                     camera_rotation=camera_rotation(scene.camera)))
         print(f"[render_validation] {name} frame {f + 1}/{frames}", flush=True)
-    record["seconds"] = dict(lr=round(t_lr, 1), ref=round(t_ref, 1))
+    record["seconds"] = dict(lr=round(t_lr, 1), ref=round(t_ref, 1), hr=round(t_hr, 1))
     with open(os.path.join(out_dir, "frames.json"), "w") as fh:
         json.dump(record, fh, indent=1)
     print(f"[render_validation] {name}: {frames} frames, low res {t_lr:.1f} s, "
-          f"reference {t_ref:.1f} s", flush=True)
+          f"reference {t_ref:.1f} s, output-res G-buffers {t_hr:.1f} s", flush=True)
 
 
 def main(argv):
@@ -499,13 +531,15 @@ def main(argv):
     p.add_argument("--scale", type=float, default=2.0)
     p.add_argument("--spp", type=int, default=64)
     p.add_argument("--ref-spp", type=int, default=96)
+    p.add_argument("--hr-spp", type=int, default=4,
+                   help="samples of the output-resolution G-buffer render")
     a = p.parse_args(argv)
     h, w = (int(v) for v in a.size.lower().split("x"))
     for name in a.scenes.split(","):
         if name not in SCENES:
             p.error(f"--scenes: unknown scene {name!r} (have {', '.join(SCENES)})")
         render_scene(name, os.path.join(a.out, name), a.frames, (w, h), a.scale, a.spp,
-                     a.ref_spp)
+                     a.ref_spp, a.hr_spp)
 
 
 if __name__ == "__main__":
