@@ -276,7 +276,8 @@ class Device:
         return prog
 
     def kernel(self, stem: str, name: str, precision: str = "fp32", **defines) -> cl.Kernel:
-        """A kernel object, cached; callers set all args on each launch."""
+        """A kernel object, cached and shared: Device.launch sets all its args on each launch;
+        a prepared Launch (Device.prepare) has a kernel object of its own."""
         prog = self.program(stem, precision, **defines)
         key = (id(prog), name, "")
         k = self._kernels.get(key)
@@ -300,6 +301,26 @@ class Device:
         kernel.set_args(*args)
         return cl.enqueue_nd_range_kernel(self.queue, kernel, gs, local_size, wait_for=wait_for)
 
+    def prepare(self, kernel: cl.Kernel, global_size, args, local_size=None) -> "Launch":
+        """A launch with its arguments bound once (see Launch), for work enqueued every
+        frame: Device.launch pays the tuning lookup and the argument marshalling per call."""
+        gs = tuple(int(max(1, g)) for g in global_size)
+        if local_size is None:
+            from . import tuning
+            local_size = tuning.local_size(self, kernel.function_name, gs)
+        return Launch(self.queue, kernel, gs, args, local_size)
+
+    def copy(self, dst: cla.Array, src: cla.Array):
+        """Enqueue dst <- src (arrays of equal bytes); None when there is nothing to copy."""
+        if src.nbytes:
+            return cl.enqueue_copy(self.queue, dst.data, src.data, byte_count=src.nbytes)
+        return None
+
+    def fill(self, a: cla.Array, value) -> None:
+        """Enqueue a <- value everywhere (pyopencl's fill kernel)."""
+        if a.size:
+            a.fill(value, queue=self.queue)
+
     def empty(self, shape, precision: str = "fp32", dtype=None) -> cla.Array:
         dt = np.dtype(dtype) if dtype is not None else storage_dtype(precision)
         n = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
@@ -321,6 +342,35 @@ class Device:
         """Device array to host; float storage is returned as float32."""
         h = a.get()
         return h.astype(np.float32) if h.dtype == np.float16 else h
+
+
+class Launch:
+    """One kernel launch prepared once: sizes fixed, arguments bound. It holds a kernel
+    object of its own, since an OpenCL kernel keeps the arguments last set on it and two
+    launches of one kernel in a prebuilt list need their own. Enqueueing it is one call,
+    no per-launch argument marshalling; `bind` re-sets an argument only when it changed
+    (the per-frame ones: inputs, jitter, reset, the history's ping-pong). It references
+    its arguments, so that no buffer it is bound to is freed under it."""
+
+    __slots__ = ("kernel", "gs", "ls", "args", "queue")
+
+    def __init__(self, queue, kernel: cl.Kernel, global_size, args, local_size=None):
+        self.queue = queue
+        self.kernel = cl.Kernel(kernel.program, kernel.function_name)
+        self.gs, self.ls = tuple(global_size), local_size
+        self.args = list(args)
+        self.kernel.set_args(*self.args)
+
+    def bind(self, index: int, value) -> None:
+        old = self.args[index]
+        if old is value or (not isinstance(value, cl.MemoryObjectHolder) and
+                            type(old) is type(value) and old == value):
+            return
+        self.kernel.set_arg(index, value)
+        self.args[index] = value
+
+    def __call__(self, wait_for=None) -> cl.Event:
+        return cl.enqueue_nd_range_kernel(self.queue, self.kernel, self.gs, self.ls, wait_for=wait_for)
 
 
 def _define_value(v) -> str:

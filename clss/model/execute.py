@@ -50,8 +50,7 @@ def _copy(dev, prec, attrs, inputs):
     """A graph output that is another graph output, input or constant."""
     x = inputs[0]
     out = dev.empty(x.shape, prec, dtype=x.dtype)
-    if x.nbytes:
-        cl.enqueue_copy(dev.queue, out.data, x.data, byte_count=x.nbytes)
+    dev.copy(out, x)
     return [out]
 
 
@@ -139,6 +138,12 @@ class PlannedDevice(Device):
         self.uploads: dict[tuple[int, int], tuple] = {}  # (node, call) -> (host, device)
         self.unplanned = 0
         self._kernel_memo: dict = {}
+        # A recorded run (Executor.run(record=...)): every launch and copy becomes a
+        # command with its arguments bound, kept in `recording`, and its event goes to
+        # `events` where that is a list.
+        self.recording: list | None = None
+        self.events: list | None = None
+        self.override: dict = {}    # (node, call) -> the caller's array for that allocation
 
     def begin(self, node: int) -> None:
         self.node, self._cursor, self._upload_cursor = node, 0, 0
@@ -153,6 +158,9 @@ class PlannedDevice(Device):
             return a
         key = (self.node, self._cursor)
         self._cursor += 1
+        o = self.override.get(key)
+        if o is not None and o.shape == shape and o.dtype == dt:
+            return o
         p = self.planned.get(key)
         if p is not None and p[0] == shape and p[1] == dt:
             return p[2] if p[2] is not None else self.base.empty(shape, precision, dt)
@@ -193,7 +201,34 @@ class PlannedDevice(Device):
             e = cl.UserEvent(self.context)
             e.set_status(cl.command_execution_status.COMPLETE)
             return e
-        return self.base.launch(kernel, global_size, args, local_size, wait_for)
+        if self.recording is None:
+            e = self.base.launch(kernel, global_size, args, local_size, wait_for)
+        else:
+            # wait_for is not kept: the queue is in order, so a replay keeps the order anyway
+            cmd = self.base.prepare(kernel, global_size, args, local_size)
+            self.recording.append(cmd)
+            e = cmd(wait_for)
+        if self.events is not None:
+            self.events.append(e)
+        return e
+
+    def copy(self, dst, src):
+        """dst <- src, as Device.copy; recorded in a recorded run, as a launch is."""
+        if not self.dry:
+            return self._command(lambda: self.base.copy(dst, src))
+
+    def fill(self, a, value):
+        """a <- value, as Device.fill; recorded in a recorded run."""
+        if not self.dry:
+            self._command(lambda: self.base.fill(a, value))
+
+    def _command(self, cmd):
+        if self.recording is not None:
+            self.recording.append(cmd)
+        e = cmd()
+        if self.events is not None and e is not None:
+            self.events.append(e)
+        return e
 
 
 # --- prepared nodes -----------------------------------------------------------------
@@ -250,6 +285,7 @@ class Executor:
         self.const_dev: dict[str, cla.Array] = {}   # constants used as device tensors
         self.steps: list[Step] = []
         self.plan = Plan()
+        self.output_allocs: dict = {}
 
     # -- constants ------------------------------------------------------------------
     def const_array(self, name: str) -> cla.Array:
@@ -480,6 +516,12 @@ class Executor:
             if t in outputs:
                 a.fresh = True
             a.end = max(a.end, last.get(t, a.start))
+        # Where each graph output is allocated, so that a run can hand the caller's array
+        # out for it (run(out=...)): outputs then need no copy. Only outputs with an
+        # allocation of their own (not a constant's, not one shared with another output).
+        roots = [root.get(t) for t in g.outputs]
+        self.output_allocs = {t: allocs[r] for t, r in zip(g.outputs, roots)
+                              if r is not None and roots.count(r) == 1}
         self.plan = Plan(allocs, assign_slots(list(allocs.values())), unplanned)
         check_plan(list(allocs.values()))
         self._materialise(outmap, last)
@@ -511,10 +553,28 @@ class Executor:
                     self.const_array(s[1])
 
     # -- a run ----------------------------------------------------------------------
-    def run(self, env: dict) -> dict:
-        """env: graph input name -> device array. Returns every graph output."""
+    def run(self, env: dict, out: dict | None = None, record: list | None = None,
+            events: list | None = None) -> dict:
+        """env: graph input name -> device array. Returns every graph output, written into
+        out[name] where given and its allocation allows (see output_allocs). record: a list
+        that gets every launch and copy as a command with bound arguments (a launch plan
+        to replay while the same buffers are in use); events: a list for their events."""
         g, pdev, prec = self.g, self.pdev, self.prec
         pdev.unplanned = 0
+        pdev.override = {}
+        for t, a in (out or {}).items():
+            al = self.output_allocs.get(t)
+            if al is not None and al.nbytes == a.nbytes and al.dtype == a.dtype:
+                pdev.override[(al.node, al.call)] = a.reshape(al.shape)
+        pdev.recording, pdev.events = record, events
+        try:
+            return self._run(env)
+        finally:
+            pdev.recording = pdev.events = None
+            pdev.override = {}
+
+    def _run(self, env: dict) -> dict:
+        g, pdev, prec = self.g, self.pdev, self.prec
         for i, step in enumerate(self.steps):
             pdev.begin(i)
             outs = step.fn(pdev, prec, step.node.attrs, self._inputs(step, env))

@@ -21,7 +21,6 @@ reconstruction is per-frame scratch (reference.md s3).
 from __future__ import annotations
 
 import os
-import time
 import warnings
 
 import numpy as np
@@ -133,15 +132,21 @@ class ClassifierRunner:
                 warnings.warn(f"clss.pipeline: the classifier runs on onnxruntime on the host "
                               f"(temporary fallback; clss.Model: {err})", RuntimeWarning, stacklevel=3)
         self._out = None
-
-    def __call__(self, x: cla.Array) -> cla.Array:
         if self._model is not None:
-            if self._out is None:
-                shape = self._model.output_shapes[self.output_name]
-                self._out = self.dev.empty(shape, self.prec)
-            # into a buffer of ours: no allocation per frame
-            return self._model.run_device({self.input_name: x},
-                                          out={self.output_name: self._out})[self.output_name]
+            # into a buffer of ours, allocated once: the frame's compose launch stays bound to it
+            self._out = dev.empty(self._model.output_shapes[self.output_name], prec)
+
+    def output_shape(self):
+        """The logits' shape where known before a run (clss.Model), else None."""
+        return None if self._model is None else self._out.shape
+
+    def __call__(self, x: cla.Array, events: list | None = None) -> cla.Array:
+        """The logits of x. clss.Model enqueues its prebuilt launch plan with no host wait
+        (events, if a list, gets each command's event); the onnxruntime fallback reads x
+        back to the host and waits."""
+        if self._model is not None:
+            return self._model.run_device({self.input_name: x}, out={self.output_name: self._out},
+                                          events=events)[self.output_name]
         host = self.dev.to_host(x).astype(np.float32)
         (y,) = self._session.run([self.output_name], {self.input_name: host})
         if self._out is None or self._out.shape != y.shape:
@@ -207,74 +212,119 @@ class FrameStep:
             self.aux = e((6, self.H16, self.W16), prec)
             self.classifier = ClassifierRunner(dev, prec, classifier, self.cls_in.shape,
                                                force=classifier_backend)
+            self._check_logits(self.classifier.output_shape())
         self.k = {name: dev.kernel("frame", name, prec, **defines) for name in
                   ("clear", "prepare", "depth_diff", "resolve") + (("compose",) if net else ())}
         # zeroed once: no kernel then ever reads uninitialised memory (oclgrind checks it)
         self._clear(*self.history)
         self.events: list[tuple[str, cl.Event]] = []
-        self.wall: dict[str, float] = {}
+        self._launches()
+
+    def _check_logits(self, shape):
+        want = (1, 6, self.H16 // 2, self.W16 // 2)
+        if shape is not None and tuple(shape) != want:
+            raise RuntimeError(f"classifier: expected logits of shape {want}, got {tuple(shape)}")
 
     def _clear(self, a, b):
         na, nb = a.nbytes // 4, b.nbytes // 4
         return self.dev.launch(self.k["clear"], (max(na, nb),),
                                (a.data, np.int32(na), b.data, np.int32(nb)))
 
+    # -- the launch list --------------------------------------------------------
+    # Each launch's arguments in the order of the @param lines at its __kernel in
+    # kernels/frame.cl (which name and explain them); run() re-binds the per-frame
+    # ones by these names.
+    PREPARE = ("color depth motion reactive has_reactive w h depth_inverted msx msy inv_exposure "
+               "pq_scale recon X lr flags").split()
+    RESOLVE = "X lr bx by jx jy w h W H sx sy reset hist".split()
+    RESOLVE_RULE = RESOLVE + ("hist_out out flags depth_threshold cap inv_pq_scale exposure debug "
+                              "dbg").split()
+    RESOLVE_NET = RESOLVE + "cls_in aux flags W16 H16".split()
+    COMPOSE = ("cls_in aux logits W H W16 H16 w1 b1 w2 b2 hist hist_out out flags cap inv_pq_scale "
+               "exposure debug dbg").split()
+
+    def _launches(self):
+        """Every launch of a frame with its arguments bound once (clss.device.Launch): a
+        frame then enqueues them with no argument marshalling, re-binding only what
+        changes per frame (inputs, jitter, reset, the history's ping-pong, exposure)."""
+        dev, h, w, H, W = self.dev, self.h, self.w, self.H, self.W
+        i32, f = np.int32, np.float32
+        na, nb = self.recon.nbytes // 4, self.flags.nbytes // 4
+        hist = self.history[0].data
+        vals = dict(color=self.in_color.data, depth=self.in_depth.data, motion=self.in_motion.data,
+                    reactive=self.in_depth.data, has_reactive=i32(0), w=i32(w), h=i32(h),
+                    depth_inverted=i32(1), msx=f(1), msy=f(1), inv_exposure=f(1),
+                    pq_scale=f(self.nits / PQ_PEAK_NITS), recon=self.recon.data, X=self.X.data,
+                    lr=self.lr.data, flags=self.flags.data, bx=self.bx.data, by=self.by.data,
+                    jx=f(0), jy=f(0), W=i32(W), H=i32(H), sx=f(W / w), sy=f(H / h), reset=i32(1),
+                    hist=hist, hist_out=self.history[1].data, out=self.out.data,
+                    depth_threshold=f(self.depth_threshold), cap=f(self.cap),
+                    inv_pq_scale=f(PQ_PEAK_NITS / self.nits), exposure=f(1), debug=i32(0),
+                    dbg=self.dbg.data, W16=i32(self.W16), H16=i32(self.H16))
+        L = {"clear": dev.prepare(self.k["clear"], (max(na, nb),),
+                                  (self.recon.data, i32(na), self.flags.data, i32(nb))),
+             "prepare": dev.prepare(self.k["prepare"], (-(-w // self.vec), h),
+                                    [vals[n] for n in self.PREPARE]),
+             "depth_diff": dev.prepare(self.k["depth_diff"], (w, h),
+                                       (self.recon.data, self.X.data, self.lr.data, i32(w), i32(h)))}
+        if self.mode == "rule":
+            L["resolve"] = dev.prepare(self.k["resolve"], (-(-W // self.vec), H),
+                                       [vals[n] for n in self.RESOLVE_RULE])
+        else:
+            vals.update(cls_in=self.cls_in.data, aux=self.aux.data, logits=self.cls_in.data,
+                        **{k: a.data for k, a in zip(("w1", "b1", "w2", "b2"), self.mlp)})
+            L["resolve"] = dev.prepare(self.k["resolve"], (self.W16, self.H16),
+                                       [vals[n] for n in self.RESOLVE_NET])
+            L["compose"] = dev.prepare(self.k["compose"], (-(-W // self.vec), H),
+                                       [vals[n] for n in self.COMPOSE])
+        self.launch = L
+        self.pos = {k: {n: i for i, n in enumerate(names)} for k, names in (
+            ("prepare", self.PREPARE), ("compose", self.COMPOSE),
+            ("resolve", self.RESOLVE_RULE if self.mode == "rule" else self.RESOLVE_NET))}
+
+    def _bind(self, name, **values):
+        launch, pos = self.launch[name], self.pos[name]
+        for k, v in values.items():
+            launch.bind(pos[k], v)
+
     # -- one frame ------------------------------------------------------------
     def run(self, color, depth, motion, reactive, jitter, reset, *, depth_inverted=True,
             motion_scale=(1.0, 1.0), exposure=1.0, out=None):
-        """Enqueue one frame (device arrays in image layout, float32). Returns the event
-        of the flags read-back; the caller waits on it and calls `accepted()`."""
-        dev, q = self.dev, self.dev.queue
-        h, w, H, W = self.h, self.w, self.H, self.W
+        """Enqueue one frame (device arrays in image layout, float32) with no host wait:
+        no finish, no host read or allocation between its launches. Returns the event of
+        the flags read-back, enqueued last; the caller waits on it and calls `verdict()`."""
+        q, L = self.dev.queue, self.launch
         i32, f = np.int32, np.float32
         out = self.out if out is None else out
         hist, hist_out = self.history[self.cur], self.history[1 - self.cur]
-        ev = []
-        # Each launch passes its kernel's arguments positionally, in the order of the
-        # @param lines at that __kernel in kernels/frame.cl (which name and explain them).
-        ev.append(("prepare", self._clear(self.recon, self.flags)))
-        pq_scale = self.nits / PQ_PEAK_NITS
         has_r = reactive is not None
-        ev.append(("prepare", dev.launch(self.k["prepare"], (-(-w // self.vec), h), (
-            color.data, depth.data, motion.data, (reactive if has_r else depth).data, i32(has_r),
-            i32(w), i32(h), i32(bool(depth_inverted)), f(motion_scale[0]), f(motion_scale[1]),
-            f(1.0 / exposure), f(pq_scale), self.recon.data, self.X.data, self.lr.data,
-            self.flags.data))))
-        flag_ev = cl.enqueue_copy(q, self.flags_host, self.flags.data, is_blocking=False)
-        ev.append(("depth_diff", dev.launch(self.k["depth_diff"], (w, h),
-                                            (self.recon.data, self.X.data, self.lr.data, i32(w),
-                                             i32(h)))))
-        # resolve's arguments X .. hist, the same in both modes
-        common = (self.X.data, self.lr.data, self.bx.data, self.by.data, f(jitter[0]),
-                  f(jitter[1]), i32(w), i32(h), i32(W), i32(H), f(W / w), f(H / h),
-                  i32(bool(reset)), hist.data)
-        inv_pq, expo = f(PQ_PEAK_NITS / self.nits), f(exposure)
+        self._bind("prepare", color=color.data, depth=depth.data, motion=motion.data,
+                   reactive=(reactive if has_r else depth).data, has_reactive=i32(has_r),
+                   depth_inverted=i32(bool(depth_inverted)), msx=f(motion_scale[0]),
+                   msy=f(motion_scale[1]), inv_exposure=f(1.0 / exposure))
+        frame_args = dict(jx=f(jitter[0]), jy=f(jitter[1]), reset=i32(bool(reset)), hist=hist.data)
+        blend_args = dict(hist_out=hist_out.data, out=out.data, exposure=f(exposure),
+                          debug=i32(self.debug))
+        ev = [("prepare", L["clear"]()), ("prepare", L["prepare"]()),
+              ("depth_diff", L["depth_diff"]())]
         if self.mode == "rule":
-            ev.append(("resolve", dev.launch(self.k["resolve"], (-(-W // self.vec), H), common + (
-                hist_out.data, out.data, self.flags.data, f(self.depth_threshold), f(self.cap),
-                inv_pq, expo, i32(self.debug), self.dbg.data))))
+            self._bind("resolve", **frame_args, **blend_args)
+            ev.append(("resolve", L["resolve"]()))
         else:
-            ev.append(("resolve", dev.launch(self.k["resolve"], (self.W16, self.H16), common + (
-                self.cls_in.data, self.aux.data, self.flags.data, i32(self.W16), i32(self.H16)))))
+            self._bind("resolve", **frame_args)
+            ev.append(("resolve", L["resolve"]()))
+            cls_events = [] if self.profile else None
+            logits = self.classifier(self.cls_in, cls_events)
             if self.profile:
-                q.finish()
-                t0 = time.perf_counter()
-            logits = self.classifier(self.cls_in)
-            if self.profile:
-                q.finish()
-                self.wall["classifier"] = self.wall.get("classifier", 0.0) + (
-                    time.perf_counter() - t0) * 1e3
-            want = (1, 6, self.H16 // 2, self.W16 // 2)
-            if tuple(logits.shape) != want:
-                raise RuntimeError(f"classifier: expected logits of shape {want}, got "
-                                   f"{tuple(logits.shape)}")
-            ev.append(("compose", dev.launch(self.k["compose"], (-(-W // self.vec), H), (
-                self.cls_in.data, self.aux.data, logits.data, i32(W), i32(H), i32(self.W16),
-                i32(self.H16), *(a.data for a in self.mlp), hist.data, hist_out.data, out.data,
-                self.flags.data, f(self.cap), inv_pq, expo, i32(self.debug), self.dbg.data))))
+                ev += [("classifier", e) for e in cls_events]
+            if self.classifier.output_shape() is None:      # the host fallback: known now
+                self._check_logits(logits.shape)
+            self._bind("compose", logits=logits.data, hist=hist.data, **blend_args)
+            ev.append(("compose", L["compose"]()))
         if self.profile:
             self.events.extend(ev)
-        return flag_ev
+        # The one host read of a frame, last: later kernels only read the flags.
+        return cl.enqueue_copy(q, self.flags_host, self.flags.data, is_blocking=False)
 
     def verdict(self) -> tuple[list[tuple[str, str]], dict]:
         """After the flags event: (refusals [(input, what)], sanitised {input: count})."""
@@ -300,15 +350,12 @@ class FrameStep:
     # -- timings ----------------------------------------------------------------
     def stage_ms(self) -> dict[str, float]:
         """Milliseconds per stage summed since the last call (OpenCL event times; the
-        classifier's wall time between two queue.finish())."""
+        classifier's are its kernels' and copies', summed)."""
         tot = {}
         for name, e in self.events:
             e.wait()
             tot[name] = tot.get(name, 0.0) + (e.profile.end - e.profile.start) * 1e-6
-        for name, v in self.wall.items():
-            tot[name] = tot.get(name, 0.0) + v
         self.events.clear()
-        self.wall = {}
         return {s: tot[s] for s in STAGES if s in tot}
 
     def device_bytes(self) -> int:
