@@ -14,8 +14,12 @@ clss-rules and clss), each run through clss.Upscaler(method=...) at the sequence
 Scores (clss.metrics, on tone-mapped display values, as every clss metric): PSNR and SSIM
 per frame, averaged; tPSNR, the PSNR of the frame differences (out_t - out_{t-1} against
 ref_t - ref_{t-1}, one MSE over all scored pairs: flicker the reference does not have
-lowers it); LDR-FLIP, mean per frame. A frame is scored once `warmup` frames have passed
-since the last reset (the history has warmed up); no difference is taken across a reset.
+lowers it); LDR-FLIP, mean per frame; disocclusion PSNR, the PSNR over the pixels whose
+reprojection to the previous frame fails the depth test (clss.metrics.disocclusion_mask:
+off screen, or a view depth 10 % away), one MSE over the sequence: where a history can
+only ghost, so a temporal method scores below the jitter-aware bicubic there exactly when
+it ghosts. A frame is scored once `warmup` frames have passed since the last reset (the
+history has warmed up); no difference is taken across a reset.
 
 This module is part of the runtime: it never imports torch (an integrator scores methods on
 their own captures without the [train] extra).
@@ -213,8 +217,8 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
     net = next((m for m in methods if method_registry.ALIASES.get(m, m) == "clss"), None)
     if net is not None and net_trained is None:       # the package's default weights
         net_trained = getattr(run[net].up, "trained", None)
-    acc = {m: {"psnr": [], "ssim": [], "flip": [], "tpsnr": metrics.TemporalPSNR(), "s": 0.0}
-           for m in methods}
+    acc = {m: {"psnr": [], "ssim": [], "flip": [], "tpsnr": metrics.TemporalPSNR(), "s": 0.0,
+               "dis": [0.0, 0]} for m in methods}
     names = list(methods) + ["reference"]
     place = None
     lines = {m: [] for m in names}
@@ -231,6 +235,10 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
             if t > 0 or T == 1:         # frame 0 pays for building the kernels
                 acc[m]["s"] += time.perf_counter() - t0
         disp = {m: metrics.display(o) for m, o in outs.items()}
+        dis = None
+        if t in scored_set and t > 0 and not seq["reset"][t]:
+            dis = metrics.disocclusion_mask(seq["depth"][t - 1], seq["depth"][t],
+                                            seq["motion"][t], (H, W))
         for m in methods:
             a = acc[m]
             if t not in scored_set:
@@ -241,6 +249,10 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
             if t in flip_frames:
                 a["flip"].append(metrics.flip(disp[m], ref, tonemapped=True))
             a["tpsnr"].add(disp[m], ref)
+            if dis is not None:
+                se, n = metrics.masked_psnr_terms(disp[m], ref, dis)
+                a["dis"][0] += se
+                a["dis"][1] += n
         if t in scored_set:
             row, span = place
             for m in methods:
@@ -257,6 +269,7 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
         record["methods"][m] = {
             "psnr": float(np.mean(a["psnr"])), "ssim": float(np.mean(a["ssim"])),
             "tpsnr": a["tpsnr"].value(), "flip": float(np.mean(a["flip"])) if a["flip"] else None,
+            "disocclusion_psnr": _psnr_of(*a["dis"]), "disocclusion_pixels": a["dis"][1] // 3,
             "ms_per_frame": a["s"] / max(T - 1, 1) * 1e3,
             "psnr_frames": a["psnr"], "ssim_frames": a["ssim"], "flip_frames": a["flip"]}
         record["tpsnr_pairs"] = a["tpsnr"].pairs // (H * W * 3)
@@ -267,6 +280,14 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
         record["pictures"] = _write_pictures(out_dir, seq, methods, lines, last, place,
                                              net_trained)
     return record
+
+
+def _psnr_of(se, n):
+    """PSNR (peak 1) of a summed squared error over n values; None without values."""
+    if n == 0:
+        return None
+    mse = se / n
+    return float("inf") if mse == 0 else float(10.0 * np.log10(1.0 / mse))
 
 
 def _nearest(img, H, W):
@@ -312,6 +333,7 @@ def _write_pictures(out_dir, seq, methods, lines, last, place, net_trained):
 
 COLUMNS = (("PSNR dB", "psnr", "{:8.2f}"), ("SSIM", "ssim", "{:7.4f}"),
            ("tPSNR dB", "tpsnr", "{:9.2f}"), ("FLIP", "flip", "{:7.4f}"),
+           ("disocc dB", "disocclusion_psnr", "{:10.2f}"),
            ("ms/frame", "ms_per_frame", "{:9.1f}"))
 
 
@@ -323,14 +345,20 @@ def format_table(methods_record, net_trained=None) -> str:
     rows = [head]
     for m in names:
         r = methods_record[m]
-        rows.append(f"{labels[m]:{width}s}" + "".join(f.format(r[k]) for _, k, f in COLUMNS))
+        rows.append(f"{labels[m]:{width}s}" + "".join(
+            f.format(r[k]) if r.get(k) is not None else f"{'-':>{len(f.format(0.0))}s}"
+            for _, k, f in COLUMNS))
     return "\n".join(rows)
 
 
 def mean_over_sequences(records) -> dict:
-    """Per method, the mean of each column over the sequences."""
+    """Per method, the mean of each column over the sequences (those that have it: FLIP
+    may be off, and a sequence may have no disoccluded pixel)."""
+    def mean(values):
+        v = [x for x in values if x is not None]
+        return float(np.mean(v)) if v else None
     methods = list(records[0]["methods"])
-    return {m: {k: float(np.mean([r["methods"][m][k] for r in records])) for _, k, _ in COLUMNS}
+    return {m: {k: mean([r["methods"][m].get(k) for r in records]) for _, k, _ in COLUMNS}
             for m in methods}
 
 

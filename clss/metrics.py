@@ -262,3 +262,38 @@ def nearest(img, H, W):
     iy = np.minimum(((np.arange(H) + 0.5) * h / H).astype(np.int64), h - 1)
     ix = np.minimum(((np.arange(W) + 0.5) * w / W).astype(np.int64), w - 1)
     return img[iy][:, ix]
+
+
+# Relative view-depth change beyond which a reprojected pixel counts as disoccluded: what
+# the history shows there is another surface (CLSS's rule mode rejects at the same 10 %).
+DISOCCLUSION_THRESHOLD = 0.1
+
+
+def disocclusion_mask(depth_prev, depth, motion, out_hw, threshold=DISOCCLUSION_THRESHOLD):
+    """H x W bool: output pixels whose render pixel, reprojected to the previous frame
+    (p + motion, nearest sample), lands off screen or on a surface whose view depth
+    differs by more than `threshold` (relative). Depth is reversed-Z (depth = near / z,
+    so view depth ratios are depth ratios; 0 is the sky). These are the pixels where a
+    history can only ghost: the error there is the ghosting the eval reports."""
+    h, w = depth.shape
+    ii, jj = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    pi = np.rint(ii + motion[..., 1]).astype(np.int64)
+    pj = np.rint(jj + motion[..., 0]).astype(np.int64)
+    off = (pi < 0) | (pi >= h) | (pj < 0) | (pj >= w)
+    prev = depth_prev[np.clip(pi, 0, h - 1), np.clip(pj, 0, w - 1)].astype(np.float64)
+    cur = depth.astype(np.float64)
+    # |z - z_prev| / z with z = near / depth: |depth / depth_prev - 1|
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.abs(cur / prev - 1.0)
+    sky_cur, sky_prev = cur <= 0, prev <= 0
+    changed = np.where(sky_cur | sky_prev, sky_cur != sky_prev, rel > threshold)
+    return nearest(off | changed, *out_hw)
+
+
+def masked_psnr_terms(test_display, ref_display, mask):
+    """(sum of squared errors, count) of display values over `mask`'s pixels (all three
+    channels): summed over a sequence, then turned into one PSNR."""
+    if not mask.any():
+        return 0.0, 0
+    d = (test_display[mask] - ref_display[mask]).astype(np.float64)
+    return float(np.sum(d * d)), int(d.size)

@@ -81,3 +81,22 @@ def test_text_bitmap():
     if t is None:
         pytest.skip("no font")
     assert t.ndim == 2 and 8 <= t.shape[0] <= 20 and t.max() > 0.9
+
+
+def test_disocclusion_mask_finds_what_a_moving_box_uncovers():
+    from clss.metrics import disocclusion_mask
+    h, w = 12, 16
+    prev = np.full((h, w), 0.1, np.float32)        # background at view depth 10 (near = 1)
+    prev[4:8, 4:8] = 0.5                           # a box at 2, which moves right by 3
+    cur = np.full((h, w), 0.1, np.float32)
+    cur[4:8, 7:11] = 0.5
+    motion = np.zeros((h, w, 2), np.float32)
+    motion[4:8, 7:11, 0] = -3                      # the box's pixels came from 3 to the left
+    m = disocclusion_mask(prev, cur, motion, (h, w))
+    want = np.zeros((h, w), bool)
+    want[4:8, 4:7] = True                          # background the box uncovered
+    assert np.array_equal(m, want)
+    # off screen counts; at 2x each render pixel is 2x2 output pixels
+    motion[:, 0, 0] = -1
+    m2 = disocclusion_mask(prev, cur, motion, (2 * h, 2 * w))
+    assert m2[0:2, 0:2].all() and m2.sum() == 4 * (want.sum() + h)

@@ -178,3 +178,11 @@ def test_trainloop_losses():
     m[:, :, :4] = 1
     assert float(trainloop.l1(a, b, m)) == pytest.approx(float((a - b).abs()[:, :, :4].mean()), rel=1e-5)
     assert float(trainloop.temporal(a, b, a + 1, b + 1)) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_default_method_rewrites_only_its_own_command():
+    from weights_tools.recipes import with_default_method as w
+    assert w(["train", "--data", "d"]) == ["train", "clss", "--data", "d"]
+    assert w(["train", "nsrr", "--data", "d"]) == ["train", "nsrr"]
+    assert w(["eval", "x.npz", "--warmup", "2"]) == ["eval", "x.npz", "--warmup", "2"]
+    assert w(["seeds", "--data", "d"], "seeds") == ["seeds", "clss", "--data", "d"]

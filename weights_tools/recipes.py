@@ -51,7 +51,7 @@ def with_default_method(argv, command="train"):
     if len(argv) >= 2 and argv[0] == command and argv[1].startswith("-") \
             and argv[1] not in ("-h", "--help"):
         argv.insert(1, DEFAULT)
-    if command == "train" and len(argv) > 2 and argv[1] not in RECIPES \
+    if command == "train" == argv[0] and len(argv) > 2 and argv[1] not in RECIPES \
             and not argv[1].startswith("-"):
         argv = argv[:2]     # a method without a recipe: its one-line answer, whatever follows
     return argv
