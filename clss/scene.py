@@ -18,6 +18,11 @@ Conventions (clss-frame.md section 1):
     taken at (j + 0.5 + jx, i + 0.5 + jy);
   * reference: output resolution, box filter over the pixel, stratified samples (spp
     rounded up to a full gx x gy grid), each jittered inside its stratum.
+  * G-buffers (Frame.gbuffers; clss.pipeline.contract.GBUFFERS): albedo (diffuse texture
+    colour + the scalar specular factor, not hazed, sky 0) and normal (unit, camera space:
+    +x right, +y up, +z toward the camera; sky 0) at the colour's jittered samples, from
+    the same ray cast; albedo_hr, depth_hr, normal_hr at the output pixel centres
+    (unjittered, one unshaded ray per output pixel).
 The camera frustum is fixed by the render size, so output pixel (u, v) and render pixel
 (u * w / W, v * h / H) look at the same point.
 """
