@@ -376,7 +376,9 @@ def test_demo_ctrl_c_leaves_whole_frames(frames, tmp_path, capsys, monkeypatch):
     assert rc == 130 and "interrupted; 1 frames written" in cap.err
     for d in ("bicubic", "clss-rules"):
         assert sorted(os.listdir(out / d)) == ["frame.0000.exr", "frame.0000.png"]
-    assert sorted(os.listdir(out / "input")) == ["frame.0000.exr", "jitter.json", "reference.0000.exr"]
+    assert sorted(os.listdir(out / "input")) == ["albedo_hr.0000.exr", "depth_hr.0000.exr",
+                                                 "frame.0000.exr", "jitter.json",
+                                                 "normal_hr.0000.exr", "reference.0000.exr"]
     side = json.loads((out / "input" / "jitter.json").read_text())
     assert side["frames"] == [0] and len(side["jitter"]) == 1
     assert cio.read_sequence(str(out / "input")).frame_numbers == [0]

@@ -4,7 +4,8 @@ Renders clss.scene (jittered render-resolution frames, its G-buffers and a 16-sp
 output-resolution reference), upscales every frame with each method (`clss methods`; by
 default every method whose inputs the scene provides) and writes to OUT (default out/demo):
 
-    input/                 the rendered sequence as EXR + jitter.json (`clss upscale` reads it)
+    input/                 the rendered sequence as EXR (with its G-buffers) + jitter.json
+                           (`clss upscale` reads it)
     METHOD/                output frames of each method, EXR (half) and PNG
     side_by_side.png       last frame: input (nearest), each method, reference
     side_by_side_crop.png  a 3x enlarged crop of the same
@@ -212,7 +213,8 @@ def _upscale_frames(a, ups, names, out_hw, in_dir, files, run):
         # One frame at a time (the references are large); write_sample_sequence writes a
         # one-frame jitter.json each time, gathered into the sequence's sidecar, which is
         # rewritten after every frame so that input/ is always a readable sequence.
-        files.add(*[q for q in cio.write_sample_sequence([f], in_dir)
+        # With its G-buffers, so that `clss upscale --method M` can rerun any method on it.
+        files.add(*[q for q in cio.write_sample_sequence([f], in_dir, gbuffers=True)
                     if not q.endswith("jitter.json")])
         with open(os.path.join(in_dir, "jitter.json")) as fh:
             one = json.load(fh)
