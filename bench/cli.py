@@ -95,6 +95,10 @@ def _bench_parser() -> ArgParser:
                         "compete with the engine for the cores between alternating runs)")
     p.add_argument("--no-peak", action="store_true", help="skip the peak probes (no 'of peak' column)")
     p.add_argument("--no-check", action="store_true", help="skip the one-time output check per case")
+    p.add_argument("--host-waits", action="store_true",
+                   help="instead of the cases: wall time per frame step against its summed OpenCL event "
+                        "time and the host's enqueue time, per method (clss, clss-rules, jbicubic) at "
+                        "270p -> 540p and 540p -> 1080p (--tiny: 34x60 -> 68x120), after warm-up frames")
     p.add_argument("--list", action="store_true", help="list the cases and exit")
     p.add_argument("--compare", nargs=2, metavar=("A.json", "B.json"), help="compare two runs and exit")
     return p
@@ -129,6 +133,8 @@ def bench_main(argv=None) -> int:
     except (DeviceError, ValueError) as e:
         print(f"clss bench: {cli_message(e)}", file=sys.stderr)
         return 2
+    if a.host_waits:
+        return _host_waits(a, dev, precs, level)
     cases, unavailable = all_cases(level, ("tiny",) if a.tiny else None)
     cases = _select(cases, a.filter)
     if not cases and not a.list:
@@ -149,6 +155,31 @@ def bench_main(argv=None) -> int:
     _write_results(a, doc, rows, peak)
     bad = [r for r in rows if r.status != "ok" and not r.status.startswith("skipped")]
     return 1 if bad else 0
+
+
+def _host_waits(a, dev, precs, level) -> int:
+    """clss bench --host-waits: the wall / event table, in bench.json as "host_waits"."""
+    from . import hostwait, report
+    t0 = time.perf_counter()
+    sizes = (((34, 60), 2.0),) if a.tiny else hostwait.SIZES
+    kw = dict(warm=1, frames=2) if a.tiny else dict(frames=a.runs or 5)
+    rows = [r for prec in precs for r in hostwait.run(dev, prec, sizes=sizes, log=lambda m: print(
+        m, file=sys.stderr), **kw)]
+    doc = report.document([], dev, None, None, level + ("-tiny" if a.tiny else "") + "-host-waits",
+                          extra={"seconds": round(time.perf_counter() - t0, 1), "host_waits": rows})
+    print(hostwait.format_table(rows))
+    written = []
+    if a.out:
+        out = Path(a.out)
+        report.write_json(doc, out / "bench.json")
+        (out / "bench.md").write_text(report.markdown(doc))
+        written += [out / "bench.json", out / "bench.md"]
+    if a.json:
+        report.write_json(doc, a.json)
+        written.append(Path(a.json))
+    if written:
+        print("wrote " + ", ".join(str(w) for w in written))
+    return 0
 
 
 def _settings(a, level):

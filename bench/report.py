@@ -234,6 +234,11 @@ def markdown(doc: dict) -> str:
         out += [f"- {r['name']} [{r['tier']} {r['precision']}]: {r['speedup_vs_ort']:.2f}x "
                 f"({r['engine_ms']:.2f} ms vs {r['ort_ms']:.2f} ms; {r['bound']}-bound, "
                 f"{_f(r['peak_share'], '.0%')} of peak)" for r in slow]
+    if doc.get("host_waits"):
+        from .hostwait import TARGET, markdown as host_waits_md
+        out += ["", "## Host waits: wall time per frame step against its summed event time", "",
+                f"Warm frames, medians; enqueue = host milliseconds to enqueue one frame. Target: "
+                f"wall <= {TARGET}x event at 540p -> 1080p.", "", host_waits_md(doc["host_waits"])]
     if doc.get("unavailable"):
         out += ["", "## Not benchmarked", ""] + [f"- {u['what']}: {u['why']}" for u in doc["unavailable"]]
     return "\n".join(out) + "\n"

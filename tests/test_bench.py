@@ -184,3 +184,16 @@ def test_tuning_database(dev, tmp_path, monkeypatch):
     db.write_text("not json")
     with pytest.warns(UserWarning, match="unreadable"):
         assert tuning.lookup(dev, "conv2d", "k", defaults) == defaults
+
+
+def test_host_waits_table(tmp_path):
+    """clss bench --host-waits: a wall / event / enqueue row per method, in bench.json."""
+    out = tmp_path / "hw"
+    assert bench_main(["--host-waits", "--tiny", "-p", "fp32", "--out", str(out)]) == 0
+    doc = json.loads((out / "bench.json").read_text())
+    rows = doc["host_waits"]
+    assert [r["method"] for r in rows] == ["clss", "clss-rules", "jbicubic"]
+    for r in rows:
+        assert r["wall_ms"] > 0 and r["event_ms"] > 0 and r["enqueue_ms"] > 0
+        assert r["ratio"] == pytest.approx(r["wall_ms"] / r["event_ms"], rel=1e-2)
+    assert "Host waits" in (out / "bench.md").read_text()

@@ -18,7 +18,6 @@ from collections import Counter
 from collections.abc import Mapping
 
 import numpy as np
-import pyopencl as cl
 import pyopencl.array as cla
 
 from ..device import Device, get_device, storage_dtype

@@ -559,7 +559,7 @@ class Executor:
         out[name] where given and its allocation allows (see output_allocs). record: a list
         that gets every launch and copy as a command with bound arguments (a launch plan
         to replay while the same buffers are in use); events: a list for their events."""
-        g, pdev, prec = self.g, self.pdev, self.prec
+        pdev = self.pdev
         pdev.unplanned = 0
         pdev.override = {}
         for t, a in (out or {}).items():

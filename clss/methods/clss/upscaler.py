@@ -342,7 +342,7 @@ class ClssUpscaler(MethodUpscaler):
 
     def stage_ms(self) -> dict[str, float]:
         """Mean milliseconds per frame of each stage since construction (needs
-        profile=True): OpenCL event times, the classifier's wall time."""
+        profile=True): OpenCL event times (the classifier: its kernels' events, summed)."""
         if not self.profile:
             raise RuntimeError("stage_ms needs Upscaler(..., profile=True)")
         self._flush_timings()
