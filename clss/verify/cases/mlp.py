@@ -92,3 +92,13 @@ def cases(level: str = "quick") -> list[Case]:
     for act in ACTIVATIONS:
         full.append(C((7, 9), (act,), h=7, w=13))
     return full
+
+
+# The shader MLP upscaler's fused kernels (kernels/mlp_upscale.cl) run with this family's
+# cases, so that `clss verify` checks them (clss.ops.FAMILIES lists the families).
+_cases_per_pixel_mlp = cases
+
+
+def cases(level: str = "quick") -> list[Case]:  # noqa: F811
+    from .mlp_upscale import cases as upscale_cases
+    return _cases_per_pixel_mlp(level) + upscale_cases(level)

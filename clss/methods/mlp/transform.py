@@ -1,0 +1,203 @@
+"""The shader MLP upscaler's geometry and transform, written once (docs/methods/mlp.md).
+
+Everything the device frame step (kernels/mlp_upscale.cl, by -D options from
+`kernel_defines`), the whole-frame ONNX twin (oracle.py) and the torch twin
+(weights_tools/mlp_torch.py) must agree on lives here: the neighbourhood and block
+geometry at each scale, the DC removal and gamma ramp with their constants, the network's
+widths and activations, and the weights file format.
+
+Geometry (integer scale s = 2 or 3; render pixel (i, j), output pixels (y, x)):
+  * one MLP evaluation per render pixel and colour channel;
+  * beauty input: the 5x5 render pixels (i-2..i+2, j-2..j+2), edges clamped;
+  * feature input: the 5x5 output pixels (s*i-1 .. s*i+3, s*j-1 .. s*j+3), edges clamped
+    (depth_hr; zeros in the ablation "mlp-nofeature");
+  * output block: B x B output pixels with B = s + 2, at the same origin (s*i-1, s*j-1):
+    the s x s pixels of the render pixel plus a one-pixel ring. Output unit k < B*B is
+    the output pixel (s*i-1 + k // B, s*j-1 + k % B); at 2x (B = 4) units 16..24 are
+    unused, at 3x (B = 5) all 25 are the 5x5 block;
+  * each output pixel is the mean of the blocks that cover it (2 x 2 at 2x everywhere;
+    1, 2 or 4 at 3x; fewer at the frame's edges).
+
+Transform (per neighbourhood, per channel): the colour is PQ-encoded (the contract's
+transfer); the mean of the 25 values (the DC) is removed and the residual r goes through
+the gamma ramp  ramp(r) = sign(r) * ((|r| + EPS)^(1/GAMMA) - EPS^(1/GAMMA)), which boosts
+small residuals (GAMMA > 1) and is smooth at 0 (EPS). The feature pass gets the same.
+The network's outputs are in the ramp domain of the beauty's residual: the block value is
+mean + ramp_inv(y), then blocks are averaged and PQ-decoded.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ...pipeline.contract import PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS
+
+SCALES = (2, 3)
+TAPS = 5                      # the 5x5 neighbourhoods
+HALF = TAPS // 2
+INPUTS = 2 * TAPS * TAPS      # beauty + feature = 50
+WIDTHS = (INPUTS, 50, 50, 25)
+# Leaky ReLU on the hidden layers (the seed's slope is not given: 0.01, ONNX's default);
+# the output layer is linear: the residuals it predicts are signed, and a leaky output
+# would need 100x larger pre-activations for the negative half.
+LEAKY_ALPHA = 0.01
+ACTS = ("leaky_relu", "leaky_relu", "none")
+GAMMA = 2.0
+EPS = 1e-3
+EPS_ROOT = EPS ** (1.0 / GAMMA)
+LAYER_NAMES = ("fc1", "fc2", "fc3")
+
+
+def check_scale(scale) -> int:
+    s = float(scale)
+    if s not in SCALES:
+        raise ValueError(f"scale: the mlp method runs at integer scales "
+                         f"{' and '.join(map(str, SCALES))} (its output block is "
+                         f"(s+2)x(s+2)), got {scale!r}")
+    return int(s)
+
+
+def block(scale) -> int:
+    """B: the output block's side at integer scale s (s + 2)."""
+    return check_scale(scale) + 2
+
+
+# ---- the transform, for numpy and torch alike (same operators on both) ------------------
+
+def _lib(x):
+    if isinstance(x, np.ndarray):
+        return np
+    import torch
+    return torch
+
+
+def ramp(r):
+    """The gamma ramp of a DC-free residual (numpy or torch)."""
+    xp = _lib(r)
+    return xp.sign(r) * ((xp.abs(r) + EPS) ** (1.0 / GAMMA) - EPS_ROOT)
+
+
+def ramp_inv(y):
+    """Its inverse: sign(y) * ((|y| + EPS^(1/GAMMA))^GAMMA - EPS)."""
+    xp = _lib(y)
+    return xp.sign(y) * ((xp.abs(y) + EPS_ROOT) ** GAMMA - EPS)
+
+
+def kernel_defines(scale, feature=True) -> dict:
+    """The -D options of kernels/mlp_upscale.cl that carry this module's constants."""
+    s = check_scale(scale)
+    return dict(S=s, B=s + 2, FEATURE=int(bool(feature)), GAMMA=float(GAMMA),
+                INV_GAMMA=float(1.0 / GAMMA), EPS=float(EPS), EPS_ROOT=float(EPS_ROOT),
+                ALPHA=float(LEAKY_ALPHA), PQ_M1=float(PQ_M1), PQ_M2=float(PQ_M2),
+                PQ_C1=float(PQ_C1), PQ_C2=float(PQ_C2), PQ_C3=float(PQ_C3))
+
+
+def pq_scales(nits=PQ_NITS):
+    """(linear 1.0 in PQ units, its inverse) for the kernels' encode and decode."""
+    return np.float32(nits / PQ_PEAK_NITS), np.float32(PQ_PEAK_NITS / nits)
+
+
+# ---- weights --------------------------------------------------------------------------------
+
+WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(
+    os.path.abspath(__file__)))), "weights")
+UNTRAINED = "untrained"
+
+
+def shipped_path(feature=True) -> str:
+    """The shipped generalist (`make train-mlp`): one file per variant."""
+    return os.path.join(WEIGHTS_DIR, "mlp_generalist.safetensors" if feature
+                        else "mlp_nofeature.safetensors")
+
+
+def init_weights(seed=0) -> dict:
+    """The seeded init: He-normal hidden layers, a zero output layer (an untrained network
+    then returns each block's mean: a box upscale)."""
+    g = np.random.default_rng(seed)
+    out = {}
+    for k, name in enumerate(LAYER_NAMES):
+        ci, co = WIDTHS[k], WIDTHS[k + 1]
+        w = g.standard_normal((co, ci)) * np.sqrt(2.0 / ci) if k < 2 else np.zeros((co, ci))
+        out[f"{name}.weight"] = w.astype(np.float32)
+        out[f"{name}.bias"] = np.zeros(co, np.float32)
+    return out
+
+
+def check_weights(tensors: dict, where="weights") -> dict:
+    """{fc1.weight [50,50], fc1.bias [50], ..., fc3.weight [25,50], fc3.bias [25]} as
+    float32, or a ValueError naming the file and tensor."""
+    out = {}
+    for k, name in enumerate(LAYER_NAMES):
+        want = {f"{name}.weight": (WIDTHS[k + 1], WIDTHS[k]), f"{name}.bias": (WIDTHS[k + 1],)}
+        for key, shape in want.items():
+            if key not in tensors:
+                raise ValueError(f"{where}: no tensor {key!r} (the mlp method's weights are "
+                                 f"{', '.join(f'{n}.weight/bias' for n in LAYER_NAMES)})")
+            a = np.asarray(tensors[key], np.float32)
+            if a.shape != shape:
+                raise ValueError(f"{where}: {key} has shape {a.shape}, expected {shape}")
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"{where}: {key} holds non-finite values")
+            out[key] = np.ascontiguousarray(a)
+    return out
+
+
+def load_weights(weights=None, feature=True):
+    """(tensors, trained) from None (the shipped file, else the seeded init), "untrained",
+    a dict of arrays, or a .safetensors path."""
+    if isinstance(weights, dict):
+        return check_weights(weights), True
+    if weights is None:
+        p = shipped_path(feature)
+        if not os.path.isfile(p):
+            return init_weights(), False
+        weights = p
+    if isinstance(weights, str) and weights == UNTRAINED:
+        return init_weights(), False
+    path = os.fspath(weights)
+    if not os.path.isfile(path):
+        raise ValueError(f"weights: {path} is not a file (an mlp .safetensors)")
+    from safetensors.numpy import load_file
+    try:
+        tensors = load_file(path)
+    except Exception as e:  # noqa: BLE001 (a corrupt file: one line naming it)
+        raise ValueError(f"weights: {path} is not a readable safetensors file ({e})") from None
+    return check_weights(tensors, path), True
+
+
+def save_weights(tensors: dict, path, metadata=None):
+    """Atomic write; one metadata entry (a deterministic header)."""
+    import json
+    import tempfile
+
+    from safetensors.numpy import save_file
+    t = check_weights(tensors)
+    d = os.path.dirname(os.path.abspath(path))
+    os.makedirs(d, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".safetensors.tmp", dir=d)
+    os.close(fd)
+    try:
+        save_file(t, tmp, metadata={"clss": json.dumps(metadata or {}, sort_keys=True)})
+        from ...filemode import new_file_mode
+        os.chmod(tmp, new_file_mode())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def packed(tensors: dict) -> np.ndarray:
+    """The kernel's weight buffer: per layer W [out][in] row-major, then b [out]."""
+    t = check_weights(tensors)
+    return np.concatenate([t[f"{n}.{p}"].reshape(-1) for n in LAYER_NAMES
+                           for p in ("weight", "bias")]).astype(np.float32)
+
+
+def offsets() -> tuple:
+    """Offsets of each layer's W in packed() (b follows W)."""
+    out, off = [], 0
+    for k in range(len(LAYER_NAMES)):
+        out.append(off)
+        off += WIDTHS[k + 1] * WIDTHS[k] + WIDTHS[k + 1]
+    return tuple(out)

@@ -1,0 +1,75 @@
+"""The shader MLP upscaler's two kernels (kernels/mlp_upscale.cl): the fused gather +
+DC removal + gamma ramp + 50-50-50-25 MLP per render pixel (`blocks`), and the overlap
+average + PQ decode per output pixel (`fold`). The constants and geometry arrive as -D
+options (`defines`, built by clss.methods.mlp.transform.kernel_defines, the one place
+they are written); their ONNX twins are in clss/verify/cases/mlp_upscale.py."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..device import Device
+from .base import check_storage
+
+# Work-group shape: a fixed one, so PoCL compiles one work-group function per build, not
+# one per frame size (the kernels guard their bounds).
+LOCAL = (16, 4)
+WEIGHT_COUNT = 50 * 50 + 50 + 50 * 50 + 50 + 25 * 50 + 25
+
+
+def _round_up(n, m):
+    return -(-int(n) // m) * m
+
+
+def pack_weights(dev: Device, prec: str, flat: np.ndarray):
+    """The packed weights (float32 [WEIGHT_COUNT]) on the device; in fp16 storage mode
+    rounded to half first, as every fp16 weight of clss is."""
+    flat = np.asarray(flat, np.float32).reshape(-1)
+    if flat.size != WEIGHT_COUNT:
+        raise ValueError(f"mlp_upscale: {flat.size} packed weights, expected {WEIGHT_COUNT}")
+    if prec != "fp32":
+        flat = flat.astype(np.float16).astype(np.float32)
+    return dev.to_device(flat, "fp32")
+
+
+def blocks(dev: Device, prec: str, color, feat, weights, defines: dict, *,
+           inv_exposure=1.0, pq_scale=0.01, out=None):
+    """color [h, w, 3] linear, feat [H, W] (any [H, W] array when FEATURE=0), weights from
+    pack_weights -> blocks [3, B*B, h, w] (PQ domain)."""
+    check_storage("color", color, prec)
+    check_storage("feat", feat, prec)
+    if weights.dtype != np.float32 or weights.size != WEIGHT_COUNT:
+        raise ValueError("mlp_upscale.blocks: weights must come from pack_weights")
+    h, w, c = color.shape
+    if c != 3:
+        raise ValueError(f"color: expected [h, w, 3], got {color.shape}")
+    s, b = int(defines["S"]), int(defines["B"])
+    H, W = feat.shape[:2]
+    if (H, W) != (s * h, s * w):
+        raise ValueError(f"feat: expected [{s * h}, {s * w}] at scale {s}, got {feat.shape}")
+    if out is None:
+        out = dev.empty((3, b * b, h, w), prec)
+    kern = dev.kernel("mlp_upscale", "mlp_upscale_blocks", prec, **defines)
+    dev.launch(kern, (_round_up(w, LOCAL[0]), _round_up(h, LOCAL[1])),
+               (color.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
+                np.int32(H), np.int32(W), np.float32(inv_exposure), np.float32(pq_scale)),
+               local_size=LOCAL)
+    return out
+
+
+def fold(dev: Device, prec: str, blk, defines: dict, *, exposure=1.0, inv_pq_scale=100.0,
+         out=None):
+    """blocks [3, B*B, h, w] -> [H, W, 3] linear: each output pixel the mean of the blocks
+    covering it, PQ-decoded, times exposure."""
+    check_storage("blocks", blk, prec)
+    s, b = int(defines["S"]), int(defines["B"])
+    _, bb, h, w = blk.shape
+    if bb != b * b:
+        raise ValueError(f"blocks: expected {b * b} block units at scale {s}, got {bb}")
+    H, W = s * h, s * w
+    if out is None:
+        out = dev.empty((H, W, 3), prec)
+    kern = dev.kernel("mlp_upscale", "mlp_upscale_fold", prec, **defines)
+    dev.launch(kern, (_round_up(W, LOCAL[0]), _round_up(H, LOCAL[1])),
+               (blk.data, out.data, np.int32(h), np.int32(w), np.int32(H), np.int32(W),
+                np.float32(exposure), np.float32(inv_pq_scale)), local_size=LOCAL)
+    return out

@@ -1,0 +1,194 @@
+/* mlp_upscale: the shader MLP upscaler's frame step (seed 004, Spencer 2022;
+ * docs/methods/mlp.md), two kernels:
+ *
+ *   mlp_upscale_blocks  per render pixel and colour channel: gather the 5x5 beauty
+ *                       neighbourhood (render res, PQ-encoded) and the 5x5 feature
+ *                       neighbourhood (output res depth), remove each one's mean (DC),
+ *                       apply the gamma ramp, run the 50-50-50-25 MLP and write the
+ *                       B x B output block back in the PQ domain (mean + inverse ramp);
+ *   mlp_upscale_fold    per output pixel: the mean of the blocks that cover it, PQ
+ *                       decode, exposure.
+ *
+ * The hidden activations stay in private memory; the blocks go through global memory
+ * once ([3][B*B][h][w], storage type T), so that each output pixel averages its
+ * overlapping blocks without atomics.
+ *
+ * Geometry and constants come from the host (clss/methods/mlp/transform.py, written
+ * once for this kernel and the ONNX and torch twins):
+ *   -DS=2|3            the integer scale
+ *   -DB=S+2            output block side; block of render pixel (i, j) starts at output
+ *                      pixel (S*i-1, S*j-1); unit k < B*B is its pixel (k / B, k % B)
+ *   -DFEATURE=0|1      1: the feature pass feeds units 25..49; 0: they are zero (the
+ *                      seed's ablation)
+ *   -DINV_GAMMA, -DGAMMA, -DEPS, -DEPS_ROOT   the ramp sign(r)((|r|+EPS)^(1/GAMMA) - EPS_ROOT)
+ *   -DALPHA            the hidden layers' leaky ReLU slope
+ *   -DPQ_M1, -DPQ_M2, -DPQ_C1, -DPQ_C2, -DPQ_C3   the contract's PQ constants
+ * Weights: float, per layer W [out][in] row-major then b [out] (fp16 storage mode: the
+ * host rounds them to half first), layers 50->50, 50->50, 50->25.
+ */
+#include "common.h"
+
+#ifndef S /* a porter building the source as is, or `clss verify`'s build check: 2x */
+#define S 2
+#define B 4
+#define FEATURE 1
+#define GAMMA 2.0f
+#define INV_GAMMA 0.5f
+#define EPS 0.001f
+#define EPS_ROOT 0.0316227766f
+#define ALPHA 0.01f
+#define PQ_M1 0.1593017578125f
+#define PQ_M2 78.84375f
+#define PQ_C1 0.8359375f
+#define PQ_C2 18.8515625f
+#define PQ_C3 18.6875f
+#endif
+
+#define TAPS 5
+#define NT (TAPS * TAPS)
+#define NI (2 * NT)
+#define NH 50
+#define NO 25
+#define BB (B * B)
+#define OFF1 0
+#define OFF2 (OFF1 + NH * NI + NH)
+#define OFF3 (OFF2 + NH * NH + NH)
+
+inline float mu_pq_encode(float x, float pq_scale)
+{
+    const float y = clamp(x * pq_scale, 0.0f, 1.0f);
+    const float ym = pow(y, (float)PQ_M1);
+    return pow((PQ_C1 + PQ_C2 * ym) / (1.0f + PQ_C3 * ym), (float)PQ_M2);
+}
+
+inline float mu_pq_decode(float e, float inv_pq_scale)
+{
+    const float ep = pow(clamp(e, 0.0f, 1.0f), 1.0f / (float)PQ_M2);
+    return pow(fmax(ep - PQ_C1, 0.0f) / (PQ_C2 - PQ_C3 * ep), 1.0f / (float)PQ_M1) * inv_pq_scale;
+}
+
+inline float mu_ramp(float r)
+{
+    return sign(r) * (pow(fabs(r) + (float)EPS, (float)INV_GAMMA) - (float)EPS_ROOT);
+}
+
+inline float mu_ramp_inv(float y)
+{
+    return sign(y) * (pow(fabs(y) + (float)EPS_ROOT, (float)GAMMA) - (float)EPS);
+}
+
+/* IN [CI] -> OUT [CO] = act(W IN + b); leaky when LEAKY. */
+#define DENSE(IN, OUT, CI, CO, WOFF, LEAKY)                                  \
+    for (int o = 0; o < (CO); ++o) {                                         \
+        float a = wp[(WOFF) + (CO) * (CI) + o];                              \
+        for (int q = 0; q < (CI); ++q)                                       \
+            a = fma(wp[(WOFF) + o * (CI) + q], IN[q], a);                    \
+        OUT[o] = (LEAKY) && a < 0.0f ? a * (float)ALPHA : a;                 \
+    }
+
+/** @param[in]  color         [h][w][3] linear colour (render res, the contract's layout)
+ *  @param[in]  feat          [H][W] depth at output resolution (unused when FEATURE=0)
+ *  @param[in]  wp            the packed weights (float), see the top of this file
+ *  @param[out] blocks        [3][B*B][h][w] each render pixel's output block, PQ domain
+ *  @param[in]  h, w, H, W    render and output sizes (H = S*h, W = S*w)
+ *  @param[in]  inv_exposure  1 / exposure, applied before the PQ encode
+ *  @param[in]  pq_scale      nits / 10000 (linear 1.0 in PQ units)
+ *  @note -DS, -DB, -DFEATURE, -DGAMMA, -DINV_GAMMA, -DEPS, -DEPS_ROOT, -DALPHA, -DPQ_*: see the top of this file
+ *  @note -DCLSS_FP16: half storage of color, feat and blocks (float arithmetic)
+ *  NDRange: (w, h) rounded up to the work-group; the kernel guards. */
+__kernel void mlp_upscale_blocks(__global const T *color, __global const T *feat,
+                                 __global const float *wp, __global T *blocks,
+                                 int h, int w, int H, int W, float inv_exposure,
+                                 float pq_scale)
+{
+    const int j = get_global_id(0), i = get_global_id(1);
+    if (j >= w || i >= h)
+        return;
+    float x[NI], h1[NH], h2[NH], y[NO];
+
+#if FEATURE
+    {
+        float m = 0.0f;
+        for (int dy = 0; dy < TAPS; ++dy) {
+            const int yy = clamp(S * i - 1 + dy, 0, H - 1);
+            for (int dx = 0; dx < TAPS; ++dx) {
+                const int xx = clamp(S * j - 1 + dx, 0, W - 1);
+                const float v = LD(feat, (long)yy * W + xx);
+                x[NT + dy * TAPS + dx] = v;
+                m += v;
+            }
+        }
+        m *= 1.0f / NT;
+        for (int k = 0; k < NT; ++k)
+            x[NT + k] = mu_ramp(x[NT + k] - m);
+    }
+#else
+    for (int k = 0; k < NT; ++k)
+        x[NT + k] = 0.0f;
+#endif
+
+    const long hw = (long)h * w;
+    for (int c = 0; c < 3; ++c) {
+        float m = 0.0f;
+        for (int dy = 0; dy < TAPS; ++dy) {
+            const int yy = clamp(i - 2 + dy, 0, h - 1);
+            for (int dx = 0; dx < TAPS; ++dx) {
+                const int xx = clamp(j - 2 + dx, 0, w - 1);
+                const float v = mu_pq_encode(LD(color, ((long)yy * w + xx) * 3 + c) * inv_exposure,
+                                             pq_scale);
+                x[dy * TAPS + dx] = v;
+                m += v;
+            }
+        }
+        m *= 1.0f / NT;
+        for (int k = 0; k < NT; ++k)
+            x[k] = mu_ramp(x[k] - m);
+
+        DENSE(x, h1, NI, NH, OFF1, 1)
+        DENSE(h1, h2, NH, NH, OFF2, 1)
+        /* only the BB units the block uses (16 of 25 at 2x) */
+        for (int o = 0; o < BB; ++o) {
+            float a = wp[OFF3 + NO * NH + o];
+            for (int q = 0; q < NH; ++q)
+                a = fma(wp[OFF3 + o * NH + q], h2[q], a);
+            y[o] = a;
+        }
+        for (int k = 0; k < BB; ++k)
+            ST(blocks, ((long)c * BB + k) * hw + (long)i * w + j, m + mu_ramp_inv(y[k]));
+    }
+}
+
+/** @param[in]  blocks        [3][B*B][h][w] from mlp_upscale_blocks (PQ domain)
+ *  @param[out] out           [H][W][3] linear colour
+ *  @param[in]  h, w, H, W    render and output sizes
+ *  @param[in]  exposure      applied after the PQ decode
+ *  @param[in]  inv_pq_scale  10000 / nits
+ *  @note -DS, -DB: as mlp_upscale_blocks; -DCLSS_FP16: half storage
+ *  NDRange: (W, H) rounded up to the work-group; the kernel guards. */
+__kernel void mlp_upscale_fold(__global const T *blocks, __global T *out, int h, int w,
+                               int H, int W, float exposure, float inv_pq_scale)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= W || y >= H)
+        return;
+    /* blocks i with S*i-1 <= y <= S*i+S: i = ihi or ihi-1, ihi = floor((y+1)/S) */
+    const int ihi = (y + 1) / S, jhi = (x + 1) / S;
+    const long hw = (long)h * w;
+    float acc[3] = {0.0f, 0.0f, 0.0f};
+    int n = 0;
+    for (int i = ihi - 1; i <= ihi; ++i) {
+        if (i < 0 || i >= h || S * i < y - S)
+            continue;
+        for (int j = jhi - 1; j <= jhi; ++j) {
+            if (j < 0 || j >= w || S * j < x - S)
+                continue;
+            const int k = (y + 1 - S * i) * B + (x + 1 - S * j);
+            for (int c = 0; c < 3; ++c)
+                acc[c] += LD(blocks, ((long)c * BB + k) * hw + (long)i * w + j);
+            ++n;
+        }
+    }
+    const float inv_n = 1.0f / (float)n;
+    for (int c = 0; c < 3; ++c)
+        ST(out, ((long)y * W + x) * 3 + c, mu_pq_decode(acc[c] * inv_n, inv_pq_scale) * exposure);
+}

