@@ -1,0 +1,156 @@
+"""The NSRR frame step on an OpenCL device: buffers, launches, the two networks.
+
+Per frame (render h x w, output H x W, padded Hp x Wp = multiples of 4; N history slots):
+
+    prepare       colour, depth, motion -> rgbd [4,h,w] (PQ, reversed-Z), mv [2,h,w]
+    features      rgbd -> feat [12,h,w]                     (clss.Model; once per frame)
+    reproject     feat, mv, hist -> stack [12(N+1),Hp,Wp]   zero-upsampling with the jitter,
+                                                            motion upsampled bilinearly,
+                                                            the history warped one step
+    reconstruct   stack -> y [3,Hp,Wp]                      (clss.Model: reweighting + U-Net)
+    finish        y -> out [H,W,3] linear
+    keep          hist <- stack[0:12N]                       (a device copy)
+
+Everything is enqueued on the device's in-order queue with no host wait between the
+stages; the caller waits once, on the output. The networks run through recorded
+clss.Model launch plans into buffers allocated here once.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pyopencl as cl
+
+from ...device import Device
+from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
+from .networks import FEAT, build_features, build_reconstruct
+
+STAGES = ("prepare", "features", "reproject", "reconstruct", "finish")
+RESET_FILLS = ("zero", "duplicate")
+
+
+def pad4(n: int) -> int:
+    return -(-int(n) // 4) * 4
+
+
+def zu_axis(scale: float, jit: float):
+    """(integer scale or 0, integer sample offset in the block) of one axis, as
+    kernels/zero_upsample.cl (and nsrr.cl) place a jittered sample."""
+    if float(scale).is_integer():
+        s = int(scale)
+        return s, min(int(math.floor((0.5 + jit) * s)), s - 1)
+    return 0, 0
+
+
+class NsrrFrameStep:
+    """Device buffers and launches of one frame step at a fixed render size."""
+
+    def __init__(self, dev: Device, prec: str, render_size, scale, cfg, weights, *,
+                 history=None, reset_fill="zero", nits=PQ_NITS, profile=False):
+        if reset_fill not in RESET_FILLS:
+            raise ValueError(f"reset_fill: expected {' or '.join(RESET_FILLS)}, got {reset_fill!r}")
+        self.dev, self.prec, self.cfg = dev, prec, cfg
+        self.h, self.w = (int(s) for s in render_size)
+        self.H, self.W = output_size(self.h, self.w, scale)
+        self.Hp, self.Wp = pad4(self.H), pad4(self.W)
+        self.sy, self.sx = self.H / self.h, self.W / self.w
+        self.nprev = int(cfg["n_prev"])
+        self.history = self.nprev if history is None else int(history)
+        if not 0 <= self.history <= self.nprev:
+            raise ValueError(f"history: expected 0..{self.nprev} previous frames, got {history!r}")
+        self.reset_fill = reset_fill
+        self.nits = float(nits)
+        self.profile = bool(profile)
+        h, w, Hp, Wp = self.h, self.w, self.Hp, self.Wp
+        f32 = np.float32
+        e = dev.empty
+        self.in_color = e((h, w, 3), dtype=f32)
+        self.in_depth = e((h, w), dtype=f32)
+        self.in_motion = e((h, w, 2), dtype=f32)
+        self.rgbd = e((1, 4, h, w), prec)
+        self.mv = e((2, h, w), dtype=f32)
+        self.feat = e((1, FEAT, h, w), prec)
+        self.hist = e((FEAT * self.nprev, Hp, Wp), prec)
+        self.stack = e((1, FEAT * (self.nprev + 1), Hp, Wp), prec)
+        self.y = e((1, 3, Hp, Wp), prec)
+        self.out = e((self.H, self.W, 3), dtype=f32)
+        # zeroed once (half arrays have no pyopencl fill): no kernel reads uninitialised memory
+        cl.enqueue_fill_buffer(dev.queue, self.hist.data, np.uint8(0), 0, self.hist.nbytes)
+        from ...model import Model
+        self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
+        self.reconstruct = Model(build_reconstruct(cfg, weights, Hp, Wp), device=dev, precision=prec)
+        k = {n: dev.kernel("nsrr", n, prec) for n in ("nsrr_prepare", "nsrr_reproject", "nsrr_finish")}
+        i32, f = np.int32, np.float32
+        self.L = {
+            "prepare": dev.prepare(k["nsrr_prepare"], (w, h), [
+                self.in_color.data, self.in_depth.data, self.in_motion.data, self.rgbd.data,
+                self.mv.data, i32(w), i32(h), i32(1), f(1), f(1), f(1),
+                f(self.nits / PQ_PEAK_NITS)]),
+            "reproject": dev.prepare(k["nsrr_reproject"], (Wp, Hp), [
+                self.feat.data, self.mv.data, self.hist.data, self.stack.data,
+                i32(h), i32(w), i32(self.H), i32(self.W), i32(Hp), i32(Wp), i32(self.nprev),
+                i32(self.history), i32(0), i32(0), i32(0), i32(0), f(self.sy), f(self.sx),
+                f(0), f(0), i32(1)]),
+            "finish": dev.prepare(k["nsrr_finish"], (self.W, self.H), [
+                self.y.data, self.out.data, i32(self.H), i32(self.W), i32(Wp), i32(Hp),
+                f(PQ_PEAK_NITS / self.nits)]),
+        }
+        self.events: list[tuple[str, cl.Event]] = []
+        self.accepted = False
+
+    def run(self, color, depth, motion, jitter, reset, *, depth_inverted=True,
+            motion_scale=(1.0, 1.0), exposure=1.0, out=None):
+        """Enqueue one frame (device arrays in image layout, float32) with no host wait.
+        Returns the output array (`out` or the internal one) and the last event."""
+        L, i32, f = self.L, np.int32, np.float32
+        out = self.out if out is None else out
+        p = L["prepare"]
+        for idx, v in ((0, color.data), (1, depth.data), (2, motion.data),
+                       (7, i32(bool(depth_inverted))), (8, f(motion_scale[0])),
+                       (9, f(motion_scale[1])), (10, f(1.0 / exposure))):
+            p.bind(idx, v)
+        jx, jy = float(jitter[0]), float(jitter[1])
+        (siy, oy), (six, ox) = zu_axis(self.sy, jy), zu_axis(self.sx, jx)
+        mode = 0 if not reset else (1 if self.reset_fill == "zero" else 2)
+        r = L["reproject"]
+        for idx, v in ((12, i32(siy)), (13, i32(six)), (14, i32(oy)), (15, i32(ox)),
+                       (18, f(jy)), (19, f(jx)), (20, i32(mode))):
+            r.bind(idx, v)
+        fin = L["finish"]
+        fin.bind(1, out.data)
+        fin.bind(6, f(PQ_PEAK_NITS / self.nits * exposure))
+        ev = [("prepare", p())]
+        fe = [] if self.profile else None
+        self.features.run_device({"rgbd": self.rgbd}, out={"feat": self.feat}, events=fe)
+        ev += [("features", e) for e in fe or ()]
+        ev.append(("reproject", r()))
+        re = [] if self.profile else None
+        self.reconstruct.run_device({"stack": self.stack}, out={"y": self.y}, events=re)
+        ev += [("reconstruct", e) for e in re or ()]
+        ev.append(("finish", fin()))
+        # The next frame's history: the first N slots of this frame's stack.
+        keep = cl.enqueue_copy(self.dev.queue, self.hist.data, self.stack.data,
+                               byte_count=self.hist.nbytes)
+        ev.append(("finish", keep))
+        if self.profile:
+            self.events.extend(ev)
+        self.accepted = True
+        return out, keep
+
+    def stage_ms(self) -> dict:
+        tot = {}
+        for name, e in self.events:
+            e.wait()
+            tot[name] = tot.get(name, 0.0) + (e.profile.end - e.profile.start) * 1e-6
+        self.events.clear()
+        return {s: tot[s] for s in STAGES if s in tot}
+
+    def device_bytes(self) -> int:
+        arrays = [self.in_color, self.in_depth, self.in_motion, self.rgbd, self.mv, self.feat,
+                  self.hist, self.stack, self.y, self.out]
+        n = sum(a.nbytes for a in arrays)
+        for m in (self.features, self.reconstruct):
+            mem = m.memory()
+            n += mem.get("weights_bytes", 0) + mem.get("intermediate_peak_bytes", 0)
+        return int(n)

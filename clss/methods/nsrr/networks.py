@@ -1,0 +1,217 @@
+"""NSRR's three networks (Xiao et al. 2020, Fig. 4) as ONNX graphs, from named weights.
+
+    features        rgbd [1,4,h,w] -> feat [1,12,h,w]: 3 conv 3x3 + ReLU (8 learned
+                    channels) concatenated after the RGB-D input; render resolution
+    reconstruct     stack [1,12*(1+N),Hp,Wp] -> y [1,3,Hp,Wp]: the feature reweighting
+                    (3 conv on the RGB-D of every slot, tanh scaled to (0, 10), one map per
+                    previous frame multiplied into its 12 features) then the 3-scale
+                    10-layer U-Net (max pooling, nearest upsizing, skip concatenations)
+
+`stack` is the current frame's zero-upsampled features (channels 0-11) followed by the
+N previous frames' zero-upsampled, accumulatively warped features (12 each), padded to
+a multiple of 4 (two poolings). The output is the frame in the PQ domain.
+
+Widths. The paper's (32-32-8 | 32-32-N | 64-32, 64-64, 128-128, 64-64, 32-3) cost about
+330 kFLOP per output pixel with N = 4; at 270p -> 1080p that is 0.7 TFLOP a frame, tens
+of seconds on 2 CPU cores, and a training run of the paper's length is out of reach here
+(docs/methods/nsrr.md). `WIDTHS["default"]` keeps the architecture and shrinks the
+channels to about 1/8 of the compute; "fast" halves the U-Net again except its last
+layer (the paper's "Ours-Fast"); "paper" is the paper's. One config, stored with the
+weights (safetensors metadata), builds the OpenCL step, the ONNX twin and the torch twin.
+
+The same weight names are the torch twin's state_dict keys (weights_tools/nsrr_torch.py):
+fe.{0,1,2}.{weight,bias}, rw.{0,1,2}.*, un.{0..9}.*.
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
+
+FEAT_LEARNED = 8
+FEAT = 4 + FEAT_LEARNED            # RGB-D + learned
+MAX_PREV = 4
+WEIGHT_SCALE = 10.0                # tanh (-1, 1) -> (0, 10)
+OPSET = 18
+IR_VERSION = 10
+
+WIDTHS = {
+    # fe: feature extraction hidden widths; rw: reweighting hidden widths;
+    # un: the U-Net's 9 hidden widths (enc 1a 1b, enc 2a 2b, bottom a b, dec 2a 2b, dec 1a)
+    "paper": {"fe": [32, 32], "rw": [32, 32], "un": [64, 32, 64, 64, 128, 128, 64, 64, 32]},
+    "default": {"fe": [16, 16], "rw": [16, 16], "un": [24, 16, 32, 32, 64, 64, 32, 32, 16]},
+    "fast": {"fe": [16, 16], "rw": [16, 16], "un": [12, 8, 16, 16, 32, 32, 16, 16, 8]},
+}
+
+
+def make_config(widths="default", n_prev=MAX_PREV) -> dict:
+    if isinstance(widths, str):
+        if widths not in WIDTHS:
+            raise ValueError(f"widths: expected one of {', '.join(WIDTHS)}, got {widths!r}")
+        w = dict(WIDTHS[widths], name=widths)
+    else:
+        w = dict(widths)
+        w.setdefault("name", "custom")
+    n_prev = int(n_prev)
+    if not 1 <= n_prev <= MAX_PREV:
+        raise ValueError(f"n_prev: expected 1..{MAX_PREV}, got {n_prev}")
+    w["n_prev"] = n_prev
+    return w
+
+
+def layer_shapes(cfg) -> dict:
+    """name -> (cout, cin) of every 3x3 conv."""
+    n = cfg["n_prev"]
+    f1, f2 = cfg["fe"]
+    r1, r2 = cfg["rw"]
+    u = cfg["un"]
+    cin = FEAT * (1 + n)
+    s = {"fe.0": (f1, 4), "fe.1": (f2, f1), "fe.2": (FEAT_LEARNED, f2),
+         "rw.0": (r1, 4 * (1 + n)), "rw.1": (r2, r1), "rw.2": (n, r2),
+         "un.0": (u[0], cin), "un.1": (u[1], u[0]),
+         "un.2": (u[2], u[1]), "un.3": (u[3], u[2]),
+         "un.4": (u[4], u[3]), "un.5": (u[5], u[4]),
+         "un.6": (u[6], u[5] + u[3]), "un.7": (u[7], u[6]),
+         "un.8": (u[8], u[7] + u[1]), "un.9": (3, u[8])}
+    return s
+
+
+def init_weights(cfg, seed=0) -> dict:
+    """Seeded He-normal init (the untrained networks; the torch twin starts from the
+    same tensors). The last layer of the U-Net starts small and its bias at mid-grey in
+    PQ, so an untrained network outputs a flat image rather than noise."""
+    g = np.random.default_rng(seed)
+    out = {}
+    for name, (co, ci) in layer_shapes(cfg).items():
+        std = np.sqrt(2.0 / (ci * 9))
+        if name == "un.9":
+            std *= 0.1
+        out[f"{name}.weight"] = g.normal(0, std, (co, ci, 3, 3)).astype(np.float32)
+        out[f"{name}.bias"] = np.zeros(co, np.float32)
+    out["un.9.bias"][:] = 0.5
+    return out
+
+
+def check_weights(cfg, weights: dict) -> None:
+    for name, (co, ci) in layer_shapes(cfg).items():
+        for k, shape in ((f"{name}.weight", (co, ci, 3, 3)), (f"{name}.bias", (co,))):
+            if k not in weights:
+                raise ValueError(f"nsrr weights: missing tensor {k}")
+            if tuple(weights[k].shape) != shape:
+                raise ValueError(f"nsrr weights: {k} has shape {tuple(weights[k].shape)}, the "
+                                 f"config {cfg.get('name')} needs {shape}")
+
+
+def save(path, cfg, weights: dict) -> None:
+    from safetensors.numpy import save_file
+    check_weights(cfg, weights)
+    save_file({k: np.ascontiguousarray(v, np.float32) for k, v in sorted(weights.items())}, path,
+              metadata={"nsrr_config": json.dumps(cfg, sort_keys=True)})
+
+
+def load(path) -> tuple[dict, dict]:
+    """(config, weights) of an NSRR .safetensors file (config from its metadata)."""
+    from safetensors import safe_open
+    with safe_open(path, "np") as f:
+        meta = f.metadata() or {}
+        weights = {k: f.get_tensor(k).astype(np.float32) for k in f.keys()}
+    if "nsrr_config" not in meta:
+        raise ValueError(f"weights: {path} has no nsrr_config metadata (not an NSRR weights file)")
+    cfg = json.loads(meta["nsrr_config"])
+    check_weights(cfg, weights)
+    return cfg, weights
+
+
+class _G:
+    """Nodes and initializers of one network."""
+
+    def __init__(self, weights):
+        self.w, self.nodes, self.inits, self.k, self.used = weights, [], [], 0, set()
+
+    def name(self, hint):
+        self.k += 1
+        return f"{hint}_{self.k}"
+
+    def op(self, op, *inputs, out=None, **attrs):
+        y = out or self.name(op.lower())
+        self.nodes.append(helper.make_node(op, list(inputs), [y], name=y, **attrs))
+        return y
+
+    def const(self, arr, hint="c"):
+        n = self.name(hint)
+        self.inits.append(numpy_helper.from_array(np.asarray(arr), n))
+        return n
+
+    def param(self, key):
+        if key not in self.used:
+            self.used.add(key)
+            self.inits.append(numpy_helper.from_array(np.asarray(self.w[key], np.float32), key))
+        return key
+
+    def conv(self, x, layer, act="Relu", out=None):
+        y = self.op("Conv", x, self.param(f"{layer}.weight"), self.param(f"{layer}.bias"),
+                    pads=[1, 1, 1, 1], kernel_shape=[3, 3], out=None if act else out)
+        return self.op(act, y, out=out) if act else y
+
+    def slice(self, x, c0, c1):
+        return self.op("Slice", x, self.const(np.array([c0], np.int64), "s"),
+                       self.const(np.array([c1], np.int64), "e"),
+                       self.const(np.array([1], np.int64), "a"))
+
+    def model(self, name, inputs, outputs):
+        graph = helper.make_graph(self.nodes, name, inputs, outputs, self.inits)
+        m = helper.make_model(graph, producer_name="clss.methods.nsrr.networks",
+                              opset_imports=[helper.make_opsetid("", OPSET)])
+        m.ir_version = IR_VERSION
+        return m
+
+
+def _vi(name, shape):
+    return helper.make_tensor_value_info(name, TensorProto.FLOAT, list(shape))
+
+
+def build_features(cfg, weights, h="h", w="w") -> onnx.ModelProto:
+    g = _G(weights)
+    y = g.conv(g.conv(g.conv("rgbd", "fe.0"), "fe.1"), "fe.2")
+    g.op("Concat", "rgbd", y, axis=1, out="feat")
+    return g.model("nsrr_features", [_vi("rgbd", [1, 4, h, w])], [_vi("feat", [1, FEAT, h, w])])
+
+
+def build_reconstruct(cfg, weights, H="H", W="W") -> onnx.ModelProto:
+    n = cfg["n_prev"]
+    g = _G(weights)
+    x = "stack"
+    # Feature reweighting on the RGB-D of the current and every previous slot.
+    rgbd = g.op("Concat", *[g.slice(x, FEAT * k, FEAT * k + 4) for k in range(n + 1)], axis=1)
+    r = g.conv(g.conv(g.conv(rgbd, "rw.0"), "rw.1"), "rw.2", act="Tanh")
+    half = g.const(np.float32(WEIGHT_SCALE / 2), "half_scale")
+    r = g.op("Mul", g.op("Add", r, g.const(np.float32(1.0), "one")), half)
+    parts = [g.op("Mul", g.slice(x, FEAT * k, FEAT * (k + 1)), g.slice(r, k - 1, k))
+             for k in range(1, n + 1)]
+    x = g.op("Concat", g.slice("stack", 0, FEAT), *parts, axis=1)
+    # The reconstruction U-Net.
+    pool = dict(kernel_shape=[2, 2], strides=[2, 2])
+    up = g.const(np.array([1, 1, 2, 2], np.float32), "scales")
+    e1 = g.conv(g.conv(x, "un.0"), "un.1")
+    e2 = g.conv(g.conv(g.op("MaxPool", e1, **pool), "un.2"), "un.3")
+    b = g.conv(g.conv(g.op("MaxPool", e2, **pool), "un.4"), "un.5")
+    rs = dict(mode="nearest", coordinate_transformation_mode="asymmetric", nearest_mode="floor")
+    d2 = g.op("Concat", g.op("Resize", b, "", up, **rs), e2, axis=1)
+    d2 = g.conv(g.conv(d2, "un.6"), "un.7")
+    d1 = g.op("Concat", g.op("Resize", d2, "", up, **rs), e1, axis=1)
+    g.conv(g.conv(d1, "un.8"), "un.9", act=None, out="y")
+    return g.model("nsrr_reconstruct", [_vi("stack", [1, FEAT * (n + 1), H, W])],
+                   [_vi("y", [1, 3, H, W])])
+
+
+def macs_per_pixel(cfg, scale) -> dict:
+    """Multiply-adds per output pixel of each network (for the docs and bench)."""
+    s = layer_shapes(cfg)
+    m = {k: co * ci * 9 for k, (co, ci) in s.items()}
+    fe = sum(m[k] for k in ("fe.0", "fe.1", "fe.2")) / float(scale) ** 2
+    rw = sum(m[k] for k in ("rw.0", "rw.1", "rw.2"))
+    un = (m["un.0"] + m["un.1"] + m["un.8"] + m["un.9"]
+          + (m["un.2"] + m["un.3"] + m["un.6"] + m["un.7"]) / 4 + (m["un.4"] + m["un.5"]) / 16)
+    return {"features": fe, "reweighting": rw, "reconstruction": un, "total": fe + rw + un}

@@ -1,0 +1,143 @@
+"""The whole NSRR frame step as one ONNX graph, run by onnxruntime: the oracle that
+tests hold the OpenCL step (frame.py, kernels/nsrr.cl) to. State is explicit: the graph
+takes the history [1,12N,H,W] and returns the next one.
+
+Graph inputs (internal conventions, contract.to_internal):
+    color [1,3,h,w] linear / exposure     depth [1,1,h,w] reversed-Z
+    motion [1,2,h,w] render pixels        hist [1,12N,H,W] the history
+    zu_y [H], zu_x [W] int64: the render row / column whose jittered sample lands on
+        each output row / column, or h / w (a zero row / column) where none does
+        (computed from the jitter by `zu_index`, as kernels/nsrr.cl places samples)
+    keep [1]: 1 = warp the history, 0 = a reset;  dup [1]: 1 = after a reset every
+        valid slot is the current frame's features ("duplicate"), 0 = zeros
+Outputs: output [1,3,H,W] linear (/ exposure), hist_out [1,12N,H,W].
+
+The networks (networks.py) are inlined: features on the render frame, then the stack
+[Z_i, warped history] padded to a multiple of 4 for the reconstruction.
+"""
+from __future__ import annotations
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper
+
+from ...ops.zero_upsample import placement
+from ...pipeline.contract import PQ_NITS, output_size, to_internal, validate_frame
+from ...pipeline.twin import IR_VERSION, GraphBuilder, pq_decode, pq_encode
+from . import networks as nets
+from .frame import pad4
+from .upscaler import load_weights
+
+OPSET = 18
+
+
+def zu_index(n: int, scale: float, jit: float, size: int) -> np.ndarray:
+    """[size] int64: the render index placed on each output index, n where none is."""
+    pos = placement(n, scale, jit, size)
+    idx = np.full(size, n, np.int64)
+    ok = pos >= 0
+    idx[pos[ok]] = np.arange(n)[ok]
+    return idx
+
+
+def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) -> onnx.ModelProto:
+    h, w = render_size
+    H, W = output_size(h, w, scale)
+    Hp, Wp = pad4(H), pad4(W)
+    sy, sx = H / h, W / w
+    n = cfg["n_prev"]
+    nvalid = n if history is None else int(history)
+    C = nets.FEAT
+    g = GraphBuilder(OPSET)
+    # rgbd and features at render resolution
+    rgbd = g.concat([pq_encode(g, "color", nits), "depth"])
+    g.inline(nets.build_features(cfg, weights, h, w), "fe", {"rgbd": rgbd}, {"feat": "feat"})
+    # zero-upsampling: a zero column and row appended, then the placement gathers
+    zc = g.const(np.zeros((1, C, h, 1), np.float32), np.float32, "zcol")
+    z = g.op("Gather", g.concat(["feat", zc], axis=3), "zu_x", axis=3)
+    zr = g.const(np.zeros((1, C, 1, W), np.float32), np.float32, "zrow")
+    z = g.op("Gather", g.concat([z, zr], axis=2), "zu_y", axis=2)
+    # motion: bilinear (half-pixel, edge-clamped) to output size, in output pixels
+    sizes = g.i64([1, 2, H, W])
+    m = g.op("Resize", "motion", "", "", sizes, mode="linear",
+             coordinate_transformation_mode="half_pixel")
+    mx = g.mul(g.chan(m, slice(0, 1)), g.const(np.float32(sx)))
+    my = g.mul(g.chan(m, slice(1, 2)), g.const(np.float32(sy)))
+    xs = g.const(np.arange(W, dtype=np.float32).reshape(1, 1, 1, W), np.float32, "xs")
+    ys = g.const(np.arange(H, dtype=np.float32).reshape(1, 1, H, 1), np.float32, "ys")
+    gx = g.normalised(g.add(xs, mx), W)
+    gy = g.normalised(g.add(ys, my), H)
+    grid = g.op("Transpose", g.concat([gx, gy], axis=1), perm=[0, 2, 3, 1])
+    warped = g.op("GridSample", "hist", grid, mode="bilinear", padding_mode="zeros",
+                  align_corners=0)
+    # reset: keep * warped + dup * Z in every slot; slots beyond `history` are zero
+    tiled = g.op("Tile", z, g.i64([1, n, 1, 1]))
+    prev = g.add(g.mul(warped, "keep"), g.mul(tiled, "dup"))
+    mask = np.zeros((1, C * n, 1, 1), np.float32)
+    mask[:, :C * nvalid] = 1.0
+    prev = g.mul(prev, g.const(mask, np.float32, "slots"))
+    stack = g.concat([z, prev])
+    g.slice(stack, 1, 0, C * n)
+    g.nodes[-1].output[0] = "hist_out"
+    g.nodes[-1].name = "hist_out"
+    padded = g.op("Pad", stack, g.i64([0, 0, 0, 0, 0, 0, Hp - H, Wp - W]), mode="constant")
+    g.inline(nets.build_reconstruct(cfg, weights, Hp, Wp), "re", {"stack": padded}, {"y": "y"})
+    y = g.slice(g.slice("y", 2, 0, H), 3, 0, W)
+    pq_decode(g, g.clip(y, 0.0, 1.0), nits, name="output")
+    f = TensorProto.FLOAT
+    vi = helper.make_tensor_value_info
+    graph = helper.make_graph(
+        g.nodes, "nsrr_frame",
+        [vi("color", f, [1, 3, h, w]), vi("depth", f, [1, 1, h, w]), vi("motion", f, [1, 2, h, w]),
+         vi("hist", f, [1, C * n, H, W]), vi("zu_y", TensorProto.INT64, [H]),
+         vi("zu_x", TensorProto.INT64, [W]), vi("keep", f, [1]), vi("dup", f, [1])],
+        [vi("output", f, [1, 3, H, W]), vi("hist_out", f, [1, C * n, H, W])], g.inits)
+    model = helper.make_model(graph, producer_name="clss.methods.nsrr.oracle",
+                              opset_imports=[helper.make_opsetid("", OPSET)])
+    model.ir_version = IR_VERSION
+    return model
+
+
+class OracleNsrr:
+    """Frame-by-frame runner of the twin with the contract's `step` (onnxruntime)."""
+
+    def __init__(self, render_size, scale=4.0, weights=None, *, history=None,
+                 reset_fill="zero", depth_inverted=True, motion_scale=(1, 1), exposure=1.0,
+                 widths="default", threads=2, **unused):
+        import onnxruntime as ort
+        self.render_size, self.scale = tuple(int(v) for v in render_size), float(scale)
+        self.cfg, self.weights, _ = load_weights(weights, self.scale, widths)
+        self.model = build_graph(self.render_size, self.scale, self.cfg, self.weights, history)
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = threads
+        self.session = ort.InferenceSession(self.model.SerializeToString(), sess_options=so,
+                                            providers=["CPUExecutionProvider"])
+        self.reset_fill = reset_fill
+        self.depth_inverted, self.motion_scale = depth_inverted, motion_scale
+        self.exposure = exposure
+        h, w = self.render_size
+        self.H, self.W = output_size(h, w, self.scale)
+        self.hist = np.zeros((1, nets.FEAT * self.cfg["n_prev"], self.H, self.W), np.float32)
+        self.first = True
+
+    def step(self, color, depth, motion, jitter, reset=False, **unused):
+        f = validate_frame(color, depth, motion, jitter, render_size=self.render_size,
+                           depth_inverted=self.depth_inverted)
+        x = to_internal(f, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
+                        exposure=self.exposure)
+        h, w = self.render_size
+        jx, jy = (float(v) for v in x["jitter"])
+        reset = bool(reset) or self.first
+        self.first = False
+        feeds = {"color": x["color"], "depth": x["depth"], "motion": x["motion"],
+                 "hist": self.hist,
+                 "zu_y": zu_index(h, self.H / h, jy, self.H), "zu_x": zu_index(w, self.W / w, jx, self.W),
+                 "keep": np.array([0.0 if reset else 1.0], np.float32),
+                 "dup": np.array([1.0 if reset and self.reset_fill == "duplicate" else 0.0],
+                                 np.float32)}
+        y, self.hist = self.session.run(["output", "hist_out"], feeds)
+        return np.ascontiguousarray(y[0].transpose(1, 2, 0)) * np.float32(self.exposure)
+
+
+def twin(method, render_size, scale=4.0, **kwargs):
+    return OracleNsrr(render_size, scale, **kwargs)

@@ -1,0 +1,216 @@
+/* NSRR's frame step around its networks (Xiao et al. 2020, section 3.2; the room
+ * clss/methods/nsrr/, its ONNX twin oracle.py states the same formulas as graph nodes).
+ *
+ *   nsrr_prepare    caller's colour / depth / motion (image layout, float32) -> rgbd
+ *                   [4,h,w] (PQ colour, reversed-Z depth; storage T) and motion [2,h,w]
+ *                   (render pixels, float32)
+ *   nsrr_reproject  the current features [12,h,w] zero-upsampled to [12,Hp,Wp] with the
+ *                   frame's jitter, the render motion upsampled bilinearly to output
+ *                   pixels, and the history (the previous frames' zero-upsampled features,
+ *                   each already warped to the previous frame) warped one step more:
+ *                   stack = [Z_i, warp(hist slot 0..N-1)], the reconstruction's input
+ *   nsrr_finish     network output [3,Hp,Wp] (PQ) -> the caller's image, linear
+ *
+ * Accumulative warping: the history holds, for k = 1..N, frame i-k's zero-upsampled
+ * features warped through the motions of frames i-k+1 .. i-1 (channels 12(k-1)..12k-1).
+ * One bilinear warp by frame i's motion brings every slot to frame i; stack[0:12N] is
+ * then the next frame's history, copied by the host's queue after the network. Frame
+ * i-k has been warped k times, the paper's iterative warping.
+ *
+ * Padding: the output is computed on Hp x Wp (multiples of 4, for the U-Net's two
+ * poolings); every channel is 0 outside H x W, and the warp reads only inside H x W
+ * (zero padding, per tap, as ONNX GridSample padding_mode="zeros").
+ */
+#include "common.h"
+
+#pragma OPENCL FP_CONTRACT OFF
+
+#define FEAT 12
+
+/* (as kernels/zero_upsample.cl) the render index whose jittered sample lands on output
+ * index X, or -1; si > 0: integer scale with the host's offset o. */
+static int zu_place(int j, float s, float jit)
+{
+    const float p = ((float)j + 0.5f + jit) * s;
+    return min((int)floor(p), (int)ceil((float)(j + 1) * s) - 1);
+}
+
+static int zu_source(int X, int n, int si, int o, float s, float jit)
+{
+    if (si > 0) {
+        const int d = X - o;
+        if (d < 0 || d % si) return -1;
+        return d / si < n ? d / si : -1;
+    }
+    const int jc = (int)floor(((float)X + 0.5f) / s - 0.5f - jit);
+    for (int j = max(jc - 1, 0); j <= min(jc + 1, n - 1); ++j)
+        if (zu_place(j, s, jit) == X) return j;
+    return -1;
+}
+
+static float pq_encode(float x, float pq_scale)
+{
+    const float y = clamp(x * pq_scale, 0.0f, 1.0f);
+    const float ym = pow(y, 0.1593017578125f);
+    return pow((0.8359375f + 18.8515625f * ym) / (1.0f + 18.6875f * ym), 78.84375f);
+}
+
+static float pq_decode(float e, float inv_pq_scale)
+{
+    const float ep = pow(clamp(e, 0.0f, 1.0f), 1.0f / 78.84375f);
+    const float num = max(ep - 0.8359375f, 0.0f);
+    return pow(num / (18.8515625f - 18.6875f * ep), 1.0f / 0.1593017578125f) * inv_pq_scale;
+}
+
+/** @param[in]  color          [h,w,3] float32 linear
+ *  @param[in]  depth          [h,w] float32 in [0, 1]
+ *  @param[in]  motion         [h,w,2] float32, the caller's units
+ *  @param[out] rgbd           [4,h,w] T: PQ colour (of colour / exposure), reversed-Z depth
+ *  @param[out] mv             [2,h,w] float32 render pixels (motion * motion_scale)
+ *  @param[in]  w              render width
+ *  @param[in]  h              render height
+ *  @param[in]  depth_inverted 1: depth is reversed-Z already, 0: 1 - depth
+ *  @param[in]  msx            motion scale x
+ *  @param[in]  msy            motion scale y
+ *  @param[in]  inv_exposure   1 / exposure
+ *  @param[in]  pq_scale       nits / 10000
+ *  Non-finite values become 0 colour, far depth and 0 motion (the host path refuses
+ *  them before, unless the caller asked to sanitize).
+ *  NDRange: (w, h). */
+__kernel void nsrr_prepare(__global const float *color, __global const float *depth,
+                           __global const float *motion, __global T *rgbd, __global float *mv,
+                           int w, int h, int depth_inverted, float msx, float msy,
+                           float inv_exposure, float pq_scale)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= w || y >= h) return;
+    const int p = y * w + x, plane = w * h;
+    for (int c = 0; c < 3; ++c) {
+        float v = color[3 * p + c];
+        v = isfinite(v) ? v * inv_exposure : 0.0f;
+        ST(rgbd, c * plane + p, pq_encode(v, pq_scale));
+    }
+    float d = depth[p];
+    d = isfinite(d) ? (depth_inverted ? d : 1.0f - d) : 0.0f;
+    ST(rgbd, 3 * plane + p, d);
+    const float mx = motion[2 * p], my = motion[2 * p + 1];
+    mv[p] = isfinite(mx) ? mx * msx : 0.0f;
+    mv[plane + p] = isfinite(my) ? my * msy : 0.0f;
+}
+
+/* One bilinear tap weight set, zeros padding per tap (ONNX GridSample). */
+static float tap_w(int xi, int yi, int W, int H, float wx, float wy)
+{
+    return (xi >= 0 && xi < W && yi >= 0 && yi < H) ? wx * wy : 0.0f;
+}
+
+/** @param[in]  feat     [12,h,w] T: the current frame's features
+ *  @param[in]  mv       [2,h,w] float32 render-pixel motion (previous = p + mv)
+ *  @param[in]  hist     [12*N,Hp,Wp] T: the history (see the file comment)
+ *  @param[out] stack    [12*(N+1),Hp,Wp] T: [Z_i, the history warped to frame i]
+ *  @param[in]  h        render height
+ *  @param[in]  w        render width
+ *  @param[in]  H        output height
+ *  @param[in]  W        output width
+ *  @param[in]  Hp       padded output height (multiple of 4)
+ *  @param[in]  Wp       padded output width
+ *  @param[in]  nprev    N, the history slots
+ *  @param[in]  nvalid   slots in use (<= N; slots >= nvalid are written 0)
+ *  @param[in]  siy      integer scale along y, 0 for a fractional one (sy is used)
+ *  @param[in]  six      integer scale along x, 0 for a fractional one
+ *  @param[in]  oy       integer-scale sample offset in the block, from the host
+ *  @param[in]  ox       integer-scale sample offset along x
+ *  @param[in]  sy       H / h
+ *  @param[in]  sx       W / w
+ *  @param[in]  jy       jitter y, render pixels
+ *  @param[in]  jx       jitter x, render pixels
+ *  @param[in]  mode     0: warp the history; 1: reset, empty history (zeros); 2: reset,
+ *                       every valid slot is the current frame's Z (duplicate)
+ *  NDRange: (Wp, Hp). */
+__kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
+                             __global const T *hist, __global T *stack,
+                             int h, int w, int H, int W, int Hp, int Wp, int nprev, int nvalid,
+                             int siy, int six, int oy, int ox, float sy, float sx,
+                             float jy, float jx, int mode)
+{
+    const int X = get_global_id(0), Y = get_global_id(1);
+    if (X >= Wp || Y >= Hp) return;
+    const long oplane = (long)Hp * Wp, o = (long)Y * Wp + X;
+    const int nch = FEAT * (nprev + 1);
+    if (X >= W || Y >= H) {
+        for (int c = 0; c < nch; ++c) ST(stack, c * oplane + o, 0.0f);
+        return;
+    }
+    /* Z_i: the sample whose jittered position lies in this output pixel, else 0. */
+    const int i = zu_source(Y, h, siy, oy, sy, jy);
+    const int j = i < 0 ? -1 : zu_source(X, w, six, ox, sx, jx);
+    const long plane = (long)h * w;
+    float z[FEAT];
+    for (int c = 0; c < FEAT; ++c) {
+        z[c] = j < 0 ? 0.0f : LD(feat, c * plane + (long)i * w + j);
+        ST(stack, c * oplane + o, z[c]);
+    }
+    if (mode != 0) {
+        for (int k = 0; k < nprev; ++k)
+            for (int c = 0; c < FEAT; ++c)
+                ST(stack, (FEAT * (k + 1) + c) * oplane + o, (mode == 2 && k < nvalid) ? z[c] : 0.0f);
+        return;
+    }
+    /* The render motion at this output pixel: bilinear, half-pixel centres, clamped to
+     * the edge (ONNX Resize linear, half_pixel), then in output pixels. */
+    float u = ((float)X + 0.5f) / sx - 0.5f, v = ((float)Y + 0.5f) / sy - 0.5f;
+    u = clamp(u, 0.0f, (float)(w - 1));
+    v = clamp(v, 0.0f, (float)(h - 1));
+    const int u0 = (int)floor(u), v0 = (int)floor(v);
+    const int u1 = min(u0 + 1, w - 1), v1 = min(v0 + 1, h - 1);
+    const float fu = u - (float)u0, fv = v - (float)v0;
+    float m[2];
+    for (int c = 0; c < 2; ++c) {
+        __global const float *q = mv + c * plane;
+        const float top = q[v0 * w + u0] * (1.0f - fu) + q[v0 * w + u1] * fu;
+        const float bot = q[v1 * w + u0] * (1.0f - fu) + q[v1 * w + u1] * fu;
+        m[c] = top * (1.0f - fv) + bot * fv;
+    }
+    /* Backward warp: this pixel was at (X + mx, Y + my) in the previous frame. */
+    const float xs = (float)X + m[0] * sx, ys = (float)Y + m[1] * sy;
+    const int x0 = (int)floor(xs), y0 = (int)floor(ys);
+    const float ax = xs - (float)x0, ay = ys - (float)y0;
+    const float w00 = tap_w(x0, y0, W, H, 1.0f - ax, 1.0f - ay);
+    const float w10 = tap_w(x0 + 1, y0, W, H, ax, 1.0f - ay);
+    const float w01 = tap_w(x0, y0 + 1, W, H, 1.0f - ax, ay);
+    const float w11 = tap_w(x0 + 1, y0 + 1, W, H, ax, ay);
+    /* clamped addresses: a tap of weight 0 reads a valid pixel */
+    const int cx0 = clamp(x0, 0, W - 1), cx1 = clamp(x0 + 1, 0, W - 1);
+    const int cy0 = clamp(y0, 0, H - 1), cy1 = clamp(y0 + 1, 0, H - 1);
+    const long a00 = (long)cy0 * Wp + cx0, a10 = (long)cy0 * Wp + cx1;
+    const long a01 = (long)cy1 * Wp + cx0, a11 = (long)cy1 * Wp + cx1;
+    for (int k = 0; k < nprev; ++k) {
+        const bool on = k < nvalid;
+        for (int c = 0; c < FEAT; ++c) {
+            float r = 0.0f;
+            if (on) {
+                __global const T *p = hist + (long)(FEAT * k + c) * oplane;
+                r = LD(p, a00) * w00 + LD(p, a10) * w10 + LD(p, a01) * w01 + LD(p, a11) * w11;
+            }
+            ST(stack, (FEAT * (k + 1) + c) * oplane + o, r);
+        }
+    }
+}
+
+/** @param[in]  y            [3,Hp,Wp] T: the network's output, PQ
+ *  @param[out] out          [H,W,3] float32 linear (times exposure)
+ *  @param[in]  H            output height
+ *  @param[in]  W            output width
+ *  @param[in]  Wp           padded width (row stride of y)
+ *  @param[in]  Hp           padded height
+ *  @param[in]  inv_pq_scale 10000 / nits, times the exposure
+ *  NDRange: (W, H). */
+__kernel void nsrr_finish(__global const T *y, __global float *out, int H, int W, int Wp, int Hp,
+                          float inv_pq_scale)
+{
+    const int X = get_global_id(0), Y = get_global_id(1);
+    if (X >= W || Y >= H) return;
+    const long plane = (long)Hp * Wp, p = (long)Y * Wp + X;
+    for (int c = 0; c < 3; ++c)
+        out[3 * ((long)Y * W + X) + c] = pq_decode(LD(y, c * plane + p), inv_pq_scale);
+}

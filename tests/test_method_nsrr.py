@@ -1,0 +1,108 @@
+"""The NSRR room (clss/methods/nsrr/): the OpenCL frame step against its whole-frame ONNX
+twin in fp32 and fp16 at 2x and 4x, over a reset, with the history compared too; the
+reset fills and a shortened history; weights files; the registry entry.
+
+Tolerances (per frame): fp32 |d| <= 1e-4 * max|ref| + 1e-4 * |ref| on every output pixel
+and 1e-4 on the history (features in [0, ~3]); fp16 (half storage of every tensor,
+~20 layers) 1e-2 * max|ref| + 1e-2 * |ref| on the output and 2e-2 on the history.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import clss
+from clss import methods
+from clss.methods.nsrr import networks as nets
+from helpers import RESET_AT, frames
+
+RENDER = (13, 17)          # odd: the output is padded to a multiple of 4 inside
+
+
+def _hist(up):
+    fs = up._fs
+    h = fs.dev.to_host(fs.hist).reshape(-1, fs.Hp, fs.Wp)
+    return h[:, :fs.H, :fs.W]
+
+
+def _run(dev, scale, precision, n=7, **kw):
+    seq = frames(RENDER, n, scale=scale)
+    ours = clss.Upscaler(method="nsrr", scale=scale, device=dev, precision=precision,
+                         weights="untrained", **kw)
+    twin = methods.twin("nsrr", RENDER, scale, weights="untrained", **kw)
+    tol = 1e-4 if precision == "fp32" else 1e-2
+    htol = 1e-4 if precision == "fp32" else 2e-2
+    for i, f in enumerate(seq):
+        reset = i == RESET_AT
+        a = ours.step(f.color, f.depth, f.motion, f.jitter, reset=reset)
+        b = twin.step(f.color, f.depth, f.motion, f.jitter, reset=reset)
+        assert a.shape == b.shape == (*ours.output_size, 3) and a.dtype == np.float32
+        d = np.abs(a - b)
+        assert (d <= tol * np.abs(b).max() + tol * np.abs(b)).all(), \
+            f"{precision} x{scale} frame {i}: max |d| {d.max():.3g}"
+        dh = np.abs(_hist(ours) - twin.hist[0]).max()
+        assert dh <= htol, f"{precision} x{scale} frame {i}: history max |d| {dh:.3g}"
+    return ours, twin
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("scale", [2.0, 4.0])
+def test_frame_step_matches_its_onnx_twin(scale, precision, dev):
+    ours, _ = _run(dev, scale, precision)
+    # the history really is used: slot 1 (frame i-2, warped twice) is not empty
+    assert np.abs(_hist(ours)[12:24]).max() > 0
+
+
+@pytest.mark.parametrize("kw", [{"reset_fill": "duplicate"}, {"history": 2}])
+def test_reset_fill_and_short_history_match_the_twin(kw, dev):
+    ours, _ = _run(dev, 4.0, "fp32", n=6, **kw)
+    h = _hist(ours)
+    if kw.get("history") == 2:
+        assert not h[24:].any()          # slots beyond the history stay empty
+
+
+def test_reset_empties_the_history(dev):
+    seq = frames(RENDER, 3, scale=2.0)
+    up = clss.Upscaler(method="nsrr", scale=2.0, device=dev, weights="untrained")
+    for f in seq:
+        up.step(f.color, f.depth, f.motion, f.jitter)
+    assert _hist(up)[12:].any()
+    f = seq[0]
+    up.step(f.color, f.depth, f.motion, f.jitter, reset=True)
+    h = _hist(up)
+    assert h[:12].any() and not h[12:].any()     # only the current frame's features
+
+
+def test_fractional_scale_and_step_device(dev):
+    seq = frames(RENDER, 2, scale=3.0)
+    up = clss.Upscaler(method="nsrr", scale=3.0, device=dev, weights="untrained")
+    twin = methods.twin("nsrr", RENDER, 3.0, weights="untrained")
+    for f in seq:
+        a = up.step_device(dev.to_device(f.color), dev.to_device(f.depth),
+                           dev.to_device(f.motion), f.jitter).get()
+        b = twin.step(f.color, f.depth, f.motion, f.jitter)
+        assert np.abs(a - b).max() <= 1e-4 * np.abs(b).max() + 1e-4
+
+
+def test_weights_round_trip_and_widths(tmp_path):
+    for widths in nets.WIDTHS:
+        cfg = nets.make_config(widths)
+        w = nets.init_weights(cfg, seed=3)
+        p = tmp_path / f"{widths}.safetensors"
+        nets.save(str(p), cfg, w)
+        cfg2, w2 = nets.load(str(p))
+        assert cfg2 == cfg and all(np.array_equal(w[k], w2[k]) for k in w)
+    fast, default = (nets.macs_per_pixel(nets.make_config(n), 4)["reconstruction"]
+                     for n in ("fast", "default"))
+    assert fast < 0.4 * default
+    bad = dict(w)
+    bad["un.0.weight"] = bad["un.0.weight"][:, :5]
+    with pytest.raises(ValueError, match="un.0.weight"):
+        nets.check_weights(cfg, bad)
+
+
+def test_registry_entry():
+    s = methods.spec("nsrr")
+    assert "nsrr" in methods.names() and "nsrr" not in methods.PLANNED
+    assert s.scales == (2.0, 4.0) and s.twin and s.doc == "docs/methods/nsrr.md"
+    assert s.weights() in ("trained", "untrained")
