@@ -1,0 +1,43 @@
+"""The torch twin of NSRR (weights_tools/nsrr_torch.py) against the OpenCL frame step
+(clss/methods/nsrr/) over 9 frames with a reset at frame 4, in the zero and duplicate
+reset fills: output within 1e-4 * max + 1e-4 * |ref| (fp32) on every pixel, history
+within 1e-4."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+import clss
+from clss.methods.nsrr import networks as nets
+from clss.pipeline.contract import to_internal, validate_frame
+from helpers import frames
+from weights_tools.nsrr_torch import NsrrNet, TorchStep, pq_decode, rgbd_of
+
+RENDER = (13, 17)
+
+
+@pytest.mark.parametrize("fill,scale", [("zero", 4.0), ("duplicate", 2.0)])
+def test_torch_twin_matches_the_opencl_step(fill, scale, dev):
+    torch.set_num_threads(1)
+    cfg = nets.make_config("default")
+    w = nets.init_weights(cfg, seed=5)
+    # make the reweighting and the history matter: a non-trivial last layer
+    w["un.9.weight"] = w["un.9.weight"] * 10
+    up = clss.Upscaler(method="nsrr", scale=scale, device=dev, weights=(cfg, w), reset_fill=fill)
+    ts = TorchStep(NsrrNet(cfg, w), scale, reset_fill=fill)
+    hist = None
+    for i, f in enumerate(frames(RENDER, 9, scale=scale)):
+        reset = i in (0, 4)
+        a = up.step(f.color, f.depth, f.motion, f.jitter, reset=reset)
+        x = to_internal(validate_frame(f.color, f.depth, f.motion, f.jitter))
+        with torch.no_grad():
+            y, hist = ts.step(rgbd_of(torch.from_numpy(x["color"]), torch.from_numpy(x["depth"])),
+                              torch.from_numpy(x["motion"]), [x["jitter"]], hist,
+                              torch.tensor([reset]))
+        b = pq_decode(y.clamp(0, 1))[0].permute(1, 2, 0).numpy()
+        assert np.abs(a - b).max() <= 1e-4 * np.abs(b).max() + 1e-4, f"frame {i}"
+        fs = up._fs
+        hd = fs.dev.to_host(fs.hist).reshape(-1, fs.Hp, fs.Wp)[:, :fs.H, :fs.W]
+        assert np.abs(hd - hist[0].numpy()).max() <= 1e-4, f"history, frame {i}"

@@ -1,0 +1,156 @@
+"""The torch twin of the NSRR frame step (clss/methods/nsrr/): the same networks under the
+same weight names (fe.*, rw.*, un.*), the same zero-upsampling, motion upsampling,
+accumulative warp and reset fills, differentiable, batched. tests/test_nsrr_torch.py
+holds it to the OpenCL step over frames with a reset; weights_tools/nsrr_train.py trains
+it and writes the .safetensors file the OpenCL step loads.
+
+Tensors are NCHW float32 in the step's internal domain: rgbd = PQ colour + reversed-Z
+depth, motion in render pixels, the history [N, 12*n_prev, H, W].
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from clss.methods.nsrr import networks as nets
+from clss.methods.nsrr.frame import pad4
+from clss.methods.nsrr.oracle import zu_index
+from clss.pipeline.contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
+                                    output_size)
+
+FEAT = nets.FEAT
+
+
+def pq_encode(x, nits=PQ_NITS):
+    y = (x * (nits / PQ_PEAK_NITS)).clamp(0.0, 1.0)
+    ym = y.pow(PQ_M1)
+    return ((PQ_C1 + PQ_C2 * ym) / (1.0 + PQ_C3 * ym)).pow(PQ_M2)
+
+
+def pq_decode(e, nits=PQ_NITS):
+    ep = e.clamp(0.0, 1.0).pow(1.0 / PQ_M2)
+    y = ((ep - PQ_C1).clamp_min(0.0) / (PQ_C2 - PQ_C3 * ep)).pow(1.0 / PQ_M1)
+    return y * (PQ_PEAK_NITS / nits)
+
+
+def _convs(shapes, names):
+    return nn.ModuleList(nn.Conv2d(shapes[n][1], shapes[n][0], 3, padding=1) for n in names)
+
+
+class NsrrNet(nn.Module):
+    """The three networks; `state_dict()` keys are the .safetensors names."""
+
+    def __init__(self, cfg, weights: dict | None = None):
+        super().__init__()
+        self.cfg = dict(cfg)
+        self.n_prev = int(cfg["n_prev"])
+        s = nets.layer_shapes(cfg)
+        self.fe = _convs(s, [f"fe.{i}" for i in range(3)])
+        self.rw = _convs(s, [f"rw.{i}" for i in range(3)])
+        self.un = _convs(s, [f"un.{i}" for i in range(10)])
+        w = weights if weights is not None else nets.init_weights(cfg)
+        self.load_state_dict({k: torch.from_numpy(np.asarray(v, np.float32)) for k, v in w.items()})
+
+    def numpy_weights(self) -> dict:
+        return {k: v.detach().cpu().numpy().astype(np.float32) for k, v in self.state_dict().items()}
+
+    # -- the networks -----------------------------------------------------------------
+    def features(self, rgbd):
+        y = rgbd
+        for c in self.fe:
+            y = F.relu(c(y))
+        return torch.cat([rgbd, y], 1)
+
+    def reconstruct(self, stack):
+        """stack [N, 12(n+1), Hp, Wp] (padded to 4) -> PQ colour [N, 3, Hp, Wp]."""
+        n = self.n_prev
+        rgbd = torch.cat([stack[:, FEAT * k:FEAT * k + 4] for k in range(n + 1)], 1)
+        r = F.relu(self.rw[0](rgbd))
+        r = F.relu(self.rw[1](r))
+        r = (torch.tanh(self.rw[2](r)) + 1.0) * (nets.WEIGHT_SCALE / 2)
+        parts = [stack[:, FEAT * k:FEAT * (k + 1)] * r[:, k - 1:k] for k in range(1, n + 1)]
+        x = torch.cat([stack[:, :FEAT]] + parts, 1)
+        u = self.un
+
+        def two(x, a, b):
+            return F.relu(u[b](F.relu(u[a](x))))
+        e1 = two(x, 0, 1)
+        e2 = two(F.max_pool2d(e1, 2), 2, 3)
+        b = two(F.max_pool2d(e2, 2), 4, 5)
+        d2 = two(torch.cat([F.interpolate(b, scale_factor=2, mode="nearest"), e2], 1), 6, 7)
+        d1 = F.relu(u[8](torch.cat([F.interpolate(d2, scale_factor=2, mode="nearest"), e1], 1)))
+        return u[9](d1)
+
+
+def zero_upsample(feat, H, W, jitters):
+    """feat [N,C,h,w], jitters [(jx, jy)] per item -> [N,C,H,W], each sample where its
+    jitter puts it (as kernels/nsrr.cl; index maps from the oracle's zu_index)."""
+    N, C, h, w = feat.shape
+    out = []
+    for i in range(N):
+        jx, jy = (float(v) for v in jitters[i])
+        ix = torch.from_numpy(zu_index(w, W / w, jx, W)).to(feat.device)
+        iy = torch.from_numpy(zu_index(h, H / h, jy, H)).to(feat.device)
+        f = F.pad(feat[i:i + 1], (0, 1, 0, 1))          # a zero column and row at index w, h
+        out.append(f.index_select(3, ix).index_select(2, iy))
+    return torch.cat(out, 0)
+
+
+def upsample_motion(motion, H, W):
+    """[N,2,h,w] render pixels -> [N,2,H,W] output pixels (bilinear, half-pixel, clamped)."""
+    h, w = motion.shape[2:]
+    m = F.interpolate(motion, size=(H, W), mode="bilinear", align_corners=False)
+    return m * torch.tensor([W / w, H / h], dtype=m.dtype, device=m.device).view(1, 2, 1, 1)
+
+
+def warp(x, m):
+    """Backward warp of x [N,C,H,W] by output-pixel motion m [N,2,H,W]: bilinear, zeros
+    outside (GridSample, align_corners=0)."""
+    N, _, H, W = x.shape
+    xs = torch.arange(W, dtype=x.dtype, device=x.device).view(1, 1, W) + m[:, 0]
+    ys = torch.arange(H, dtype=x.dtype, device=x.device).view(1, H, 1) + m[:, 1]
+    grid = torch.stack([(2 * xs + 1) / W - 1, (2 * ys + 1) / H - 1], -1)
+    return F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+
+
+def rgbd_of(color, depth, nits=PQ_NITS):
+    """color [N,3,h,w] linear, depth [N,1,h,w] reversed-Z -> rgbd [N,4,h,w]."""
+    return torch.cat([pq_encode(color, nits), depth], 1)
+
+
+class TorchStep:
+    """The frame step, batched: `step(rgbd, motion, jitters, reset)` -> (PQ output
+    [N,3,H,W], next history). reset: a bool tensor [N] (per item)."""
+
+    def __init__(self, net: NsrrNet, scale, reset_fill="zero", history=None):
+        self.net, self.scale, self.reset_fill = net, float(scale), reset_fill
+        self.n = net.n_prev
+        self.history = self.n if history is None else int(history)
+
+    def reproject(self, feat, motion, jitters, hist, reset):
+        N, _, h, w = feat.shape
+        H, W = output_size(h, w, self.scale)
+        z = zero_upsample(feat, H, W, jitters)
+        if hist is None:
+            hist = z.new_zeros(N, FEAT * self.n, H, W)
+        warped = warp(hist, upsample_motion(motion, H, W))
+        keep = (~reset).to(z.dtype).view(N, 1, 1, 1)
+        prev = warped * keep
+        if self.reset_fill == "duplicate":
+            prev = prev + z.repeat(1, self.n, 1, 1) * (1 - keep)
+        if self.history < self.n:
+            mask = torch.zeros(1, FEAT * self.n, 1, 1, dtype=z.dtype, device=z.device)
+            mask[:, :FEAT * self.history] = 1
+            prev = prev * mask
+        return torch.cat([z, prev], 1)
+
+    def output(self, stack):
+        H, W = stack.shape[2:]
+        y = self.net.reconstruct(F.pad(stack, (0, pad4(W) - W, 0, pad4(H) - H)))
+        return y[:, :, :H, :W]
+
+    def step(self, rgbd, motion, jitters, hist, reset):
+        stack = self.reproject(self.net.features(rgbd), motion, jitters, hist, reset)
+        return self.output(stack), stack[:, :FEAT * self.n]
