@@ -117,3 +117,22 @@ train: train-data $(TRAIN_STAMP)
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info .pytest_cache .hypothesis
+
+# The shader MLP upscaler's shipped weights (docs/methods/mlp.md): the generalist and the
+# ablation without the feature pass (mlp-nofeature), at 2x and 3x, trained with torch on
+# the CPU on generated sequences (32 of 12 frames, seed 0, render 72x128); about 25
+# minutes on one core. `train mlp --scene SEQ.npz` gives per-scene weights instead.
+MLP_STEPS ?= 3000
+MLP_ABLATION_STEPS ?= 1000
+.PHONY: train-mlp
+train-mlp: $(STAMP)
+	for s in 2 3; do \
+	  test -f $(DATA)/mlp-train-x$$s/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/mlp-train-x$$s \
+	    --sequences 32 --frames 12 --seed 0 --size 72x128 --scale $$s --quiet || exit 1; \
+	  $(BIN)/python -m weights_tools train mlp --data $(DATA)/mlp-train-x$$s --out $(OUT)/train-mlp/x$$s \
+	    --steps $(MLP_STEPS) --quiet || exit 1; \
+	  $(BIN)/python -m weights_tools train mlp --data $(DATA)/mlp-train-x$$s --out $(OUT)/train-mlp/nofeature-x$$s \
+	    --steps $(MLP_ABLATION_STEPS) --no-feature --quiet || exit 1; \
+	  cp $(OUT)/train-mlp/x$$s/mlp.safetensors clss/weights/mlp_generalist_x$$s.safetensors; \
+	  cp $(OUT)/train-mlp/nofeature-x$$s/mlp.safetensors clss/weights/mlp_nofeature_x$$s.safetensors; \
+	done

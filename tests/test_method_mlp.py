@@ -111,3 +111,51 @@ def test_untrained_init_is_a_box_upscale(dev):
     up = clss.Upscaler(method="mlp-nofeature", scale=3, device=dev, weights="untrained")
     y = up.step(color)
     assert np.allclose(y, 0.7, rtol=1e-4)   # the PQ round trip
+
+
+# ---- the torch twin and the recipe ----------------------------------------------------------
+
+@pytest.mark.parametrize("scale", [2, 3])
+@pytest.mark.parametrize("feature", [True, False])
+def test_torch_twin_matches_opencl(scale, feature, dev):
+    pytest.importorskip("torch")
+    from weights_tools.mlp_torch import MlpNet, upscale
+    wts = _random_weights(11)
+    color, dhr = _frame(scale, seed=4)
+    name = "mlp" if feature else "mlp-nofeature"
+    a = clss.Upscaler(method=name, scale=scale, device=dev, weights=wts).step(color, depth_hr=dhr)
+    b = upscale(MlpNet(scale, feature, wts), color, dhr)
+    d = np.abs(pq_encode(a) - pq_encode(b))
+    assert d.max() <= 1e-4, f"max PQ difference {d.max():.3g}"
+
+
+def _tiny_sequence(path, scale=2, T=4, h=24, w=26, seed=0):
+    g = np.random.default_rng(seed)
+    ref = (g.random((T, scale * h, scale * w, 3)) ** 2).astype(np.float32)
+    color = ref[:, ::scale, ::scale].copy()
+    dhr = g.random((T, scale * h, scale * w)).astype(np.float32)
+    np.savez(path, color=color, depth=dhr[:, ::scale, ::scale].copy(), reference=ref,
+             depth_hr=dhr, scale=np.float32(scale))
+
+
+def test_smoke_training_offline(tmp_path, dev, capsys):
+    pytest.importorskip("torch")
+    from weights_tools.__main__ import main
+    data = tmp_path / "data"
+    data.mkdir()
+    _tiny_sequence(data / "a.npz")
+    out = tmp_path / "run"
+    assert main(["train", "mlp", "--data", str(data), "--out", str(out), "--steps", "3",
+                 "--batch", "2", "--quiet"]) == 0
+    w = out / "mlp.safetensors"
+    tensors, trained = tf.load_weights(str(w))
+    assert trained and (out / "loss.png").is_file()
+    # per scene: the first half of one sequence; the weights run in the engine
+    assert main(["train", "mlp", "--scene", str(data / "a.npz"), "--out", str(tmp_path / "s"),
+                 "--steps", "2", "--batch", "2", "--quiet", "--init", str(w)]) == 0
+    f = np.load(data / "a.npz")
+    y = clss.Upscaler(method="mlp", device=dev, weights=str(tmp_path / "s" / "mlp.safetensors")) \
+        .step(f["color"][0], depth_hr=f["depth_hr"][0])
+    assert y.shape == (48, 52, 3) and np.isfinite(y).all()
+    assert main(["train", "mlp", "--out", str(out)]) == 2
+    assert "give --data DIR" in capsys.readouterr().err

@@ -157,7 +157,7 @@ class OracleMlp:
         import onnxruntime as ort
         self.render_size, self.scale = tuple(render_size), tf.check_scale(scale)
         self.feature, self.exposure = bool(feature), float(exposure)
-        tensors, _ = tf.load_weights(weights, feature=self.feature)
+        tensors, _ = tf.load_weights(weights, feature=self.feature, scale=self.scale)
         if precision != "fp32":
             tensors = {k: v.astype(np.float16).astype(np.float32) for k, v in tensors.items()}
         self.model = build_graph(self.render_size, self.scale, tensors, self.feature)

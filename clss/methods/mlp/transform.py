@@ -105,10 +105,11 @@ WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(
 UNTRAINED = "untrained"
 
 
-def shipped_path(feature=True) -> str:
-    """The shipped generalist (`make train-mlp`): one file per variant."""
-    return os.path.join(WEIGHTS_DIR, "mlp_generalist.safetensors" if feature
-                        else "mlp_nofeature.safetensors")
+def shipped_path(feature=True, scale=2) -> str:
+    """The shipped generalist (`make train-mlp`): one file per variant and scale (the
+    block geometry, and so the network, differs between 2x and 3x)."""
+    return os.path.join(WEIGHTS_DIR, f"mlp_{'generalist' if feature else 'nofeature'}"
+                                     f"_x{check_scale(scale)}.safetensors")
 
 
 def init_weights(seed=0) -> dict:
@@ -143,13 +144,13 @@ def check_weights(tensors: dict, where="weights") -> dict:
     return out
 
 
-def load_weights(weights=None, feature=True):
-    """(tensors, trained) from None (the shipped file, else the seeded init), "untrained",
-    a dict of arrays, or a .safetensors path."""
+def load_weights(weights=None, feature=True, scale=2):
+    """(tensors, trained) from None (the shipped file of the variant and scale, else the
+    seeded init), "untrained", a dict of arrays, or a .safetensors path."""
     if isinstance(weights, dict):
         return check_weights(weights), True
     if weights is None:
-        p = shipped_path(feature)
+        p = shipped_path(feature, scale)
         if not os.path.isfile(p):
             return init_weights(), False
         weights = p

@@ -32,7 +32,7 @@ class MlpUpscaler(MethodUpscaler):
                           profile=profile)
         self.s = tf.check_scale(self.scale)
         self.feature = bool(feature)
-        self.tensors, self.trained = tf.load_weights(weights, feature=self.feature)
+        self.tensors, self.trained = tf.load_weights(weights, feature=self.feature, scale=self.s)
         self.defines = tf.kernel_defines(self.s, self.feature)
         self.pq_scale, self.inv_pq_scale = tf.pq_scales(PQ_NITS)
         from ...ops.mlp_upscale import pack_weights
@@ -114,7 +114,8 @@ class MlpUpscaler(MethodUpscaler):
 def _weights_state(feature):
     def fn():
         import os
-        return "trained" if os.path.isfile(tf.shipped_path(feature)) else "untrained"
+        return "trained" if all(os.path.isfile(tf.shipped_path(feature, s))
+                                for s in tf.SCALES) else "untrained"
     return fn
 
 
