@@ -10,7 +10,8 @@ import importlib
 import sys
 
 # method (a name of clss.methods) -> the module of its recipe
-RECIPES = {"clss": "weights_tools.train", "mlp": "weights_tools.mlp_train"}
+RECIPES = {"clss": "weights_tools.train", "mlp": "weights_tools.mlp_train",
+           "nsrr": "weights_tools.nsrr_train"}
 DEFAULT = "clss"
 
 

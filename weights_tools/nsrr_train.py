@@ -1,0 +1,238 @@
+"""NSRR's recipe (`python -m weights_tools train nsrr --data DIR --out DIR`): the paper's
+loss (1 - SSIM, in the PQ domain the step runs in, plus optionally 0.1 x a perceptual
+term) on windows of up to 5 frames (the current one and 4 previous, accumulatively
+warped as the step does), patches chosen for motion and detail.
+
+Pretrained VGG-16 weights cannot be had here (no package ships them, nothing may be
+downloaded), so the perceptual term is either dropped (`--perceptual none`, the shipped
+recipe) or replaced by a fixed, seeded random-feature network of the same shape idea
+(`--perceptual random`: 3 conv layers 3-16-32-32 with ReLU and pooling; the squared
+feature differences of each layer, weight 0.1). docs/methods/nsrr.md has what each gives.
+
+Windows: frame t with k valid previous frames, k = 4 (or fewer where a reset is nearer);
+with probability --p-short k is drawn below that, so the network also learns the frames
+after a reset, where the history holds fewer frames (the step fills the rest per
+--reset-fill). The features and warps of the previous frames are computed in the
+window, the reconstruction only at t, the loss on the patch without its margin (the
+margin feeds the warps what lies just outside).
+
+Writes --out/checkpoint.pt (every minute; --resume continues), loss.png, train.json and
+weights.safetensors (the file the OpenCL step loads).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import numpy as np
+
+from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, load_sequences,
+                        lr_cosine, plot_losses, save_checkpoint)
+
+REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
+
+
+def add_arguments(t):
+    t.add_argument("--data", required=True, help="directory of DATA.md .npz sequences (one scale)")
+    t.add_argument("--out", required=True, help="directory for checkpoint.pt, loss.png, "
+                                                "train.json, weights.safetensors")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--steps", type=int, default=1500)
+    t.add_argument("--batch", type=int, default=8)
+    t.add_argument("--patch", type=int, default=64, help="patch size, output pixels (loss area)")
+    t.add_argument("--margin", type=int, default=4, help="render pixels around the patch")
+    t.add_argument("--lr", type=float, default=2e-3)
+    t.add_argument("--widths", default="default", help="default, fast or paper (networks.WIDTHS)")
+    t.add_argument("--n-prev", type=int, default=4)
+    t.add_argument("--reset-fill", choices=("zero", "duplicate"), default="zero")
+    t.add_argument("--p-short", type=float, default=0.2,
+                   help="fraction of windows with fewer previous frames than available")
+    t.add_argument("--perceptual", choices=("none", "random"), default="none")
+    t.add_argument("--perceptual-weight", type=float, default=0.1)
+    t.add_argument("--candidates", type=int, default=4000, help="random patches scored")
+    t.add_argument("--keep", type=float, default=0.3, help="fraction of candidates kept")
+    t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    t.add_argument("--resume", action="store_true", help="continue from --out/checkpoint.pt")
+
+
+class RandomFeatures:
+    """A fixed, seeded random conv net as the perceptual term's feature extractor."""
+
+    def __init__(self, seed=1234):
+        import torch
+        g = torch.Generator().manual_seed(seed)
+        self.w = []
+        for ci, co in ((3, 16), (16, 32), (32, 32)):
+            self.w.append(torch.randn(co, ci, 3, 3, generator=g) * (2.0 / (ci * 9)) ** 0.5)
+
+    def loss(self, a, b):
+        import torch.nn.functional as F
+        total = 0.0
+        for i, w in enumerate(self.w):
+            a, b = F.relu(F.conv2d(a, w, padding=1)), F.relu(F.conv2d(b, w, padding=1))
+            total = total + ((a - b) ** 2).mean()
+            if i < len(self.w) - 1:
+                a, b = F.avg_pool2d(a, 2), F.avg_pool2d(b, 2)
+        return total
+
+
+def _prepare(seqs, torch):
+    from .nsrr_torch import pq_encode
+    out = []
+    for s in seqs:
+        c = torch.from_numpy(np.ascontiguousarray(s["color"].astype(np.float32).transpose(0, 3, 1, 2)))
+        d = torch.from_numpy(np.ascontiguousarray(s["depth"].astype(np.float32)[:, None]))
+        r = torch.from_numpy(np.ascontiguousarray(s["reference"].astype(np.float32).transpose(0, 3, 1, 2)))
+        resets = np.asarray(s["reset"], bool).copy()
+        resets[0] = True
+        last = np.zeros(len(resets), int)     # the last reset at or before each frame
+        for t in range(len(resets)):
+            last[t] = t if resets[t] else last[t - 1]
+        out.append({"rgbd": torch.cat([pq_encode(c), d], 1),
+                    "motion": torch.from_numpy(np.ascontiguousarray(
+                        s["motion"].astype(np.float32).transpose(0, 3, 1, 2))),
+                    "jitter": np.asarray(s["jitter"], np.float32), "last": last,
+                    "ref": pq_encode(r), "scale": s["scale"], "name": s["name"]})
+    return out
+
+
+def choose_patches(seqs, n, keep, pr, margin, rng):
+    """Candidates (seq, t, y0, x0) in render pixels, scored by motion and detail; the
+    best `keep` fraction."""
+    cands, mot, det = [], [], []
+    for _ in range(n):
+        i = int(rng.integers(len(seqs)))
+        s = seqs[i]
+        T, _, h, w = s["rgbd"].shape
+        sc = s["scale"]
+        t = int(rng.integers(T))
+        y0 = int(rng.integers(margin, max(margin + 1, h - pr - margin + 1)))
+        x0 = int(rng.integers(margin, max(margin + 1, w - pr - margin + 1)))
+        m = s["motion"][t, :, y0:y0 + pr, x0:x0 + pr]
+        r = s["ref"][t, :, sc * y0:sc * (y0 + pr), sc * x0:sc * (x0 + pr)]
+        cands.append((i, t, y0, x0))
+        mot.append(float(m.abs().mean()))
+        det.append(float((r[:, 1:] - r[:, :-1]).abs().mean() + (r[:, :, 1:] - r[:, :, :-1]).abs().mean()))
+    mot, det = np.array(mot), np.array(det)
+    score = mot / (np.median(mot) + 1e-6) + det / (np.median(det) + 1e-6)
+    order = np.argsort(-score)[:max(1, int(len(cands) * keep))]
+    return [cands[j] for j in order]
+
+
+def make_batch(seqs, picks, batch, pr, margin, n_prev, p_short, rng, torch):
+    """Window tensors: rgbd/motion [n_prev+1, B, ...] of the frames t-n_prev..t (clamped at
+    0), jitters, resets [n_prev+1, B] (True at each item's first valid frame), ref [B,3,..]."""
+    items = [picks[int(rng.integers(len(picks)))] for _ in range(batch)]
+    R = pr + 2 * margin
+    rgbd, mot, jit, rst, ref = [], [], [], [], []
+    for j in range(n_prev + 1):
+        rgbd.append([]), mot.append([]), jit.append([]), rst.append([])
+    for (i, t, y0, x0) in items:
+        s = seqs[i]
+        sc = s["scale"]
+        k = min(n_prev, t - int(s["last"][t]))
+        if k > 0 and rng.random() < p_short:
+            k = int(rng.integers(0, k))
+        ys, xs = y0 - margin, x0 - margin
+        for j in range(n_prev + 1):
+            f = max(t - n_prev + j, t - k)
+            rgbd[j].append(s["rgbd"][f, :, ys:ys + R, xs:xs + R])
+            mot[j].append(s["motion"][f, :, ys:ys + R, xs:xs + R])
+            jit[j].append(s["jitter"][f])
+            rst[j].append(f == t - k)
+        ref.append(s["ref"][t, :, sc * y0:sc * (y0 + pr), sc * x0:sc * (x0 + pr)])
+    return ([torch.stack(r) for r in rgbd], [torch.stack(m) for m in mot], jit,
+            [torch.tensor(r) for r in rst], torch.stack(ref))
+
+
+def forward(step, rgbd, mot, jit, rst):
+    """The window through the step: features and warps of every frame, the output of the
+    last (PQ, [B,3,H,W] of the whole crop)."""
+    hist = None
+    for j in range(len(rgbd) - 1):
+        stack = step.reproject(step.net.features(rgbd[j]), mot[j], jit[j], hist, rst[j])
+        hist = stack[:, :step.net.n_prev * 12]
+    stack = step.reproject(step.net.features(rgbd[-1]), mot[-1], jit[-1], hist, rst[-1])
+    return step.output(stack)
+
+
+def cmd_train(args):
+    import torch
+    from clss.methods.nsrr import networks as nets
+    from .nsrr_torch import NsrrNet, TorchStep
+    from .trainloop import ssim
+    torch.set_num_threads(max(1, args.threads))
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    os.makedirs(args.out, exist_ok=True)
+    seqs = _prepare(load_sequences(args.data, 1, REQUIRED), torch)
+    sc = seqs[0]["scale"]
+    if args.patch % sc:
+        raise TrainError(f"--patch {args.patch} is not a multiple of the scale {sc}")
+    pr = args.patch // sc
+    h, w = seqs[0]["rgbd"].shape[2:]
+    if pr + 2 * args.margin > min(h, w):
+        raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
+                         f"{h}x{w} frames")
+    cfg = nets.make_config(args.widths, args.n_prev)
+    net = NsrrNet(cfg, nets.init_weights(cfg, args.seed))
+    step = TorchStep(net, sc, reset_fill=args.reset_fill)
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    perc = RandomFeatures() if args.perceptual == "random" else None
+    ck = os.path.join(args.out, "checkpoint.pt")
+    start, history, spent = 0, {"nsrr": []}, 0.0
+    if args.resume:
+        if not os.path.isfile(ck):
+            raise TrainError(f"--resume: no {ck}")
+        st = torch.load(ck, weights_only=False)
+        net.load_state_dict(st["net"])
+        opt.load_state_dict(st["opt"])
+        start, history, spent = st["step"], st["history"], st.get("seconds", 0.0)
+        rng = np.random.default_rng([args.seed, start])
+    picks = choose_patches(seqs, args.candidates, args.keep, pr, args.margin,
+                           np.random.default_rng(args.seed))
+    print(f"nsrr x{sc}: {len(seqs)} sequences, {len(picks)} patches of {args.patch} px kept, "
+          f"widths {cfg['name']}, {args.steps} steps of {args.batch}, loss 1-SSIM"
+          + (f" + {args.perceptual_weight} random-feature perceptual" if perc else ""), flush=True)
+    m = args.margin * sc
+    t0 = time.time() - spent
+    last_p = last_c = last_plot = time.time()
+    for it in range(start, args.steps):
+        for g in opt.param_groups:
+            g["lr"] = lr_cosine(args.lr, it, args.steps)
+        rgbd, mot, jit, rst, ref = make_batch(seqs, picks, args.batch, pr, args.margin,
+                                              cfg["n_prev"], args.p_short, rng, torch)
+        y = forward(step, rgbd, mot, jit, rst)[:, :, m:m + args.patch, m:m + args.patch]
+        loss = 1.0 - ssim(y.clamp(0, 1), ref)
+        if perc is not None:
+            loss = loss + args.perceptual_weight * perc.loss(y, ref)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        history["nsrr"].append(loss.item())
+        now = time.time()
+        if now - last_p > PROGRESS_S or it == args.steps - 1:
+            last_p = now
+            el = now - t0
+            mean = np.mean(history["nsrr"][-50:])
+            print(f"step {it + 1}/{args.steps} loss {mean:.4f} elapsed {fmt_s(el)} "
+                  f"eta {fmt_s(el / (it + 1 - start) * (args.steps - it - 1) if it + 1 > start else 0)}",
+                  flush=True)
+        if now - last_plot > PLOT_S:
+            last_plot = now
+            plot_losses(history, os.path.join(args.out, "loss.png"), ["nsrr"])
+        if now - last_c > CHECKPOINT_S:
+            last_c = now
+            save_checkpoint(ck, {"net": net.state_dict(), "opt": opt.state_dict(), "step": it + 1,
+                                 "history": history, "seconds": now - t0})
+    save_checkpoint(ck, {"net": net.state_dict(), "opt": opt.state_dict(), "step": args.steps,
+                         "history": history, "seconds": time.time() - t0})
+    plot_losses(history, os.path.join(args.out, "loss.png"), ["nsrr"])
+    nets.save(os.path.join(args.out, "weights.safetensors"), cfg, net.numpy_weights())
+    info = {"scale": sc, "config": cfg, "args": {k: v for k, v in vars(args).items() if k != "fn"},
+            "seconds": time.time() - t0, "final_loss": float(np.mean(history["nsrr"][-50:]))}
+    with open(os.path.join(args.out, "train.json"), "w") as f:
+        json.dump(info, f, indent=1)
+    print(f"wrote {os.path.join(args.out, 'weights.safetensors')} ({fmt_s(info['seconds'])})")
+    return 0
