@@ -1,0 +1,117 @@
+"""The NSRR frame step as a bench case: clss.Upscaler(method="nsrr")'s device path against
+onnxruntime on the same step's whole-frame ONNX graph (clss/methods/nsrr/oracle.py), at
+540p -> 1080p (2x) and 270p -> 1080p (4x). Hooked into the suite by adding
+`nsrr_cases(tiers)` to the frame cases (see the module doc of bench/netcases.py)."""
+from __future__ import annotations
+
+import numpy as np
+
+from clss.device import storage_dtype
+
+from .cases import BenchCase, Setup
+from .netcases import NET_TOL, synthetic_frame
+
+# render size and scale per tier: the issue's 1080p outputs, and a tiny smoke shape
+NSRR_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
+              "tiny": (((16, 32), 2.0), ((16, 32), 4.0))}
+
+
+def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -> BenchCase:
+    from clss.methods.nsrr import networks as nets
+    from clss.methods.nsrr.oracle import build_graph, zu_index
+    from clss.methods.nsrr.upscaler import load_weights
+    from clss.pipeline.contract import output_size
+    h, w = render_size
+    H, W = output_size(h, w, scale)
+    cfg, wts, _ = load_weights(weights, scale)
+    flops = 2.0 * nets.macs_per_pixel(cfg, scale)["total"] * H * W
+
+    def build(dev, prec, params):
+        from clss import Upscaler
+        up = Upscaler(method="nsrr", scale=scale, device=dev, precision=prec, weights=(cfg, wts))
+        color, depth, motion = synthetic_frame(h, w)
+        jitter = np.array([0.25, -0.125], np.float32)
+        d = {"color": dev.to_device(color, "fp32"), "depth": dev.to_device(depth, "fp32"),
+             "motion": dev.to_device(motion, "fp32")}
+        out = dev.empty((H, W, 3), dtype=np.float32)
+        # builds the frame step and its two clss.Models outside the timed runs
+        up.step_device(d["color"], d["depth"], d["motion"], jitter, reset=True, out=out)
+        calls = [0]
+
+        def run():
+            # the first frame is a reset (the oracle's feed); the timed ones carry history
+            up.step_device(d["color"], d["depth"], d["motion"], jitter, reset=calls[0] == 0, out=out)
+            calls[0] += 1
+            return [out]
+        twin = build_graph((h, w), scale, cfg, wts)
+        n = cfg["n_prev"]
+        feeds = {"color": color.transpose(2, 0, 1)[None].copy(), "depth": depth[None, None].copy(),
+                 "motion": motion.transpose(2, 0, 1)[None].copy(),
+                 "hist": np.zeros((1, nets.FEAT * n, H, W), np.float32),
+                 "zu_y": zu_index(h, H / h, float(jitter[1]), H),
+                 "zu_x": zu_index(w, W / w, float(jitter[0]), W),
+                 "keep": np.array([0.0], np.float32), "dup": np.array([0.0], np.float32)}
+        st = storage_dtype(prec).itemsize
+        io = color.nbytes + depth.nbytes + motion.nbytes + H * W * 3 * 4
+        # the history read and written, the stack written and read
+        hist = nets.FEAT * n * H * W
+        stack = nets.FEAT * (n + 1) * H * W
+        return Setup(run, twin, feeds, NET_TOL[prec], io + (2 * hist + 2 * stack) * st,
+                     io + (2 * hist + 2 * stack) * 4,
+                     post=lambda outs: [outs[0].transpose(2, 0, 1)[None]], out_index=0,
+                     note=f"widths {cfg['name']}")
+    return BenchCase(f"frame step nsrr x{scale:g}", "frame", "frame", tier, flops, build,
+                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
+
+
+def nsrr_cases(tiers=("1080p",)) -> list:
+    return [nsrr_frame_case(rs, s, t) for t in tiers for rs, s in NSRR_TIERS.get(t, ())]
+
+
+def measure(render_size, scale, prec="fp32", frames=3, weights=None, ort_threads=2, ort=True):
+    """Warm wall ms of the NSRR frame step (median of `frames` after one warm-up), its
+    per-stage event times (the paper's Table 2 breakdown) and onnxruntime's wall ms on
+    the whole-frame graph, same machine, same run."""
+    import time
+    from clss import Upscaler
+    from clss.device import get_device
+    from clss.pipeline.contract import output_size
+    dev = get_device()
+    h, w = render_size
+    H, W = output_size(h, w, scale)
+    color, depth, motion = synthetic_frame(h, w)
+    up = Upscaler(method="nsrr", scale=scale, device=dev, precision=prec, weights=weights,
+                  profile=True)
+    d = [dev.to_device(a, "fp32") for a in (color, depth, motion)]
+    out = dev.empty((H, W, 3), dtype=np.float32)
+    up.step_device(*d, (0.25, -0.125), reset=True, out=out)
+    up.reset_timings()
+    times = []
+    for i in range(frames):
+        t = time.perf_counter()
+        up.step_device(*d, (0.25, -0.125), out=out)
+        times.append((time.perf_counter() - t) * 1e3)
+    res = {"shape": f"{h}x{w}->{H}x{W}", "precision": prec, "ms": float(np.median(times)),
+           "stages_ms": up.stage_ms(), "widths": up.cfg["name"]}
+    if ort:
+        import onnxruntime as rt
+        from clss.methods.nsrr.oracle import OracleNsrr
+        o = OracleNsrr((h, w), scale, weights=(up.cfg, up.weights), threads=ort_threads)
+        depth_c = depth
+        o.step(color, depth_c, motion, (0.25, -0.125), reset=True)
+        ts = []
+        for i in range(frames):
+            t = time.perf_counter()
+            o.step(color, depth_c, motion, (0.25, -0.125))
+            ts.append((time.perf_counter() - t) * 1e3)
+        res["ort_ms"] = float(np.median(ts))
+        res["speedup"] = res["ort_ms"] / res["ms"]
+    return res
+
+
+if __name__ == "__main__":
+    import json
+    import sys
+    prec = sys.argv[1] if len(sys.argv) > 1 else "fp32"
+    for rs, s in NSRR_TIERS["1080p"][::-1]:
+        print(json.dumps(measure(rs, s, prec), indent=None), flush=True)
