@@ -9,7 +9,9 @@ Per frame (render h x w, output H x W, padded Hp x Wp = multiples of 4; N histor
                                                             the history warped one step
     reconstruct   stack -> y [3,Hp,Wp]                      (clss.Model: reweighting + U-Net)
     finish        y -> out [H,W,3] linear
-    keep          hist <- stack[0:12N]                       (a device copy)
+
+The stack is double-buffered: its first 12N channels are the next frame's history, so
+the next reproject reads them where they are (a copy of them cost as much as the warp).
 
 Everything is enqueued on the device's in-order queue with no host wait between the
 stages; the caller waits once, on the output. The networks run through recorded
@@ -71,12 +73,13 @@ class NsrrFrameStep:
         self.rgbd = e((1, 4, h, w), prec)
         self.mv = e((2, h, w), dtype=f32)
         self.feat = e((1, FEAT, h, w), prec)
-        self.hist = e((FEAT * self.nprev, Hp, Wp), prec)
-        self.stack = e((1, FEAT * (self.nprev + 1), Hp, Wp), prec)
+        self.stacks = [e((1, FEAT * (self.nprev + 1), Hp, Wp), prec) for _ in range(2)]
+        self.cur = 0            # stacks[cur] was written last: its first 12N channels are the history
         self.y = e((1, 3, Hp, Wp), prec)
         self.out = e((self.H, self.W, 3), dtype=f32)
         # zeroed once (half arrays have no pyopencl fill): no kernel reads uninitialised memory
-        cl.enqueue_fill_buffer(dev.queue, self.hist.data, np.uint8(0), 0, self.hist.nbytes)
+        for a in self.stacks:
+            cl.enqueue_fill_buffer(dev.queue, a.data, np.uint8(0), 0, a.nbytes)
         from ...model import Model
         self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
         self.reconstruct = Model(build_reconstruct(cfg, weights, Hp, Wp), device=dev, precision=prec)
@@ -88,7 +91,7 @@ class NsrrFrameStep:
                 self.mv.data, i32(w), i32(h), i32(1), f(1), f(1), f(1),
                 f(self.nits / PQ_PEAK_NITS)]),
             "reproject": dev.prepare(k["nsrr_reproject"], (Wp, Hp), [
-                self.feat.data, self.mv.data, self.hist.data, self.stack.data,
+                self.feat.data, self.mv.data, self.stacks[1].data, self.stacks[0].data,
                 i32(h), i32(w), i32(self.H), i32(self.W), i32(Hp), i32(Wp), i32(self.nprev),
                 i32(self.history), i32(0), i32(0), i32(0), i32(0), f(self.sy), f(self.sx),
                 f(0), f(0), i32(1)]),
@@ -117,6 +120,9 @@ class NsrrFrameStep:
         for idx, v in ((12, i32(siy)), (13, i32(six)), (14, i32(oy)), (15, i32(ox)),
                        (18, f(jy)), (19, f(jx)), (20, i32(mode))):
             r.bind(idx, v)
+        prev, stack = self.stacks[self.cur], self.stacks[1 - self.cur]
+        r.bind(2, prev.data)
+        r.bind(3, stack.data)
         fin = L["finish"]
         fin.bind(1, out.data)
         fin.bind(6, f(PQ_PEAK_NITS / self.nits * exposure))
@@ -126,17 +132,22 @@ class NsrrFrameStep:
         ev += [("features", e) for e in fe or ()]
         ev.append(("reproject", r()))
         re = [] if self.profile else None
-        self.reconstruct.run_device({"stack": self.stack}, out={"y": self.y}, events=re)
+        # (the launch plan is recorded again when the stack buffer alternates: host work
+        # of a few ms against seconds of convolutions)
+        self.reconstruct.run_device({"stack": stack}, out={"y": self.y}, events=re)
         ev += [("reconstruct", e) for e in re or ()]
-        ev.append(("finish", fin()))
-        # The next frame's history: the first N slots of this frame's stack.
-        keep = cl.enqueue_copy(self.dev.queue, self.hist.data, self.stack.data,
-                               byte_count=self.hist.nbytes)
-        ev.append(("finish", keep))
+        last = fin()
+        ev.append(("finish", last))
         if self.profile:
             self.events.extend(ev)
+        self.cur = 1 - self.cur
         self.accepted = True
-        return out, keep
+        return out, last
+
+    @property
+    def hist(self):
+        """The history the next frame warps: [12N, Hp, Wp] (a view of the last stack)."""
+        return self.stacks[self.cur].reshape(-1, self.Hp, self.Wp)[:FEAT * self.nprev]
 
     def stage_ms(self) -> dict:
         tot = {}
@@ -148,7 +159,7 @@ class NsrrFrameStep:
 
     def device_bytes(self) -> int:
         arrays = [self.in_color, self.in_depth, self.in_motion, self.rgbd, self.mv, self.feat,
-                  self.hist, self.stack, self.y, self.out]
+                  *self.stacks, self.y, self.out]
         n = sum(a.nbytes for a in arrays)
         for m in (self.features, self.reconstruct):
             mem = m.memory()
