@@ -846,7 +846,8 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
         for (int u = 0; u < MLP_KB; ++u)
             z = FV(w2[k + u]) * select(FV(0.0f), a[u], a[u] > 0.0f) + z;
     }
-    const fv wgt = fmax(1.0f / (1.0f + exp(-z)), LDV(aux, 2 * P + r));
+    /* a ghost (visibility ghosting, off screen, reset) drops its history: w = 1 */
+    const fv wgt = fmax(select(1.0f / (1.0f + exp(-z)), FV(1.0f), ghost), LDV(aux, 2 * P + r));
 
     fv o[3];
     for (int c = 0; c < 3; ++c) {

@@ -159,6 +159,8 @@ def _add_train(sub):
     add_train_parser(sub)
     from .seeds import add_parser as add_seeds
     add_seeds(sub)
+    from .classifier_report import add_parser as add_classifier
+    add_classifier(sub)
 
 
 def main(argv=None):

@@ -88,12 +88,95 @@ class Bottleneck(nn.Module):
         return F.relu(x + self.conv3(y))
 
 
+# ---- the input basis of training (folded away at export) -------------------------------
+#
+# The networks' inputs differ in scale by orders of magnitude (depth has a median of 0.013,
+# motion of 3 output pixels, the colour differences that tell ghosting from aliasing are
+# 0.002-0.03 in PQ), and Adam's steps are the same size for every weight, so in a few
+# hundred steps the small inputs cannot matter (issue 23). Training therefore sees
+# z = A (x - s): colour relative to the current colour and amplified, depth and motion
+# brought to about unit size. The first layer acts linearly on its inputs, so the trained
+# weights fold back into the runtime's basis exactly (`fold_basis`), and the ONNX graphs,
+# kernels and shipped files do not change.
+
+def _basis(inputs, diff_scale=30.0):
+    """(A [C, C], s [C]) for an input layout (clss.networks CLASSIFIER_INPUTS or
+    COMPOSITION_INPUTS): colours other than the current one as their difference to it x
+    diff_scale, the current colour centred, depth x 10, motion / 4, the counter term
+    centred, the depth difference x 10, logits / 4."""
+    names = []
+    for name, n in inputs:
+        names += [(name, k) for k in range(n)]
+    C = len(names)
+    A, sh = np.zeros((C, C), np.float64), np.zeros(C, np.float64)
+    up = {k: i for i, (n, k) in enumerate(names) if n == "bicubic_color"}
+    for i, (name, k) in enumerate(names):
+        if name == "bicubic_color":
+            A[i, i], sh[i] = 2.0, 0.5
+        elif name in ("warped_color", "color_min", "color_max"):
+            A[i, i], A[i, up[k]] = diff_scale, -diff_scale
+        elif name == "depth":
+            A[i, i] = 10.0
+        elif name == "motion":
+            A[i, i] = 0.25
+        elif name == "inv_counter":
+            A[i, i], sh[i] = 2.0, 0.5
+        elif name == "depth_difference":
+            A[i, i] = 10.0
+        else:                                    # logits
+            A[i, i] = 0.25
+    return A, sh
+
+
+class InputBasis(nn.Module):
+    """z = A (x - s) over the channels of an N x C x H x W input (fixed, not trained)."""
+
+    def __init__(self, inputs):
+        super().__init__()
+        A, sh = _basis(inputs)
+        self.register_buffer("A", torch.tensor(A, dtype=torch.float32))
+        self.register_buffer("s", torch.tensor(sh, dtype=torch.float32))
+
+    def forward(self, x):
+        return torch.einsum("oc,nchw->nohw", self.A, x - self.s.view(1, -1, 1, 1))
+
+
+def _fold(conv, A, s, groups=1):
+    """(weight, bias) in the raw input basis of a 1x1 conv trained on z = A (x - s),
+    whose input channels are `groups` blocks of C (SpaceToDepth's DCR order)."""
+    W = conv.weight.detach().double()[:, :, 0, 0]
+    b = conv.bias.detach().double()
+    C = A.shape[0]
+    Wr = torch.zeros_like(W)
+    for g in range(groups):
+        Wg = W[:, g * C:(g + 1) * C]
+        Wr[:, g * C:(g + 1) * C] = Wg @ A
+        b = b - Wg @ (A @ s)
+    return Wr.float().view_as(conv.weight), b.float()
+
+
+def _unfold(conv, A, s, groups=1):
+    """The inverse of _fold: raw-basis weights -> weights on z (to start training from
+    shipped weights with the basis on)."""
+    W = conv.weight.detach().double()[:, :, 0, 0]
+    b = conv.bias.detach().double()
+    C = A.shape[0]
+    Ainv = torch.linalg.inv(A)
+    Wz = torch.zeros_like(W)
+    for g in range(groups):
+        Wg = W[:, g * C:(g + 1) * C]
+        Wz[:, g * C:(g + 1) * C] = Wg @ Ainv
+        b = b + Wg @ s
+    return Wz.float().view_as(conv.weight), b.float()
+
+
 class Classifier(nn.Module):
     """clss.networks.build_classifier as a torch module (same graph)."""
 
     def __init__(self, widths=DEFAULT_WIDTHS, in_channels=CLASSIFIER_CHANNELS):
         super().__init__()
         c = tuple(int(v) for v in widths)
+        self.basis = None                   # an InputBasis while training with one
         self.stem = nn.Conv2d(4 * in_channels, c[0], 1)
         self.enc = nn.ModuleList(Bottleneck(ci) for ci in c)
         self.down = nn.ModuleList(nn.Conv2d(c[i], c[i + 1], 3, stride=2, padding=1)
@@ -104,6 +187,8 @@ class Classifier(nn.Module):
 
     def forward(self, x):
         """x [B,23,H,W], H and W multiples of 16 -> logits [B,6,H/2,W/2]."""
+        if self.basis is not None:
+            x = self.basis(x)
         f = self.enc[0](F.relu(self.stem(space_to_depth(x))))
         feats = [f]
         for down, enc in zip(self.down, self.enc[1:]):
@@ -121,11 +206,44 @@ class Composition(nn.Module):
 
     def __init__(self, hidden=DEFAULT_MLP_HIDDEN, in_channels=COMPOSITION_CHANNELS):
         super().__init__()
+        self.basis = None                   # an InputBasis while training with one
         self.mlp = nn.Sequential(nn.Conv2d(in_channels, int(hidden), 1), nn.ReLU(),
                                  nn.Conv2d(int(hidden), 1, 1))
 
     def forward(self, x):
+        if self.basis is not None:
+            x = self.basis(x)
         return torch.sigmoid(self.mlp(x))
+
+
+def use_basis(classifier, composition):
+    """Train both networks on the input basis (module doc above); the function they
+    compute does not change (their first layers are re-expressed on z)."""
+    from clss.networks import CLASSIFIER_INPUTS, COMPOSITION_INPUTS
+    for net, inputs, first, groups in ((classifier, CLASSIFIER_INPUTS, "stem", 4),
+                                       (composition, COMPOSITION_INPUTS, "mlp.0", 1)):
+        if net.basis is not None:
+            continue
+        basis = InputBasis(inputs).to(next(net.parameters()).device)
+        conv = net.get_submodule(first)
+        w, b = _unfold(conv, basis.A.double(), basis.s.double(), groups)
+        with torch.no_grad():
+            conv.weight.copy_(w)
+            conv.bias.copy_(b)
+        net.basis = basis
+
+
+def fold_basis(classifier, composition):
+    """Undo use_basis: the first layers back on the raw inputs (what the runtime feeds)."""
+    for net, first, groups in ((classifier, "stem", 4), (composition, "mlp.0", 1)):
+        if net.basis is None:
+            continue
+        conv = net.get_submodule(first)
+        w, b = _fold(conv, net.basis.A.double(), net.basis.s.double(), groups)
+        with torch.no_grad():
+            conv.weight.copy_(w)
+            conv.bias.copy_(b)
+        net.basis = None
 
 
 def _onnx_names(module, prefix):
@@ -169,6 +287,10 @@ def networks_from_tensors(tensors=None, seed=0):
 def tensors_from_networks(classifier, composition) -> dict:
     """name -> float32 numpy in the ONNX shapes (what weights.save_weights writes and
     clss.Upscaler(weights=...) loads)."""
+    import copy
+    if classifier.basis is not None or composition.basis is not None:
+        classifier, composition = copy.deepcopy(classifier), copy.deepcopy(composition)
+        fold_basis(classifier, composition)
     out = {}
     for net, prefix in ((classifier, "classifier"), (composition, "composition")):
         sd = net.state_dict()
@@ -401,6 +523,8 @@ class FrameStep(nn.Module):
                 comp_in = torch.cat([up, blend_hist, p["depth_hr"], motion_hr, inv_cnt, c_min,
                                      c_max, logits], 1)
                 w0 = self.composition(comp_in.contiguous(memory_format=torch.channels_last))
+                # a ghost drops its history (reference.md s9)
+                w0 = torch.where(ghost, torch.ones((), device=up.device), w0)
             else:
                 w0 = inv_cnt
             new_logits = logits

@@ -276,6 +276,8 @@ def export_checkpoint(out_dir):
                    for n in ("stem", "down.0", "down.1", "down.2"))
     cls = torch_frame.Classifier(widths)
     comp = torch_frame.Composition(int(ck["comp"]["mlp.0.weight"].shape[0]))
+    if "basis.A" in ck["cls"]:
+        torch_frame.use_basis(cls, comp)
     cls.load_state_dict(ck["cls"])
     comp.load_state_dict(ck["comp"])
     out_path = os.path.join(out_dir, "weights.safetensors")
@@ -305,6 +307,8 @@ def train(args):
     torch.manual_seed(args.seed)
     init = load_weights(args.init) if args.init else None
     cls, comp = torch_frame.networks_from_tensors(init, seed=args.seed)
+    if args.basis:
+        torch_frame.use_basis(cls, comp)
     cls, comp = cls.to(device).to(memory_format=torch.channels_last), comp.to(device)
     steps = {"classifier": int(args.cls_steps), "composition": int(args.comp_steps)}
     log = {"settings": {k: v for k, v in vars(args).items() if k != "fn"},
@@ -416,6 +420,10 @@ def add_arguments(t):
                    help="count the class frequencies over all pixels of the selected windows "
                         "(all, the shipped recipe) or over the pixels that carry the loss "
                         "(valid: not a reset, motion inside the patch)")
+    t.add_argument("--basis", action="store_true",
+                   help="train on the normalised input basis (torch_frame: colours as "
+                        "differences to the current one, depth and motion at unit scale), "
+                        "folded back into the shipped weights' raw basis at export")
     t.add_argument("--batch", type=int, default=4, help="windows per step")
     t.add_argument("--patch", type=int, default=64, help="patch size, output pixels")
     t.add_argument("--frames", type=int, default=8, help="recurrent frames per window")

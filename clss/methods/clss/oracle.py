@@ -158,7 +158,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
                                      dbg)
     cnt, c_min, c_max = _stage7_aux(g, cap, ghost, hr.up, warped, dbg)
     wgt, new_logits = _stage8_blend_weight(g, mode, (H, W), composition, hr, warped,
-                                           (cnt, c_min, c_max), logits, dbg)
+                                           (cnt, c_min, c_max), logits, ghost, dbg)
     _stage9_blend(g, hdr, nits, wgt, hr.up, warped.blend_hist, (cnt, c_min, c_max), new_logits)
 
     outputs = [helper.make_tensor_value_info("output", f32, [1, 3, H, W]),
@@ -418,8 +418,10 @@ def _stage7_aux(g, cap, ghost, up, warped: _Warped, dbg):
 
 
 def _stage8_blend_weight(g, mode, HW, composition, hr: _Upsampled, warped: _Warped, aux,
-                         logits, dbg):
-    """Stage 8: the current frame's blend weight, and the logits the history keeps."""
+                         logits, ghost, dbg):
+    """Stage 8: the current frame's blend weight, and the logits the history keeps. A
+    ghost (the classifier's visibility ghosting, off screen, reset) drops its history:
+    w = 1 (as the paper does; the rule weight 1/(1+0) is 1 there already)."""
     H, W = HW
     cnt, c_min, c_max = aux
     if mode == "net":
@@ -430,6 +432,7 @@ def _stage8_blend_weight(g, mode, HW, composition, hr: _Upsampled, warped: _Warp
         _check_static_hw("composition", dims, (H, W))
         wgt = g._name("comp_w")
         g.inline(composition, "composition", {ci: comp_in}, {co: wgt})
+        wgt = g.where(ghost, g.const(1.0), wgt)
         new_logits = logits
     else:
         wgt = _inv_counter(g, cnt)
