@@ -1,6 +1,7 @@
 """NSRR's recipe (`python -m weights_tools train nsrr --data DIR --out DIR`): the paper's
 loss (1 - SSIM, in the PQ domain the step runs in, plus optionally 0.1 x a perceptual
-term) on windows of up to 5 frames (the current one and 4 previous, accumulatively
+term) and an L1 term (--l1, default 1: with 1 - SSIM alone the colour had not been
+learnt after 400 steps, the output grey; docs/methods/nsrr.md) on windows of up to 5 frames (the current one and 4 previous, accumulatively
 warped as the step does), patches chosen for motion and detail.
 
 Pretrained VGG-16 weights cannot be had here (no package ships them, nothing may be
@@ -48,6 +49,8 @@ def add_arguments(t):
     t.add_argument("--reset-fill", choices=("zero", "duplicate"), default="zero")
     t.add_argument("--p-short", type=float, default=0.2,
                    help="fraction of windows with fewer previous frames than available")
+    t.add_argument("--l1", type=float, default=1.0,
+                   help="weight of an L1 term (PQ); 0 = the paper's loss without VGG")
     t.add_argument("--perceptual", choices=("none", "random"), default="none")
     t.add_argument("--perceptual-weight", type=float, default=0.1)
     t.add_argument("--candidates", type=int, default=4000, help="random patches scored")
@@ -194,6 +197,7 @@ def cmd_train(args):
                            np.random.default_rng(args.seed))
     print(f"nsrr x{sc}: {len(seqs)} sequences, {len(picks)} patches of {args.patch} px kept, "
           f"widths {cfg['name']}, {args.steps} steps of {args.batch}, loss 1-SSIM"
+          + (f" + {args.l1:g} L1" if args.l1 else "")
           + (f" + {args.perceptual_weight} random-feature perceptual" if perc else ""), flush=True)
     m = args.margin * sc
     t0 = time.time() - spent
@@ -205,6 +209,8 @@ def cmd_train(args):
                                               cfg["n_prev"], args.p_short, rng, torch)
         y = forward(step, rgbd, mot, jit, rst)[:, :, m:m + args.patch, m:m + args.patch]
         loss = 1.0 - ssim(y.clamp(0, 1), ref)
+        if args.l1:
+            loss = loss + args.l1 * (y - ref).abs().mean()
         if perc is not None:
             loss = loss + args.perceptual_weight * perc.loss(y, ref)
         opt.zero_grad()

@@ -11,12 +11,12 @@
 N previous frames' zero-upsampled, accumulatively warped features (12 each), padded to
 a multiple of 4 (two poolings). The output is the frame in the PQ domain.
 
-Widths. The paper's (32-32-8 | 32-32-N | 64-32, 64-64, 128-128, 64-64, 32-3) cost about
-330 kFLOP per output pixel with N = 4; at 270p -> 1080p that is 0.7 TFLOP a frame, tens
-of seconds on 2 CPU cores, and a training run of the paper's length is out of reach here
-(docs/methods/nsrr.md). `WIDTHS["default"]` keeps the architecture and shrinks the
-channels to about 1/8 of the compute; "fast" halves the U-Net again except its last
-layer (the paper's "Ours-Fast"); "paper" is the paper's. One config, stored with the
+Widths. The paper's (32-32-8 | 32-32-N | 64-32, 64-64, 128-128, 64-64, 32-3) cost 163
+kMAC per output pixel with N = 4 (`macs_per_pixel`); at 270p -> 1080p that is 0.68 TFLOP
+a frame, about 40 s on 2 busy CPU cores, and its training out of reach in the time given
+here (docs/methods/nsrr.md). `WIDTHS["default"]` keeps the architecture with 46 kMAC per
+pixel (190 GFLOP a 1080p frame); "fast" halves the U-Net again except its last layer (the
+paper's "Ours-Fast", 19 kMAC); "paper" is the paper's. One config, stored with the
 weights (safetensors metadata), builds the OpenCL step, the ONNX twin and the torch twin.
 
 The same weight names are the torch twin's state_dict keys (weights_tools/nsrr_torch.py):
