@@ -124,9 +124,10 @@ clean:
 # minutes (3000 steps) and 4.5 minutes (the ablation) on a loaded 2-core machine. `train mlp --scene SEQ.npz` gives per-scene weights instead.
 MLP_STEPS ?= 3000
 MLP_ABLATION_STEPS ?= 1000
+MLP_SCALES ?= 2 3
 .PHONY: train-mlp
 train-mlp: $(STAMP)
-	for s in 2 3; do \
+	for s in $(MLP_SCALES); do \
 	  test -f $(DATA)/mlp-train-x$$s/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/mlp-train-x$$s \
 	    --sequences 32 --frames 12 --seed 0 --size 72x128 --scale $$s --quiet || exit 1; \
 	  $(BIN)/python -m weights_tools train mlp --data $(DATA)/mlp-train-x$$s --out $(OUT)/train-mlp/x$$s \

@@ -6,10 +6,8 @@ and its patch acceptance by gradient.
   per scene:   train mlp --scene seq.npz --out out/mlp/scene             (the first half of
                its frames; `--score` then scores the second half against bicubic)
 
-Patches: a candidate is a random frame and place; it is accepted with probability
-min(1, max(P_MIN, g / g_ref)), g its reference's mean gradient magnitude (PQ) and g_ref
-the ACCEPT_QUANTILE quantile of g over the data, else drawn again elsewhere (the seed: "the
-larger the gradient, the more likely the patch is to be accepted"). The loss is L1 in the
+Patches: accepted by gradient, the rule of clss/methods/mlp/patches.py (written once for
+this recipe and the online training on the device). The loss is L1 in the
 PQ domain on the folded output, over the patch's interior (where the crop gives exactly the
 whole-frame result). Adam, cosine learning rate. Writes OUT/mlp.safetensors and loss.png.
 """
@@ -22,10 +20,9 @@ import time
 
 import numpy as np
 
-PATCH = 16            # render pixels of loss per patch side
-MARGIN = 3            # render pixels around it: 2 for the 5x5 taps, 1 for the overlap
-ACCEPT_QUANTILE = 0.75
-P_MIN = 0.1
+# the patch geometry and the acceptance rule: clss/methods/mlp/patches.py (shared with the
+# online training on the device)
+from clss.methods.mlp.patches import MARGIN, PATCH  # noqa: E402
 
 
 def add_arguments(p):
@@ -49,6 +46,7 @@ def add_arguments(p):
 def _prepare(seqs, feature):
     """PQ-encoded tensors per sequence, and each frame's gradient map's integral image."""
     import torch
+    from clss.methods.mlp.patches import gradient_integral
     from clss.pipeline.contract import pq_encode
     out = []
     for s in seqs:
@@ -56,53 +54,35 @@ def _prepare(seqs, feature):
         r = torch.from_numpy(pq_encode(s["reference"]).transpose(0, 3, 1, 2).copy())
         f = torch.from_numpy(np.asarray(s["depth_hr"], np.float32)[:, None].copy()) \
             if feature else None
-        lum = r.mean(1)
-        g = torch.zeros_like(lum)
-        g[:, :, 1:] += (lum[:, :, 1:] - lum[:, :, :-1]).abs()
-        g[:, 1:, :] += (lum[:, 1:, :] - lum[:, :-1, :]).abs()
-        integ = torch.nn.functional.pad(g.cumsum(1).cumsum(2), (1, 0, 1, 0))
+        integ = gradient_integral(r.numpy().transpose(0, 2, 3, 1))
         out.append({"color": c, "ref": r, "feat": f, "integ": integ, "name": s["name"]})
     return out
 
 
-def _patch_grad(d, t, i0, j0, s):
-    """Mean gradient magnitude of the reference over the loss region of a patch."""
-    I = d["integ"][t]
-    y0, x0 = s * (i0 + MARGIN), s * (j0 + MARGIN)
-    y1, x1 = y0 + s * PATCH, x0 + s * PATCH
-    return float(I[y1, x1] - I[y0, x1] - I[y1, x0] + I[y0, x0]) / (s * PATCH) ** 2
-
-
 class Sampler:
-    """Patches accepted by gradient (the module doc)."""
+    """Patches accepted by gradient (clss.methods.mlp.patches), as torch crops."""
 
     def __init__(self, data, frames, scale, seed):
-        self.data, self.frames, self.s = data, frames, scale
-        self.g = np.random.default_rng(seed)
-        probe = [_patch_grad(*self._candidate(), self.s) for _ in range(2000)]
-        self.g_ref = max(float(np.quantile(probe, ACCEPT_QUANTILE)), 1e-6)
-        self.tried = self.accepted = 0
+        from clss.methods.mlp.patches import Sampler as Rule
+        self.data, self.s = data, scale
+        self.rule = Rule([tuple(d["color"].shape[2:]) for d in data], frames,
+                         lambda k, t: data[k]["integ"][t], scale, seed)
 
-    def _candidate(self):
-        k = int(self.g.integers(len(self.data)))
-        d = self.data[k]
-        lo, hi = self.frames[k]
-        t = int(self.g.integers(lo, hi))
-        h, w = d["color"].shape[2:]
-        size = PATCH + 2 * MARGIN
-        return d, t, int(self.g.integers(0, h - size + 1)), int(self.g.integers(0, w - size + 1))
+    @property
+    def tried(self):
+        return self.rule.tried
+
+    @property
+    def accepted(self):
+        return self.rule.accepted
 
     def batch(self, n):
         import torch
         cs, fs, rs = [], [], []
         s, size = self.s, PATCH + 2 * MARGIN
         while len(cs) < n:
-            d, t, i0, j0 = self._candidate()
-            self.tried += 1
-            p = min(1.0, max(P_MIN, _patch_grad(d, t, i0, j0, s) / self.g_ref))
-            if self.g.random() >= p:
-                continue
-            self.accepted += 1
+            k, t, i0, j0 = self.rule.draw()
+            d = self.data[k]
             cs.append(d["color"][t, :, i0:i0 + size, j0:j0 + size])
             if d["feat"] is not None:
                 fs.append(d["feat"][t, :, s * i0:s * (i0 + size), s * j0:s * (j0 + size)])

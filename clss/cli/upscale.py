@@ -104,6 +104,8 @@ def _parser() -> ArgParser:
     p.add_argument("--sanitize", action="store_true",
                    help="replace NaN/Inf inputs and report how many, in which frames "
                         "(default: refuse such frames and stop)")
+    from ..methods.mlp import cli_online
+    cli_online.add_arguments(p)
     p.dash_values = ("--motion-scale",)
     return p
 
@@ -141,6 +143,8 @@ def cmd_upscale(argv) -> int:
         kw.update(hdr=not a.ldr)
     if clss_frame:
         kw.update(debug=a.debug_views)
+    from ..methods.mlp import cli_online
+    kw.update(cli_online.check(a, name, UsageError))
     up = Upscaler(method=name, scale=a.scale, device=a.device, precision=a.precision, **kw)
     start_output(a.out, stale)
     print(f"clss upscale: {n} frames from {a.input}, method {name}, x{a.scale:g}, "
@@ -167,6 +171,8 @@ def cmd_upscale(argv) -> int:
     done = files.done_frames
     dt = time.perf_counter() - t0
     _print_summary(a, up, done, dt, sanitized, scores)
+    from ..methods.mlp import cli_online
+    cli_online.finish(a, up)
     return 0
 
 
@@ -190,17 +196,21 @@ def _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written):
     """Upscale and write frames 0..n-1; a refused frame ends the run with a UsageError."""
     from ..io import write_exr, write_png
     from ..pipeline.contract import FrameInputError
+    from ..methods.mlp import cli_online
     from ..progress import progress
     dbg_dir = os.path.join(a.out, "debug")
     for i in progress(range(n), desc="upscale", unit="frame", total=n):
         f = first if i == 0 else seq[i]
         number = f.meta.get("frame", i)
         try:
+            ref = cli_online.reference(a, i, f)
             out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset,
-                          **(getattr(f, "gbuffers", None) or {}))
+                          **(getattr(f, "gbuffers", None) or {}),
+                          **({"reference": ref} if ref is not None else {}))
         except FrameInputError as e:
             where = f.meta.get("files", {}).get("color", "?")
             raise UsageError(f"frame {number} ({where}): {cli_message(e)}; {written()}") from None
+        cli_online.report(a, up, number)
         if up.last_report:
             sanitized.append((number, dict(up.last_report)))
         stem = os.path.join(a.out, f"frame.{number:04d}")

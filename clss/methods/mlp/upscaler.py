@@ -6,6 +6,13 @@ methods "mlp" (beauty + the depth feature pass at output resolution) and "mlp-no
     up = clss.Upscaler(method="mlp", scale=3, weights="scene.safetensors")
     out = up.step(color, depth, motion, jitter, depth_hr=depth_hr)     # H x W x 3
 
+    # online training on the device (online.py): a frame with a full-resolution reference
+    # trains the network (forward, backward, Adam) before it is upscaled
+    up = clss.Upscaler(method="mlp", scale=2, online=True)   # from the shipped weights
+    out = up.step(color, depth_hr=depth_hr, reference=full_res)   # trains, then upscales
+    loss = up.train_step(color, full_res, depth_hr=depth_hr)       # trains only
+    up.save_weights("learnt.safetensors")
+
 Not temporal: each frame is upscaled on its own (depth, motion and jitter are accepted,
 as the contract's step, and not used). The frame step is two kernels
 (kernels/mlp_upscale.cl, launched by clss.ops.mlp_upscale): the fused gather + transform
@@ -23,20 +30,45 @@ from . import transform as tf
 
 class MlpUpscaler(MethodUpscaler):
     """weights: None (the shipped weights of the variant, else the seeded init),
-    "untrained", a .safetensors path or a dict of arrays (transform.check_weights)."""
+    "untrained", "scratch" (the seeded init with a small random output layer, where online
+    training starts from nothing), a .safetensors path or a dict of arrays
+    (transform.check_weights).
+    online: train on the device on frames given a `reference` (online.py); online_lr,
+    online_batch (patches per step), online_steps (steps per training frame),
+    online_seed."""
 
     def __init__(self, scale=2.0, device=None, precision="fp32", *, weights=None,
-                 feature=True, exposure=1.0, sanitize=False, profile=False, **unused):
+                 feature=True, exposure=1.0, sanitize=False, profile=False, online=False,
+                 online_lr=None, online_batch=None, online_steps=None, online_seed=0,
+                 **unused):
         self.spec = SPECS["mlp" if feature else "mlp-nofeature"]
         self._init_common(scale, device, precision, exposure=exposure, sanitize=sanitize,
                           profile=profile)
         self.s = tf.check_scale(self.scale)
         self.feature = bool(feature)
-        self.tensors, self.trained = tf.load_weights(weights, feature=self.feature, scale=self.s)
+        if isinstance(weights, str) and weights == "scratch":
+            from .online import scratch_weights
+            self.tensors, self.trained = scratch_weights(online_seed), False
+        else:
+            self.tensors, self.trained = tf.load_weights(weights, feature=self.feature,
+                                                         scale=self.s)
         self.defines = tf.kernel_defines(self.s, self.feature)
         self.pq_scale, self.inv_pq_scale = tf.pq_scales(PQ_NITS)
         from ...ops.mlp_upscale import pack_weights
         self._w = pack_weights(self.dev, self.precision, tf.packed(self.tensors))
+        self.online = None
+        self.last_loss = None
+        if online:
+            from . import online as ol
+            # the fp32 master weights; in fp32 the frame step reads them in place
+            master = self._w if self.precision == "fp32" else \
+                self.dev.to_device(tf.packed(self.tensors), "fp32")
+            self.online = ol.OnlineTrainer(
+                self.dev, self.s, self.feature, master,
+                lr=ol.DEFAULT_LR if online_lr is None else online_lr,
+                batch=ol.DEFAULT_BATCH if online_batch is None else online_batch,
+                steps=ol.DEFAULT_STEPS if online_steps is None else online_steps,
+                seed=online_seed)
         self._hw = None
         self._blocks = None
         self._zero_feat = None
@@ -45,7 +77,42 @@ class MlpUpscaler(MethodUpscaler):
         """Swap the network (a dict of arrays); the next frame uses it."""
         from ...ops.mlp_upscale import pack_weights
         self.tensors = tf.check_weights(tensors)
+        if self.online is not None:
+            self.online.weights.set(tf.packed(self.tensors))
+            if self.precision == "fp32":
+                return
         self._w = pack_weights(self.dev, self.precision, tf.packed(self.tensors))
+
+    # ---- online training (online.py) ------------------------------------------------------
+    def train_step(self, color, reference, depth_hr=None, **unused) -> float:
+        """Train on one frame with its full-resolution reference (online=True): `steps`
+        forward/backward/Adam steps on the device; returns the mean L1 loss (PQ)."""
+        if self.online is None:
+            raise ValueError("train_step: this upscaler was made without online=True")
+        color = np.asarray(color, np.float32)
+        if self.feature and depth_hr is None:
+            h, w = color.shape[:2]
+            self._gbuffers({}, (h, w), output_size(h, w, self.s))   # the named error
+        loss = self.online.train_frame(color, depth_hr, reference, self.defines,
+                                       exposure=self.exposure, frame=self.frame_index)
+        if self.precision != "fp32":       # the frame step's half-rounded copy
+            from ...ops.mlp_upscale import pack_weights
+            self._w = pack_weights(self.dev, self.precision, self.online.weights.get())
+        self.trained = True
+        return loss
+
+    def learnt_tensors(self) -> dict:
+        """The weights the frame step runs now (online: as learnt so far)."""
+        return self.online.tensors() if self.online is not None else dict(self.tensors)
+
+    def save_weights(self, path, metadata=None):
+        """The current weights as an mlp .safetensors (the format --weights reads)."""
+        meta = {"scale": self.s, "feature": self.feature}
+        if self.online is not None:
+            meta.update(online_steps=self.online.t, lr=self.online.lr,
+                        batch=self.online.batch)
+        meta.update(metadata or {})
+        tf.save_weights(self.learnt_tensors(), path, meta)
 
     @property
     def render_size(self):
@@ -79,7 +146,9 @@ class MlpUpscaler(MethodUpscaler):
                         exposure=self.exposure, inv_pq_scale=self.inv_pq_scale, out=out)
 
     def step(self, color, depth=None, motion=None, jitter=(0.0, 0.0), reset=False,
-             reactive=None, **gbuffers) -> np.ndarray:
+             reactive=None, reference=None, **gbuffers) -> np.ndarray:
+        """reference: a full-resolution frame [H, W, 3]; with online=True the step trains
+        on it first (train_step), then upscales with the updated weights; else unused."""
         color = np.asarray(color)
         if color.ndim == 3:
             self._check_render_size(color.shape[:2], reset or self._pending_reset)
@@ -91,6 +160,9 @@ class MlpUpscaler(MethodUpscaler):
         self._prepare((h, w), reset)
         self.last_report = frame["sanitized"]
         self._pending_reset = False
+        if self.online is not None and reference is not None:
+            self.last_loss = self.train_step(frame["color"], reference,
+                                             gb.get("depth_hr") if self.feature else None)
         self.frame_index += 1
         c = self.dev.to_device(frame["color"], self.precision)
         f = self.dev.to_device(gb["depth_hr"], self.precision) if self.feature else None
