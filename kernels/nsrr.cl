@@ -108,6 +108,9 @@ static float tap_w(int xi, int yi, int W, int H, float wx, float wy)
  *  @param[in]  mv       [2,h,w] float32 render-pixel motion (previous = p + mv)
  *  @param[in]  hist     [12*N,Hp,Wp] T: the history (see the file comment)
  *  @param[out] stack    [12*(N+1),Hp,Wp] T: [Z_i, the history warped to frame i]
+ *  @param[out] base     [3,Hp,Wp] T: the current PQ colour (feat channels 0-2) bilinear at
+ *                       the output pixel centres, jitter-aware, edge-clamped (the residual
+ *                       base; 0 in the padding)
  *  @param[in]  h        render height
  *  @param[in]  w        render width
  *  @param[in]  H        output height
@@ -128,7 +131,7 @@ static float tap_w(int xi, int yi, int W, int H, float wx, float wy)
  *                       every valid slot is the current frame's Z (duplicate)
  *  NDRange: (Wp, Hp). */
 __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
-                             __global const T *hist, __global T *stack,
+                             __global const T *hist, __global T *stack, __global T *base,
                              int h, int w, int H, int W, int Hp, int Wp, int nprev, int nvalid,
                              int siy, int six, int oy, int ox, float sy, float sx,
                              float jy, float jx, int mode)
@@ -139,7 +142,23 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
     const int nch = FEAT * (nprev + 1);
     if (X >= W || Y >= H) {
         for (int c = 0; c < nch; ++c) ST(stack, c * oplane + o, 0.0f);
+        for (int c = 0; c < 3; ++c) ST(base, c * oplane + o, 0.0f);
         return;
+    }
+    {
+        /* render sample j was taken at j + 0.5 + jitter: this pixel's centre at index bu */
+        const float bu = clamp(((float)X + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
+        const float bv = clamp(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
+        const int b0 = (int)floor(bu), c0 = (int)floor(bv);
+        const int b1 = min(b0 + 1, w - 1), c1 = min(c0 + 1, h - 1);
+        const float fb = bu - (float)b0, fc = bv - (float)c0;
+        const long pl = (long)h * w;
+        for (int c = 0; c < 3; ++c) {
+            __global const T *q = feat + c * pl;
+            const float top = LD(q, (long)c0 * w + b0) * (1.0f - fb) + LD(q, (long)c0 * w + b1) * fb;
+            const float bot = LD(q, (long)c1 * w + b0) * (1.0f - fb) + LD(q, (long)c1 * w + b1) * fb;
+            ST(base, c * oplane + o, top * (1.0f - fc) + bot * fc);
+        }
     }
     /* Z_i: the sample whose jittered position lies in this output pixel, else 0. */
     const int i = zu_source(Y, h, siy, oy, sy, jy);

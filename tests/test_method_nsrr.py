@@ -106,3 +106,17 @@ def test_registry_entry():
     assert "nsrr" in methods.names() and "nsrr" not in methods.PLANNED
     assert s.scales == (2.0, 4.0) and s.twin and s.doc == "docs/methods/nsrr.md"
     assert s.weights() in ("trained", "untrained")
+
+
+def test_paper_output_without_residual_matches_its_twin(dev):
+    """residual=False: the U-Net's output is the image, as in the paper (no base input)."""
+    cfg = nets.make_config("fast", residual=False)
+    w = nets.init_weights(cfg, seed=2)
+    seq = frames(RENDER, 3, scale=2.0)
+    up = clss.Upscaler(method="nsrr", scale=2.0, device=dev, weights=(cfg, w))
+    twin = methods.twin("nsrr", RENDER, 2.0, weights=(cfg, w))
+    assert "base_grid" not in {i.name for i in twin.model.graph.input}
+    for f in seq:
+        a = up.step(f.color, f.depth, f.motion, f.jitter)
+        b = twin.step(f.color, f.depth, f.motion, f.jitter)
+        assert np.abs(a - b).max() <= 1e-4 * np.abs(b).max() + 1e-4

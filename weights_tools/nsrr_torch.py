@@ -16,7 +16,7 @@ import torch.nn.functional as F
 
 from clss.methods.nsrr import networks as nets
 from clss.methods.nsrr.frame import pad4
-from clss.methods.nsrr.oracle import zu_index
+from clss.methods.nsrr.oracle import base_grid, zu_index
 from clss.pipeline.contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
                                     output_size)
 
@@ -146,11 +146,22 @@ class TorchStep:
             prev = prev * mask
         return torch.cat([z, prev], 1)
 
-    def output(self, stack):
+    def output(self, stack, base=None):
         H, W = stack.shape[2:]
-        y = self.net.reconstruct(F.pad(stack, (0, pad4(W) - W, 0, pad4(H) - H)))
-        return y[:, :, :H, :W]
+        y = self.net.reconstruct(F.pad(stack, (0, pad4(W) - W, 0, pad4(H) - H)))[:, :, :H, :W]
+        return y + base if base is not None else y
+
+    def base(self, rgbd, jitters):
+        """The residual base (None without it): PQ colour bilinear at the output pixel
+        centres, each item's jitter applied, edge-clamped."""
+        if not self.net.cfg.get("residual", False):
+            return None
+        N, _, h, w = rgbd.shape
+        H, W = output_size(h, w, self.scale)
+        grids = [torch.from_numpy(base_grid((h, w), (H, W), j)) for j in jitters]
+        return F.grid_sample(rgbd[:, :3], torch.cat(grids).to(rgbd), mode="bilinear",
+                             padding_mode="border", align_corners=False)
 
     def step(self, rgbd, motion, jitters, hist, reset):
         stack = self.reproject(self.net.features(rgbd), motion, jitters, hist, reset)
-        return self.output(stack), stack[:, :FEAT * self.n]
+        return self.output(stack, self.base(rgbd, jitters)), stack[:, :FEAT * self.n]

@@ -1,7 +1,8 @@
 """NSRR's recipe (`python -m weights_tools train nsrr --data DIR --out DIR`): the paper's
 loss (1 - SSIM, in the PQ domain the step runs in, plus optionally 0.1 x a perceptual
-term) and an L1 term (--l1, default 1: with 1 - SSIM alone the colour had not been
-learnt after 400 steps, the output grey; docs/methods/nsrr.md) on windows of up to 5 frames (the current one and 4 previous, accumulatively
+term) and an L1 term, in YCbCr as the paper's section 3.2.5, chroma weighted (--l1,
+--chroma: with 1 - SSIM on RGB alone, and with L1 added, the colour had not been learnt
+after 400 steps, the output was grey; docs/methods/nsrr.md) on windows of up to 5 frames (the current one and 4 previous, accumulatively
 warped as the step does), patches chosen for motion and detail.
 
 Pretrained VGG-16 weights cannot be had here (no package ships them, nothing may be
@@ -46,11 +47,16 @@ def add_arguments(t):
     t.add_argument("--lr", type=float, default=2e-3)
     t.add_argument("--widths", default="default", help="default, fast or paper (networks.WIDTHS)")
     t.add_argument("--n-prev", type=int, default=4)
+    t.add_argument("--no-residual", action="store_true",
+                   help="the paper's output (the U-Net's image) instead of a correction added "
+                        "to the jitter-aware bilinear colour (networks.py)")
     t.add_argument("--reset-fill", choices=("zero", "duplicate"), default="zero")
     t.add_argument("--p-short", type=float, default=0.2,
                    help="fraction of windows with fewer previous frames than available")
     t.add_argument("--l1", type=float, default=1.0,
                    help="weight of an L1 term (PQ); 0 = the paper's loss without VGG")
+    t.add_argument("--chroma", type=float, default=4.0,
+                   help="weight of the chroma channels in the YCbCr loss (1 = plain YCbCr)")
     t.add_argument("--perceptual", choices=("none", "random"), default="none")
     t.add_argument("--perceptual-weight", type=float, default=0.1)
     t.add_argument("--candidates", type=int, default=4000, help="random patches scored")
@@ -78,6 +84,23 @@ class RandomFeatures:
             if i < len(self.w) - 1:
                 a, b = F.avg_pool2d(a, 2), F.avg_pool2d(b, 2)
         return total
+
+
+# BT.709 RGB -> (Y, Cb, Cr), chroma centred on 0.5
+_YCC = np.array([[0.2126, 0.7152, 0.0722], [-0.1146, -0.3854, 0.5], [0.5, -0.4542, -0.0458]],
+                np.float32)
+
+
+def ycbcr(x, chroma=1.0):
+    """[N,3,H,W] (PQ RGB) -> YCbCr with the chroma scaled by `chroma` about 0.5: the loss
+    domain (the paper's section 3.2.5 runs the network's output and loss in YCbCr; here the
+    network stays in RGB and only the loss moves, the same function class)."""
+    import torch
+    m = torch.from_numpy(_YCC).to(x)
+    y = torch.einsum("ij,njhw->nihw", m, x)
+    k = torch.tensor([1.0, chroma, chroma], dtype=x.dtype, device=x.device).view(1, 3, 1, 1)
+    off = torch.tensor([0.0, 0.5, 0.5], dtype=x.dtype, device=x.device).view(1, 3, 1, 1)
+    return y * k + off
 
 
 def _prepare(seqs, torch):
@@ -157,7 +180,7 @@ def forward(step, rgbd, mot, jit, rst):
         stack = step.reproject(step.net.features(rgbd[j]), mot[j], jit[j], hist, rst[j])
         hist = stack[:, :step.net.n_prev * 12]
     stack = step.reproject(step.net.features(rgbd[-1]), mot[-1], jit[-1], hist, rst[-1])
-    return step.output(stack)
+    return step.output(stack, step.base(rgbd[-1], jit[-1]))
 
 
 def cmd_train(args):
@@ -178,7 +201,7 @@ def cmd_train(args):
     if pr + 2 * args.margin > min(h, w):
         raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
                          f"{h}x{w} frames")
-    cfg = nets.make_config(args.widths, args.n_prev)
+    cfg = nets.make_config(args.widths, args.n_prev, residual=not args.no_residual)
     net = NsrrNet(cfg, nets.init_weights(cfg, args.seed))
     step = TorchStep(net, sc, reset_fill=args.reset_fill)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
@@ -197,7 +220,7 @@ def cmd_train(args):
                            np.random.default_rng(args.seed))
     print(f"nsrr x{sc}: {len(seqs)} sequences, {len(picks)} patches of {args.patch} px kept, "
           f"widths {cfg['name']}, {args.steps} steps of {args.batch}, loss 1-SSIM"
-          + (f" + {args.l1:g} L1" if args.l1 else "")
+          + (f" + {args.l1:g} L1" if args.l1 else "") + f", YCbCr (chroma x{args.chroma:g})"
           + (f" + {args.perceptual_weight} random-feature perceptual" if perc else ""), flush=True)
     m = args.margin * sc
     t0 = time.time() - spent
@@ -208,9 +231,10 @@ def cmd_train(args):
         rgbd, mot, jit, rst, ref = make_batch(seqs, picks, args.batch, pr, args.margin,
                                               cfg["n_prev"], args.p_short, rng, torch)
         y = forward(step, rgbd, mot, jit, rst)[:, :, m:m + args.patch, m:m + args.patch]
-        loss = 1.0 - ssim(y.clamp(0, 1), ref)
+        ya, yb = ycbcr(y.clamp(0, 1), args.chroma), ycbcr(ref, args.chroma)
+        loss = 1.0 - ssim(ya, yb)
         if args.l1:
-            loss = loss + args.l1 * (y - ref).abs().mean()
+            loss = loss + args.l1 * (ya - yb).abs().mean()
         if perc is not None:
             loss = loss + args.perceptual_weight * perc.loss(y, ref)
         opt.zero_grad()

@@ -7,7 +7,9 @@ Per frame (render h x w, output H x W, padded Hp x Wp = multiples of 4; N histor
     reproject     feat, mv, hist -> stack [12(N+1),Hp,Wp]   zero-upsampling with the jitter,
                                                             motion upsampled bilinearly,
                                                             the history warped one step
-    reconstruct   stack -> y [3,Hp,Wp]                      (clss.Model: reweighting + U-Net)
+    reconstruct   stack -> y [3,Hp,Wp]                      (clss.Model: reweighting + U-Net;
+                                                            + base, the jittered colour
+                                                            bilinear, with the residual)
     finish        y -> out [H,W,3] linear
 
 The stack is double-buffered: its first 12N channels are the next frame's history, so
@@ -76,6 +78,8 @@ class NsrrFrameStep:
         self.stacks = [e((1, FEAT * (self.nprev + 1), Hp, Wp), prec) for _ in range(2)]
         self.cur = 0            # stacks[cur] was written last: its first 12N channels are the history
         self.y = e((1, 3, Hp, Wp), prec)
+        self.residual = bool(cfg.get("residual", False))
+        self.base = e((1, 3, Hp, Wp), prec)
         self.out = e((self.H, self.W, 3), dtype=f32)
         # zeroed once (half arrays have no pyopencl fill): no kernel reads uninitialised memory
         for a in self.stacks:
@@ -91,7 +95,7 @@ class NsrrFrameStep:
                 self.mv.data, i32(w), i32(h), i32(1), f(1), f(1), f(1),
                 f(self.nits / PQ_PEAK_NITS)]),
             "reproject": dev.prepare(k["nsrr_reproject"], (Wp, Hp), [
-                self.feat.data, self.mv.data, self.stacks[1].data, self.stacks[0].data,
+                self.feat.data, self.mv.data, self.stacks[1].data, self.stacks[0].data, self.base.data,
                 i32(h), i32(w), i32(self.H), i32(self.W), i32(Hp), i32(Wp), i32(self.nprev),
                 i32(self.history), i32(0), i32(0), i32(0), i32(0), f(self.sy), f(self.sx),
                 f(0), f(0), i32(1)]),
@@ -117,8 +121,8 @@ class NsrrFrameStep:
         (siy, oy), (six, ox) = zu_axis(self.sy, jy), zu_axis(self.sx, jx)
         mode = 0 if not reset else (1 if self.reset_fill == "zero" else 2)
         r = L["reproject"]
-        for idx, v in ((12, i32(siy)), (13, i32(six)), (14, i32(oy)), (15, i32(ox)),
-                       (18, f(jy)), (19, f(jx)), (20, i32(mode))):
+        for idx, v in ((13, i32(siy)), (14, i32(six)), (15, i32(oy)), (16, i32(ox)),
+                       (19, f(jy)), (20, f(jx)), (21, i32(mode))):
             r.bind(idx, v)
         prev, stack = self.stacks[self.cur], self.stacks[1 - self.cur]
         r.bind(2, prev.data)
@@ -134,7 +138,8 @@ class NsrrFrameStep:
         re = [] if self.profile else None
         # (the launch plan is recorded again when the stack buffer alternates: host work
         # of a few ms against seconds of convolutions)
-        self.reconstruct.run_device({"stack": stack}, out={"y": self.y}, events=re)
+        feeds = {"stack": stack, "base": self.base} if self.residual else {"stack": stack}
+        self.reconstruct.run_device(feeds, out={"y": self.y}, events=re)
         ev += [("reconstruct", e) for e in re or ()]
         last = fin()
         ev.append(("finish", last))
@@ -159,7 +164,7 @@ class NsrrFrameStep:
 
     def device_bytes(self) -> int:
         arrays = [self.in_color, self.in_depth, self.in_motion, self.rgbd, self.mv, self.feat,
-                  *self.stacks, self.y, self.out]
+                  *self.stacks, self.y, self.base, self.out]
         n = sum(a.nbytes for a in arrays)
         for m in (self.features, self.reconstruct):
             mem = m.memory()

@@ -11,6 +11,13 @@
 N previous frames' zero-upsampled, accumulatively warped features (12 each), padded to
 a multiple of 4 (two poolings). The output is the frame in the PQ domain.
 
+Residual (config "residual", a deviation from the paper, on by default): the U-Net's
+output is added to `base` [1,3,H,W], the current frame's PQ colour resampled bilinearly
+at the output pixel centres with its jitter (kernels/nsrr.cl). The network then learns a
+correction instead of the image; with the ~1000 training steps this machine affords, the
+paper's form (residual False, still supported) stayed hazy and grey well below the
+spatial baselines (docs/methods/nsrr.md).
+
 Widths. The paper's (32-32-8 | 32-32-N | 64-32, 64-64, 128-128, 64-64, 32-3) cost 163
 kMAC per output pixel with N = 4 (`macs_per_pixel`); at 270p -> 1080p that is 0.68 TFLOP
 a frame, about 40 s on 2 busy CPU cores, and its training out of reach in the time given
@@ -46,7 +53,7 @@ WIDTHS = {
 }
 
 
-def make_config(widths="default", n_prev=MAX_PREV) -> dict:
+def make_config(widths="default", n_prev=MAX_PREV, residual=True) -> dict:
     if isinstance(widths, str):
         if widths not in WIDTHS:
             raise ValueError(f"widths: expected one of {', '.join(WIDTHS)}, got {widths!r}")
@@ -58,6 +65,7 @@ def make_config(widths="default", n_prev=MAX_PREV) -> dict:
     if not 1 <= n_prev <= MAX_PREV:
         raise ValueError(f"n_prev: expected 1..{MAX_PREV}, got {n_prev}")
     w["n_prev"] = n_prev
+    w["residual"] = bool(residual)
     return w
 
 
@@ -81,7 +89,7 @@ def layer_shapes(cfg) -> dict:
 def init_weights(cfg, seed=0) -> dict:
     """Seeded He-normal init (the untrained networks; the torch twin starts from the
     same tensors). The last layer of the U-Net starts small and its bias at mid-grey in
-    PQ, so an untrained network outputs a flat image rather than noise."""
+    PQ (0 with the residual), so an untrained network outputs a flat image (the base)."""
     g = np.random.default_rng(seed)
     out = {}
     for name, (co, ci) in layer_shapes(cfg).items():
@@ -90,7 +98,7 @@ def init_weights(cfg, seed=0) -> dict:
             std *= 0.1
         out[f"{name}.weight"] = g.normal(0, std, (co, ci, 3, 3)).astype(np.float32)
         out[f"{name}.bias"] = np.zeros(co, np.float32)
-    out["un.9.bias"][:] = 0.5
+    out["un.9.bias"][:] = 0.0 if cfg.get("residual", False) else 0.5
     return out
 
 
@@ -181,6 +189,7 @@ def build_features(cfg, weights, h="h", w="w") -> onnx.ModelProto:
 
 def build_reconstruct(cfg, weights, H="H", W="W") -> onnx.ModelProto:
     n = cfg["n_prev"]
+    residual = bool(cfg.get("residual", False))
     g = _G(weights)
     x = "stack"
     # Feature reweighting on the RGB-D of the current and every previous slot.
@@ -201,9 +210,12 @@ def build_reconstruct(cfg, weights, H="H", W="W") -> onnx.ModelProto:
     d2 = g.op("Concat", g.op("Resize", b, "", up, **rs), e2, axis=1)
     d2 = g.conv(g.conv(d2, "un.6"), "un.7")
     d1 = g.op("Concat", g.op("Resize", d2, "", up, **rs), e1, axis=1)
-    g.conv(g.conv(d1, "un.8"), "un.9", act=None, out="y")
-    return g.model("nsrr_reconstruct", [_vi("stack", [1, FEAT * (n + 1), H, W])],
-                   [_vi("y", [1, 3, H, W])])
+    y = g.conv(g.conv(d1, "un.8"), "un.9", act=None, out=None if residual else "y")
+    inputs = [_vi("stack", [1, FEAT * (n + 1), H, W])]
+    if residual:
+        g.op("Add", y, "base", out="y")
+        inputs.append(_vi("base", [1, 3, H, W]))
+    return g.model("nsrr_reconstruct", inputs, [_vi("y", [1, 3, H, W])])
 
 
 def macs_per_pixel(cfg, scale) -> dict:

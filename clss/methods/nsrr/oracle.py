@@ -5,6 +5,8 @@ takes the history [1,12N,H,W] and returns the next one.
 Graph inputs (internal conventions, contract.to_internal):
     color [1,3,h,w] linear / exposure     depth [1,1,h,w] reversed-Z
     motion [1,2,h,w] render pixels        hist [1,12N,H,W] the history
+    base_grid [1,H,W,2] (with the residual): where each output pixel centre lies in the
+        render frame, jitter-aware (`base_grid`)
     zu_y [H], zu_x [W] int64: the render row / column whose jittered sample lands on
         each output row / column, or h / w (a zero row / column) where none does
         (computed from the jitter by `zu_index`, as kernels/nsrr.cl places samples)
@@ -40,6 +42,18 @@ def zu_index(n: int, scale: float, jit: float, size: int) -> np.ndarray:
     return idx
 
 
+def base_grid(render_size, out_size, jitter) -> np.ndarray:
+    """[1,H,W,2] GridSample coordinates (align_corners=0) of each output pixel centre in
+    the render frame whose sample j was taken at j + 0.5 + jitter (the residual base)."""
+    (h, w), (H, W) = render_size, out_size
+    jx, jy = (float(v) for v in jitter)
+    u = (np.arange(W, dtype=np.float64) + 0.5) * (w / W) - 0.5 - jx
+    v = (np.arange(H, dtype=np.float64) + 0.5) * (h / H) - 0.5 - jy
+    gx = np.broadcast_to(((2 * u + 1) / w - 1)[None, :], (H, W))
+    gy = np.broadcast_to(((2 * v + 1) / h - 1)[:, None], (H, W))
+    return np.stack([gx, gy], -1)[None].astype(np.float32)
+
+
 def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) -> onnx.ModelProto:
     h, w = render_size
     H, W = output_size(h, w, scale)
@@ -50,7 +64,8 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
     C = nets.FEAT
     g = GraphBuilder(OPSET)
     # rgbd and features at render resolution
-    rgbd = g.concat([pq_encode(g, "color", nits), "depth"])
+    pq = pq_encode(g, "color", nits)
+    rgbd = g.concat([pq, "depth"])
     g.inline(nets.build_features(cfg, weights, h, w), "fe", {"rgbd": rgbd}, {"feat": "feat"})
     # zero-upsampling: a zero column and row appended, then the placement gathers
     zc = g.const(np.zeros((1, C, h, 1), np.float32), np.float32, "zcol")
@@ -81,7 +96,14 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
     g.nodes[-1].output[0] = "hist_out"
     g.nodes[-1].name = "hist_out"
     padded = g.op("Pad", stack, g.i64([0, 0, 0, 0, 0, 0, Hp - H, Wp - W]), mode="constant")
-    g.inline(nets.build_reconstruct(cfg, weights, Hp, Wp), "re", {"stack": padded}, {"y": "y"})
+    feeds = {"stack": padded}
+    if cfg.get("residual", False):
+        # the residual base: the PQ colour bilinear at each output pixel centre, jitter-aware
+        base = g.op("GridSample", pq, "base_grid", mode="bilinear", padding_mode="border",
+                    align_corners=0)
+        feeds["base"] = g.op("Pad", base, g.i64([0, 0, 0, 0, 0, 0, Hp - H, Wp - W]),
+                             mode="constant")
+    g.inline(nets.build_reconstruct(cfg, weights, Hp, Wp), "re", feeds, {"y": "y"})
     y = g.slice(g.slice("y", 2, 0, H), 3, 0, W)
     pq_decode(g, g.clip(y, 0.0, 1.0), nits, name="output")
     f = TensorProto.FLOAT
@@ -90,7 +112,8 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
         g.nodes, "nsrr_frame",
         [vi("color", f, [1, 3, h, w]), vi("depth", f, [1, 1, h, w]), vi("motion", f, [1, 2, h, w]),
          vi("hist", f, [1, C * n, H, W]), vi("zu_y", TensorProto.INT64, [H]),
-         vi("zu_x", TensorProto.INT64, [W]), vi("keep", f, [1]), vi("dup", f, [1])],
+         vi("zu_x", TensorProto.INT64, [W]), vi("keep", f, [1]), vi("dup", f, [1])]
+        + ([vi("base_grid", f, [1, H, W, 2])] if cfg.get("residual", False) else []),
         [vi("output", f, [1, 3, H, W]), vi("hist_out", f, [1, C * n, H, W])], g.inits)
     model = helper.make_model(graph, producer_name="clss.methods.nsrr.oracle",
                               opset_imports=[helper.make_opsetid("", OPSET)])
@@ -135,6 +158,8 @@ class OracleNsrr:
                  "keep": np.array([0.0 if reset else 1.0], np.float32),
                  "dup": np.array([1.0 if reset and self.reset_fill == "duplicate" else 0.0],
                                  np.float32)}
+        if self.cfg.get("residual", False):
+            feeds["base_grid"] = base_grid((h, w), (self.H, self.W), (jx, jy))
         y, self.hist = self.session.run(["output", "hist_out"], feeds)
         return np.ascontiguousarray(y[0].transpose(1, 2, 0)) * np.float32(self.exposure)
 
