@@ -36,6 +36,11 @@ def frame_cases(tier):
     return [netcases.frame_case(mode, (h, w), scale, tier) for mode in ("net", "rule")]
 
 
+def _mlp_cases(tier):
+    from .mlpcases import mlp_cases
+    return mlp_cases((tier,))
+
+
 # --- the suite ------------------------------------------------------------------------
 
 def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list[tuple[str, str]]]:
@@ -62,7 +67,8 @@ def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list
             except Exception as e:   # a family whose API moved: report, keep benchmarking the rest
                 missing.append((f"{fam} [{tier}]", f"{type(e).__name__}: {e}"))
         for what, fn, mod in (("networks", network_cases, "clss/model/__init__.py"),
-                              ("frame step", frame_cases, "clss/methods/clss/frame.py")):
+                              ("frame step", frame_cases, "clss/methods/clss/frame.py"),
+                              ("mlp frame step", _mlp_cases, "clss/methods/mlp/upscaler.py")):
             try:
                 got = fn(tier)
             except Exception as e:

@@ -192,3 +192,193 @@ __kernel void mlp_upscale_fold(__global const T *blocks, __global T *out, int h,
     for (int c = 0; c < 3; ++c)
         ST(out, ((long)y * W + x) * 3 + c, mu_pq_decode(acc[c] * inv_n, inv_pq_scale) * exposure);
 }
+
+/* ---- the fast path (-DVEC=8 or 16; clss/ops/mlp_upscale.py registers it with
+ * clss.selfcheck against the scalar kernels above) ----------------------------------------
+ *
+ *   mlp_upscale_pq        per render pixel: the PQ encode, once ([3][h][w] float planes),
+ *                         not 25 times per neighbourhood as the reference kernel does;
+ *   mlp_upscale_blocks_v  VEC horizontally adjacent render pixels per work-item, as the
+ *                         lanes of floatVEC vectors: the weights are uniform scalars
+ *                         broadcast across the lanes, so each multiply-add of the MLP is
+ *                         one vector FMA; the feature half of the first layer is computed
+ *                         once per pixel and shared by the three colour channels. */
+#if defined(VEC) && VEC > 1
+#if VEC == 16
+typedef float16 VF;
+#define VLOAD vload16
+#define VSTORE vstore16
+#define VSTORE_HALF vstore_half16_rte
+#else
+typedef float8 VF;
+#define VLOAD vload8
+#define VSTORE vstore8
+#define VSTORE_HALF vstore_half8_rte
+#endif
+
+__kernel void mlp_upscale_pq(__global const T *color, __global float *pq, int h, int w,
+                             float inv_exposure, float pq_scale)
+{
+    const int j = get_global_id(0), i = get_global_id(1);
+    if (j >= w || i >= h)
+        return;
+    const long p = (long)i * w + j, hw = (long)h * w;
+    for (int c = 0; c < 3; ++c)
+        pq[c * hw + p] = mu_pq_encode(LD(color, p * 3 + c) * inv_exposure, pq_scale);
+}
+
+inline VF mv_ramp(VF r)
+{
+    return sign(r) * (pow(fabs(r) + (float)EPS, (VF)((float)INV_GAMMA)) - (float)EPS_ROOT);
+}
+
+inline VF mv_ramp_inv(VF y)
+{
+    return sign(y) * (pow(fabs(y) + (float)EPS_ROOT, (VF)((float)GAMMA)) - (float)EPS);
+}
+
+/* lanes of a gather: lane l reads EXPR with l bound */
+#define LANES(EXPR) ({ VF _v; float *_p = (float *)&_v;                     \
+    for (int l = 0; l < VEC; ++l) _p[l] = (EXPR); _v; })
+
+/** @param[in]  pq      [3][h][w] from mlp_upscale_pq
+ *  other parameters as mlp_upscale_blocks (no exposure: the PQ pass applied it)
+ *  NDRange: (ceil(w / VEC), h) rounded up to the work-group; the kernel guards. */
+__kernel void mlp_upscale_blocks_v(__global const float *pq, __global const T *feat,
+                                   __global const float *wp, __global T *blocks,
+                                   int h, int w, int H, int W)
+{
+    const int j0 = get_global_id(0) * VEC, i = get_global_id(1);
+    if (j0 >= w || i >= h)
+        return;
+    const long hw = (long)h * w;
+    VF f1[NH], x[NT], h1[NH], h2[NH];
+
+    /* the feature half of layer 1 (+ its bias), shared by the three channels */
+    {
+#if FEATURE
+        VF m = (VF)(0.0f);
+        for (int dy = 0; dy < TAPS; ++dy) {
+            const long row = (long)clamp(S * i - 1 + dy, 0, H - 1) * W;
+            for (int dx = 0; dx < TAPS; ++dx) {
+                const VF v = LANES(LD(feat, row + clamp(S * min(j0 + l, w - 1) - 1 + dx, 0, W - 1)));
+                x[dy * TAPS + dx] = v;
+                m += v;
+            }
+        }
+        m *= 1.0f / NT;
+        for (int k = 0; k < NT; ++k)
+            x[k] = mv_ramp(x[k] - m);
+        for (int o = 0; o < NH; ++o) {
+            VF a = (VF)(wp[OFF1 + NH * NI + o]);
+            for (int q = 0; q < NT; ++q)
+                a = fma((VF)(wp[OFF1 + o * NI + NT + q]), x[q], a);
+            f1[o] = a;
+        }
+#else
+        for (int o = 0; o < NH; ++o)
+            f1[o] = (VF)(wp[OFF1 + NH * NI + o]);
+#endif
+    }
+
+    for (int c = 0; c < 3; ++c) {
+        __global const float *pc = pq + c * hw;
+        VF m = (VF)(0.0f);
+        for (int dy = 0; dy < TAPS; ++dy) {
+            const long row = (long)clamp(i - 2 + dy, 0, h - 1) * w;
+            for (int dx = 0; dx < TAPS; ++dx) {
+                VF v;
+                if (j0 >= 2 && j0 + VEC + 2 <= w)       /* interior: one vector load */
+                    v = VLOAD(0, pc + row + j0 - 2 + dx);
+                else
+                    v = LANES(pc[row + clamp(j0 + l - 2 + dx, 0, w - 1)]);
+                x[dy * TAPS + dx] = v;
+                m += v;
+            }
+        }
+        m *= 1.0f / NT;
+        for (int k = 0; k < NT; ++k)
+            x[k] = mv_ramp(x[k] - m);
+
+        /* five outputs at a time: each input vector loaded once per five FMAs, the
+         * five accumulators in registers */
+        for (int o = 0; o < NH; o += 5) {
+            VF a0 = f1[o], a1 = f1[o + 1], a2 = f1[o + 2], a3 = f1[o + 3], a4 = f1[o + 4];
+            __global const float *w0 = wp + OFF1 + o * NI;
+            for (int q = 0; q < NT; ++q) {
+                const VF xq = x[q];
+                a0 = fma((VF)(w0[q]), xq, a0);
+                a1 = fma((VF)(w0[NI + q]), xq, a1);
+                a2 = fma((VF)(w0[2 * NI + q]), xq, a2);
+                a3 = fma((VF)(w0[3 * NI + q]), xq, a3);
+                a4 = fma((VF)(w0[4 * NI + q]), xq, a4);
+            }
+            /* leaky ReLU, 0 < ALPHA < 1 */
+            h1[o] = fmax(a0, a0 * (float)ALPHA);
+            h1[o + 1] = fmax(a1, a1 * (float)ALPHA);
+            h1[o + 2] = fmax(a2, a2 * (float)ALPHA);
+            h1[o + 3] = fmax(a3, a3 * (float)ALPHA);
+            h1[o + 4] = fmax(a4, a4 * (float)ALPHA);
+        }
+        for (int o = 0; o < NH; o += 5) {
+            __global const float *w0 = wp + OFF2 + o * NH, *b0 = wp + OFF2 + NH * NH + o;
+            VF a0 = (VF)(b0[0]), a1 = (VF)(b0[1]), a2 = (VF)(b0[2]), a3 = (VF)(b0[3]),
+               a4 = (VF)(b0[4]);
+            for (int q = 0; q < NH; ++q) {
+                const VF xq = h1[q];
+                a0 = fma((VF)(w0[q]), xq, a0);
+                a1 = fma((VF)(w0[NH + q]), xq, a1);
+                a2 = fma((VF)(w0[2 * NH + q]), xq, a2);
+                a3 = fma((VF)(w0[3 * NH + q]), xq, a3);
+                a4 = fma((VF)(w0[4 * NH + q]), xq, a4);
+            }
+            h2[o] = fmax(a0, a0 * (float)ALPHA);
+            h2[o + 1] = fmax(a1, a1 * (float)ALPHA);
+            h2[o + 2] = fmax(a2, a2 * (float)ALPHA);
+            h2[o + 3] = fmax(a3, a3 * (float)ALPHA);
+            h2[o + 4] = fmax(a4, a4 * (float)ALPHA);
+        }
+        /* the output layer: four units at a time (B*B = 16 or 25: a last single one) */
+        for (int o0 = 0; o0 < BB; o0 += 4) {
+            const int nb = min(4, BB - o0);
+            __global const float *w0 = wp + OFF3 + o0 * NH, *b0 = wp + OFF3 + NO * NH + o0;
+            VF acc[4];
+            if (nb == 4) {
+                VF a0 = (VF)(b0[0]), a1 = (VF)(b0[1]), a2 = (VF)(b0[2]), a3 = (VF)(b0[3]);
+                for (int q = 0; q < NH; ++q) {
+                    const VF xq = h2[q];
+                    a0 = fma((VF)(w0[q]), xq, a0);
+                    a1 = fma((VF)(w0[NH + q]), xq, a1);
+                    a2 = fma((VF)(w0[2 * NH + q]), xq, a2);
+                    a3 = fma((VF)(w0[3 * NH + q]), xq, a3);
+                }
+                acc[0] = a0; acc[1] = a1; acc[2] = a2; acc[3] = a3;
+            } else {
+                for (int u = 0; u < nb; ++u) {
+                    VF a = (VF)(b0[u]);
+                    for (int q = 0; q < NH; ++q)
+                        a = fma((VF)(w0[u * NH + q]), h2[q], a);
+                    acc[u] = a;
+                }
+            }
+          for (int u = 0; u < nb; ++u) {
+            const int o = o0 + u;
+            const VF a = acc[u];
+            const VF v = m + mv_ramp_inv(a);
+            const long base = ((long)c * BB + o) * hw + (long)i * w + j0;
+            if (j0 + VEC <= w) {
+#if defined(CLSS_FP16) || defined(CLSS_FP16_NATIVE)
+                VSTORE_HALF(v, 0, blocks + base);
+#else
+                VSTORE(v, 0, blocks + base);
+#endif
+            } else {
+                const float *pv = (const float *)&v;
+                for (int l = 0; l < w - j0; ++l)
+                    ST(blocks, base + l, pv[l]);
+            }
+          }
+        }
+    }
+}
+#endif

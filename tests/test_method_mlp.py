@@ -159,3 +159,36 @@ def test_smoke_training_offline(tmp_path, dev, capsys):
     assert y.shape == (48, 52, 3) and np.isfinite(y).all()
     assert main(["train", "mlp", "--out", str(out)]) == 2
     assert "give --data DIR" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+def test_pixel_vector_fast_path_matches_reference(precision, dev):
+    # the fast path (8 render pixels per work-item, PQ hoisted) against the scalar kernel,
+    # on a width with a partial last vector and an interior that takes the vector loads
+    from clss.ops import mlp_upscale as ops
+    g = np.random.default_rng(8)
+    for s, feature in ((2, True), (3, False)):
+        h, w = 6, 27
+        color = dev.to_device(g.uniform(0, 4, (h, w, 3)).astype(np.float32), precision)
+        feat = dev.to_device(g.uniform(0, 1, (s * h, s * w)).astype(np.float32), precision)
+        wts = ops.pack_weights(dev, precision, tf.packed(_random_weights(s)))
+        d = tf.kernel_defines(s, feature)
+        a = dev.to_host(ops.blocks(dev, precision, color, feat, wts, d, vec=1))
+        b = dev.to_host(ops.blocks(dev, precision, color, feat, wts, d, vec=8))
+        tol = 1e-5 if precision == "fp32" else 2e-3
+        assert np.abs(a - b).max() <= tol, f"x{s}: max difference {np.abs(a - b).max():.3g}"
+
+
+def test_bench_case_tiny(dev):
+    import sys
+    import os
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    from bench.mlpcases import mlp_cases
+    cases = mlp_cases(("tiny",))
+    assert [c.name for c in cases] == ["frame step mlp x2", "frame step mlp x3"]
+    st = cases[0].build(dev, "fp32", {})
+    out = dev.to_host(st.run()[0])
+    import onnxruntime as ort
+    sess = ort.InferenceSession(st.twin.SerializeToString(), providers=["CPUExecutionProvider"])
+    ref = sess.run(None, st.feeds)[0]
+    assert np.abs(pq_encode(out) - pq_encode(ref)).max() <= 1e-4

@@ -6,13 +6,16 @@ they are written); their ONNX twins are in clss/verify/cases/mlp_upscale.py."""
 from __future__ import annotations
 
 import numpy as np
+import pyopencl as cl
 
+from .. import selfcheck
 from ..device import Device
-from .base import check_storage
+from .base import check_storage, rng
 
 # Work-group shape: a fixed one, so PoCL compiles one work-group function per build, not
 # one per frame size (the kernels guard their bounds).
 LOCAL = (16, 4)
+VLOCAL = (4, 4)       # the pixel-vector kernel: VEC pixels per work-item already
 WEIGHT_COUNT = 50 * 50 + 50 + 50 * 50 + 50 + 25 * 50 + 25
 
 
@@ -31,10 +34,15 @@ def pack_weights(dev: Device, prec: str, flat: np.ndarray):
     return dev.to_device(flat, "fp32")
 
 
+FAST = "mlp_upscale.pixel_vectors"
+
+
 def blocks(dev: Device, prec: str, color, feat, weights, defines: dict, *,
-           inv_exposure=1.0, pq_scale=0.01, out=None):
+           inv_exposure=1.0, pq_scale=0.01, out=None, vec=None):
     """color [h, w, 3] linear, feat [H, W] (any [H, W] array when FEATURE=0), weights from
-    pack_weights -> blocks [3, B*B, h, w] (PQ domain)."""
+    pack_weights -> blocks [3, B*B, h, w] (PQ domain). vec: None (the fast path where its
+    self-check passed on this device, else the reference), 1 (the reference kernel) or 8/16
+    (the pixel-vector kernel, VEC pixels per work-item, after a PQ pass)."""
     check_storage("color", color, prec)
     check_storage("feat", feat, prec)
     if weights.dtype != np.float32 or weights.size != WEIGHT_COUNT:
@@ -48,6 +56,19 @@ def blocks(dev: Device, prec: str, color, feat, weights, defines: dict, *,
         raise ValueError(f"feat: expected [{s * h}, {s * w}] at scale {s}, got {feat.shape}")
     if out is None:
         out = dev.empty((3, b * b, h, w), prec)
+    v = int(selfcheck.defines(dev, prec, FAST)["VEC"]) if vec is None else int(vec)
+    if v > 1:
+        opts = dict(defines, VEC=v)
+        pq = dev.empty((3, h, w), "fp32")
+        dev.launch(dev.kernel("mlp_upscale", "mlp_upscale_pq", prec, **opts),
+                   (_round_up(w, LOCAL[0]), _round_up(h, LOCAL[1])),
+                   (color.data, pq.data, np.int32(h), np.int32(w), np.float32(inv_exposure),
+                    np.float32(pq_scale)), local_size=LOCAL)
+        dev.launch(dev.kernel("mlp_upscale", "mlp_upscale_blocks_v", prec, **opts),
+                   (_round_up(-(-w // v), VLOCAL[0]), _round_up(h, VLOCAL[1])),
+                   (pq.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
+                    np.int32(H), np.int32(W)), local_size=VLOCAL)
+        return out
     kern = dev.kernel("mlp_upscale", "mlp_upscale_blocks", prec, **defines)
     dev.launch(kern, (_round_up(w, LOCAL[0]), _round_up(h, LOCAL[1])),
                (color.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
@@ -73,3 +94,36 @@ def fold(dev: Device, prec: str, blk, defines: dict, *, exposure=1.0, inv_pq_sca
                (blk.data, out.data, np.int32(h), np.int32(w), np.int32(H), np.int32(W),
                 np.float32(exposure), np.float32(inv_pq_scale)), local_size=LOCAL)
     return out
+
+
+def _selfcheck_run(dev: Device, prec: str) -> list:
+    """The block pass on a seeded frame whose rows end in a partial vector and whose
+    interior takes the vector loads, at 2x and 3x, with and without the feature."""
+    from ..methods.mlp import transform as tf
+    g = rng("mlp_upscale selfcheck")
+    outs = []
+    for s, feature in ((2, True), (3, True), (2, False)):
+        h, w = 7, 29
+        color = dev.to_device(g.uniform(0, 4, (h, w, 3)).astype(np.float32), prec)
+        feat = dev.to_device(g.uniform(0, 1, (s * h, s * w)).astype(np.float32), prec)
+        t = tf.init_weights(int(g.integers(1 << 30)))
+        t["fc3.weight"] = g.normal(0, 0.1, (25, 50)).astype(np.float32)
+        wts = pack_weights(dev, prec, tf.packed(t))
+        outs.append(dev.to_host(blocks(dev, prec, color, feat, wts, tf.kernel_defines(s, feature))))
+    return outs
+
+
+def _tolerance(prec):
+    from ..tolerance import DEFAULT_TOL
+    return DEFAULT_TOL[prec]
+
+
+# The vector form computes the same formulas in another order of nothing: the same FMAs per
+# lane; pow's vector form may round differently from the scalar one, hence the op tolerance.
+selfcheck.register(selfcheck.FastPath(
+    FAST, "mlp_upscale", {"VEC": 8}, {"VEC": 1}, check=_selfcheck_run, tolerance=_tolerance,
+    what="8 render pixels per work-item as vectors, the PQ encode hoisted",
+    applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU),
+    # in this process: clss.selfcheck_runner's child imports the op families it knows
+    # (clss.ops.FAMILIES), which this method's kernels are not among
+    isolate=False))

@@ -1,0 +1,144 @@
+"""The shader MLP upscaler's frame step as a bench case: clss.Upscaler(method="mlp")'s
+device path (kernels/mlp_upscale.cl: the PQ pass, the pixel-vector block pass and the fold)
+against onnxruntime on the same step's whole-frame ONNX graph (clss/methods/mlp/oracle.py),
+at 540p -> 1080p (2x) and 360p -> 1080p (3x), with trained-like (random, non-zero) weights.
+Hooked into the suite by bench/suite.py's frame-step cases. `measure()` also times one
+online training step (kernels/mlp_train.cl) beside the frame step.
+
+    python -m bench.mlpcases [fp32|fp16] [HxW]
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .cases import BenchCase, Setup
+from .netcases import NET_TOL, synthetic_frame
+
+MLP_TIERS = {"540p": (((540, 960), 2),), "1080p": (((540, 960), 2), ((360, 640), 3)),
+             "tiny": (((16, 32), 2), ((16, 32), 3))}
+
+
+def bench_weights(seed=0) -> dict:
+    """Trained-like weights: the seeded init with a non-zero output layer (the zero one
+    would make the inverse ramp's input exactly 0)."""
+    from clss.methods.mlp import transform as tf
+    g = np.random.default_rng(seed)
+    t = tf.init_weights(seed)
+    t["fc3.weight"] = (g.standard_normal((25, 50)) * 0.1).astype(np.float32)
+    return t
+
+
+def macs_per_render_pixel(scale) -> int:
+    from clss.methods.mlp import transform as tf
+    b = tf.block(scale)
+    w = tf.WIDTHS
+    # three channels; the feature half of layer 1 once per pixel (shared)
+    return 3 * (w[0] // 2 * w[1] + w[1] * w[2] + w[2] * b * b) + w[0] // 2 * w[1]
+
+
+def _depth_hr(h, w, s):
+    g = np.random.default_rng(h * 7 + w)
+    return g.uniform(0.05, 1.0, (s * h, s * w)).astype(np.float32)
+
+
+def mlp_frame_case(render_size, scale: int, tier: str) -> BenchCase:
+    from clss.methods.mlp.oracle import build_graph
+    h, w = render_size
+    H, W = scale * h, scale * w
+    wts = bench_weights()
+    flops = 2.0 * macs_per_render_pixel(scale) * h * w
+
+    def build(dev, prec, params):
+        from clss import Upscaler
+        up = Upscaler(method="mlp", scale=scale, device=dev, precision=prec, weights=wts)
+        color, _, _ = synthetic_frame(h, w)
+        dhr = _depth_hr(h, w, scale)
+        c_d, f_d = dev.to_device(color, prec), dev.to_device(dhr, prec)
+        out = dev.empty((H, W, 3), prec)
+        up.step_device(c_d, depth_hr=f_d, out=out)      # builds outside the timed runs
+
+        def run():
+            up.step_device(c_d, depth_hr=f_d, out=out)
+            return [out]
+        twin = build_graph((h, w), scale, {k: (v.astype(np.float16).astype(np.float32)
+                                              if prec != "fp32" else v) for k, v in wts.items()})
+        st = 2 if prec != "fp32" else 4
+        io = (color.size + dhr.size + H * W * 3) * st
+        blocks = 3 * (scale + 2) ** 2 * h * w
+        return Setup(run, twin, {"color": color, "depth_hr": dhr}, NET_TOL[prec],
+                     io + 2 * blocks * st + 2 * 3 * h * w * 4,
+                     io * 4 // st + 2 * blocks * 4, out_index=0)
+    return BenchCase(f"frame step mlp x{scale}", "frame", "frame", tier, flops, build,
+                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
+
+
+def mlp_cases(tiers=("540p",)) -> list:
+    return [mlp_frame_case(rs, s, t) for t in tiers for rs, s in MLP_TIERS.get(t, ())]
+
+
+def measure(render_size=(540, 960), scale=2, prec="fp32", frames=3, ort=True, online=True,
+            batch=32):
+    """Warm wall ms of the frame step (median of `frames` after one warm-up), onnxruntime's
+    on the whole-frame graph (default session: all cores), and one online training step
+    (`batch` patches; its host part: cutting the patches) per frame, same process."""
+    import time
+    from clss import Upscaler
+    from clss.device import get_device
+    from clss.ops import mlp_upscale as ops
+    dev = get_device()
+    h, w = render_size
+    H, W = scale * h, scale * w
+    wts = bench_weights()
+    color, _, _ = synthetic_frame(h, w)
+    dhr = _depth_hr(h, w, scale)
+    up = Upscaler(method="mlp", scale=scale, device=dev, precision=prec, weights=wts,
+                  online=online, online_batch=batch)
+    c_d, f_d = dev.to_device(color, prec), dev.to_device(dhr, prec)
+    out = dev.empty((H, W, 3), prec)
+    from clss import selfcheck
+    fast = int(selfcheck.defines(dev, prec, ops.FAST)["VEC"])
+    up.step_device(c_d, depth_hr=f_d, out=out)
+    dev.queue.finish()
+    times = []
+    for _ in range(frames):
+        t = time.perf_counter()
+        up.step_device(c_d, depth_hr=f_d, out=out)
+        dev.queue.finish()
+        times.append((time.perf_counter() - t) * 1e3)
+    res = {"shape": f"{h}x{w}->{H}x{W}", "precision": prec, "vec": fast,
+           "ms": float(np.median(times)),
+           "gmacs": macs_per_render_pixel(scale) * h * w / np.median(times) / 1e6}
+    if online:
+        g = np.random.default_rng(1)
+        ref = (g.random((H, W, 3)) ** 2 * 4).astype(np.float32)
+        up.train_step(color, ref, depth_hr=dhr)          # builds
+        dev.queue.finish()
+        ts = []
+        for _ in range(frames):
+            t = time.perf_counter()
+            up.train_step(color, ref, depth_hr=dhr)
+            dev.queue.finish()
+            ts.append((time.perf_counter() - t) * 1e3)
+        res["online_step_ms"] = float(np.median(ts))
+        res["online_batch"] = batch
+        res["online_over_frame"] = res["online_step_ms"] / res["ms"]
+    if ort:
+        from clss.methods.mlp.oracle import OracleMlp
+        o = OracleMlp((h, w), scale, weights=wts, precision=prec)
+        o.step(color, depth_hr=dhr)
+        ts = []
+        for _ in range(frames):
+            t = time.perf_counter()
+            o.step(color, depth_hr=dhr)
+            ts.append((time.perf_counter() - t) * 1e3)
+        res["ort_ms"] = float(np.median(ts))
+        res["speedup"] = res["ort_ms"] / res["ms"]
+    return res
+
+
+if __name__ == "__main__":
+    import json
+    import sys
+    prec = sys.argv[1] if len(sys.argv) > 1 else "fp32"
+    rs = tuple(int(v) for v in sys.argv[2].split("x")) if len(sys.argv) > 2 else (540, 960)
+    print(json.dumps(measure(rs, 2, prec)), flush=True)
