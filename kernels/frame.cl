@@ -68,6 +68,16 @@
 #ifndef CLIP_GAMMA
 #define CLIP_GAMMA 1.25f
 #endif
+/* auto-reactive (contract.AUTO_REACTIVE_LO / _SLOPE / _MAX); AR_MAX 0 turns it off */
+#ifndef AR_LO
+#define AR_LO 0.05f
+#endif
+#ifndef AR_SLOPE
+#define AR_SLOPE 8.0f
+#endif
+#ifndef AR_MAX
+#define AR_MAX 0.5f
+#endif
 
 /* flags[0]: what was found (bits); flags[1..4]: non-finite element counts */
 #define F_COLOR_NONFINITE 1u
@@ -503,6 +513,25 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
             rs = rs + rk * wk;
         }
     lr[L_DD * hw + p] = clamp((rs - d) / fmax(rs, 1e-6f), -1.0f, 1.0f);
+    /* auto-reactive (contract.AUTO_REACTIVE_*): where the dilated motion of the 3x3
+     * neighbourhood diverges, surfaces move apart and a warped history mixes them, so the
+     * blend weight is raised as the caller's reactive mask would (in-bounds neighbours;
+     * only the motion planes are read here, which no work-item of this kernel writes) */
+    {
+        float div = 0.0f;
+        for (int dy = -1; dy <= 1; ++dy) {
+            const int ii = i + dy;
+            if (ii < 0 || ii >= h) continue;
+            for (int dx = -1; dx <= 1; ++dx) {
+                const int jj = j + dx;
+                if (jj < 0 || jj >= w) continue;
+                const int pn = ii * w + jj;
+                div = fmax(div, fabs(lr[L_MX * hw + pn] - m.x) + fabs(lr[L_MY * hw + pn] - m.y));
+            }
+        }
+        lr[L_REACTIVE * hw + p] = fmax(lr[L_REACTIVE * hw + p],
+                                       clamp((div - AR_LO) * AR_SLOPE, 0.0f, AR_MAX));
+    }
 
     /* the clamp box: min and max of the encoded colour over the 3x3 window, narrowed to
      * mean +- CLIP_GAMMA std (off-screen neighbours left out of all four). The moments

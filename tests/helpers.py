@@ -138,8 +138,10 @@ def compare_frame(a, b, ha, hb, precision, mode, where):
         assert d.max() <= 1e-4, f"{where}: history channel {int(d.max(1).argmax())} differs by {d.max():.3g}"
     else:
         assert frac <= (0.01 if mode == "rule" else 0.15), f"{where}: counters differ on {frac:.2%}"
+        # where half rounding flipped a ghost decision (the counters differ) the output
+        # differs by design: a ghost drops its history (w = 1), its twin keeps it
         bound = 1e-2 * np.abs(b).max() + 1e-2 * np.abs(b)
-        ok = (np.abs(a - b) <= bound).all(-1).mean()
+        ok = (np.abs(a - b) <= bound).all(-1)[agree].mean()
         assert ok >= 0.99, f"{where}: only {ok:.2%} of output pixels within tolerance"
         d = np.abs(ha[:3] - hb[:3])[:, agree]
         assert np.percentile(d, 99) <= 2e-3, f"{where}: history colour differs by {np.percentile(d, 99):.3g}"

@@ -229,7 +229,13 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
     # the clamp box: min/max narrowed to mean +- CLIP_GAMMA std (float64 here)
     mu, sd = np.nanmean(win, 0), C.CLIP_GAMMA * np.nanstd(win, 0)
     nmin, nmax = np.maximum(np.nanmin(win, 0), mu - sd), np.minimum(np.nanmax(win, 0), mu + sd)
-    aux = np_sample(np.concatenate([d_dil[None], m_dil, dd[None], reactive[None], nmin, nmax]),
+    # auto-reactive: the largest |dmx| + |dmy| of the dilated motion over the in-bounds 3x3
+    mp = np.pad(m_dil, ((0, 0), (1, 1), (1, 1)), constant_values=np.nan)
+    mwin = np.stack([mp[:, 1 + dy:1 + dy + hh, 1 + dx:1 + dx + ww] for dx, dy in OFFS])
+    div = np.nanmax(np.abs(mwin - m_dil[None]).sum(1), 0)
+    auto = np.clip((div - C.AUTO_REACTIVE_LO) * C.AUTO_REACTIVE_SLOPE, 0, C.AUTO_REACTIVE_MAX)
+    react = np.maximum(reactive, auto)
+    aux = np_sample(np.concatenate([d_dil[None], m_dil, dd[None], react[None], nmin, nmax]),
                     u, v, False)
     mhr = aux[1:3] * np.array([W / ww, H / hh])[:, None, None]
     su = np.arange(W)[None, :] + mhr[0]
@@ -492,6 +498,7 @@ def test_net_graph_inlines_networks_exactly():
     full = np_sample(half[0], u[None, :] + 0 * v[:, None], v[:, None] + 0 * u[None, :], False)
     assert np.abs(full[:, :42, :54] - dbg["dbg_logits"][0]).max() < 1e-4
     wgt = ort.InferenceSession(comp.SerializeToString(), _opts()).run(None, {"x": dbg["dbg_comp_input"]})[0]
+    wgt = np.where(dbg["dbg_ghost"] > 0.5, 1.0, wgt)       # a ghost drops its history
     assert np.abs(np.maximum(wgt, dbg["dbg_reactive_hr"]) - dbg["dbg_w"]).max() < 1e-6
     ch = {n: s for n, s in zip(("up", "warped", "depth", "motion", "inv", "mn", "mx", "dd", "logits"),
                                 np.split(np.arange(23), np.cumsum([3, 3, 1, 2, 1, 3, 3, 1])))}

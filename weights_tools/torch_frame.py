@@ -29,7 +29,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from clss.pipeline.contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD,
+from clss.pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
+                                    CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD,
                                     DILATE_OFFSETS, HISTORY_CHANNELS, MODES, PQ_C1, PQ_C2, PQ_C3,
                                     PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
                                     SCATTER_WEIGHT_THRESHOLD, output_size, to_internal,
@@ -431,6 +432,18 @@ class FrameStep(nn.Module):
         up = torch.clamp(_sample(X, grid, True), 0.0, 1.0)
         if reactive is None:
             reactive = torch.zeros_like(depth)
+        # auto-reactive (contract.AUTO_REACTIVE_*): the 3x3 divergence of the dilated
+        # motion raises the blend weight, as the kernel's depth_diff and the oracle do
+        pm = F.pad(m_dil, (1, 1, 1, 1), mode="replicate")
+        div = torch.zeros_like(depth)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                n = pm[:, :, 1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+                div = torch.maximum(div, (n[:, 0:1] - m_dil[:, 0:1]).abs()
+                                    + (n[:, 1:2] - m_dil[:, 1:2]).abs())
+        auto = torch.clamp((div - AUTO_REACTIVE_LO) * AUTO_REACTIVE_SLOPE, 0.0,
+                           AUTO_REACTIVE_MAX)
+        reactive = torch.maximum(reactive, auto)
         lr = [d_dil, m_dil, dd, reactive]
         if self.clip:
             # s9 clamp box: 3x3 render-res min/max (max_pool pads with -inf) narrowed to

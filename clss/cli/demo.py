@@ -58,12 +58,24 @@ OUTPUT_SET = ("input/*", "rules/*", "net/*", "debug/*", "side_by_side.png",
 WARM_FROM = 2      # frames before this pay for builds and first allocations
 
 
-def scene_methods():
-    """The methods the sample scene can feed (it writes every G-buffer of the contract)."""
+def scene_methods(scale=None):
+    """The methods the sample scene can feed (it writes every G-buffer of the contract),
+    at `scale` when given (a method's spec says which scales it supports)."""
     from .. import methods
     from ..pipeline import contract
-    have = set(getattr(contract, "GBUFFERS", ()))
-    return [n for n in methods.names() if set(methods.spec(n).gbuffers) <= have]
+    have = set(contract.GBUFFERS)
+    out = []
+    for n in methods.names():
+        s = methods.spec(n)
+        if not set(s.gbuffers) <= have:
+            continue
+        if scale is not None:
+            try:
+                s.check_scale(scale)
+            except ValueError:
+                continue
+        out.append(n)
+    return out
 
 
 def _parser():
@@ -104,7 +116,7 @@ def _pick_methods(p, a):
     if a.methods is not None and a.modes is not None:
         p.error("give --methods or --modes, not both")
     if text is None:
-        return scene_methods()
+        return scene_methods(a.scale)
     flag = "--methods" if a.methods is not None else "--modes"
     try:
         picked = []

@@ -31,18 +31,22 @@ def cmd_methods(argv) -> int:
     if a.json:
         print(json.dumps({"methods": recs, "planned": methods.PLANNED}, indent=1))
         return 0
-    head = f"{'method':11s} {'inputs':34s} {'scales':8s} {'precisions':10s} {'history':7s} weights"
-    print(head)
+    nw = max(len("method"), *(len(r["name"]) for r in recs))
+    rows = []
     for r in recs:
         inputs = ", ".join(r["inputs"] + [f"{g} (needed)" for g in r["gbuffers"]]
                            + [f"{g} (optional)" for g in r["optional"]])
         lo, hi = r["scales"]
-        print(f"{r['name']:11s} {inputs:34s} {f'{lo:g}-{hi:g}':8s} "
-              f"{','.join(r['precisions']):10s} {'yes' if r['temporal'] else 'no':7s} "
-              f"{r['weights']}")
+        rows.append((r["name"], inputs, f"{lo:g}-{hi:g}", ",".join(r["precisions"]),
+                     "yes" if r["temporal"] else "no", r["weights"]))
+    iw = max(len("inputs"), *(len(row[1]) for row in rows))
+    print(f"{'method':{nw}s}  {'inputs':{iw}s}  {'scales':8s} {'precisions':10s} "
+          f"{'history':7s} weights")
+    for name, inputs, scales, precs, hist, weights in rows:
+        print(f"{name:{nw}s}  {inputs:{iw}s}  {scales:8s} {precs:10s} {hist:7s} {weights}")
     print()
     for r in recs:
-        print(f"  {r['name']:11s} {r['summary']} ({r['doc']})")
+        print(f"  {r['name']:{nw}s}  {r['summary']} ({r['doc']})")
     print("\nplanned, not built yet: " + "; ".join(f"{k} ({v})" for k, v in
                                                   methods.PLANNED.items()))
     print("aliases: " + ", ".join(f"{k} = {v}" for k, v in methods.ALIASES.items()))

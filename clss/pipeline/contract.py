@@ -66,6 +66,20 @@ RULE_CLIP_EPS = 2.0 / 1023.0
 CLIP_GAMMA = 1.25
 
 
+# Auto-reactive (reference.md s4, issue 23): where the dilated motion of the 3x3 render
+# neighbourhood diverges (sum over x and y of the largest difference to the centre, render
+# pixels), the surfaces there move apart (parallax, a moving edge, sub-pixel foliage over
+# sky) and a warped history mixes them; the blend weight is raised to at least
+# clip((divergence - AUTO_REACTIVE_LO) * AUTO_REACTIVE_SLOPE, 0, AUTO_REACTIVE_MAX), as the
+# caller's reactive mask would (FSR2 derives a reactive mask and kills locks on motion
+# divergence alike). Measured in rule mode (PSNR dB, foliage / 8 held-out / interior):
+# none 25.32 / 25.62 / 27.28; (lo, slope, max) = (0.5, 1, 1) 25.43 / 25.66 / 27.60;
+# (0.1, 4, 1) 26.03 / 25.46 / 27.69; (0.1, 4, 0.5) 25.78 / 25.75 / 27.56;
+# (0.05, 8, 0.5) 26.15 / 25.69 / 27.64.
+AUTO_REACTIVE_LO = 0.05
+AUTO_REACTIVE_SLOPE = 8.0
+AUTO_REACTIVE_MAX = 0.5
+
 # The frame step's constants, shared by the OpenCL path (frame.py, upscaler.py), the
 # ONNX oracle (oracle.py) and the torch twin (weights_tools/torch_frame.py).
 MODES = ("rule", "net")

@@ -33,7 +33,8 @@ from ... import selfcheck
 from ...device import Device
 from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from ...ops.conv import load_defines
-from ...pipeline.contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
+from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
+                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
                        PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
 
 LR_CHANNELS = 11  # depth, motion 2, dd, reactive, clamp box low 3 and high 3
@@ -178,6 +179,8 @@ class FrameStep:
                        CLSS_CLANG_VECTORS=load_defines(dev, prec, f"frame.{mode}")["CLSS_CLANG_VECTORS"])
         defines.update(CLIP_EPS=float(RULE_CLIP_EPS), CLIP_GAMMA=float(CLIP_GAMMA),
                        **WIDTH_DEFINES)
+        defines.update(AR_LO=float(AUTO_REACTIVE_LO), AR_SLOPE=float(AUTO_REACTIVE_SLOPE),
+                       AR_MAX=float(AUTO_REACTIVE_MAX))
         h, w, H, W = self.h, self.w, self.H, self.W
         f32 = np.float32
         e = dev.empty

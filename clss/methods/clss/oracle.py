@@ -27,7 +27,8 @@ from ...pipeline.twin import GraphBuilder as _Graph
 from ...pipeline.twin import pq_decode as _pq_decode
 from ...pipeline.twin import pq_encode as _pq_encode
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
-from ...pipeline.contract import (CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
+from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
+                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
                        H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MODES,
                        PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
                        SCATTER_WEIGHT_THRESHOLD, output_size, to_internal, validate_frame)
@@ -211,6 +212,25 @@ def _shifted(g, x, dx, dy, h, w):
                 g.i64([2, 3]))
 
 
+def _auto_reactive(g, m_dil, h, w):
+    """max(reactive, clip((divergence - LO) * SLOPE, 0, MAX)) at render res: the divergence
+    is the largest |dmx| + |dmy| of the dilated motion over the 3x3 neighbourhood
+    (contract.AUTO_REACTIVE_*). Edge padding repeats in-bounds neighbours, so the maximum
+    is the kernel's over the in-bounds ones."""
+    pm = g.op("Pad", m_dil, g.i64([0, 0, 1, 1, 0, 0, 1, 1]), mode="edge")
+    mx, my = g.chan(m_dil, slice(0, 1)), g.chan(m_dil, slice(1, 2))
+    div = g.const(0.0)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            n = _shifted(g, pm, dx, dy, h, w)
+            d = g.add(g.op("Abs", g.sub(g.chan(n, slice(0, 1)), mx)),
+                      g.op("Abs", g.sub(g.chan(n, slice(1, 2)), my)))
+            div = g.op("Max", div, d)
+    auto = g.clip(g.mul(g.sub(div, g.const(AUTO_REACTIVE_LO)), g.const(AUTO_REACTIVE_SLOPE)),
+                  0.0, AUTO_REACTIVE_MAX)
+    return g.op("Max", "reactive", auto)
+
+
 def _inv_counter(g, c):
     one = g.const(1.0)
     return g.div(one, g.add(one, c))
@@ -325,8 +345,8 @@ def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, dbg) -> _Upsampled:
     mu = g.add(X, md)
     nmin = g.op("Max", nmin, g.sub(mu, gsd))
     nmax = g.op("Min", nmax, g.add(mu, gsd))
-    aux = g.grid_sample(g.concat([d_dil, m_dil, dd, "reactive", nmin, nmax]), grid_up,
-                        cubic=False)
+    react = _auto_reactive(g, m_dil, h, w)
+    aux = g.grid_sample(g.concat([d_dil, m_dil, dd, react, nmin, nmax]), grid_up, cubic=False)
     depth_hr = g.chan(aux, slice(0, 1))
     motion_hr = g.mul(g.chan(aux, slice(1, 3)),
                       g.const(np.array([W / w, H / h], np.float32).reshape(1, 2, 1, 1)))
