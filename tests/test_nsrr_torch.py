@@ -1,6 +1,6 @@
 """The torch twin of NSRR (weights_tools/nsrr_torch.py) against the OpenCL frame step
 (clss/methods/nsrr/) over 9 frames with a reset at frame 4, in the zero and duplicate
-reset fills: output within 1e-4 * max + 1e-4 * |ref| (fp32) on every pixel, history
+reset fills: output within 1e-4 * max + 3e-4 * |ref| (fp32) on every pixel, history
 within 1e-4."""
 from __future__ import annotations
 
@@ -37,7 +37,9 @@ def test_torch_twin_matches_the_opencl_step(fill, scale, dev):
                               torch.from_numpy(x["motion"]), [x["jitter"]], hist,
                               torch.tensor([reset]))
         b = pq_decode(y.clamp(0, 1))[0].permute(1, 2, 0).numpy()
-        assert np.abs(a - b).max() <= 1e-4 * np.abs(b).max() + 1e-4, f"frame {i}"
+        # the PQ decode near its peak is ill-conditioned in float32 (x 6.3 exponent after a
+        # cancellation): two float32 evaluations differ by up to 1.5e-4 relative there
+        assert (np.abs(a - b) <= 1e-4 * np.abs(b).max() + 3e-4 * np.abs(b)).all(), f"frame {i}"
         fs = up._fs
         hd = fs.dev.to_host(fs.hist).reshape(-1, fs.Hp, fs.Wp)[:, :fs.H, :fs.W]
         assert np.abs(hd - hist[0].numpy()).max() <= 1e-4, f"history, frame {i}"
