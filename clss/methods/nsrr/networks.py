@@ -99,6 +99,10 @@ def init_weights(cfg, seed=0) -> dict:
         out[f"{name}.weight"] = g.normal(0, std, (co, ci, 3, 3)).astype(np.float32)
         out[f"{name}.bias"] = np.zeros(co, np.float32)
     out["un.9.bias"][:] = 0.0 if cfg.get("residual", False) else 0.5
+    # Reweighting maps start at 1 (tanh = -0.8), not at 5 (tanh(0)): at 5 the previous
+    # frames' features entered the U-Net 5x amplified, and the first shipped training
+    # learnt to ignore them (its output without history equalled the one with it)
+    out["rw.2.bias"][:] = np.arctanh(2.0 / WEIGHT_SCALE - 1.0)
     return out
 
 
