@@ -122,9 +122,11 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
 
 
 class OracleNsrr:
-    """Frame-by-frame runner of the twin with the contract's `step` (onnxruntime)."""
+    """Frame-by-frame runner of the twin with the contract's `step` (onnxruntime).
+    weights: as the upscaler's, except that the default is the seeded init ("untrained"),
+    as every method's twin builds it (tests/test_methods.py); None = the shipped file."""
 
-    def __init__(self, render_size, scale=4.0, weights=None, *, history=None,
+    def __init__(self, render_size, scale=4.0, weights="untrained", *, history=None,
                  reset_fill="zero", depth_inverted=True, motion_scale=(1, 1), exposure=1.0,
                  widths="default", threads=2, **unused):
         import onnxruntime as ort
