@@ -586,7 +586,8 @@ class TorchUpscaler:
         self.history = None
 
     @torch.no_grad()
-    def step(self, color, depth, motion, jitter, reset=False, reactive=None):
+    def step(self, color, depth, motion, jitter, reset=False, reactive=None, **gbuffers):
+        """One frame (clss.Upscaler's step; G-buffers, which CLSS does not use, ignored)."""
         frame = validate_frame(color, depth, motion, jitter, reactive,
                                depth_inverted=self.contract["depth_inverted"])
         feed = to_internal(frame, **self.contract)
