@@ -18,7 +18,7 @@ def load_registrations() -> None:
         w.simplefilter("ignore")
         load_all()
     from .methods.clss import upscaler  # noqa: F401 (registers the frame step's, frame_selfcheck.py)
-    from .ops import mlp_upscale  # noqa: F401 (the MLP upscaler's pixel-vector kernel)
+    from .methods.mlp import fastpath  # noqa: F401 (the MLP upscaler's pixel-vector kernel)
 
 
 def check_all(dev, precisions, kernels=None) -> list:

@@ -6,11 +6,10 @@ they are written); their ONNX twins are in clss/verify/cases/mlp_upscale.py."""
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 
 from .. import selfcheck
 from ..device import Device
-from .base import check_storage, rng
+from .base import check_storage
 
 # Work-group shape: a fixed one, so PoCL compiles one work-group function per build, not
 # one per frame size (the kernels guard their bounds).
@@ -96,34 +95,6 @@ def fold(dev: Device, prec: str, blk, defines: dict, *, exposure=1.0, inv_pq_sca
     return out
 
 
-def _selfcheck_run(dev: Device, prec: str) -> list:
-    """The block pass on a seeded frame whose rows end in a partial vector and whose
-    interior takes the vector loads, at 2x and 3x, with and without the feature."""
-    from ..methods.mlp import transform as tf
-    g = rng("mlp_upscale selfcheck")
-    outs = []
-    for s, feature in ((2, True), (3, True), (2, False)):
-        h, w = 7, 29
-        color = dev.to_device(g.uniform(0, 4, (h, w, 3)).astype(np.float32), prec)
-        feat = dev.to_device(g.uniform(0, 1, (s * h, s * w)).astype(np.float32), prec)
-        t = tf.init_weights(int(g.integers(1 << 30)))
-        t["fc3.weight"] = g.normal(0, 0.1, (25, 50)).astype(np.float32)
-        wts = pack_weights(dev, prec, tf.packed(t))
-        outs.append(dev.to_host(blocks(dev, prec, color, feat, wts, tf.kernel_defines(s, feature))))
-    return outs
-
-
-def _tolerance(prec):
-    from ..tolerance import DEFAULT_TOL
-    return DEFAULT_TOL[prec]
-
-
-# The vector form computes the same formulas in another order of nothing: the same FMAs per
-# lane; pow's vector form may round differently from the scalar one, hence the op tolerance.
-selfcheck.register(selfcheck.FastPath(
-    FAST, "mlp_upscale", {"VEC": 8}, {"VEC": 1}, check=_selfcheck_run, tolerance=_tolerance,
-    what="8 render pixels per work-item as vectors, the PQ encode hoisted",
-    applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU),
-    # in this process: clss.selfcheck_runner's child imports the op families it knows
-    # (clss.ops.FAMILIES), which this method's kernels are not among
-    isolate=False))
+# The fast path (VEC pixel vectors) is registered with clss.selfcheck by the method's room,
+# clss/methods/mlp/fastpath.py, whose check runs the method's own geometry and weights
+# (an op must not import the method above it).

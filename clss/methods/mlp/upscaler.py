@@ -26,6 +26,7 @@ import numpy as np
 from ...pipeline.contract import PQ_NITS, output_size, validate_frame
 from ...pipeline.method import MethodSpec, MethodUpscaler
 from . import transform as tf
+from . import fastpath  # noqa: F401 (registers the kernel's fast path)
 
 
 class MlpUpscaler(MethodUpscaler):

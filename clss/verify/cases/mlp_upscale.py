@@ -9,6 +9,7 @@ import numpy as np
 from ...methods.mlp import oracle, transform as tf
 from ...ops.base import rng
 from ...ops.mlp_upscale import blocks, fold, pack_weights
+from ...methods.mlp import fastpath  # noqa: F401 (the fast path blocks() looks up)
 from ...tolerance import Tolerance
 from ..case import Case
 

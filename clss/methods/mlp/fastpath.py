@@ -1,0 +1,45 @@
+"""The MLP upscaler's fast path (kernels/mlp_upscale.cl: VEC = 8 render pixels per
+work-item as vectors, the PQ encode hoisted into its own pass), registered with
+clss.selfcheck and checked against the one-pixel reference kernel on a seeded frame, at 2x
+and 3x, with and without the feature pass. It lives in the room (as CLSS's
+frame_selfcheck.py does) because the check uses the method's geometry and weights;
+clss.selfcheck_runner imports it so that a child process can run the check."""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ... import selfcheck
+from ...device import Device
+from ...ops.base import rng
+from ...ops.mlp_upscale import FAST, blocks, pack_weights
+from . import transform as tf
+
+
+def _selfcheck_run(dev: Device, prec: str) -> list:
+    """The block pass on a seeded frame whose rows end in a partial vector and whose
+    interior takes the vector loads, at 2x and 3x, with and without the feature."""
+    g = rng("mlp_upscale selfcheck")
+    outs = []
+    for s, feature in ((2, True), (3, True), (2, False)):
+        h, w = 7, 29
+        color = dev.to_device(g.uniform(0, 4, (h, w, 3)).astype(np.float32), prec)
+        feat = dev.to_device(g.uniform(0, 1, (s * h, s * w)).astype(np.float32), prec)
+        t = tf.init_weights(int(g.integers(1 << 30)))
+        t["fc3.weight"] = g.normal(0, 0.1, (25, 50)).astype(np.float32)
+        wts = pack_weights(dev, prec, tf.packed(t))
+        outs.append(dev.to_host(blocks(dev, prec, color, feat, wts, tf.kernel_defines(s, feature))))
+    return outs
+
+
+def _tolerance(prec):
+    from ...tolerance import DEFAULT_TOL
+    return DEFAULT_TOL[prec]
+
+
+# The vector form computes the same formulas: the same FMAs per lane; pow's vector form may
+# round differently from the scalar one, hence the op tolerance.
+selfcheck.register(selfcheck.FastPath(
+    FAST, "mlp_upscale", {"VEC": 8}, {"VEC": 1}, check=_selfcheck_run, tolerance=_tolerance,
+    what="8 render pixels per work-item as vectors, the PQ encode hoisted",
+    applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU)))
