@@ -314,13 +314,14 @@ def _write_summary(a, dev, ups, names, trained, render_hw, out_hw, run, total_s,
           f"{summary['metrics_from_frame']}..{a.frames - 1} against the {a.spp}-spp reference; "
           f"ms/frame: the median step from frame {summary['warm_from_frame']} on (warm); "
           "first frame: the step that built the kernels")
-    print(f"{'method':26s} {'PSNR dB':>8s} {'SSIM':>7s} {'ms/frame':>9s} {'first frame ms':>15s}")
+    lw = max(len("method"), *(len(_label(m, trained)) for m in names)) + 1
+    print(f"{'method':{lw}s} {'PSNR dB':>8s} {'SSIM':>7s} {'ms/frame':>9s} {'first frame ms':>15s}")
     for m in names:
         ps, ss = np.mean(scores[m]["psnr"]), np.mean(scores[m]["ssim"])
         st = run.step_s[m]
         warm = float(np.median(st[summary["warm_from_frame"]:])) * 1e3
         first = st[0] * 1e3
-        print(f"{_label(m, trained):26s} {ps:8.2f} {ss:7.4f} {warm:9.1f} {first:15.1f}")
+        print(f"{_label(m, trained):{lw}s} {ps:8.2f} {ss:7.4f} {warm:9.1f} {first:15.1f}")
         summary["methods"][m] = {"psnr": scores[m]["psnr"], "ssim": scores[m]["ssim"],
                                  "psnr_mean": float(ps), "ssim_mean": float(ss),
                                  "ms_per_frame": warm, "first_frame_ms": first,
