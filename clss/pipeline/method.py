@@ -17,7 +17,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable
 
-from .contract import FrameInputError, check_exposure, check_motion_scale
+import numpy as np
+
+from .contract import FrameInputError, check_exposure, check_motion_scale, validate_frame
 
 # The frame contract's inputs (docs/input-contract.md) in the order `step` takes them.
 CONTRACT_INPUTS = ("color", "depth", "motion", "jitter")
@@ -69,6 +71,17 @@ class MethodSpec:
         return precision
 
 
+def summed_event_ms(events, stages) -> dict:
+    """{stage: milliseconds} of [(stage, pyopencl.Event)] (profiled events), in the order
+    of `stages`; waits for each event and empties the list."""
+    tot = {}
+    for name, e in events:
+        e.wait()
+        tot[name] = tot.get(name, 0.0) + (e.profile.end - e.profile.start) * 1e-6
+    events.clear()
+    return {s: tot[s] for s in stages if s in tot}
+
+
 class MethodUpscaler:
     """The part of every method's upscaler that is the same for all (see the module doc).
 
@@ -108,6 +121,41 @@ class MethodUpscaler:
             raise FrameInputError(
                 f"color: the frame is {hw[0]}x{hw[1]} (h x w) but this sequence renders at "
                 f"{have[0]}x{have[1]}; a new render size needs reset=True (a camera cut)")
+
+    def _frame_step_for(self, hw, reset, build):
+        """The device frame step (`self._fs`, with .h and .w) for render size hw: the
+        current one, or `build(h, w)` after `_release_frame_step()` (a new size is a new
+        sequence: buffers and programs built anew, and the next frame a reset)."""
+        self._check_render_size(hw, reset)
+        fs = getattr(self, "_fs", None)
+        if fs is not None and (fs.h, fs.w) == tuple(hw):
+            return fs
+        h, w = int(hw[0]), int(hw[1])
+        if h < 1 or w < 1:
+            raise FrameInputError(f"color: expected a non-empty h x w x 3 frame, got {h}x{w}")
+        if fs is not None:
+            self._release_frame_step()
+        self._fs = None         # release the old buffers first
+        self._fs = build(h, w)
+        self._pending_reset = True
+        return self._fs
+
+    def _release_frame_step(self):
+        """Called before the frame step of another render size replaces the current one
+        (a method keeping per-stage timings flushes them here)."""
+
+    def _color_frame(self, color, reset):
+        """For a method that reads the colour alone: (validate_frame's dict, (h, w)), the
+        colour checked as the contract says and the render size held to the sequence's."""
+        color = np.asarray(color)
+        if color.ndim == 3:
+            self._check_render_size(color.shape[:2], reset or self._pending_reset)
+        h, w = color.shape[:2] if color.ndim >= 2 else (0, 0)
+        # placeholders for the inputs such a method does not read
+        frame = validate_frame(color, np.zeros((h, w), np.float32),
+                               np.zeros((h, w, 2), np.float32), (0.0, 0.0),
+                               sanitize=self.sanitize)
+        return frame, (h, w)
 
     def _gbuffers(self, given: dict, render_size, output_size) -> dict:
         """The G-buffers this method needs or uses, checked against the contract; a

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...pipeline.contract import output_size, pq_decode, pq_encode, validate_frame
+from ...pipeline.contract import output_size, pq_decode, pq_encode
 from ...pipeline.method import MethodSpec, MethodUpscaler
 
 
@@ -46,14 +46,7 @@ class BicubicUpscaler(MethodUpscaler):
 
     def step(self, color, depth=None, motion=None, jitter=(0.0, 0.0), reset=False,
              reactive=None, **gbuffers) -> np.ndarray:
-        color = np.asarray(color)
-        if color.ndim == 3:
-            self._check_render_size(color.shape[:2], reset or self._pending_reset)
-        h, w = color.shape[:2] if color.ndim >= 2 else (0, 0)
-        # Only the colour is read; the layout and values of the rest are not this method's.
-        frame = validate_frame(color, np.zeros((h, w), np.float32),
-                               np.zeros((h, w, 2), np.float32), (0.0, 0.0),
-                               sanitize=self.sanitize)
+        frame, (h, w) = self._color_frame(color, reset)
         if self._hw != (h, w):
             self._hw = (h, w)
             self._up = Bicubic(self.dev, output_size(h, w, self.scale), self.precision)

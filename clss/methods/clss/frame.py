@@ -33,6 +33,7 @@ from ... import selfcheck
 from ...device import Device
 from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from ...ops.conv import load_defines
+from ...pipeline.method import summed_event_ms
 from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
                                  CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
                        PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
@@ -354,12 +355,7 @@ class FrameStep:
     def stage_ms(self) -> dict[str, float]:
         """Milliseconds per stage summed since the last call (OpenCL event times; the
         classifier's are its kernels' and copies', summed)."""
-        tot = {}
-        for name, e in self.events:
-            e.wait()
-            tot[name] = tot.get(name, 0.0) + (e.profile.end - e.profile.start) * 1e-6
-        self.events.clear()
-        return {s: tot[s] for s in STAGES if s in tot}
+        return summed_event_ms(self.events, STAGES)
 
     def device_bytes(self) -> int:
         arrays = [self.in_color, self.in_depth, self.in_motion, self.in_reactive, self.recon,

@@ -31,7 +31,6 @@ import warnings
 import numpy as np
 import pyopencl.array as cla
 
-from ...device import Device
 from ...networks import CLASSIFIER_CHANNELS, pad16
 from ...pipeline.contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
                                  check_jitter, output_size, validate_frame)
@@ -208,26 +207,22 @@ class ClssUpscaler(MethodUpscaler):
 
     def _frame_step(self, hw, reset):
         """The FrameStep for render size hw, built anew (buffers, programs) when it changes."""
-        self._check_render_size(hw, reset)
-        if self._fs is not None and (self._fs.h, self._fs.w) == tuple(hw):
-            return self._fs
-        h, w = int(hw[0]), int(hw[1])
-        if h < 1 or w < 1:
-            raise FrameInputError(f"color: expected a non-empty h x w x 3 frame, got {h}x{w}")
+        return self._frame_step_for(hw, reset, self._build_frame_step)
+
+    def _release_frame_step(self):
+        self._flush_timings()
+
+    def _build_frame_step(self, h, w):
         H, W = output_size(h, w, self.scale)
         if self.mode == "net":
             _check_classifier_size(self.classifier_model, pad16(H), pad16(W))
-        if self._fs is not None:
-            self._flush_timings()
-        self._fs = None         # release the old buffers first
-        self._fs = FrameStep(self.dev, self.precision, self.mode, (h, w), self.scale,
-                             hdr=self.hdr, nits=self.nits, cap=self.cap,
-                             depth_threshold=self.depth_threshold, sanitize=self.sanitize,
-                             classifier=self.classifier_model, composition=self.composition_model,
-                             classifier_backend=self.classifier_backend, profile=self.profile)
-        self._fs.debug = self.debug
-        self._pending_reset = True
-        return self._fs
+        fs = FrameStep(self.dev, self.precision, self.mode, (h, w), self.scale,
+                       hdr=self.hdr, nits=self.nits, cap=self.cap,
+                       depth_threshold=self.depth_threshold, sanitize=self.sanitize,
+                       classifier=self.classifier_model, composition=self.composition_model,
+                       classifier_backend=self.classifier_backend, profile=self.profile)
+        fs.debug = self.debug
+        return fs
 
     # -- the host path ----------------------------------------------------------------
     def step(self, color, depth, motion, jitter, reset=False, reactive=None,

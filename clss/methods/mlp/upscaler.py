@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...pipeline.contract import PQ_NITS, output_size, validate_frame
+from ...pipeline.contract import PQ_NITS, output_size
 from ...pipeline.method import MethodSpec, MethodUpscaler
 from . import transform as tf
 from . import fastpath  # noqa: F401 (registers the kernel's fast path)
@@ -150,13 +150,7 @@ class MlpUpscaler(MethodUpscaler):
              reactive=None, reference=None, **gbuffers) -> np.ndarray:
         """reference: a full-resolution frame [H, W, 3]; with online=True the step trains
         on it first (train_step), then upscales with the updated weights; else unused."""
-        color = np.asarray(color)
-        if color.ndim == 3:
-            self._check_render_size(color.shape[:2], reset or self._pending_reset)
-        h, w = color.shape[:2] if color.ndim >= 2 else (0, 0)
-        frame = validate_frame(color, np.zeros((h, w), np.float32),
-                               np.zeros((h, w, 2), np.float32), (0.0, 0.0),
-                               sanitize=self.sanitize)
+        frame, (h, w) = self._color_frame(color, reset)
         gb = self._gbuffers(gbuffers, (h, w), output_size(h, w, self.s))
         self._prepare((h, w), reset)
         self.last_report = frame["sanitized"]

@@ -28,6 +28,7 @@ import pyopencl as cl
 
 from ...device import Device
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
+from ...pipeline.method import summed_event_ms
 from .networks import FEAT, build_features, build_reconstruct
 
 STAGES = ("prepare", "features", "reproject", "reconstruct", "finish")
@@ -155,12 +156,7 @@ class NsrrFrameStep:
         return self.stacks[self.cur].reshape(-1, self.Hp, self.Wp)[:FEAT * self.nprev]
 
     def stage_ms(self) -> dict:
-        tot = {}
-        for name, e in self.events:
-            e.wait()
-            tot[name] = tot.get(name, 0.0) + (e.profile.end - e.profile.start) * 1e-6
-        self.events.clear()
-        return {s: tot[s] for s in STAGES if s in tot}
+        return summed_event_ms(self.events, STAGES)
 
     def device_bytes(self) -> int:
         arrays = [self.in_color, self.in_depth, self.in_motion, self.rgbd, self.mv, self.feat,

@@ -17,7 +17,7 @@ import warnings
 import numpy as np
 import pyopencl.array as cla
 
-from ...pipeline.contract import PQ_NITS, FrameInputError, check_jitter, output_size, validate_frame
+from ...pipeline.contract import PQ_NITS, FrameInputError, check_jitter, validate_frame
 from ...pipeline.method import MethodSpec, MethodUpscaler
 from . import networks as nets
 from .frame import RESET_FILLS, STAGES, NsrrFrameStep
@@ -105,19 +105,13 @@ class NsrrUpscaler(MethodUpscaler):
         return 0 if self._fs is None else self._fs.device_bytes()
 
     def _frame_step(self, hw, reset):
-        self._check_render_size(hw, reset)
-        if self._fs is not None and (self._fs.h, self._fs.w) == tuple(hw):
-            return self._fs
-        h, w = int(hw[0]), int(hw[1])
-        if h < 1 or w < 1:
-            raise FrameInputError(f"color: expected a non-empty h x w x 3 frame, got {h}x{w}")
+        return self._frame_step_for(hw, reset, lambda h, w: NsrrFrameStep(
+            self.dev, self.precision, (h, w), self.scale, self.cfg, self.weights,
+            history=self.history, reset_fill=self.reset_fill, nits=self.nits,
+            profile=self.profile))
+
+    def _release_frame_step(self):
         self._flush()
-        self._fs = None
-        self._fs = NsrrFrameStep(self.dev, self.precision, (h, w), self.scale, self.cfg,
-                                 self.weights, history=self.history, reset_fill=self.reset_fill,
-                                 nits=self.nits, profile=self.profile)
-        self._pending_reset = True
-        return self._fs
 
     def step(self, color, depth, motion, jitter, reset=False, reactive=None,
              **gbuffers) -> np.ndarray:
