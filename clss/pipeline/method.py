@@ -110,6 +110,18 @@ class MethodUpscaler:
     def method(self) -> str:
         return self.spec.name
 
+    # A method with a device frame step (`_fs`, with h, w, H, W) has its sizes from it;
+    # None before the first frame.
+    @property
+    def render_size(self):
+        fs = getattr(self, "_fs", None)
+        return None if fs is None else (fs.h, fs.w)
+
+    @property
+    def output_size(self):
+        fs = getattr(self, "_fs", None)
+        return None if fs is None else (fs.H, fs.W)
+
     def reset(self):
         """The next frame starts afresh (a camera cut)."""
         self._pending_reset = True

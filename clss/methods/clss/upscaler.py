@@ -179,14 +179,6 @@ class ClssUpscaler(MethodUpscaler):
 
     # -- sizes and state ----------------------------------------------------------
     @property
-    def render_size(self):
-        return None if self._fs is None else (self._fs.h, self._fs.w)
-
-    @property
-    def output_size(self):
-        return None if self._fs is None else (self._fs.H, self._fs.W)
-
-    @property
     def classifier_backend_name(self):
         if self.mode != "net":
             return None

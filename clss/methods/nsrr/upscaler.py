@@ -93,14 +93,6 @@ class NsrrUpscaler(MethodUpscaler):
         self._totals: dict = {}
         self._timed = 0
 
-    @property
-    def render_size(self):
-        return None if self._fs is None else (self._fs.h, self._fs.w)
-
-    @property
-    def output_size(self):
-        return None if self._fs is None else (self._fs.H, self._fs.W)
-
     def device_bytes(self) -> int:
         return 0 if self._fs is None else self._fs.device_bytes()
 
