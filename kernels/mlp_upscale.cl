@@ -237,8 +237,10 @@ inline VF mv_ramp_inv(VF y)
     return sign(y) * (pow(fabs(y) + (float)EPS_ROOT, (VF)((float)GAMMA)) - (float)EPS);
 }
 
-/* lanes of a gather: lane l reads EXPR with l bound */
-#define LANES(EXPR) ({ VF _v; float *_p = (float *)&_v;                     \
+/* lanes of a gather: lane l reads EXPR with l bound. The vector is zeroed first: its
+ * lanes are then written through a float pointer, which oclgrind's uninitialised-value
+ * tracking does not follow (it reported every gathered vector as uninitialised). */
+#define LANES(EXPR) ({ VF _v = (VF)(0.0f); float *_p = (float *)&_v;        \
     for (int l = 0; l < VEC; ++l) _p[l] = (EXPR); _v; })
 
 /** @param[in]  pq      [3][h][w] from mlp_upscale_pq
