@@ -142,20 +142,23 @@ def cmd_gen(args):
                                          in zip(names, stats["frequencies"][key])))
     return 0
 def _add_train(sub):
-    """`train` (weights_tools/train.py) needs torch, the [train] extra; without it the
-    subcommand says so instead of breaking the others."""
+    """`train` and `seeds` (the recipes, weights_tools/recipes.py) and `classifier` need
+    torch, the [train] extra; without it each says so instead of breaking the others."""
     try:
-        from .recipes import add_train_parser
+        import torch  # noqa: F401
     except ModuleNotFoundError as e:
         missing = e.name
 
         def no_torch(args):
-            print(f"error: train needs {missing} (pip install -e '.[train]')", file=sys.stderr)
+            print(f"error: {args.cmd} needs {missing} (pip install -e '.[train]')",
+                  file=sys.stderr)
             return 1
-        t = sub.add_parser("train", help="train the networks (needs the [train] extra)")
-        t.add_argument("rest", nargs=argparse.REMAINDER)
-        t.set_defaults(fn=no_torch)
+        for name in ("train", "seeds", "classifier"):
+            t = sub.add_parser(name, help=f"{name} (needs the [train] extra)")
+            t.add_argument("rest", nargs=argparse.REMAINDER)
+            t.set_defaults(fn=no_torch)
         return
+    from .recipes import add_train_parser
     add_train_parser(sub)
     from .seeds import add_parser as add_seeds
     add_seeds(sub)
