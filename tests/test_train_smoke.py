@@ -156,7 +156,7 @@ def test_seeds_bad_arguments_are_one_line(tiny_data, tmp_path, capsys):
 
 def test_train_method_without_recipe_says_why(capsys):
     # train METHOD: a planned method and a baseline answer in one line, exit 2
-    assert main(["train", "nsrr", "--data", "x", "--out", "y"]) == 2
+    assert main(["train", "nsrd", "--data", "x", "--out", "y"]) == 2
     assert "not built yet" in capsys.readouterr().err
     assert main(["train", "bicubic"]) == 2
     assert "nothing to train" in capsys.readouterr().err
@@ -183,6 +183,6 @@ def test_trainloop_losses():
 def test_default_method_rewrites_only_its_own_command():
     from weights_tools.recipes import with_default_method as w
     assert w(["train", "--data", "d"]) == ["train", "clss", "--data", "d"]
-    assert w(["train", "nsrr", "--data", "d"]) == ["train", "nsrr"]
+    assert w(["train", "nsrd", "--data", "d"]) == ["train", "nsrd"]
     assert w(["eval", "x.npz", "--warmup", "2"]) == ["eval", "x.npz", "--warmup", "2"]
     assert w(["seeds", "--data", "d"], "seeds") == ["seeds", "clss", "--data", "d"]
