@@ -1,6 +1,7 @@
 """Host waits: the wall time of one frame step against the OpenCL event time it enqueues.
 
-Per method whose step enqueues kernels (clss, clss-rules, jbicubic) and size: two upscalers
+Per method whose step enqueues kernels and times its stages (clss, clss-rules, jbicubic,
+nsrr) and size: two upscalers
 on the same synthetic frame, warmed with a few frames first (PoCL compiles and specialises
 kernels on their first launches):
 
@@ -18,7 +19,11 @@ import time
 
 import numpy as np
 
-METHODS = ("clss", "clss-rules", "jbicubic")
+METHODS = ("clss", "clss-rules", "jbicubic", "nsrr")
+# The methods whose frame step is CLSS's FrameStep (the enqueue column times its `run`);
+# another method's row has wall and event time only. (The MLP upscaler times no stage
+# events yet, so it has no row.)
+CLSS_FRAME = ("clss", "clss-rules", "jbicubic")
 # (render size, scale): 270p -> 540p, where launch cost shows, and 540p -> 1080p
 SIZES = (((270, 480), 2.0), ((540, 960), 2.0))
 TARGET = 1.15       # wall <= 1.15x event at 540p -> 1080p
@@ -69,7 +74,7 @@ def measure(dev, method: str, render_size, scale: float, prec: str = "fp32", war
     # everything is queued; the flags event it returns is then waited for, untimed).
     # On a GPU, where kernels are fast, this is what bounds a frame.
     fs, enq = ups[0]._fs, []
-    for _ in range(frames):
+    for _ in range(frames if method in CLSS_FRAME else 0):
         q.finish()
         t0 = time.perf_counter()
         ev = fs.run(d[0], d[1], d[2], None, jitter, False, out=out)
@@ -80,7 +85,7 @@ def measure(dev, method: str, render_size, scale: float, prec: str = "fp32", war
     return {"method": method, "precision": prec, "shape": f"{h}x{w}->{H}x{W}",
             "wall_ms": round(wall, 3), "wall_min_ms": round(min(walls), 3),
             "event_ms": round(event, 3), "ratio": round(wall / event, 3) if event else None,
-            "enqueue_ms": round(statistics.median(enq), 3),
+            "enqueue_ms": round(statistics.median(enq), 3) if enq else None,
             "stages": {k: round(statistics.median(v), 3) for k, v in stages.items()}}
 
 
@@ -91,16 +96,21 @@ def run(dev, prec: str = "fp32", methods=METHODS, sizes=SIZES, log=None, **kw) -
             r = measure(dev, m, (h, w), scale, prec, **kw)
             if log:
                 log(f"host waits {m} {r['shape']} {prec}: wall {r['wall_ms']:.2f} ms, event "
-                    f"{r['event_ms']:.2f} ms, {r['ratio']:.2f}x, enqueue {r['enqueue_ms']:.2f} ms")
+                    f"{r['event_ms']:.2f} ms, {r['ratio']:.2f}x, enqueue {_ms(r['enqueue_ms'])} ms")
             rows.append(r)
     return rows
+
+
+def _ms(v):
+    return "-" if v is None else f"{v:.2f}"
 
 
 def format_table(rows) -> str:
     lines = [f"{'method':12s} {'shape':20s} {'prec':5s} {'wall ms':>9s} {'event ms':>9s} {'wall/event':>10s} {'enqueue ms':>10s}"]
     for r in rows:
         lines.append(f"{r['method']:12s} {r['shape']:20s} {r['precision']:5s} {r['wall_ms']:9.2f} "
-                     f"{r['event_ms']:9.2f} {r['ratio']:10.2f} {r['enqueue_ms']:10.2f}")
+                     f"{r['event_ms']:9.2f} {r['ratio']:10.2f} "
+                     + (f"{r['enqueue_ms']:10.2f}" if r['enqueue_ms'] is not None else f"{'-':>10s}"))
     return "\n".join(lines)
 
 
@@ -109,5 +119,5 @@ def markdown(rows) -> str:
            "|---|---|---|---:|---:|---:|---:|"]
     for r in rows:
         out.append(f"| {r['method']} | {r['shape']} | {r['precision']} | {r['wall_ms']:.2f} | "
-                   f"{r['event_ms']:.2f} | {r['ratio']:.2f} | {r['enqueue_ms']:.2f} |")
+                   f"{r['event_ms']:.2f} | {r['ratio']:.2f} | {_ms(r['enqueue_ms'])} |")
     return "\n".join(out)
