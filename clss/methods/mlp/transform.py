@@ -29,6 +29,8 @@ from __future__ import annotations
 
 import os
 
+import sys
+
 import numpy as np
 
 from ...pipeline.contract import PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS
@@ -66,10 +68,11 @@ def block(scale) -> int:
 # ---- the transform, for numpy and torch alike (same operators on both) ------------------
 
 def _lib(x):
-    if isinstance(x, np.ndarray):
+    """numpy for arrays, else the array's own library (torch for the torch twin's tensors),
+    which whoever made the tensor has loaded: the runtime never imports torch itself."""
+    if isinstance(x, (np.ndarray, np.generic, float, int)):
         return np
-    import torch
-    return torch
+    return sys.modules[type(x).__module__.split(".")[0]]
 
 
 def ramp(r):
