@@ -28,7 +28,6 @@ mean + ramp_inv(y), then blocks are averaged and PQ-decoded.
 from __future__ import annotations
 
 import os
-
 import sys
 
 import numpy as np
