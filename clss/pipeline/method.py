@@ -156,6 +156,22 @@ class MethodUpscaler:
         """Called before the frame step of another render size replaces the current one
         (a method keeping per-stage timings flushes them here)."""
 
+    def _device_frame(self, reset, **arrays):
+        """step_device's common entry: a reset is remembered (kept if the frame is then
+        refused), every given array must be a pyopencl array, the colour h x w x 3;
+        returns (h, w)."""
+        import pyopencl.array as cla
+        if reset:
+            self._pending_reset = True
+        for name, a in arrays.items():
+            if a is not None and not isinstance(a, cla.Array):
+                raise FrameInputError(f"{name}: expected a pyopencl.array.Array, got "
+                                      f"{type(a).__name__} (use step() for numpy arrays)")
+        color = arrays["color"]
+        if color.ndim != 3 or color.shape[2] != 3:
+            raise FrameInputError(f"color: expected shape (h, w, 3), got {color.shape}")
+        return tuple(color.shape[:2])
+
     def _color_frame(self, color, reset):
         """For a method that reads the colour alone: (validate_frame's dict, (h, w)), the
         colour checked as the contract says and the render size held to the sequence's."""

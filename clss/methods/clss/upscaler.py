@@ -29,7 +29,6 @@ import os
 import warnings
 
 import numpy as np
-import pyopencl.array as cla
 
 from ...networks import CLASSIFIER_CHANNELS, pad16
 from ...pipeline.contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
@@ -250,16 +249,8 @@ class ClssUpscaler(MethodUpscaler):
         which allocates): color h x w x 3, depth h x w, motion h x w x 2, reactive h x w.
         Returns the H x W x 3 float32 output on the device: `out` if given, else an
         internal buffer that the next step overwrites."""
-        if reset:
-            self._pending_reset = True
-        for name, a in (("color", color), ("depth", depth), ("motion", motion),
-                        ("reactive", reactive), ("out", out)):
-            if a is not None and not isinstance(a, cla.Array):
-                raise FrameInputError(f"{name}: expected a pyopencl.array.Array, got "
-                                      f"{type(a).__name__} (use step() for numpy arrays)")
-        if color.ndim != 3 or color.shape[2] != 3:
-            raise FrameInputError(f"color: expected shape (h, w, 3), got {color.shape}")
-        hw = color.shape[:2]
+        hw = self._device_frame(reset, color=color, depth=depth, motion=motion,
+                                reactive=reactive, out=out)
         fs = self._frame_step(hw, reset)
 
         def as_f32(name, a, tail):

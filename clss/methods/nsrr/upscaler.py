@@ -15,7 +15,6 @@ import os
 import warnings
 
 import numpy as np
-import pyopencl.array as cla
 
 from ...pipeline.contract import PQ_NITS, FrameInputError, check_jitter, validate_frame
 from ...pipeline.method import MethodSpec, MethodUpscaler
@@ -130,15 +129,7 @@ class NsrrUpscaler(MethodUpscaler):
         h x w, motion h x w x 2); returns the H x W x 3 float32 output on the device
         (`out` if given). Values are not checked here: non-finite ones become 0 colour,
         far depth and 0 motion on the device."""
-        if reset:
-            self._pending_reset = True
-        for name, a in (("color", color), ("depth", depth), ("motion", motion), ("out", out)):
-            if a is not None and not isinstance(a, cla.Array):
-                raise FrameInputError(f"{name}: expected a pyopencl.array.Array, got "
-                                      f"{type(a).__name__} (use step() for numpy arrays)")
-        if color.ndim != 3 or color.shape[2] != 3:
-            raise FrameInputError(f"color: expected shape (h, w, 3), got {color.shape}")
-        hw = color.shape[:2]
+        hw = self._device_frame(reset, color=color, depth=depth, motion=motion, out=out)
         fs = self._frame_step(hw, reset)
         for name, a, tail in (("color", color, (3,)), ("depth", depth, ()), ("motion", motion, (2,))):
             if a.size != int(np.prod(tuple(hw) + tail)) or a.dtype != np.float32:
