@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -235,13 +236,19 @@ class Device:
     # -- programs ---------------------------------------------------------
     @staticmethod
     def source(stem: str) -> str:
-        """kernels/<stem>.cl with common.h inlined, so the hash covers both."""
+        """kernels/<stem>.cl with its headers (`#include "name.h"` of kernels/, e.g.
+        common.h) inlined, once each, so the program hash covers all of it."""
         d = kernels_dir()
         path = d / f"{stem}.cl"
         if not path.is_file():
             raise KernelBuildError(f"no kernel source {path}")
-        common = (d / "common.h").read_text()
-        return path.read_text().replace('#include "common.h"', common, 1)
+        src = path.read_text()
+        for name in dict.fromkeys(re.findall(r'#include "([\w.]+\.h)"', src)):
+            header = d / name
+            if not header.is_file():
+                raise KernelBuildError(f"{path.name}: no header {header}")
+            src = src.replace(f'#include "{name}"', header.read_text(), 1)
+        return src
 
     @staticmethod
     def build_options(precision: str = "fp32", **defines) -> str:

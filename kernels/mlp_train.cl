@@ -30,44 +30,17 @@
  */
 #include "common.h"
 
-#ifndef S /* a porter building the source as is: 2x, the recipe's patch */
-#define S 2
-#define B 4
-#define FEATURE 1
-#define GAMMA 2.0f
-#define INV_GAMMA 0.5f
-#define EPS 0.001f
-#define EPS_ROOT 0.0316227766f
-#define ALPHA 0.01f
-#endif
+#include "mlp_layout.h"
+
 #ifndef PATCH
 #define PATCH 16
 #define MARGIN 3
 #endif
 
-#define TAPS 5
-#define NT (TAPS * TAPS)
-#define NI (2 * NT)
-#define NH 50
-#define NO 25
-#define BB (B * B)
-#define OFF1 0
-#define OFF2 (OFF1 + NH * NI + NH)
-#define OFF3 (OFF2 + NH * NH + NH)
 #define C (PATCH + 2 * MARGIN)
 #define R (PATCH + 2)
 #define L (S * PATCH)
 #define SC (S * C)
-
-inline float mt_ramp(float r)
-{
-    return sign(r) * (pow(fabs(r) + (float)EPS, (float)INV_GAMMA) - (float)EPS_ROOT);
-}
-
-inline float mt_ramp_inv(float y)
-{
-    return sign(y) * (pow(fabs(y) + (float)EPS_ROOT, (float)GAMMA) - (float)EPS);
-}
 
 /* d ramp_inv / dy as autograd takes it: sign(y) * f(|y|) -> sign(y)^2 f'(|y|), so 0 at
  * y == 0 exactly (why a zero output layer cannot learn, and the init keeps it small and
@@ -108,7 +81,7 @@ __kernel void mlp_train_forward(__global const float *col, __global const float 
         }
     m *= 1.0f / NT;
     for (int k = 0; k < NT; ++k)
-        x[k] = mt_ramp(x[k] - m);
+        x[k] = mlp_ramp(x[k] - m);
 #if FEATURE
     {
         __global const float *ff = feat + (long)p * SC * SC;
@@ -121,7 +94,7 @@ __kernel void mlp_train_forward(__global const float *col, __global const float 
             }
         mf *= 1.0f / NT;
         for (int k = 0; k < NT; ++k)
-            x[NT + k] = mt_ramp(x[NT + k] - mf);
+            x[NT + k] = mlp_ramp(x[NT + k] - mf);
     }
 #else
     for (int k = 0; k < NT; ++k)
@@ -149,7 +122,7 @@ __kernel void mlp_train_forward(__global const float *col, __global const float 
         for (int q = 0; q < NH; ++q)
             y = fma(wp[OFF3 + o * NH + q], h2[q], y);
         Y[(long)o * n_samples + n] = y;
-        BLK[(long)o * n_samples + n] = m + mt_ramp_inv(y);
+        BLK[(long)o * n_samples + n] = m + mlp_ramp_inv(y);
     }
 }
 

@@ -28,31 +28,15 @@
  */
 #include "common.h"
 
-#ifndef S /* a porter building the source as is, or `clss verify`'s build check: 2x */
-#define S 2
-#define B 4
-#define FEATURE 1
-#define GAMMA 2.0f
-#define INV_GAMMA 0.5f
-#define EPS 0.001f
-#define EPS_ROOT 0.0316227766f
-#define ALPHA 0.01f
+#include "mlp_layout.h"
+
+#ifndef PQ_M1 /* a porter building the source as is: contract.py's PQ constants */
 #define PQ_M1 0.1593017578125f
 #define PQ_M2 78.84375f
 #define PQ_C1 0.8359375f
 #define PQ_C2 18.8515625f
 #define PQ_C3 18.6875f
 #endif
-
-#define TAPS 5
-#define NT (TAPS * TAPS)
-#define NI (2 * NT)
-#define NH 50
-#define NO 25
-#define BB (B * B)
-#define OFF1 0
-#define OFF2 (OFF1 + NH * NI + NH)
-#define OFF3 (OFF2 + NH * NH + NH)
 
 inline float mu_pq_encode(float x, float pq_scale)
 {
@@ -65,16 +49,6 @@ inline float mu_pq_decode(float e, float inv_pq_scale)
 {
     const float ep = pow(clamp(e, 0.0f, 1.0f), 1.0f / (float)PQ_M2);
     return pow(fmax(ep - PQ_C1, 0.0f) / (PQ_C2 - PQ_C3 * ep), 1.0f / (float)PQ_M1) * inv_pq_scale;
-}
-
-inline float mu_ramp(float r)
-{
-    return sign(r) * (pow(fabs(r) + (float)EPS, (float)INV_GAMMA) - (float)EPS_ROOT);
-}
-
-inline float mu_ramp_inv(float y)
-{
-    return sign(y) * (pow(fabs(y) + (float)EPS_ROOT, (float)GAMMA) - (float)EPS);
 }
 
 /* IN [CI] -> OUT [CO] = act(W IN + b); leaky when LEAKY. */
@@ -120,7 +94,7 @@ __kernel void mlp_upscale_blocks(__global const T *color, __global const T *feat
         }
         m *= 1.0f / NT;
         for (int k = 0; k < NT; ++k)
-            x[NT + k] = mu_ramp(x[NT + k] - m);
+            x[NT + k] = mlp_ramp(x[NT + k] - m);
     }
 #else
     for (int k = 0; k < NT; ++k)
@@ -142,7 +116,7 @@ __kernel void mlp_upscale_blocks(__global const T *color, __global const T *feat
         }
         m *= 1.0f / NT;
         for (int k = 0; k < NT; ++k)
-            x[k] = mu_ramp(x[k] - m);
+            x[k] = mlp_ramp(x[k] - m);
 
         DENSE(x, h1, NI, NH, OFF1, 1)
         DENSE(h1, h2, NH, NH, OFF2, 1)
@@ -154,7 +128,7 @@ __kernel void mlp_upscale_blocks(__global const T *color, __global const T *feat
             y[o] = a;
         }
         for (int k = 0; k < BB; ++k)
-            ST(blocks, ((long)c * BB + k) * hw + (long)i * w + j, m + mu_ramp_inv(y[k]));
+            ST(blocks, ((long)c * BB + k) * hw + (long)i * w + j, m + mlp_ramp_inv(y[k]));
     }
 }
 
