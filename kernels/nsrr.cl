@@ -27,26 +27,7 @@
 
 #define FEAT 12
 
-/* (as kernels/zero_upsample.cl) the render index whose jittered sample lands on output
- * index X, or -1; si > 0: integer scale with the host's offset o. */
-static int zu_place(int j, float s, float jit)
-{
-    const float p = ((float)j + 0.5f + jit) * s;
-    return min((int)floor(p), (int)ceil((float)(j + 1) * s) - 1);
-}
-
-static int zu_source(int X, int n, int si, int o, float s, float jit)
-{
-    if (si > 0) {
-        const int d = X - o;
-        if (d < 0 || d % si) return -1;
-        return d / si < n ? d / si : -1;
-    }
-    const int jc = (int)floor(((float)X + 0.5f) / s - 0.5f - jit);
-    for (int j = max(jc - 1, 0); j <= min(jc + 1, n - 1); ++j)
-        if (zu_place(j, s, jit) == X) return j;
-    return -1;
-}
+#include "zero_upsample.h"
 
 /* x^y for x >= 0 as exp2(y log2 x): PoCL's pow() is a library call of ~0.25 us, which made
  * the PQ decode of a 1080p frame take 2.6 s; exp2/log2 inline and agree to a few ulp. */

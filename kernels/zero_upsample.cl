@@ -27,27 +27,7 @@
 #define CPT 4
 #endif
 
-static int place(int j, float s, float jit)
-{
-    const float p = ((float)j + 0.5f + jit) * s;
-    return min((int)floor(p), (int)ceil((float)(j + 1) * s) - 1);
-}
-
-/* The render index whose sample lands on output index X, or -1. si > 0: integer scale. */
-static int source_of(int X, int n, int si, int o, float s, float jit)
-{
-    if (si > 0) {
-        const int d = X - o;
-        if (d < 0 || d % si) return -1;
-        return d / si < n ? d / si : -1;
-    }
-    /* The exact preimage lies within 0.5 of (X + 0.5)/s - 0.5 - jit; rounding and the
-     * edge clamp move it by less than one more. */
-    const int jc = (int)floor(((float)X + 0.5f) / s - 0.5f - jit);
-    for (int j = max(jc - 1, 0); j <= min(jc + 1, n - 1); ++j)
-        if (place(j, s, jit) == X) return j;
-    return -1;
-}
+#include "zero_upsample.h"
 
 /** @param[in]  in   [N, C, h, w] render-resolution samples, moved as raw bits (TB)
  *  @param[out] out  [N, C, Ho, Wo] output, zero where no sample lands
@@ -79,8 +59,8 @@ __kernel void zero_upsample(__global const TB *in, __global TB *out,
     const int nc = min(CPT, C - c0);
     const long plane = (long)h * w, oplane = (long)Ho * Wo;
     const long o = ((long)n * C + c0) * oplane + (long)Y * Wo + X;
-    const int i = source_of(Y, h, siy, oy, sy, jy);
-    const int j = i < 0 ? -1 : source_of(X, w, six, ox, sx, jx);
+    const int i = zu_source(Y, h, siy, oy, sy, jy);
+    const int j = i < 0 ? -1 : zu_source(X, w, six, ox, sx, jx);
     if (j < 0) {
         for (int c = 0; c < nc; ++c) out[o + c * oplane] = (TB)0;
         return;
