@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .cases import BenchCase, Setup
-from .netcases import NET_TOL, synthetic_frame
+from .netcases import NET_TOL, median_ms, synthetic_frame
 
 MLP_TIERS = {"540p": (((540, 960), 2),), "1080p": (((540, 960), 2), ((360, 640), 3)),
              "tiny": (((16, 32), 2), ((16, 32), 3))}
@@ -81,7 +81,6 @@ def measure(render_size=(540, 960), scale=2, prec="fp32", frames=3, ort=True, on
     """Warm wall ms of the frame step (median of `frames` after one warm-up), onnxruntime's
     on the whole-frame graph (default session: all cores), and one online training step
     (`batch` patches; its host part: cutting the patches) per frame, same process."""
-    import time
     from clss import Upscaler
     from clss.device import get_device
     from clss.ops import mlp_upscale as ops
@@ -97,41 +96,28 @@ def measure(render_size=(540, 960), scale=2, prec="fp32", frames=3, ort=True, on
     out = dev.empty((H, W, 3), prec)
     from clss import selfcheck
     fast = int(selfcheck.defines(dev, prec, ops.FAST)["VEC"])
-    up.step_device(c_d, depth_hr=f_d, out=out)
-    dev.queue.finish()
-    times = []
-    for _ in range(frames):
-        t = time.perf_counter()
+    def frame():
         up.step_device(c_d, depth_hr=f_d, out=out)
         dev.queue.finish()
-        times.append((time.perf_counter() - t) * 1e3)
-    res = {"shape": f"{h}x{w}->{H}x{W}", "precision": prec, "vec": fast,
-           "ms": float(np.median(times)),
-           "gmacs": macs_per_render_pixel(scale) * h * w / np.median(times) / 1e6}
+    frame()
+    ms = median_ms(frame, frames)
+    res = {"shape": f"{h}x{w}->{H}x{W}", "precision": prec, "vec": fast, "ms": ms,
+           "gmacs": macs_per_render_pixel(scale) * h * w / ms / 1e6}
     if online:
         g = np.random.default_rng(1)
         ref = (g.random((H, W, 3)) ** 2 * 4).astype(np.float32)
-        up.train_step(color, ref, depth_hr=dhr)          # builds
-        dev.queue.finish()
-        ts = []
-        for _ in range(frames):
-            t = time.perf_counter()
+        def train():
             up.train_step(color, ref, depth_hr=dhr)
             dev.queue.finish()
-            ts.append((time.perf_counter() - t) * 1e3)
-        res["online_step_ms"] = float(np.median(ts))
+        train()                                           # builds
+        res["online_step_ms"] = median_ms(train, frames)
         res["online_batch"] = batch
         res["online_over_frame"] = res["online_step_ms"] / res["ms"]
     if ort:
         from clss.methods.mlp.oracle import OracleMlp
         o = OracleMlp((h, w), scale, weights=wts, precision=prec)
         o.step(color, depth_hr=dhr)
-        ts = []
-        for _ in range(frames):
-            t = time.perf_counter()
-            o.step(color, depth_hr=dhr)
-            ts.append((time.perf_counter() - t) * 1e3)
-        res["ort_ms"] = float(np.median(ts))
+        res["ort_ms"] = median_ms(lambda: o.step(color, depth_hr=dhr), frames)
         res["speedup"] = res["ort_ms"] / res["ms"]
     return res
 

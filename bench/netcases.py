@@ -66,6 +66,40 @@ def synthetic_frame(h: int, w: int):
     return color, depth, motion
 
 
+BENCH_JITTER = (0.25, -0.125)
+
+
+def frame_runner(dev, up, render_size, output_hw):
+    """(run, (color, depth, motion)): a frame step's `step_device` on the synthetic frame,
+    for a BenchCase. The frame step (and its clss.Models) is built here, outside the
+    bench's capture of the device (the Model's planning device copies the Device's
+    attributes); the first timed frame is a reset (what the oracle computes from a zero
+    history), the others carry the history, as a running game does."""
+    color, depth, motion = synthetic_frame(*render_size)
+    jitter = np.array(BENCH_JITTER, np.float32)
+    d = [dev.to_device(a, "fp32") for a in (color, depth, motion)]
+    out = dev.empty(tuple(output_hw) + (3,), dtype=np.float32)
+    up.step_device(*d, jitter, reset=True, out=out)
+    calls = [0]
+
+    def run():
+        up.step_device(*d, jitter, reset=calls[0] == 0, out=out)
+        calls[0] += 1
+        return [out]
+    return run, (color, depth, motion)
+
+
+def median_ms(fn, frames: int) -> float:
+    """The median wall milliseconds of `frames` calls of fn (warm it first)."""
+    import time
+    ts = []
+    for _ in range(frames):
+        t = time.perf_counter()
+        fn()
+        ts.append((time.perf_counter() - t) * 1e3)
+    return float(np.median(ts))
+
+
 def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
     from clss.methods.clss.oracle import build_frame_graph
     from clss.pipeline.contract import output_size
@@ -82,27 +116,13 @@ def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
         comp = build_composition() if mode == "net" else None
         up = Upscaler(scale=scale, mode=mode, device=dev, precision=prec,
                       classifier=cls, composition=comp)
-        color, depth, motion = synthetic_frame(h, w)
-        jitter = np.array([0.25, -0.125], np.float32)
-        d = {"color": dev.to_device(color, "fp32"), "depth": dev.to_device(depth, "fp32"),
-             "motion": dev.to_device(motion, "fp32")}
-        out = dev.empty((H, W, 3), dtype=np.float32)
-        # Creates the frame step and its clss.Model here, outside the bench's capture of
-        # the device (the Model's planning device copies the Device's attributes).
-        up.step_device(d["color"], d["depth"], d["motion"], jitter, reset=True, out=out)
-        calls = [0]
-
-        def run():
-            # The first frame is a reset (what the oracle computes from a zero history);
-            # the timed ones carry the history, as a running game does.
-            up.step_device(d["color"], d["depth"], d["motion"], jitter, reset=calls[0] == 0, out=out)
-            calls[0] += 1
-            return [out]
+        run, (color, depth, motion) = frame_runner(dev, up, (h, w), (H, W))
         twin = build_frame_graph("rule" if mode == "rules" else mode, (h, w), scale, cls,
                                  comp)
         names = {i.name for i in twin.graph.input}
         feeds = {"color": color.transpose(2, 0, 1)[None].copy(), "depth": depth[None, None].copy(),
-                 "motion": motion.transpose(2, 0, 1)[None].copy(), "jitter": jitter,
+                 "motion": motion.transpose(2, 0, 1)[None].copy(),
+                 "jitter": np.array(BENCH_JITTER, np.float32),
                  "reset": np.array([1.0], np.float32), "reactive": np.zeros((1, 1, h, w), np.float32),
                  "history": np.zeros((1, 16, H, W), np.float32)}
         feeds = {k: v for k, v in feeds.items() if k in names}

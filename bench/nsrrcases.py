@@ -9,7 +9,7 @@ import numpy as np
 from clss.device import storage_dtype
 
 from .cases import BenchCase, Setup
-from .netcases import NET_TOL, synthetic_frame
+from .netcases import BENCH_JITTER, NET_TOL, frame_runner, median_ms, synthetic_frame
 
 # render size and scale per tier: the issue's 1080p outputs, and a tiny smoke shape
 NSRR_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
@@ -18,7 +18,7 @@ NSRR_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
 
 def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -> BenchCase:
     from clss.methods.nsrr import networks as nets
-    from clss.methods.nsrr.oracle import build_graph, zu_index
+    from clss.methods.nsrr.oracle import build_graph, frame_feeds
     from clss.methods.nsrr.upscaler import load_weights
     from clss.pipeline.contract import output_size
     h, w = render_size
@@ -29,28 +29,14 @@ def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -
     def build(dev, prec, params):
         from clss import Upscaler
         up = Upscaler(method="nsrr", scale=scale, device=dev, precision=prec, weights=(cfg, wts))
-        color, depth, motion = synthetic_frame(h, w)
-        jitter = np.array([0.25, -0.125], np.float32)
-        d = {"color": dev.to_device(color, "fp32"), "depth": dev.to_device(depth, "fp32"),
-             "motion": dev.to_device(motion, "fp32")}
-        out = dev.empty((H, W, 3), dtype=np.float32)
-        # builds the frame step and its two clss.Models outside the timed runs
-        up.step_device(d["color"], d["depth"], d["motion"], jitter, reset=True, out=out)
-        calls = [0]
-
-        def run():
-            # the first frame is a reset (the oracle's feed); the timed ones carry history
-            up.step_device(d["color"], d["depth"], d["motion"], jitter, reset=calls[0] == 0, out=out)
-            calls[0] += 1
-            return [out]
+        run, (color, depth, motion) = frame_runner(dev, up, (h, w), (H, W))
+        jitter = np.array(BENCH_JITTER, np.float32)
         twin = build_graph((h, w), scale, cfg, wts)
         n = cfg["n_prev"]
-        feeds = {"color": color.transpose(2, 0, 1)[None].copy(), "depth": depth[None, None].copy(),
-                 "motion": motion.transpose(2, 0, 1)[None].copy(),
-                 "hist": np.zeros((1, nets.FEAT * n, H, W), np.float32),
-                 "zu_y": zu_index(h, H / h, float(jitter[1]), H),
-                 "zu_x": zu_index(w, W / w, float(jitter[0]), W),
-                 "keep": np.array([0.0], np.float32), "dup": np.array([0.0], np.float32)}
+        x = {"color": color.transpose(2, 0, 1)[None].copy(), "depth": depth[None, None].copy(),
+             "motion": motion.transpose(2, 0, 1)[None].copy(), "jitter": jitter}
+        # the first timed frame is a reset (frame_runner), as this feed
+        feeds = frame_feeds(cfg, x, np.zeros((1, nets.FEAT * n, H, W), np.float32), True)
         st = storage_dtype(prec).itemsize
         io = color.nbytes + depth.nbytes + motion.nbytes + H * W * 3 * 4
         # the history read and written, the stack written and read
@@ -72,7 +58,6 @@ def measure(render_size, scale, prec="fp32", frames=3, weights=None, ort_threads
     """Warm wall ms of the NSRR frame step (median of `frames` after one warm-up), its
     per-stage event times (the paper's Table 2 breakdown) and onnxruntime's wall ms on
     the whole-frame graph, same machine, same run."""
-    import time
     from clss import Upscaler
     from clss.device import get_device
     from clss.pipeline.contract import output_size
@@ -84,27 +69,17 @@ def measure(render_size, scale, prec="fp32", frames=3, weights=None, ort_threads
                   profile=True)
     d = [dev.to_device(a, "fp32") for a in (color, depth, motion)]
     out = dev.empty((H, W, 3), dtype=np.float32)
-    up.step_device(*d, (0.25, -0.125), reset=True, out=out)
+    up.step_device(*d, BENCH_JITTER, reset=True, out=out)
     up.reset_timings()
-    times = []
-    for i in range(frames):
-        t = time.perf_counter()
-        up.step_device(*d, (0.25, -0.125), out=out)
-        times.append((time.perf_counter() - t) * 1e3)
-    res = {"shape": f"{h}x{w}->{H}x{W}", "precision": prec, "ms": float(np.median(times)),
+    ms = median_ms(lambda: up.step_device(*d, BENCH_JITTER, out=out), frames)
+    res = {"shape": f"{h}x{w}->{H}x{W}", "precision": prec, "ms": ms,
            "stages_ms": up.stage_ms(), "widths": up.cfg["name"]}
     if ort:
-        import onnxruntime as rt
         from clss.methods.nsrr.oracle import OracleNsrr
         o = OracleNsrr((h, w), scale, weights=(up.cfg, up.weights), threads=ort_threads)
         depth_c = depth
-        o.step(color, depth_c, motion, (0.25, -0.125), reset=True)
-        ts = []
-        for i in range(frames):
-            t = time.perf_counter()
-            o.step(color, depth_c, motion, (0.25, -0.125))
-            ts.append((time.perf_counter() - t) * 1e3)
-        res["ort_ms"] = float(np.median(ts))
+        o.step(color, depth_c, motion, BENCH_JITTER, reset=True)
+        res["ort_ms"] = median_ms(lambda: o.step(color, depth_c, motion, BENCH_JITTER), frames)
         res["speedup"] = res["ort_ms"] / res["ms"]
     return res
 

@@ -36,9 +36,13 @@ def frame_cases(tier):
     return [netcases.frame_case(mode, (h, w), scale, tier) for mode in ("net", "rule")]
 
 
-def _mlp_cases(tier):
-    from .mlpcases import mlp_cases
-    return mlp_cases((tier,))
+def _method_cases(module, fn):
+    """The frame-step cases of a method with its own case module (bench/<method>cases.py),
+    for one tier: imported when asked for, as the method itself is."""
+    def cases(tier):
+        import importlib
+        return getattr(importlib.import_module(f"bench.{module}"), fn)((tier,))
+    return cases
 
 
 # --- the suite ------------------------------------------------------------------------
@@ -68,7 +72,10 @@ def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list
                 missing.append((f"{fam} [{tier}]", f"{type(e).__name__}: {e}"))
         for what, fn, mod in (("networks", network_cases, "clss/model/__init__.py"),
                               ("frame step", frame_cases, "clss/methods/clss/frame.py"),
-                              ("mlp frame step", _mlp_cases, "clss/methods/mlp/upscaler.py")):
+                              ("mlp frame step", _method_cases("mlpcases", "mlp_cases"),
+                               "clss/methods/mlp/upscaler.py"),
+                              ("nsrr frame step", _method_cases("nsrrcases", "nsrr_cases"),
+                               "clss/methods/nsrr/upscaler.py")):
             try:
                 got = fn(tier)
             except Exception as e:

@@ -150,20 +150,26 @@ class OracleNsrr:
                            depth_inverted=self.depth_inverted)
         x = to_internal(f, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
                         exposure=self.exposure)
-        h, w = self.render_size
-        jx, jy = (float(v) for v in x["jitter"])
         reset = bool(reset) or self.first
         self.first = False
-        feeds = {"color": x["color"], "depth": x["depth"], "motion": x["motion"],
-                 "hist": self.hist,
-                 "zu_y": zu_index(h, self.H / h, jy, self.H), "zu_x": zu_index(w, self.W / w, jx, self.W),
-                 "keep": np.array([0.0 if reset else 1.0], np.float32),
-                 "dup": np.array([1.0 if reset and self.reset_fill == "duplicate" else 0.0],
-                                 np.float32)}
-        if self.cfg.get("residual", False):
-            feeds["base_grid"] = base_grid((h, w), (self.H, self.W), (jx, jy))
+        feeds = frame_feeds(self.cfg, x, self.hist, reset, self.reset_fill)
         y, self.hist = self.session.run(["output", "hist_out"], feeds)
         return np.ascontiguousarray(y[0].transpose(1, 2, 0)) * np.float32(self.exposure)
+
+
+def frame_feeds(cfg, x, hist, reset, reset_fill="zero") -> dict:
+    """The graph's feeds for one frame: `x` the contract's internal arrays (to_internal:
+    color, depth, motion NCHW, jitter), `hist` the previous hist_out (zeros on a reset)."""
+    h, w = x["depth"].shape[2:]
+    H, W = hist.shape[2:]
+    jx, jy = (float(v) for v in x["jitter"])
+    feeds = {"color": x["color"], "depth": x["depth"], "motion": x["motion"], "hist": hist,
+             "zu_y": zu_index(h, H / h, jy, H), "zu_x": zu_index(w, W / w, jx, W),
+             "keep": np.array([0.0 if reset else 1.0], np.float32),
+             "dup": np.array([1.0 if reset and reset_fill == "duplicate" else 0.0], np.float32)}
+    if cfg.get("residual", False):
+        feeds["base_grid"] = base_grid((h, w), (H, W), (jx, jy))
+    return feeds
 
 
 def twin(method, render_size, scale=4.0, **kwargs):
