@@ -136,3 +136,21 @@ def pq_decode(g, e, nits, name):
     den = g.sub(g.const(PQ_C2), g.mul(g.const(PQ_C3), ep))
     y = g.op("Pow", g.div(num, den), g.const(1.0 / PQ_M1))
     return g.op("Mul", y, g.const(PQ_PEAK_NITS / nits), name=name)
+
+
+def value_info(name, shape, elem=onnx.TensorProto.FLOAT):
+    """A graph input or output of `shape` (None: unknown)."""
+    return helper.make_tensor_value_info(name, elem, None if shape is None else list(shape))
+
+
+def make_model(nodes, inits, name, inputs, outputs, producer, opset,
+               doc_string=None) -> onnx.ModelProto:
+    """A twin's ModelProto: the graph, its opset, and the IR version onnxruntime reads
+    (onnx >= 1.23 would write a newer one)."""
+    graph = helper.make_graph(nodes, name, inputs, outputs, initializer=inits)
+    model = helper.make_model(graph, producer_name=producer,
+                              opset_imports=[helper.make_opsetid("", opset)])
+    if doc_string:
+        model.doc_string = doc_string
+    model.ir_version = IR_VERSION
+    return model

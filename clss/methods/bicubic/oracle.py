@@ -5,10 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper
 
 from ...pipeline.contract import PQ_NITS, output_size, validate_frame
-from ...pipeline.twin import IR_VERSION, GraphBuilder, pq_decode, pq_encode
+from ...pipeline.twin import GraphBuilder, make_model, pq_decode, pq_encode, value_info
 
 OPSET = 19
 
@@ -23,14 +22,8 @@ def build_graph(render_size, scale, nits=PQ_NITS) -> onnx.ModelProto:
     y = g.op("Resize", x, "", "", sizes, mode="cubic", cubic_coeff_a=-0.75,
              coordinate_transformation_mode="half_pixel")
     pq_decode(g, g.clip(y, 0.0, 1.0), nits, name="output")
-    graph = helper.make_graph(
-        g.nodes, "bicubic_frame",
-        [helper.make_tensor_value_info("color", TensorProto.FLOAT, [1, 3, h, w])],
-        [helper.make_tensor_value_info("output", TensorProto.FLOAT, [1, 3, H, W])], g.inits)
-    model = helper.make_model(graph, producer_name="clss.methods.bicubic.oracle",
-                              opset_imports=[helper.make_opsetid("", OPSET)])
-    model.ir_version = IR_VERSION
-    return model
+    return make_model(g.nodes, g.inits, "bicubic_frame", [value_info("color", (1, 3, h, w))],
+                      [value_info("output", (1, 3, H, W))], __name__, OPSET)
 
 
 class OracleBicubic:

@@ -24,6 +24,7 @@ from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
 from ...networks import pad16 as _pad16
 from ...model.graph import fill_output_shapes
 from ...pipeline.twin import GraphBuilder as _Graph
+from ...pipeline.twin import IR_VERSION, make_model  # noqa: F401 (IR_VERSION: read as oracle.IR_VERSION)
 from ...pipeline.twin import pq_decode as _pq_decode
 from ...pipeline.twin import pq_encode as _pq_encode
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
@@ -33,7 +34,6 @@ from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REAC
                        PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
                        SCATTER_WEIGHT_THRESHOLD, output_size, to_internal, validate_frame)
 
-IR_VERSION = 10
 OPSET = 18
 
 DEBUG_OUTPUTS = {
@@ -168,13 +168,9 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
         for name, t in dbg.items():
             g.op("Identity", t, name=name)
             outputs.append(helper.make_tensor_value_info(name, f32, None))
-    graph = helper.make_graph(g.nodes, f"clss_frame_{mode}", inputs, outputs,
-                              initializer=g.inits)
-    model = helper.make_model(graph, producer_name="clss.methods.clss.oracle",
-                              opset_imports=[helper.make_opsetid("", opset)],
-                              doc_string=f"CLSS frame step, mode={mode}, render {h}x{w} -> "
-                                         f"{H}x{W}, cap={cap:g}, hdr={hdr}, nits={nits:g}")
-    model.ir_version = IR_VERSION
+    model = make_model(g.nodes, g.inits, f"clss_frame_{mode}", inputs, outputs, __name__, opset,
+                       doc_string=f"CLSS frame step, mode={mode}, render {h}x{w} -> {H}x{W}, "
+                                  f"cap={cap:g}, hdr={hdr}, nits={nits:g}")
     if debug:
         fill_output_shapes(model)
     onnx.checker.check_model(model)

@@ -18,10 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper
 
 from ...pipeline.contract import PQ_NITS, validate_frame
-from ...pipeline.twin import IR_VERSION, GraphBuilder, pq_decode, pq_encode
+from ...pipeline.twin import GraphBuilder, make_model, pq_decode, pq_encode, value_info
 from . import transform as tf
 
 OPSET = 19
@@ -101,15 +100,10 @@ def add_fold(g, blk, render_size, scale, nits=PQ_NITS, name="output"):
 
 
 def _model(g, inputs, outputs, name):
-    graph = helper.make_graph(g.nodes, name, inputs, outputs, g.inits)
-    model = helper.make_model(graph, producer_name="clss.methods.mlp.oracle",
-                              opset_imports=[helper.make_opsetid("", OPSET)])
-    model.ir_version = IR_VERSION
-    return model
+    return make_model(g.nodes, g.inits, name, inputs, outputs, __name__, OPSET)
 
 
-def _vi(name, shape):
-    return helper.make_tensor_value_info(name, TensorProto.FLOAT, list(shape))
+_vi = value_info
 
 
 def build_graph(render_size, scale, tensors, feature=True, nits=PQ_NITS) -> onnx.ModelProto:

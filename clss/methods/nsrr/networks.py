@@ -35,14 +35,15 @@ import json
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper, numpy_helper
+from onnx import helper, numpy_helper
+
+from ...pipeline.twin import make_model, value_info
 
 FEAT_LEARNED = 8
 FEAT = 4 + FEAT_LEARNED            # RGB-D + learned
 MAX_PREV = 4
 WEIGHT_SCALE = 10.0                # tanh (-1, 1) -> (0, 10)
 OPSET = 18
-IR_VERSION = 10
 
 WIDTHS = {
     # fe: feature extraction hidden widths; rw: reweighting hidden widths;
@@ -173,15 +174,10 @@ class _G:
                        self.const(np.array([1], np.int64), "a"))
 
     def model(self, name, inputs, outputs):
-        graph = helper.make_graph(self.nodes, name, inputs, outputs, self.inits)
-        m = helper.make_model(graph, producer_name="clss.methods.nsrr.networks",
-                              opset_imports=[helper.make_opsetid("", OPSET)])
-        m.ir_version = IR_VERSION
-        return m
+        return make_model(self.nodes, self.inits, name, inputs, outputs, __name__, OPSET)
 
 
-def _vi(name, shape):
-    return helper.make_tensor_value_info(name, TensorProto.FLOAT, list(shape))
+_vi = value_info
 
 
 def build_features(cfg, weights, h="h", w="w") -> onnx.ModelProto:

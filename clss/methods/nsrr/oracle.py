@@ -21,11 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper
+from onnx import TensorProto
 
 from ...ops.zero_upsample import placement
 from ...pipeline.contract import PQ_NITS, output_size, to_internal, validate_frame
-from ...pipeline.twin import IR_VERSION, GraphBuilder, pq_decode, pq_encode
+from ...pipeline.twin import GraphBuilder, make_model, pq_decode, pq_encode, value_info
 from . import networks as nets
 from .frame import pad4
 from .upscaler import load_weights
@@ -106,19 +106,14 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
     g.inline(nets.build_reconstruct(cfg, weights, Hp, Wp), "re", feeds, {"y": "y"})
     y = g.slice(g.slice("y", 2, 0, H), 3, 0, W)
     pq_decode(g, g.clip(y, 0.0, 1.0), nits, name="output")
-    f = TensorProto.FLOAT
-    vi = helper.make_tensor_value_info
-    graph = helper.make_graph(
-        g.nodes, "nsrr_frame",
-        [vi("color", f, [1, 3, h, w]), vi("depth", f, [1, 1, h, w]), vi("motion", f, [1, 2, h, w]),
-         vi("hist", f, [1, C * n, H, W]), vi("zu_y", TensorProto.INT64, [H]),
-         vi("zu_x", TensorProto.INT64, [W]), vi("keep", f, [1]), vi("dup", f, [1])]
-        + ([vi("base_grid", f, [1, H, W, 2])] if cfg.get("residual", False) else []),
-        [vi("output", f, [1, 3, H, W]), vi("hist_out", f, [1, C * n, H, W])], g.inits)
-    model = helper.make_model(graph, producer_name="clss.methods.nsrr.oracle",
-                              opset_imports=[helper.make_opsetid("", OPSET)])
-    model.ir_version = IR_VERSION
-    return model
+    vi, i64 = value_info, TensorProto.INT64
+    inputs = ([vi("color", [1, 3, h, w]), vi("depth", [1, 1, h, w]), vi("motion", [1, 2, h, w]),
+               vi("hist", [1, C * n, H, W]), vi("zu_y", [H], i64), vi("zu_x", [W], i64),
+               vi("keep", [1]), vi("dup", [1])]
+              + ([vi("base_grid", [1, H, W, 2])] if cfg.get("residual", False) else []))
+    return make_model(g.nodes, g.inits, "nsrr_frame", inputs,
+                      [vi("output", [1, 3, H, W]), vi("hist_out", [1, C * n, H, W])],
+                      __name__, OPSET)
 
 
 class OracleNsrr:
