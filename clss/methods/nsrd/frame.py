@@ -1,0 +1,149 @@
+"""The NSRD frame step on an OpenCL device: buffers, launches, the network.
+
+Per frame (render h x w, padded hp x wp = even; output H x W = h s x w s):
+
+    prepare   colour / material -> lighting (PQ); the state warped; the depth-test mask;
+              cur [10,hp,wp], warp [8,hp,wp]; the next state [8,h,w]   (kernels/nsrd.cl)
+    prev      the previous output's lighting warped at H x W, unshuffled to [3s^2,hp,wp]
+    network   cur, warp, prev, h, c -> y [3s^2,hp,wp], h', c'        (clss.Model)
+    finish    y shuffled to H x W + the bilinear lighting, clipped (the next history),
+              PQ-decoded, times the output-resolution material -> out [H,W,3]
+
+Everything carried between frames stays on the device: the render-resolution state
+(double-buffered), the previous output's lighting (read by `prev` before `finish`
+overwrites it: the queue is in order) and the ConvLSTM's h and c (double-buffered; zeroed
+on a reset). Nothing is allocated per frame, so a long run holds memory flat.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pyopencl as cl
+
+from ...device import Device
+from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS
+from ...pipeline.method import summed_event_ms
+from . import networks as nets
+
+STAGES = ("prepare", "prev", "network", "finish")
+
+
+class NsrdFrameStep:
+    """Device buffers and launches of one frame step at a fixed render size."""
+
+    def __init__(self, dev: Device, prec: str, render_size, cfg, weights, *, nits=PQ_NITS,
+                 profile=False):
+        self.dev, self.prec, self.cfg = dev, prec, cfg
+        self.s = s = int(cfg["scale"])
+        self.h, self.w = (int(v) for v in render_size)
+        self.H, self.W = self.h * s, self.w * s
+        self.hp, self.wp = nets.pad2(self.h), nets.pad2(self.w)
+        self.nits, self.profile = float(nits), bool(profile)
+        h, w, H, W, hp, wp = self.h, self.w, self.H, self.W, self.hp, self.wp
+        f32, e = np.float32, dev.empty
+        hid = cfg["hid"]
+        self.in_color = e((h, w, 3), dtype=f32)
+        self.in_depth = e((h, w), dtype=f32)
+        self.in_motion = e((h, w, 2), dtype=f32)
+        self.in_albedo = e((h, w, 3), dtype=f32)
+        self.in_normal = e((h, w, 3), dtype=f32)
+        self.in_albedo_hr = e((H, W, 3), dtype=f32)
+        self.states = [e((nets.STATE, h, w), dtype=f32) for _ in range(2)]
+        self.cur_i = 0                  # states[cur_i] was written last
+        self.hist = e((3, H, W), dtype=f32)
+        self.mv = e((2, h, w), dtype=f32)
+        self.cur = e((1, nets.CUR, hp, wp), prec)
+        self.warp = e((1, nets.WARP, hp, wp), prec)
+        self.prev = e((1, 3 * s * s, hp, wp), prec)
+        self.hc = [(e((1, hid, hp, wp), prec), e((1, hid, hp, wp), prec)) for _ in range(2)]
+        self.hc_i = 0
+        self.y = e((1, 3 * s * s, hp, wp), prec)
+        self.out = e((H, W, 3), dtype=f32)
+        # zeroed once: the padding of prev is never written, and no kernel reads
+        # uninitialised memory (half arrays have no pyopencl fill)
+        for a in (*self.states, self.hist, self.prev, *self.hc[0], *self.hc[1]):
+            cl.enqueue_fill_buffer(dev.queue, a.data, np.uint8(0), 0, a.nbytes)
+        from ...model import Model
+        self.network = Model(nets.build_network(cfg, weights, hp, wp), device=dev, precision=prec)
+        k = {n: dev.kernel("nsrd", n, prec) for n in ("nsrd_prepare", "nsrd_prev", "nsrd_finish")}
+        i32, f = np.int32, np.float32
+        demod, eps = i32(bool(cfg["demod"])), f(nets.DEMOD_EPS)
+        self.L = {
+            "prepare": dev.prepare(k["nsrd_prepare"], (wp, hp), [
+                self.in_color.data, self.in_depth.data, self.in_motion.data,
+                self.in_albedo.data, self.in_normal.data, self.states[1].data,
+                self.states[0].data, self.cur.data, self.warp.data, self.mv.data,
+                i32(w), i32(h), i32(wp), i32(hp), i32(1), f(1), f(1), f(1),
+                f(self.nits / PQ_PEAK_NITS), f(1), demod, i32(bool(cfg["mask"])), eps,
+                f(nets.DEPTH_TOL), f(nets.DEPTH_FLOOR)]),
+            "prev": dev.prepare(k["nsrd_prev"], (W, H), [
+                self.hist.data, self.mv.data, self.prev.data, i32(h), i32(w), i32(H), i32(W),
+                i32(hp), i32(wp), i32(s), f(1)]),
+            "finish": dev.prepare(k["nsrd_finish"], (W, H), [
+                self.y.data, self.states[0].data, self.in_albedo_hr.data, self.hist.data,
+                self.out.data, i32(h), i32(w), i32(H), i32(W), i32(hp), i32(wp), i32(s),
+                f(0), f(0), f(PQ_PEAK_NITS / self.nits), demod, eps]),
+        }
+        self.events: list[tuple[str, cl.Event]] = []
+
+    @property
+    def state(self):
+        """The render-resolution state the next frame warps [8,h,w] (float32)."""
+        return self.states[self.cur_i]
+
+    @property
+    def lstm(self):
+        """(h, c) of the ConvLSTM after the last frame."""
+        return self.hc[self.hc_i]
+
+    def run(self, color, depth, motion, albedo, normal, albedo_hr, jitter, reset, *,
+            depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0, out=None):
+        """Enqueue one frame (device arrays in image layout, float32) with no host wait.
+        Returns the output array (`out` or the internal one) and the last event."""
+        L, i32, f = self.L, np.int32, np.float32
+        out = self.out if out is None else out
+        keep = f(0.0 if reset else 1.0)
+        old, new = self.states[self.cur_i], self.states[1 - self.cur_i]
+        p = L["prepare"]
+        for idx, v in ((0, color.data), (1, depth.data), (2, motion.data), (3, albedo.data),
+                       (4, normal.data), (5, old.data), (6, new.data),
+                       (14, i32(bool(depth_inverted))), (15, f(motion_scale[0])),
+                       (16, f(motion_scale[1])), (17, f(1.0 / exposure)), (19, keep)):
+            p.bind(idx, v)
+        L["prev"].bind(10, keep)
+        fin = L["finish"]
+        for idx, v in ((1, new.data), (2, albedo_hr.data), (4, out.data),
+                       (12, f(float(jitter[0]))), (13, f(float(jitter[1]))),
+                       (14, f(PQ_PEAK_NITS / self.nits * exposure))):
+            fin.bind(idx, v)
+        (h_in, c_in), (h_out, c_out) = self.hc[self.hc_i], self.hc[1 - self.hc_i]
+        ev = []
+        if reset:
+            for a in (h_in, c_in):
+                ev.append(("prepare", cl.enqueue_fill_buffer(self.dev.queue, a.data, np.uint8(0),
+                                                             0, a.nbytes)))
+        ev.append(("prepare", p()))
+        ev.append(("prev", L["prev"]()))
+        ne = [] if self.profile else None
+        self.network.run_device({"cur": self.cur, "warp": self.warp, "prev": self.prev,
+                                 "h": h_in, "c": c_in},
+                                out={"y": self.y, "h_out": h_out, "c_out": c_out}, events=ne)
+        ev += [("network", e) for e in ne or ()]
+        last = fin()
+        ev.append(("finish", last))
+        if self.profile:
+            self.events.extend(ev)
+        self.cur_i = 1 - self.cur_i
+        self.hc_i = 1 - self.hc_i
+        return out, last
+
+    def stage_ms(self) -> dict:
+        return summed_event_ms(self.events, STAGES)
+
+    def device_bytes(self) -> int:
+        arrays = [self.in_color, self.in_depth, self.in_motion, self.in_albedo, self.in_normal,
+                  self.in_albedo_hr, *self.states, self.hist, self.mv, self.cur, self.warp,
+                  self.prev, *self.hc[0], *self.hc[1], self.y, self.out]
+        n = sum(a.nbytes for a in arrays)
+        mem = self.network.memory()
+        n += mem.get("weights_bytes", 0) + mem.get("intermediate_peak_bytes", 0)
+        return int(n)

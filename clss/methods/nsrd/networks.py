@@ -1,0 +1,235 @@
+"""NSRD's network (Li et al. 2024, Fig. 2 and section 3.3) as one ONNX graph, from named
+weights, and the constants of the frame step around it.
+
+One network per integer scale s, at render resolution (padded to even, for the one
+down/up level), in the PQ domain of the lighting:
+
+    cur   [1,10,hp,wp]    the current frame: lighting (PQ, 3), material (3), normal (3),
+                          depth (1)
+    warp  [1,8,hp,wp]     the lighting of frames i-1 and i-2 warped to frame i (PQ) with
+                          their occlusion masks: w1 (3), v1 (1), w2 (3), v2 (1)
+    prev  [1,3s^2,hp,wp]  the previous output's lighting (PQ), warped at output resolution
+                          and pixel-unshuffled (torch order: channel c*s*s + i*s + j)
+    h, c  [1,hid,hp,wp]   the ConvLSTM state
+ -> y     [1,3s^2,hp,wp]  the output lighting's correction, sub-pixel (pixel shuffle CRD
+                          = DepthToSpace CRD makes it H x W; the finish kernel adds the
+                          bilinear current lighting to it)
+    h_out, c_out          the next state
+
+Layers (weight names = the torch twin's state_dict keys, weights_tools/nsrd_torch.py):
+    ga.f, ga.g   reliable warping: a gated conv over [cur, warp]: LeakyReLU(f) * sigmoid(g)
+    pf, cf       features of prev and of cur (LeakyReLU)
+    lstm         ConvLSTM gates over [gated, pf, cf, h] -> i, f, o, g (4 x hid)
+    dn           3x3 stride-2 conv (the U's down level) -> RCAB r1 at half resolution
+    up           3x3 conv to 4 x hid, DepthToSpace CRD 2 (sub-pixel up), + h (skip)
+    r0           RCAB at full render resolution
+    out          3x3 conv to 3 s^2
+    RCAB rK: x + conv(LeakyReLU(conv(x))) * sigmoid(conv1x1(ReLU(conv1x1(GAP(.)))))
+
+Widths are far below the paper's (64 channels, 4+ RCAB groups): the training here runs on
+one CPU thread for about half an hour (docs/methods/nsrd.md).
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnx
+from onnx import helper, numpy_helper
+
+from ...pipeline.twin import make_model, value_info
+
+OPSET = 18
+CUR = 10                 # lighting 3, material 3, normal 3, depth 1
+WARP = 8                 # w1 3, v1 1, w2 3, v2 1
+STATE = 8                # the render-res history: L (3), M (1), A (3), depth (1)
+ALPHA = 0.1              # LeakyReLU slope
+
+# Demodulation: material m = albedo where albedo >= DEMOD_EPS (per channel), else 1.
+# Lighting = colour / m; the output = lighting_hr * m_hr with the same rule at output
+# resolution. Where the material is black (sky: albedo 0, or a black texture) dividing
+# would blow noise up by 1/albedo; with m = 1 there the lighting is the radiance itself
+# and the network super-resolves it directly, as a method without demodulation does.
+# 0.01 is below any lit texture value that matters (8-bit sRGB 26/255 is 0.01 linear).
+DEMOD_EPS = 0.01
+# The occlusion-aware mask (the contract has one kind of motion vector, not the paper's
+# two): the previous frame's depth (reversed-Z, render res, kept on the device), warped
+# bilinearly by the current motion, against the current depth:
+#   rel = |d_warped - d| / (DEPTH_TOL * max(d, d_warped) + 1e-6),  mask = clip(2 - rel, 0, 1)
+# 1 while the relative depth change is under DEPTH_TOL, 0 beyond twice it, continuous
+# in between (so fp16 / fp32 / onnxruntime cannot flip a pixel at a threshold). Outside
+# the previous frame the warp reads 0 (far): the mask is 0 unless the pixel is sky too.
+DEPTH_TOL = 0.05
+DEPTH_FLOOR = 1e-6
+
+WIDTHS = {
+    # feat: the gated / prev / cur feature widths; hid: the ConvLSTM state and the U's
+    # full-resolution level; down: the half-resolution level
+    "default": {"feat": 16, "hid": 16, "down": 32},
+    "fast": {"feat": 8, "hid": 8, "down": 16},
+}
+
+
+def make_config(scale, widths="default", demod=True, mask=True) -> dict:
+    s = float(scale)
+    if not s.is_integer() or not 2 <= s <= 4:
+        raise ValueError(f"scale: NSRD runs at the integer scales 2, 3 and 4 (sub-pixel "
+                         f"upsampling), got {scale!r}")
+    if isinstance(widths, str):
+        if widths not in WIDTHS:
+            raise ValueError(f"widths: expected one of {', '.join(WIDTHS)}, got {widths!r}")
+        w = dict(WIDTHS[widths], name=widths)
+    else:
+        w = dict(widths)
+        w.setdefault("name", "custom")
+    w.update(scale=int(s), demod=bool(demod), mask=bool(mask))
+    return w
+
+
+def layer_shapes(cfg) -> dict:
+    """name -> (cout, cin, k) of every conv."""
+    F, hid, D, s2 = cfg["feat"], cfg["hid"], cfg["down"], 3 * cfg["scale"] ** 2
+    sh = {"ga.f": (F, CUR + WARP, 3), "ga.g": (F, CUR + WARP, 3), "pf": (F, s2, 3),
+          "cf": (F, CUR, 3), "lstm": (4 * hid, 3 * F + hid, 3), "dn": (D, hid, 3)}
+    for name, c in (("r1", D), ("r0", hid)):
+        sh.update({f"{name}.0": (c, c, 3), f"{name}.1": (c, c, 3),
+                   f"{name}.a0": (max(c // 4, 2), c, 1), f"{name}.a1": (c, max(c // 4, 2), 1)})
+    sh.update({"up": (4 * hid, D, 3), "out": (s2, hid, 3)})
+    return sh
+
+
+def init_weights(cfg, seed=0) -> dict:
+    """Seeded He-normal init. The last conv starts small (the output is the bilinear
+    lighting at first); the ConvLSTM's forget gate bias starts at 1 (it keeps its state)."""
+    g = np.random.default_rng(seed)
+    out = {}
+    for name, (co, ci, k) in layer_shapes(cfg).items():
+        std = np.sqrt(2.0 / (ci * k * k))
+        if name == "out":
+            std *= 0.1
+        out[f"{name}.weight"] = g.normal(0, std, (co, ci, k, k)).astype(np.float32)
+        out[f"{name}.bias"] = np.zeros(co, np.float32)
+    hid = cfg["hid"]
+    out["lstm.bias"][hid:2 * hid] = 1.0
+    return out
+
+
+def check_weights(cfg, weights: dict) -> None:
+    for name, (co, ci, k) in layer_shapes(cfg).items():
+        for key, shape in ((f"{name}.weight", (co, ci, k, k)), (f"{name}.bias", (co,))):
+            if key not in weights:
+                raise ValueError(f"nsrd weights: missing tensor {key}")
+            if tuple(weights[key].shape) != shape:
+                raise ValueError(f"nsrd weights: {key} has shape {tuple(weights[key].shape)}, "
+                                 f"the config ({cfg.get('name')}, x{cfg['scale']}) needs {shape}")
+
+
+def save(path, cfg, weights: dict) -> None:
+    from safetensors.numpy import save_file
+    check_weights(cfg, weights)
+    save_file({k: np.ascontiguousarray(v, np.float32) for k, v in sorted(weights.items())}, path,
+              metadata={"nsrd_config": json.dumps(cfg, sort_keys=True)})
+
+
+def load(path) -> tuple[dict, dict]:
+    """(config, weights) of an NSRD .safetensors file (config from its metadata)."""
+    from safetensors import safe_open
+    with safe_open(path, "np") as f:
+        meta = f.metadata() or {}
+        weights = {k: f.get_tensor(k).astype(np.float32) for k in f.keys()}
+    if "nsrd_config" not in meta:
+        raise ValueError(f"weights: {path} has no nsrd_config metadata (not an NSRD weights file)")
+    cfg = json.loads(meta["nsrd_config"])
+    check_weights(cfg, weights)
+    return cfg, weights
+
+
+class _G:
+    def __init__(self, weights):
+        self.w, self.nodes, self.inits, self.k, self.used = weights, [], [], 0, set()
+
+    def op(self, op, *inputs, out=None, **attrs):
+        self.k += 1
+        y = out or f"{op.lower()}_{self.k}"
+        self.nodes.append(helper.make_node(op, list(inputs), [y], name=y, **attrs))
+        return y
+
+    def param(self, key):
+        if key not in self.used:
+            self.used.add(key)
+            self.inits.append(numpy_helper.from_array(np.asarray(self.w[key], np.float32), key))
+        return key
+
+    def conv(self, x, layer, act=None, stride=1, out=None):
+        k = self.w[f"{layer}.weight"].shape[2]
+        p = k // 2
+        y = self.op("Conv", x, self.param(f"{layer}.weight"), self.param(f"{layer}.bias"),
+                    pads=[p] * 4, kernel_shape=[k, k], strides=[stride, stride],
+                    out=None if act else out)
+        if act == "lrelu":
+            return self.op("LeakyRelu", y, alpha=ALPHA, out=out)
+        return self.op(act, y, out=out) if act else y
+
+    def rcab(self, x, name):
+        r = self.conv(self.conv(x, f"{name}.0", "lrelu"), f"{name}.1")
+        a = self.op("GlobalAveragePool", r)
+        a = self.conv(self.conv(a, f"{name}.a0", "Relu"), f"{name}.a1", "Sigmoid")
+        return self.op("Add", x, self.op("Mul", r, a))
+
+
+def build_network(cfg, weights, hp="h", wp="w") -> onnx.ModelProto:
+    hid, s2 = cfg["hid"], 3 * cfg["scale"] ** 2
+    g = _G(weights)
+    x = g.op("Concat", "cur", "warp", axis=1)
+    gated = g.op("Mul", g.conv(x, "ga.f", "lrelu"), g.conv(x, "ga.g", "Sigmoid"))
+    xt = g.op("Concat", gated, g.conv("prev", "pf", "lrelu"), g.conv("cur", "cf", "lrelu"), "h",
+              axis=1)
+    gates = g.conv(xt, "lstm")
+    names = [f"gate_{q}" for q in "ifog"]
+    sizes = g.op("Constant", value=numpy_helper.from_array(np.full(4, hid, np.int64)))
+    g.nodes.append(helper.make_node("Split", [gates, sizes], names, name="split_gates", axis=1))
+    i, f, o = (g.op("Sigmoid", n) for n in names[:3])
+    gg = g.op("Tanh", names[3])
+    c = g.op("Add", g.op("Mul", f, "c"), g.op("Mul", i, gg), out="c_out")
+    h = g.op("Mul", o, g.op("Tanh", c), out="h_out")
+    d = g.rcab(g.conv(h, "dn", "lrelu", stride=2), "r1")
+    u = g.op("DepthToSpace", g.conv(d, "up"), blocksize=2, mode="CRD")
+    u = g.rcab(g.op("Add", u, h), "r0")
+    g.conv(u, "out", out="y")
+    vi = value_info
+    return make_model(g.nodes, g.inits, "nsrd_network",
+                      [vi("cur", [1, CUR, hp, wp]), vi("warp", [1, WARP, hp, wp]),
+                       vi("prev", [1, s2, hp, wp]), vi("h", [1, hid, hp, wp]),
+                       vi("c", [1, hid, hp, wp])],
+                      [vi("y", [1, s2, hp, wp]), vi("h_out", [1, hid, hp, wp]),
+                       vi("c_out", [1, hid, hp, wp])], __name__, OPSET)
+
+
+def macs_per_pixel(cfg) -> float:
+    """Multiply-adds per render pixel (the down level's layers count a quarter)."""
+    half = {"r1.0", "r1.1", "up"}
+    total = 0.0
+    for name, (co, ci, k) in layer_shapes(cfg).items():
+        if name.endswith((".a0", ".a1")):
+            continue
+        m = co * ci * k * k
+        total += m / 4 if name in half or name == "dn" else m
+    return total
+
+
+def pad2(n: int) -> int:
+    """The network's size along an axis: even, for its one down/up level."""
+    return -(-int(n) // 2) * 2
+
+
+def base_grid(render_size, out_size, jitter) -> np.ndarray:
+    """[1,H,W,2] GridSample coordinates (align_corners=0) of each output pixel centre in
+    the render frame whose sample j was taken at j + 0.5 + jitter: where the finish step
+    reads the current lighting bilinearly (edge-clamped) as the base the network corrects."""
+    (h, w), (H, W) = render_size, out_size
+    jx, jy = (float(v) for v in jitter)
+    u = (np.arange(W, dtype=np.float64) + 0.5) * (w / W) - 0.5 - jx
+    v = (np.arange(H, dtype=np.float64) + 0.5) * (h / H) - 0.5 - jy
+    gx = np.broadcast_to(((2 * u + 1) / w - 1)[None, :], (H, W))
+    gy = np.broadcast_to(((2 * v + 1) / h - 1)[:, None], (H, W))
+    return np.stack([gx, gy], -1)[None].astype(np.float32)

@@ -1,0 +1,179 @@
+"""The whole NSRD frame step as one ONNX graph, run by onnxruntime: the oracle that tests
+hold the OpenCL step (frame.py, kernels/nsrd.cl) to. State is explicit: the graph takes
+the state of the previous frame and returns the next one.
+
+Graph inputs (internal conventions, contract.to_internal; G-buffers NCHW):
+    color [1,3,h,w] linear / exposure   depth [1,1,h,w] reversed-Z   motion [1,2,h,w]
+    albedo, normal [1,3,h,w]            albedo_hr [1,3,H,W]
+    state [1,8,h,w]   the render-resolution history (kernels/nsrd.cl's file comment)
+    hist [1,3,H,W]    the previous output's lighting (PQ)
+    h, c [1,hid,hp,wp] the ConvLSTM state
+    keep [1]: 0 on a reset          base_grid [1,H,W,2]: where each output pixel centre
+                                    lies in the render frame (networks.base_grid)
+Outputs: output [1,3,H,W] linear (/ exposure), state_out, hist_out, h_out, c_out.
+On a reset the runner feeds zero h and c (the OpenCL step zeroes its buffers).
+"""
+from __future__ import annotations
+
+import numpy as np
+import onnx
+
+from ...pipeline.contract import PQ_NITS, to_internal, validate_frame, validate_gbuffers
+from ...pipeline.twin import GraphBuilder, make_model, pq_decode, pq_encode, value_info
+from . import networks as nets
+from .upscaler import GBUFFERS, load_weights
+
+OPSET = 18
+
+
+def _material(g, a, demod):
+    if not demod:
+        return g.const(np.ones((1, 3, 1, 1), np.float32))
+    ok = g.op("GreaterOrEqual", a, g.const(np.float32(nets.DEMOD_EPS)))
+    return g.where(ok, a, g.const(np.float32(1.0)))
+
+
+def _warp_grid(g, motion, h, w, scale=1.0):
+    """GridSample grid of p + motion (scaled), align_corners=0."""
+    mx = g.chan(motion, slice(0, 1))
+    my = g.chan(motion, slice(1, 2))
+    if scale != 1.0:
+        mx, my = g.mul(mx, g.const(np.float32(scale))), g.mul(my, g.const(np.float32(scale)))
+    xs = g.const(np.arange(w, dtype=np.float32).reshape(1, 1, 1, w), np.float32, "xs")
+    ys = g.const(np.arange(h, dtype=np.float32).reshape(1, 1, h, 1), np.float32, "ys")
+    gx = g.normalised(g.add(xs, mx), w)
+    gy = g.normalised(g.add(ys, my), h)
+    return g.op("Transpose", g.concat([gx, gy], axis=1), perm=[0, 2, 3, 1])
+
+
+def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
+    h, w = (int(v) for v in render_size)
+    s = int(cfg["scale"])
+    H, W, hp, wp = h * s, w * s, nets.pad2(h), nets.pad2(w)
+    hid = cfg["hid"]
+    g = GraphBuilder(OPSET)
+    keep = "keep"
+    # demodulation and the render-resolution warp of the state
+    L = pq_encode(g, g.div("color", _material(g, "albedo", cfg["demod"])), nits)
+    smp = g.op("GridSample", "state", _warp_grid(g, "motion", h, w), mode="bilinear",
+               padding_mode="zeros", align_corners=0)
+    dw = g.chan(smp, slice(7, 8))
+    if cfg["mask"]:
+        den = g.add(g.mul(g.const(np.float32(nets.DEPTH_TOL)), g.op("Max", "depth", dw)),
+                    g.const(np.float32(nets.DEPTH_FLOOR)))
+        rel = g.div(g.op("Abs", g.sub(dw, "depth")), den)
+        m = g.clip(g.sub(g.const(np.float32(2.0)), rel), 0.0, 1.0)
+        m = g.mul(m, keep)
+    else:
+        m = g.mul(g.const(np.ones((1, 1, h, w), np.float32)), keep)
+    w1 = g.mul(g.chan(smp, slice(0, 3)), keep)
+    w2 = g.mul(g.chan(smp, slice(4, 7)), keep)
+    v2 = g.mul(m, g.chan(smp, slice(3, 4)))
+    cur = g.concat([L, "albedo", "normal", "depth"])
+    warp = g.concat([w1, m, w2, v2])
+    g.concat([L, m, w1, "depth"], name="state_out")
+    # the previous output, warped at output resolution, pixel-unshuffled (torch order)
+    mhr = g.op("Resize", "motion", "", "", g.i64([1, 2, H, W]), mode="linear",
+               coordinate_transformation_mode="half_pixel")
+    prev = g.op("GridSample", "hist", _warp_grid(g, mhr, H, W, float(s)), mode="bilinear",
+                padding_mode="zeros", align_corners=0)
+    prev = g.mul(prev, keep)
+    prev = g.reshape(g.op("Transpose", g.reshape(prev, [1, 3, h, s, w, s]),
+                          perm=[0, 1, 3, 5, 2, 4]), [1, 3 * s * s, h, w])
+    pads = g.i64([0, 0, 0, 0, 0, 0, hp - h, wp - w])
+    feeds = {k: g.op("Pad", v, pads, mode="constant")
+             for k, v in (("cur", cur), ("warp", warp), ("prev", prev))}
+    feeds.update(h="h", c="c")
+    g.inline(nets.build_network(cfg, weights, hp, wp), "net", feeds,
+             {"y": "y", "h_out": "h_out", "c_out": "c_out"})
+    y = g.slice(g.slice("y", 2, 0, h), 3, 0, w)
+    y = g.op("DepthToSpace", y, blocksize=s, mode="CRD")
+    base = g.op("GridSample", L, "base_grid", mode="bilinear", padding_mode="border",
+                align_corners=0)
+    lhr = g.op("Clip", g.add(y, base), g.const(np.float32(0.0)), g.const(np.float32(1.0)),
+               name="hist_out")
+    lin = pq_decode(g, lhr, nits, name="lin")
+    g.mul(lin, _material(g, "albedo_hr", cfg["demod"]))
+    g.nodes[-1].output[0] = "output"
+    g.nodes[-1].name = "output"
+    vi = value_info
+    inputs = [vi("color", [1, 3, h, w]), vi("depth", [1, 1, h, w]), vi("motion", [1, 2, h, w]),
+              vi("albedo", [1, 3, h, w]), vi("normal", [1, 3, h, w]),
+              vi("albedo_hr", [1, 3, H, W]), vi("state", [1, nets.STATE, h, w]),
+              vi("hist", [1, 3, H, W]), vi("h", [1, hid, hp, wp]), vi("c", [1, hid, hp, wp]),
+              vi("keep", [1]), vi("base_grid", [1, H, W, 2])]
+    outputs = [vi("output", [1, 3, H, W]), vi("state_out", [1, nets.STATE, h, w]),
+               vi("hist_out", [1, 3, H, W]), vi("h_out", [1, hid, hp, wp]),
+               vi("c_out", [1, hid, hp, wp])]
+    return make_model(g.nodes, g.inits, "nsrd_frame", inputs, outputs, __name__, OPSET)
+
+
+def _nchw(a):
+    return np.ascontiguousarray(np.asarray(a, np.float32).transpose(2, 0, 1)[None])
+
+
+def frame_feeds(cfg, x, gb, st, reset) -> dict:
+    """The graph's feeds for one frame: `x` the contract's internal arrays (to_internal),
+    `gb` the G-buffers (image layout), `st` the previous outputs {state, hist, h, c}."""
+    h, w = x["depth"].shape[2:]
+    s = int(cfg["scale"])
+    feeds = {"color": x["color"], "depth": x["depth"], "motion": x["motion"],
+             "albedo": _nchw(gb["albedo"]), "normal": _nchw(gb["normal"]),
+             "albedo_hr": _nchw(gb["albedo_hr"]),
+             "keep": np.array([0.0 if reset else 1.0], np.float32),
+             "base_grid": nets.base_grid((h, w), (h * s, w * s), x["jitter"])}
+    feeds.update(st)
+    if reset:
+        feeds["h"] = np.zeros_like(st["h"])
+        feeds["c"] = np.zeros_like(st["c"])
+    return feeds
+
+
+def zero_state(cfg, render_size) -> dict:
+    h, w = render_size
+    s, hid = int(cfg["scale"]), cfg["hid"]
+    hp, wp = nets.pad2(h), nets.pad2(w)
+    return {"state": np.zeros((1, nets.STATE, h, w), np.float32),
+            "hist": np.zeros((1, 3, h * s, w * s), np.float32),
+            "h": np.zeros((1, hid, hp, wp), np.float32), "c": np.zeros((1, hid, hp, wp), np.float32)}
+
+
+class OracleNsrd:
+    """Frame-by-frame runner of the twin with the contract's `step` (onnxruntime).
+    weights: as the upscaler's, except that the default is the seeded init ("untrained");
+    None = the shipped file."""
+
+    def __init__(self, render_size, scale=4.0, weights="untrained", *, depth_inverted=True,
+                 motion_scale=(1, 1), exposure=1.0, widths="default", threads=2, **unused):
+        import onnxruntime as ort
+        self.render_size, self.scale = tuple(int(v) for v in render_size), float(scale)
+        self.cfg, self.weights, _ = load_weights(weights, self.scale, widths)
+        self.model = build_graph(self.render_size, self.cfg, self.weights)
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = threads
+        self.session = ort.InferenceSession(self.model.SerializeToString(), sess_options=so,
+                                            providers=["CPUExecutionProvider"])
+        self.depth_inverted, self.motion_scale = depth_inverted, motion_scale
+        self.exposure = exposure
+        s = int(self.cfg["scale"])
+        h, w = self.render_size
+        self.H, self.W = h * s, w * s
+        self.st = zero_state(self.cfg, self.render_size)
+        self.first = True
+
+    def step(self, color, depth, motion, jitter, reset=False, **gbuffers):
+        f = validate_frame(color, depth, motion, jitter, render_size=self.render_size,
+                           depth_inverted=self.depth_inverted)
+        gb = validate_gbuffers("nsrd", GBUFFERS, (), gbuffers, self.render_size, (self.H, self.W))
+        x = to_internal(f, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
+                        exposure=self.exposure)
+        reset = bool(reset) or self.first
+        self.first = False
+        outs = self.session.run(["output", "state_out", "hist_out", "h_out", "c_out"],
+                                frame_feeds(self.cfg, x, gb, self.st, reset))
+        self.st = dict(zip(("state", "hist", "h", "c"), outs[1:]))
+        return np.ascontiguousarray(outs[0][0].transpose(1, 2, 0)) * np.float32(self.exposure)
+
+
+def twin(method, render_size, scale=4.0, **kwargs):
+    return OracleNsrd(render_size, scale, **kwargs)

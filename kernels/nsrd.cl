@@ -1,0 +1,221 @@
+/* NSRD's frame step around its network (Li et al. 2024, section 3; the room
+ * clss/methods/nsrd/, whose ONNX twin oracle.py states the same formulas as graph nodes
+ * and whose torch twin is weights_tools/nsrd_torch.py).
+ *
+ *   nsrd_prepare  render resolution: demodulation (lighting = colour / material, PQ),
+ *                 the previous state warped by the motion (bilinear, zero outside), the
+ *                 occlusion mask from the reprojected-depth test, the network's inputs
+ *                 cur [10,hp,wp] and warp [8,hp,wp], and the next state [8,h,w]
+ *   nsrd_prev     output resolution: the previous output's lighting warped by the
+ *                 bilinearly upsampled motion, pixel-unshuffled to prev [3s^2,hp,wp]
+ *   nsrd_finish   output resolution: the network's sub-pixel output shuffled to H x W,
+ *                 plus the current lighting bilinear at the output pixel centres
+ *                 (jitter-aware), clipped to [0, 1] (the next frame's history), PQ
+ *                 decoded and re-modulated by the output-resolution material
+ *
+ * The state (float32, render resolution): channels 0-2 the lighting L_i (PQ), 3 the mask
+ * M_i (frame i-1 valid at frame i), 4-6 A_i = L_{i-1} warped to frame i, 7 depth. One
+ * warp by frame i+1's motion brings L_i and A_i (= frame i-2's lighting, warped twice:
+ * the accumulative warping) and M_i to frame i+1.
+ *
+ * keep = 0 on a reset: every warped quantity (and the mask) is 0 that frame.
+ */
+#include "common.h"
+
+#pragma OPENCL FP_CONTRACT OFF
+
+#define STATE 8
+#define CUR 10
+#define WARP 8
+
+static float powp(float x, float y)
+{
+    return x > 0.0f ? exp2(y * log2(x)) : 0.0f;
+}
+
+static float pq_encode(float x, float pq_scale)
+{
+    const float y = clamp(x * pq_scale, 0.0f, 1.0f);
+    const float ym = powp(y, 0.1593017578125f);
+    return powp((0.8359375f + 18.8515625f * ym) / (1.0f + 18.6875f * ym), 78.84375f);
+}
+
+static float pq_decode(float e, float inv_pq_scale)
+{
+    const float ep = powp(clamp(e, 0.0f, 1.0f), 1.0f / 78.84375f);
+    const float num = max(ep - 0.8359375f, 0.0f);
+    return powp(num / (18.8515625f - 18.6875f * ep), 1.0f / 0.1593017578125f) * inv_pq_scale;
+}
+
+/* The material of one channel: the albedo, or 1 where it is below eps (black, sky). */
+static float material(float a, int demod, float eps)
+{
+    return (demod && a >= eps) ? a : 1.0f;
+}
+
+static float tap_w(int xi, int yi, int W, int H, float wx, float wy)
+{
+    return (xi >= 0 && xi < W && yi >= 0 && yi < H) ? wx * wy : 0.0f;
+}
+
+static float fin(float v, float fill)
+{
+    return isfinite(v) ? v : fill;
+}
+
+/** @param[in]  color, depth, motion  the caller's frame (image layout, float32)
+ *  @param[in]  albedo, normal        [h,w,3] float32 G-buffers
+ *  @param[in]  state_old             [8,h,w] float32 the previous frame's state
+ *  @param[out] state_new             [8,h,w] float32
+ *  @param[out] cur                   [10,hp,wp] T: L (PQ), albedo, normal, depth; 0 in the padding
+ *  @param[out] warp                  [8,hp,wp] T: w1, v1, w2, v2; 0 in the padding
+ *  @param[out] mv                    [2,h,w] float32 motion in render pixels
+ *  keep: 0 on a reset, else 1; demod / use_mask: the config's (ablations); tol, floor
+ *  and eps the constants of networks.py.
+ *  NDRange: (wp, hp). */
+__kernel void nsrd_prepare(__global const float *color, __global const float *depth,
+                           __global const float *motion, __global const float *albedo,
+                           __global const float *normal, __global const float *state_old,
+                           __global float *state_new, __global T *cur, __global T *warp,
+                           __global float *mv, int w, int h, int wp, int hp, int depth_inverted,
+                           float msx, float msy, float inv_exposure, float pq_scale, float keep,
+                           int demod, int use_mask, float eps, float tol, float dfloor)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (x >= wp || y >= hp) return;
+    const long np_ = (long)hp * wp, q = (long)y * wp + x;
+    if (x >= w || y >= h) {
+        for (int c = 0; c < CUR; ++c) ST(cur, c * np_ + q, 0.0f);
+        for (int c = 0; c < WARP; ++c) ST(warp, c * np_ + q, 0.0f);
+        return;
+    }
+    const int p = y * w + x, plane = w * h;
+    float L[3];
+    for (int c = 0; c < 3; ++c) {
+        const float a = fin(albedo[3 * p + c], 0.0f);
+        const float v = fin(color[3 * p + c], 0.0f) * inv_exposure;
+        L[c] = pq_encode(v / material(a, demod, eps), pq_scale);
+        ST(cur, c * np_ + q, L[c]);
+        ST(cur, (3 + c) * np_ + q, a);
+        ST(cur, (6 + c) * np_ + q, fin(normal[3 * p + c], 0.0f));
+    }
+    float d = fin(depth[p], depth_inverted ? 0.0f : 1.0f);
+    d = depth_inverted ? d : 1.0f - d;
+    ST(cur, 9 * np_ + q, d);
+    const float mx = fin(motion[2 * p], 0.0f) * msx, my = fin(motion[2 * p + 1], 0.0f) * msy;
+    mv[p] = mx;
+    mv[plane + p] = my;
+    /* the previous state at this pixel's previous position (bilinear, zero outside) */
+    const float xs = (float)x + mx, ys = (float)y + my;
+    const int x0 = (int)floor(xs), y0 = (int)floor(ys);
+    const float ax = xs - (float)x0, ay = ys - (float)y0;
+    const float w00 = tap_w(x0, y0, w, h, 1.0f - ax, 1.0f - ay);
+    const float w10 = tap_w(x0 + 1, y0, w, h, ax, 1.0f - ay);
+    const float w01 = tap_w(x0, y0 + 1, w, h, 1.0f - ax, ay);
+    const float w11 = tap_w(x0 + 1, y0 + 1, w, h, ax, ay);
+    const int cx0 = clamp(x0, 0, w - 1), cx1 = clamp(x0 + 1, 0, w - 1);
+    const int cy0 = clamp(y0, 0, h - 1), cy1 = clamp(y0 + 1, 0, h - 1);
+    float s[STATE];
+    for (int c = 0; c < STATE; ++c) {
+        __global const float *o = state_old + c * plane;
+        s[c] = o[cy0 * w + cx0] * w00 + o[cy0 * w + cx1] * w10 + o[cy1 * w + cx0] * w01
+             + o[cy1 * w + cx1] * w11;
+    }
+    float m = 1.0f;
+    if (use_mask) {
+        const float rel = fabs(s[7] - d) / (tol * fmax(d, s[7]) + dfloor);
+        m = clamp(2.0f - rel, 0.0f, 1.0f);
+    }
+    m = m * keep;
+    for (int c = 0; c < 3; ++c) {
+        const float w1 = s[c] * keep, w2 = s[4 + c] * keep;
+        ST(warp, c * np_ + q, w1);
+        ST(warp, (4 + c) * np_ + q, w2);
+        state_new[c * plane + p] = L[c];
+        state_new[(4 + c) * plane + p] = w1;
+    }
+    ST(warp, 3 * np_ + q, m);
+    ST(warp, 7 * np_ + q, m * s[3]);
+    state_new[3 * plane + p] = m;
+    state_new[7 * plane + p] = d;
+}
+
+/** @param[in]  hist  [3,H,W] float32 the previous output's lighting (PQ)
+ *  @param[in]  mv    [2,h,w] float32 render-pixel motion
+ *  @param[out] prev  [3s^2,hp,wp] T: hist warped, pixel-unshuffled (channel c*s*s + i*s + j)
+ *  NDRange: (W, H); H = h s, W = w s. */
+__kernel void nsrd_prev(__global const float *hist, __global const float *mv, __global T *prev,
+                        int h, int w, int H, int W, int hp, int wp, int s, float keep)
+{
+    const int X = get_global_id(0), Y = get_global_id(1);
+    if (X >= W || Y >= H) return;
+    const float fs = (float)s;
+    /* the render motion here: bilinear, half-pixel centres, edge-clamped (ONNX Resize
+     * linear half_pixel, torch interpolate align_corners=False), in output pixels */
+    float u = ((float)X + 0.5f) / fs - 0.5f, v = ((float)Y + 0.5f) / fs - 0.5f;
+    u = clamp(u, 0.0f, (float)(w - 1));
+    v = clamp(v, 0.0f, (float)(h - 1));
+    const int u0 = (int)floor(u), v0 = (int)floor(v);
+    const int u1 = min(u0 + 1, w - 1), v1 = min(v0 + 1, h - 1);
+    const float fu = u - (float)u0, fv = v - (float)v0;
+    const int plane = h * w;
+    float m[2];
+    for (int c = 0; c < 2; ++c) {
+        __global const float *q = mv + c * plane;
+        const float top = q[v0 * w + u0] * (1.0f - fu) + q[v0 * w + u1] * fu;
+        const float bot = q[v1 * w + u0] * (1.0f - fu) + q[v1 * w + u1] * fu;
+        m[c] = (top * (1.0f - fv) + bot * fv) * fs;
+    }
+    const float xs = (float)X + m[0], ys = (float)Y + m[1];
+    const int x0 = (int)floor(xs), y0 = (int)floor(ys);
+    const float ax = xs - (float)x0, ay = ys - (float)y0;
+    const float w00 = tap_w(x0, y0, W, H, 1.0f - ax, 1.0f - ay);
+    const float w10 = tap_w(x0 + 1, y0, W, H, ax, 1.0f - ay);
+    const float w01 = tap_w(x0, y0 + 1, W, H, 1.0f - ax, ay);
+    const float w11 = tap_w(x0 + 1, y0 + 1, W, H, ax, ay);
+    const int cx0 = clamp(x0, 0, W - 1), cx1 = clamp(x0 + 1, 0, W - 1);
+    const int cy0 = clamp(y0, 0, H - 1), cy1 = clamp(y0 + 1, 0, H - 1);
+    const long P = (long)H * W, np_ = (long)hp * wp;
+    const long o = (long)(Y / s) * wp + X / s;
+    const int sub = (Y % s) * s + X % s;
+    for (int c = 0; c < 3; ++c) {
+        __global const float *q = hist + c * P;
+        const float r = q[(long)cy0 * W + cx0] * w00 + q[(long)cy0 * W + cx1] * w10
+                      + q[(long)cy1 * W + cx0] * w01 + q[(long)cy1 * W + cx1] * w11;
+        ST(prev, (c * s * s + sub) * np_ + o, r * keep);
+    }
+}
+
+/** @param[in]  y          [3s^2,hp,wp] T: the network's output
+ *  @param[in]  state      [8,h,w] float32: this frame's state (channels 0-2: the lighting)
+ *  @param[in]  albedo_hr  [H,W,3] float32
+ *  @param[out] hist       [3,H,W] float32: the output lighting (PQ, in [0, 1])
+ *  @param[out] out        [H,W,3] float32 linear, times the exposure
+ *  NDRange: (W, H). */
+__kernel void nsrd_finish(__global const T *y, __global const float *state,
+                          __global const float *albedo_hr, __global float *hist,
+                          __global float *out, int h, int w, int H, int W, int hp, int wp, int s,
+                          float jx, float jy, float inv_pq_scale, int demod, float eps)
+{
+    const int X = get_global_id(0), Y = get_global_id(1);
+    if (X >= W || Y >= H) return;
+    const float fs = (float)s;
+    const float bu = clamp(((float)X + 0.5f) / fs - 0.5f - jx, 0.0f, (float)(w - 1));
+    const float bv = clamp(((float)Y + 0.5f) / fs - 0.5f - jy, 0.0f, (float)(h - 1));
+    const int b0 = (int)floor(bu), c0 = (int)floor(bv);
+    const int b1 = min(b0 + 1, w - 1), c1 = min(c0 + 1, h - 1);
+    const float fb = bu - (float)b0, fc = bv - (float)c0;
+    const long np_ = (long)hp * wp, o = (long)(Y / s) * wp + X / s, P = (long)H * W;
+    const long Q = (long)Y * W + X;
+    const int sub = (Y % s) * s + X % s;
+    for (int c = 0; c < 3; ++c) {
+        __global const float *q = state + c * h * w;
+        const float top = q[c0 * w + b0] * (1.0f - fb) + q[c0 * w + b1] * fb;
+        const float bot = q[c1 * w + b0] * (1.0f - fb) + q[c1 * w + b1] * fb;
+        const float base = top * (1.0f - fc) + bot * fc;
+        const float l = clamp(LD(y, (c * s * s + sub) * np_ + o) + base, 0.0f, 1.0f);
+        hist[c * P + Q] = l;
+        const float a = fin(albedo_hr[3 * Q + c], 0.0f);
+        out[3 * Q + c] = pq_decode(l, inv_pq_scale) * material(a, demod, eps);
+    }
+}

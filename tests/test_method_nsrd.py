@@ -1,0 +1,136 @@
+"""The NSRD room (clss/methods/nsrd/): the OpenCL frame step against its whole-frame ONNX
+twin in fp32 and fp16 at 2x and 4x over a reset, with the carried state (render-res
+history, previous output lighting, ConvLSTM h) compared too; the two ablation configs;
+the named error without G-buffers; the registry entry; flat device memory.
+
+Tolerances (per frame): fp32 |d| <= 1e-4 * max|ref| + 1e-4 * |ref| on every output pixel
+(the PQ decode near its peak is ill-conditioned in float32), 2e-5 on the state, the
+history and h; fp16 (half storage of the network's tensors) 2e-2 * max|ref| + 2e-2 *
+|ref| on the output, 1e-2 on the history and h.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import clss
+from clss import methods
+from clss.methods.nsrd import networks as nets
+from clss.pipeline.contract import MissingInputError
+from helpers import RESET_AT, frames
+
+RENDER = (13, 17)          # odd: the network runs on an even padded size inside
+GB = ("albedo", "normal", "albedo_hr")
+
+
+def _gb(f):
+    return {k: f.gbuffers[k] for k in GB}
+
+
+def _weights(scale, **kw):
+    cfg = nets.make_config(scale, **kw)
+    w = nets.init_weights(cfg, seed=3)
+    w["out.weight"] = w["out.weight"] * 10      # a network output that matters
+    return cfg, w
+
+
+def _run(dev, scale, precision, n=7, **kw):
+    cfg, w = _weights(scale, **kw)
+    ours = clss.Upscaler(method="nsrd", scale=scale, device=dev, precision=precision,
+                         weights=(cfg, w))
+    twin = methods.twin("nsrd", RENDER, scale, weights=(cfg, w))
+    tol = 1e-4 if precision == "fp32" else 2e-2
+    stol = 2e-5 if precision == "fp32" else 1e-2
+    for i, f in enumerate(frames(RENDER, n, scale=scale)):
+        reset = i == RESET_AT
+        a = ours.step(f.color, f.depth, f.motion, f.jitter, reset=reset, **_gb(f))
+        b = twin.step(f.color, f.depth, f.motion, f.jitter, reset=reset, **_gb(f))
+        assert a.shape == b.shape == (*ours.output_size, 3) and a.dtype == np.float32
+        d = np.abs(a - b)
+        assert (d <= tol * np.abs(b).max() + tol * np.abs(b)).all(), \
+            f"{precision} x{scale} frame {i}: max |d| {d.max():.3g}"
+        fs = ours._fs
+        for name, mine, ref in (("state", fs.state, twin.st["state"][0]),
+                                ("hist", fs.hist, twin.st["hist"][0]),
+                                ("h", fs.lstm[0], twin.st["h"])):
+            dd = np.abs(fs.dev.to_host(mine).reshape(ref.shape) - ref).max()
+            # the state is float32 in both precisions
+            assert dd <= (2e-5 if name == "state" else stol), \
+                f"{precision} x{scale} frame {i}: {name} max |d| {dd:.3g}"
+    return ours, twin
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("scale", [2.0, 4.0])
+def test_frame_step_matches_its_onnx_twin(scale, precision, dev):
+    ours, _ = _run(dev, scale, precision)
+    st = ours._fs.dev.to_host(ours._fs.state)
+    # the history is used: the mask is 1 in places (this scene's camera moves fast, and a
+    # depth test without the camera's own depth change rejects much of it) and frame
+    # i-2's lighting is there
+    assert (st[3] == 1).mean() > 0.2 and np.abs(st[4:7]).max() > 0
+
+
+@pytest.mark.parametrize("kw", [{"demod": False}, {"mask": False}])
+def test_ablations_match_the_twin(kw, dev):
+    ours, _ = _run(dev, 2.0, "fp32", n=6, **kw)
+    st = ours._fs.dev.to_host(ours._fs.state)
+    if "mask" in kw:
+        assert (st[3] == 1).all()
+
+
+def test_reset_clears_the_history(dev):
+    seq = frames(RENDER, 3, scale=2.0)
+    up = clss.Upscaler(method="nsrd", scale=2, device=dev, weights="untrained")
+    for f in seq:
+        up.step(f.color, f.depth, f.motion, f.jitter, **_gb(f))
+    st = up._fs.dev.to_host(up._fs.state)
+    assert st[3].any() and st[4:7].any()
+    f = seq[0]
+    up.step(f.color, f.depth, f.motion, f.jitter, reset=True, **_gb(f))
+    st = up._fs.dev.to_host(up._fs.state)
+    assert st[0:3].any() and not st[3:7].any()     # only the current frame's lighting
+
+
+def test_missing_gbuffers_is_the_named_error(dev):
+    f = frames(RENDER, 1, scale=2.0)[0]
+    up = clss.Upscaler(method="nsrd", scale=2, device=dev, weights="untrained")
+    with pytest.raises(MissingInputError, match="nsrd.*albedo, normal, albedo_hr"):
+        up.step(f.color, f.depth, f.motion, f.jitter)
+    with pytest.raises(MissingInputError, match="albedo_hr"):
+        up.step(f.color, f.depth, f.motion, f.jitter, albedo=f.gbuffers["albedo"],
+                normal=f.gbuffers["normal"])
+
+
+def test_scale_must_be_an_integer(dev):
+    with pytest.raises(ValueError, match="integer scales"):
+        clss.Upscaler(method="nsrd", scale=2.5, device=dev, weights="untrained")
+    cfg, w = _weights(2.0)
+    with pytest.raises(ValueError, match="trained for scale 2"):
+        clss.Upscaler(method="nsrd", scale=4, device=dev, weights=(cfg, w))
+
+
+def test_step_device_and_flat_memory(dev):
+    import pyopencl.array as cla
+    seq = frames(RENDER, 4, scale=2.0)
+    up = clss.Upscaler(method="nsrd", scale=2, device=dev, weights="untrained")
+    ref = clss.Upscaler(method="nsrd", scale=2, device=dev, weights="untrained")
+    q = up.dev.queue
+    sizes = set()
+    for _ in range(3):
+        for f in seq:
+            arrs = {k: cla.to_device(q, np.ascontiguousarray(v, np.float32)) for k, v in
+                    (("color", f.color), ("depth", f.depth), ("motion", f.motion))}
+            gb = {k: cla.to_device(q, v) for k, v in _gb(f).items()}
+            a = up.step_device(arrs["color"], arrs["depth"], arrs["motion"], f.jitter, **gb).get()
+            b = ref.step(f.color, f.depth, f.motion, f.jitter, **_gb(f))
+            assert np.array_equal(a, b)
+            sizes.add(up.device_bytes())
+    assert len(sizes) == 1          # nothing allocated per frame
+    with pytest.raises(MissingInputError):
+        up.step_device(arrs["color"], arrs["depth"], arrs["motion"], f.jitter)
+
+
+def test_registry_entry():
+    s = methods.spec("nsrd")
+    assert s.gbuffers == GB and s.twin and "nsrd" not in methods.PLANNED

@@ -1,0 +1,172 @@
+"""The torch twin of the NSRD frame step (clss/methods/nsrd/): the same network under the
+same weight names, the same demodulation, depth-test mask, accumulative warps, sub-pixel
+output and re-modulation, differentiable and batched. tests/test_nsrd_torch.py holds it
+to the OpenCL step over frames with a reset; weights_tools/nsrd_train.py trains it.
+
+Tensors are NCHW float32: colour linear (/ exposure), depth reversed-Z, motion in render
+pixels (previous = p + motion), G-buffers as the contract's. The state between frames is
+a dict: "state" [N,8,h,w] (render-res history: lighting PQ, mask, warped lighting of the
+frame before, depth), "hist" [N,3,H,W] (the previous output's lighting, PQ), "h", "c"
+[N,hid,hp,wp] (ConvLSTM); None = a fresh sequence.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from clss.methods.nsrd import networks as nets
+from clss.pipeline.contract import PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS
+
+
+def pq_encode(x, nits=PQ_NITS):
+    y = (x * (nits / PQ_PEAK_NITS)).clamp(0.0, 1.0)
+    ym = y.pow(PQ_M1)
+    return ((PQ_C1 + PQ_C2 * ym) / (1.0 + PQ_C3 * ym)).pow(PQ_M2)
+
+
+def pq_decode(e, nits=PQ_NITS):
+    ep = e.clamp(0.0, 1.0).pow(1.0 / PQ_M2)
+    y = ((ep - PQ_C1).clamp_min(0.0) / (PQ_C2 - PQ_C3 * ep)).pow(1.0 / PQ_M1)
+    return y * (PQ_PEAK_NITS / nits)
+
+
+class NsrdNet(nn.Module):
+    """The network of networks.build_network; `state_dict()` keys are the weight names."""
+
+    def __init__(self, cfg, weights: dict | None = None):
+        super().__init__()
+        self.cfg = dict(cfg)
+        self.convs = nn.ModuleDict()
+        for name, (co, ci, k) in nets.layer_shapes(cfg).items():
+            self.convs[name.replace(".", "_")] = nn.Conv2d(ci, co, k, padding=k // 2,
+                                                           stride=2 if name == "dn" else 1)
+        w = weights if weights is not None else nets.init_weights(cfg)
+        self.load_state_dict({k: torch.from_numpy(np.asarray(v, np.float32)) for k, v in w.items()})
+
+    # the weight names have dots (ga.f.weight); ModuleDict keys cannot
+    def state_dict(self, *a, **kw):
+        sd = super().state_dict(*a, **kw)
+        return type(sd)((_rname(k), v) for k, v in sd.items())
+
+    def load_state_dict(self, sd, strict=True):
+        return super().load_state_dict({_tname(k): v for k, v in sd.items()}, strict=strict)
+
+    def numpy_weights(self) -> dict:
+        return {k: v.detach().cpu().numpy().astype(np.float32) for k, v in self.state_dict().items()}
+
+    def c(self, name, x):
+        return self.convs[name.replace(".", "_")](x)
+
+    def rcab(self, x, name):
+        r = self.c(f"{name}.1", F.leaky_relu(self.c(f"{name}.0", x), nets.ALPHA))
+        a = r.mean((2, 3), keepdim=True)
+        a = torch.sigmoid(self.c(f"{name}.a1", F.relu(self.c(f"{name}.a0", a))))
+        return x + r * a
+
+    def forward(self, cur, warp, prev, h, c):
+        x = torch.cat([cur, warp], 1)
+        gated = F.leaky_relu(self.c("ga.f", x), nets.ALPHA) * torch.sigmoid(self.c("ga.g", x))
+        xt = torch.cat([gated, F.leaky_relu(self.c("pf", prev), nets.ALPHA),
+                        F.leaky_relu(self.c("cf", cur), nets.ALPHA), h], 1)
+        i, f, o, g = torch.chunk(self.c("lstm", xt), 4, 1)
+        c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
+        h = torch.sigmoid(o) * torch.tanh(c)
+        d = self.rcab(F.leaky_relu(self.c("dn", h), nets.ALPHA), "r1")
+        u = self.rcab(F.pixel_shuffle(self.c("up", d), 2) + h, "r0")
+        return self.c("out", u), h, c
+
+
+def _tname(k):
+    """weight name (ga.f.weight, r1.a0.bias) -> module key (convs.ga_f.weight)."""
+    layer, p = k.rsplit(".", 1)
+    return f"convs.{layer.replace('.', '_')}.{p}"
+
+
+def _rname(k):
+    layer, p = k[len("convs."):].rsplit(".", 1)
+    return f"{layer.replace('_', '.')}.{p}"
+
+
+def warp(x, m):
+    """Backward warp of x [N,C,H,W] by pixel motion m [N,2,H,W]: bilinear, zeros outside
+    (GridSample align_corners=0), as the kernels' tap weights."""
+    N, _, H, W = x.shape
+    xs = torch.arange(W, dtype=x.dtype, device=x.device).view(1, 1, W) + m[:, 0]
+    ys = torch.arange(H, dtype=x.dtype, device=x.device).view(1, H, 1) + m[:, 1]
+    grid = torch.stack([(2 * xs + 1) / W - 1, (2 * ys + 1) / H - 1], -1)
+    return F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+
+
+def material(albedo, demod=True):
+    if not demod:
+        return torch.ones_like(albedo)
+    return torch.where(albedo >= nets.DEMOD_EPS, albedo, torch.ones_like(albedo))
+
+
+def depth_mask(d, dw):
+    rel = (dw - d).abs() / (nets.DEPTH_TOL * torch.maximum(d, dw) + nets.DEPTH_FLOOR)
+    return (2.0 - rel).clamp(0.0, 1.0)
+
+
+class TorchStep:
+    """The frame step, batched. `step(...)` -> (output [N,3,H,W] linear, next state)."""
+
+    def __init__(self, net: NsrdNet, nits=PQ_NITS):
+        self.net, self.cfg, self.nits = net, net.cfg, float(nits)
+        self.s = int(self.cfg["scale"])
+
+    def prepare(self, color, depth, motion, albedo, normal, state, keep):
+        """Render resolution: the network's cur and warp inputs and the next state."""
+        L = pq_encode(color / material(albedo, self.cfg["demod"]), self.nits)
+        if state is None:
+            state = color.new_zeros(color.shape[0], nets.STATE, *color.shape[2:])
+        smp = warp(state, motion)
+        m = depth_mask(depth, smp[:, 7:8]) if self.cfg["mask"] else torch.ones_like(depth)
+        m = m * keep
+        w1, w2 = smp[:, 0:3] * keep, smp[:, 4:7] * keep
+        v2 = m * smp[:, 3:4]
+        cur = torch.cat([L, albedo, normal, depth], 1)
+        return cur, torch.cat([w1, m, w2, v2], 1), torch.cat([L, m, w1, depth], 1)
+
+    def prev(self, hist, motion, keep):
+        """The previous output's lighting warped at output resolution by the bilinearly
+        upsampled motion, pixel-unshuffled to render resolution."""
+        N, _, h, w = motion.shape
+        H, W = h * self.s, w * self.s
+        if hist is None:
+            return motion.new_zeros(N, 3 * self.s ** 2, h, w)
+        m = F.interpolate(motion, size=(H, W), mode="bilinear", align_corners=False) * self.s
+        return F.pixel_unshuffle(warp(hist, m) * keep, self.s)
+
+    def finish(self, y, L, jitters, albedo_hr, lo=0.0):
+        """y [N,3s^2,h,w] (cropped) -> (lighting PQ [N,3,H,W], output linear)."""
+        N, _, h, w = L.shape
+        H, W = h * self.s, w * self.s
+        grid = torch.cat([torch.from_numpy(nets.base_grid((h, w), (H, W), j)) for j in jitters])
+        base = F.grid_sample(L, grid.to(L), mode="bilinear", padding_mode="border",
+                             align_corners=False)
+        lhr = (F.pixel_shuffle(y, self.s) + base).clamp(lo, 1.0)
+        return lhr, pq_decode(lhr, self.nits) * material(albedo_hr, self.cfg["demod"])
+
+    def step(self, color, depth, motion, albedo, normal, albedo_hr, jitters, st, reset,
+             lo=0.0):
+        """reset: bool tensor [N]. st: the state dict or None."""
+        N, _, h, w = color.shape
+        st = st or {}
+        keep = (~reset).to(color.dtype).view(N, 1, 1, 1)
+        cur, wp, state = self.prepare(color, depth, motion, albedo, normal, st.get("state"), keep)
+        prev = self.prev(st.get("hist"), motion, keep)
+        hp, wpd = nets.pad2(h), nets.pad2(w)
+        pad = (0, wpd - w, 0, hp - h)
+        hid = self.cfg["hid"]
+        hs = st.get("h")
+        if hs is None:
+            hs = color.new_zeros(N, hid, hp, wpd)
+            cs = hs
+        else:
+            hs, cs = hs * keep, st["c"] * keep
+        y, hs, cs = self.net(F.pad(cur, pad), F.pad(wp, pad), F.pad(prev, pad), hs, cs)
+        lhr, out = self.finish(y[:, :, :h, :w], state[:, 0:3], jitters, albedo_hr, lo)
+        return out, {"state": state, "hist": lhr, "h": hs, "c": cs}

@@ -1,0 +1,212 @@
+"""NSRD's recipe (`python -m weights_tools train nsrd --data DIR --out DIR`): the paper's
+loss (section 3.4: smooth L1 + SSIM on each frame, + the temporal loss between
+consecutive outputs) on recurrent windows of --window frames, the first a reset (every
+state empty), carrying the whole state (render-res history, the previous output's
+lighting, the ConvLSTM) through the window as the frame step does. The loss is taken on
+the display values the evaluation compares (ACES filmic + sRGB OETF, clss.io.tonemap) of
+the re-modulated output, without the patch margin (the margin feeds the warps what lies
+just outside the patch).
+
+--no-demod and --no-mask train the paper's two ablations (material 1 everywhere; the
+occlusion mask 1 everywhere); the flags go into the weights' config, so the OpenCL step
+runs the ablation the network was trained for.
+
+Writes --out/checkpoint.pt (every minute; --resume continues), loss.png, train.json and
+weights.safetensors (the file the OpenCL step loads).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import numpy as np
+
+from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, load_sequences,
+                        lr_cosine, plot_losses, save_checkpoint)
+
+REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale", "albedo",
+            "normal", "albedo_hr")
+
+
+def add_arguments(t):
+    t.add_argument("--data", required=True, help="directory of DATA.md .npz sequences with "
+                                                "G-buffers (one integer scale)")
+    t.add_argument("--out", required=True, help="directory for checkpoint.pt, loss.png, "
+                                                "train.json, weights.safetensors")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--steps", type=int, default=1200)
+    t.add_argument("--batch", type=int, default=8)
+    t.add_argument("--window", type=int, default=4, help="frames per recurrent window")
+    t.add_argument("--patch", type=int, default=24, help="patch size, render pixels (loss area)")
+    t.add_argument("--margin", type=int, default=4, help="render pixels around the patch")
+    t.add_argument("--lr", type=float, default=2e-3)
+    t.add_argument("--widths", default="default", help="default or fast (networks.WIDTHS)")
+    t.add_argument("--no-demod", action="store_true", help="ablation: no demodulation")
+    t.add_argument("--no-mask", action="store_true", help="ablation: no occlusion mask")
+    t.add_argument("--ssim", type=float, default=0.2, help="weight of 1 - SSIM")
+    t.add_argument("--temporal", type=float, default=0.5, help="weight of the temporal loss")
+    t.add_argument("--beta", type=float, default=0.02, help="smooth-L1 transition")
+    t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    t.add_argument("--max-minutes", type=float, default=0.0,
+                   help="stop (and write the weights) after this many minutes; the cosine "
+                        "schedule is still the one of --steps")
+    t.add_argument("--resume", action="store_true", help="continue from --out/checkpoint.pt")
+
+
+def display(x):
+    """clss.io.tonemap in torch (ACES filmic, then the sRGB OETF): the metric's domain."""
+    import torch
+    x = x.clamp_min(0.0)
+    y = ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(0.0, 1.0)
+    return torch.where(y <= 0.0031308, 12.92 * y,
+                       1.055 * y.clamp_min(0.0031308).pow(1 / 2.4) - 0.055)
+
+
+def _nchw(a, torch):
+    a = np.asarray(a, np.float32)
+    return torch.from_numpy(np.ascontiguousarray(a.transpose(0, 3, 1, 2) if a.ndim == 4 else a[:, None]))
+
+
+def _prepare(seqs, torch):
+    out = []
+    for s in seqs:
+        r = np.asarray(s["reset"], bool).copy()
+        r[0] = True
+        out.append({"color": _nchw(s["color"], torch), "depth": _nchw(s["depth"], torch),
+                    "motion": _nchw(s["motion"], torch), "albedo": _nchw(s["albedo"], torch),
+                    "normal": _nchw(s["normal"], torch), "albedo_hr": _nchw(s["albedo_hr"], torch),
+                    "ref": _nchw(s["reference"], torch), "jitter": np.asarray(s["jitter"], np.float32),
+                    "reset": r, "scale": s["scale"], "name": s["name"]})
+    return out
+
+
+def make_batch(seqs, batch, window, R, rng):
+    """[window] lists of per-frame batches (render crops R x R, output crops R*s), the
+    resets [window] bool tensors (True at the window's first frame and at cuts)."""
+    import torch
+    keys = ("color", "depth", "motion", "albedo", "normal")
+    fr = [{k: [] for k in keys + ("albedo_hr", "ref", "jitter", "reset")} for _ in range(window)]
+    for _ in range(batch):
+        s = seqs[int(rng.integers(len(seqs)))]
+        T, _, h, w = s["color"].shape
+        sc = s["scale"]
+        t0 = int(rng.integers(0, T - window + 1))
+        y0 = int(rng.integers(0, h - R + 1))
+        x0 = int(rng.integers(0, w - R + 1))
+        for j in range(window):
+            t = t0 + j
+            for k in keys:
+                fr[j][k].append(s[k][t, :, y0:y0 + R, x0:x0 + R])
+            for k in ("albedo_hr", "ref"):
+                fr[j][k].append(s[k][t, :, sc * y0:sc * (y0 + R), sc * x0:sc * (x0 + R)])
+            fr[j]["jitter"].append(s["jitter"][t])
+            fr[j]["reset"].append(bool(j == 0 or s["reset"][t]))
+    for f in fr:
+        for k in keys + ("albedo_hr", "ref"):
+            f[k] = torch.stack(f[k])
+        f["reset"] = torch.tensor(f["reset"])
+    return fr
+
+
+def window_loss(step, fr, m, args):
+    """The window through the step; the loss of every frame (smooth L1 + SSIM) and of
+    every consecutive pair (temporal), on the display values inside the margin."""
+    import torch.nn.functional as F
+    from .trainloop import ssim, temporal
+    st, total, prev = None, 0.0, None
+    for f in fr:
+        out, st = step.step(f["color"], f["depth"], f["motion"], f["albedo"], f["normal"],
+                            f["albedo_hr"], f["jitter"], st, f["reset"], lo=1e-5)
+        a = display(out)[:, :, m:-m, m:-m]
+        b = display(f["ref"])[:, :, m:-m, m:-m]
+        total = total + F.smooth_l1_loss(a, b, beta=args.beta) + args.ssim * (1.0 - ssim(a, b))
+        if prev is not None:
+            total = total + args.temporal * temporal(a, prev[0], b, prev[1])
+        prev = (a, b)
+    return total / len(fr)
+
+
+def cmd_train(args):
+    import torch
+    from clss.methods.nsrd import networks as nets
+    from .nsrd_torch import NsrdNet, TorchStep
+    torch.set_num_threads(max(1, args.threads))
+    torch.manual_seed(args.seed)
+    rng = np.random.default_rng(args.seed)
+    os.makedirs(args.out, exist_ok=True)
+    seqs = _prepare(load_sequences(args.data, args.window, REQUIRED), torch)
+    sc = seqs[0]["scale"]
+    R = args.patch + 2 * args.margin
+    if R % 2:
+        raise TrainError(f"--patch {args.patch} + 2 x --margin {args.margin} must be even "
+                         "(the network's down/up level)")
+    h, w = seqs[0]["color"].shape[2:]
+    if R > min(h, w):
+        raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
+                         f"{h}x{w} frames")
+    try:
+        cfg = nets.make_config(sc, args.widths, demod=not args.no_demod, mask=not args.no_mask)
+    except ValueError as e:
+        raise TrainError(str(e)) from None
+    net = NsrdNet(cfg, nets.init_weights(cfg, args.seed))
+    step = TorchStep(net)
+    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+    ck = os.path.join(args.out, "checkpoint.pt")
+    start, history, spent = 0, {"nsrd": []}, 0.0
+    if args.resume:
+        if not os.path.isfile(ck):
+            raise TrainError(f"--resume: no {ck}")
+        st = torch.load(ck, weights_only=False)
+        net.load_state_dict(st["net"])
+        opt.load_state_dict(st["opt"])
+        start, history, spent = st["step"], st["history"], st.get("seconds", 0.0)
+        rng = np.random.default_rng([args.seed, start])
+    print(f"nsrd x{sc}: {len(seqs)} sequences, windows of {args.window} frames, patches "
+          f"{args.patch}+2x{args.margin} render px, widths {cfg['name']} "
+          f"({nets.macs_per_pixel(cfg) / 1e3:.0f} kMAC per render pixel), demod {cfg['demod']}, "
+          f"mask {cfg['mask']}, {args.steps} steps of {args.batch}; loss smooth L1 + "
+          f"{args.ssim:g} (1-SSIM) + {args.temporal:g} temporal on display values", flush=True)
+    m = args.margin * sc
+    t0 = time.time() - spent
+    last_p = last_c = last_plot = time.time()
+    it = start
+    for it in range(start, args.steps):
+        for g in opt.param_groups:
+            g["lr"] = lr_cosine(args.lr, it, args.steps)
+        loss = window_loss(step, make_batch(seqs, args.batch, args.window, R, rng), m, args)
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        opt.step()
+        history["nsrd"].append(loss.item())
+        now = time.time()
+        stop = args.max_minutes > 0 and now - t0 > args.max_minutes * 60
+        if now - last_p > PROGRESS_S or it == args.steps - 1 or stop:
+            last_p = now
+            el = now - t0
+            print(f"step {it + 1}/{args.steps} loss {np.mean(history['nsrd'][-50:]):.4f} "
+                  f"elapsed {fmt_s(el)} eta "
+                  f"{fmt_s(el / (it + 1) * (args.steps - it - 1))}", flush=True)
+        if now - last_plot > PLOT_S:
+            last_plot = now
+            plot_losses(history, os.path.join(args.out, "loss.png"), ["nsrd"])
+        if now - last_c > CHECKPOINT_S:
+            last_c = now
+            save_checkpoint(ck, {"net": net.state_dict(), "opt": opt.state_dict(), "step": it + 1,
+                                 "history": history, "seconds": now - t0})
+        if stop:
+            print(f"--max-minutes {args.max_minutes:g} reached at step {it + 1}", flush=True)
+            break
+    done = len(history["nsrd"])
+    save_checkpoint(ck, {"net": net.state_dict(), "opt": opt.state_dict(), "step": done,
+                         "history": history, "seconds": time.time() - t0})
+    plot_losses(history, os.path.join(args.out, "loss.png"), ["nsrd"])
+    nets.save(os.path.join(args.out, "weights.safetensors"), cfg, net.numpy_weights())
+    info = {"scale": sc, "config": cfg, "steps_done": done,
+            "args": {k: v for k, v in vars(args).items() if k != "fn"},
+            "seconds": time.time() - t0, "final_loss": float(np.mean(history["nsrd"][-50:]))}
+    with open(os.path.join(args.out, "train.json"), "w") as f:
+        json.dump(info, f, indent=1)
+    print(f"wrote {os.path.join(args.out, 'weights.safetensors')} ({fmt_s(info['seconds'])})")
+    return 0
