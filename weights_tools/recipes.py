@@ -11,7 +11,7 @@ import sys
 
 # method (a name of clss.methods) -> the module of its recipe
 RECIPES = {"clss": "weights_tools.train", "mlp": "weights_tools.mlp_train",
-           "nsrr": "weights_tools.nsrr_train"}
+           "nsrr": "weights_tools.nsrr_train", "nsrd": "weights_tools.nsrd_train"}
 DEFAULT = "clss"
 
 

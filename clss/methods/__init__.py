@@ -14,11 +14,11 @@ import importlib
 # name -> room (a module under clss.methods), in the order `clss methods` lists them:
 # the baselines first, then by increasing cost.
 ROOMS = {"bicubic": "bicubic", "jbicubic": "clss", "clss-rules": "clss", "clss": "clss",
-         "mlp": "mlp", "mlp-nofeature": "mlp", "nsrr": "nsrr"}
+         "mlp": "mlp", "mlp-nofeature": "mlp", "nsrr": "nsrr", "nsrd": "nsrd"}
 # Names that earlier versions used (`--mode rules|net`, eval's `rules` / `net`).
 ALIASES = {"rules": "clss-rules", "rule": "clss-rules", "net": "clss", "clss-net": "clss"}
 # Methods the paper seeds describe that are not built yet (`clss methods` lists them as such).
-PLANNED = {"nsrd": "NSRD (Li et al. 2024), issue 21"}
+PLANNED: dict = {}
 
 
 def names() -> list[str]:
