@@ -510,7 +510,8 @@ class FrameStep(nn.Module):
             half = self.classifier(x.contiguous(memory_format=torch.channels_last))
             logits = F.interpolate(half, scale_factor=2.0, mode="bilinear",
                                    align_corners=False)[:, :, :H, :W]
-            reject = logits[:, 0:3].argmax(1, keepdim=True) == 0
+            # the rule's depth test is a floor under the classifier (reference.md section 7)
+            reject = (logits[:, 0:3].argmax(1, keepdim=True) == 0) | (p["dd_hr"] > self.depth_threshold)
         else:
             reject = p["dd_hr"] > self.depth_threshold
         ghost = reject | ~valid

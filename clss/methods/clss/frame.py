@@ -244,8 +244,8 @@ class FrameStep:
     RESOLVE_RULE = RESOLVE + ("hist_out out flags depth_threshold cap inv_pq_scale exposure debug "
                               "dbg").split()
     RESOLVE_NET = RESOLVE + "cls_in aux flags W16 H16".split()
-    COMPOSE = ("cls_in aux logits W H W16 H16 w1 b1 w2 b2 hist hist_out out flags cap inv_pq_scale "
-               "exposure debug dbg").split()
+    COMPOSE = ("cls_in aux logits W H W16 H16 w1 b1 w2 b2 hist hist_out out flags depth_threshold "
+               "cap inv_pq_scale exposure debug dbg").split()
 
     def _launches(self):
         """Every launch of a frame with its arguments bound once (clss.device.Launch): a

@@ -414,7 +414,9 @@ def _stage6_classify(g, mode, HW, classifier, depth_threshold, hr: _Upsampled,
         dbg["dbg_logits"] = logits
         vis = g.op("ArgMax", g.chan(logits, slice(0, 3)), axis=1, keepdims=1,
                    select_last_index=0)
-        reject = g.op("Equal", vis, g.i64(0))
+        # the rule's depth test is a floor under the classifier (reference.md section 7)
+        reject = g.op("Or", g.op("Equal", vis, g.i64(0)),
+                      g.op("Greater", hr.depth_diff, g.const(float(depth_threshold))))
     else:
         reject = g.op("Greater", hr.depth_diff, g.const(float(depth_threshold)))
     ghost = g.op("Or", reject, g.op("Not", warped.valid))

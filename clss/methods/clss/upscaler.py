@@ -127,7 +127,8 @@ class ClssUpscaler(MethodUpscaler):
     PQ-encoded internal colour (False: LDR in [0, 1] in and out). cap: sample-counter
     cap (default 4 for rules, 32 for net).
     Keyword-only: exposure (colour is divided by it on entry, multiplied on exit),
-    nits (linear 1.0 in cd/m2 for PQ), depth_threshold (rules), sanitize, classifier /
+    nits (linear 1.0 in cd/m2 for PQ), depth_threshold (the depth test: the rule in rules,
+    the floor under the classifier in net; > 1 turns it off), sanitize, classifier /
     composition (onnx.ModelProto, instead of weights), profile (per-stage times),
     debug (keep blend weight, ghost and depth difference for `debug_views`),
     classifier_backend (None: clss.Model, else onnxruntime with a warning;
