@@ -11,7 +11,8 @@
  *   nsrd_finish   output resolution: the network's sub-pixel output shuffled to H x W,
  *                 plus the current lighting bilinear at the output pixel centres
  *                 (jitter-aware), clipped to [0, 1] (the next frame's history), PQ
- *                 decoded and re-modulated by the output-resolution material
+ *                 decoded and re-modulated by the output-resolution material (albedo_hr
+ *                 filtered 3x3 binomial, see networks.MATERIAL_FILTER)
  *
  * The state (float32, render resolution): channels 0-2 the lighting L_i (PQ), 3 the mask
  * M_i (frame i-1 valid at frame i), 4-6 A_i = L_{i-1} warped to frame i, 7 depth. One
@@ -208,14 +209,25 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
     const long np_ = (long)hp * wp, o = (long)(Y / s) * wp + X / s, P = (long)H * W;
     const long Q = (long)Y * W + X;
     const int sub = (Y % s) * s + X % s;
+    /* the material: albedo_hr filtered by the 3x3 binomial (networks.MATERIAL_FILTER),
+     * edge-clamped, then the eps rule */
+    const int xm = max(X - 1, 0), xp = min(X + 1, W - 1), ym = max(Y - 1, 0), yp = min(Y + 1, H - 1);
+    const int xs3[3] = {xm, X, xp}, ys3[3] = {ym, Y, yp};
+    const float k3[3] = {0.25f, 0.5f, 0.25f};
     for (int c = 0; c < 3; ++c) {
+        float a = 0.0f;
+        for (int j = 0; j < 3; ++j) {
+            float r = 0.0f;
+            for (int i = 0; i < 3; ++i)
+                r += k3[i] * fin(albedo_hr[3 * ((long)ys3[j] * W + xs3[i]) + c], 0.0f);
+            a += k3[j] * r;
+        }
         __global const float *q = state + c * h * w;
         const float top = q[c0 * w + b0] * (1.0f - fb) + q[c0 * w + b1] * fb;
         const float bot = q[c1 * w + b0] * (1.0f - fb) + q[c1 * w + b1] * fb;
         const float base = top * (1.0f - fc) + bot * fc;
         const float l = clamp(LD(y, (c * s * s + sub) * np_ + o) + base, 0.0f, 1.0f);
         hist[c * P + Q] = l;
-        const float a = fin(albedo_hr[3 * Q + c], 0.0f);
         out[3 * Q + c] = pq_decode(l, inv_pq_scale) * material(a, demod, eps);
     }
 }

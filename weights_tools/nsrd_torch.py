@@ -105,6 +105,15 @@ def material(albedo, demod=True):
     return torch.where(albedo >= nets.DEMOD_EPS, albedo, torch.ones_like(albedo))
 
 
+def material_hr(albedo_hr, demod=True):
+    """The output-resolution material: albedo_hr filtered (networks.MATERIAL_FILTER,
+    separable, edge-clamped), then the eps rule."""
+    k = torch.tensor(nets.MATERIAL_FILTER, dtype=albedo_hr.dtype, device=albedo_hr.device)
+    k2 = (k[:, None] * k[None, :]).view(1, 1, 3, 3).repeat(3, 1, 1, 1)
+    a = F.conv2d(F.pad(albedo_hr, (1, 1, 1, 1), mode="replicate"), k2, groups=3)
+    return material(a, demod)
+
+
 def depth_mask(d, dw):
     rel = (dw - d).abs() / (nets.DEPTH_TOL * torch.maximum(d, dw) + nets.DEPTH_FLOOR)
     return (2.0 - rel).clamp(0.0, 1.0)
@@ -148,7 +157,7 @@ class TorchStep:
         base = F.grid_sample(L, grid.to(L), mode="bilinear", padding_mode="border",
                              align_corners=False)
         lhr = (F.pixel_shuffle(y, self.s) + base).clamp(lo, 1.0)
-        return lhr, pq_decode(lhr, self.nits) * material(albedo_hr, self.cfg["demod"])
+        return lhr, pq_decode(lhr, self.nits) * material_hr(albedo_hr, self.cfg["demod"])
 
     def step(self, color, depth, motion, albedo, normal, albedo_hr, jitters, st, reset,
              lo=0.0):

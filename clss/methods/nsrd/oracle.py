@@ -93,7 +93,11 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
     lhr = g.op("Clip", g.add(y, base), g.const(np.float32(0.0)), g.const(np.float32(1.0)),
                name="hist_out")
     lin = pq_decode(g, lhr, nits, name="lin")
-    g.mul(lin, _material(g, "albedo_hr", cfg["demod"]))
+    k = np.asarray(nets.MATERIAL_FILTER, np.float32)
+    k2 = np.tile((k[:, None] * k[None, :])[None, None], (3, 1, 1, 1))
+    ahr = g.op("Conv", g.op("Pad", "albedo_hr", g.i64([0, 0, 1, 1, 0, 0, 1, 1]), mode="edge"),
+               g.const(k2), group=3, kernel_shape=[3, 3])
+    g.mul(lin, _material(g, ahr, cfg["demod"]))
     g.nodes[-1].output[0] = "output"
     g.nodes[-1].name = "output"
     vi = value_info
