@@ -212,16 +212,14 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
     /* the material: albedo_hr filtered by the 3x3 binomial (networks.MATERIAL_FILTER),
      * edge-clamped, then the eps rule */
     const int xm = max(X - 1, 0), xp = min(X + 1, W - 1), ym = max(Y - 1, 0), yp = min(Y + 1, H - 1);
-    const int xs3[3] = {xm, X, xp}, ys3[3] = {ym, Y, yp};
-    const float k3[3] = {0.25f, 0.5f, 0.25f};
+    const long r0 = (long)ym * W, r1 = (long)Y * W, r2 = (long)yp * W;
     for (int c = 0; c < 3; ++c) {
-        float a = 0.0f;
-        for (int j = 0; j < 3; ++j) {
-            float r = 0.0f;
-            for (int i = 0; i < 3; ++i)
-                r += k3[i] * fin(albedo_hr[3 * ((long)ys3[j] * W + xs3[i]) + c], 0.0f);
-            a += k3[j] * r;
-        }
+#define AHR(r, x) fin(albedo_hr[3 * ((r) + (x)) + c], 0.0f)
+        const float a0 = 0.25f * AHR(r0, xm) + 0.5f * AHR(r0, X) + 0.25f * AHR(r0, xp);
+        const float a1 = 0.25f * AHR(r1, xm) + 0.5f * AHR(r1, X) + 0.25f * AHR(r1, xp);
+        const float a2 = 0.25f * AHR(r2, xm) + 0.5f * AHR(r2, X) + 0.25f * AHR(r2, xp);
+#undef AHR
+        const float a = 0.25f * a0 + 0.5f * a1 + 0.25f * a2;
         __global const float *q = state + c * h * w;
         const float top = q[c0 * w + b0] * (1.0f - fb) + q[c0 * w + b1] * fb;
         const float bot = q[c1 * w + b0] * (1.0f - fb) + q[c1 * w + b1] * fb;
