@@ -54,8 +54,10 @@ class NsrdFrameStep:
         self.cur = e((1, nets.CUR, hp, wp), prec)
         self.warp = e((1, nets.WARP, hp, wp), prec)
         self.prev = e((1, 3 * s * s, hp, wp), prec)
+        # the ConvLSTM state: the network reads hc[0] and writes hc[1], copied back on the
+        # device after it (fixed buffers keep the network's recorded launch plan; feeding
+        # alternating buffers re-recorded it every frame, ~30 ms of host time)
         self.hc = [(e((1, hid, hp, wp), prec), e((1, hid, hp, wp), prec)) for _ in range(2)]
-        self.hc_i = 0
         self.y = e((1, 3 * s * s, hp, wp), prec)
         self.out = e((H, W, 3), dtype=f32)
         # zeroed once: the padding of prev is never written, and no kernel reads
@@ -93,7 +95,7 @@ class NsrdFrameStep:
     @property
     def lstm(self):
         """(h, c) of the ConvLSTM after the last frame."""
-        return self.hc[self.hc_i]
+        return self.hc[0]
 
     def run(self, color, depth, motion, albedo, normal, albedo_hr, jitter, reset, *,
             depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0, out=None):
@@ -115,7 +117,7 @@ class NsrdFrameStep:
                        (12, f(float(jitter[0]))), (13, f(float(jitter[1]))),
                        (14, f(PQ_PEAK_NITS / self.nits * exposure))):
             fin.bind(idx, v)
-        (h_in, c_in), (h_out, c_out) = self.hc[self.hc_i], self.hc[1 - self.hc_i]
+        (h_in, c_in), (h_out, c_out) = self.hc
         ev = []
         if reset:
             for a in (h_in, c_in):
@@ -128,12 +130,14 @@ class NsrdFrameStep:
                                  "h": h_in, "c": c_in},
                                 out={"y": self.y, "h_out": h_out, "c_out": c_out}, events=ne)
         ev += [("network", e) for e in ne or ()]
+        q = self.dev.queue
+        ev += [("network", cl.enqueue_copy(q, dst.data, src.data, byte_count=src.nbytes))
+               for src, dst in ((h_out, h_in), (c_out, c_in))]
         last = fin()
         ev.append(("finish", last))
         if self.profile:
             self.events.extend(ev)
         self.cur_i = 1 - self.cur_i
-        self.hc_i = 1 - self.hc_i
         return out, last
 
     def stage_ms(self) -> dict:

@@ -1,0 +1,118 @@
+"""The NSRD frame step as a bench case: clss.Upscaler(method="nsrd")'s device path against
+onnxruntime on the same step's whole-frame ONNX graph (clss/methods/nsrd/oracle.py), at
+540p -> 1080p (2x) and 270p -> 1080p (4x). NSRD reads G-buffers: the synthetic frame
+gets a synthetic material (render and output resolution) and normal. Hooked into the
+suite by `_method_cases("nsrdcases", "nsrd_cases")` (bench/suite.py)."""
+from __future__ import annotations
+
+import numpy as np
+
+from clss.device import storage_dtype
+
+from .cases import BenchCase, Setup
+from .netcases import BENCH_JITTER, NET_TOL, median_ms, synthetic_frame
+
+NSRD_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
+              "tiny": (((16, 32), 2.0), ((16, 32), 4.0))}
+
+
+def synthetic_gbuffers(h: int, w: int, scale: float) -> dict:
+    """albedo [h,w,3], normal [h,w,3] (unit), albedo_hr [H,W,3]: a seeded texture whose
+    render-resolution samples are the output-resolution one's every s-th pixel."""
+    s = int(scale)
+    g = np.random.default_rng([21, h, w, s])
+    ahr = g.uniform(0.0, 1.0, (h * s, w * s, 3)).astype(np.float32)
+    n = g.normal(0, 1, (h, w, 3)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return {"albedo": np.ascontiguousarray(ahr[::s, ::s]), "normal": n, "albedo_hr": ahr}
+
+
+def _device_inputs(dev, h, w, scale):
+    color, depth, motion = synthetic_frame(h, w)
+    gb = synthetic_gbuffers(h, w, scale)
+    d = [dev.to_device(a, "fp32") for a in (color, depth, motion)]
+    dg = {k: dev.to_device(v, "fp32") for k, v in gb.items()}
+    return (color, depth, motion), gb, d, dg
+
+
+def nsrd_frame_case(render_size, scale: float, tier: str, weights="untrained") -> BenchCase:
+    from clss.methods.nsrd import networks as nets
+    from clss.methods.nsrd.oracle import build_graph, frame_feeds, zero_state
+    from clss.methods.nsrd.upscaler import load_weights
+    h, w = render_size
+    s = int(scale)
+    H, W = h * s, w * s
+    cfg, wts, _ = load_weights(weights, scale)
+    flops = 2.0 * nets.macs_per_pixel(cfg) * h * w
+
+    def build(dev, prec, params):
+        from clss import Upscaler
+        up = Upscaler(method="nsrd", scale=scale, device=dev, precision=prec, weights=(cfg, wts))
+        (color, depth, motion), gb, d, dg = _device_inputs(dev, h, w, scale)
+        jitter = np.array(BENCH_JITTER, np.float32)
+        out = dev.empty((H, W, 3), dtype=np.float32)
+        up.step_device(*d, jitter, reset=True, out=out, **dg)
+        calls = [0]
+
+        def run():
+            # the first timed frame is a reset (as the oracle's zero state), then history
+            up.step_device(*d, jitter, reset=calls[0] == 0, out=out, **dg)
+            calls[0] += 1
+            return [out]
+        twin = build_graph((h, w), cfg, wts)
+        x = {"color": color.transpose(2, 0, 1)[None].copy(), "depth": depth[None, None].copy(),
+             "motion": motion.transpose(2, 0, 1)[None].copy(), "jitter": jitter}
+        feeds = frame_feeds(cfg, x, gb, zero_state(cfg, (h, w)), True)
+        st = storage_dtype(prec).itemsize
+        io = (color.nbytes + depth.nbytes + motion.nbytes + gb["albedo"].nbytes * 2
+              + gb["albedo_hr"].nbytes + H * W * 3 * 4)
+        # state and previous output read and written (float32), the network's inputs
+        hist = (2 * nets.STATE * h * w + 2 * 3 * H * W) * 4
+        net_io = (nets.CUR + nets.WARP + 2 * 3 * s * s + 4 * cfg["hid"]) * h * w
+        return Setup(run, twin, feeds, NET_TOL[prec], io + hist + net_io * st,
+                     io + hist + net_io * 4,
+                     post=lambda outs: [outs[0].transpose(2, 0, 1)[None]], out_index=0,
+                     note=f"widths {cfg['name']}")
+    return BenchCase(f"frame step nsrd x{scale:g}", "frame", "frame", tier, flops, build,
+                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
+
+
+def nsrd_cases(tiers=("1080p",)) -> list:
+    return [nsrd_frame_case(rs, s, t) for t in tiers for rs, s in NSRD_TIERS.get(t, ())]
+
+
+def measure(render_size, scale, prec="fp32", frames=3, weights=None, ort_threads=2, ort=True):
+    """Warm wall ms of the NSRD frame step (median of `frames` after one warm-up), its
+    per-stage event times, and onnxruntime's wall ms on the whole-frame graph, same
+    machine, same run."""
+    from clss import Upscaler
+    from clss.device import get_device
+    dev = get_device()
+    h, w = render_size
+    s = int(scale)
+    H, W = h * s, w * s
+    (color, depth, motion), gb, d, dg = _device_inputs(dev, h, w, scale)
+    up = Upscaler(method="nsrd", scale=scale, device=dev, precision=prec, weights=weights,
+                  profile=True)
+    out = dev.empty((H, W, 3), dtype=np.float32)
+    up.step_device(*d, BENCH_JITTER, reset=True, out=out, **dg)
+    up.reset_timings()
+    ms = median_ms(lambda: up.step_device(*d, BENCH_JITTER, out=out, **dg), frames)
+    res = {"shape": f"{h}x{w}->{H}x{W}", "precision": prec, "ms": ms,
+           "stages_ms": up.stage_ms(), "widths": up.cfg["name"]}
+    if ort:
+        from clss.methods.nsrd.oracle import OracleNsrd
+        o = OracleNsrd((h, w), scale, weights=(up.cfg, up.weights), threads=ort_threads)
+        o.step(color, depth, motion, BENCH_JITTER, reset=True, **gb)
+        res["ort_ms"] = median_ms(lambda: o.step(color, depth, motion, BENCH_JITTER, **gb), frames)
+        res["speedup"] = res["ort_ms"] / res["ms"]
+    return res
+
+
+if __name__ == "__main__":
+    import json
+    import sys
+    prec = sys.argv[1] if len(sys.argv) > 1 else "fp32"
+    tier = sys.argv[2] if len(sys.argv) > 2 else "1080p"
+    for rs, s in NSRD_TIERS[tier][::-1]:
+        print(json.dumps(measure(rs, s, prec), indent=None), flush=True)
