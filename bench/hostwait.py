@@ -1,7 +1,7 @@
 """Host waits: the wall time of one frame step against the OpenCL event time it enqueues.
 
 Per method whose step enqueues kernels and times its stages (clss, clss-rules, jbicubic,
-nsrr) and size: two upscalers
+nsrr, nsrd: its G-buffers synthetic, bench/nsrdcases.py) and size: two upscalers
 on the same synthetic frame, warmed with a few frames first (PoCL compiles and specialises
 kernels on their first launches):
 
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-METHODS = ("clss", "clss-rules", "jbicubic", "nsrr")
+METHODS = ("clss", "clss-rules", "jbicubic", "nsrr", "nsrd")
 # The methods whose frame step is CLSS's FrameStep (the enqueue column times its `run`);
 # another method's row has wall and event time only. (The MLP upscaler times no stage
 # events yet, so it has no row.)
@@ -48,8 +48,13 @@ def measure(dev, method: str, render_size, scale: float, prec: str = "fp32", war
     jitter = (0.25, -0.125)
     q = dev.queue
 
+    gb = {}
+    if method == "nsrd":            # the one method here that reads G-buffers
+        from .nsrdcases import synthetic_gbuffers
+        gb = {k: dev.to_device(v, "fp32") for k, v in synthetic_gbuffers(h, w, scale).items()}
+
     def step(up, i):
-        up.step_device(*d, jitter, reset=i == 0, out=out)
+        up.step_device(*d, jitter, reset=i == 0, out=out, **gb)
 
     # Both upscalers warmed, then their frames alternate, so that a machine whose load
     # drifts (a shared CI host) weighs on the wall and the event time alike.

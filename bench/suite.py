@@ -75,7 +75,9 @@ def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list
                               ("mlp frame step", _method_cases("mlpcases", "mlp_cases"),
                                "clss/methods/mlp/upscaler.py"),
                               ("nsrr frame step", _method_cases("nsrrcases", "nsrr_cases"),
-                               "clss/methods/nsrr/upscaler.py")):
+                               "clss/methods/nsrr/upscaler.py"),
+                              ("nsrd frame step", _method_cases("nsrdcases", "nsrd_cases"),
+                               "clss/methods/nsrd/upscaler.py")):
             try:
                 got = fn(tier)
             except Exception as e:
