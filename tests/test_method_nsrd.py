@@ -134,3 +134,41 @@ def test_step_device_and_flat_memory(dev):
 def test_registry_entry():
     s = methods.spec("nsrd")
     assert s.gbuffers == GB and s.twin and "nsrd" not in methods.PLANNED
+
+
+def test_demo_and_upscale_cli(tmp_path, capsys):
+    """`clss demo --methods nsrd` (the scene carries the G-buffers) and `clss upscale
+    --method nsrd` on its EXR frames; without the material channels the named error, one
+    line, nothing written."""
+    import glob
+    import json
+    import os
+    import shutil
+
+    import OpenImageIO as oiio
+
+    from clss.cli import main
+    demo = tmp_path / "demo"
+    assert main(["demo", "-o", str(demo), "--frames", "3", "--size", "32x18", "--scale", "2",
+                 "--methods", "nsrd", "--workers", "1"]) == 0
+    assert "nsrd" in json.loads((demo / "metrics.json").read_text())["methods"]
+    out = tmp_path / "up"
+    assert main(["upscale", str(demo / "input"), "--method", "nsrd", "--scale", "2",
+                 "-o", str(out)]) == 0
+    assert len(glob.glob(str(out / "frame.*.exr"))) == 3
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for p in sorted(glob.glob(str(demo / "input" / "frame.*.exr"))):
+        buf = oiio.ImageBuf(p)
+        names = buf.spec().channelnames
+        keep = ("R", "G", "B", "Z", "mv.x", "mv.y")
+        oiio.ImageBufAlgo.channels(buf, tuple(names.index(c) for c in keep),
+                                   newchannelnames=keep).write(str(bare / os.path.basename(p)))
+    shutil.copy(demo / "input" / "jitter.json", bare)
+    capsys.readouterr()
+    assert main(["upscale", str(bare), "--method", "nsrd", "--scale", "2",
+                 "-o", str(tmp_path / "none")]) == 2
+    err = capsys.readouterr().err
+    assert "method 'nsrd' needs albedo, normal, albedo_hr" in err and "Traceback" not in err
+    assert "nothing was written" in err
+    assert not (tmp_path / "none").exists() or not os.listdir(tmp_path / "none")
