@@ -25,11 +25,11 @@ def _hist(up):
     return h[:, :fs.H, :fs.W]
 
 
-def _run(dev, scale, precision, n=7, **kw):
+def _run(dev, scale, precision, n=7, weights="untrained", **kw):
     seq = frames(RENDER, n, scale=scale)
     ours = clss.Upscaler(method="nsrr", scale=scale, device=dev, precision=precision,
-                         weights="untrained", **kw)
-    twin = methods.twin("nsrr", RENDER, scale, weights="untrained", **kw)
+                         weights=weights, **kw)
+    twin = methods.twin("nsrr", RENDER, scale, weights=weights, **kw)
     tol = 1e-4 if precision == "fp32" else 1e-2
     htol = 1e-4 if precision == "fp32" else 2e-2
     for i, f in enumerate(seq):
@@ -50,6 +50,17 @@ def _run(dev, scale, precision, n=7, **kw):
 def test_frame_step_matches_its_onnx_twin(scale, precision, dev):
     ours, _ = _run(dev, scale, precision)
     # the history really is used: slot 1 (frame i-2, warped twice) is not empty
+    assert np.abs(_hist(ours)[12:24]).max() > 0
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+def test_leaky_activation_matches_its_onnx_twin(precision, dev):
+    """act "leaky" (the shipped weights' hidden activation: LeakyRelu, alpha 0.1)."""
+    cfg = nets.make_config("default", act="leaky")
+    w = nets.init_weights(cfg, seed=4)
+    w["un.9.weight"] = w["un.9.weight"] * 10        # the U-Net's output matters
+    ours, twin = _run(dev, 4.0, precision, weights=(cfg, w))
+    assert any(n.op_type == "LeakyRelu" for n in twin.model.graph.node)
     assert np.abs(_hist(ours)[12:24]).max() > 0
 
 

@@ -18,10 +18,10 @@ from weights_tools.nsrr_torch import NsrrNet, TorchStep, pq_decode, rgbd_of
 RENDER = (13, 17)
 
 
-@pytest.mark.parametrize("fill,scale", [("zero", 4.0), ("duplicate", 2.0)])
-def test_torch_twin_matches_the_opencl_step(fill, scale, dev):
+@pytest.mark.parametrize("fill,scale,act", [("zero", 4.0, "leaky"), ("duplicate", 2.0, "relu")])
+def test_torch_twin_matches_the_opencl_step(fill, scale, act, dev):
     torch.set_num_threads(1)
-    cfg = nets.make_config("default")
+    cfg = nets.make_config("default", act=act)
     w = nets.init_weights(cfg, seed=5)
     # make the reweighting and the history matter: a non-trivial last layer
     w["un.9.weight"] = w["un.9.weight"] * 10

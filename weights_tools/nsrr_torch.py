@@ -46,6 +46,8 @@ class NsrrNet(nn.Module):
         super().__init__()
         self.cfg = dict(cfg)
         self.n_prev = int(cfg["n_prev"])
+        op, alpha = nets.act_of(cfg)
+        self.act = (lambda x: F.leaky_relu(x, alpha)) if op == "LeakyRelu" else F.relu
         s = nets.layer_shapes(cfg)
         self.fe = _convs(s, [f"fe.{i}" for i in range(3)])
         self.rw = _convs(s, [f"rw.{i}" for i in range(3)])
@@ -60,27 +62,28 @@ class NsrrNet(nn.Module):
     def features(self, rgbd):
         y = rgbd
         for c in self.fe:
-            y = F.relu(c(y))
+            y = self.act(c(y))
         return torch.cat([rgbd, y], 1)
 
     def reconstruct(self, stack):
         """stack [N, 12(n+1), Hp, Wp] (padded to 4) -> PQ colour [N, 3, Hp, Wp]."""
         n = self.n_prev
         rgbd = torch.cat([stack[:, FEAT * k:FEAT * k + 4] for k in range(n + 1)], 1)
-        r = F.relu(self.rw[0](rgbd))
-        r = F.relu(self.rw[1](r))
+        act = self.act
+        r = act(self.rw[0](rgbd))
+        r = act(self.rw[1](r))
         r = (torch.tanh(self.rw[2](r)) + 1.0) * (nets.WEIGHT_SCALE / 2)
         parts = [stack[:, FEAT * k:FEAT * (k + 1)] * r[:, k - 1:k] for k in range(1, n + 1)]
         x = torch.cat([stack[:, :FEAT]] + parts, 1)
         u = self.un
 
         def two(x, a, b):
-            return F.relu(u[b](F.relu(u[a](x))))
+            return act(u[b](act(u[a](x))))
         e1 = two(x, 0, 1)
         e2 = two(F.max_pool2d(e1, 2), 2, 3)
         b = two(F.max_pool2d(e2, 2), 4, 5)
         d2 = two(torch.cat([F.interpolate(b, scale_factor=2, mode="nearest"), e2], 1), 6, 7)
-        d1 = F.relu(u[8](torch.cat([F.interpolate(d2, scale_factor=2, mode="nearest"), e1], 1)))
+        d1 = act(u[8](torch.cat([F.interpolate(d2, scale_factor=2, mode="nearest"), e1], 1)))
         return u[9](d1)
 
 

@@ -44,7 +44,15 @@ def add_arguments(t):
     t.add_argument("--batch", type=int, default=8)
     t.add_argument("--patch", type=int, default=64, help="patch size, output pixels (loss area)")
     t.add_argument("--margin", type=int, default=4, help="render pixels around the patch")
-    t.add_argument("--lr", type=float, default=2e-3)
+    t.add_argument("--lr", type=float, default=5e-4)
+    t.add_argument("--warmup", type=int, default=100,
+                   help="steps of linear learning-rate warm-up before the cosine decay")
+    t.add_argument("--act", choices=("leaky", "relu"), default="leaky",
+                   help="hidden activation (networks.act_of): with ReLU the U-Net's last "
+                        "hidden layer died within 10 steps (docs/methods/nsrr.md)")
+    t.add_argument("--last-init", choices=("zero", "small"), default="zero",
+                   help="un.9 (the U-Net's output conv) starts at zero, so the residual "
+                        "network starts exactly at the base; small: 0.1 x He")
     t.add_argument("--widths", default="default", help="default, fast or paper (networks.WIDTHS)")
     t.add_argument("--n-prev", type=int, default=4)
     t.add_argument("--no-residual", action="store_true",
@@ -101,6 +109,36 @@ def ycbcr(x, chroma=1.0):
     k = torch.tensor([1.0, chroma, chroma], dtype=x.dtype, device=x.device).view(1, 3, 1, 1)
     off = torch.tensor([0.0, 0.5, 0.5], dtype=x.dtype, device=x.device).view(1, 3, 1, 1)
     return y * k + off
+
+
+class AliveProbe:
+    """Is the U-Net alive? Watches un.8 (the last hidden layer, whose units feed the
+    output conv): `take()` -> (fraction of its units positive on >= 1 % of the pixels,
+    fraction of positive activations), over the steps since the last take. The first
+    shipped training had 0.2 % positive: the output was the residual base alone."""
+
+    def __init__(self, net):
+        self.units, self.pos, self.n, self.last = 0.0, 0.0, 0, (float("nan"), float("nan"))
+        self._cur = None
+        net.un[8].register_forward_hook(self._hook)
+
+    def _hook(self, mod, inp, out):
+        self._cur = out.detach()
+
+    def record(self):
+        if self._cur is None:
+            return
+        p = (self._cur > 0).float()
+        self.units += float((p.mean((0, 2, 3)) >= 0.01).float().mean())
+        self.pos += float(p.mean())
+        self.n += 1
+        self._cur = None
+
+    def take(self):
+        if self.n:
+            self.last = (self.units / self.n, self.pos / self.n)
+        self.units, self.pos, self.n = 0.0, 0.0, 0
+        return self.last
 
 
 def _prepare(seqs, torch):
@@ -201,8 +239,12 @@ def cmd_train(args):
     if pr + 2 * args.margin > min(h, w):
         raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
                          f"{h}x{w} frames")
-    cfg = nets.make_config(args.widths, args.n_prev, residual=not args.no_residual)
-    net = NsrrNet(cfg, nets.init_weights(cfg, args.seed))
+    cfg = nets.make_config(args.widths, args.n_prev, residual=not args.no_residual, act=args.act)
+    w0 = nets.init_weights(cfg, args.seed)
+    if args.last_init == "zero" and cfg["residual"]:
+        w0["un.9.weight"][:] = 0.0
+    net = NsrrNet(cfg, w0)
+    probe = AliveProbe(net)
     step = TorchStep(net, sc, reset_fill=args.reset_fill)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     perc = RandomFeatures() if args.perceptual == "random" else None
@@ -223,11 +265,15 @@ def cmd_train(args):
           + (f" + {args.l1:g} L1" if args.l1 else "") + f", YCbCr (chroma x{args.chroma:g})"
           + (f" + {args.perceptual_weight} random-feature perceptual" if perc else ""), flush=True)
     m = args.margin * sc
+    gain = [] if cfg["residual"] else None
     t0 = time.time() - spent
     last_p = last_c = last_plot = time.time()
     for it in range(start, args.steps):
+        lr = lr_cosine(args.lr, it, args.steps)
+        if it < args.warmup:
+            lr *= (it + 1) / args.warmup
         for g in opt.param_groups:
-            g["lr"] = lr_cosine(args.lr, it, args.steps)
+            g["lr"] = lr
         rgbd, mot, jit, rst, ref = make_batch(seqs, picks, args.batch, pr, args.margin,
                                               cfg["n_prev"], args.p_short, rng, torch)
         y = forward(step, rgbd, mot, jit, rst)[:, :, m:m + args.patch, m:m + args.patch]
@@ -241,12 +287,23 @@ def cmd_train(args):
         loss.backward()
         opt.step()
         history["nsrr"].append(loss.item())
+        probe.record()
+        if gain is not None:
+            with torch.no_grad():
+                base = step.base(rgbd[-1], jit[-1])
+                if base is not None:
+                    base = base[:, :, m:m + args.patch, m:m + args.patch]
+                    mse = lambda a: float(((a.clamp(0, 1) - ref) ** 2).mean())
+                    gain.append(10 * np.log10(mse(base) / max(mse(y.detach()), 1e-12)))
         now = time.time()
         if now - last_p > PROGRESS_S or it == args.steps - 1:
             last_p = now
             el = now - t0
             mean = np.mean(history["nsrr"][-50:])
-            print(f"step {it + 1}/{args.steps} loss {mean:.4f} elapsed {fmt_s(el)} "
+            alive, pos = probe.take()
+            g = f" vs base {np.mean(gain[-50:]):+.3f} dB" if gain else ""
+            print(f"step {it + 1}/{args.steps} loss {mean:.4f}{g} un.8 alive {alive:.2f} "
+                  f"(positive {pos:.2f}) elapsed {fmt_s(el)} "
                   f"eta {fmt_s(el / (it + 1 - start) * (args.steps - it - 1) if it + 1 > start else 0)}",
                   flush=True)
         if now - last_plot > PLOT_S:
@@ -261,7 +318,8 @@ def cmd_train(args):
     plot_losses(history, os.path.join(args.out, "loss.png"), ["nsrr"])
     nets.save(os.path.join(args.out, "weights.safetensors"), cfg, net.numpy_weights())
     info = {"scale": sc, "config": cfg, "args": {k: v for k, v in vars(args).items() if k != "fn"},
-            "seconds": time.time() - t0, "final_loss": float(np.mean(history["nsrr"][-50:]))}
+            "seconds": time.time() - t0, "final_loss": float(np.mean(history["nsrr"][-50:])),
+            "un8_alive": probe.last[0], "un8_positive": probe.last[1]}
     with open(os.path.join(args.out, "train.json"), "w") as f:
         json.dump(info, f, indent=1)
     print(f"wrote {os.path.join(args.out, 'weights.safetensors')} ({fmt_s(info['seconds'])})")

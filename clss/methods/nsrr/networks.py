@@ -43,6 +43,8 @@ FEAT_LEARNED = 8
 FEAT = 4 + FEAT_LEARNED            # RGB-D + learned
 MAX_PREV = 4
 WEIGHT_SCALE = 10.0                # tanh (-1, 1) -> (0, 10)
+ACTS = ("relu", "leaky")
+LEAKY_ALPHA = 0.1
 OPSET = 18
 
 WIDTHS = {
@@ -54,7 +56,7 @@ WIDTHS = {
 }
 
 
-def make_config(widths="default", n_prev=MAX_PREV, residual=True) -> dict:
+def make_config(widths="default", n_prev=MAX_PREV, residual=True, act="relu") -> dict:
     if isinstance(widths, str):
         if widths not in WIDTHS:
             raise ValueError(f"widths: expected one of {', '.join(WIDTHS)}, got {widths!r}")
@@ -67,7 +69,19 @@ def make_config(widths="default", n_prev=MAX_PREV, residual=True) -> dict:
         raise ValueError(f"n_prev: expected 1..{MAX_PREV}, got {n_prev}")
     w["n_prev"] = n_prev
     w["residual"] = bool(residual)
+    if act not in ACTS:
+        raise ValueError(f"act: expected one of {', '.join(ACTS)}, got {act!r}")
+    if act != "relu":           # configs without the key (older weights) are ReLU
+        w["act"] = act
     return w
+
+
+def act_of(cfg) -> tuple[str, float]:
+    """(ONNX op, alpha) of every hidden layer's activation (the U-Net's, the feature
+    extraction's and the reweighting's first two): "relu" (the paper) or "leaky"
+    (LeakyRelu, slope LEAKY_ALPHA below 0: no unit can die)."""
+    a = cfg.get("act", "relu")
+    return ("LeakyRelu", LEAKY_ALPHA) if a == "leaky" else ("Relu", 0.0)
 
 
 def layer_shapes(cfg) -> dict:
@@ -140,8 +154,9 @@ def load(path) -> tuple[dict, dict]:
 class _G:
     """Nodes and initializers of one network."""
 
-    def __init__(self, weights):
+    def __init__(self, weights, cfg=None):
         self.w, self.nodes, self.inits, self.k, self.used = weights, [], [], 0, set()
+        self.act, self.alpha = act_of(cfg or {})
 
     def name(self, hint):
         self.k += 1
@@ -163,9 +178,14 @@ class _G:
             self.inits.append(numpy_helper.from_array(np.asarray(self.w[key], np.float32), key))
         return key
 
-    def conv(self, x, layer, act="Relu", out=None):
+    def conv(self, x, layer, act="hidden", out=None):
+        """3x3 conv; act "hidden" = the config's hidden activation, None = linear."""
         y = self.op("Conv", x, self.param(f"{layer}.weight"), self.param(f"{layer}.bias"),
                     pads=[1, 1, 1, 1], kernel_shape=[3, 3], out=None if act else out)
+        if act == "hidden":
+            act = self.act
+            if act == "LeakyRelu":
+                return self.op(act, y, out=out, alpha=self.alpha)
         return self.op(act, y, out=out) if act else y
 
     def slice(self, x, c0, c1):
@@ -181,7 +201,7 @@ _vi = value_info
 
 
 def build_features(cfg, weights, h="h", w="w") -> onnx.ModelProto:
-    g = _G(weights)
+    g = _G(weights, cfg)
     y = g.conv(g.conv(g.conv("rgbd", "fe.0"), "fe.1"), "fe.2")
     g.op("Concat", "rgbd", y, axis=1, out="feat")
     return g.model("nsrr_features", [_vi("rgbd", [1, 4, h, w])], [_vi("feat", [1, FEAT, h, w])])
@@ -190,7 +210,7 @@ def build_features(cfg, weights, h="h", w="w") -> onnx.ModelProto:
 def build_reconstruct(cfg, weights, H="H", W="W") -> onnx.ModelProto:
     n = cfg["n_prev"]
     residual = bool(cfg.get("residual", False))
-    g = _G(weights)
+    g = _G(weights, cfg)
     x = "stack"
     # Feature reweighting on the RGB-D of the current and every previous slot.
     rgbd = g.op("Concat", *[g.slice(x, FEAT * k, FEAT * k + 4) for k in range(n + 1)], axis=1)
