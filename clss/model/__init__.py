@@ -28,6 +28,9 @@ from .passes import run_passes
 __all__ = ["Model", "ModelError", "InputError", "UnsupportedModelError"]
 
 
+PLANS_KEPT = 2
+
+
 class Model:
     """An ONNX model loaded for one device and precision.
 
@@ -58,6 +61,7 @@ class Model:
         self._exec = Executor(graph, self.device, precision)
         self._exec.trace()
         self._launch_plan = None        # (bound buffers, commands, outputs): see run_device
+        self._launch_plans: list = []   # the last PLANS_KEPT plans, most recent last
 
     # -- introspection ----------------------------------------------------------------
     @property
@@ -118,7 +122,10 @@ class Model:
         With ``out`` naming every output, the run is a launch plan: the first call
         with a set of input and output buffers records every launch with its
         arguments bound (clss.device.Launch); later calls with the same buffers
-        replay it, one enqueue per launch and nothing else (a frame step's networks)."""
+        replay it, one enqueue per launch and nothing else (a frame step's networks).
+        The last PLANS_KEPT plans are kept: a caller that alternates between two
+        buffer sets (NSRR's double-buffered stack) replays both instead of recording
+        again every call (the intermediates are the load-time memory plan's, shared)."""
         feeds = self._check_device(inputs)
         if out is not None:
             self._check_out(out)
@@ -127,12 +134,16 @@ class Model:
         # The buffers the plan is bound to (held, so that none is freed and its
         # address reused by another array while the plan refers to it).
         key = [feeds[k].base_data for k in self.input_names] + [out[k].base_data for k in self.output_names]
-        plan = self._launch_plan
-        if plan is None or len(plan[0]) != len(key) or any(a is not b for a, b in zip(plan[0], key)):
+        plan = next((p for p in reversed(self._launch_plans) if len(p[0]) == len(key)
+                     and all(a is b for a, b in zip(p[0], key))), None)
+        if plan is None:
             record = []
             res = self._run(dict(feeds), out, events, record)
-            self._launch_plan = (key, record, {k: out[k] for k in self.output_names})
+            plan = (key, record, {k: out[k] for k in self.output_names})
+            self._launch_plans = (self._launch_plans + [plan])[-PLANS_KEPT:]
+            self._launch_plan = plan
             return res
+        self._launch_plan = plan
         for cmd in plan[1]:
             e = cmd()
             if events is not None and e is not None:

@@ -137,8 +137,7 @@ class NsrrFrameStep:
         ev += [("features", e) for e in fe or ()]
         ev.append(("reproject", r()))
         re = [] if self.profile else None
-        # (the launch plan is recorded again when the stack buffer alternates: host work
-        # of a few ms against seconds of convolutions)
+        # (one launch plan per stack buffer: clss.Model keeps both and replays them)
         feeds = {"stack": stack, "base": self.base} if self.residual else {"stack": stack}
         self.reconstruct.run_device(feeds, out={"y": self.y}, events=re)
         ev += [("reconstruct", e) for e in re or ()]
