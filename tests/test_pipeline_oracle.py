@@ -359,12 +359,13 @@ class _VisibilityFromDepthDiff:
     can be checked with expectations that can fail."""
 
     @staticmethod
-    def build():
+    def build(gain=40.0):
+        """gain 0: a classifier that never says visibility ghosting (logit -2 < 0)."""
         from onnx import helper, numpy_helper, TensorProto
         from clss.networks import CLASSIFIER_INPUTS, channel_slices
         wgt = np.zeros((6, 23, 2, 2), np.float32)
-        # 40 x the average of the 2x2 block of depth_difference
-        wgt[0, channel_slices(CLASSIFIER_INPUTS)["depth_difference"]] = 40.0 / 4
+        # gain x the average of the 2x2 block of depth_difference
+        wgt[0, channel_slices(CLASSIFIER_INPUTS)["depth_difference"]] = gain / 4
         b = np.array([-2, 0, 0, 0, 0, 0], np.float32)
         g = helper.make_graph(
             [helper.make_node("Conv", ["x", "W", "B"], ["logits"], kernel_shape=[2, 2], strides=[2, 2])],
@@ -475,6 +476,30 @@ def test_disocclusion_is_flagged(mode):
         assert not ghost[:, :2 * (x0 - 5)].any()
         assert not ghost[:, 2 * (x0 + 11):].any()
         assert not ghost[rows, 2 * (x0 + 1):2 * (x0 + 7)].any()
+
+
+@pytest.mark.parametrize("depth_threshold, flagged", [(O.DEPTH_THRESHOLD, True), (2.0, False)])
+def test_net_depth_test_is_a_floor(depth_threshold, flagged):
+    """Net mode rejects the history where the rule's depth test fires even when the
+    classifier never says visibility ghosting (reference.md s7); a threshold above 1
+    turns the floor off, and then only the classifier decides."""
+    from clss.networks import build_composition
+    up = upscaler("net", classifier=_VisibilityFromDepthDiff.build(gain=0.0),
+                  composition=build_composition(hidden=8), depth_threshold=depth_threshold)
+    for f in range(4):
+        c, d, m, x0 = moving_square(f, jitter=JIT[f])
+        up.step(c, d, m, JIT[f])
+        if f == 0:
+            continue
+        ghost, w_ = up.debug["dbg_ghost"][0, 0], up.debug["dbg_w"][0, 0]
+        vis = up.debug["dbg_logits"][0, 0]
+        assert (vis < 0).all()                   # the classifier says "no visibility" everywhere
+        cols = slice(2 * (x0 - 2), 2 * (x0 - 2) + 2)
+        rows = slice(2 * 7, 2 * 17)
+        assert ghost[rows, cols].all() if flagged else not ghost[rows, cols].any()
+        if flagged:
+            assert np.all(w_[rows, cols] == 1)   # the history is dropped
+        assert not ghost[:, :2 * (x0 - 5)].any()
 
 
 def test_net_graph_inlines_networks_exactly():
