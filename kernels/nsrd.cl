@@ -192,11 +192,14 @@ __kernel void nsrd_prev(__global const float *hist, __global const float *mv, __
  *  @param[in]  albedo_hr  [H,W,3] float32
  *  @param[out] hist       [3,H,W] float32: the output lighting (PQ, in [0, 1])
  *  @param[out] out        [H,W,3] float32 linear, times the exposure
+ *  learned: 1 = y has s^2 more channels, the logits of alpha: the material is then
+ *  alpha * point + (1 - alpha) * filtered (networks.REMODS)
  *  NDRange: (W, H). */
 __kernel void nsrd_finish(__global const T *y, __global const float *state,
                           __global const float *albedo_hr, __global float *hist,
                           __global float *out, int h, int w, int H, int W, int hp, int wp, int s,
-                          float jx, float jy, float inv_pq_scale, int demod, float eps)
+                          float jx, float jy, float inv_pq_scale, int demod, float eps,
+                          int learned)
 {
     const int X = get_global_id(0), Y = get_global_id(1);
     if (X >= W || Y >= H) return;
@@ -213,6 +216,11 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
      * edge-clamped, then the eps rule */
     const int xm = max(X - 1, 0), xp = min(X + 1, W - 1), ym = max(Y - 1, 0), yp = min(Y + 1, H - 1);
     const long r0 = (long)ym * W, r1 = (long)Y * W, r2 = (long)yp * W;
+    float alpha = 0.0f;
+    if (learned) {
+        const float z = LD(y, (3 * s * s + sub) * np_ + o);
+        alpha = 1.0f / (1.0f + exp(-z));
+    }
     for (int c = 0; c < 3; ++c) {
 #define AHR(r, x) fin(albedo_hr[3 * ((r) + (x)) + c], 0.0f)
         const float a0 = 0.25f * AHR(r0, xm) + 0.5f * AHR(r0, X) + 0.25f * AHR(r0, xp);
@@ -226,6 +234,9 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
         const float base = top * (1.0f - fc) + bot * fc;
         const float l = clamp(LD(y, (c * s * s + sub) * np_ + o) + base, 0.0f, 1.0f);
         hist[c * P + Q] = l;
-        out[3 * Q + c] = pq_decode(l, inv_pq_scale) * material(a, demod, eps);
+        float m = material(a, demod, eps);
+        if (learned)
+            m = alpha * material(fin(albedo_hr[3 * Q + c], 0.0f), demod, eps) + (1.0f - alpha) * m;
+        out[3 * Q + c] = pq_decode(l, inv_pq_scale) * m;
     }
 }

@@ -71,9 +71,11 @@ def test_frame_step_matches_its_onnx_twin(scale, precision, dev):
     assert (st[3] == 1).mean() > 0.2 and np.abs(st[4:7]).max() > 0
 
 
-@pytest.mark.parametrize("kw", [{"demod": False}, {"mask": False}])
-def test_ablations_match_the_twin(kw, dev):
-    ours, _ = _run(dev, 2.0, "fp32", n=6, **kw)
+@pytest.mark.parametrize("kw,precision", [({"demod": False}, "fp32"), ({"mask": False}, "fp32"),
+                                          ({"remod": "learned"}, "fp32"),
+                                          ({"remod": "learned"}, "fp16")])
+def test_ablations_and_learned_remod_match_the_twin(kw, precision, dev):
+    ours, _ = _run(dev, 2.0, precision, n=6, **kw)
     st = ours._fs.dev.to_host(ours._fs.state)
     if "mask" in kw:
         assert (st[3] == 1).all()

@@ -1,6 +1,6 @@
 """The torch twin of NSRD (weights_tools/nsrd_torch.py) against the OpenCL frame step
 (clss/methods/nsrd/) over 9 frames with a reset at frame 4, at 4x and 2x (the no-mask
-ablation at 2x): output within 1e-4 * max + 3e-4 * |ref| (fp32) on every pixel, the
+ablation at 2x, the learned re-modulation at 4x): output within 1e-4 * max + 3e-4 * |ref| (fp32) on every pixel, the
 carried state (render-res history, output lighting, ConvLSTM h) within 2e-5."""
 from __future__ import annotations
 
@@ -22,7 +22,8 @@ def _t(a):
     return torch.from_numpy(np.ascontiguousarray(np.asarray(a, np.float32).transpose(2, 0, 1)[None]))
 
 
-@pytest.mark.parametrize("scale,kw", [(4.0, {}), (2.0, {"mask": False})])
+@pytest.mark.parametrize("scale,kw", [(4.0, {}), (2.0, {"mask": False}),
+                                      (4.0, {"remod": "learned"})])
 def test_torch_twin_matches_the_opencl_step(scale, kw, dev):
     torch.set_num_threads(1)
     cfg = nets.make_config(scale, **kw)

@@ -156,8 +156,13 @@ class TorchStep:
         grid = torch.cat([torch.from_numpy(nets.base_grid((h, w), (H, W), j)) for j in jitters])
         base = F.grid_sample(L, grid.to(L), mode="bilinear", padding_mode="border",
                              align_corners=False)
-        lhr = (F.pixel_shuffle(y, self.s) + base).clamp(lo, 1.0)
-        return lhr, pq_decode(lhr, self.nits) * material_hr(albedo_hr, self.cfg["demod"])
+        s2 = 3 * self.s ** 2
+        lhr = (F.pixel_shuffle(y[:, :s2], self.s) + base).clamp(lo, 1.0)
+        m = material_hr(albedo_hr, self.cfg["demod"])
+        if nets.learned_remod(self.cfg):
+            alpha = torch.sigmoid(F.pixel_shuffle(y[:, s2:], self.s))
+            m = alpha * material(albedo_hr, True) + (1.0 - alpha) * m
+        return lhr, pq_decode(lhr, self.nits) * m
 
     def step(self, color, depth, motion, albedo, normal, albedo_hr, jitters, st, reset,
              lo=0.0):

@@ -44,6 +44,9 @@ def add_arguments(t):
     t.add_argument("--widths", default="default", help="default or fast (networks.WIDTHS)")
     t.add_argument("--no-demod", action="store_true", help="ablation: no demodulation")
     t.add_argument("--no-mask", action="store_true", help="ablation: no occlusion mask")
+    t.add_argument("--remod", choices=("blur", "learned"), default="blur",
+                   help="re-modulation: the filtered material, or a learned per-pixel blend "
+                        "of point and filtered (networks.REMODS)")
     t.add_argument("--ssim", type=float, default=0.2, help="weight of 1 - SSIM")
     t.add_argument("--temporal", type=float, default=0.5, help="weight of the temporal loss")
     t.add_argument("--beta", type=float, default=0.02, help="smooth-L1 transition")
@@ -146,7 +149,8 @@ def cmd_train(args):
         raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
                          f"{h}x{w} frames")
     try:
-        cfg = nets.make_config(sc, args.widths, demod=not args.no_demod, mask=not args.no_mask)
+        cfg = nets.make_config(sc, args.widths, demod=not args.no_demod, mask=not args.no_mask,
+                               remod=args.remod)
     except ValueError as e:
         raise TrainError(str(e)) from None
     net = NsrdNet(cfg, nets.init_weights(cfg, args.seed))
@@ -165,7 +169,7 @@ def cmd_train(args):
     print(f"nsrd x{sc}: {len(seqs)} sequences, windows of {args.window} frames, patches "
           f"{args.patch}+2x{args.margin} render px, widths {cfg['name']} "
           f"({nets.macs_per_pixel(cfg) / 1e3:.0f} kMAC per render pixel), demod {cfg['demod']}, "
-          f"mask {cfg['mask']}, {args.steps} steps of {args.batch}; loss smooth L1 + "
+          f"mask {cfg['mask']}, remod {cfg['remod']}, {args.steps} steps of {args.batch}; loss smooth L1 + "
           f"{args.ssim:g} (1-SSIM) + {args.temporal:g} temporal on display values", flush=True)
     m = args.margin * sc
     t0 = time.time() - spent

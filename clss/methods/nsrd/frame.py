@@ -58,7 +58,7 @@ class NsrdFrameStep:
         # device after it (fixed buffers keep the network's recorded launch plan; feeding
         # alternating buffers re-recorded it every frame, ~30 ms of host time)
         self.hc = [(e((1, hid, hp, wp), prec), e((1, hid, hp, wp), prec)) for _ in range(2)]
-        self.y = e((1, 3 * s * s, hp, wp), prec)
+        self.y = e((1, nets.out_channels(cfg), hp, wp), prec)
         self.out = e((H, W, 3), dtype=f32)
         # zeroed once: the padding of prev is never written, and no kernel reads
         # uninitialised memory (half arrays have no pyopencl fill)
@@ -83,7 +83,8 @@ class NsrdFrameStep:
             "finish": dev.prepare(k["nsrd_finish"], (W, H), [
                 self.y.data, self.states[0].data, self.in_albedo_hr.data, self.hist.data,
                 self.out.data, i32(h), i32(w), i32(H), i32(W), i32(hp), i32(wp), i32(s),
-                f(0), f(0), f(PQ_PEAK_NITS / self.nits), demod, eps]),
+                f(0), f(0), f(PQ_PEAK_NITS / self.nits), demod, eps,
+                i32(nets.learned_remod(cfg))]),
         }
         self.events: list[tuple[str, cl.Event]] = []
 

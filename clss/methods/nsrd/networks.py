@@ -59,6 +59,15 @@ DEMOD_EPS = 0.01
 # output (held-out 4x, the bilinear lighting alone: 21.5 dB with point samples, 22.6 dB
 # filtered; docs/methods/nsrd.md).
 MATERIAL_FILTER = (0.25, 0.5, 0.25)
+# Re-modulation ("remod" in the config): "blur", the filtered material above; "learned",
+# a per-output-pixel blend alpha * point + (1 - alpha) * filtered, alpha = sigmoid of s^2
+# more output channels of the network (sub-pixel, like the lighting). Neither fixed
+# material explains the reference everywhere: with the true lighting (the reference box-
+# downsampled to render resolution, upsampled), point samples win on low-frequency
+# textures and lose 2-5 dB on textures finer than the output pixels, the filter the other
+# way round (docs/methods/nsrd.md); the network sees the render-resolution albedo and
+# judges which one a pixel needs.
+REMODS = ("blur", "learned")
 # The occlusion-aware mask (the contract has one kind of motion vector, not the paper's
 # two): the previous frame's depth (reversed-Z, render res, kept on the device), warped
 # bilinearly by the current motion, against the current depth:
@@ -77,7 +86,7 @@ WIDTHS = {
 }
 
 
-def make_config(scale, widths="default", demod=True, mask=True) -> dict:
+def make_config(scale, widths="default", demod=True, mask=True, remod="blur") -> dict:
     s = float(scale)
     if not s.is_integer() or not 2 <= s <= 4:
         raise ValueError(f"scale: NSRD runs at the integer scales 2, 3 and 4 (sub-pixel "
@@ -89,8 +98,21 @@ def make_config(scale, widths="default", demod=True, mask=True) -> dict:
     else:
         w = dict(widths)
         w.setdefault("name", "custom")
-    w.update(scale=int(s), demod=bool(demod), mask=bool(mask))
+    if remod not in REMODS:
+        raise ValueError(f"remod: expected one of {', '.join(REMODS)}, got {remod!r}")
+    w.update(scale=int(s), demod=bool(demod), mask=bool(mask), remod=remod)
     return w
+
+
+def out_channels(cfg) -> int:
+    """The network's output: the lighting (3 s^2, sub-pixel), and with the learned
+    re-modulation s^2 blend logits."""
+    s2 = int(cfg["scale"]) ** 2
+    return 3 * s2 + (s2 if learned_remod(cfg) else 0)
+
+
+def learned_remod(cfg) -> bool:
+    return bool(cfg.get("demod", True)) and cfg.get("remod", "blur") == "learned"
 
 
 def layer_shapes(cfg) -> dict:
@@ -101,7 +123,7 @@ def layer_shapes(cfg) -> dict:
     for name, c in (("r1", D), ("r0", hid)):
         sh.update({f"{name}.0": (c, c, 3), f"{name}.1": (c, c, 3),
                    f"{name}.a0": (max(c // 4, 2), c, 1), f"{name}.a1": (c, max(c // 4, 2), 1)})
-    sh.update({"up": (4 * hid, D, 3), "out": (s2, hid, 3)})
+    sh.update({"up": (4 * hid, D, 3), "out": (out_channels(cfg), hid, 3)})
     return sh
 
 
@@ -185,7 +207,7 @@ class _G:
 
 
 def build_network(cfg, weights, hp="h", wp="w") -> onnx.ModelProto:
-    hid, s2 = cfg["hid"], 3 * cfg["scale"] ** 2
+    hid, s2, so = cfg["hid"], 3 * cfg["scale"] ** 2, out_channels(cfg)
     g = _G(weights)
     x = g.op("Concat", "cur", "warp", axis=1)
     gated = g.op("Mul", g.conv(x, "ga.f", "lrelu"), g.conv(x, "ga.g", "Sigmoid"))
@@ -208,7 +230,7 @@ def build_network(cfg, weights, hp="h", wp="w") -> onnx.ModelProto:
                       [vi("cur", [1, CUR, hp, wp]), vi("warp", [1, WARP, hp, wp]),
                        vi("prev", [1, s2, hp, wp]), vi("h", [1, hid, hp, wp]),
                        vi("c", [1, hid, hp, wp])],
-                      [vi("y", [1, s2, hp, wp]), vi("h_out", [1, hid, hp, wp]),
+                      [vi("y", [1, so, hp, wp]), vi("h_out", [1, hid, hp, wp]),
                        vi("c_out", [1, hid, hp, wp])], __name__, OPSET)
 
 

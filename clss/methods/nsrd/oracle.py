@@ -86,8 +86,8 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
     feeds.update(h="h", c="c")
     g.inline(nets.build_network(cfg, weights, hp, wp), "net", feeds,
              {"y": "y", "h_out": "h_out", "c_out": "c_out"})
-    y = g.slice(g.slice("y", 2, 0, h), 3, 0, w)
-    y = g.op("DepthToSpace", y, blocksize=s, mode="CRD")
+    yc = g.slice(g.slice("y", 2, 0, h), 3, 0, w)
+    y = g.op("DepthToSpace", g.slice(yc, 1, 0, 3 * s * s), blocksize=s, mode="CRD")
     base = g.op("GridSample", L, "base_grid", mode="bilinear", padding_mode="border",
                 align_corners=0)
     lhr = g.op("Clip", g.add(y, base), g.const(np.float32(0.0)), g.const(np.float32(1.0)),
@@ -97,7 +97,13 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
     k2 = np.tile((k[:, None] * k[None, :])[None, None], (3, 1, 1, 1))
     ahr = g.op("Conv", g.op("Pad", "albedo_hr", g.i64([0, 0, 1, 1, 0, 0, 1, 1]), mode="edge"),
                g.const(k2), group=3, kernel_shape=[3, 3])
-    g.mul(lin, _material(g, ahr, cfg["demod"]))
+    mat = _material(g, ahr, cfg["demod"])
+    if nets.learned_remod(cfg):
+        alpha = g.op("Sigmoid", g.op("DepthToSpace", g.slice(yc, 1, 3 * s * s, 4 * s * s),
+                                     blocksize=s, mode="CRD"))
+        mat = g.add(g.mul(alpha, _material(g, "albedo_hr", True)),
+                    g.mul(g.sub(g.const(np.float32(1.0)), alpha), mat))
+    g.mul(lin, mat)
     g.nodes[-1].output[0] = "output"
     g.nodes[-1].name = "output"
     vi = value_info
