@@ -141,10 +141,11 @@ train-mlp: $(STAMP)
 	  cp $(OUT)/train-mlp/nofeature-x$$s/mlp.safetensors clss/weights/mlp_nofeature_x$$s.safetensors; \
 	done
 
-# NSRR (issue 20; docs/methods/nsrr.md): one network per scale, 1100 steps each on one
-# torch thread (about 18 minutes per scale on this 2-core machine, 36 in all), x4 on its own
-# generated 68x120 -> 272x480 sequences, x2 on the CLSS training set; then into the package.
-NSRR_STEPS ?= 1100
+# NSRR (issue 20; docs/methods/nsrr.md): one network per scale, 1200 steps each on one
+# torch thread (34-39 minutes per scale on this 2-core machine while other jobs ran, about
+# 75 in all), x4 on its own generated 68x120 -> 272x480 sequences, x2 on the CLSS training
+# set; then into the package.
+NSRR_STEPS ?= 1200
 .PHONY: train-nsrr
 train-nsrr: train-data $(TRAIN_STAMP)
 	test -f $(DATA)/train4/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train4 --sequences 24 --frames 12 --seed 100 --size 68x120 --scale 4
