@@ -80,7 +80,9 @@ __kernel void nsrd_prepare(__global const float *color, __global const float *de
                            __global float *state_new, __global T *cur, __global T *warp,
                            __global float *mv, int w, int h, int wp, int hp, int depth_inverted,
                            float msx, float msy, float inv_exposure, float pq_scale, float keep,
-                           int demod, int use_mask, float eps, float tol, float dfloor)
+                           int demod, int use_mask, float eps, float tol, float dfloor,
+                           __global const T *h_in, __global const T *c_in, __global T *h_w,
+                           __global T *c_w, int hid, int warp_state)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= wp || y >= hp) return;
@@ -88,6 +90,10 @@ __kernel void nsrd_prepare(__global const float *color, __global const float *de
     if (x >= w || y >= h) {
         for (int c = 0; c < CUR; ++c) ST(cur, c * np_ + q, 0.0f);
         for (int c = 0; c < WARP; ++c) ST(warp, c * np_ + q, 0.0f);
+        for (int c = 0; c < (warp_state ? hid : 0); ++c) {
+            ST(h_w, c * np_ + q, 0.0f);
+            ST(c_w, c * np_ + q, 0.0f);
+        }
         return;
     }
     const int p = y * w + x, plane = w * h;
@@ -139,6 +145,19 @@ __kernel void nsrd_prepare(__global const float *color, __global const float *de
     ST(warp, 7 * np_ + q, m * s[3]);
     state_new[3 * plane + p] = m;
     state_new[7 * plane + p] = d;
+    /* warp_state: the ConvLSTM's h and c warped like the state (render region only, zero
+     * outside it and in the padding), so the cell's memory follows the motion */
+    for (int c = 0; c < (warp_state ? hid : 0); ++c) {
+        const long b = c * np_;
+        const long a00 = (long)cy0 * wp + cx0, a10 = (long)cy0 * wp + cx1;
+        const long a01 = (long)cy1 * wp + cx0, a11 = (long)cy1 * wp + cx1;
+        const float hv = LD(h_in, b + a00) * w00 + LD(h_in, b + a10) * w10
+                       + LD(h_in, b + a01) * w01 + LD(h_in, b + a11) * w11;
+        const float cv = LD(c_in, b + a00) * w00 + LD(c_in, b + a10) * w10
+                       + LD(c_in, b + a01) * w01 + LD(c_in, b + a11) * w11;
+        ST(h_w, b + q, hv * keep);
+        ST(c_w, b + q, cv * keep);
+    }
 }
 
 /** @param[in]  hist  [3,H,W] float32 the previous output's lighting (PQ)

@@ -73,7 +73,9 @@ def test_frame_step_matches_its_onnx_twin(scale, precision, dev):
 
 @pytest.mark.parametrize("kw,precision", [({"demod": False}, "fp32"), ({"mask": False}, "fp32"),
                                           ({"remod": "learned"}, "fp32"),
-                                          ({"remod": "learned"}, "fp16")])
+                                          ({"remod": "learned"}, "fp16"),
+                                          ({"warp_state": True}, "fp32"),
+                                          ({"warp_state": True}, "fp16")])
 def test_ablations_and_learned_remod_match_the_twin(kw, precision, dev):
     ours, _ = _run(dev, 2.0, precision, n=6, **kw)
     st = ours._fs.dev.to_host(ours._fs.state)

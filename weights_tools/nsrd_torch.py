@@ -179,6 +179,8 @@ class TorchStep:
         if hs is None:
             hs = color.new_zeros(N, hid, hp, wpd)
             cs = hs
+        elif self.cfg.get("warp_state", False):
+            hs, cs = (F.pad(warp(v[:, :, :h, :w], motion) * keep, pad) for v in (hs, st["c"]))
         else:
             hs, cs = hs * keep, st["c"] * keep
         y, hs, cs = self.net(F.pad(cur, pad), F.pad(wp, pad), F.pad(prev, pad), hs, cs)

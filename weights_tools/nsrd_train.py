@@ -50,6 +50,10 @@ def add_arguments(t):
     t.add_argument("--ssim", type=float, default=0.2, help="weight of 1 - SSIM")
     t.add_argument("--temporal", type=float, default=0.5, help="weight of the temporal loss")
     t.add_argument("--beta", type=float, default=0.02, help="smooth-L1 transition")
+    t.add_argument("--warp-state", action="store_true",
+                   help="warp the ConvLSTM's h and c by the motion (networks.make_config)")
+    t.add_argument("--init", default=None, help="start from these NSRD weights "
+                                                "(.safetensors; a fine-tune)")
     t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     t.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop (and write the weights) after this many minutes; the cosine "
@@ -150,10 +154,15 @@ def cmd_train(args):
                          f"{h}x{w} frames")
     try:
         cfg = nets.make_config(sc, args.widths, demod=not args.no_demod, mask=not args.no_mask,
-                               remod=args.remod)
+                               remod=args.remod, warp_state=args.warp_state)
     except ValueError as e:
         raise TrainError(str(e)) from None
-    net = NsrdNet(cfg, nets.init_weights(cfg, args.seed))
+    w0 = nets.init_weights(cfg, args.seed)
+    if args.init:
+        c0, w0 = nets.load(args.init)
+        if nets.layer_shapes(c0) != nets.layer_shapes(cfg):
+            raise TrainError(f"--init: {args.init} has other layer shapes than this config")
+    net = NsrdNet(cfg, w0)
     step = TorchStep(net)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     ck = os.path.join(args.out, "checkpoint.pt")

@@ -58,6 +58,10 @@ class NsrdFrameStep:
         # device after it (fixed buffers keep the network's recorded launch plan; feeding
         # alternating buffers re-recorded it every frame, ~30 ms of host time)
         self.hc = [(e((1, hid, hp, wp), prec), e((1, hid, hp, wp), prec)) for _ in range(2)]
+        self.warp_state = bool(cfg.get("warp_state", False))
+        # with warp_state, prepare warps hc[0] into hcw, which the network reads
+        self.hcw = ((e((1, hid, hp, wp), prec), e((1, hid, hp, wp), prec)) if self.warp_state
+                    else self.hc[0])
         self.y = e((1, nets.out_channels(cfg), hp, wp), prec)
         self.out = e((H, W, 3), dtype=f32)
         # zeroed once: the padding of prev is never written, and no kernel reads
@@ -76,7 +80,8 @@ class NsrdFrameStep:
                 self.states[0].data, self.cur.data, self.warp.data, self.mv.data,
                 i32(w), i32(h), i32(wp), i32(hp), i32(1), f(1), f(1), f(1),
                 f(self.nits / PQ_PEAK_NITS), f(1), demod, i32(bool(cfg["mask"])), eps,
-                f(nets.DEPTH_TOL), f(nets.DEPTH_FLOOR)]),
+                f(nets.DEPTH_TOL), f(nets.DEPTH_FLOOR), self.hc[0][0].data, self.hc[0][1].data,
+                self.hcw[0].data, self.hcw[1].data, i32(hid), i32(self.warp_state)]),
             "prev": dev.prepare(k["nsrd_prev"], (W, H), [
                 self.hist.data, self.mv.data, self.prev.data, i32(h), i32(w), i32(H), i32(W),
                 i32(hp), i32(wp), i32(s), f(1)]),
@@ -128,7 +133,7 @@ class NsrdFrameStep:
         ev.append(("prev", L["prev"]()))
         ne = [] if self.profile else None
         self.network.run_device({"cur": self.cur, "warp": self.warp, "prev": self.prev,
-                                 "h": h_in, "c": c_in},
+                                 "h": self.hcw[0], "c": self.hcw[1]},
                                 out={"y": self.y, "h_out": h_out, "c_out": c_out}, events=ne)
         ev += [("network", e) for e in ne or ()]
         q = self.dev.queue
@@ -145,7 +150,7 @@ class NsrdFrameStep:
         return summed_event_ms(self.events, STAGES)
 
     def device_bytes(self) -> int:
-        arrays = [self.in_color, self.in_depth, self.in_motion, self.in_albedo, self.in_normal,
+        arrays = [*(self.hcw if self.warp_state else ()), self.in_color, self.in_depth, self.in_motion, self.in_albedo, self.in_normal,
                   self.in_albedo_hr, *self.states, self.hist, self.mv, self.cur, self.warp,
                   self.prev, *self.hc[0], *self.hc[1], self.y, self.out]
         n = sum(a.nbytes for a in arrays)

@@ -86,7 +86,8 @@ WIDTHS = {
 }
 
 
-def make_config(scale, widths="default", demod=True, mask=True, remod="blur") -> dict:
+def make_config(scale, widths="default", demod=True, mask=True, remod="blur",
+                warp_state=False) -> dict:
     s = float(scale)
     if not s.is_integer() or not 2 <= s <= 4:
         raise ValueError(f"scale: NSRD runs at the integer scales 2, 3 and 4 (sub-pixel "
@@ -100,7 +101,10 @@ def make_config(scale, widths="default", demod=True, mask=True, remod="blur") ->
         w.setdefault("name", "custom")
     if remod not in REMODS:
         raise ValueError(f"remod: expected one of {', '.join(REMODS)}, got {remod!r}")
-    w.update(scale=int(s), demod=bool(demod), mask=bool(mask), remod=remod)
+    # warp_state: the ConvLSTM's h and c warped by the motion before the cell (the paper
+    # carries them unwarped; with this camera motion they ghost: docs/methods/nsrd.md)
+    w.update(scale=int(s), demod=bool(demod), mask=bool(mask), remod=remod,
+             warp_state=bool(warp_state))
     return w
 
 

@@ -83,7 +83,15 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
     pads = g.i64([0, 0, 0, 0, 0, 0, hp - h, wp - w])
     feeds = {k: g.op("Pad", v, pads, mode="constant")
              for k, v in (("cur", cur), ("warp", warp), ("prev", prev))}
-    feeds.update(h="h", c="c")
+    if cfg.get("warp_state", False):
+        grid = _warp_grid(g, "motion", h, w)
+        for k in ("h", "c"):
+            v = g.op("GridSample", g.slice(g.slice(k, 2, 0, h), 3, 0, w), grid, mode="bilinear",
+                     padding_mode="zeros", align_corners=0)
+            feeds[k] = g.op("Pad", g.mul(v, keep), g.i64([0, 0, 0, 0, 0, 0, hp - h, wp - w]),
+                            mode="constant")
+    else:
+        feeds.update(h="h", c="c")
     g.inline(nets.build_network(cfg, weights, hp, wp), "net", feeds,
              {"y": "y", "h_out": "h_out", "c_out": "c_out"})
     yc = g.slice(g.slice("y", 2, 0, h), 3, 0, w)
