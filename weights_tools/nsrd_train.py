@@ -159,9 +159,16 @@ def cmd_train(args):
         raise TrainError(str(e)) from None
     w0 = nets.init_weights(cfg, args.seed)
     if args.init:
-        c0, w0 = nets.load(args.init)
-        if nets.layer_shapes(c0) != nets.layer_shapes(cfg):
+        c0, w1 = nets.load(args.init)
+        s0, s1 = nets.layer_shapes(c0), nets.layer_shapes(cfg)
+        if any(s0[k] != s1[k] for k in s1 if k != "out") or s0["out"][1:] != s1["out"][1:]:
             raise TrainError(f"--init: {args.init} has other layer shapes than this config")
+        # the last conv may gain the learned re-modulation's channels: the lighting's are
+        # copied, the new ones keep their init (alpha = 0.5 where the network is unsure)
+        for k in ("out.weight", "out.bias"):
+            n = min(w1[k].shape[0], w0[k].shape[0])
+            w1[k] = np.concatenate([w1[k][:n], w0[k][n:]], 0)
+        w0 = w1
     net = NsrdNet(cfg, w0)
     step = TorchStep(net)
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
