@@ -155,21 +155,31 @@ train-nsrr: train-data $(TRAIN_STAMP)
 	cp $(OUT)/train-nsrr/x4/weights.safetensors clss/weights/nsrr_x4.safetensors
 	cp $(OUT)/train-nsrr/x2/weights.safetensors clss/weights/nsrr_x2.safetensors
 
-# NSRD (issue 21; docs/methods/nsrd.md): one network per scale on one torch thread, x4
-# (1300 steps) on the 68x120 -> 272x480 sequences, x2 (900 steps) on the CLSS training
-# set, both with G-buffers; then into the package. NSRD_ABLATIONS=1 also trains the
-# paper's two ablations at x4 (no demodulation, no occlusion mask) into $(OUT)/train-nsrd.
-NSRD_STEPS4 ?= 1300
-NSRD_STEPS2 ?= 900
+# NSRD (issue 21; docs/methods/nsrd.md): one network per scale on one torch thread, x4 on
+# the 68x120 -> 272x480 sequences, x2 on the CLSS training set, both with G-buffers. Two
+# stages per scale: NSRD_STEPS steps with the filtered material and the ConvLSTM state
+# unwarped, then NSRD_FT_STEPS steps fine-tuning with the learned re-modulation and the
+# warped state (lr 1e-3); then into the package (about 40 + 20 minutes at x4, 23 + 10 at
+# x2 on this loaded 2-core machine). NSRD_ABLATIONS=1 also trains the paper's two ablations
+# at x4 the same way (no demodulation; no occlusion mask) into $(OUT)/train-nsrd.
+NSRD_STEPS ?= 500
+NSRD_STEPS2 ?= 450
+NSRD_FT_STEPS ?= 300
 NSRD_ABLATIONS ?= 0
+NSRD_TRAIN = $(BIN)/python -m weights_tools train nsrd --patch 32 --threads 1
 .PHONY: train-nsrd
 train-nsrd: train-data $(TRAIN_STAMP)
 	test -f $(DATA)/train4/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train4 --sequences 24 --frames 12 --seed 100 --size 68x120 --scale 4
-	$(BIN)/python -m weights_tools train nsrd --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4 --steps $(NSRD_STEPS4) --patch 32 --threads 1
-	$(BIN)/python -m weights_tools train nsrd --data $(DATA)/train --out $(OUT)/train-nsrd/x2 --steps $(NSRD_STEPS2) --patch 32 --threads 1
+	$(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4 --steps $(NSRD_STEPS)
+	$(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-lw --steps $(NSRD_FT_STEPS) --lr 1e-3 --remod learned --warp-state --init $(OUT)/train-nsrd/x4/weights.safetensors
+	$(NSRD_TRAIN) --data $(DATA)/train --out $(OUT)/train-nsrd/x2 --steps $(NSRD_STEPS2)
+	$(NSRD_TRAIN) --data $(DATA)/train --out $(OUT)/train-nsrd/x2-lw --steps $(NSRD_FT_STEPS) --lr 1e-3 --remod learned --warp-state --init $(OUT)/train-nsrd/x2/weights.safetensors
 	mkdir -p clss/weights
-	cp $(OUT)/train-nsrd/x4/weights.safetensors clss/weights/nsrd_x4.safetensors
-	cp $(OUT)/train-nsrd/x2/weights.safetensors clss/weights/nsrd_x2.safetensors
-	if [ "$(NSRD_ABLATIONS)" = 1 ]; then for ab in no-demod no-mask; do \
-	  $(BIN)/python -m weights_tools train nsrd --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-$$ab --steps $(NSRD_STEPS4) --patch 32 --threads 1 --$$ab || exit 1; \
-	done; fi
+	cp $(OUT)/train-nsrd/x4-lw/weights.safetensors clss/weights/nsrd_x4.safetensors
+	cp $(OUT)/train-nsrd/x2-lw/weights.safetensors clss/weights/nsrd_x2.safetensors
+	if [ "$(NSRD_ABLATIONS)" = 1 ]; then \
+	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod --steps $(NSRD_STEPS) --no-demod && \
+	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod-ws --steps $(NSRD_FT_STEPS) --lr 1e-3 --no-demod --warp-state --init $(OUT)/train-nsrd/x4-no-demod/weights.safetensors && \
+	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-mask --steps $(NSRD_STEPS) --no-mask && \
+	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-mask-lw --steps $(NSRD_FT_STEPS) --lr 1e-3 --no-mask --remod learned --warp-state --init $(OUT)/train-nsrd/x4-no-mask/weights.safetensors; \
+	fi
