@@ -47,8 +47,10 @@ def cmd_methods(argv) -> int:
     print()
     for r in recs:
         print(f"  {r['name']:{nw}s}  {r['summary']} ({r['doc']})")
-    print("\nplanned, not built yet: " + "; ".join(f"{k} ({v})" for k, v in
-                                                  methods.PLANNED.items()))
+    print()
+    if methods.PLANNED:         # every seeded method may be built: then no such line
+        print("planned, not built yet: " + "; ".join(f"{k} ({v})" for k, v in
+                                                    methods.PLANNED.items()))
     print("aliases: " + ", ".join(f"{k} = {v}" for k, v in methods.ALIASES.items()))
     return 0
 
