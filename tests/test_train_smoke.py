@@ -155,9 +155,13 @@ def test_seeds_bad_arguments_are_one_line(tiny_data, tmp_path, capsys):
 
 
 def test_train_method_without_recipe_says_why(capsys):
-    # train METHOD: a planned method and a baseline answer in one line, exit 2
-    assert main(["train", "nsrd", "--data", "x", "--out", "y"]) == 2
-    assert "not built yet" in capsys.readouterr().err
+    # train METHOD: a baseline (and a planned method, while there is one) answer in one line, exit 2
+    from clss import methods
+    for name in methods.PLANNED:
+        assert main(["train", name, "--data", "x", "--out", "y"]) == 2
+        assert "not built yet" in capsys.readouterr().err
+    assert main(["train", "bicubic", "--data", "x", "--out", "y"]) == 2
+    assert "nothing to train" in capsys.readouterr().err
     assert main(["train", "bicubic"]) == 2
     assert "nothing to train" in capsys.readouterr().err
     with pytest.raises(SystemExit):
@@ -183,6 +187,7 @@ def test_trainloop_losses():
 def test_default_method_rewrites_only_its_own_command():
     from weights_tools.recipes import with_default_method as w
     assert w(["train", "--data", "d"]) == ["train", "clss", "--data", "d"]
-    assert w(["train", "nsrd", "--data", "d"]) == ["train", "nsrd"]
+    assert w(["train", "bicubic", "--data", "d"]) == ["train", "bicubic"]
+    assert w(["train", "nsrd", "--data", "d"]) == ["train", "nsrd", "--data", "d"]
     assert w(["eval", "x.npz", "--warmup", "2"]) == ["eval", "x.npz", "--warmup", "2"]
     assert w(["seeds", "--data", "d"], "seeds") == ["seeds", "clss", "--data", "d"]
