@@ -29,26 +29,7 @@
 
 #include "zero_upsample.h"
 
-/* x^y for x >= 0 as exp2(y log2 x): PoCL's pow() is a library call of ~0.25 us, which made
- * the PQ decode of a 1080p frame take 2.6 s; exp2/log2 inline and agree to a few ulp. */
-static float powp(float x, float y)
-{
-    return x > 0.0f ? exp2(y * log2(x)) : 0.0f;
-}
-
-static float pq_encode(float x, float pq_scale)
-{
-    const float y = clamp(x * pq_scale, 0.0f, 1.0f);
-    const float ym = powp(y, 0.1593017578125f);
-    return powp((0.8359375f + 18.8515625f * ym) / (1.0f + 18.6875f * ym), 78.84375f);
-}
-
-static float pq_decode(float e, float inv_pq_scale)
-{
-    const float ep = powp(clamp(e, 0.0f, 1.0f), 1.0f / 78.84375f);
-    const float num = max(ep - 0.8359375f, 0.0f);
-    return powp(num / (18.8515625f - 18.6875f * ep), 1.0f / 0.1593017578125f) * inv_pq_scale;
-}
+#include "pq.h"
 
 /** @param[in]  color          [h,w,3] float32 linear
  *  @param[in]  depth          [h,w] float32 in [0, 1]

@@ -16,23 +16,13 @@ import torch.nn.functional as F
 
 from clss.methods.nsrr import networks as nets
 from clss.methods.nsrr.frame import pad4
-from clss.methods.nsrr.oracle import base_grid, zu_index
-from clss.pipeline.contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
-                                    output_size)
+from clss.methods.nsrr.oracle import zu_index
+from clss.pipeline.twin import base_grid
+from clss.pipeline.contract import PQ_NITS, output_size
+
+from .trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
 FEAT = nets.FEAT
-
-
-def pq_encode(x, nits=PQ_NITS):
-    y = (x * (nits / PQ_PEAK_NITS)).clamp(0.0, 1.0)
-    ym = y.pow(PQ_M1)
-    return ((PQ_C1 + PQ_C2 * ym) / (1.0 + PQ_C3 * ym)).pow(PQ_M2)
-
-
-def pq_decode(e, nits=PQ_NITS):
-    ep = e.clamp(0.0, 1.0).pow(1.0 / PQ_M2)
-    y = ((ep - PQ_C1).clamp_min(0.0) / (PQ_C2 - PQ_C3 * ep)).pow(1.0 / PQ_M1)
-    return y * (PQ_PEAK_NITS / nits)
 
 
 def _convs(shapes, names):

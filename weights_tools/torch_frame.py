@@ -31,15 +31,16 @@ import torch.nn.functional as F
 
 from clss.pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
                                     CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD,
-                                    DILATE_OFFSETS, HISTORY_CHANNELS, MODES, PQ_C1, PQ_C2, PQ_C3,
-                                    PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
-                                    SCATTER_WEIGHT_THRESHOLD, output_size, to_internal,
-                                    validate_frame)
+                                    DILATE_OFFSETS, HISTORY_CHANNELS, MODES, PQ_NITS,
+                                    RULE_CLIP_EPS, SCATTER_WEIGHT_THRESHOLD, output_size,
+                                    to_internal, validate_frame)
 
 from clss.networks import pad16 as _pad16
 from clss.networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_MLP_HIDDEN,
                        DEFAULT_WIDTHS, LOGITS, build_classifier, build_composition)
 from clss.networks import WeightsError, model_weights, torch_to_onnx_name
+
+from .trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
 # Net mode's blend: "net" = the composition network (inference), "rule" = w = 1/(1+counter)
 # without a clamp, the paper's rule-based composition for training the classifier (s3.4).
@@ -301,18 +302,6 @@ def tensors_from_networks(classifier, composition) -> dict:
 
 
 # ---- the frame step -------------------------------------------------------------------
-
-def pq_encode(x, nits=PQ_NITS):
-    y = torch.clamp(x * (nits / PQ_PEAK_NITS), 0.0, 1.0)
-    ym = torch.pow(y, PQ_M1)
-    return torch.pow((PQ_C1 + PQ_C2 * ym) / (1.0 + PQ_C3 * ym), PQ_M2)
-
-
-def pq_decode(e, nits=PQ_NITS):
-    ep = torch.pow(torch.clamp(e, 0.0, 1.0), 1.0 / PQ_M2)
-    y = torch.pow(torch.clamp(ep - PQ_C1, min=0.0) / (PQ_C2 - PQ_C3 * ep), 1.0 / PQ_M1)
-    return y * (PQ_PEAK_NITS / nits)
-
 
 def _normalised(u, n):
     """GridSample align_corners=0 coordinate of the index coordinate u: (2u+1)/n - 1."""

@@ -14,6 +14,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from clss.pipeline.contract import PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS
+
 PROGRESS_S = 5.0        # seconds between progress lines
 CHECKPOINT_S = 60.0     # seconds between checkpoints (and at the end of each stage)
 PLOT_S = 30.0           # seconds between refreshes of loss.png
@@ -21,6 +23,19 @@ PLOT_S = 30.0           # seconds between refreshes of loss.png
 
 class TrainError(ValueError):
     """A user's mistake (bad directory, bad data, bad option): one line, no traceback."""
+
+
+# ---- the PQ transfer (clss.pipeline.contract), differentiable, for every torch twin ------
+def pq_encode(x, nits=PQ_NITS):
+    y = torch.clamp(x * (nits / PQ_PEAK_NITS), 0.0, 1.0)
+    ym = torch.pow(y, PQ_M1)
+    return torch.pow((PQ_C1 + PQ_C2 * ym) / (1.0 + PQ_C3 * ym), PQ_M2)
+
+
+def pq_decode(e, nits=PQ_NITS):
+    ep = torch.pow(torch.clamp(e, 0.0, 1.0), 1.0 / PQ_M2)
+    y = torch.pow(torch.clamp(ep - PQ_C1, min=0.0) / (PQ_C2 - PQ_C3 * ep), 1.0 / PQ_M1)
+    return y * (PQ_PEAK_NITS / nits)
 
 
 # ---- data --------------------------------------------------------------------------------

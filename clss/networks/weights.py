@@ -226,3 +226,24 @@ def import_torch_state_dict(path, model, strict=True):
         pairs.append((tname, oname))
     apply_weights(model, mapped, strict=strict)
     return pairs
+
+
+def save_with_config(path, key: str, cfg: dict, weights: dict) -> None:
+    """A method's network file: its float32 tensors, sorted, and its config as JSON under
+    the one metadata entry `key` (one entry: safetensors' header order then does not
+    depend on a hash map, so a rerun writes the same bytes)."""
+    from safetensors.numpy import save_file
+    save_file({k: np.ascontiguousarray(v, np.float32) for k, v in sorted(weights.items())},
+              path, metadata={key: json.dumps(cfg, sort_keys=True)})
+
+
+def load_with_config(path, key: str, what: str) -> tuple[dict, dict]:
+    """(config, float32 tensors) of a file save_with_config wrote; a file without `key`
+    is refused as not `what` (e.g. "an NSRR weights file")."""
+    from safetensors import safe_open
+    with safe_open(path, "np") as f:
+        meta = f.metadata() or {}
+        weights = {k: f.get_tensor(k).astype(np.float32) for k in f.keys()}
+    if key not in meta:
+        raise ValueError(f"weights: {path} has no {key} metadata (not {what})")
+    return json.loads(meta[key]), weights

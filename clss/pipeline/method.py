@@ -105,6 +105,9 @@ class MethodUpscaler:
         self._pending_reset = True
         self.frame_index = 0
         self.last_report: dict = {}
+        self._fs = None             # the frame step of the current render size
+        self._totals: dict[str, float] = {}     # per-stage ms summed over flushed frame steps
+        self._timed = 0             # frames those sums cover (the subclass counts them)
 
     @property
     def method(self) -> str:
@@ -153,8 +156,9 @@ class MethodUpscaler:
         return self._fs
 
     def _release_frame_step(self):
-        """Called before the frame step of another render size replaces the current one
-        (a method keeping per-stage timings flushes them here)."""
+        """Called before the frame step of another render size replaces the current one:
+        its per-stage timings are kept."""
+        self._flush_timings()
 
     def _device_frame(self, reset, **arrays):
         """step_device's common entry: a reset is remembered (kept if the frame is then
@@ -197,15 +201,31 @@ class MethodUpscaler:
                                           {k: v for k, v in given.items() if v is not None},
                                           render_size, output_size, sanitize=self.sanitize)
 
-    # -- timings: methods without stage events report none ---------------------------
+    # -- timings ----------------------------------------------------------------------
+    # The stages a method's frame step times with OpenCL events (its `stage_ms()` gives the
+    # milliseconds summed since its last call); a method without stage events names none
+    # and reports none. The method counts each timed frame in `_timed`.
+    STAGES: tuple = ()
+
+    def _flush_timings(self):
+        if self._fs is not None and self.profile and self.STAGES:
+            for k, v in self._fs.stage_ms().items():
+                self._totals[k] = self._totals.get(k, 0.0) + v
+
     def reset_timings(self):
-        """Start the per-stage statistics afresh."""
+        """Start the per-stage statistics afresh (e.g. after a first frame that paid for
+        kernel compilation)."""
+        self._flush_timings()
+        self._totals, self._timed = {}, 0
 
     def stage_ms(self) -> dict:
-        """Mean milliseconds per frame of each stage (needs profile=True)."""
+        """Mean milliseconds per frame of each stage since construction or the last
+        reset_timings (needs profile=True): OpenCL event times."""
         if not self.profile:
             raise RuntimeError("stage_ms needs Upscaler(..., profile=True)")
-        return {}
+        self._flush_timings()
+        n = max(self._timed, 1)
+        return {k: self._totals[k] / n for k in self.STAGES if k in self._totals}
 
     def device_bytes(self) -> int:
         return 0

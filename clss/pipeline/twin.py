@@ -154,3 +154,17 @@ def make_model(nodes, inits, name, inputs, outputs, producer, opset,
         model.doc_string = doc_string
     model.ir_version = IR_VERSION
     return model
+
+
+def base_grid(render_size, out_size, jitter) -> np.ndarray:
+    """[1,H,W,2] GridSample coordinates (align_corners=0) of each output pixel centre in
+    the render frame whose sample j was taken at j + 0.5 + jitter: where a twin reads the
+    current render-res image bilinearly as the base its network corrects (NSRR's residual,
+    NSRD's lighting). Constants in float64, rounded once."""
+    (h, w), (H, W) = render_size, out_size
+    jx, jy = (float(v) for v in jitter)
+    u = (np.arange(W, dtype=np.float64) + 0.5) * (w / W) - 0.5 - jx
+    v = (np.arange(H, dtype=np.float64) + 0.5) * (h / H) - 0.5 - jy
+    gx = np.broadcast_to(((2 * u + 1) / w - 1)[None, :], (H, W))
+    gy = np.broadcast_to(((2 * v + 1) / h - 1)[:, None], (H, W))
+    return np.stack([gx, gy], -1)[None].astype(np.float32)

@@ -135,6 +135,8 @@ class ClssUpscaler(MethodUpscaler):
     "clss" or "onnxruntime" to force one).
     """
 
+    STAGES = STAGES     # the per-stage timings (MethodUpscaler.stage_ms)
+
     def __init__(self, scale=2.0, mode="net", weights=None, device=None, precision="fp32",
                  depth_inverted=True, motion_scale=(1, 1), hdr=True, cap=None, *,
                  exposure=1.0, nits=PQ_NITS, depth_threshold=DEPTH_THRESHOLD, sanitize=False,
@@ -174,8 +176,6 @@ class ClssUpscaler(MethodUpscaler):
             else:
                 self.classifier_model, self.composition_model, self.trained = load_networks(weights)
         self._fs: FrameStep | None = None
-        self._totals: dict[str, float] = {}
-        self._timed_frames = 0
 
     # -- sizes and state ----------------------------------------------------------
     @property
@@ -200,9 +200,6 @@ class ClssUpscaler(MethodUpscaler):
     def _frame_step(self, hw, reset):
         """The FrameStep for render size hw, built anew (buffers, programs) when it changes."""
         return self._frame_step_for(hw, reset, self._build_frame_step)
-
-    def _release_frame_step(self):
-        self._flush_timings()
 
     def _build_frame_step(self, h, w):
         H, W = output_size(h, w, self.scale)
@@ -305,28 +302,9 @@ class ClssUpscaler(MethodUpscaler):
         self.frame_index += 1
         self.last_report = sanitized
         if self.profile:
-            self._timed_frames += 1
+            self._timed += 1
 
     # -- timings and debug views ---------------------------------------------------------
-    def _flush_timings(self):
-        if self._fs is not None and self.profile:
-            for k, v in self._fs.stage_ms().items():
-                self._totals[k] = self._totals.get(k, 0.0) + v
-
-    def reset_timings(self):
-        """Start the per-stage statistics afresh (e.g. after a first frame that paid for
-        kernel compilation)."""
-        self._flush_timings()
-        self._totals, self._timed_frames = {}, 0
-
-    def stage_ms(self) -> dict[str, float]:
-        """Mean milliseconds per frame of each stage since construction (needs
-        profile=True): OpenCL event times (the classifier: its kernels' events, summed)."""
-        if not self.profile:
-            raise RuntimeError("stage_ms needs Upscaler(..., profile=True)")
-        self._flush_timings()
-        n = max(self._timed_frames, 1)
-        return {k: self._totals[k] / n for k in STAGES if k in self._totals}
 
     def debug_views(self) -> dict[str, np.ndarray]:
         """Host copies from the last frame (needs debug=True): "blend_weight",

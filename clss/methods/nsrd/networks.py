@@ -31,13 +31,13 @@ one CPU thread for about half an hour (docs/methods/nsrd.md).
 """
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from ...pipeline.twin import make_model, value_info
+from ...networks.weights import load_with_config, save_with_config
+from ...pipeline.twin import base_grid, make_model, value_info  # noqa: F401 (base_grid: also this module's API)
 
 OPSET = 18
 CUR = 10                 # lighting 3, material 3, normal 3, depth 1
@@ -158,21 +158,13 @@ def check_weights(cfg, weights: dict) -> None:
 
 
 def save(path, cfg, weights: dict) -> None:
-    from safetensors.numpy import save_file
     check_weights(cfg, weights)
-    save_file({k: np.ascontiguousarray(v, np.float32) for k, v in sorted(weights.items())}, path,
-              metadata={"nsrd_config": json.dumps(cfg, sort_keys=True)})
+    save_with_config(path, "nsrd_config", cfg, weights)
 
 
 def load(path) -> tuple[dict, dict]:
     """(config, weights) of an NSRD .safetensors file (config from its metadata)."""
-    from safetensors import safe_open
-    with safe_open(path, "np") as f:
-        meta = f.metadata() or {}
-        weights = {k: f.get_tensor(k).astype(np.float32) for k in f.keys()}
-    if "nsrd_config" not in meta:
-        raise ValueError(f"weights: {path} has no nsrd_config metadata (not an NSRD weights file)")
-    cfg = json.loads(meta["nsrd_config"])
+    cfg, weights = load_with_config(path, "nsrd_config", "an NSRD weights file")
     check_weights(cfg, weights)
     return cfg, weights
 
@@ -253,16 +245,3 @@ def macs_per_pixel(cfg) -> float:
 def pad2(n: int) -> int:
     """The network's size along an axis: even, for its one down/up level."""
     return -(-int(n) // 2) * 2
-
-
-def base_grid(render_size, out_size, jitter) -> np.ndarray:
-    """[1,H,W,2] GridSample coordinates (align_corners=0) of each output pixel centre in
-    the render frame whose sample j was taken at j + 0.5 + jitter: where the finish step
-    reads the current lighting bilinearly (edge-clamped) as the base the network corrects."""
-    (h, w), (H, W) = render_size, out_size
-    jx, jy = (float(v) for v in jitter)
-    u = (np.arange(W, dtype=np.float64) + 0.5) * (w / W) - 0.5 - jx
-    v = (np.arange(H, dtype=np.float64) + 0.5) * (h / H) - 0.5 - jy
-    gx = np.broadcast_to(((2 * u + 1) / w - 1)[None, :], (H, W))
-    gy = np.broadcast_to(((2 * v + 1) / h - 1)[:, None], (H, W))
-    return np.stack([gx, gy], -1)[None].astype(np.float32)

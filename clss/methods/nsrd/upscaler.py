@@ -75,6 +75,8 @@ class NsrdUpscaler(MethodUpscaler):
     `load_weights`. widths: the untrained init's ("default", "fast"). precision "fp32" /
     "fp16" (half storage, float accumulation)."""
 
+    STAGES = STAGES     # the per-stage timings (MethodUpscaler.stage_ms)
+
     def __init__(self, scale=4.0, weights=None, device=None, precision="fp32",
                  depth_inverted=True, motion_scale=(1, 1), *, widths="default",
                  exposure=1.0, nits=PQ_NITS, sanitize=False, profile=False, **unused):
@@ -85,8 +87,6 @@ class NsrdUpscaler(MethodUpscaler):
         self.cfg, self.weights, self.trained = load_weights(weights, self.scale, widths)
         self.nits = float(nits)
         self._fs: NsrdFrameStep | None = None
-        self._totals: dict = {}
-        self._timed = 0
 
     def device_bytes(self) -> int:
         return 0 if self._fs is None else self._fs.device_bytes()
@@ -95,9 +95,6 @@ class NsrdUpscaler(MethodUpscaler):
         return self._frame_step_for(hw, reset, lambda h, w: NsrdFrameStep(
             self.dev, self.precision, (h, w), self.cfg, self.weights, nits=self.nits,
             profile=self.profile))
-
-    def _release_frame_step(self):
-        self._flush()
 
     def step(self, color, depth, motion, jitter, reset=False, reactive=None,
              **gbuffers) -> np.ndarray:
@@ -162,22 +159,6 @@ class NsrdUpscaler(MethodUpscaler):
         if self.profile:
             self._timed += 1
         return res
-
-    def _flush(self):
-        if self._fs is not None and self.profile:
-            for k, v in self._fs.stage_ms().items():
-                self._totals[k] = self._totals.get(k, 0.0) + v
-
-    def reset_timings(self):
-        self._flush()
-        self._totals, self._timed = {}, 0
-
-    def stage_ms(self) -> dict:
-        if not self.profile:
-            raise RuntimeError("stage_ms needs Upscaler(..., profile=True)")
-        self._flush()
-        n = max(self._timed, 1)
-        return {k: self._totals[k] / n for k in STAGES if k in self._totals}
 
 
 def _weights_state():

@@ -31,12 +31,12 @@ fe.{0,1,2}.{weight,bias}, rw.{0,1,2}.*, un.{0..9}.*.
 """
 from __future__ import annotations
 
-import json
 
 import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
+from ...networks.weights import load_with_config, save_with_config
 from ...pipeline.twin import make_model, value_info
 
 FEAT_LEARNED = 8
@@ -132,21 +132,13 @@ def check_weights(cfg, weights: dict) -> None:
 
 
 def save(path, cfg, weights: dict) -> None:
-    from safetensors.numpy import save_file
     check_weights(cfg, weights)
-    save_file({k: np.ascontiguousarray(v, np.float32) for k, v in sorted(weights.items())}, path,
-              metadata={"nsrr_config": json.dumps(cfg, sort_keys=True)})
+    save_with_config(path, "nsrr_config", cfg, weights)
 
 
 def load(path) -> tuple[dict, dict]:
     """(config, weights) of an NSRR .safetensors file (config from its metadata)."""
-    from safetensors import safe_open
-    with safe_open(path, "np") as f:
-        meta = f.metadata() or {}
-        weights = {k: f.get_tensor(k).astype(np.float32) for k in f.keys()}
-    if "nsrr_config" not in meta:
-        raise ValueError(f"weights: {path} has no nsrr_config metadata (not an NSRR weights file)")
-    cfg = json.loads(meta["nsrr_config"])
+    cfg, weights = load_with_config(path, "nsrr_config", "an NSRR weights file")
     check_weights(cfg, weights)
     return cfg, weights
 

@@ -25,7 +25,7 @@ from onnx import TensorProto
 
 from ...ops.zero_upsample import placement
 from ...pipeline.contract import PQ_NITS, output_size, to_internal, validate_frame
-from ...pipeline.twin import GraphBuilder, make_model, pq_decode, pq_encode, value_info
+from ...pipeline.twin import GraphBuilder, base_grid, make_model, pq_decode, pq_encode, value_info  # noqa: F401 (base_grid: also this module's API)
 from . import networks as nets
 from .frame import pad4
 from .upscaler import load_weights
@@ -40,18 +40,6 @@ def zu_index(n: int, scale: float, jit: float, size: int) -> np.ndarray:
     ok = pos >= 0
     idx[pos[ok]] = np.arange(n)[ok]
     return idx
-
-
-def base_grid(render_size, out_size, jitter) -> np.ndarray:
-    """[1,H,W,2] GridSample coordinates (align_corners=0) of each output pixel centre in
-    the render frame whose sample j was taken at j + 0.5 + jitter (the residual base)."""
-    (h, w), (H, W) = render_size, out_size
-    jx, jy = (float(v) for v in jitter)
-    u = (np.arange(W, dtype=np.float64) + 0.5) * (w / W) - 0.5 - jx
-    v = (np.arange(H, dtype=np.float64) + 0.5) * (h / H) - 0.5 - jy
-    gx = np.broadcast_to(((2 * u + 1) / w - 1)[None, :], (H, W))
-    gy = np.broadcast_to(((2 * v + 1) / h - 1)[:, None], (H, W))
-    return np.stack([gx, gy], -1)[None].astype(np.float32)
 
 
 def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) -> onnx.ModelProto:
