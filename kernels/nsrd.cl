@@ -10,9 +10,11 @@
  *                 bilinearly upsampled motion, pixel-unshuffled to prev [3s^2,hp,wp]
  *   nsrd_finish   output resolution: the network's sub-pixel output shuffled to H x W,
  *                 plus the current lighting bilinear at the output pixel centres
- *                 (jitter-aware), clipped to [0, 1] (the next frame's history), PQ
- *                 decoded and re-modulated by the output-resolution material (albedo_hr
- *                 filtered 3x3 binomial, see networks.MATERIAL_FILTER)
+ *                 (jitter-aware), clipped to [0, 1] (the next frame's history), and the
+ *                 output-resolution material (albedo_hr filtered 3x3 binomial, see
+ *                 networks.MATERIAL_FILTER) into out
+ *   nsrd_decode   output resolution, 8 pixels a work-item: out *= the PQ-decoded lighting
+ *                 (float8: scalar exp2/log2 are library calls on PoCL)
  *
  * The state (float32, render resolution): channels 0-2 the lighting L_i (PQ), 3 the mask
  * M_i (frame i-1 valid at frame i), 4-6 A_i = L_{i-1} warped to frame i, 7 depth. One
@@ -193,14 +195,14 @@ __kernel void nsrd_prev(__global const float *hist, __global const float *mv, __
  *  @param[in]  state      [8,h,w] float32: this frame's state (channels 0-2: the lighting)
  *  @param[in]  albedo_hr  [H,W,3] float32
  *  @param[out] hist       [3,H,W] float32: the output lighting (PQ, in [0, 1])
- *  @param[out] out        [H,W,3] float32 linear, times the exposure
+ *  @param[out] out        [H,W,3] float32 the material (nsrd_decode multiplies in the lighting)
  *  learned: 1 = y has s^2 more channels, the logits of alpha: the material is then
  *  alpha * point + (1 - alpha) * filtered (networks.REMODS)
  *  NDRange: (W, H). */
 __kernel void nsrd_finish(__global const T *y, __global const float *state,
                           __global const float *albedo_hr, __global float *hist,
                           __global float *out, int h, int w, int H, int W, int hp, int wp, int s,
-                          float jx, float jy, float inv_pq_scale, int demod, float eps,
+                          float jx, float jy, int demod, float eps,
                           int learned)
 {
     const int X = get_global_id(0), Y = get_global_id(1);
@@ -239,6 +241,37 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
         float m = material(a, demod, eps);
         if (learned)
             m = alpha * material(fin(albedo_hr[3 * Q + c], 0.0f), demod, eps) + (1.0f - alpha) * m;
-        out[3 * Q + c] = pq_decode(l, inv_pq_scale) * m;
+        out[3 * Q + c] = m;     /* nsrd_decode multiplies in the decoded lighting */
+    }
+}
+
+/** The output: the material nsrd_finish left in out times the decoded lighting, 8 pixels
+ *  (in row-major order) per work-item so that the PQ decode runs on float8.
+ *  @param[in]  hist   [3,H,W] float32: the output lighting (PQ)
+ *  @param[in,out] out [H,W,3] float32: the material in, linear colour times the exposure out
+ *  @param[in]  P      H * W
+ *  @param[in]  inv_pq_scale 10000 / nits, times the exposure
+ *  NDRange: (ceil(P / 8)). */
+__kernel void nsrd_decode(__global const float *hist, __global float *out, int P,
+                          float inv_pq_scale)
+{
+    const int Q0 = get_global_id(0) * 8;
+    if (Q0 >= P) return;
+    const int n = min(8, P - Q0);
+    for (int c = 0; c < 3; ++c) {
+        __global const float *q = hist + (long)c * P + Q0;
+        float8 l;
+        if (n == 8) {
+            l = vload8(0, q);
+        } else {
+            float t[8];
+            for (int k = 0; k < 8; ++k)
+                t[k] = k < n ? q[k] : 0.0f;
+            l = vload8(0, t);
+        }
+        float d[8];
+        vstore8(pq_decode8(l, inv_pq_scale), 0, d);
+        for (int k = 0; k < n; ++k)
+            out[3 * (long)(Q0 + k) + c] *= d[k];
     }
 }

@@ -26,4 +26,19 @@ static float pq_decode(float e, float inv_pq_scale)
     return powp(num / (18.8515625f - 18.6875f * ep), 1.0f / 0.1593017578125f) * inv_pq_scale;
 }
 
+/* pq_decode on 8 values at once: the same operations lane by lane. Scalar exp2/log2 are
+ * library calls on PoCL (about 0.2 us a decode: 1.3 s of a 1080p frame); on float8 they
+ * vectorise. */
+static float8 powp8(float8 x, float y)
+{
+    return select((float8)(0.0f), exp2(y * log2(x)), x > 0.0f);
+}
+
+static float8 pq_decode8(float8 e, float inv_pq_scale)
+{
+    const float8 ep = powp8(clamp(e, 0.0f, 1.0f), 1.0f / 78.84375f);
+    const float8 num = max(ep - 0.8359375f, 0.0f);
+    return powp8(num / (18.8515625f - 18.6875f * ep), 1.0f / 0.1593017578125f) * inv_pq_scale;
+}
+
 #endif

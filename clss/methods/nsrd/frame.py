@@ -7,7 +7,8 @@ Per frame (render h x w, padded hp x wp = even; output H x W = h s x w s):
     prev      the previous output's lighting warped at H x W, unshuffled to [3s^2,hp,wp]
     network   cur, warp, prev, h, c -> y [3s^2,hp,wp], h', c'        (clss.Model)
     finish    y shuffled to H x W + the bilinear lighting, clipped (the next history),
-              PQ-decoded, times the output-resolution material -> out [H,W,3]
+              times the output-resolution material, then (nsrd_decode, 8 pixels a
+              work-item: float8 PQ decode) the decoded lighting -> out [H,W,3]
 
 Everything carried between frames stays on the device: the render-resolution state
 (double-buffered), the previous output's lighting (read by `prev` before `finish`
@@ -70,7 +71,8 @@ class NsrdFrameStep:
             cl.enqueue_fill_buffer(dev.queue, a.data, np.uint8(0), 0, a.nbytes)
         from ...model import Model
         self.network = Model(nets.build_network(cfg, weights, hp, wp), device=dev, precision=prec)
-        k = {n: dev.kernel("nsrd", n, prec) for n in ("nsrd_prepare", "nsrd_prev", "nsrd_finish")}
+        k = {n: dev.kernel("nsrd", n, prec)
+             for n in ("nsrd_prepare", "nsrd_prev", "nsrd_finish", "nsrd_decode")}
         i32, f = np.int32, np.float32
         demod, eps = i32(bool(cfg["demod"])), f(nets.DEMOD_EPS)
         self.L = {
@@ -88,8 +90,9 @@ class NsrdFrameStep:
             "finish": dev.prepare(k["nsrd_finish"], (W, H), [
                 self.y.data, self.states[0].data, self.in_albedo_hr.data, self.hist.data,
                 self.out.data, i32(h), i32(w), i32(H), i32(W), i32(hp), i32(wp), i32(s),
-                f(0), f(0), f(PQ_PEAK_NITS / self.nits), demod, eps,
-                i32(nets.learned_remod(cfg))]),
+                f(0), f(0), demod, eps, i32(nets.learned_remod(cfg))]),
+            "decode": dev.prepare(k["nsrd_decode"], (-(-H * W // 8),), [
+                self.hist.data, self.out.data, i32(H * W), f(PQ_PEAK_NITS / self.nits)]),
         }
         self.events: list[tuple[str, cl.Event]] = []
 
@@ -120,9 +123,11 @@ class NsrdFrameStep:
         L["prev"].bind(10, keep)
         fin = L["finish"]
         for idx, v in ((1, new.data), (2, albedo_hr.data), (4, out.data),
-                       (12, f(float(jitter[0]))), (13, f(float(jitter[1]))),
-                       (14, f(PQ_PEAK_NITS / self.nits * exposure))):
+                       (12, f(float(jitter[0]))), (13, f(float(jitter[1])))):
             fin.bind(idx, v)
+        dec = L["decode"]
+        dec.bind(1, out.data)
+        dec.bind(3, f(PQ_PEAK_NITS / self.nits * exposure))
         (h_in, c_in), (h_out, c_out) = self.hc
         ev = []
         if reset:
@@ -139,7 +144,8 @@ class NsrdFrameStep:
         q = self.dev.queue
         ev += [("network", cl.enqueue_copy(q, dst.data, src.data, byte_count=src.nbytes))
                for src, dst in ((h_out, h_in), (c_out, c_in))]
-        last = fin()
+        ev.append(("finish", fin()))
+        last = dec()
         ev.append(("finish", last))
         if self.profile:
             self.events.extend(ev)
