@@ -328,6 +328,17 @@ class Device:
         if a.size:
             a.fill(value, queue=self.queue)
 
+    def zero(self, a: cla.Array):
+        """Enqueue a <- 0 with pyopencl's fill kernel, half arrays through their bits (no
+        half fill in pyopencl). Not clEnqueueFillBuffer: oclgrind does not count the bytes
+        it writes as initialised, so every later read of them was reported. Returns the
+        event (None for an empty array)."""
+        if not a.size:
+            return None
+        v = a.view(np.uint16) if a.dtype == np.float16 else a
+        v.fill(0, queue=self.queue)
+        return v.events[-1] if v.events else None
+
     def empty(self, shape, precision: str = "fp32", dtype=None) -> cla.Array:
         dt = np.dtype(dtype) if dtype is not None else storage_dtype(precision)
         n = int(np.prod(shape, dtype=np.int64)) * dt.itemsize

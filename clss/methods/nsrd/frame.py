@@ -66,9 +66,9 @@ class NsrdFrameStep:
         self.y = e((1, nets.out_channels(cfg), hp, wp), prec)
         self.out = e((H, W, 3), dtype=f32)
         # zeroed once: the padding of prev is never written, and no kernel reads
-        # uninitialised memory (half arrays have no pyopencl fill)
+        # uninitialised memory (tests/test_oclgrind_methods.py)
         for a in (*self.states, self.hist, self.prev, *self.hc[0], *self.hc[1]):
-            cl.enqueue_fill_buffer(dev.queue, a.data, np.uint8(0), 0, a.nbytes)
+            dev.zero(a)
         from ...model import Model
         self.network = Model(nets.build_network(cfg, weights, hp, wp), device=dev, precision=prec)
         k = {n: dev.kernel("nsrd", n, prec)
@@ -132,8 +132,7 @@ class NsrdFrameStep:
         ev = []
         if reset:
             for a in (h_in, c_in):
-                ev.append(("prepare", cl.enqueue_fill_buffer(self.dev.queue, a.data, np.uint8(0),
-                                                             0, a.nbytes)))
+                ev.append(("prepare", self.dev.zero(a)))
         ev.append(("prepare", p()))
         ev.append(("prev", L["prev"]()))
         ne = [] if self.profile else None

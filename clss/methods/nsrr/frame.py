@@ -82,9 +82,9 @@ class NsrrFrameStep:
         self.residual = bool(cfg.get("residual", False))
         self.base = e((1, 3, Hp, Wp), prec)
         self.out = e((self.H, self.W, 3), dtype=f32)
-        # zeroed once (half arrays have no pyopencl fill): no kernel reads uninitialised memory
+        # zeroed once: no kernel reads uninitialised memory (tests/test_oclgrind_methods.py)
         for a in self.stacks:
-            cl.enqueue_fill_buffer(dev.queue, a.data, np.uint8(0), 0, a.nbytes)
+            dev.zero(a)
         from ...model import Model
         self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
         self.reconstruct = Model(build_reconstruct(cfg, weights, Hp, Wp), device=dev, precision=prec)

@@ -1,0 +1,49 @@
+"""The NSRR and NSRD frame kernels (kernels/nsrr.cl, kernels/nsrd.cl) on tiny frames under
+oclgrind's out-of-bounds, uninitialised-read and data-race checks: three frames with a
+reset, fp32 and fp16 storage, odd sizes (their networks run through clss.Model, whose
+kernels have their own oclgrind tests). Any diagnostic fails.
+
+Skipped (with the reason shown) where oclgrind is not installed; .ci/run installs it."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from helpers import DIAGNOSTIC, ICD, oclgrind_env
+
+SCRIPT = """
+import numpy as np, warnings, clss
+warnings.simplefilter("ignore")
+h, w, s = 5, 7, {scale}
+H, W = h * s, w * s
+rng = np.random.default_rng(0)
+up = clss.Upscaler(method="{method}", scale=s, weights="untrained", precision="{prec}")
+for t in range(3):
+    g = dict(albedo=rng.uniform(0, 1, (h, w, 3)).astype(np.float32),
+             normal=rng.uniform(-1, 1, (h, w, 3)).astype(np.float32),
+             albedo_hr=rng.uniform(0, 1, (H, W, 3)).astype(np.float32)) if "{method}" == "nsrd" else {{}}
+    y = up.step(rng.uniform(0, 2, (h, w, 3)).astype(np.float32),
+                rng.uniform(0.1, 0.9, (h, w)).astype(np.float32),
+                rng.uniform(-1.5, 1.5, (h, w, 2)).astype(np.float32),
+                (0.25, -0.125), reset=(t == 1), **g)
+    assert np.isfinite(y).all()
+print("method kernels ok")
+"""
+
+
+@pytest.mark.oclgrind
+@pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
+@pytest.mark.parametrize("method, scale, prec", [("nsrr", 2, "fp32"), ("nsrd", 2, "fp32"),
+                                                 ("nsrd", 3, "fp16")])
+def test_method_kernels_clean_under_oclgrind(method, scale, prec, tmp_path):
+    env = oclgrind_env(tmp_path)
+    env["PYTHONPATH"] = os.pathsep.join([os.getcwd(), env.get("PYTHONPATH", "")])
+    p = subprocess.run([sys.executable, "-W", "ignore", "-c",
+                        SCRIPT.format(method=method, scale=scale, prec=prec)],
+                       env=env, capture_output=True, text=True, timeout=900)
+    diags = [line for line in p.stderr.splitlines() if DIAGNOSTIC.search(line)]
+    assert not diags, "oclgrind reported:\n" + "\n".join(p.stderr.splitlines()[:60])
+    assert p.returncode == 0 and "method kernels ok" in p.stdout, p.stdout[-3000:] + p.stderr[-3000:]
