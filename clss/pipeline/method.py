@@ -14,6 +14,8 @@ anything runs).
 from __future__ import annotations
 
 import math
+import os
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -229,3 +231,32 @@ class MethodUpscaler:
 
     def device_bytes(self) -> int:
         return 0
+
+
+# ---- a method's weights= argument ----------------------------------------------------------
+UNTRAINED = "untrained"
+
+
+def weights_or_shipped(weights, shipped, method: str, scale, warned: list, where: str):
+    """`weights` as given; for None the package's file `shipped`, and without one UNTRAINED
+    with a warning (once per process: `warned`) that the seeded init runs."""
+    if weights is not None:
+        return weights
+    if shipped is not None:
+        return shipped
+    if not warned:
+        warned.append(True)
+        warnings.warn(f"{method}: no trained weights for scale {float(scale):g} in the "
+                      f"package ({where}); running the untrained (seeded) networks",
+                      stacklevel=4)
+    return UNTRAINED
+
+
+def weights_file(weights, what: str) -> str:
+    """weights= given as a path: it must be an existing .safetensors file (`what`, e.g.
+    "an NSRR .safetensors file", names what was expected)."""
+    path = os.fspath(weights)
+    if not (os.path.isfile(path) and path.endswith(".safetensors")):
+        raise ValueError(f"weights: expected {what}, got {path!r}"
+                         + ("" if os.path.exists(path) else " (does not exist)"))
+    return path

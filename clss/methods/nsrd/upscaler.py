@@ -14,18 +14,17 @@ clss/weights/nsrd_x{2,3,4}.safetensors for the scale, or the seeded init ("untra
 from __future__ import annotations
 
 import os
-import warnings
 
 import numpy as np
 
 from ...pipeline.contract import PQ_NITS, FrameInputError, check_jitter, validate_frame
-from ...pipeline.method import MethodSpec, MethodUpscaler
+from ...pipeline.method import (UNTRAINED, MethodSpec, MethodUpscaler, weights_file,
+                               weights_or_shipped)
 from . import networks as nets
 from .frame import STAGES, NsrdFrameStep
 
 WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
     __file__)))), "weights")
-UNTRAINED = "untrained"
 GBUFFERS = ("albedo", "normal", "albedo_hr")
 _warned = []
 
@@ -40,15 +39,8 @@ def load_weights(weights, scale, widths="default") -> tuple[dict, dict, bool]:
     seeded init with one warning), "untrained", a .safetensors path, or a (config,
     weights dict) pair. The config's scale must be the upscaler's."""
     cfg0 = nets.make_config(scale, widths)        # checks the scale (integer, 2..4)
-    if weights is None:
-        weights = shipped_weights(scale)
-        if weights is None:
-            if not _warned:
-                _warned.append(True)
-                warnings.warn(f"nsrd: no trained weights for scale {float(scale):g} in the "
-                              f"package ({WEIGHTS_DIR}); running the untrained (seeded) network",
-                              stacklevel=3)
-            weights = UNTRAINED
+    weights = weights_or_shipped(weights, shipped_weights(scale), "nsrd", scale, _warned,
+                                 WEIGHTS_DIR)
     if isinstance(weights, str) and weights == UNTRAINED:
         return cfg0, nets.init_weights(cfg0), False
     if isinstance(weights, tuple):
@@ -56,11 +48,7 @@ def load_weights(weights, scale, widths="default") -> tuple[dict, dict, bool]:
         nets.check_weights(cfg, w)
         trained = True
     else:
-        path = os.fspath(weights)
-        if not (os.path.isfile(path) and path.endswith(".safetensors")):
-            raise ValueError(f"weights: expected an NSRD .safetensors file, got {path!r}"
-                             + ("" if os.path.exists(path) else " (does not exist)"))
-        cfg, w = nets.load(path)
+        cfg, w = nets.load(weights_file(weights, "an NSRD .safetensors file"))
         trained = True
     if int(cfg["scale"]) != int(cfg0["scale"]):
         raise ValueError(f"weights: the network was trained for scale {cfg['scale']}, the "

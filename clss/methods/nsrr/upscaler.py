@@ -12,19 +12,18 @@ seeded init ("untrained") when the package has none.
 from __future__ import annotations
 
 import os
-import warnings
 
 import numpy as np
 
 from ...pipeline.contract import PQ_NITS, FrameInputError, check_jitter, validate_frame
-from ...pipeline.method import MethodSpec, MethodUpscaler
+from ...pipeline.method import (UNTRAINED, MethodSpec, MethodUpscaler, weights_file,
+                               weights_or_shipped)
 from . import networks as nets
 from .frame import RESET_FILLS, STAGES, NsrrFrameStep
 
 WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
     __file__)))), "weights")
 TRAINED_SCALES = (2, 4)
-UNTRAINED = "untrained"
 _warned = []
 
 
@@ -40,15 +39,8 @@ def load_weights(weights, scale, widths="default") -> tuple[dict, dict, bool]:
     """(config, weights, trained). weights: None (the shipped file for the scale, else the
     seeded init with one warning), "untrained", a .safetensors path, or a (config,
     weights dict) pair."""
-    if weights is None:
-        weights = shipped_weights(scale)
-        if weights is None:
-            if not _warned:
-                _warned.append(True)
-                warnings.warn(f"nsrr: no trained weights for scale {float(scale):g} in the "
-                              f"package ({WEIGHTS_DIR}); running the untrained (seeded) networks",
-                              stacklevel=3)
-            weights = UNTRAINED
+    weights = weights_or_shipped(weights, shipped_weights(scale), "nsrr", scale, _warned,
+                                 WEIGHTS_DIR)
     if isinstance(weights, tuple):
         cfg, w = weights
         nets.check_weights(cfg, w)
@@ -56,11 +48,7 @@ def load_weights(weights, scale, widths="default") -> tuple[dict, dict, bool]:
     if isinstance(weights, str) and weights == UNTRAINED:
         cfg = nets.make_config(widths)
         return cfg, nets.init_weights(cfg), False
-    path = os.fspath(weights)
-    if not (os.path.isfile(path) and path.endswith(".safetensors")):
-        raise ValueError(f"weights: expected an NSRR .safetensors file, got {path!r}"
-                         + ("" if os.path.exists(path) else " (does not exist)"))
-    cfg, w = nets.load(path)
+    cfg, w = nets.load(weights_file(weights, "an NSRR .safetensors file"))
     return cfg, w, True
 
 
