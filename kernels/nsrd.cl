@@ -32,6 +32,7 @@
 #define WARP 8
 
 #include "pq.h"
+#include "warp_taps.h"
 
 /* The material of one channel: the albedo, or 1 where it is below eps (black, sky). */
 static float material(float a, int demod, float eps)
@@ -39,10 +40,6 @@ static float material(float a, int demod, float eps)
     return (demod && a >= eps) ? a : 1.0f;
 }
 
-static float tap_w(int xi, int yi, int W, int H, float wx, float wy)
-{
-    return (xi >= 0 && xi < W && yi >= 0 && yi < H) ? wx * wy : 0.0f;
-}
 
 static float fin(float v, float fill)
 {
@@ -99,14 +96,9 @@ __kernel void nsrd_prepare(__global const float *color, __global const float *de
     mv[plane + p] = my;
     /* the previous state at this pixel's previous position (bilinear, zero outside) */
     const float xs = (float)x + mx, ys = (float)y + my;
-    const int x0 = (int)floor(xs), y0 = (int)floor(ys);
-    const float ax = xs - (float)x0, ay = ys - (float)y0;
-    const float w00 = tap_w(x0, y0, w, h, 1.0f - ax, 1.0f - ay);
-    const float w10 = tap_w(x0 + 1, y0, w, h, ax, 1.0f - ay);
-    const float w01 = tap_w(x0, y0 + 1, w, h, 1.0f - ax, ay);
-    const float w11 = tap_w(x0 + 1, y0 + 1, w, h, ax, ay);
-    const int cx0 = clamp(x0, 0, w - 1), cx1 = clamp(x0 + 1, 0, w - 1);
-    const int cy0 = clamp(y0, 0, h - 1), cy1 = clamp(y0 + 1, 0, h - 1);
+    const WarpTaps t = warp_taps(xs, ys, w, h);
+    const float w00 = t.w00, w10 = t.w10, w01 = t.w01, w11 = t.w11;
+    const int cx0 = t.cx0, cx1 = t.cx1, cy0 = t.cy0, cy1 = t.cy1;
     float s[STATE];
     for (int c = 0; c < STATE; ++c) {
         __global const float *o = state_old + c * plane;
@@ -172,14 +164,9 @@ __kernel void nsrd_prev(__global const float *hist, __global const float *mv, __
         m[c] = (top * (1.0f - fv) + bot * fv) * fs;
     }
     const float xs = (float)X + m[0], ys = (float)Y + m[1];
-    const int x0 = (int)floor(xs), y0 = (int)floor(ys);
-    const float ax = xs - (float)x0, ay = ys - (float)y0;
-    const float w00 = tap_w(x0, y0, W, H, 1.0f - ax, 1.0f - ay);
-    const float w10 = tap_w(x0 + 1, y0, W, H, ax, 1.0f - ay);
-    const float w01 = tap_w(x0, y0 + 1, W, H, 1.0f - ax, ay);
-    const float w11 = tap_w(x0 + 1, y0 + 1, W, H, ax, ay);
-    const int cx0 = clamp(x0, 0, W - 1), cx1 = clamp(x0 + 1, 0, W - 1);
-    const int cy0 = clamp(y0, 0, H - 1), cy1 = clamp(y0 + 1, 0, H - 1);
+    const WarpTaps t = warp_taps(xs, ys, W, H);
+    const float w00 = t.w00, w10 = t.w10, w01 = t.w01, w11 = t.w11;
+    const int cx0 = t.cx0, cx1 = t.cx1, cy0 = t.cy0, cy1 = t.cy1;
     const long P = (long)H * W, np_ = (long)hp * wp;
     const long o = (long)(Y / s) * wp + X / s;
     const int sub = (Y % s) * s + X % s;

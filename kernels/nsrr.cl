@@ -30,6 +30,7 @@
 #include "zero_upsample.h"
 
 #include "pq.h"
+#include "warp_taps.h"
 
 /** @param[in]  color          [h,w,3] float32 linear
  *  @param[in]  depth          [h,w] float32 in [0, 1]
@@ -67,11 +68,6 @@ __kernel void nsrr_prepare(__global const float *color, __global const float *de
     mv[plane + p] = isfinite(my) ? my * msy : 0.0f;
 }
 
-/* One bilinear tap weight set, zeros padding per tap (ONNX GridSample). */
-static float tap_w(int xi, int yi, int W, int H, float wx, float wy)
-{
-    return (xi >= 0 && xi < W && yi >= 0 && yi < H) ? wx * wy : 0.0f;
-}
 
 /** @param[in]  feat     [12,h,w] T: the current frame's features
  *  @param[in]  mv       [2,h,w] float32 render-pixel motion (previous = p + mv)
@@ -161,15 +157,9 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
     }
     /* Backward warp: this pixel was at (X + mx, Y + my) in the previous frame. */
     const float xs = (float)X + m[0] * sx, ys = (float)Y + m[1] * sy;
-    const int x0 = (int)floor(xs), y0 = (int)floor(ys);
-    const float ax = xs - (float)x0, ay = ys - (float)y0;
-    const float w00 = tap_w(x0, y0, W, H, 1.0f - ax, 1.0f - ay);
-    const float w10 = tap_w(x0 + 1, y0, W, H, ax, 1.0f - ay);
-    const float w01 = tap_w(x0, y0 + 1, W, H, 1.0f - ax, ay);
-    const float w11 = tap_w(x0 + 1, y0 + 1, W, H, ax, ay);
-    /* clamped addresses: a tap of weight 0 reads a valid pixel */
-    const int cx0 = clamp(x0, 0, W - 1), cx1 = clamp(x0 + 1, 0, W - 1);
-    const int cy0 = clamp(y0, 0, H - 1), cy1 = clamp(y0 + 1, 0, H - 1);
+    const WarpTaps t = warp_taps(xs, ys, W, H);
+    const float w00 = t.w00, w10 = t.w10, w01 = t.w01, w11 = t.w11;
+    const int cx0 = t.cx0, cx1 = t.cx1, cy0 = t.cy0, cy1 = t.cy1;
     const long a00 = (long)cy0 * Wp + cx0, a10 = (long)cy0 * Wp + cx1;
     const long a01 = (long)cy1 * Wp + cx0, a11 = (long)cy1 * Wp + cx1;
     for (int k = 0; k < nprev; ++k) {

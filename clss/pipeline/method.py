@@ -178,6 +178,26 @@ class MethodUpscaler:
             raise FrameInputError(f"color: expected shape (h, w, 3), got {color.shape}")
         return tuple(color.shape[:2])
 
+    @staticmethod
+    def _check_device_arrays(shaped, out=None, out_shape=None):
+        """step_device's per-array check: each (name, array, shape) float32 of that many
+        values, and `out` (if given) a float32 array of `out_shape`."""
+        for name, a, shape in shaped:
+            if a.size != int(np.prod(shape)) or a.dtype != np.float32:
+                raise FrameInputError(f"{name}: expected float32 of shape {tuple(shape)}, got "
+                                      f"{a.dtype} {a.shape}")
+        if out is not None and (out.shape != tuple(out_shape) or out.dtype != np.float32):
+            raise FrameInputError(f"out: expected a float32 array of shape {tuple(out_shape)}")
+
+    def _frame_done(self, event):
+        """After a frame step enqueued a whole frame: wait for its last event, then count
+        the frame (the pending reset is spent; a timed frame for stage_ms)."""
+        event.wait()
+        self._pending_reset = False
+        self.frame_index += 1
+        if self.profile:
+            self._timed += 1
+
     def _color_frame(self, color, reset):
         """For a method that reads the colour alone: (validate_frame's dict, (h, w)), the
         colour checked as the contract says and the render size held to the sequence's."""

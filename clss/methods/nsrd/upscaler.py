@@ -17,7 +17,7 @@ import os
 
 import numpy as np
 
-from ...pipeline.contract import PQ_NITS, FrameInputError, check_jitter, validate_frame
+from ...pipeline.contract import PQ_NITS, check_jitter, validate_frame
 from ...pipeline.method import (UNTRAINED, MethodSpec, MethodUpscaler, weights_file,
                                weights_or_shipped)
 from . import networks as nets
@@ -124,16 +124,12 @@ class NsrdUpscaler(MethodUpscaler):
                                 **{n: gbuffers[n] for n in GBUFFERS})
         fs = self._frame_step(hw, reset)
         H, W = fs.H, fs.W
-        for name, a, shape in (("color", color, (*hw, 3)), ("depth", depth, hw),
-                               ("motion", motion, (*hw, 2)),
-                               ("albedo", gbuffers["albedo"], (*hw, 3)),
-                               ("normal", gbuffers["normal"], (*hw, 3)),
-                               ("albedo_hr", gbuffers["albedo_hr"], (H, W, 3))):
-            if a.size != int(np.prod(shape)) or a.dtype != np.float32:
-                raise FrameInputError(f"{name}: expected float32 of shape {tuple(shape)}, got "
-                                      f"{a.dtype} {a.shape}")
-        if out is not None and (out.shape != (H, W, 3) or out.dtype != np.float32):
-            raise FrameInputError(f"out: expected a float32 array of shape {(H, W, 3)}")
+        self._check_device_arrays((("color", color, (*hw, 3)), ("depth", depth, hw),
+                                   ("motion", motion, (*hw, 2)),
+                                   ("albedo", gbuffers["albedo"], (*hw, 3)),
+                                   ("normal", gbuffers["normal"], (*hw, 3)),
+                                   ("albedo_hr", gbuffers["albedo_hr"], (H, W, 3))),
+                                  out, (H, W, 3))
         return self._run(fs, color, depth, motion, gbuffers["albedo"], gbuffers["normal"],
                          gbuffers["albedo_hr"], check_jitter(jitter), out)
 
@@ -141,11 +137,7 @@ class NsrdUpscaler(MethodUpscaler):
         res, ev = fs.run(color, depth, motion, albedo, normal, albedo_hr, jitter,
                          self._pending_reset, depth_inverted=self.depth_inverted,
                          motion_scale=self.motion_scale, exposure=self.exposure, out=out)
-        ev.wait()
-        self._pending_reset = False
-        self.frame_index += 1
-        if self.profile:
-            self._timed += 1
+        self._frame_done(ev)
         return res
 
 

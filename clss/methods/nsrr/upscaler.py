@@ -15,7 +15,7 @@ import os
 
 import numpy as np
 
-from ...pipeline.contract import PQ_NITS, FrameInputError, check_jitter, validate_frame
+from ...pipeline.contract import PQ_NITS, check_jitter, validate_frame
 from ...pipeline.method import (UNTRAINED, MethodSpec, MethodUpscaler, weights_file,
                                weights_or_shipped)
 from . import networks as nets
@@ -116,23 +116,15 @@ class NsrrUpscaler(MethodUpscaler):
         far depth and 0 motion on the device."""
         hw = self._device_frame(reset, color=color, depth=depth, motion=motion, out=out)
         fs = self._frame_step(hw, reset)
-        for name, a, tail in (("color", color, (3,)), ("depth", depth, ()), ("motion", motion, (2,))):
-            if a.size != int(np.prod(tuple(hw) + tail)) or a.dtype != np.float32:
-                raise FrameInputError(f"{name}: expected float32 of shape {tuple(hw) + tail}, got "
-                                      f"{a.dtype} {a.shape}")
-        if out is not None and (out.shape != (fs.H, fs.W, 3) or out.dtype != np.float32):
-            raise FrameInputError(f"out: expected a float32 array of shape {(fs.H, fs.W, 3)}")
+        self._check_device_arrays((("color", color, (*hw, 3)), ("depth", depth, hw),
+                                   ("motion", motion, (*hw, 2))), out, (fs.H, fs.W, 3))
         return self._run(fs, color, depth, motion, check_jitter(jitter), out)
 
     def _run(self, fs, color, depth, motion, jitter, out):
         res, ev = fs.run(color, depth, motion, jitter, self._pending_reset,
                          depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
                          exposure=self.exposure, out=out)
-        ev.wait()
-        self._pending_reset = False
-        self.frame_index += 1
-        if self.profile:
-            self._timed += 1
+        self._frame_done(ev)
         return res
 
 
