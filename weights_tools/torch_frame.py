@@ -31,7 +31,8 @@ import torch.nn.functional as F
 
 from clss.pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
                                     CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD,
-                                    DILATE_OFFSETS, HISTORY_CHANNELS, MODES, PQ_NITS,
+                                    DILATE_OFFSETS, HISTORY_CHANNELS, MEASURE_KNEES, MODES,
+                                    PQ_NITS,
                                     RULE_CLIP_EPS, SCATTER_WEIGHT_THRESHOLD, output_size,
                                     to_internal, validate_frame)
 
@@ -125,6 +126,10 @@ def _basis(inputs, diff_scale=30.0):
             A[i, i], sh[i] = 2.0, 0.5
         elif name == "depth_difference":
             A[i, i] = 10.0
+        elif name == "prev_depth_difference":   # already in (-1, 1) (MEASURE_KNEES)
+            A[i, i] = 2.0
+        elif name in ("color_change", "depth_edge", "color_spread"):   # [0, 1)
+            A[i, i], sh[i] = 2.0, 0.5
         else:                                    # logits
             A[i, i] = 0.25
     return A, sh
@@ -372,7 +377,7 @@ class FrameStep(nn.Module):
 
     # -- stages 1-4: inputs only, no autograd ---------------------------------------------
     @torch.no_grad()
-    def prepare(self, color, depth, motion, jitter, reactive):
+    def prepare(self, color, depth, motion, jitter, reactive, prev=None, reset=None):
         B, h, w = color.shape[0], self.h, self.w
         X = pq_encode(color, self.nits) if self.hdr else torch.clamp(color, 0.0, 1.0)
 
@@ -433,7 +438,7 @@ class FrameStep(nn.Module):
         auto = torch.clamp((div - AUTO_REACTIVE_LO) * AUTO_REACTIVE_SLOPE, 0.0,
                            AUTO_REACTIVE_MAX)
         reactive = torch.maximum(reactive, auto)
-        lr = [d_dil, m_dil, dd, reactive]
+        lr = [d_dil, m_dil, dd, reactive, *self.measurements(X, d_dil, m_dil, prev, reset)]
         if self.clip:
             # s9 clamp box: 3x3 render-res min/max (max_pool pads with -inf) narrowed to
             # mean +- CLIP_GAMMA std of the in-bounds neighbours, the moments taken of the
@@ -452,17 +457,51 @@ class FrameStep(nn.Module):
                    torch.minimum(F.max_pool2d(X, 3, 1, 1), X + md + gsd)]
         aux = _sample(torch.cat(lr, 1), grid, False)
         return {"up": up, "depth_hr": aux[:, 0:1], "motion_hr": aux[:, 1:3] * self.motion_ratio,
-                "dd_hr": aux[:, 3:4], "reactive_hr": aux[:, 4:5],
-                "clamp_min": aux[:, 5:8] if self.clip else None,
-                "clamp_max": aux[:, 8:11] if self.clip else None,
-                "depth_diff": dd, "recon": recon[:, :h * w].reshape(B, 1, h, w)}
+                "dd_hr": aux[:, 3:4], "reactive_hr": aux[:, 4:5], "measure_hr": aux[:, 5:9],
+                "clamp_min": aux[:, 9:12] if self.clip else None,
+                "clamp_max": aux[:, 12:15] if self.clip else None,
+                "depth_diff": dd, "recon": recon[:, :h * w].reshape(B, 1, h, w),
+                "prev": torch.cat([X, d_dil], 1)}
+
+    def measurements(self, X, d, m, prev, reset):
+        """reference.md s4b, render res: [prev depth difference, colour change, depth edge,
+        colour spread], each [B,1,h,w]. `prev` [B,4,h,w] is the previous frame's encoded
+        colour and dilated depth (None, or `reset`: the first two are 0). The previous
+        frame is read at the nearest pixel to p + motion; off screen both are 1."""
+        B, h, w = X.shape[0], self.h, self.w
+        if prev is None:
+            tdd = cc = torch.zeros_like(d)
+        else:
+            qx = torch.floor((self.jj + m[:, 0:1]) + 0.5)
+            qy = torch.floor((self.ii + m[:, 1:2]) + 0.5)
+            on = (qx >= 0) & (qx <= w - 1) & (qy >= 0) & (qy <= h - 1)
+            lin = (torch.clamp(qy, 0, h - 1) * w + torch.clamp(qx, 0, w - 1)).long()
+            pv = prev.reshape(B, 4, h * w).gather(2, lin.reshape(B, 1, -1).expand(B, 4, -1))
+            pv = pv.reshape(B, 4, h, w)
+            pd = pv[:, 3:4]
+            one = torch.ones((), device=X.device)
+            tdd = torch.where(on, torch.clamp((pd - d) / torch.clamp(pd, min=DEPTH_EPS), -1.0, 1.0),
+                              one)
+            cc = torch.where(on, (X - pv[:, 0:3]).abs().amax(1, keepdim=True), one)
+            if reset is not None:
+                keep = ~torch.as_tensor(reset, device=X.device).reshape(-1, 1, 1, 1).bool()
+                tdd, cc = tdd * keep, cc * keep
+        # 3x3 ranges over the in-bounds neighbours (edge replication adds none)
+        pd3 = F.pad(d, (1, 1, 1, 1), mode="replicate")
+        dmax = F.max_pool2d(pd3, 3, 1)
+        dmin = -F.max_pool2d(-pd3, 3, 1)
+        edge = (dmax - dmin) / torch.clamp(dmax, min=DEPTH_EPS)
+        px = F.pad(X, (1, 1, 1, 1), mode="replicate")
+        spread = (F.max_pool2d(px, 3, 1) + F.max_pool2d(-px, 3, 1)).amax(1, keepdim=True)
+        return [m / (m.abs() + k) for m, k in zip((tdd, cc, edge, spread), MEASURE_KNEES)]
 
     # -- stages 5-9 ------------------------------------------------------------------------
     def forward(self, color, depth, motion, jitter, reset, history, reactive=None,
-                rule_color=None):
-        """-> dict: output [B,3,H,W] linear, out (PQ), history [B,16,H,W], w, counter,
-        ghost, valid, logits (net), up, and rule_color when it was given."""
-        p = self.prepare(color, depth, motion, jitter, reactive)
+                rule_color=None, prev=None):
+        """-> dict: output [B,3,H,W] linear, out (PQ), history [B,16,H,W], prev [B,4,h,w]
+        (the render-res state, fed back as `prev`), w, counter, ghost, valid, logits
+        (net), up, and rule_color when it was given."""
+        p = self.prepare(color, depth, motion, jitter, reactive, prev, reset)
         up, motion_hr = p["up"], p["motion_hr"]
         B, H, W = up.shape[0], self.H, self.W
 
@@ -492,7 +531,7 @@ class FrameStep(nn.Module):
         logits = None
         if self.mode == "net":
             x = torch.cat([up, cls_col, p["depth_hr"], motion_hr, 1.0 / (1.0 + w_cnt), w_min,
-                           w_max, p["dd_hr"], w_log], 1)
+                           w_max, p["dd_hr"], w_log, p["measure_hr"]], 1)
             H16, W16 = _pad16(H), _pad16(W)
             if (H16, W16) != (H, W):
                 x = F.pad(x, (0, W16 - W, 0, H16 - H), mode="replicate")
@@ -541,7 +580,7 @@ class FrameStep(nn.Module):
         out = wgt * up + (1.0 - wgt) * blend_hist
         history_out = torch.cat([out, cnt, c_min, c_max, new_logits], 1)
         output = pq_decode(out, self.nits) if self.hdr else out
-        res.update(output=output, out=out, history=history_out, w=wgt, counter=cnt,
+        res.update(output=output, out=out, history=history_out, prev=p["prev"], w=wgt, counter=cnt,
                    ghost=ghost, valid=valid, logits=logits, up=up, depth_diff=p["depth_diff"])
         return res
 
@@ -569,11 +608,11 @@ class TorchUpscaler:
                 weights = load_weights(weights)
             self.nets = tuple(n.to(self.device).eval() for n in networks_from_tensors(weights))
         self.step_fn = None
-        self.history = None
+        self.history = self.prev = None
         self.last = {}
 
     def reset(self):
-        self.history = None
+        self.history = self.prev = None
 
     @torch.no_grad()
     def step(self, color, depth, motion, jitter, reset=False, reactive=None, **gbuffers):
@@ -585,13 +624,14 @@ class TorchUpscaler:
         if self.step_fn is None or (self.step_fn.h, self.step_fn.w) != (h, w):
             self.step_fn = FrameStep(self.mode, (h, w), self.scale, *self.nets,
                                      **self.kw).to(self.device)
-            self.history = None
+            self.history = self.prev = None
         t = {k: torch.from_numpy(v).to(self.device) for k, v in feed.items()}
         first = self.history is None
         hist = self.step_fn.initial_history() if first else self.history
         r = self.step_fn(t["color"], t["depth"], t["motion"], t["jitter"].view(1, 2),
-                         torch.tensor([bool(reset or first)]), hist, t["reactive"])
-        self.history = r["history"]
+                         torch.tensor([bool(reset or first)]), hist, t["reactive"],
+                         prev=None if first else self.prev)
+        self.history, self.prev = r["history"], r["prev"]
         self.last = r
         out = r["output"][0].permute(1, 2, 0).cpu().numpy()
         e = self.contract["exposure"]

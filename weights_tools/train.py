@@ -205,16 +205,21 @@ def composition_parts(r, lg, la, ref_pq):
     return ((lw * good_geo).sum(), good_geo.sum(), (li * rest).sum(), rest.sum())
 
 
-def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0):
-    """The recurrent pass over one batch of windows -> (loss, stats)."""
+def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0, detach=False):
+    """The recurrent pass over one batch of windows -> (loss, stats). `detach`: the state
+    carries no gradient from one frame to the next (each frame's loss trains only that
+    frame's pass)."""
     T, B = batch["depth"].shape[:2]
     hist = step.initial_history(B)
     rule_color = torch.zeros_like(hist[:, 0:3]) if stage == "composition" else None
     acc = [torch.zeros((), device=hist.device) for _ in range(4)]
+    prev = None
     for t in range(T):
         r = step(batch["color"][t], batch["depth"][t], batch["motion"][t], batch["jitter"][t],
-                 batch["reset"][t], hist, None, rule_color)
-        hist = r["history"]
+                 batch["reset"][t], hist, None, rule_color, prev)
+        hist, prev = r["history"], r["prev"]
+        if detach:
+            hist = hist.detach()
         lg, la = batch["label_ghost"][t], batch["label_alias"][t]
         if stage == "classifier":
             s, n = classifier_loss(r["logits"], lg, la, r["valid"], wg, wa)
@@ -307,6 +312,12 @@ def train(args):
     torch.manual_seed(args.seed)
     init = load_weights(args.init) if args.init else None
     cls, comp = torch_frame.networks_from_tensors(init, seed=args.seed)
+    if init is None:
+        # the classifier's output conv starts at zero: its first logits are its biases'
+        # (near uniform), not noise that Adam removes most cheaply by silencing the
+        # ReLUs before it (the dead-unit failure NSRR's U-Net had, issue 20)
+        with torch.no_grad():
+            cls.dec[-1].weight.zero_()
     if args.basis:
         torch_frame.use_basis(cls, comp)
     cls, comp = cls.to(device).to(memory_format=torch.channels_last), comp.to(device)
@@ -353,7 +364,8 @@ def train(args):
             batch = make_batch(seqs, [items[i] for i in pick], rsize, args.frames, device)
             for pg in opt.param_groups:
                 pg["lr"] = lr_cosine(args.lr, it, total)
-            loss, parts = run_window(step, batch, stage, wg, wa, args.weight_loss)
+            loss, parts = run_window(step, batch, stage, wg, wa, args.weight_loss,
+                                     detach=stage == "classifier" and args.cls_detach)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -424,6 +436,8 @@ def add_arguments(t):
                    help="train on the normalised input basis (torch_frame: colours as "
                         "differences to the current one, depth and motion at unit scale), "
                         "folded back into the shipped weights' raw basis at export")
+    t.add_argument("--cls-detach", action="store_true",
+                   help="classifier stage: no gradient through the state from frame to frame")
     t.add_argument("--batch", type=int, default=4, help="windows per step")
     t.add_argument("--patch", type=int, default=64, help="patch size, output pixels")
     t.add_argument("--frames", type=int, default=8, help="recurrent frames per window")

@@ -48,6 +48,12 @@ CLASSIFIER_INPUTS = (
     ("color_max", 3),
     ("depth_difference", 1),
     ("warped_logits", 6),    # previous frame's logits, warped
+    # The rule detectors' measurements (issue 23, reference.md s4b), at render res then
+    # bilinear: what the labels are made of, at a scale the network can learn from.
+    ("prev_depth_difference", 1),  # the previous frame's own depth at p + motion
+    ("color_change", 1),     # one-frame change of the encoded colour at p + motion
+    ("depth_edge", 1),       # relative depth range over the 3x3 render neighbourhood
+    ("color_spread", 1),     # encoded-colour range over the 3x3 render neighbourhood
 )
 COMPOSITION_INPUTS = (
     ("bicubic_color", 3),
@@ -59,7 +65,7 @@ COMPOSITION_INPUTS = (
     ("color_max", 3),
     ("logits", 6),           # this frame's logits (not the warped ones)
 )
-CLASSIFIER_CHANNELS = sum(n for _, n in CLASSIFIER_INPUTS)    # 23
+CLASSIFIER_CHANNELS = sum(n for _, n in CLASSIFIER_INPUTS)    # 27
 COMPOSITION_CHANNELS = sum(n for _, n in COMPOSITION_INPUTS)  # 22
 LOGITS = ("ghost_visibility", "ghost_shading", "ghost_none",
           "alias_geometry", "alias_texture", "alias_none")

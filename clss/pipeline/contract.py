@@ -94,6 +94,11 @@ DEFAULT_CAP = {"rule": 4, "net": 32}
 DEPTH_THRESHOLD = 0.1
 SCATTER_WEIGHT_THRESHOLD = 0.01
 DEPTH_EPS = 1e-6
+# The classifier's four measurements (reference.md s4b: previous-depth difference, colour
+# change, depth edge, colour spread) enter as m / (|m| + k): the label-relevant sizes (a 1 %
+# depth jump, a 0.002-0.03 PQ colour change) become O(1) without the outliers (an
+# off-screen 1, a full-range edge) dwarfing them, which a linear input scale could not do.
+MEASURE_KNEES = (0.05, 0.02, 0.1, 0.02)
 # Dilation neighbour order (dx, dy), FSR2's: the centre first, so that on equal depths
 # (flat areas) a pixel keeps its own motion; the first maximum in this order wins.
 DILATE_OFFSETS = ((0, 0), (1, 0), (0, 1), (0, -1), (-1, 0), (-1, 1), (1, 1), (-1, -1), (1, -1))
