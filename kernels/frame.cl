@@ -5,7 +5,9 @@
  *   prepare      render res   entry conversions, validity flags, transfer function,
  *                             dilation (s2), scatter of the previous depth (s3)
  *   depth_diff   render res   bilinear of the reconstructed depth -> dd (s4); the clamp
- *                             box of the encoded colour over 3x3 (s9)
+ *                             box of the encoded colour over 3x3 (s9); net mode: the
+ *                             classifier's four measurements against the previous frame's
+ *                             colour and depth (s4b), and that state for the next frame
  *   resolve      output res   jitter-aware upsampling (s5), the 16-channel history warp
  *                             (s6), the history clip (s9); rule mode: ghost test, aux
  *                             update and blend (s8, s9) in the same pass; net mode: the
@@ -24,6 +26,8 @@
  *   -DHIDDEN=n      compose: hidden width of the composition MLP
  *   -DCLIP_EPS=x    resolve: contract.RULE_CLIP_EPS, see the history clip (s9)
  *   -DCLIP_GAMMA=x  depth_diff: contract.CLIP_GAMMA, the clamp box's std multiple (s9)
+ *   -DKNEE_TDD=x -DKNEE_CC=x -DKNEE_EDGE=x -DKNEE_SPREAD=x  depth_diff (net):
+ *                   contract.MEASURE_KNEES, the measurements' compression v / (|v| + k)
  *   -DCLSS_CLANG_VECTORS=0|1  half loads/stores (LDV/STV, st_plane, neighbourhood
  *                   reads) through common.h's FLD/FLD8/FST/FST8, inline clang vector
  *                   conversions, instead of vload_halfN and vstore_halfN (out-of-line calls
@@ -78,6 +82,19 @@
 #ifndef AR_MAX
 #define AR_MAX 0.5f
 #endif
+/* the classifier's measurements (s4b): v / (|v| + knee), contract.MEASURE_KNEES */
+#ifndef KNEE_TDD
+#define KNEE_TDD 0.05f
+#endif
+#ifndef KNEE_CC
+#define KNEE_CC 0.02f
+#endif
+#ifndef KNEE_EDGE
+#define KNEE_EDGE 0.1f
+#endif
+#ifndef KNEE_SPREAD
+#define KNEE_SPREAD 0.02f
+#endif
 
 /* flags[0]: what was found (bits); flags[1..4]: non-finite element counts */
 #define F_COLOR_NONFINITE 1u
@@ -100,6 +117,14 @@
 #define L_REACTIVE 4
 #define L_NMIN 5
 #define L_NMAX 8
+/* net mode only (L_CHANNELS 15): the classifier's measurements (s4b), in
+ * CLASSIFIER_INPUTS order: previous-depth difference, colour change, depth edge, colour
+ * spread */
+#define L_MEASURE 11
+#define MEASURES 4
+/* the render-res state of net mode: the previous accepted frame's encoded colour (3)
+ * and dilated depth, [PREV_CHANNELS, h, w] float */
+#define PREV_CHANNELS 4
 
 /* The buffer widths come from the host, where they are defined once: L_CHANNELS and HIST
  * from clss.pipeline.contract, CLS_IN and COMP_IN from clss.networks' channel layouts. */
@@ -486,16 +511,25 @@ __kernel void prepare(__global const float *color, __global const float *depth,
 
 /* Stage 3: the reconstructed previous depth read bilinearly at p + motion (taps that
  * were refused by the scatter are still read; off-screen taps read far). The clamp box
- * rides along: it needs the whole encoded colour, which only exists after `prepare`. */
+ * rides along: it needs the whole encoded colour, which only exists after `prepare`; so
+ * do net mode's measurements (s4b), which need it and the 3x3 neighbourhood too. */
 /** @param[in]     recon  [h*w] uint the reconstructed previous depth (prepare)
  *  @param[in]     X      [3, h, w] T the encoded colour (for the clamp box)
- *  @param[in,out] lr     the render-res stack: gets the depth difference and the clamp box
+ *  @param[in,out] lr     the render-res stack: gets the depth difference and the clamp box (net: and the measurements)
  *  @param[in]     w, h   render width and height
+ *  @param[in]     prev   net only: [4, h, w] float the previous accepted frame's encoded colour and dilated depth (not read on a reset)
+ *  @param[out]    prev_out net only: [4, h, w] float this frame's, for the next one (the state once the frame is accepted)
+ *  @param[in]     reset  net only: 1 on a camera cut or the first frame (the previous frame's measurements are 0)
  *  @note -DCLIP_GAMMA=x: the box's std multiple (contract.CLIP_GAMMA)
+ *  @note -DNET=1: the measurements and the extra arguments; -DKNEE_TDD, _CC, _EDGE, _SPREAD (contract.MEASURE_KNEES)
  *  @note -DCLSS_FP16=1: X in half (T)
  */
 __kernel void depth_diff(__global const uint *recon, __global const T *X, __global float *lr,
-                         int w, int h)
+                         int w, int h
+#if NET
+                         , __global const float *prev, __global float *prev_out, int reset
+#endif
+                         )
 {
     const int j = get_global_id(0), i = get_global_id(1);
     if (j >= w || i >= h) return;
@@ -517,6 +551,7 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
      * neighbourhood diverges, surfaces move apart and a warped history mixes them, so the
      * blend weight is raised as the caller's reactive mask would (in-bounds neighbours;
      * only the motion planes are read here, which no work-item of this kernel writes) */
+    float dmin = d, dmax = d;       /* net: the dilated depth's 3x3 range (s4b) */
     {
         float div = 0.0f;
         for (int dy = -1; dy <= 1; ++dy) {
@@ -527,6 +562,12 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
                 if (jj < 0 || jj >= w) continue;
                 const int pn = ii * w + jj;
                 div = fmax(div, fabs(lr[L_MX * hw + pn] - m.x) + fabs(lr[L_MY * hw + pn] - m.y));
+#if NET
+                /* the depth plane is prepare's: no work-item of this kernel writes it */
+                const float dn = lr[L_DEPTH * hw + pn];
+                dmin = fmin(dmin, dn);
+                dmax = fmax(dmax, dn);
+#endif
             }
         }
         lr[L_REACTIVE * hw + p] = fmax(lr[L_REACTIVE * hw + p],
@@ -538,6 +579,7 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
      * are taken of the differences to the centre pixel, in the oracle's order (rows,
      * then columns): E[x^2] - E[x]^2 of the values themselves cancels to the point where
      * float rounding moved the box by 1e-4. */
+    float spread = 0.0f;            /* net: the largest channel range of the window (s4b) */
     for (int c = 0; c < 3; ++c) {
         __global const T *x = X + c * hw;
         const float xc = FLD(x, p);
@@ -562,7 +604,41 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
         const float mu = xc + md;
         lr[(L_NMIN + c) * hw + p] = fmax(lo, mu - sd);
         lr[(L_NMAX + c) * hw + p] = fmin(hi, mu + sd);
+        spread = fmax(spread, hi - lo);
     }
+#if NET
+    /* s4b, the classifier's measurements: what the rule detectors look at, given to the
+     * network rather than thresholded. The previous frame is read at the nearest pixel to
+     * p + motion (the tap rounded as the oracle and the torch twin round it, so that all
+     * three read the same pixel); off screen there is no previous frame, which counts as
+     * the largest change (1). A reset has none either, but says nothing: 0. */
+    float tdd = 0.0f, cc = 0.0f;
+    if (!reset) {
+        const float qx = floor(((float)j + m.x) + 0.5f), qy = floor(((float)i + m.y) + 0.5f);
+        if (qx >= 0.0f && qx <= (float)(w - 1) && qy >= 0.0f && qy <= (float)(h - 1)) {
+            const int q = (int)qy * w + (int)qx;
+            const float pd = prev[3 * hw + q];
+            tdd = clamp((pd - d) / fmax(pd, 1e-6f), -1.0f, 1.0f);
+            for (int c = 0; c < 3; ++c)
+                cc = fmax(cc, fabs(FLD(X + c * hw, p) - prev[c * hw + q]));
+        } else {
+            tdd = cc = 1.0f;
+        }
+    }
+    const float edge = (dmax - dmin) / fmax(dmax, 1e-6f);
+    /* each compressed as v / (|v| + knee): the label-relevant sizes become O(1) and the
+     * outliers (off screen, a full-range edge) stay below 1 */
+    lr[L_MEASURE * hw + p] = tdd / (fabs(tdd) + KNEE_TDD);
+    lr[(L_MEASURE + 1) * hw + p] = cc / (fabs(cc) + KNEE_CC);
+    lr[(L_MEASURE + 2) * hw + p] = edge / (fabs(edge) + KNEE_EDGE);
+    lr[(L_MEASURE + 3) * hw + p] = spread / (fabs(spread) + KNEE_SPREAD);
+    /* the next frame's state: the colour as stored (half in fp16 storage, which float
+     * holds exactly) and the dilated depth. Written on a reset too, and on a frame that
+     * is then refused: the host only swaps the state in when it accepts the frame. */
+    for (int c = 0; c < 3; ++c)
+        prev_out[c * hw + p] = FLD(X + c * hw, p);
+    prev_out[3 * hw + p] = d;
+#endif
 }
 
 /* What stages 4 and 5 give VEC output pixels. */
@@ -571,6 +647,9 @@ typedef struct {
     fv depth, mvx, mvy, dd, react, cnt;
     iv valid;
     fv bmin[3], bmax[3];
+#if NET
+    fv meas[MEASURES];      /* the classifier's measurements (s4b), bilinear like dd */
+#endif
 } Gathered;
 
 /* Stages 4 and 5 at output pixels (I, J[lane]). bx, by: (J + 0.5) w / W - 0.5 per column
@@ -597,6 +676,10 @@ inline Gathered gather(int I, iv J, __global const T *X, __global const float *l
         g.bmin[c] = linear_f(lr + (L_NMIN + c) * hw, lx, ly);
         g.bmax[c] = linear_f(lr + (L_NMAX + c) * hw, lx, ly);
     }
+#if NET
+    for (int k = 0; k < MEASURES; ++k)
+        g.meas[k] = linear_f(lr + (L_MEASURE + k) * hw, lx, ly);
+#endif
 
     /* s6: the history at P + motion; off-screen or reset pixels start afresh */
     const fv su = CONVERT_FV(J) + g.mvx, sv = (float)I + g.mvy;
@@ -780,6 +863,8 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     STV(cls_in, 16 * P + r, g.dd);
     for (int c = 0; c < 6; ++c)
         STV(cls_in, (17 + c) * P + r, g.lg[c]);
+    for (int k = 0; k < MEASURES; ++k)
+        STV(cls_in, (23 + k) * P + r, g.meas[k]);
     STV(aux, r, g.cnt);
     STV(aux, P + r, select(FV(0.0f), FV(1.0f), g.valid));
     STV(aux, 2 * P + r, g.react);

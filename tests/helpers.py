@@ -134,8 +134,17 @@ def compare_frame(a, b, ha, hb, precision, mode, where):
         bad = (np.abs(a - b) > bound).any(-1) & agree
         assert not bad.any(), (f"{where}: output differs at {np.argwhere(bad)[:3].tolist()}, "
                                f"max |d| {np.abs(a - b)[bad].max():.3g}")
+        # the logits (channels 10-15) within 5e-4 in net mode: its classifier reads the
+        # colour change and spread (reference.md s4b), differences of two encoded colours
+        # compressed with a slope of up to 1 / 0.02, so the 1e-5 by which two float32 PQ
+        # encoders differ becomes up to 5e-4 in those inputs (s11); the logits then
+        # differed by up to 1.2e-4 (measured, seeded networks; 9e-6 before s4b)
         d = np.abs(ha - hb)[:, agree]
-        assert d.max() <= 1e-4, f"{where}: history channel {int(d.max(1).argmax())} differs by {d.max():.3g}"
+        tol = np.full((len(ha), 1), 1e-4)
+        tol[10:] = 5e-4 if mode == "net" else 1e-4
+        c = int((d - tol).max(1).argmax())
+        assert (d[c] <= tol[c]).all(), \
+            f"{where}: history channel {c} differs by {d[c].max():.3g} (tolerance {tol[c, 0]:g})"
     else:
         assert frac <= (0.01 if mode == "rule" else 0.15), f"{where}: counters differ on {frac:.2%}"
         # where half rounding flipped a ghost decision (the counters differ) the output

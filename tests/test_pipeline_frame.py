@@ -71,6 +71,64 @@ def test_scales_and_odd_sizes_match_oracle(render, scale, mode):
                       f"{render} x{scale} {mode} frame {i}")
 
 
+def _random_frame(rng, hh, ww):
+    """Colour over the PQ range, depth edges, motion up to 2.5 px (some of it off screen)."""
+    color = rng.uniform(0, 3, (hh, ww, 3)).astype(np.float32)
+    depth = np.where(rng.random((hh, ww)) < 0.3, 0.8, 0.2).astype(np.float32)
+    depth += rng.uniform(0, 0.01, (hh, ww)).astype(np.float32)
+    motion = rng.uniform(-2.5, 2.5, (hh, ww, 2)).astype(np.float32)
+    motion[::3, ::2] = np.round(motion[::3, ::2]) + 0.5      # ties of the nearest-pixel tap
+    return color, depth, motion
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+def test_measurements_match_oracle(precision):
+    """Net mode's classifier measurements (reference.md s4b) and its render-res state, the
+    OpenCL step against the oracle at an odd size (13 x 17 x1.5 -> 20 x 26, padded to
+    32 x 32) over 5 frames: a refused frame before frame 2 (the state must not move),
+    a reset at frame 3. The render-res planes (lr 11-14), their bilinear upsampling
+    (classifier input 23-26) and the state: previous-depth difference and depth edge
+    exact but for the division (fp32; fp16: the classifier input's half rounding),
+    colour change and spread within the encoders' 1e-5 times the knee's slope (s11)."""
+    from clss.pipeline.contract import MEASURE_KNEES, FrameInputError
+    rng = np.random.default_rng(7)
+    hh, ww, scale = 13, 17, 1.5
+    ours = _ours(scale, "net", precision)
+    ora = _oracle((hh, ww), scale, "net", debug=True)
+    fp32 = precision == "fp32"
+    tol = np.array([1e-6, 1e-3, 1e-6, 1e-3] if fp32 else [1e-6, 3e-2, 1e-6, 3e-2])
+    tol_hr = tol if fp32 else np.array([1e-3, 3e-2, 1e-3, 3e-2])
+    for i in range(5):
+        color, depth, motion = _random_frame(rng, hh, ww)
+        jitter = (0.25 * (-1) ** i, -0.125)
+        reset = i == 3
+        if i == 2:
+            bad = _random_frame(rng, hh, ww)
+            bad[0][4, 5, 1] = np.nan
+            with pytest.raises(FrameInputError):
+                ours.step(*bad, jitter)
+        ours.step(color, depth, motion, jitter, reset=reset)
+        ora.step(color, depth, motion, jitter, reset=reset)
+        fs = ours._fs
+        got, want = fs.lr.get()[11:15], ora.debug["dbg_measurements"][0]
+        got_hr = fs.dev.to_host(fs.cls_in)[0, 23:27, :fs.H, :fs.W]
+        want_hr = ora.debug["dbg_cls_input"][0, 23:27]
+        if i in (0, 3):          # no previous frame: those two are 0
+            assert not got[:2].any() and not want[:2].any(), i
+        else:                    # off screen: the largest change, 1 / (1 + knee)
+            off = np.float32(1) / (np.float32(1) + np.float32(MEASURE_KNEES[0]))
+            assert (want[0] == off).any() and (got[0] == off).any(), i
+        for k in range(4):
+            err = np.abs(got[k] - want[k]).max()
+            assert err <= tol[k], f"{precision} frame {i} measurement {k}: {err:.3g}"
+            err = np.abs(got_hr[k] - want_hr[k]).max()
+            assert err <= tol_hr[k], f"{precision} frame {i} classifier input {23 + k}: {err:.3g}"
+        pa, pb = ours.state["prev"], ora.state["prev"]
+        assert pa.shape == pb.shape == (1, 4, hh, ww)
+        np.testing.assert_array_equal(pa[0, 3], pb[0, 3])                   # dilated depth
+        np.testing.assert_allclose(pa[0, :3], pb[0, :3], rtol=0, atol=2e-5 if fp32 else 5e-4)
+
+
 @pytest.mark.parametrize("opts", [
     dict(exposure=2.5), dict(hdr=False), dict(motion_scale=(-1.0, -1.0)),
     dict(depth_inverted=False), dict(cap=2, depth_threshold=0.05),
@@ -117,8 +175,14 @@ def test_pixels_per_work_item_variants_agree(mode, monkeypatch):
         outs[vec] = [up.step(f.color, f.depth, f.motion, f.jitter) for f in seq]
         outs[vec].append(up.state["history"])
     for vec in ("4", "1"):
-        for a, b in zip(outs[vec], outs["8"]):
+        for a, b in zip(outs[vec][:-1], outs["8"][:-1]):
             np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-6)
+        ha, hb = outs[vec][-1][0], outs["8"][-1][0]
+        np.testing.assert_allclose(ha[:10], hb[:10], rtol=1e-4, atol=1e-6)
+        # the logits: net mode's classifier reads differences of encoded colours with a
+        # slope of up to 50 (reference.md s4b, s11), so the encoders' rounding reaches its
+        # logits, near 0, as up to 5e-6 absolute (measured)
+        np.testing.assert_allclose(ha[10:], hb[10:], rtol=1e-4, atol=3e-5 if mode == "net" else 1e-6)
 
 
 OCLGRIND_SCRIPT = r"""

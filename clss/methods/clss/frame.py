@@ -9,14 +9,16 @@ Per frame (render res h x w, output res H x W, H16 x W16 the size padded to 16):
 
     clear         recon, flags <- 0
     prepare       color, depth, motion, reactive -> X (encoded colour), lr stack, recon
-    depth_diff    recon -> lr[dd]; rule: X -> lr[colour box]
+    depth_diff    recon -> lr[dd]; X -> lr[colour box]; net: X, lr, prev -> lr[measurements],
+                  prev' (reference.md s4b)
     resolve       rule: X, lr, history -> history', output
                   net:  X, lr, history -> classifier input (H16 x W16), aux
     classifier    net: classifier input -> logits at H16/2 x W16/2   (clss.Model)
     compose       net: logits, classifier input, aux, history -> history', output
 
-The history is double-buffered and swapped after a frame is accepted; the depth
-reconstruction is per-frame scratch (reference.md s3).
+The history, and in net mode the render-res state `prev` (the previous accepted frame's
+encoded colour and dilated depth, s4b), are double-buffered and swapped after a frame is
+accepted; the depth reconstruction is per-frame scratch (reference.md s3).
 """
 from __future__ import annotations
 
@@ -35,11 +37,14 @@ from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from ...ops.conv import load_defines
 from ...pipeline.method import summed_event_ms
 from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
-                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
-                       PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
+                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS,
+                                 MEASURE_KNEES, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
 
 LR_CHANNELS = 11  # depth, motion 2, dd, reactive, clamp box low 3 and high 3
-# The buffer widths kernels/frame.cl is built with (it has no defaults for them).
+LR_NET_CHANNELS = 15  # net mode: and the classifier's 4 measurements (reference.md s4b)
+PREV_CHANNELS = 4  # net mode's render-res state: encoded colour 3, dilated depth
+# The buffer widths kernels/frame.cl is built with (it has no defaults for them); net
+# mode builds with L_CHANNELS = LR_NET_CHANNELS.
 WIDTH_DEFINES = dict(L_CHANNELS=LR_CHANNELS, HIST=HISTORY_CHANNELS,
                      CLS_IN=CLASSIFIER_CHANNELS, COMP_IN=COMPOSITION_CHANNELS)
 # flags[0] bits, as kernels/frame.cl
@@ -180,6 +185,10 @@ class FrameStep:
                        CLSS_CLANG_VECTORS=load_defines(dev, prec, f"frame.{mode}")["CLSS_CLANG_VECTORS"])
         defines.update(CLIP_EPS=float(RULE_CLIP_EPS), CLIP_GAMMA=float(CLIP_GAMMA),
                        **WIDTH_DEFINES)
+        if net:
+            defines.update(L_CHANNELS=LR_NET_CHANNELS,
+                           **dict(zip(("KNEE_TDD", "KNEE_CC", "KNEE_EDGE", "KNEE_SPREAD"),
+                                      (float(k) for k in MEASURE_KNEES))))
         defines.update(AR_LO=float(AUTO_REACTIVE_LO), AR_SLOPE=float(AUTO_REACTIVE_SLOPE),
                        AR_MAX=float(AUTO_REACTIVE_MAX))
         h, w, H, W = self.h, self.w, self.H, self.W
@@ -192,9 +201,13 @@ class FrameStep:
         self.in_reactive = e((h, w), dtype=f32)
         self.recon = e((h * w,), dtype=np.uint32)
         self.X = e((3, h, w), prec)
-        self.lr = e((LR_CHANNELS, h, w), dtype=f32)
+        self.lr = e((LR_NET_CHANNELS if net else LR_CHANNELS, h, w), dtype=f32)
         self.flags = e((8,), dtype=np.uint32)
         self.history = [e((HISTORY_CHANNELS, H, W), prec), e((HISTORY_CHANNELS, H, W), prec)]
+        # net: the render-res state (s4b), float whatever the precision (depth; the colour
+        # is the stored X, which float holds exactly); ping-ponged with the history
+        self.prev = ([e((PREV_CHANNELS, h, w), dtype=f32), e((PREV_CHANNELS, h, w), dtype=f32)]
+                     if net else [])
         self.out = e((H, W, 3), dtype=f32)
         self.bx = dev.to_device(((np.arange(W, dtype=np.float64) + 0.5) * w / W - 0.5).astype(f32))
         self.by = dev.to_device(((np.arange(H, dtype=np.float64) + 0.5) * h / H - 0.5).astype(f32))
@@ -221,6 +234,8 @@ class FrameStep:
                   ("clear", "prepare", "depth_diff", "resolve") + (("compose",) if net else ())}
         # zeroed once: no kernel then ever reads uninitialised memory (oclgrind checks it)
         self._clear(*self.history)
+        if net:
+            self._clear(*self.prev)
         self.events: list[tuple[str, cl.Event]] = []
         self._launches()
 
@@ -240,6 +255,8 @@ class FrameStep:
     # ones by these names.
     PREPARE = ("color depth motion reactive has_reactive w h depth_inverted msx msy inv_exposure "
                "pq_scale recon X lr flags").split()
+    DEPTH_DIFF = "recon X lr w h".split()
+    DEPTH_DIFF_NET = DEPTH_DIFF + "prev prev_out reset".split()
     RESOLVE = "X lr bx by jx jy w h W H sx sy reset hist".split()
     RESOLVE_RULE = RESOLVE + ("hist_out out flags depth_threshold cap inv_pq_scale exposure debug "
                               "dbg").split()
@@ -250,7 +267,7 @@ class FrameStep:
     def _launches(self):
         """Every launch of a frame with its arguments bound once (clss.device.Launch): a
         frame then enqueues them with no argument marshalling, re-binding only what
-        changes per frame (inputs, jitter, reset, the history's ping-pong, exposure)."""
+        changes per frame (inputs, jitter, reset, the state's ping-pong, exposure)."""
         dev, h, w, H, W = self.dev, self.h, self.w, self.H, self.W
         i32, f = np.int32, np.float32
         na, nb = self.recon.nbytes // 4, self.flags.nbytes // 4
@@ -265,12 +282,14 @@ class FrameStep:
                     depth_threshold=f(self.depth_threshold), cap=f(self.cap),
                     inv_pq_scale=f(PQ_PEAK_NITS / self.nits), exposure=f(1), debug=i32(0),
                     dbg=self.dbg.data, W16=i32(self.W16), H16=i32(self.H16))
+        if self.prev:
+            vals.update(prev=self.prev[0].data, prev_out=self.prev[1].data)
+        dd_names = self.DEPTH_DIFF_NET if self.mode == "net" else self.DEPTH_DIFF
         L = {"clear": dev.prepare(self.k["clear"], (max(na, nb),),
                                   (self.recon.data, i32(na), self.flags.data, i32(nb))),
              "prepare": dev.prepare(self.k["prepare"], (-(-w // self.vec), h),
                                     [vals[n] for n in self.PREPARE]),
-             "depth_diff": dev.prepare(self.k["depth_diff"], (w, h),
-                                       (self.recon.data, self.X.data, self.lr.data, i32(w), i32(h)))}
+             "depth_diff": dev.prepare(self.k["depth_diff"], (w, h), [vals[n] for n in dd_names])}
         if self.mode == "rule":
             L["resolve"] = dev.prepare(self.k["resolve"], (-(-W // self.vec), H),
                                        [vals[n] for n in self.RESOLVE_RULE])
@@ -283,7 +302,7 @@ class FrameStep:
                                        [vals[n] for n in self.COMPOSE])
         self.launch = L
         self.pos = {k: {n: i for i, n in enumerate(names)} for k, names in (
-            ("prepare", self.PREPARE), ("compose", self.COMPOSE),
+            ("prepare", self.PREPARE), ("compose", self.COMPOSE), ("depth_diff", dd_names),
             ("resolve", self.RESOLVE_RULE if self.mode == "rule" else self.RESOLVE_NET))}
 
     def _bind(self, name, **values):
@@ -309,6 +328,9 @@ class FrameStep:
         frame_args = dict(jx=f(jitter[0]), jy=f(jitter[1]), reset=i32(bool(reset)), hist=hist.data)
         blend_args = dict(hist_out=hist_out.data, out=out.data, exposure=f(exposure),
                           debug=i32(self.debug))
+        if self.prev:
+            self._bind("depth_diff", prev=self.prev[self.cur].data,
+                       prev_out=self.prev[1 - self.cur].data, reset=i32(bool(reset)))
         ev = [("prepare", L["clear"]()), ("prepare", L["prepare"]()),
               ("depth_diff", L["depth_diff"]())]
         if self.mode == "rule":
@@ -343,13 +365,19 @@ class FrameStep:
         return refused, sanitized
 
     def accept(self):
-        """The frame was accepted: the new history becomes the state."""
+        """The frame was accepted: the new history (and net mode's prev) becomes the state."""
         self.cur = 1 - self.cur
         self.accepted = True
 
     @property
     def state(self) -> cla.Array:
         return self.history[self.cur]
+
+    @property
+    def prev_state(self) -> cla.Array | None:
+        """Net mode: [4, h, w] float, the last accepted frame's encoded colour and
+        dilated depth (reference.md s4b); None in rule mode."""
+        return self.prev[self.cur] if self.prev else None
 
     # -- timings ----------------------------------------------------------------
     def stage_ms(self) -> dict[str, float]:
@@ -359,7 +387,8 @@ class FrameStep:
 
     def device_bytes(self) -> int:
         arrays = [self.in_color, self.in_depth, self.in_motion, self.in_reactive, self.recon,
-                  self.X, self.lr, self.flags, self.out, self.dbg, self.bx, self.by, *self.history]
+                  self.X, self.lr, self.flags, self.out, self.dbg, self.bx, self.by, *self.history,
+                  *self.prev]
         if self.mode == "net":
             arrays += [self.cls_in, self.aux, *self.mlp]
         return int(sum(a.nbytes for a in arrays))

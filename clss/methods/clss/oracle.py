@@ -9,8 +9,11 @@ Graph inputs (internal conventions, see contract.to_internal):
     motion   [1,2,h,w]  render pixels            jitter  [2] render pixels
     reset    [1]        1.0 = camera cut         reactive [1,1,h,w] in [0,1]
     history  [1,16,H,W] PQ colour 3, counter 1, colour min 3, max 3, logits 6
-Graph outputs: output [1,3,H,W] linear (/ exposure), history_out [1,16,H,W], and with
-debug=True the intermediate buffers listed in DEBUG_OUTPUTS.
+    prev     [1,4,h,w]  mode "net" only: the previous frame's encoded colour 3 and dilated
+                        depth (reference.md s4b), the previous step's prev_out
+Graph outputs: output [1,3,H,W] linear (/ exposure), history_out [1,16,H,W], in mode
+"net" prev_out [1,4,h,w], and with debug=True the intermediate buffers listed in
+DEBUG_OUTPUTS (and DEBUG_OUTPUTS_NET).
 """
 from __future__ import annotations
 
@@ -30,11 +33,12 @@ from ...pipeline.twin import pq_encode as _pq_encode
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
 from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
                                  CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
-                       H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MODES,
+                       H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MEASURE_KNEES, MODES,
                        PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
                        SCATTER_WEIGHT_THRESHOLD, output_size, to_internal, validate_frame)
 
 OPSET = 18
+PREV_CHANNELS = 4   # mode "net": the render-res state prev (encoded colour 3, dilated depth)
 
 DEBUG_OUTPUTS = {
     # render resolution
@@ -58,7 +62,9 @@ DEBUG_OUTPUTS = {
     "dbg_clamp_max": "[1,3,H,W] stage 4 bilinear clamp box high (3x3 render-res, PQ)",
 }
 DEBUG_OUTPUTS_NET = {
-    "dbg_cls_input": "[1,23,H,W] stage 6 classifier input, before padding",
+    "dbg_measurements": "[1,4,h,w] s4b the classifier's measurements (render res, compressed)",
+    "dbg_measurements_hr": "[1,4,H,W] s4b stage 4 their bilinear upsampling",
+    "dbg_cls_input": "[1,27,H,W] stage 6 classifier input, before padding",
     "dbg_logits": "[1,6,H,W] stage 6 current logits after the bilinear x2 and crop",
     "dbg_comp_input": "[1,22,H,W] stage 8 composition input",
 }
@@ -143,6 +149,8 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
               helper.make_tensor_value_info("reset", f32, [1]),
               helper.make_tensor_value_info("reactive", f32, [1, 1, h, w]),
               helper.make_tensor_value_info("history", f32, [1, HISTORY_CHANNELS, H, W])]
+    if mode == "net":
+        inputs.append(helper.make_tensor_value_info("prev", f32, [1, PREV_CHANNELS, h, w]))
 
     # Transfer function: everything below works on encoded colour.
     if hdr:
@@ -153,7 +161,8 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     d_dil, m_dil = _stage1_dilate(g, h, w, dbg)
     taps, recon = _stage2_reconstruct(g, h, w, d_dil, m_dil, dbg)
     dd = _stage3_depth_diff(g, taps, recon, d_dil, dbg)
-    hr = _stage4_upsample(g, (h, w), (H, W), X, d_dil, m_dil, dd, dbg)
+    meas = _measurements(g, h, w, X, d_dil, m_dil, dbg) if mode == "net" else None
+    hr = _stage4_upsample(g, (h, w), (H, W), X, d_dil, m_dil, dd, meas, dbg)
     warped = _stage5_warp(g, (H, W), hr, dbg)
     ghost, logits = _stage6_classify(g, mode, (H, W), classifier, depth_threshold, hr, warped,
                                      dbg)
@@ -164,6 +173,8 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
 
     outputs = [helper.make_tensor_value_info("output", f32, [1, 3, H, W]),
                helper.make_tensor_value_info("history_out", f32, [1, HISTORY_CHANNELS, H, W])]
+    if mode == "net":
+        outputs.append(helper.make_tensor_value_info("prev_out", f32, [1, PREV_CHANNELS, h, w]))
     if debug:
         for name, t in dbg.items():
             g.op("Identity", t, name=name)
@@ -189,6 +200,7 @@ class _Upsampled(NamedTuple):
     reactive: str    # [1,1,H,W]
     box_lo: str      # [1,3,H,W] the current 3x3 neighbourhood's clamp box
     box_hi: str
+    measure: str | None  # [1,4,H,W] net: the classifier's measurements (s4b); rule: None
 
 
 class _Warped(NamedTuple):
@@ -300,8 +312,54 @@ def _stage3_depth_diff(g, taps, recon, d_dil, dbg):
     return dd
 
 
-def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, dbg) -> _Upsampled:
-    """Stage 4: upsample at output pixel centres, jitter-aware; the clamp box."""
+def _measurements(g, h, w, X, d_dil, m_dil, dbg):
+    """s4b (mode "net", render res): the classifier's four measurements [1,4,h,w], each
+    compressed as v / (|v| + MEASURE_KNEES[k]); and the graph output prev_out, this
+    frame's encoded colour and dilated depth, which the next frame reads as `prev`."""
+    g.concat([X, d_dil], name="prev_out")
+    # The previous frame at the pixel nearest to p + motion: floor((j + m.x) + 0.5), the
+    # kernel's and the torch twin's order of float operations, so all read the same pixel.
+    jj = g.const(np.arange(w, dtype=np.float32).reshape(1, 1, 1, w), hint="jj")
+    ii = g.const(np.arange(h, dtype=np.float32).reshape(1, 1, h, 1), hint="ii")
+    half = g.const(0.5)
+    qx = g.op("Floor", g.add(g.add(jj, g.chan(m_dil, slice(0, 1))), half))
+    qy = g.op("Floor", g.add(g.add(ii, g.chan(m_dil, slice(1, 2))), half))
+    on = g.op("And",
+              g.op("And", g.op("GreaterOrEqual", qx, g.const(0.0)),
+                   g.op("LessOrEqual", qx, g.const(float(w - 1)))),
+              g.op("And", g.op("GreaterOrEqual", qy, g.const(0.0)),
+                   g.op("LessOrEqual", qy, g.const(float(h - 1)))))
+    xi = g.op("Cast", g.clip(qx, 0.0, float(w - 1)), to=TensorProto.INT64)
+    yi = g.op("Cast", g.clip(qy, 0.0, float(h - 1)), to=TensorProto.INT64)
+    lin = g.reshape(g.add(g.mul(yi, g.i64(w)), xi), [-1])                          # [h*w]
+    pv = g.reshape(g.op("Gather", g.reshape("prev", [1, PREV_CHANNELS, h * w]), lin, axis=2),
+                   [1, PREV_CHANNELS, h, w])
+    pd = g.chan(pv, slice(3, 4))
+    zero, one = g.const(0.0), g.const(1.0)
+    tdd = g.clip(g.div(g.sub(pd, d_dil), g.op("Max", pd, g.const(DEPTH_EPS))), -1.0, 1.0)
+    cc = g.op("ReduceMax", g.op("Abs", g.sub(X, g.chan(pv, slice(0, 3)))), g.i64([1]),
+              keepdims=1)
+    # off screen: no previous frame, the largest change; a reset: none either, and 0
+    # (Where, not a product: `prev` is not read on a reset, whatever it holds)
+    keep = g.reshape(g.op("Less", "reset", g.const([0.5])), [1, 1, 1, 1])
+    tdd = g.where(keep, g.where(on, tdd, one), zero)
+    cc = g.where(keep, g.where(on, cc, one), zero)
+    # 3x3 ranges over the in-bounds neighbours (MaxPool pads with -inf)
+    win = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1], strides=[1, 1])
+    dmax = g.op("MaxPool", d_dil, **win)
+    dmin = g.op("Neg", g.op("MaxPool", g.op("Neg", d_dil), **win))
+    edge = g.div(g.sub(dmax, dmin), g.op("Max", dmax, g.const(DEPTH_EPS)))
+    xmin = g.op("Neg", g.op("MaxPool", g.op("Neg", X), **win))
+    spread = g.op("ReduceMax", g.sub(g.op("MaxPool", X, **win), xmin), g.i64([1]), keepdims=1)
+    meas = g.concat([g.div(v, g.add(g.op("Abs", v), g.const(k)))
+                     for v, k in zip((tdd, cc, edge, spread), MEASURE_KNEES)])
+    dbg["dbg_measurements"] = meas
+    return meas
+
+
+def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, meas, dbg) -> _Upsampled:
+    """Stage 4: upsample at output pixel centres, jitter-aware; the clamp box; in mode
+    "net" (meas given) the classifier's measurements."""
     (h, w), (H, W) = hw, HW
     jx, jy = g.slice("jitter", 0, 0, 1), g.slice("jitter", 0, 1, 2)
     bx = ((np.arange(W, dtype=np.float64) + 0.5) * w / W - 0.5).astype(np.float32)
@@ -342,7 +400,9 @@ def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, dbg) -> _Upsampled:
     nmin = g.op("Max", nmin, g.sub(mu, gsd))
     nmax = g.op("Min", nmax, g.add(mu, gsd))
     react = _auto_reactive(g, m_dil, h, w)
-    aux = g.grid_sample(g.concat([d_dil, m_dil, dd, react, nmin, nmax]), grid_up, cubic=False)
+    # the kernel's render-res stack (its lr buffer), in its channel order
+    stack = [d_dil, m_dil, dd, react, nmin, nmax] + ([meas] if meas is not None else [])
+    aux = g.grid_sample(g.concat(stack), grid_up, cubic=False)
     depth_hr = g.chan(aux, slice(0, 1))
     motion_hr = g.mul(g.chan(aux, slice(1, 3)),
                       g.const(np.array([W / w, H / h], np.float32).reshape(1, 2, 1, 1)))
@@ -350,10 +410,14 @@ def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, dbg) -> _Upsampled:
     react_hr = g.chan(aux, slice(4, 5))
     c_lo = g.chan(aux, slice(5, 8))
     c_hi = g.chan(aux, slice(8, 11))
+    meas_hr = None
+    if meas is not None:
+        meas_hr = g.chan(aux, slice(11, 15))
+        dbg["dbg_measurements_hr"] = meas_hr
     dbg.update(dbg_upsampled=up, dbg_depth_hr=depth_hr, dbg_motion_hr=motion_hr,
                dbg_depth_diff_hr=dd_hr, dbg_reactive_hr=react_hr, dbg_clamp_min=c_lo,
                dbg_clamp_max=c_hi)
-    return _Upsampled(up, depth_hr, motion_hr, dd_hr, react_hr, c_lo, c_hi)
+    return _Upsampled(up, depth_hr, motion_hr, dd_hr, react_hr, c_lo, c_hi, meas_hr)
 
 
 def _stage5_warp(g, HW, hr: _Upsampled, dbg) -> _Warped:
@@ -396,7 +460,7 @@ def _stage6_classify(g, mode, HW, classifier, depth_threshold, hr: _Upsampled,
     if mode == "net":
         cls_in = g.concat([hr.up, warped.color, hr.depth, hr.motion,
                            _inv_counter(g, warped.counter), warped.c_min, warped.c_max,
-                           hr.depth_diff, warped.logits])
+                           hr.depth_diff, warped.logits, hr.measure])
         dbg["dbg_cls_input"] = cls_in
         H16, W16 = _pad16(H), _pad16(W)
         cin, cout, dims = _real_input(classifier, "classifier", CLASSIFIER_CHANNELS)
@@ -477,6 +541,12 @@ def initial_history(output_hw) -> np.ndarray:
     return np.zeros((1, HISTORY_CHANNELS, H, W), np.float32)
 
 
+def initial_prev(render_hw) -> np.ndarray:
+    """A zero `prev` (mode "net"); only ever read together with reset = 1."""
+    h, w = render_hw
+    return np.zeros((1, PREV_CHANNELS, h, w), np.float32)
+
+
 class OracleUpscaler:
     """Frame-by-frame runner of the oracle graph with the state carried between calls.
 
@@ -513,28 +583,41 @@ class OracleUpscaler:
                                             sess_options=session_options,
                                             providers=providers or ["CPUExecutionProvider"])
         self._outputs = [o.name for o in self.session.get_outputs()]
-        self._history = None
+        self._history = self._prev = None
         self.debug = {}
         self.last_report = {}
         self.frame_index = 0
 
     @property
     def state(self) -> dict:
-        """{"history": [1,16,H,W] float32 or None}; assignable (e.g. to replay)."""
+        """{"history": [1,16,H,W] float32 or None}, in mode "net" also "prev": [1,4,h,w]
+        float32 or None (reference.md s4b); assignable (e.g. to replay). A net-mode state
+        assigned without "prev" carries a zero one (the previous frame's measurements
+        then see depth 0 and colour 0)."""
+        if self.mode == "net":
+            return {"history": self._history, "prev": self._prev}
         return {"history": self._history}
 
     @state.setter
     def state(self, value):
         hist = value.get("history") if isinstance(value, dict) else value
+        prev = value.get("prev") if isinstance(value, dict) else None
         if hist is not None:
             hist = np.asarray(hist, np.float32)
             want = (1, HISTORY_CHANNELS) + self.output_size
             if hist.shape != want:
                 raise ValueError(f"state history: expected shape {want}, got {hist.shape}")
-        self._history = hist
+        if prev is not None:
+            if self.mode != "net":
+                raise ValueError("state prev: only mode 'net' carries it")
+            prev = np.asarray(prev, np.float32)
+            want = (1, PREV_CHANNELS) + self.render_size
+            if prev.shape != want:
+                raise ValueError(f"state prev: expected shape {want}, got {prev.shape}")
+        self._history, self._prev = hist, prev
 
     def reset(self):
-        self._history = None
+        self._history = self._prev = None
 
     def step(self, color, depth, motion, jitter, reset=False, reactive=None,
              **gbuffers) -> np.ndarray:
@@ -547,8 +630,12 @@ class OracleUpscaler:
         first = self._history is None
         feed["history"] = initial_history(self.output_size) if first else self._history
         feed["reset"] = np.array([1.0 if (reset or first) else 0.0], np.float32)
+        if self.mode == "net":
+            feed["prev"] = initial_prev(self.render_size) if self._prev is None else self._prev
         res = dict(zip(self._outputs, self.session.run(self._outputs, feed)))
         self._history = res.pop("history_out")
+        if self.mode == "net":
+            self._prev = res.pop("prev_out")
         out = res.pop("output")
         self.debug = res
         self.frame_index += 1

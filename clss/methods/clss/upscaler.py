@@ -187,11 +187,17 @@ class ClssUpscaler(MethodUpscaler):
     @property
     def state(self) -> dict:
         """{"history": [1,16,H,W] float32} (a host copy), or {"history": None} before the
-        first accepted frame (of this render size)."""
+        first accepted frame (of this render size). Mode "net" adds "prev": [1,4,h,w]
+        float32, the last accepted frame's encoded colour and dilated depth (reference.md
+        s4b; None likewise), the oracle's state of the same name."""
+        net = self.mode == "net"
         if self._fs is None or not self._fs.accepted:
-            return {"history": None}
+            return {"history": None, "prev": None} if net else {"history": None}
         hist = self.dev.to_host(self._fs.state).astype(np.float32)
-        return {"history": hist.reshape((1, HISTORY_CHANNELS) + self.output_size)}
+        st = {"history": hist.reshape((1, HISTORY_CHANNELS) + self.output_size)}
+        if net:
+            st["prev"] = self.dev.to_host(self._fs.prev_state)[None]
+        return st
 
     def device_bytes(self) -> int:
         """Bytes of the device buffers this upscaler holds (the classifier's own aside)."""
