@@ -124,13 +124,16 @@ def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
                  "motion": motion.transpose(2, 0, 1)[None].copy(),
                  "jitter": np.array(BENCH_JITTER, np.float32),
                  "reset": np.array([1.0], np.float32), "reactive": np.zeros((1, 1, h, w), np.float32),
-                 "history": np.zeros((1, 16, H, W), np.float32)}
+                 "history": np.zeros((1, 16, H, W), np.float32),
+                 "prev": np.zeros((1, 4, h, w), np.float32)}     # net mode's render-res state
         feeds = {k: v for k, v in feeds.items() if k in names}
         ort_out = [o.name for o in twin.graph.output]
-        # Compulsory traffic per frame: the render-res inputs, the history read and
-        # written, the output written.
+        # Compulsory traffic per frame: the render-res inputs, the history (net: and prev)
+        # read and written, the output written.
         st = storage_dtype(prec).itemsize
         io = color.nbytes + depth.nbytes + motion.nbytes + H * W * 3 * 4
+        if mode == "net":       # and its render-res state prev read and written (float)
+            io += 2 * 4 * h * w * 4
         eng = io + 2 * 16 * H * W * st
         ort = io + 2 * 16 * H * W * 4
         return Setup(run, twin, feeds, NET_TOL[prec], eng, ort,

@@ -111,10 +111,13 @@ def test_missing_kernel_name(dev):
 def test_every_kernel_builds_in_both_precisions(dev):
     # A porter's first question: does each source compile on my compiler? (Default -D options,
     # and for frame.cl the buffer widths it takes from the host.)
-    from clss.methods.clss.frame import WIDTH_DEFINES
+    from clss.methods.clss.frame import LR_NET_CHANNELS, WIDTH_DEFINES
     for src in sorted(D.kernels_dir().glob("*.cl")):
         for prec in ("fp32", "fp16"):
             dev.program(src.stem, prec, **(WIDTH_DEFINES if src.stem == "frame" else {}))
+            if src.stem == "frame":     # and its net-mode variant (other kernel signatures)
+                dev.program(src.stem, prec, **{**WIDTH_DEFINES, "NET": 1,
+                                               "L_CHANNELS": LR_NET_CHANNELS})
 
 
 def test_absurd_allocation_refused(dev):

@@ -305,7 +305,7 @@ def test_cli_compare_ort(prec, tmp_path, capsys):
     model, feeds = build_nsrr()
     cls = nets.build_classifier()
     for name, m, fs in (("nsrr", model, feeds),
-                        ("classifier", cls, {"x": np.random.default_rng(1).random((1, 23, 32, 32), np.float32)})):
+                        ("classifier", cls, {"x": np.random.default_rng(1).random((1, nets.CLASSIFIER_CHANNELS, 32, 32), np.float32)})):
         path = tmp_path / f"{name}.onnx"
         onnx.save(m, str(path))
         args = ["run", str(path), "--compare-ort", "--repeat", "1", "--precision", prec]

@@ -268,6 +268,68 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
                                             np.zeros((6, H, W))]))
 
 
+def np_measurements(X, d, m, prev, reset):
+    """reference.md s4b: [tdd, cc, edge, spread] [4,h,w] (compressed) of the encoded colour
+    X [3,h,w], dilated depth d and motion m [2,h,w] against prev [4,h,w] (None: none)."""
+    hh, ww = d.shape
+    if prev is None or reset:
+        tdd = cc = np.zeros_like(d)
+    else:
+        qx = np.floor((np.arange(ww, dtype=np.float32)[None, :] + m[0]) + np.float32(0.5))
+        qy = np.floor((np.arange(hh, dtype=np.float32)[:, None] + m[1]) + np.float32(0.5))
+        on = (qx >= 0) & (qx <= ww - 1) & (qy >= 0) & (qy <= hh - 1)
+        pv = prev[:, np.clip(qy, 0, hh - 1).astype(int), np.clip(qx, 0, ww - 1).astype(int)]
+        pd = pv[3]
+        tdd = np.where(on, np.clip((pd - d) / np.maximum(pd, np.float32(1e-6)), -1, 1), 1)
+        cc = np.where(on, np.abs(X - pv[:3]).max(0), 1)
+    pd_ = np.pad(d, 1, constant_values=np.nan)
+    dwin = np.stack([pd_[1 + dy:1 + dy + hh, 1 + dx:1 + dx + ww] for dx, dy in OFFS])
+    dmax, dmin = np.nanmax(dwin, 0), np.nanmin(dwin, 0)
+    edge = (dmax - dmin) / np.maximum(dmax, np.float32(1e-6))
+    px = np.pad(X, ((0, 0), (1, 1), (1, 1)), constant_values=np.nan)
+    xwin = np.stack([px[:, 1 + dy:1 + dy + hh, 1 + dx:1 + dx + ww] for dx, dy in OFFS])
+    spread = (np.nanmax(xwin, 0) - np.nanmin(xwin, 0)).max(0)
+    return np.stack([v / (np.abs(v) + np.float32(k))
+                     for v, k in zip((tdd, cc, edge, spread), C.MEASURE_KNEES)]).astype(np.float32)
+
+
+def test_measurements_match_numpy_reference():
+    """Net mode's measurements (reference.md s4b) in the graph against np_measurements, at
+    an odd size over 4 frames with a reset at frame 2: random depth edges, sub-pixel and
+    off-screen motion, motion that puts p + motion on a pixel edge (the tap rounds up);
+    prev_out is this frame's (X, d_dil), and the oracle carries it."""
+    rng = np.random.default_rng(5)
+    hh, ww, scale = 13, 17, 1.5
+    up = O.OracleUpscaler((hh, ww), scale, "net", debug=True, session_options=_opts(),
+                          **_networks(handmade=True))
+    prev = None
+    for f in range(4):
+        color = rng.uniform(0, 2, (hh, ww, 3)).astype(np.float32)
+        depth = np.where(rng.random((hh, ww)) < 0.3, 0.8, 0.2).astype(np.float32)
+        depth += rng.uniform(0, 0.01, (hh, ww)).astype(np.float32)
+        motion = rng.uniform(-2.5, 2.5, (hh, ww, 2)).astype(np.float32)
+        motion[::3, ::2] = np.round(motion[::3, ::2]) + 0.5
+        up.step(color, depth, motion, tuple(C.jitter_for_frame(f, scale)), reset=f == 2)
+        dbg = up.debug
+        X = C.pq_encode(color.transpose(2, 0, 1))
+        d, m = dbg["dbg_dilated_depth"][0, 0], dbg["dbg_dilated_motion"][0]
+        want = np_measurements(X, d, m, prev, f == 2)
+        got = dbg["dbg_measurements"][0]
+        # tdd and edge: exact arithmetic on exact inputs; cc and spread: X (numpy's encoder
+        # against onnxruntime's) times the knee's slope, up to 1 / 0.02
+        for k, tol in enumerate((1e-6, 2e-3, 1e-6, 2e-3)):
+            err = np.abs(got[k] - want[k]).max()
+            assert err <= tol, (f, k, err)
+        if f in (0, 2):
+            assert not got[:2].any()
+        else:
+            assert (got[0] == np.float32(1) / np.float32(1 + C.MEASURE_KNEES[0])).any()   # off screen
+        st = up.state["prev"]
+        assert st.shape == (1, 4, hh, ww) and np.array_equal(st[0, 3], d)
+        assert np.abs(st[0, :3] - X).max() < 2e-5
+        prev = st[0]
+
+
 def test_rule_history_clip_hand_cases():
     """reference.md s9: the history is pulled towards `up` by one fraction for all three
     channels until it is inside the box (a per-channel clamp would change its hue)."""
@@ -362,14 +424,15 @@ class _VisibilityFromDepthDiff:
     def build(gain=40.0):
         """gain 0: a classifier that never says visibility ghosting (logit -2 < 0)."""
         from onnx import helper, numpy_helper, TensorProto
-        from clss.networks import CLASSIFIER_INPUTS, channel_slices
-        wgt = np.zeros((6, 23, 2, 2), np.float32)
+        from clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, channel_slices
+        wgt = np.zeros((6, CLASSIFIER_CHANNELS, 2, 2), np.float32)
         # gain x the average of the 2x2 block of depth_difference
         wgt[0, channel_slices(CLASSIFIER_INPUTS)["depth_difference"]] = gain / 4
         b = np.array([-2, 0, 0, 0, 0, 0], np.float32)
         g = helper.make_graph(
             [helper.make_node("Conv", ["x", "W", "B"], ["logits"], kernel_shape=[2, 2], strides=[2, 2])],
-            "handmade", [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 23, None, None])],
+            "handmade", [helper.make_tensor_value_info("x", TensorProto.FLOAT,
+                                                       [1, CLASSIFIER_CHANNELS, None, None])],
             [helper.make_tensor_value_info("logits", TensorProto.FLOAT, [1, 6, None, None])],
             initializer=[numpy_helper.from_array(wgt, "W"), numpy_helper.from_array(b, "B")])
         m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 18)])
@@ -525,12 +588,15 @@ def test_net_graph_inlines_networks_exactly():
     wgt = ort.InferenceSession(comp.SerializeToString(), _opts()).run(None, {"x": dbg["dbg_comp_input"]})[0]
     wgt = np.where(dbg["dbg_ghost"] > 0.5, 1.0, wgt)       # a ghost drops its history
     assert np.abs(np.maximum(wgt, dbg["dbg_reactive_hr"]) - dbg["dbg_w"]).max() < 1e-6
-    ch = {n: s for n, s in zip(("up", "warped", "depth", "motion", "inv", "mn", "mx", "dd", "logits"),
-                                np.split(np.arange(23), np.cumsum([3, 3, 1, 2, 1, 3, 3, 1])))}
+    ch = {n: s for n, s in zip(("up", "warped", "depth", "motion", "inv", "mn", "mx", "dd", "logits",
+                                "measure"),
+                                np.split(np.arange(27), np.cumsum([3, 3, 1, 2, 1, 3, 3, 1, 6])))}
     cin = dbg["dbg_cls_input"][0]
+    assert cin.shape[0] == 27
     assert np.allclose(cin[ch["up"]], dbg["dbg_upsampled"][0])
     assert np.allclose(cin[ch["dd"]], dbg["dbg_depth_diff_hr"][0])
     assert np.allclose(cin[ch["inv"]], 1 / (1 + dbg["dbg_warped"][0, 3:4]))
+    assert np.array_equal(cin[ch["measure"]], dbg["dbg_measurements_hr"][0])
 
 
 @pytest.mark.parametrize("render_size, scale", [((13, 9), 1.5), ((7, 11), 1.7), ((9, 7), 3.0),

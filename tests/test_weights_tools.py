@@ -23,13 +23,17 @@ def _run(model, x):
 
 
 def test_channel_tables_match_design():
-    assert CLASSIFIER_CHANNELS == 23 and COMPOSITION_CHANNELS == 22
+    assert CLASSIFIER_CHANNELS == 27 and COMPOSITION_CHANNELS == 22
     cls = dict(CLASSIFIER_INPUTS)
     comp = dict(COMPOSITION_INPUTS)
     assert "depth_difference" in cls and "depth_difference" not in comp
     assert cls["warped_logits"] == 6 and comp["logits"] == 6
     sl = channel_slices(CLASSIFIER_INPUTS)
     assert sl["bicubic_color"] == slice(0, 3) and sl["warped_logits"] == slice(17, 23)
+    # reference.md s4b: the measurements follow, in the kernel's order
+    assert [n for n, _ in CLASSIFIER_INPUTS[-4:]] == ["prev_depth_difference", "color_change",
+                                                      "depth_edge", "color_spread"]
+    assert sl["color_spread"] == slice(26, 27)
 
 
 @pytest.mark.parametrize("hw", [(None, None), (32, 48)])
@@ -38,7 +42,7 @@ def test_classifier_graph_runs(hw):
     onnx.checker.check_model(m, full_check=True)
     assert m.ir_version == 10 and m.opset_import[0].version <= 21
     assert {n.op_type for n in m.graph.node} <= ALLOWED_OPS
-    x = np.random.default_rng(1).random((1, 23, 32, 48), np.float32)
+    x = np.random.default_rng(1).random((1, CLASSIFIER_CHANNELS, 32, 48), np.float32)
     y = _run(m, x)
     assert y.shape == (1, 6, 16, 24) and np.isfinite(y).all() and y.std() > 1e-3
 
