@@ -122,9 +122,6 @@
  * spread */
 #define L_MEASURE 11
 #define MEASURES 4
-/* the render-res state of net mode: the previous accepted frame's encoded colour (3)
- * and dilated depth, [PREV_CHANNELS, h, w] float */
-#define PREV_CHANNELS 4
 
 /* The buffer widths come from the host, where they are defined once: L_CHANNELS and HIST
  * from clss.pipeline.contract, CLS_IN and COMP_IN from clss.networks' channel layouts. */
@@ -551,7 +548,9 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
      * neighbourhood diverges, surfaces move apart and a warped history mixes them, so the
      * blend weight is raised as the caller's reactive mask would (in-bounds neighbours;
      * only the motion planes are read here, which no work-item of this kernel writes) */
-    float dmin = d, dmax = d;       /* net: the dilated depth's 3x3 range (s4b) */
+#if NET
+    float dmin = d, dmax = d;       /* the dilated depth's 3x3 range (s4b) */
+#endif
     {
         float div = 0.0f;
         for (int dy = -1; dy <= 1; ++dy) {
@@ -579,7 +578,9 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
      * are taken of the differences to the centre pixel, in the oracle's order (rows,
      * then columns): E[x^2] - E[x]^2 of the values themselves cancels to the point where
      * float rounding moved the box by 1e-4. */
-    float spread = 0.0f;            /* net: the largest channel range of the window (s4b) */
+#if NET
+    float spread = 0.0f;            /* the largest channel range of the window (s4b) */
+#endif
     for (int c = 0; c < 3; ++c) {
         __global const T *x = X + c * hw;
         const float xc = FLD(x, p);
@@ -604,7 +605,9 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
         const float mu = xc + md;
         lr[(L_NMIN + c) * hw + p] = fmax(lo, mu - sd);
         lr[(L_NMAX + c) * hw + p] = fmin(hi, mu + sd);
+#if NET
         spread = fmax(spread, hi - lo);
+#endif
     }
 #if NET
     /* s4b, the classifier's measurements: what the rule detectors look at, given to the
