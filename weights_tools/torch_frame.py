@@ -117,7 +117,9 @@ def _basis(inputs, diff_scale=30.0):
         if name == "bicubic_color":
             A[i, i], sh[i] = 2.0, 0.5
         elif name in ("warped_color", "color_min", "color_max"):
-            A[i, i], A[i, up[k]] = diff_scale, -diff_scale
+            # both shifted by the current colour's 0.5, so the row is exactly
+            # diff_scale (x - up): without it each carried a constant +15
+            A[i, i], A[i, up[k]], sh[i] = diff_scale, -diff_scale, 0.5
         elif name == "depth":
             A[i, i] = 10.0
         elif name == "motion":
