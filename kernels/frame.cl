@@ -6,13 +6,16 @@
  *                             dilation (s2), scatter of the previous depth (s3)
  *   depth_diff   render res   bilinear of the reconstructed depth -> dd (s4); the clamp
  *                             box of the encoded colour over 3x3 (s9); net mode: the
- *                             classifier's four measurements against the previous frame's
- *                             colour and depth (s4b), and that state for the next frame
+ *                             classifier's four measurements of the pixel's own depth and
+ *                             motion against the previous frame's colour and depth (s4b),
+ *                             and that state for the next frame
  *   resolve      output res   jitter-aware upsampling (s5), the 16-channel history warp
  *                             (s6), the history clip (s9); rule mode: ghost test, aux
  *                             update and blend (s8, s9) in the same pass; net mode: the
  *                             classifier input, padded to multiples of 16 by edge
- *                             replication (s7), and the clipped history for compose
+ *                             replication (s7; the measurements at the render pixel
+ *                             holding each output pixel's centre, s4b), and the
+ *                             clipped history for compose
  *   compose      output res   net mode: logits x2 (s7), aux update (s8), composition
  *                             MLP and blend (s9)
  *
@@ -117,11 +120,15 @@
 #define L_REACTIVE 4
 #define L_NMIN 5
 #define L_NMAX 8
-/* net mode only (L_CHANNELS 15): the classifier's measurements (s4b), in
+/* net mode only (L_CHANNELS 18): the classifier's measurements (s4b), in
  * CLASSIFIER_INPUTS order: previous-depth difference, colour change, depth edge, colour
- * spread */
+ * spread; then the pixel's own (entry-converted, not dilated) depth and motion x, y,
+ * which prepare writes for them */
 #define L_MEASURE 11
 #define MEASURES 4
+#define L_RAW_DEPTH 15
+#define L_RAW_MX 16
+#define L_RAW_MY 17
 
 /* The buffer widths come from the host, where they are defined once: L_CHANNELS and HIST
  * from clss.pipeline.contract, CLS_IN and COMP_IN from clss.networks' channel layouts. */
@@ -405,7 +412,7 @@ __kernel void clear(__global uint *a, int na, __global uint *b, int nb)
  *  @param[in]  pq_scale      nits / 10000 (linear 1.0 in PQ's units)
  *  @param[out] recon         [h*w] uint previous-depth reconstruction (s3), cleared beforehand
  *  @param[out] X             [3, h, w] T the encoded colour
- *  @param[out] lr            [L_CHANNELS, h, w] float the render-res stack: dilated depth, motion, ...
+ *  @param[out] lr            [L_CHANNELS, h, w] float the render-res stack: dilated depth, motion, ... (net: and the pixel's own depth and motion, s4b)
  *  @param[out] flags         [8] uint: flags[0] |= what was found, flags[1..4] non-finite counts
  *  @note -DHDR=0|1: PQ or clamp; -DSANITIZE=0|1: replace non-finite inputs or refuse; -DVEC=8|4|1: pixels per work-item
  *  @note -DCLSS_FP16=1: X in half (T)
@@ -468,7 +475,8 @@ __kernel void prepare(__global const float *color, __global const float *depth,
          * centre comes first so it wins ties. */
         const int2 offs[9] = {(int2)(0, 0), (int2)(1, 0), (int2)(0, 1), (int2)(0, -1), (int2)(-1, 0),
                               (int2)(-1, 1), (int2)(1, 1), (int2)(-1, -1), (int2)(1, -1)};
-        float best = ld_depth(depth, p, depth_inverted);
+        const float d_own = ld_depth(depth, p, depth_inverted);
+        float best = d_own;
         int bi = p;
         for (int k = 1; k < 9; ++k) {
             const int jj = j + offs[k].x, ii = i + offs[k].y;
@@ -481,6 +489,16 @@ __kernel void prepare(__global const float *color, __global const float *depth,
         lr[L_MX * hw + p] = m.x;
         lr[L_MY * hw + p] = m.y;
         lr[L_REACTIVE * hw + p] = r;
+#if NET
+        /* s4b: the measurements read the pixel's own depth and motion, not the dilated
+         * ones (dilation gives a strip revealed behind a moving edge the edge's) */
+        {
+            const float2 m_own = bi == p ? m : ld_motion(motion, p, ms);
+            lr[L_RAW_DEPTH * hw + p] = d_own;
+            lr[L_RAW_MX * hw + p] = m_own.x;
+            lr[L_RAW_MY * hw + p] = m_own.y;
+        }
+#endif
 
         /* s3: scatter-max of the dilated depth onto the previous frame's pixels. Depth is
          * >= 0, so its float bits order like the floats; the sign bit is cleared so that
@@ -512,9 +530,9 @@ __kernel void prepare(__global const float *color, __global const float *depth,
  * do net mode's measurements (s4b), which need it and the 3x3 neighbourhood too. */
 /** @param[in]     recon  [h*w] uint the reconstructed previous depth (prepare)
  *  @param[in]     X      [3, h, w] T the encoded colour (for the clamp box)
- *  @param[in,out] lr     the render-res stack: gets the depth difference and the clamp box (net: and the measurements)
+ *  @param[in,out] lr     the render-res stack: gets the depth difference and the clamp box (net: and the measurements, of the pixel's own depth and motion planes)
  *  @param[in]     w, h   render width and height
- *  @param[in]     prev   net only: [4, h, w] float the previous accepted frame's encoded colour and dilated depth (not read on a reset)
+ *  @param[in]     prev   net only: [4, h, w] float the previous accepted frame's encoded colour and own (not dilated) depth (not read on a reset)
  *  @param[out]    prev_out net only: [4, h, w] float this frame's, for the next one (the state once the frame is accepted)
  *  @param[in]     reset  net only: 1 on a camera cut or the first frame (the previous frame's measurements are 0)
  *  @note -DCLIP_GAMMA=x: the box's std multiple (contract.CLIP_GAMMA)
@@ -549,7 +567,11 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
      * blend weight is raised as the caller's reactive mask would (in-bounds neighbours;
      * only the motion planes are read here, which no work-item of this kernel writes) */
 #if NET
-    float dmin = d, dmax = d;       /* the dilated depth's 3x3 range (s4b) */
+    /* s4b: the pixel's own depth and motion (prepare's planes, which no work-item of this
+     * kernel writes); dmin, dmax: the own depth's 3x3 range */
+    const float d_own = lr[L_RAW_DEPTH * hw + p];
+    const float2 m_own = (float2)(lr[L_RAW_MX * hw + p], lr[L_RAW_MY * hw + p]);
+    float dmin = d_own, dmax = d_own;
 #endif
     {
         float div = 0.0f;
@@ -562,8 +584,7 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
                 const int pn = ii * w + jj;
                 div = fmax(div, fabs(lr[L_MX * hw + pn] - m.x) + fabs(lr[L_MY * hw + pn] - m.y));
 #if NET
-                /* the depth plane is prepare's: no work-item of this kernel writes it */
-                const float dn = lr[L_DEPTH * hw + pn];
+                const float dn = lr[L_RAW_DEPTH * hw + pn];
                 dmin = fmin(dmin, dn);
                 dmax = fmax(dmax, dn);
 #endif
@@ -611,17 +632,19 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
     }
 #if NET
     /* s4b, the classifier's measurements: what the rule detectors look at, given to the
-     * network rather than thresholded. The previous frame is read at the nearest pixel to
-     * p + motion (the tap rounded as the oracle and the torch twin round it, so that all
-     * three read the same pixel); off screen there is no previous frame, which counts as
-     * the largest change (1). A reset has none either, but says nothing: 0. */
+     * network rather than thresholded, of the pixel's own depth and motion. The previous
+     * frame is read at the nearest pixel to p + motion (the tap rounded as the oracle and
+     * the torch twin round it, so that all three read the same pixel); off screen there is
+     * no previous frame, which counts as the largest change (1). A reset has none either,
+     * but says nothing: 0. */
     float tdd = 0.0f, cc = 0.0f;
     if (!reset) {
-        const float qx = floor(((float)j + m.x) + 0.5f), qy = floor(((float)i + m.y) + 0.5f);
+        const float qx = floor(((float)j + m_own.x) + 0.5f);
+        const float qy = floor(((float)i + m_own.y) + 0.5f);
         if (qx >= 0.0f && qx <= (float)(w - 1) && qy >= 0.0f && qy <= (float)(h - 1)) {
             const int q = (int)qy * w + (int)qx;
             const float pd = prev[3 * hw + q];
-            tdd = clamp((pd - d) / fmax(pd, 1e-6f), -1.0f, 1.0f);
+            tdd = clamp((pd - d_own) / fmax(pd, 1e-6f), -1.0f, 1.0f);
             for (int c = 0; c < 3; ++c)
                 cc = fmax(cc, fabs(FLD(X + c * hw, p) - prev[c * hw + q]));
         } else {
@@ -636,11 +659,11 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
     lr[(L_MEASURE + 2) * hw + p] = edge / (fabs(edge) + KNEE_EDGE);
     lr[(L_MEASURE + 3) * hw + p] = spread / (fabs(spread) + KNEE_SPREAD);
     /* the next frame's state: the colour as stored (half in fp16 storage, which float
-     * holds exactly) and the dilated depth. Written on a reset too, and on a frame that
-     * is then refused: the host only swaps the state in when it accepts the frame. */
+     * holds exactly) and the pixel's own depth. Written on a reset too, and on a frame
+     * that is then refused: the host only swaps the state in when it accepts the frame. */
     for (int c = 0; c < 3; ++c)
         prev_out[c * hw + p] = FLD(X + c * hw, p);
-    prev_out[3 * hw + p] = d;
+    prev_out[3 * hw + p] = d_own;
 #endif
 }
 
@@ -651,7 +674,7 @@ typedef struct {
     iv valid;
     fv bmin[3], bmax[3];
 #if NET
-    fv meas[MEASURES];      /* the classifier's measurements (s4b), bilinear like dd */
+    fv meas[MEASURES];      /* the classifier's measurements (s4b), nearest */
 #endif
 } Gathered;
 
@@ -680,8 +703,15 @@ inline Gathered gather(int I, iv J, __global const T *X, __global const float *l
         g.bmax[c] = linear_f(lr + (L_NMAX + c) * hw, lx, ly);
     }
 #if NET
-    for (int k = 0; k < MEASURES; ++k)
-        g.meas[k] = linear_f(lr + (L_MEASURE + k) * hw, lx, ly);
+    /* s4b: the measurements of the render pixel that holds the output pixel's centre,
+     * ((2 I + 1) h) / (2 H) in integers (no jitter, no interpolation: bilinear halved the
+     * response to a one-pixel strip) */
+    {
+        const int ri = ((2 * I + 1) * h) / (2 * H);
+        const iv rj = ((2 * J + 1) * w) / (2 * W);
+        for (int k = 0; k < MEASURES; ++k)
+            g.meas[k] = GATHER(LDF, lr + (L_MEASURE + k) * hw + ri * w, rj);
+    }
 #endif
 
     /* s6: the history at P + motion; off-screen or reset pixels start afresh */

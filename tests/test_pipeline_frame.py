@@ -87,10 +87,14 @@ def test_measurements_match_oracle(precision):
     """Net mode's classifier measurements (reference.md s4b) and its render-res state, the
     OpenCL step against the oracle at an odd size (13 x 17 x1.5 -> 20 x 26, padded to
     32 x 32) over 5 frames: a refused frame before frame 2 (the state must not move),
-    a reset at frame 3. The render-res planes (lr 11-14), their bilinear upsampling
-    (classifier input 23-26) and the state: previous-depth difference and depth edge
-    exact but for the division (fp32; fp16: the classifier input's half rounding),
-    colour change and spread within the encoders' 1e-5 times the knee's slope (s11)."""
+    a reset at frame 3. The render-res planes (lr 11-14, of the pixel's own depth and
+    motion: the random depth edges make the dilated ones differ by up to 0.9), the
+    classifier input 23-26 (the render pixel holding each output pixel's centre: exactly
+    the kernel's own planes moved, in fp16 rounded to half once; against the oracle's
+    within the render-res tolerance, fp16: plus the half rounding) and the state (the
+    pixel's own depth, bitwise): previous-depth difference and depth edge exact but for
+    the division, colour change and spread within the encoders' 1e-5 times the knee's
+    slope (s11; fp16: the half rounding of X times the slope)."""
     from clss.pipeline.contract import MEASURE_KNEES, FrameInputError
     rng = np.random.default_rng(7)
     hh, ww, scale = 13, 17, 1.5
@@ -114,6 +118,10 @@ def test_measurements_match_oracle(precision):
         got, want = fs.lr.get()[11:15], ora.debug["dbg_measurements"][0]
         got_hr = fs.dev.to_host(fs.cls_in)[0, 23:27, :fs.H, :fs.W]
         want_hr = ora.debug["dbg_cls_input"][0, 23:27]
+        ri = (2 * np.arange(fs.H) + 1) * hh // (2 * fs.H)
+        rj = (2 * np.arange(fs.W) + 1) * ww // (2 * fs.W)
+        moved = got[:, ri][:, :, rj]
+        np.testing.assert_array_equal(got_hr, moved if fp32 else moved.astype(np.float16))
         if i in (0, 3):          # no previous frame: those two are 0
             assert not got[:2].any() and not want[:2].any(), i
         else:                    # off screen: the largest change, 1 / (1 + knee)
@@ -126,7 +134,8 @@ def test_measurements_match_oracle(precision):
             assert err <= tol_hr[k], f"{precision} frame {i} classifier input {23 + k}: {err:.3g}"
         pa, pb = ours.state["prev"], ora.state["prev"]
         assert pa.shape == pb.shape == (1, 4, hh, ww)
-        np.testing.assert_array_equal(pa[0, 3], pb[0, 3])                   # dilated depth
+        np.testing.assert_array_equal(pa[0, 3], pb[0, 3])          # the pixel's own depth
+        np.testing.assert_array_equal(pa[0, 3], depth)
         np.testing.assert_allclose(pa[0, :3], pb[0, :3], rtol=0, atol=2e-5 if fp32 else 5e-4)
 
 

@@ -270,7 +270,8 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
 
 def np_measurements(X, d, m, prev, reset):
     """reference.md s4b: [tdd, cc, edge, spread] [4,h,w] (compressed) of the encoded colour
-    X [3,h,w], dilated depth d and motion m [2,h,w] against prev [4,h,w] (None: none)."""
+    X [3,h,w], the pixel's own (entry-converted, not dilated) depth d and motion m [2,h,w]
+    against prev [4,h,w] (None: none)."""
     hh, ww = d.shape
     if prev is None or reset:
         tdd = cc = np.zeros_like(d)
@@ -293,15 +294,29 @@ def np_measurements(X, d, m, prev, reset):
                      for v, k in zip((tdd, cc, edge, spread), C.MEASURE_KNEES)]).astype(np.float32)
 
 
+def np_measurements_hr(meas, H, W):
+    """reference.md s4b: output pixel (I, J) takes the measurements of render pixel
+    (((2I + 1) h) // (2H), ((2J + 1) w) // (2W)), the one holding its centre."""
+    _, hh, ww = meas.shape
+    ri = (2 * np.arange(H) + 1) * hh // (2 * H)
+    rj = (2 * np.arange(W) + 1) * ww // (2 * W)
+    return meas[:, ri][:, :, rj]
+
+
 def test_measurements_match_numpy_reference():
     """Net mode's measurements (reference.md s4b) in the graph against np_measurements, at
     an odd size over 4 frames with a reset at frame 2: random depth edges, sub-pixel and
     off-screen motion, motion that puts p + motion on a pixel edge (the tap rounds up);
-    prev_out is this frame's (X, d_dil), and the oracle carries it."""
+    they read the pixel's own depth and motion (the data makes the dilated ones differ by
+    far more than the tolerances), reach output res at the render pixel holding each
+    output pixel's centre, exactly (bilinear would differ); prev_out is this frame's
+    (X, depth), and the oracle carries it."""
     rng = np.random.default_rng(5)
     hh, ww, scale = 13, 17, 1.5
+    H, W = C.output_size(hh, ww, scale)
     up = O.OracleUpscaler((hh, ww), scale, "net", debug=True, session_options=_opts(),
                           **_networks(handmade=True))
+    tols = (1e-6, 2e-3, 1e-6, 2e-3)
     prev = None
     for f in range(4):
         color = rng.uniform(0, 2, (hh, ww, 3)).astype(np.float32)
@@ -309,21 +324,37 @@ def test_measurements_match_numpy_reference():
         depth += rng.uniform(0, 0.01, (hh, ww)).astype(np.float32)
         motion = rng.uniform(-2.5, 2.5, (hh, ww, 2)).astype(np.float32)
         motion[::3, ::2] = np.round(motion[::3, ::2]) + 0.5
-        up.step(color, depth, motion, tuple(C.jitter_for_frame(f, scale)), reset=f == 2)
+        jitter = tuple(C.jitter_for_frame(f, scale))
+        up.step(color, depth, motion, jitter, reset=f == 2)
         dbg = up.debug
         X = C.pq_encode(color.transpose(2, 0, 1))
-        d, m = dbg["dbg_dilated_depth"][0, 0], dbg["dbg_dilated_motion"][0]
+        d, m = depth, motion.transpose(2, 0, 1)
         want = np_measurements(X, d, m, prev, f == 2)
         got = dbg["dbg_measurements"][0]
         # tdd and edge: exact arithmetic on exact inputs; cc and spread: X (numpy's encoder
         # against onnxruntime's) times the knee's slope, up to 1 / 0.02
-        for k, tol in enumerate((1e-6, 2e-3, 1e-6, 2e-3)):
+        for k, tol in enumerate(tols):
             err = np.abs(got[k] - want[k]).max()
             assert err <= tol, (f, k, err)
+        # the dilated depth and motion would fail that: the depth edge always, the
+        # previous-depth difference whenever there is a previous frame
+        d_dil, m_dil = dbg["dbg_dilated_depth"][0, 0], dbg["dbg_dilated_motion"][0]
+        alt = np_measurements(X, d_dil, m_dil, prev, f == 2)
+        assert np.abs(alt[2] - want[2]).max() > 0.1, f
+        if f not in (0, 2):
+            assert np.abs(alt[0] - want[0]).max() > 0.1, f
         if f in (0, 2):
             assert not got[:2].any()
         else:
             assert (got[0] == np.float32(1) / np.float32(1 + C.MEASURE_KNEES[0])).any()   # off screen
+        # output res: the graph's own measurements moved exactly (Gather), which the
+        # jitter-aware bilinear sampling of section 5 would not give
+        got_hr = dbg["dbg_measurements_hr"][0]
+        assert got_hr.shape == (4, H, W)
+        assert np.array_equal(got_hr, np_measurements_hr(got, H, W))
+        u = np.clip((np.arange(W) + 0.5) * ww / W - 0.5 - jitter[0], 0, ww - 1)[None, :] + np.zeros((H, 1))
+        v = np.clip((np.arange(H) + 0.5) * hh / H - 0.5 - jitter[1], 0, hh - 1)[:, None] + np.zeros((1, W))
+        assert np.abs(np_sample(got, u, v, False) - got_hr).max() > 0.1, f
         st = up.state["prev"]
         assert st.shape == (1, 4, hh, ww) and np.array_equal(st[0, 3], d)
         assert np.abs(st[0, :3] - X).max() < 2e-5

@@ -12,12 +12,13 @@ Per frame (render res h x w, output res H x W, H16 x W16 the size padded to 16):
     depth_diff    recon -> lr[dd]; X -> lr[colour box]; net: X, lr, prev -> lr[measurements],
                   prev' (reference.md s4b)
     resolve       rule: X, lr, history -> history', output
-                  net:  X, lr, history -> classifier input (H16 x W16), aux
+                  net:  X, lr, history -> classifier input (H16 x W16; the measurements
+                  at the render pixel holding each output pixel's centre), aux
     classifier    net: classifier input -> logits at H16/2 x W16/2   (clss.Model)
     compose       net: logits, classifier input, aux, history -> history', output
 
 The history, and in net mode the render-res state `prev` (the previous accepted frame's
-encoded colour and dilated depth, s4b), are double-buffered and swapped after a frame is
+encoded colour and own, not dilated, depth, s4b), are double-buffered and swapped after a frame is
 accepted; the depth reconstruction is per-frame scratch (reference.md s3).
 """
 from __future__ import annotations
@@ -41,8 +42,10 @@ from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REAC
                                  MEASURE_KNEES, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
 
 LR_CHANNELS = 11  # depth, motion 2, dd, reactive, clamp box low 3 and high 3
-LR_NET_CHANNELS = 15  # net mode: and the classifier's 4 measurements (reference.md s4b)
-PREV_CHANNELS = 4  # net mode's render-res state: encoded colour 3, dilated depth
+# net mode: and the classifier's 4 measurements (reference.md s4b), then the pixel's own
+# (not dilated) depth and motion 2 that prepare writes for them
+LR_NET_CHANNELS = 18
+PREV_CHANNELS = 4  # net mode's render-res state: encoded colour 3, own (not dilated) depth
 # The buffer widths kernels/frame.cl is built with (it has no defaults for them); net
 # mode builds with L_CHANNELS = LR_NET_CHANNELS.
 WIDTH_DEFINES = dict(L_CHANNELS=LR_CHANNELS, HIST=HISTORY_CHANNELS,
@@ -375,8 +378,8 @@ class FrameStep:
 
     @property
     def prev_state(self) -> cla.Array | None:
-        """Net mode: [4, h, w] float, the last accepted frame's encoded colour and
-        dilated depth (reference.md s4b); None in rule mode."""
+        """Net mode: [4, h, w] float, the last accepted frame's encoded colour and own
+        (not dilated) depth (reference.md s4b); None in rule mode."""
         return self.prev[self.cur] if self.prev else None
 
     # -- timings ----------------------------------------------------------------

@@ -9,8 +9,8 @@ Graph inputs (internal conventions, see contract.to_internal):
     motion   [1,2,h,w]  render pixels            jitter  [2] render pixels
     reset    [1]        1.0 = camera cut         reactive [1,1,h,w] in [0,1]
     history  [1,16,H,W] PQ colour 3, counter 1, colour min 3, max 3, logits 6
-    prev     [1,4,h,w]  mode "net" only: the previous frame's encoded colour 3 and dilated
-                        depth (reference.md s4b), the previous step's prev_out
+    prev     [1,4,h,w]  mode "net" only: the previous frame's encoded colour 3 and own
+                        (not dilated) depth (reference.md s4b), the previous step's prev_out
 Graph outputs: output [1,3,H,W] linear (/ exposure), history_out [1,16,H,W], in mode
 "net" prev_out [1,4,h,w], and with debug=True the intermediate buffers listed in
 DEBUG_OUTPUTS (and DEBUG_OUTPUTS_NET).
@@ -38,7 +38,7 @@ from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REAC
                        SCATTER_WEIGHT_THRESHOLD, output_size, to_internal, validate_frame)
 
 OPSET = 18
-PREV_CHANNELS = 4   # mode "net": the render-res state prev (encoded colour 3, dilated depth)
+PREV_CHANNELS = 4   # mode "net": the render-res state prev (encoded colour 3, own depth)
 
 DEBUG_OUTPUTS = {
     # render resolution
@@ -63,7 +63,7 @@ DEBUG_OUTPUTS = {
 }
 DEBUG_OUTPUTS_NET = {
     "dbg_measurements": "[1,4,h,w] s4b the classifier's measurements (render res, compressed)",
-    "dbg_measurements_hr": "[1,4,H,W] s4b stage 4 their bilinear upsampling",
+    "dbg_measurements_hr": "[1,4,H,W] s4b stage 4 those of the render pixel holding each output pixel's centre",
     "dbg_cls_input": "[1,27,H,W] stage 6 classifier input, before padding",
     "dbg_logits": "[1,6,H,W] stage 6 current logits after the bilinear x2 and crop",
     "dbg_comp_input": "[1,22,H,W] stage 8 composition input",
@@ -161,7 +161,8 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     d_dil, m_dil = _stage1_dilate(g, h, w, dbg)
     taps, recon = _stage2_reconstruct(g, h, w, d_dil, m_dil, dbg)
     dd = _stage3_depth_diff(g, taps, recon, d_dil, dbg)
-    meas = _measurements(g, h, w, X, d_dil, m_dil, dbg) if mode == "net" else None
+    # s4b: of the pixel's own depth and motion (the graph inputs), not the dilated ones
+    meas = _measurements(g, h, w, X, "depth", "motion", dbg) if mode == "net" else None
     hr = _stage4_upsample(g, (h, w), (H, W), X, d_dil, m_dil, dd, meas, dbg)
     warped = _stage5_warp(g, (H, W), hr, dbg)
     ghost, logits = _stage6_classify(g, mode, (H, W), classifier, depth_threshold, hr, warped,
@@ -312,18 +313,19 @@ def _stage3_depth_diff(g, taps, recon, d_dil, dbg):
     return dd
 
 
-def _measurements(g, h, w, X, d_dil, m_dil, dbg):
-    """s4b (mode "net", render res): the classifier's four measurements [1,4,h,w], each
-    compressed as v / (|v| + MEASURE_KNEES[k]); and the graph output prev_out, this
-    frame's encoded colour and dilated depth, which the next frame reads as `prev`."""
-    g.concat([X, d_dil], name="prev_out")
+def _measurements(g, h, w, X, d, m, dbg):
+    """s4b (mode "net", render res): the classifier's four measurements [1,4,h,w] of the
+    pixel's own depth d and motion m (not the dilated ones), each compressed as
+    v / (|v| + MEASURE_KNEES[k]); and the graph output prev_out, this frame's encoded
+    colour and depth d, which the next frame reads as `prev`."""
+    g.concat([X, d], name="prev_out")
     # The previous frame at the pixel nearest to p + motion: floor((j + m.x) + 0.5), the
     # kernel's and the torch twin's order of float operations, so all read the same pixel.
     jj = g.const(np.arange(w, dtype=np.float32).reshape(1, 1, 1, w), hint="jj")
     ii = g.const(np.arange(h, dtype=np.float32).reshape(1, 1, h, 1), hint="ii")
     half = g.const(0.5)
-    qx = g.op("Floor", g.add(g.add(jj, g.chan(m_dil, slice(0, 1))), half))
-    qy = g.op("Floor", g.add(g.add(ii, g.chan(m_dil, slice(1, 2))), half))
+    qx = g.op("Floor", g.add(g.add(jj, g.chan(m, slice(0, 1))), half))
+    qy = g.op("Floor", g.add(g.add(ii, g.chan(m, slice(1, 2))), half))
     on = g.op("And",
               g.op("And", g.op("GreaterOrEqual", qx, g.const(0.0)),
                    g.op("LessOrEqual", qx, g.const(float(w - 1)))),
@@ -336,7 +338,7 @@ def _measurements(g, h, w, X, d_dil, m_dil, dbg):
                    [1, PREV_CHANNELS, h, w])
     pd = g.chan(pv, slice(3, 4))
     zero, one = g.const(0.0), g.const(1.0)
-    tdd = g.clip(g.div(g.sub(pd, d_dil), g.op("Max", pd, g.const(DEPTH_EPS))), -1.0, 1.0)
+    tdd = g.clip(g.div(g.sub(pd, d), g.op("Max", pd, g.const(DEPTH_EPS))), -1.0, 1.0)
     cc = g.op("ReduceMax", g.op("Abs", g.sub(X, g.chan(pv, slice(0, 3)))), g.i64([1]),
               keepdims=1)
     # off screen: no previous frame, the largest change; a reset: none either, and 0
@@ -346,8 +348,8 @@ def _measurements(g, h, w, X, d_dil, m_dil, dbg):
     cc = g.where(keep, g.where(on, cc, one), zero)
     # 3x3 ranges over the in-bounds neighbours (MaxPool pads with -inf)
     win = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1], strides=[1, 1])
-    dmax = g.op("MaxPool", d_dil, **win)
-    dmin = g.op("Neg", g.op("MaxPool", g.op("Neg", d_dil), **win))
+    dmax = g.op("MaxPool", d, **win)
+    dmin = g.op("Neg", g.op("MaxPool", g.op("Neg", d), **win))
     edge = g.div(g.sub(dmax, dmin), g.op("Max", dmax, g.const(DEPTH_EPS)))
     xmin = g.op("Neg", g.op("MaxPool", g.op("Neg", X), **win))
     spread = g.op("ReduceMax", g.sub(g.op("MaxPool", X, **win), xmin), g.i64([1]), keepdims=1)
@@ -359,7 +361,7 @@ def _measurements(g, h, w, X, d_dil, m_dil, dbg):
 
 def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, meas, dbg) -> _Upsampled:
     """Stage 4: upsample at output pixel centres, jitter-aware; the clamp box; in mode
-    "net" (meas given) the classifier's measurements."""
+    "net" (meas given) the classifier's measurements, nearest (s4b)."""
     (h, w), (H, W) = hw, HW
     jx, jy = g.slice("jitter", 0, 0, 1), g.slice("jitter", 0, 1, 2)
     bx = ((np.arange(W, dtype=np.float64) + 0.5) * w / W - 0.5).astype(np.float32)
@@ -401,8 +403,7 @@ def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, meas, dbg) -> _Upsampled:
     nmax = g.op("Min", nmax, g.add(mu, gsd))
     react = _auto_reactive(g, m_dil, h, w)
     # the kernel's render-res stack (its lr buffer), in its channel order
-    stack = [d_dil, m_dil, dd, react, nmin, nmax] + ([meas] if meas is not None else [])
-    aux = g.grid_sample(g.concat(stack), grid_up, cubic=False)
+    aux = g.grid_sample(g.concat([d_dil, m_dil, dd, react, nmin, nmax]), grid_up, cubic=False)
     depth_hr = g.chan(aux, slice(0, 1))
     motion_hr = g.mul(g.chan(aux, slice(1, 3)),
                       g.const(np.array([W / w, H / h], np.float32).reshape(1, 2, 1, 1)))
@@ -412,7 +413,11 @@ def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, meas, dbg) -> _Upsampled:
     c_hi = g.chan(aux, slice(8, 11))
     meas_hr = None
     if meas is not None:
-        meas_hr = g.chan(aux, slice(11, 15))
+        # s4b: output pixel (I, J) takes the measurements of the render pixel holding its
+        # centre, ((2I + 1) h) // (2H) in integers (no jitter): Gather, exact data movement
+        ri = (2 * np.arange(H, dtype=np.int64) + 1) * h // (2 * H)
+        rj = (2 * np.arange(W, dtype=np.int64) + 1) * w // (2 * W)
+        meas_hr = g.op("Gather", g.op("Gather", meas, g.i64(ri), axis=2), g.i64(rj), axis=3)
         dbg["dbg_measurements_hr"] = meas_hr
     dbg.update(dbg_upsampled=up, dbg_depth_hr=depth_hr, dbg_motion_hr=motion_hr,
                dbg_depth_diff_hr=dd_hr, dbg_reactive_hr=react_hr, dbg_clamp_min=c_lo,

@@ -188,8 +188,8 @@ class ClssUpscaler(MethodUpscaler):
     def state(self) -> dict:
         """{"history": [1,16,H,W] float32} (a host copy), or {"history": None} before the
         first accepted frame (of this render size). Mode "net" adds "prev": [1,4,h,w]
-        float32, the last accepted frame's encoded colour and dilated depth (reference.md
-        s4b; None likewise), the oracle's state of the same name."""
+        float32, the last accepted frame's encoded colour and own (not dilated) depth
+        (reference.md s4b; None likewise), the oracle's state of the same name."""
         net = self.mode == "net"
         if self._fs is None or not self._fs.accepted:
             return {"history": None, "prev": None} if net else {"history": None}
