@@ -138,7 +138,7 @@ def compare_frame(a, b, ha, hb, precision, mode, where):
         # colour change and spread (reference.md s4b), differences of two encoded colours
         # compressed with a slope of up to 1 / 0.02, so the 1e-5 by which two float32 PQ
         # encoders differ becomes up to 5e-4 in those inputs (s11); the logits then
-        # differed by up to 1.2e-4 (measured, seeded networks; 9e-6 before s4b)
+        # differed by up to 1.6e-4 (measured, seeded networks; 9e-6 before s4b)
         d = np.abs(ha - hb)[:, agree]
         tol = np.full((len(ha), 1), 1e-4)
         tol[10:] = 5e-4 if mode == "net" else 1e-4

@@ -12,7 +12,7 @@ with the state carried and a reset in the middle, in both modes, fp32.  Per fram
     classifier's colour change and spread amplify the encoders' rounding, reference.md
     s4b and s11).
 Measured: counters identical in both modes (net: 7-33 % of pixels rejected per frame),
-output within 3.6e-5 relative, history within 1e-5 (net mode's logits 1e-4).
+output within 3.6e-5 relative, history within 1e-5 (net mode's logits 1.4e-4).
 Skipped cleanly without torch (the [train] extra).
 """
 from __future__ import annotations
