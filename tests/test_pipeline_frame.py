@@ -141,6 +141,34 @@ def test_measurements_match_oracle(precision):
         np.testing.assert_allclose(pa[0, :3], pb[0, :3], rtol=0, atol=2e-5 if fp32 else 5e-4)
 
 
+@pytest.mark.parametrize("opts", [dict(depth_inverted=False, motion_scale=(-1.0, 0.5)),
+                                  dict(sanitize=True)])
+def test_measurements_entry_conversions_match_oracle(opts):
+    """Net mode's measurements read the pixel's own depth and motion after the entry
+    conversions (reference.md s1, s4b): standard Z and a motion scale, and SANITIZE's
+    replacements (depth far, motion 0), as the oracle's graph inputs have them; fp32, the
+    tolerances of test_measurements_match_oracle, the state's depth bitwise. Measured:
+    cc 4.6e-5, spread 3.6e-6, the rest bitwise."""
+    rng = np.random.default_rng(3)
+    hh, ww = 13, 17
+    ours = _ours(1.5, "net", "fp32", **opts)
+    ora = _oracle((hh, ww), 1.5, "net", debug=True, **opts)
+    tol = [1e-6, 1e-3, 1e-6, 1e-3]
+    for i in range(3):
+        color, depth, motion = _random_frame(rng, hh, ww)
+        if opts.get("sanitize"):
+            depth[2, 3] = np.nan
+            motion[5, 6, 0] = np.nan
+            motion[7, 7, 1] = np.inf
+        ours.step(color, depth, motion, (0.1, -0.2))
+        ora.step(color, depth, motion, (0.1, -0.2))
+        got, want = ours._fs.lr.get()[11:15], ora.debug["dbg_measurements"][0]
+        for k in range(4):
+            err = np.abs(got[k] - want[k]).max()
+            assert err <= tol[k], f"{opts} frame {i} measurement {k}: {err:.3g}"
+        np.testing.assert_array_equal(ours.state["prev"][0, 3], ora.state["prev"][0, 3])
+
+
 @pytest.mark.parametrize("opts", [
     dict(exposure=2.5), dict(hdr=False), dict(motion_scale=(-1.0, -1.0)),
     dict(depth_inverted=False), dict(cap=2, depth_threshold=0.05),
