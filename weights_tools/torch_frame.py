@@ -32,7 +32,7 @@ import torch.nn.functional as F
 from clss.pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
                                     CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD,
                                     DILATE_OFFSETS, HISTORY_CHANNELS, MEASURE_KNEES, MODES,
-                                    PQ_NITS,
+                                    PQ_NITS, VIS_MARGIN,
                                     RULE_CLIP_EPS, SCATTER_WEIGHT_THRESHOLD, output_size,
                                     to_internal, validate_frame)
 
@@ -344,7 +344,7 @@ class FrameStep(nn.Module):
 
     def __init__(self, mode, render_size, scale=2.0, classifier=None, composition=None,
                  cap=None, *, depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
-                 blend="net", clip=True):
+                 blend="net", clip=True, vis_margin=VIS_MARGIN):
         super().__init__()
         if mode not in MODES:
             raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
@@ -358,6 +358,7 @@ class FrameStep(nn.Module):
         self.H, self.W = output_size(self.h, self.w, scale)
         self.cap = float(DEFAULT_CAP[mode] if cap is None else cap)
         self.depth_threshold = float(depth_threshold)
+        self.vis_margin = float(vis_margin)
         self.hdr, self.nits = bool(hdr), float(nits)
         self.classifier, self.composition = classifier, composition
         h, w, H, W = self.h, self.w, self.H, self.W
@@ -552,7 +553,10 @@ class FrameStep(nn.Module):
             logits = F.interpolate(half, scale_factor=2.0, mode="bilinear",
                                    align_corners=False)[:, :, :H, :W]
             # the rule's depth test is a floor under the classifier (reference.md section 7)
-            reject = (logits[:, 0:3].argmax(1, keepdim=True) == 0) | (p["dd_hr"] > self.depth_threshold)
+            # visibility leads by vis_margin (0: argmax, first index on ties), with the
+            # rule's depth test as a floor (reference.md section 7)
+            lead = logits[:, 0:1] - torch.maximum(logits[:, 1:2], logits[:, 2:3])
+            reject = (lead >= self.vis_margin) | (p["dd_hr"] > self.depth_threshold)
         else:
             reject = p["dd_hr"] > self.depth_threshold
         ghost = reject | ~valid
@@ -608,10 +612,12 @@ class TorchUpscaler:
 
     def __init__(self, scale=2.0, mode="net", weights=None, cap=None, *, device=None,
                  depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
-                 depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0, clip=True):
+                 depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0, clip=True,
+                 vis_margin=VIS_MARGIN):
         self.scale, self.mode = float(scale), {"rules": "rule"}.get(mode, mode)
         self.device = pick_device(device)
-        self.kw = dict(cap=cap, depth_threshold=depth_threshold, hdr=hdr, nits=nits, clip=clip)
+        self.kw = dict(cap=cap, depth_threshold=depth_threshold, hdr=hdr, nits=nits, clip=clip,
+                       vis_margin=vis_margin)
         self.contract = dict(depth_inverted=depth_inverted, motion_scale=motion_scale,
                              exposure=exposure)
         self.nets = (None, None)

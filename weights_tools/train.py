@@ -44,6 +44,7 @@ train.json (settings, class weights, per-step times, losses, held-out PSNR).
 """
 from __future__ import annotations
 
+import argparse
 import glob
 import json
 import math
@@ -59,6 +60,8 @@ from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, lr_
 from .trainloop import load_sequences as _load_sequences
 from .trainloop import plot_losses as _plot_losses
 from clss.networks import load_weights, save_weights
+
+from clss.pipeline.contract import VIS_MARGIN
 
 CLASS_WEIGHT_RATIO = 100.0
 GHOST_NONE, ALIAS_GEOMETRY, ALIAS_NONE = 2, 0, 2
@@ -177,8 +180,10 @@ def class_weights(seqs, items, rsize, frames, valid_only=False):
 
 # ---- losses ------------------------------------------------------------------------------
 
-def classifier_loss(logits, lg, la, valid, wg, wa):
-    """Summed weighted cross-entropy of both heads over the valid pixels, and the count."""
+def classifier_loss(logits, lg, la, valid, wg, wa, false_ghost_weight=True):
+    """Summed weighted cross-entropy of both heads over the valid pixels, and the count.
+    `false_ghost_weight`: the paper's reweighting of false-positive ghosting in aliasing
+    regions (below)."""
     import torch.nn.functional as F
     ce_g = F.cross_entropy(logits[:, 0:3], lg, reduction="none")
     ce_a = F.cross_entropy(logits[:, 3:6], la, reduction="none")
@@ -187,7 +192,8 @@ def classifier_loss(logits, lg, la, valid, wg, wa):
         pred_g = logits[:, 0:3].argmax(1)
         false_ghost = (la != ALIAS_NONE) & (lg == GHOST_NONE) & (pred_g != GHOST_NONE)
     # s3.4: false-positive ghosting in aliasing regions weighs as much as real ghosting.
-    pix_g = torch.where(false_ghost, wg[pred_g], pix_g)
+    if false_ghost_weight:
+        pix_g = torch.where(false_ghost, wg[pred_g], pix_g)
     v = valid[:, 0].float()
     return ((pix_g * ce_g + wa[la] * ce_a) * v).sum(), v.sum()
 
@@ -205,7 +211,8 @@ def composition_parts(r, lg, la, ref_pq):
     return ((lw * good_geo).sum(), good_geo.sum(), (li * rest).sum(), rest.sum())
 
 
-def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0, detach=False):
+def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0, detach=False,
+               false_ghost_weight=True):
     """The recurrent pass over one batch of windows -> (loss, stats). `detach`: the state
     carries no gradient from one frame to the next (each frame's loss trains only that
     frame's pass)."""
@@ -222,7 +229,7 @@ def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0, detach=Fal
             hist = hist.detach()
         lg, la = batch["label_ghost"][t], batch["label_alias"][t]
         if stage == "classifier":
-            s, n = classifier_loss(r["logits"], lg, la, r["valid"], wg, wa)
+            s, n = classifier_loss(r["logits"], lg, la, r["valid"], wg, wa, false_ghost_weight)
             acc[0], acc[1] = acc[0] + s, acc[1] + n
         else:
             rule_color = r["rule_color"]
@@ -351,8 +358,10 @@ def train(args):
         step = torch_frame.FrameStep("net", (rsize, rsize), float(seqs[0]["scale"]), cls,
                                      None if train_cls else comp,
                                      blend="rule" if train_cls else "net",
-                                     clip=not train_cls, cap=args.cap).to(device)
-        opt = torch.optim.Adam(net.parameters(), lr=args.lr)
+                                     clip=not train_cls, cap=args.cap,
+                                     vis_margin=args.vis_margin).to(device)
+        lr = args.cls_lr if train_cls else args.lr
+        opt = torch.optim.Adam(net.parameters(), lr=lr)
         if opt_state is not None and si == start["stage"]:
             opt.load_state_dict(opt_state)
         total = steps[stage]
@@ -363,9 +372,10 @@ def train(args):
             pick = g.choice(len(items), size=min(args.batch, len(items)), replace=False)
             batch = make_batch(seqs, [items[i] for i in pick], rsize, args.frames, device)
             for pg in opt.param_groups:
-                pg["lr"] = lr_cosine(args.lr, it, total)
+                pg["lr"] = lr_cosine(lr, it, total)
             loss, parts = run_window(step, batch, stage, wg, wa, args.weight_loss,
-                                     detach=stage == "classifier" and args.cls_detach)
+                                     detach=stage == "classifier" and args.cls_detach,
+                                     false_ghost_weight=args.false_ghost_weight)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -426,24 +436,34 @@ def add_arguments(t):
     # Defaults: the shipped recipe, about 2.5 min of steps on 2 quiet cores (5-6 steps/s).
     # Longer runs (2000 + 3000) and --class-weights valid train a classifier above chance
     # but did not score better (README, Training): the shipped weights stay these.
-    t.add_argument("--cls-steps", type=int, default=300, help="classifier steps")
+    t.add_argument("--cls-steps", type=int, default=1200, help="classifier steps")
     t.add_argument("--comp-steps", type=int, default=400, help="composition steps")
-    t.add_argument("--class-weights", choices=("all", "valid"), default="all",
+    t.add_argument("--class-weights", choices=("all", "valid"), default="valid",
                    help="count the class frequencies over all pixels of the selected windows "
-                        "(all, the shipped recipe) or over the pixels that carry the loss "
-                        "(valid: not a reset, motion inside the patch)")
-    t.add_argument("--basis", action="store_true",
+                        "(all) or over the pixels that carry the loss (valid, the shipped "
+                        "recipe: not a reset, motion inside the patch)")
+    t.add_argument("--basis", action=argparse.BooleanOptionalAction, default=True,
                    help="train on the normalised input basis (torch_frame: colours as "
                         "differences to the current one, depth and motion at unit scale), "
-                        "folded back into the shipped weights' raw basis at export")
-    t.add_argument("--cls-detach", action="store_true",
-                   help="classifier stage: no gradient through the state from frame to frame")
+                        "folded back into the shipped weights' raw basis at export "
+                        "(default: on)")
+    t.add_argument("--cls-detach", action=argparse.BooleanOptionalAction, default=True,
+                   help="classifier stage: no gradient through the state from frame to frame "
+                        "(default: on; each frame's loss trains that frame's pass)")
+    t.add_argument("--false-ghost-weight", action=argparse.BooleanOptionalAction, default=False,
+                   help="classifier stage: false-positive ghosting in aliasing regions takes "
+                        "the predicted class's weight, as the paper does (default: off; it "
+                        "kept visibility recall at 16 %%)")
+    t.add_argument("--cls-lr", type=float, default=2e-3, help="classifier stage learning rate")
+    t.add_argument("--vis-margin", type=float, default=VIS_MARGIN,
+                   help="the frame step's visibility margin while training (reference.md s7; "
+                        "default: the runtime's, contract.VIS_MARGIN)")
     t.add_argument("--batch", type=int, default=4, help="windows per step")
     t.add_argument("--patch", type=int, default=64, help="patch size, output pixels")
     t.add_argument("--frames", type=int, default=8, help="recurrent frames per window")
     t.add_argument("--candidates", type=int, default=4000, help="random windows scored")
     t.add_argument("--keep", type=float, default=0.25, help="fraction of candidates kept")
-    t.add_argument("--lr", type=float, default=1e-3)
+    t.add_argument("--lr", type=float, default=1e-3, help="composition stage learning rate")
     t.add_argument("--cap", type=float, default=None,
                    help="net mode's counter cap while training (default: the runtime's)")
     t.add_argument("--weight-loss", type=float, default=1.0,
