@@ -191,3 +191,34 @@ def test_default_method_rewrites_only_its_own_command():
     assert w(["train", "nsrd", "--data", "d"]) == ["train", "nsrd", "--data", "d"]
     assert w(["eval", "x.npz", "--warmup", "2"]) == ["eval", "x.npz", "--warmup", "2"]
     assert w(["seeds", "--data", "d"], "seeds") == ["seeds", "clss", "--data", "d"]
+
+
+def test_classifier_report_scores_heads_rules_and_the_runtime_margin(tmp_path, capsys):
+    """`python -m weights_tools classifier` on two tiny labelled sequences: every row of
+    both heads is a balanced accuracy in [0, 1] with its confusion counting the same valid
+    pixels; the aliasing head's margin row is its argmax (the margin is the ghosting
+    head's); the 2x2 bound is at least a constant's 1/3; one sequence is refused."""
+    from weights_tools import classifier_report as cr
+    paths = []
+    for k in range(2):
+        p = str(tmp_path / f"s{k}.npz")
+        write_tiny_sequence(p, seed=k)
+        paths.append(p)
+    res = cr.report(paths, None, log=open(os.devnull, "w"))
+    for head in ("ghost", "alias"):
+        rows = res["heads"][head]
+        n = None
+        for who in ("classifier", "classifier at margin", "rules", "2x2 bound"):
+            ba = rows[who]["balanced_accuracy"]
+            assert 0.0 <= ba <= 1.0, (head, who, ba)
+            total = int(np.sum(rows[who]["confusion"]))
+            n = total if n is None else n
+            assert total == n, (head, who)
+        assert rows["2x2 bound"]["balanced_accuracy"] >= 1 / 3 - 1e-9
+    # the aliasing head has no margin: its margin row is its argmax
+    a = res["heads"]["alias"]
+    assert a["classifier at margin"]["confusion"] == a["classifier"]["confusion"]
+    text = cr.format_report(res)
+    assert "classifier at margin" in text and "2x2 bound" in text
+    with pytest.raises(ValueError, match="at least 2 labelled"):
+        cr.report(paths[:1], None, log=open(os.devnull, "w"))

@@ -87,7 +87,11 @@ def frames_scored(seq):
 
 
 def run_classifier(seq, weights, device=None):
-    """{t: (ghost class, alias class, valid)} of the torch twin of the net frame step."""
+    """{t: (ghost class, alias class, valid, ghost class at the runtime margin)} of the
+    torch twin of the net frame step: the heads' argmax, and the ghosting head as net mode
+    decides it (visibility where its logit leads the others by contract.VIS_MARGIN, else
+    the larger of shading and none)."""
+    from clss.pipeline.contract import VIS_MARGIN
     from .torch_frame import TorchUpscaler
     up = TorchUpscaler(float(seq["scale"]), "net", weights, device=device)
     out = {}
@@ -96,7 +100,10 @@ def run_classifier(seq, weights, device=None):
                 reset=bool(seq["reset"][t]))
         r = up.last
         lg = r["logits"][0].cpu().numpy()
-        out[t] = (lg[0:3].argmax(0), lg[3:6].argmax(0), r["valid"][0, 0].cpu().numpy() > 0.5)
+        lead = lg[0] - np.maximum(lg[1], lg[2])
+        at_margin = np.where(lead >= VIS_MARGIN, 0, 1 + lg[1:3].argmax(0))
+        out[t] = (lg[0:3].argmax(0), lg[3:6].argmax(0), r["valid"][0, 0].cpu().numpy() > 0.5,
+                  at_margin)
     return out
 
 
@@ -161,11 +168,12 @@ def report(paths, weights=None, device=None, log=sys.stderr):
            "thresholds": {"ghost": th_g, "alias": th_a}, "heads": {}}
     for head, names, k, rule, th in (("ghost", GHOST_NAMES, 0, rule_ghost, th_g),
                                      ("alias", ALIAS_NAMES, 1, rule_alias, th_a)):
-        P, R, L, BP, BL = [], [], [], [], []
+        P, R, L, BP, BL, M = [], [], [], [], [], []
         for seq, cl, hw in gathered:
             for t, valid in masks(seq, cl).items():
                 lab = seq[f"label_{head}"][t]
                 P.append(cl[t][k][valid])
+                M.append(cl[t][3 if k == 0 else 1][valid])
                 R.append(rule(seq, t, hw, *th.values())[valid])
                 L.append(lab[valid])
                 bp, bl = block_bound(lab, valid)
@@ -174,7 +182,8 @@ def report(paths, weights=None, device=None, log=sys.stderr):
         L = np.concatenate(L)
         rows = {}
         for who, pred in (("classifier", np.concatenate(P)), ("rules", np.concatenate(R)),
-                          ("2x2 bound", np.concatenate(BP))):
+                          ("2x2 bound", np.concatenate(BP)),
+                          ("classifier at margin", np.concatenate(M))):
             ba, conf = balanced_accuracy(pred, L if who != "2x2 bound" else np.concatenate(BL))
             rows[who] = {"balanced_accuracy": ba, "confusion": conf.tolist()}
         freq = np.bincount(L.astype(np.int64), minlength=3) / max(len(L), 1)
@@ -187,16 +196,17 @@ def format_report(res) -> str:
              f"{len(res['tuned_on'])} others: ghost {res['thresholds']['ghost']}, "
              f"alias {res['thresholds']['alias']})",
              f"{'balanced accuracy':22s} {'ghosting':>9s} {'aliasing':>9s}"]
-    for who in ("classifier", "rules", "2x2 bound"):
+    for who in ("classifier", "classifier at margin", "rules", "2x2 bound"):
         lines.append(f"{who:22s} " + " ".join(
             f"{res['heads'][h][who]['balanced_accuracy']:9.3f}" for h in ("ghost", "alias")))
     for h in ("ghost", "alias"):
         r = res["heads"][h]
         lines.append(f"\n{h}: label share " + ", ".join(
             f"{n} {f:.1%}" for n, f in zip(r["classes"], r["label_frequency"])))
-        lines.append("  classifier confusion (rows: label, columns: predicted)")
-        for n, row in zip(r["classes"], r["classifier"]["confusion"]):
-            lines.append(f"    {n:11s} " + " ".join(f"{v:9d}" for v in row))
+        for who in ("classifier", "classifier at margin") if h == "ghost" else ("classifier",):
+            lines.append(f"  {who} confusion (rows: label, columns: predicted)")
+            for n, row in zip(r["classes"], r[who]["confusion"]):
+                lines.append(f"    {n:11s} " + " ".join(f"{v:9d}" for v in row))
     return "\n".join(lines)
 
 
