@@ -924,6 +924,8 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
  *  @param[in]  flags    prepare's flags (a refused frame copies the history through)
  *  @param[in]  depth_threshold relative depth jump that rejects history whatever the
  *                       classifier says (contract.DEPTH_THRESHOLD; > 1 turns the floor off)
+ *  @param[in]  vis_margin  the visibility logit's lead over the larger of the other two
+ *                       that rejects history (contract.VIS_MARGIN; 0: the paper's argmax)
  *  @param[in]  cap      sample counter cap
  *  @param[in]  inv_pq_scale 10000 / nits
  *  @param[in]  exposure the output is multiplied back by it
@@ -937,7 +939,8 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
                       __constant float *w1, __constant float *b1, __constant float *w2,
                       __constant float *b2, __global const T *hist, __global T *hist_out,
                       __global float *out, __global const uint *flags, float depth_threshold,
-                      float cap, float inv_pq_scale, float exposure, int debug, __global float *dbg)
+                      float vis_margin, float cap, float inv_pq_scale, float exposure, int debug,
+                      __global float *dbg)
 {
     const int J0 = get_global_id(0) * VEC, I = get_global_id(1);
     if (J0 >= W || I >= H) return;
@@ -955,9 +958,12 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
     for (int c = 0; c < 6; ++c)
         lg[c] = linear_T(logits + c * P2, lx, ly);
 
-    /* visibility ghosting = argmax of logits 0-2 is 0 (first index on ties), or the
-     * rule's depth test (cls_in plane 16 is dd_hr): the floor under the classifier */
-    const iv ghost = ((lg[0] >= lg[1]) & (lg[0] >= lg[2])) | (LDV(cls_in, 16 * P + r) > depth_threshold)
+    /* visibility ghosting = the visibility logit leads the larger of logits 1-2 by at
+     * least vis_margin (lead in this order, as the oracle and the torch twin; margin 0
+     * is the argmax, first index on ties), or the rule's depth test (cls_in plane 16 is
+     * dd_hr): the floor under the classifier (reference.md s7) */
+    const fv lead = lg[0] - fmax(lg[1], lg[2]);
+    const iv ghost = (lead >= vis_margin) | (LDV(cls_in, 16 * P + r) > depth_threshold)
                      | (LDV(aux, P + r) < 0.5f);
     const fv cnt = select(fmin(LDV(aux, r) + 1.0f, cap), FV(0.0f), ghost);
 

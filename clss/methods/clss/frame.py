@@ -39,7 +39,8 @@ from ...ops.conv import load_defines
 from ...pipeline.method import summed_event_ms
 from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
                                  CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS,
-                                 MEASURE_KNEES, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, output_size)
+                                 MEASURE_KNEES, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, VIS_MARGIN,
+                                 output_size)
 
 LR_CHANNELS = 11  # depth, motion 2, dd, reactive, clamp box low 3 and high 3
 # net mode: and the classifier's 4 measurements (reference.md s4b), then the pixel's own
@@ -169,7 +170,8 @@ class FrameStep:
     """Device buffers and launches of one frame step at a fixed render size."""
 
     def __init__(self, dev: Device, prec: str, mode: str, render_size, scale, *, hdr=True,
-                 nits=PQ_NITS, cap=None, depth_threshold=DEPTH_THRESHOLD, sanitize=False,
+                 nits=PQ_NITS, cap=None, depth_threshold=DEPTH_THRESHOLD,
+                 vis_margin=VIS_MARGIN, sanitize=False,
                  classifier: onnx.ModelProto | None = None,
                  composition: onnx.ModelProto | None = None, classifier_backend=None,
                  profile=False):
@@ -180,6 +182,7 @@ class FrameStep:
         self.hdr, self.nits = bool(hdr), float(nits)
         self.cap = float(DEFAULT_CAP[mode] if cap is None else cap)
         self.depth_threshold = float(depth_threshold)
+        self.vis_margin = float(vis_margin)
         self.sanitize = bool(sanitize)
         self.profile = bool(profile)
         net = mode == "net"
@@ -265,7 +268,7 @@ class FrameStep:
                               "dbg").split()
     RESOLVE_NET = RESOLVE + "cls_in aux flags W16 H16".split()
     COMPOSE = ("cls_in aux logits W H W16 H16 w1 b1 w2 b2 hist hist_out out flags depth_threshold "
-               "cap inv_pq_scale exposure debug dbg").split()
+               "vis_margin cap inv_pq_scale exposure debug dbg").split()
 
     def _launches(self):
         """Every launch of a frame with its arguments bound once (clss.device.Launch): a
@@ -282,7 +285,8 @@ class FrameStep:
                     lr=self.lr.data, flags=self.flags.data, bx=self.bx.data, by=self.by.data,
                     jx=f(0), jy=f(0), W=i32(W), H=i32(H), sx=f(W / w), sy=f(H / h), reset=i32(1),
                     hist=hist, hist_out=self.history[1].data, out=self.out.data,
-                    depth_threshold=f(self.depth_threshold), cap=f(self.cap),
+                    depth_threshold=f(self.depth_threshold),
+                    vis_margin=f(self.vis_margin), cap=f(self.cap),
                     inv_pq_scale=f(PQ_PEAK_NITS / self.nits), exposure=f(1), debug=i32(0),
                     dbg=self.dbg.data, W16=i32(self.W16), H16=i32(self.H16))
         if self.prev:

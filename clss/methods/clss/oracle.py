@@ -17,6 +17,8 @@ DEBUG_OUTPUTS (and DEBUG_OUTPUTS_NET).
 """
 from __future__ import annotations
 
+import math
+import numbers
 from typing import NamedTuple
 
 import numpy as np
@@ -35,7 +37,8 @@ from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REAC
                                  CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
                        H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MEASURE_KNEES, MODES,
                        PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
-                       SCATTER_WEIGHT_THRESHOLD, output_size, to_internal, validate_frame)
+                       SCATTER_WEIGHT_THRESHOLD, VIS_MARGIN, output_size, to_internal,
+                       validate_frame)
 
 OPSET = 18
 PREV_CHANNELS = 4   # mode "net": the render-res state prev (encoded colour 3, own depth)
@@ -113,15 +116,28 @@ def _clip_towards(g, hist, up, lo, hi):
     return g.add(up, g.mul(t, d))
 
 
+def check_vis_margin(vis_margin) -> float:
+    """`vis_margin` (reference.md s7) as a float; a ValueError naming it unless it is a
+    finite real number (a string or NaN would silently make every or no logit lead)."""
+    if (isinstance(vis_margin, bool) or not isinstance(vis_margin, numbers.Real)
+            or not math.isfinite(vis_margin)):
+        raise ValueError(f"vis_margin: expected a finite number (the visibility logit's "
+                         f"lead, 0 = argmax), got {vis_margin!r}")
+    return float(vis_margin)
+
+
 def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier=None,
                       composition=None, cap=None, *, depth_threshold=DEPTH_THRESHOLD,
-                      hdr=True, nits=PQ_NITS, debug=False) -> onnx.ModelProto:
+                      vis_margin=VIS_MARGIN, hdr=True, nits=PQ_NITS,
+                      debug=False) -> onnx.ModelProto:
     """One CLSS frame step as an ONNX model (see reference.md for every formula).
 
     mode "rule": no networks, ghost = off-screen or reset or depth difference >
     `depth_threshold`, w = 1/(1+counter), history clipped towards the current colour
     into the current 3x3 neighbourhood's box.  mode "net": `classifier` and `composition` (onnx.ModelProto from
-    clss.networks) are inlined.  `render_size` = (h, w).  `cap`: counter cap
+    clss.networks) are inlined; ghost = the visibility logit leads the larger of the
+    other two by >= `vis_margin` (0: the argmax) or the depth test, or off-screen or
+    reset.  `render_size` = (h, w).  `cap`: counter cap
     (default 4 for rule, 32 for net).  `hdr=False`: LDR in/out, no PQ (values clamped
     to [0,1]).  `debug=True` adds the DEBUG_OUTPUTS(_NET) graph outputs.
     """
@@ -132,6 +148,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     cap = float(DEFAULT_CAP[mode] if cap is None else cap)
     if not cap >= 0:
         raise ValueError(f"cap: expected a number >= 0, got {cap}")
+    vis_margin = check_vis_margin(vis_margin)
     if mode == "net":
         if classifier is None or composition is None:
             raise ValueError("mode 'net' needs both classifier and composition models")
@@ -165,8 +182,8 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     meas = _measurements(g, h, w, X, "depth", "motion", dbg) if mode == "net" else None
     hr = _stage4_upsample(g, (h, w), (H, W), X, d_dil, m_dil, dd, meas, dbg)
     warped = _stage5_warp(g, (H, W), hr, dbg)
-    ghost, logits = _stage6_classify(g, mode, (H, W), classifier, depth_threshold, hr, warped,
-                                     dbg)
+    ghost, logits = _stage6_classify(g, mode, (H, W), classifier, depth_threshold, vis_margin,
+                                     hr, warped, dbg)
     cnt, c_min, c_max = _stage7_aux(g, cap, ghost, hr.up, warped, dbg)
     wgt, new_logits = _stage8_blend_weight(g, mode, (H, W), composition, hr, warped,
                                            (cnt, c_min, c_max), logits, ghost, dbg)
@@ -456,7 +473,7 @@ def _stage5_warp(g, HW, hr: _Upsampled, dbg) -> _Warped:
     return _Warped(valid, w_col, w_cnt, w_min, w_max, w_log, blend_hist)
 
 
-def _stage6_classify(g, mode, HW, classifier, depth_threshold, hr: _Upsampled,
+def _stage6_classify(g, mode, HW, classifier, depth_threshold, vis_margin, hr: _Upsampled,
                      warped: _Warped, dbg):
     """Stage 6: which pixels reject their history (ghost); the classifier's logits in
     mode "net" (None in mode "rule")."""
@@ -481,10 +498,12 @@ def _stage6_classify(g, mode, HW, classifier, depth_threshold, hr: _Upsampled,
         if (H16, W16) != (H, W):
             logits = g.op("Slice", full, g.i64([0, 0]), g.i64([H, W]), g.i64([2, 3]))
         dbg["dbg_logits"] = logits
-        vis = g.op("ArgMax", g.chan(logits, slice(0, 3)), axis=1, keepdims=1,
-                   select_last_index=0)
-        # the rule's depth test is a floor under the classifier (reference.md section 7)
-        reject = g.op("Or", g.op("Equal", vis, g.i64(0)),
+        # visibility leads the larger of the other two by vis_margin (0: the argmax,
+        # first index on ties), lead in the kernel's and the torch twin's order; the
+        # rule's depth test is a floor under the classifier (reference.md section 7)
+        lead = g.sub(g.chan(logits, slice(0, 1)),
+                     g.op("Max", g.chan(logits, slice(1, 2)), g.chan(logits, slice(2, 3))))
+        reject = g.op("Or", g.op("GreaterOrEqual", lead, g.const(vis_margin)),
                       g.op("Greater", hr.depth_diff, g.const(float(depth_threshold))))
     else:
         reject = g.op("Greater", hr.depth_diff, g.const(float(depth_threshold)))
@@ -562,7 +581,8 @@ class OracleUpscaler:
     """
 
     def __init__(self, render_size, scale=2.0, mode="rule", classifier=None, composition=None,
-                 *, cap=None, depth_threshold=DEPTH_THRESHOLD, depth_inverted=True,
+                 *, cap=None, depth_threshold=DEPTH_THRESHOLD, vis_margin=VIS_MARGIN,
+                 depth_inverted=True,
                  motion_scale=(1.0, 1.0), exposure=1.0, hdr=True, nits=PQ_NITS,
                  sanitize=False, debug=False, session_options=None, providers=None):
         import onnxruntime as ort
@@ -583,6 +603,7 @@ class OracleUpscaler:
         self.debug_enabled = debug
         self.model = build_frame_graph(mode, self.render_size, self.scale, classifier,
                                        composition, cap, depth_threshold=depth_threshold,
+                                       vis_margin=vis_margin,
                                        hdr=hdr, nits=nits, debug=debug)
         self.session = ort.InferenceSession(self.model.SerializeToString(),
                                             sess_options=session_options,

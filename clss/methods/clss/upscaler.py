@@ -25,14 +25,15 @@ application that renders with OpenCL never copies through the host; every buffer
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import warnings
 
 import numpy as np
 
 from ...networks import CLASSIFIER_CHANNELS, pad16
-from ...pipeline.contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, FrameInputError,
-                                 check_jitter, output_size, validate_frame)
+from ...pipeline.contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, VIS_MARGIN,
+                                 FrameInputError, check_jitter, output_size, validate_frame)
 from ...pipeline.method import MethodSpec, MethodUpscaler
 from .frame import STAGES, FrameStep
 from .frame_selfcheck import register_fast_paths
@@ -128,7 +129,10 @@ class ClssUpscaler(MethodUpscaler):
     cap (default 4 for rules, 32 for net).
     Keyword-only: exposure (colour is divided by it on entry, multiplied on exit),
     nits (linear 1.0 in cd/m2 for PQ), depth_threshold (the depth test: the rule in rules,
-    the floor under the classifier in net; > 1 turns it off), sanitize, classifier /
+    the floor under the classifier in net; > 1 turns it off), vis_margin (net: the
+    classifier rejects the history where its visibility logit leads the larger of the
+    other two by at least this, a finite number; contract.VIS_MARGIN, 0 = its argmax,
+    reference.md s7), sanitize, classifier /
     composition (onnx.ModelProto, instead of weights), profile (per-stage times),
     debug (keep blend weight, ghost and depth difference for `debug_views`),
     classifier_backend (None: clss.Model, else onnxruntime with a warning;
@@ -139,7 +143,8 @@ class ClssUpscaler(MethodUpscaler):
 
     def __init__(self, scale=2.0, mode="net", weights=None, device=None, precision="fp32",
                  depth_inverted=True, motion_scale=(1, 1), hdr=True, cap=None, *,
-                 exposure=1.0, nits=PQ_NITS, depth_threshold=DEPTH_THRESHOLD, sanitize=False,
+                 exposure=1.0, nits=PQ_NITS, depth_threshold=DEPTH_THRESHOLD,
+                 vis_margin=VIS_MARGIN, sanitize=False,
                  classifier=None, composition=None, profile=False, debug=False,
                  classifier_backend=None):
         if mode not in MODE_NAMES:
@@ -161,6 +166,11 @@ class ClssUpscaler(MethodUpscaler):
         if not (math.isfinite(self.nits) and self.nits > 0):
             raise ValueError(f"nits: expected a number > 0, got {nits!r}")
         self.depth_threshold = float(depth_threshold)
+        if (isinstance(vis_margin, bool) or not isinstance(vis_margin, numbers.Real)
+                or not math.isfinite(vis_margin)):
+            raise ValueError(f"vis_margin: expected a finite number (the visibility logit's "
+                             f"lead, 0 = argmax), got {vis_margin!r}")
+        self.vis_margin = float(vis_margin)
         self.debug = bool(debug)
         self.classifier_backend = classifier_backend
         self.trained = None
@@ -213,7 +223,8 @@ class ClssUpscaler(MethodUpscaler):
             _check_classifier_size(self.classifier_model, pad16(H), pad16(W))
         fs = FrameStep(self.dev, self.precision, self.mode, (h, w), self.scale,
                        hdr=self.hdr, nits=self.nits, cap=self.cap,
-                       depth_threshold=self.depth_threshold, sanitize=self.sanitize,
+                       depth_threshold=self.depth_threshold, vis_margin=self.vis_margin,
+                       sanitize=self.sanitize,
                        classifier=self.classifier_model, composition=self.composition_model,
                        classifier_backend=self.classifier_backend, profile=self.profile)
         fs.debug = self.debug
