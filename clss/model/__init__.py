@@ -8,7 +8,7 @@ run of every node that lists every unsupported one in one error -> a memory
 plan that reuses intermediate buffers by liveness. Weights go to the device
 once, in the precision's storage type.
 
-    m = clss.Model("net.onnx", precision="fp16", input_shapes={"x": (1, 23, 64, 64)})
+    m = clss.Model("net.onnx", precision="fp16", input_shapes={"x": (1, 27, 64, 64)})
     outs = m.run({"x": x})               # numpy in, float32 numpy out
     douts = m.run_device({"x": x_dev})   # pyopencl arrays in and out, no host copies
 """

@@ -5,7 +5,7 @@ widths (those are in an unpublished supplement); the widths below are ours, chos
 so that both networks together cost about the paper's 71.4 GFLOP per 2160p frame
 (`count_flops`, conv multiply-adds counted as 2 FLOP).
 
-Classifier graph (input "x" [1,23,H,W] at output resolution, H and W divisible by
+Classifier graph (input "x" [1,27,H,W] at output resolution, H and W divisible by
 16; the pipeline pads to a multiple of 16 and crops the logits):
 
     SpaceToDepth(2)                       92 ch at H/2 (level 0)
