@@ -280,6 +280,19 @@ def _stage1_dilate(g, h, w, dbg):
     return d_dil, m_dil
 
 
+def _tap_index(g, xk, yk, h, w):
+    """(on screen, linear index into h x w with the tap clamped to the edge) of the render
+    index coordinates xk, yk: the scatter's taps (s3) and the measurements' tap (s4b)."""
+    on = g.op("And",
+              g.op("And", g.op("GreaterOrEqual", xk, g.const(0.0)),
+                   g.op("LessOrEqual", xk, g.const(float(w - 1)))),
+              g.op("And", g.op("GreaterOrEqual", yk, g.const(0.0)),
+                   g.op("LessOrEqual", yk, g.const(float(h - 1)))))
+    xi = g.op("Cast", g.clip(xk, 0.0, float(w - 1)), to=TensorProto.INT64)
+    yi = g.op("Cast", g.clip(yk, 0.0, float(h - 1)), to=TensorProto.INT64)
+    return on, g.add(g.mul(yi, g.i64(w)), xi)
+
+
 def _stage2_reconstruct(g, h, w, d_dil, m_dil, dbg):
     """Stage 2: the previous frame's depth, scatter-max of the dilated depth along the
     motion (reversed-Z). Returns the bilinear taps (weight, on-screen, index, scatter
@@ -297,14 +310,7 @@ def _stage2_reconstruct(g, h, w, d_dil, m_dil, dbg):
         wk = g.mul(wx[a], wy[b])
         xk = g.add(x0, g.const(float(a))) if a else x0
         yk = g.add(y0, g.const(float(b))) if b else y0
-        on = g.op("And",
-                  g.op("And", g.op("GreaterOrEqual", xk, g.const(0.0)),
-                       g.op("LessOrEqual", xk, g.const(float(w - 1)))),
-                  g.op("And", g.op("GreaterOrEqual", yk, g.const(0.0)),
-                       g.op("LessOrEqual", yk, g.const(float(h - 1)))))
-        xi = g.op("Cast", g.clip(xk, 0.0, float(w - 1)), to=TensorProto.INT64)
-        yi = g.op("Cast", g.clip(yk, 0.0, float(h - 1)), to=TensorProto.INT64)
-        lin = g.add(g.mul(yi, g.i64(w)), xi)                                      # [1,1,h,w]
+        on, lin = _tap_index(g, xk, yk, h, w)                                     # [1,1,h,w]
         scat = g.op("And", on, g.op("Greater", wk, g.const(SCATTER_WEIGHT_THRESHOLD)))
         # Refused taps go to one spare slot past the image, sliced off afterwards.
         sidx = g.where(scat, lin, g.i64(h * w))
@@ -343,14 +349,8 @@ def _measurements(g, h, w, X, d, m, dbg):
     half = g.const(0.5)
     qx = g.op("Floor", g.add(g.add(jj, g.chan(m, slice(0, 1))), half))
     qy = g.op("Floor", g.add(g.add(ii, g.chan(m, slice(1, 2))), half))
-    on = g.op("And",
-              g.op("And", g.op("GreaterOrEqual", qx, g.const(0.0)),
-                   g.op("LessOrEqual", qx, g.const(float(w - 1)))),
-              g.op("And", g.op("GreaterOrEqual", qy, g.const(0.0)),
-                   g.op("LessOrEqual", qy, g.const(float(h - 1)))))
-    xi = g.op("Cast", g.clip(qx, 0.0, float(w - 1)), to=TensorProto.INT64)
-    yi = g.op("Cast", g.clip(qy, 0.0, float(h - 1)), to=TensorProto.INT64)
-    lin = g.reshape(g.add(g.mul(yi, g.i64(w)), xi), [-1])                          # [h*w]
+    on, lin = _tap_index(g, qx, qy, h, w)
+    lin = g.reshape(lin, [-1])                                                     # [h*w]
     pv = g.reshape(g.op("Gather", g.reshape("prev", [1, PREV_CHANNELS, h * w]), lin, axis=2),
                    [1, PREV_CHANNELS, h, w])
     pd = g.chan(pv, slice(3, 4))
