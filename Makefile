@@ -98,8 +98,8 @@ validation-data: $(STAMP)
 # [train] extra), each scored against rule mode, and the seed with the best PSNR on the
 # validation set copied into the package. The held-out and Blender scores are printed, not
 # picked on. Two seeds at a time on one torch thread each (threads change the float results,
-# so these settings reproduce the shipped file): 35 minutes measured on this 2-core machine
-# while other jobs ran (not timed quiet). An interrupted run resumes (finished
+# so these settings reproduce the shipped file): 25 minutes measured on this quiet 2-core
+# machine (2026-11-26). An interrupted run resumes (finished
 # seeds are kept, a running one continues from its checkpoint); `rm -rf $(TRAIN_RUN)` starts
 # afresh.
 TRAIN_RUN ?= $(OUT)/train_run
