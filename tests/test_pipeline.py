@@ -236,6 +236,23 @@ def test_debug_views_and_timings():
         assert a.shape == (24, 40) and np.isfinite(a).all()
     assert ((v["blend_weight"] >= 0) & (v["blend_weight"] <= 1)).all()
     assert set(np.unique(v["ghost"])) <= {0.0, 1.0}
+    # ghost_class is the decision at the margin, not the plain argmax: where it says
+    # visibility the visibility logit leads by vis_margin, and the history was rejected
+    lg = up.state["history"][0][10:13]
+    lead = lg[0] - np.maximum(lg[1], lg[2])
+    vis = v["ghost_class"] == 0
+    assert (lead[vis] >= up.vis_margin).all() and (v["ghost"][vis] == 1).all()
+    assert (v["ghost_class"][~vis] == 1 + np.argmax(lg[1:3], 0)[~vis]).all()
+    # margin 0 is the argmax; a margin below every lead calls every pixel visibility
+    for margin in (0.0, -1e3):
+        um = Upscaler(mode="net", debug=True, vis_margin=margin)
+        for f in frames()[:3]:
+            um.step(*args(f))
+        vm, lg = um.debug_views(), um.state["history"][0][10:13]
+        want = np.argmax(lg, 0) if margin == 0.0 else np.zeros_like(vm["ghost"])
+        np.testing.assert_array_equal(vm["ghost_class"], want)
+        if margin < 0:
+            assert (vm["ghost"] == 1).all()
     ms = up.stage_ms()
     assert list(ms) == ["prepare", "depth_diff", "resolve", "classifier", "compose"]
     assert all(t > 0 for t in ms.values())

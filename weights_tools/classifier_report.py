@@ -91,7 +91,7 @@ def run_classifier(seq, weights, device=None):
     torch twin of the net frame step: the heads' argmax, and the ghosting head as net mode
     decides it (visibility where its logit leads the others by contract.VIS_MARGIN, else
     the larger of shading and none)."""
-    from clss.pipeline.contract import VIS_MARGIN
+    from clss.pipeline.contract import VIS_MARGIN, ghost_classes
     from .torch_frame import TorchUpscaler
     up = TorchUpscaler(float(seq["scale"]), "net", weights, device=device)
     out = {}
@@ -100,8 +100,7 @@ def run_classifier(seq, weights, device=None):
                 reset=bool(seq["reset"][t]))
         r = up.last
         lg = r["logits"][0].cpu().numpy()
-        lead = lg[0] - np.maximum(lg[1], lg[2])
-        at_margin = np.where(lead >= VIS_MARGIN, 0, 1 + lg[1:3].argmax(0))
+        at_margin = ghost_classes(lg[0:3], VIS_MARGIN)
         out[t] = (lg[0:3].argmax(0), lg[3:6].argmax(0), r["valid"][0, 0].cpu().numpy() > 0.5,
                   at_margin)
     return out

@@ -99,6 +99,16 @@ DEPTH_THRESHOLD = 0.1
 # without ghosting, each of them restarting its accumulation (issue 23: -0.8 dB on the
 # held-out set); the margin, picked on the validation set, trades recall for that.
 VIS_MARGIN = 2.0
+
+
+def ghost_classes(logits, vis_margin=VIS_MARGIN):
+    """The ghosting classes (0 visibility, 1 shading, 2 none) as net mode decides them from
+    the ghosting logits [3, ...] (numpy): visibility where logit 0 leads the larger of the
+    other two by at least vis_margin (reference.md s7, in its order), else the larger of
+    shading and none. For views and reports; the frame step decides on the device."""
+    lg = np.asarray(logits, np.float32)
+    lead = lg[0] - np.maximum(lg[1], lg[2])
+    return np.where(lead >= np.float32(vis_margin), 0, 1 + np.argmax(lg[1:3], 0))
 SCATTER_WEIGHT_THRESHOLD = 0.01
 DEPTH_EPS = 1e-6
 # The classifier's four measurements (reference.md s4b: previous-depth difference, colour

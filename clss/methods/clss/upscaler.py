@@ -33,7 +33,8 @@ import numpy as np
 
 from ...networks import CLASSIFIER_CHANNELS, pad16
 from ...pipeline.contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, VIS_MARGIN,
-                                 FrameInputError, check_jitter, output_size, validate_frame)
+                                 FrameInputError, check_jitter, ghost_classes, output_size,
+                                 validate_frame)
 from ...pipeline.method import MethodSpec, MethodUpscaler
 from .frame import STAGES, FrameStep
 from .frame_selfcheck import register_fast_paths
@@ -326,7 +327,8 @@ class ClssUpscaler(MethodUpscaler):
     def debug_views(self) -> dict[str, np.ndarray]:
         """Host copies from the last frame (needs debug=True): "blend_weight",
         "ghost" (1 = history rejected), "depth_difference" (output res), "counter",
-        and in mode net "ghost_class" (0 visibility, 1 shading, 2 none) and
+        and in mode net "ghost_class" (0 visibility, 1 shading, 2 none, as the decision
+        at vis_margin makes them; "ghost" also has the depth floor) and
         "alias_class" (0 geometry, 1 texture, 2 none), H x W each."""
         if not self.debug:
             raise RuntimeError("debug_views needs Upscaler(..., debug=True)")
@@ -337,7 +339,8 @@ class ClssUpscaler(MethodUpscaler):
         views = {"blend_weight": d[0], "ghost": d[1], "depth_difference": d[2],
                  "counter": hist[3]}
         if self.mode == "net":
-            views["ghost_class"] = np.argmax(hist[10:13], 0).astype(np.float32)
+            # as the decision is made (the margin), from the stored logits
+            views["ghost_class"] = ghost_classes(hist[10:13], self.vis_margin).astype(np.float32)
             views["alias_class"] = np.argmax(hist[13:16], 0).astype(np.float32)
         return views
 
