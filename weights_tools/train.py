@@ -20,20 +20,28 @@ leaves open (ours, marked *):
 * Stage 1, classifier, with the paper's rule-based composition (w = 1/(1+counter), 1 on
   ghosts): per-pixel cross-entropy on the ghosting head (logits 0-2) and the aliasing
   head (3-5), each class weighted by the inverse of its frequency over the selected
-  patches (*--class-weights valid: over their pixels that carry the loss only; measured,
-  not shipped), normalised so the mean pixel weight is 1 (*the ratio between the largest
-  and smallest weight capped at CLASS_WEIGHT_RATIO).  False-positive ghosting in aliasing
-  regions (labelled aliasing and no ghosting, predicted ghosting) takes the weight of the
-  predicted ghosting class (s3.4 "the same weights as ghosting pixels").
+  patches' pixels that carry the loss (*--class-weights valid; `all` counts every pixel),
+  normalised so the mean pixel weight is 1 (*the ratio between the largest and smallest
+  weight capped at CLASS_WEIGHT_RATIO).  *The paper gives false-positive ghosting in
+  aliasing regions the predicted ghosting class's weight (s3.4); --false-ghost-weight
+  does, off by default: two thirds of the visibility pixels lie on geometry edges, and
+  that penalty kept the head's visibility recall at 16 % (79 % without; issue 23).
+  *Each frame's loss trains only that frame's pass (--cls-detach, default): the state is
+  carried from frame to frame, its gradient is not.  *The output conv starts at zero.
 * Stage 2, composition, classifier frozen: composition done twice per frame, the rule
   blend's colour history feeds the classifier, the network's blend (current colour and
-  clipped history, as at run time) makes the output and its own history.  Losses (each averaged over its pixels over the whole window, then
-  summed): L1 between the blend weight and 1/(1+counter) on geometry-aliasing pixels the
-  classifier got right; nothing on misclassified aliasing or false-positive aliasing;
-  L1 between output and reference in the PQ domain on the rest.
-* Optimiser: *Adam (the paper used Ranger, lr 5e-4 over 180 + 120 epochs), lr 1e-3
-  because the budget here is a few hundred steps, cosine decay to 10 % over each stage; batches drawn from a generator seeded by (seed, stage, step), so a resumed
-  run draws the same batches as an uninterrupted one.
+  clipped history, as at run time) makes the output and its own history; recurrent, the
+  state carried with gradients.  Losses (each averaged over its pixels over the whole
+  window, then summed): L1 between the blend weight and 1/(1+counter) on geometry-aliasing
+  pixels the classifier got right; nothing on misclassified aliasing or false-positive
+  aliasing; L1 between output and reference in the PQ domain on the rest.
+* Both stages run the frame step with net mode's visibility margin (--vis-margin,
+  contract.VIS_MARGIN) and train on the normalised input basis (--basis, default).
+* Optimiser: *Adam (the paper used Ranger, lr 5e-4 over 180 + 120 epochs): 1200
+  classifier steps at 2e-3 (--cls-lr), 1200 composition steps at 1e-3 (--lr), because the
+  budget here is minutes; cosine decay to 10 % over each stage; batches drawn from a
+  generator seeded by (seed, stage, step), so a resumed run draws the same batches as an
+  uninterrupted one.
 * Network widths: clss.networks defaults (16, 32, 64, 128; MLP 32).
 
 Progress lines every few seconds, loss.png (matplotlib) refreshed as it goes, a
@@ -60,7 +68,6 @@ from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, lr_
 from .trainloop import load_sequences as _load_sequences
 from .trainloop import plot_losses as _plot_losses
 from clss.networks import load_weights, save_weights
-
 from clss.pipeline.contract import VIS_MARGIN
 
 CLASS_WEIGHT_RATIO = 100.0
