@@ -88,6 +88,38 @@ def test_train_smoke(tiny_data, tmp_path, capsys):
         assert np.abs(a - b).max() <= 1e-3 * np.abs(b).max() + 1e-12
 
 
+@pytest.mark.parametrize("labels", ["useful", "cost"])
+def test_train_useful_ghost_labels(tiny_data, tmp_path, labels):
+    """--ghost-labels useful/cost (a study, not the recipe): the classifier stage trains on
+    labels made from the frame step's own clipped history, and the run finishes."""
+    out = str(tmp_path / labels)
+    assert main(["train", "--data", tiny_data, "--out", out, "--ghost-labels", labels]
+                + ARGS) == 0
+    log = json.load(open(os.path.join(out, "train.json")))
+    assert np.isfinite(log["losses"]["classifier"]).all()
+    assert log["settings"]["ghost_labels"] == labels
+
+
+def test_useful_ghost_labels_mark_where_the_history_is_worse():
+    """Visibility exactly where the blended history's squared error exceeds ratio x the
+    upsample's plus the floor; the generator's visibility becomes none, its shading stays;
+    cost is |eh - eu| over its mean on valid pixels."""
+    import torch
+    from weights_tools.train import useful_ghost_labels
+    ref = torch.zeros(1, 3, 1, 4)
+    up = torch.full((1, 3, 1, 4), 0.1)
+    hist = torch.tensor([0.0, 0.1, 0.2, 0.3]).view(1, 1, 1, 4).expand(1, 3, 1, 4)
+    r = {"blend_hist": hist, "up": up, "valid": torch.ones(1, 1, 1, 4, dtype=torch.bool)}
+    gen = torch.tensor([[[0, 1, 2, 0]]])
+    lab, cost = useful_ghost_labels(r, gen, ref, 2.0, 0.0)
+    assert lab.tolist() == [[[2, 1, 0, 0]]] and cost is None
+    lab, cost = useful_ghost_labels(r, gen, ref, 1.0, 1.0, cost=True)
+    assert lab.tolist() == [[[2, 1, 2, 2]]]
+    eh, eu = (hist[0, 0, 0] ** 2) * 3, torch.full((4,), 0.03)
+    c = (eh - eu).abs()
+    assert torch.allclose(cost[0, 0], c / c.mean(), atol=1e-6)
+
+
 def test_train_resumes(tiny_data, tmp_path):
     """An interrupted run (classifier done, composition not) resumes to the same weights
     as an uninterrupted one."""
@@ -215,10 +247,56 @@ def test_classifier_report_scores_heads_rules_and_the_runtime_margin(tmp_path, c
             n = total if n is None else n
             assert total == n, (head, who)
         assert rows["2x2 bound"]["balanced_accuracy"] >= 1 / 3 - 1e-9
+    # the ghosting head against the useful labels, on the same pixels
+    u = res["heads"]["useful"]
+    for who in ("classifier", "classifier at margin"):
+        assert 0.0 <= u[who]["balanced_accuracy"] <= 1.0
+        assert int(np.sum(u[who]["confusion"])) == n
+    assert abs(sum(u["label_frequency"]) - 1.0) < 1e-9
     # the aliasing head has no margin: its margin row is its argmax
     a = res["heads"]["alias"]
     assert a["classifier at margin"]["confusion"] == a["classifier"]["confusion"]
     text = cr.format_report(res)
-    assert "classifier at margin" in text and "2x2 bound" in text
+    assert "classifier at margin" in text and "2x2 bound" in text and "useful labels" in text
     with pytest.raises(ValueError, match="at least 2 labelled"):
         cr.report(paths[:1], None, log=open(os.devnull, "w"))
+
+
+def test_visibility_oracle_hooks_and_cli(tmp_path, capsys):
+    """weights_tools.visibility_oracle: the generator hook rejects exactly the labelled
+    visibility pixels of the current frame; the useful hook exactly where the clipped
+    history's squared error exceeds ratio x the upsample's plus the floor; the command
+    prints a row per decision and writes them; a huge ratio never rejects, so it scores
+    as the mode with its rejections turned off (a depth threshold above 1)."""
+    from weights_tools import visibility_oracle as vo
+    from weights_tools.torch_frame import TorchUpscaler
+    lab = np.array([[[0, 2], [1, 0]]], np.uint8)
+    ref = np.full((1, 2, 2, 3), 0.5, np.float32)
+    state = {"seq": {"label_ghost": lab, "reference": ref}, "t": 0, "nits": 10000.0}
+    reject = torch.zeros(1, 1, 2, 2, dtype=torch.bool)
+    assert vo.generator_hook(state)(reject, {}).view(-1).tolist() == [True, False, False, True]
+    from weights_tools.torch_frame import pq_encode
+    r = pq_encode(torch.from_numpy(ref[0].transpose(2, 0, 1))[None], 10000.0)
+    up = r + 0.01
+    hist = r + torch.tensor([0.0, 0.01, 0.02, 0.05]).view(1, 1, 2, 2)
+    ctx = {"up": up, "hist": hist + 1.0, "hist_clipped": hist}
+    got = vo.useful_hook(state, 2.0, 0.0)(reject, ctx).view(-1).tolist()
+    assert got == [False, False, True, True]
+    assert vo.useful_hook(state, 1.0, 1.0)(reject, ctx).view(-1).tolist() == [False] * 4
+
+    p = str(tmp_path / "s.npz")
+    write_tiny_sequence(p, seed=3)
+    seqs = vo.load([p])
+    never = vo.score(seqs, "rules", None, "useful", ratio=1e9, floor=1e9)
+    from weights_tools.evaluate import evaluate_sequence, Pipeline
+    up = TorchUpscaler(2.0, "rules", depth_threshold=2.0, device="cpu")
+    rec = evaluate_sequence(seqs[0], ["rules"], None, warmup=2, run={"rules": Pipeline(up)},
+                            net_trained=True, flip_every=0, log=open(os.devnull, "w"))
+    assert never[0] == pytest.approx(rec["methods"]["rules"]["psnr"], abs=1e-9)
+    out = str(tmp_path / "o.json")
+    assert vo.main([p, "--mode", "rules", "--ratio", "1", "--json", out]) == 0
+    text = capsys.readouterr().out
+    assert "as-is" in text and "generator" in text and "useful 1" in text
+    rows = json.load(open(out))["rows"]
+    assert [r["decision"] for r in rows] == ["as-is", "generator", "useful 1"]
+    assert all(np.isfinite(r["psnr"]) for r in rows)

@@ -87,12 +87,17 @@ def frames_scored(seq):
 
 
 def run_classifier(seq, weights, device=None):
-    """{t: (ghost class, alias class, valid, ghost class at the runtime margin)} of the
-    torch twin of the net frame step: the heads' argmax, and the ghosting head as net mode
-    decides it (visibility where its logit leads the others by contract.VIS_MARGIN, else
-    the larger of shading and none)."""
+    """{t: (ghost class, alias class, valid, ghost class at the runtime margin, useful
+    ghost label)} of the torch twin of the net frame step: the heads' argmax, the ghosting
+    head as net mode decides it (visibility where its logit leads the others by
+    contract.VIS_MARGIN, else the larger of shading and none), and the label that
+    `train --ghost-labels cost` trains on (visibility where the clipped history blended
+    is further from the reference than the current upsample; the generator's shading,
+    else none)."""
+    import torch
     from clss.pipeline.contract import VIS_MARGIN, ghost_classes
-    from .torch_frame import TorchUpscaler
+    from .torch_frame import TorchUpscaler, pq_encode
+    from .train import useful_ghost_labels
     up = TorchUpscaler(float(seq["scale"]), "net", weights, device=device)
     out = {}
     for t in range(len(seq["reset"])):
@@ -101,8 +106,13 @@ def run_classifier(seq, weights, device=None):
         r = up.last
         lg = r["logits"][0].cpu().numpy()
         at_margin = ghost_classes(lg[0:3], VIS_MARGIN)
+        dev = r["up"].device
+        ref = torch.from_numpy(np.ascontiguousarray(seq["reference"][t].transpose(2, 0, 1)))
+        ref_pq = pq_encode(ref[None].to(dev), up.step_fn.nits)
+        gen = torch.from_numpy(seq["label_ghost"][t].astype(np.int64))[None].to(dev)
+        useful, _ = useful_ghost_labels(r, gen, ref_pq, 1.0, 0.0)
         out[t] = (lg[0:3].argmax(0), lg[3:6].argmax(0), r["valid"][0, 0].cpu().numpy() > 0.5,
-                  at_margin)
+                  at_margin, useful[0].cpu().numpy())
     return out
 
 
@@ -187,6 +197,22 @@ def report(paths, weights=None, device=None, log=sys.stderr):
             rows[who] = {"balanced_accuracy": ba, "confusion": conf.tolist()}
         freq = np.bincount(L.astype(np.int64), minlength=3) / max(len(L), 1)
         res["heads"][head] = {"classes": list(names), "label_frequency": freq.tolist(), **rows}
+    # the ghosting head against the labels consistent with the history it sees (`train
+    # --ghost-labels cost` trains on these; no rule detector was tuned for them)
+    P, M, L = [], [], []
+    for seq, cl, hw in gathered:
+        for t, valid in masks(seq, cl).items():
+            P.append(cl[t][0][valid])
+            M.append(cl[t][3][valid])
+            L.append(cl[t][4][valid])
+    L = np.concatenate(L)
+    rows = {}
+    for who, pred in (("classifier", np.concatenate(P)), ("classifier at margin", np.concatenate(M))):
+        ba, conf = balanced_accuracy(pred, L)
+        rows[who] = {"balanced_accuracy": ba, "confusion": conf.tolist()}
+    freq = np.bincount(L.astype(np.int64), minlength=3) / max(len(L), 1)
+    res["heads"]["useful"] = {"classes": list(GHOST_NAMES), "label_frequency": freq.tolist(),
+                              **rows}
     return res
 
 
@@ -198,11 +224,16 @@ def format_report(res) -> str:
     for who in ("classifier", "classifier at margin", "rules", "2x2 bound"):
         lines.append(f"{who:22s} " + " ".join(
             f"{res['heads'][h][who]['balanced_accuracy']:9.3f}" for h in ("ghost", "alias")))
-    for h in ("ghost", "alias"):
+    if "useful" in res["heads"]:
+        u = res["heads"]["useful"]
+        lines.append(f"{'ghosting, useful labels':22s} " + " ".join(
+            f"{u[who]['balanced_accuracy']:.3f} ({who})"
+            for who in ("classifier", "classifier at margin")))
+    for h in [k for k in ("ghost", "alias", "useful") if k in res["heads"]]:
         r = res["heads"][h]
         lines.append(f"\n{h}: label share " + ", ".join(
             f"{n} {f:.1%}" for n, f in zip(r["classes"], r["label_frequency"])))
-        for who in ("classifier", "classifier at margin") if h == "ghost" else ("classifier",):
+        for who in ("classifier", "classifier at margin") if h != "alias" else ("classifier",):
             lines.append(f"  {who} confusion (rows: label, columns: predicted)")
             for n, row in zip(r["classes"], r[who]["confusion"]):
                 lines.append(f"    {n:11s} " + " ".join(f"{v:9d}" for v in row))

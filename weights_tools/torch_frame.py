@@ -335,6 +335,10 @@ class FrameStep(nn.Module):
     (s9, both modes at run time); the classifier's training turns it off (the paper's
     rule-based composition has no clamp, so ghosting stays visible to learn from).
 
+    reject_hook (studies, not the runtime): f(reject [B,1,H,W] bool, ctx) -> reject, where
+    ctx holds up, hist (warped), hist_clipped (None without clip), valid, logits, dd_hr;
+    it replaces the history decision (weights_tools.visibility_oracle).
+
     Training extras (net mode): blend="rule" makes the paper's rule-based composition
     (w = 1/(1+counter), no clamp) instead of the composition network; `rule_color`
     [B,3,H,W] (PQ) is a second colour history made by that rule blend, which then feeds
@@ -344,8 +348,9 @@ class FrameStep(nn.Module):
 
     def __init__(self, mode, render_size, scale=2.0, classifier=None, composition=None,
                  cap=None, *, depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
-                 blend="net", clip=True, vis_margin=VIS_MARGIN):
+                 blend="net", clip=True, vis_margin=VIS_MARGIN, reject_hook=None):
         super().__init__()
+        self.reject_hook = reject_hook
         if mode not in MODES:
             raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
         if blend not in BLENDS:
@@ -514,7 +519,8 @@ class FrameStep(nn.Module):
                 rule_color=None, prev=None):
         """-> dict: output [B,3,H,W] linear, out (PQ), history [B,16,H,W], prev [B,4,h,w]
         (the render-res state, fed back as `prev`), w, counter, ghost, valid, logits
-        (net), up, and rule_color when it was given."""
+        (net), up, blend_hist (the warped history as blended: clipped when `clip`), and
+        rule_color when it was given."""
         p = self.prepare(color, depth, motion, jitter, reactive, prev, reset)
         up, motion_hr = p["up"], p["motion_hr"]
         B, H, W = up.shape[0], self.H, self.W
@@ -559,6 +565,14 @@ class FrameStep(nn.Module):
             reject = (lead >= self.vis_margin) | (p["dd_hr"] > self.depth_threshold)
         else:
             reject = p["dd_hr"] > self.depth_threshold
+        if self.reject_hook is not None:
+            # studies only (weights_tools.visibility_oracle): replace the decision
+            clamp = None
+            if self.clip:
+                clamp = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
+            reject = self.reject_hook(reject, {"up": up, "hist": w_col, "hist_clipped": clamp,
+                                               "valid": valid, "logits": logits,
+                                               "dd_hr": p["dd_hr"]})
         ghost = reject | ~valid
 
         # s8 auxiliary buffers.
@@ -598,7 +612,8 @@ class FrameStep(nn.Module):
         history_out = torch.cat([out, cnt, c_min, c_max, new_logits], 1)
         output = pq_decode(out, self.nits) if self.hdr else out
         res.update(output=output, out=out, history=history_out, prev=p["prev"], w=wgt, counter=cnt,
-                   ghost=ghost, valid=valid, logits=logits, up=up, depth_diff=p["depth_diff"])
+                   ghost=ghost, valid=valid, logits=logits, up=up, depth_diff=p["depth_diff"],
+                   blend_hist=blend_hist)
         return res
 
 
@@ -613,11 +628,11 @@ class TorchUpscaler:
     def __init__(self, scale=2.0, mode="net", weights=None, cap=None, *, device=None,
                  depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
                  depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0, clip=True,
-                 vis_margin=VIS_MARGIN):
+                 vis_margin=VIS_MARGIN, reject_hook=None):
         self.scale, self.mode = float(scale), {"rules": "rule"}.get(mode, mode)
         self.device = pick_device(device)
         self.kw = dict(cap=cap, depth_threshold=depth_threshold, hdr=hdr, nits=nits, clip=clip,
-                       vis_margin=vis_margin)
+                       vis_margin=vis_margin, reject_hook=reject_hook)
         self.contract = dict(depth_inverted=depth_inverted, motion_scale=motion_scale,
                              exposure=exposure)
         self.nets = (None, None)

@@ -1,0 +1,158 @@
+"""python -m weights_tools.visibility_oracle SEQ.npz ...: what CLSS's history decision could
+gain, with the answer known (issue 23).
+
+Runs the torch twin of the frame step (rule or net mode) over labelled sequences with its
+history decision (reject: drop the history and restart the counter, reference.md s7)
+replaced by an oracle, and prints `eval`'s PSNR / tPSNR / disocclusion PSNR of each:
+
+  as-is       the mode's own decision (rules: the depth test; net: the classifier at the
+              margin, with the depth test as a floor)
+  generator   reject exactly where the generator labels visibility ghosting (the exact
+              previous geometry, 1 % depth tolerance: DATA.md `label_ghost` 0)
+  useful R    reject where the warped history, clipped as the blend uses it, is further
+              from the reference than the current upsample: its squared PQ error above
+              R x the upsample's plus --floor (what `train --ghost-labels useful/cost`
+              labels)
+
+The oracles see the reference, so they are bounds, not methods: "generator" says what a
+perfect classifier of the generator's labels would do to the picture, "useful" how much a
+perfect decision of the pipeline's own choice is worth.
+
+example:
+  python -m weights_tools.visibility_oracle out/data/heldout/seq_000[0-7].npz --mode net
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+import numpy as np
+
+
+def generator_hook(state):
+    """Reject where the current frame's generator label is visibility ghosting."""
+    import torch
+
+    def hook(reject, ctx):
+        lab = torch.from_numpy(state["seq"]["label_ghost"][state["t"]] == 0)
+        return lab.to(reject.device).view(1, 1, *lab.shape)
+    return hook
+
+
+def useful_hook(state, ratio, floor):
+    """Reject where the clipped history's squared PQ error exceeds ratio x the upsample's
+    plus floor (the clip on; without it the warped history itself)."""
+    import torch
+
+    from .torch_frame import pq_encode
+
+    def hook(reject, ctx):
+        ref = state["seq"]["reference"][state["t"]]
+        ref = pq_encode(torch.from_numpy(np.ascontiguousarray(ref.transpose(2, 0, 1)))[None]
+                        .to(reject.device), state["nits"])
+        hist = ctx["hist_clipped"] if ctx["hist_clipped"] is not None else ctx["hist"]
+        eh = ((hist - ref) ** 2).sum(1, keepdim=True)
+        eu = ((ctx["up"] - ref) ** 2).sum(1, keepdim=True)
+        return eh > ratio * eu + floor
+    return hook
+
+
+class _Stepper:
+    """evaluate's Pipeline that tells the hook which frame it is on."""
+
+    def __init__(self, up, state):
+        from .evaluate import Pipeline
+        self.pipe, self.state = Pipeline(up), state
+
+    def __call__(self, seq, t):
+        self.state["t"] = t
+        return self.pipe(seq, t)
+
+
+def score(seqs, mode, weights, oracle, warmup=2, ratio=2.0, floor=1e-3, device="cpu"):
+    """Mean PSNR, tPSNR and disocclusion PSNR (dB) over `seqs` (evaluate.load_sequence's
+    dicts, with `label_ghost` for the generator oracle) of `mode` ("rules"/"net") under `oracle` (None = as-is,
+    "generator", "useful")."""
+    from .evaluate import evaluate_sequence
+    from .torch_frame import PQ_NITS, TorchUpscaler
+    rows = []
+    for seq in seqs:
+        state = {"seq": seq, "t": 0, "nits": PQ_NITS}
+        hook = {None: None, "generator": lambda: generator_hook(state),
+                "useful": lambda: useful_hook(state, ratio, floor)}[oracle]
+        up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None,
+                           device=device, reject_hook=hook() if hook else None)
+        with open(os.devnull, "w") as quiet:
+            rec = evaluate_sequence(seq, [mode], None, warmup=warmup,
+                                    run={mode: _Stepper(up, state)}, net_trained=True,
+                                    flip_every=0, log=quiet)
+        m = rec["methods"][mode]
+        rows.append((m["psnr"], m["tpsnr"], m["disocclusion_psnr"]))
+    return [float(v) for v in np.nanmean(np.array(rows, np.float64), 0)]
+
+
+def load(paths):
+    from .evaluate import load_sequence
+    seqs = []
+    for p in paths:
+        seq = load_sequence(p)
+        with np.load(p) as z:
+            if "label_ghost" in z.files:
+                seq["label_ghost"] = z["label_ghost"]
+        seqs.append(seq)
+    return seqs
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m weights_tools.visibility_oracle",
+                                description=__doc__.split("\n\n")[0],
+                                epilog=__doc__.split("example:")[1].join(("example:", "")),
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("sequences", nargs="+", metavar="SEQ.npz")
+    p.add_argument("--mode", choices=("rules", "net"), default="net")
+    p.add_argument("--weights", default=None,
+                   help="net: a .safetensors file (default: the package's trained weights)")
+    p.add_argument("--ratio", type=float, nargs="+", default=[2.0],
+                   help="useful oracle: squared-error ratios to run (default 2)")
+    p.add_argument("--floor", type=float, default=1e-3,
+                   help="useful oracle: squared PQ error the history may exceed the "
+                        "upsample's by in any case (default 1e-3)")
+    p.add_argument("--warmup", type=int, default=2, help="frames left unscored after a reset")
+    p.add_argument("--json", default=None, help="also write the rows here")
+    a = p.parse_args(argv)
+    import torch
+    torch.set_num_threads(2)
+    weights = a.weights
+    if a.mode == "net" and weights is None:
+        from clss.methods.clss.upscaler import SHIPPED_WEIGHTS
+        weights = SHIPPED_WEIGHTS
+    if a.mode == "net":
+        from clss.networks import load_weights
+        weights = load_weights(weights)
+    try:
+        seqs = load(a.sequences)
+    except (OSError, ValueError) as e:
+        print(f"visibility_oracle: {e}", file=sys.stderr)
+        return 1
+    rows = []
+    labelled = all("label_ghost" in q for q in seqs)
+    if not labelled:
+        print("(some sequences have no label_ghost: the generator oracle is left out)",
+              file=sys.stderr)
+    for name, oracle, r in ([("as-is", None, None)]
+                            + ([("generator", "generator", None)] if labelled else [])
+                            + [(f"useful {r:g}", "useful", r) for r in a.ratio]):
+        v = score(seqs, a.mode, weights, oracle, a.warmup, r or 2.0, a.floor)
+        rows.append({"decision": name, "psnr": v[0], "tpsnr": v[1], "disocclusion_psnr": v[2]})
+        print(f"{a.mode} {name:12s} PSNR {v[0]:6.2f}  tPSNR {v[1]:6.2f}  disocc {v[2]:6.2f} dB",
+              flush=True)
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump({"mode": a.mode, "sequences": a.sequences, "rows": rows}, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
