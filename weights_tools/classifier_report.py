@@ -18,6 +18,10 @@ thresholds picked on the first half of the sequences and scored on the second ha
             2x2 render samples starting at the pixel; otherwise texture where the tone-mapped
             luminance of the 3x3 render neighbourhood spans more than `tex`; otherwise none.
 
+The ghosting head is also scored against the labels that `train --ghost-labels useful/cost`
+trains on (visibility where the frame step's clipped history is further from the reference
+than the current upsample; the generator's shading, else none), made in the same run.
+
 Rule detectors see the previous frame's true depth, which the frame step keeps since issue 23
 (before, it rebuilt the previous depth from the current one and the motion). The numbers
 are the floor under the classifier, and the bound that half-resolution logits put on it (the

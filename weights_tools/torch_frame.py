@@ -336,7 +336,8 @@ class FrameStep(nn.Module):
     rule-based composition has no clamp, so ghosting stays visible to learn from).
 
     reject_hook (studies, not the runtime): f(reject [B,1,H,W] bool, ctx) -> reject, where
-    ctx holds up, hist (warped), hist_clipped (None without clip), valid, logits, dd_hr;
+    ctx holds up, hist (warped), hist_clipped (None without clip), valid, logits, dd_hr,
+    depth_hr;
     it replaces the history decision (weights_tools.visibility_oracle).
 
     Training extras (net mode): blend="rule" makes the paper's rule-based composition
@@ -572,7 +573,7 @@ class FrameStep(nn.Module):
                 clamp = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
             reject = self.reject_hook(reject, {"up": up, "hist": w_col, "hist_clipped": clamp,
                                                "valid": valid, "logits": logits,
-                                               "dd_hr": p["dd_hr"]})
+                                               "dd_hr": p["dd_hr"], "depth_hr": p["depth_hr"]})
         ghost = reject | ~valid
 
         # s8 auxiliary buffers.

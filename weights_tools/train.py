@@ -37,6 +37,12 @@ leaves open (ours, marked *):
   aliasing; L1 between output and reference in the PQ domain on the rest.
 * Both stages run the frame step with net mode's visibility margin (--vis-margin,
   contract.VIS_MARGIN) and train on the normalised input basis (--basis, default).
+* *A study, not the recipe: --ghost-labels useful / cost replaces the generator's
+  ghosting labels by the pixels where the frame step's clipped history is further from
+  the reference than the current upsample (useful_ghost_labels), the classifier stage
+  then clipping as the runtime does, without ghosting class weights; `cost` also weighs
+  each pixel by what the decision changes.  Known, that decision is worth +1.2 dB; learned,
+  it reached 0.55-0.59 balanced accuracy and no gain (docs/training.md, 2026-11-26).
 * Optimiser: *Adam (the paper used Ranger, lr 5e-4 over 180 + 120 epochs): 1200
   classifier steps at 2e-3 (--cls-lr), 1200 composition steps at 1e-3 (--lr), because the
   budget here is minutes; cosine decay to 10 % over each stage; batches drawn from a
