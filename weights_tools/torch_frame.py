@@ -337,7 +337,7 @@ class FrameStep(nn.Module):
 
     reject_hook (studies, not the runtime): f(reject [B,1,H,W] bool, ctx) -> reject, where
     ctx holds up, hist (warped), hist_clipped (None without clip), valid, logits, dd_hr,
-    depth_hr;
+    depth_hr, counter (warped), measure_hr, clamp_min / clamp_max (None without clip);
     it replaces the history decision (weights_tools.visibility_oracle).
 
     Training extras (net mode): blend="rule" makes the paper's rule-based composition
@@ -573,7 +573,10 @@ class FrameStep(nn.Module):
                 clamp = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
             reject = self.reject_hook(reject, {"up": up, "hist": w_col, "hist_clipped": clamp,
                                                "valid": valid, "logits": logits,
-                                               "dd_hr": p["dd_hr"], "depth_hr": p["depth_hr"]})
+                                               "dd_hr": p["dd_hr"], "depth_hr": p["depth_hr"],
+                                               "counter": w_cnt, "measure_hr": p["measure_hr"],
+                                               "clamp_min": p["clamp_min"],
+                                               "clamp_max": p["clamp_max"]})
         ghost = reject | ~valid
 
         # s8 auxiliary buffers.
