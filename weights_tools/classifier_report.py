@@ -18,7 +18,7 @@ thresholds picked on the first half of the sequences and scored on the second ha
             2x2 render samples starting at the pixel; otherwise texture where the tone-mapped
             luminance of the 3x3 render neighbourhood spans more than `tex`; otherwise none.
 
-The ghosting head is also scored against the labels that `train --ghost-labels useful/cost`
+The ghosting head is also scored against the labels that `train --ghost-labels useful`
 trains on (visibility where the frame step's clipped history is further from the reference
 than the current upsample; the generator's shading, else none), made in the same run.
 
@@ -42,6 +42,8 @@ from clss.metrics import disocclusion_mask, nearest
 
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 GHOST_NAMES = ("visibility", "shading", "none")
+# the useful labels as `train --ghost-labels useful` makes them by default
+USEFUL_RATIO, USEFUL_FLOOR = 2.0, 1e-3
 ALIAS_NAMES = ("geometry", "texture", "none")
 GRID = {"vis": (0.02, 0.05, 0.1, 0.2, 0.3), "shade": (0.01, 0.02, 0.04, 0.08),
         "geo": (0.05, 0.1, 0.2, 0.4), "tex": (0.01, 0.02, 0.04, 0.08)}
@@ -95,9 +97,9 @@ def run_classifier(seq, weights, device=None):
     ghost label)} of the torch twin of the net frame step: the heads' argmax, the ghosting
     head as net mode decides it (visibility where its logit leads the others by
     contract.VIS_MARGIN, else the larger of shading and none), and the label that
-    `train --ghost-labels cost` trains on (visibility where the clipped history blended
-    is further from the reference than the current upsample; the generator's shading,
-    else none)."""
+    `train --ghost-labels useful` trains on by default (visibility where the clipped
+    history's squared error exceeds USEFUL_RATIO x the current upsample's plus
+    USEFUL_FLOOR; the generator's shading, else none)."""
     import torch
     from clss.pipeline.contract import VIS_MARGIN, ghost_classes
     from .torch_frame import TorchUpscaler, pq_encode
@@ -114,7 +116,7 @@ def run_classifier(seq, weights, device=None):
         ref = torch.from_numpy(np.ascontiguousarray(seq["reference"][t].transpose(2, 0, 1)))
         ref_pq = pq_encode(ref[None].to(dev), up.step_fn.nits)
         gen = torch.from_numpy(seq["label_ghost"][t].astype(np.int64))[None].to(dev)
-        useful, _ = useful_ghost_labels(r, gen, ref_pq, 1.0, 0.0)
+        useful, _ = useful_ghost_labels(r, gen, ref_pq, USEFUL_RATIO, USEFUL_FLOOR)
         out[t] = (lg[0:3].argmax(0), lg[3:6].argmax(0), r["valid"][0, 0].cpu().numpy() > 0.5,
                   at_margin, useful[0].cpu().numpy())
     return out
@@ -202,7 +204,7 @@ def report(paths, weights=None, device=None, log=sys.stderr):
         freq = np.bincount(L.astype(np.int64), minlength=3) / max(len(L), 1)
         res["heads"][head] = {"classes": list(names), "label_frequency": freq.tolist(), **rows}
     # the ghosting head against the labels consistent with the history it sees (`train
-    # --ghost-labels cost` trains on these; no rule detector was tuned for them)
+    # --ghost-labels useful` trains on these; no rule detector was tuned for them)
     P, M, L = [], [], []
     for seq, cl, hw in gathered:
         for t, valid in masks(seq, cl).items():

@@ -42,7 +42,8 @@ leaves open (ours, marked *):
   the reference than the current upsample (useful_ghost_labels), the classifier stage
   then clipping as the runtime does, without ghosting class weights; `cost` also weighs
   each pixel by what the decision changes.  Known, that decision is worth +1.2 dB; learned,
-  it reached 0.55-0.59 balanced accuracy and no gain (docs/training.md, 2026-11-26).
+  it reached 0.51-0.58 balanced accuracy on those labels and no gain (docs/training.md,
+  2026-11-26).
 * Optimiser: *Adam (the paper used Ranger, lr 5e-4 over 180 + 120 epochs): 1200
   classifier steps at 2e-3 (--cls-lr), 1200 composition steps at 1e-3 (--lr), because the
   budget here is minutes; cosine decay to 10 % over each stage; batches drawn from a
