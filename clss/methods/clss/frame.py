@@ -303,7 +303,9 @@ class FrameStep:
         else:
             vals.update(cls_in=self.cls_in.data, aux=self.aux.data, logits=self.cls_in.data,
                         **{k: a.data for k, a in zip(("w1", "b1", "w2", "b2"), self.mlp)})
-            L["resolve"] = dev.prepare(self.k["resolve"], (self.W16, self.H16),
+            # VEC pixels per work-item, as the rule resolve (a W16-wide launch left
+            # VEC - 1 of every VEC work-items returning at once)
+            L["resolve"] = dev.prepare(self.k["resolve"], (-(-self.W16 // self.vec), self.H16),
                                        [vals[n] for n in self.RESOLVE_NET])
             L["compose"] = dev.prepare(self.k["compose"], (-(-W // self.vec), H),
                                        [vals[n] for n in self.COMPOSE])
