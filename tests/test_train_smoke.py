@@ -300,3 +300,11 @@ def test_visibility_oracle_hooks_and_cli(tmp_path, capsys):
     rows = json.load(open(out))["rows"]
     assert [r["decision"] for r in rows] == ["as-is", "generator", "useful 1"]
     assert all(np.isfinite(r["psnr"]) for r in rows)
+    # the picture: four panels (reference, the mode's decision, the labels, useful)
+    png = str(tmp_path / "d.png")
+    assert vo.main([p, "--mode", "rules", "--picture", png, "--frame", "3"]) == 0
+    import OpenImageIO as oiio
+    spec = oiio.ImageInput.open(png).spec()
+    assert spec.width > 4 * 48 and spec.height > 32
+    assert vo.main([p, "--mode", "rules", "--picture", png, "--frame", "99"]) == 1
+    assert "--frame 99" in capsys.readouterr().err

@@ -93,6 +93,52 @@ def score(seqs, mode, weights, oracle, warmup=2, ratio=2.0, floor=1e-3, device="
     return [float(v) for v in np.nanmean(np.array(rows, np.float64), 0)]
 
 
+def picture(seq, mode, weights, t, path, ratio=2.0, floor=1e-3, device="cpu"):
+    """One frame `t` of `seq` run as-is: the reference (tone-mapped, dimmed) with, in
+    colour, the pixels the mode drops the history on, the generator's visibility labels
+    (where the sequence has them) and the useful decision, side by side -> `path`."""
+    import torch
+
+    from clss import io as cio
+    from clss.metrics import save_side_by_side
+    from .torch_frame import PQ_NITS, TorchUpscaler
+    state = {"seq": seq, "t": 0, "nits": PQ_NITS}
+    useful = useful_hook(state, ratio, floor)
+    seen = {}
+
+    def hook(reject, ctx):
+        if state["t"] == t:
+            v = ctx["valid"][0, 0].cpu().numpy()
+            seen["mode"] = reject[0, 0].cpu().numpy() & v
+            seen["useful"] = useful(reject, ctx)[0, 0].cpu().numpy() & v
+            seen["valid"] = v
+        return reject
+    up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None,
+                       device=device, reject_hook=hook)
+    step = _Stepper(up, state)
+    for k in range(t + 1):
+        step(seq, k)
+    if "mode" not in seen:
+        raise ValueError(f"frame {t}: not reached")
+    base = 0.35 * cio.tonemap(seq["reference"][t]).mean(-1, keepdims=True).repeat(3, -1)
+
+    def paint(mask, rgb):
+        out = base.copy()
+        out[mask] = rgb
+        out[~seen["valid"]] = (0.0, 0.0, 0.3)
+        return out
+    panels = [cio.tonemap(seq["reference"][t]), paint(seen["mode"], (1.0, 0.3, 0.2))]
+    labels = ["reference", f"{mode}: history dropped ({seen['mode'].mean():.1%})"]
+    if "label_ghost" in seq:
+        lab = seq["label_ghost"][t] == 0
+        panels.append(paint(lab & seen["valid"], (1.0, 0.8, 0.1)))
+        labels.append(f"generator's visibility ({(lab & seen['valid']).mean():.1%})")
+    panels.append(paint(seen["useful"], (0.2, 1.0, 0.4)))
+    labels.append(f"useful: history worse ({seen['useful'].mean():.1%})")
+    save_side_by_side(path, panels, labels, tonemapped=True)
+    return path
+
+
 def load(paths):
     from .evaluate import load_sequence
     seqs = []
@@ -121,6 +167,11 @@ def main(argv=None) -> int:
                         "upsample's by in any case (default 1e-3)")
     p.add_argument("--warmup", type=int, default=2, help="frames left unscored after a reset")
     p.add_argument("--json", default=None, help="also write the rows here")
+    p.add_argument("--picture", default=None, metavar="PNG",
+                   help="also draw frame --frame of the first sequence: the reference and, "
+                        "in colour, where the mode drops the history, the generator's "
+                        "visibility and the useful decision (dark blue: no valid history)")
+    p.add_argument("--frame", type=int, default=6, help="--picture's frame (default 6)")
     a = p.parse_args(argv)
     import torch
     torch.set_num_threads(2)
@@ -136,6 +187,10 @@ def main(argv=None) -> int:
     except (OSError, ValueError) as e:
         print(f"visibility_oracle: {e}", file=sys.stderr)
         return 1
+    if a.picture and not 0 <= a.frame < len(seqs[0]["reset"]):
+        print(f"visibility_oracle: --frame {a.frame}: {a.sequences[0]} has frames 0-"
+              f"{len(seqs[0]['reset']) - 1}", file=sys.stderr)
+        return 1
     rows = []
     labelled = all("label_ghost" in q for q in seqs)
     if not labelled:
@@ -148,6 +203,8 @@ def main(argv=None) -> int:
         rows.append({"decision": name, "psnr": v[0], "tpsnr": v[1], "disocclusion_psnr": v[2]})
         print(f"{a.mode} {name:12s} PSNR {v[0]:6.2f}  tPSNR {v[1]:6.2f}  disocc {v[2]:6.2f} dB",
               flush=True)
+    if a.picture:
+        print(f"wrote {picture(seqs[0], a.mode, weights, a.frame, a.picture, a.ratio[0], a.floor)}")
     if a.json:
         with open(a.json, "w") as fh:
             json.dump({"mode": a.mode, "sequences": a.sequences, "rows": rows}, fh, indent=1)
