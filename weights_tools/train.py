@@ -214,19 +214,27 @@ def classifier_loss(logits, lg, la, valid, wg, wa, false_ghost_weight=True, cost
     return ((pix_g * ce_g + wa[la] * ce_a) * v).sum(), v.sum()
 
 
+def history_worse(hist, up, ref_pq, ratio, floor):
+    """(mask, eh, eu), each [B,H,W]: eh and eu the squared PQ errors (summed over the
+    channels) of the history and of the current upsample against the reference; the mask
+    where eh > ratio x eu + floor, i.e. where dropping the history helps."""
+    eh = ((hist - ref_pq) ** 2).sum(1)
+    eu = ((up - ref_pq) ** 2).sum(1)
+    return eh > ratio * eu + floor, eh, eu
+
+
 def useful_ghost_labels(r, lg, ref_pq, ratio, floor, cost=False):
     """Ghosting labels consistent with the history the frame step blends: visibility
-    where the history as blended (clipped) is further from the reference than the
-    current upsample by more than `ratio` (squared PQ error, plus `floor`), i.e. where
-    dropping it helps; the generator's shading label elsewhere, none on the rest.  The
-    generator's visibility (the exact previous geometry, 1 % depth tolerance) marks many
-    pixels whose clipped history is better than the current frame: rejecting exactly
-    those loses 0.85 dB on held-out, rejecting these gains 1.2 (issue 23)."""
+    where the history as blended (clipped) is worse than the current upsample
+    (history_worse), the generator's shading label elsewhere, none on the rest; with
+    `cost` also each pixel's weight.  The generator's visibility (the exact previous
+    geometry, 1 % depth tolerance) lies mostly on edges whose clipped history beats the
+    current frame: rejecting exactly those gains 0.14 dB on held-out, rejecting these 1.2
+    (weights_tools.visibility_oracle, issue 23)."""
     with torch.no_grad():
-        eh = ((r["blend_hist"] - ref_pq) ** 2).sum(1)
-        eu = ((r["up"] - ref_pq) ** 2).sum(1)
+        worse, eh, eu = history_worse(r["blend_hist"], r["up"], ref_pq, ratio, floor)
         rest = torch.where(lg == GHOST_VISIBILITY, torch.full_like(lg, GHOST_NONE), lg)
-        lab = torch.where(eh > ratio * eu + floor, torch.full_like(lg, GHOST_VISIBILITY), rest)
+        lab = torch.where(worse, torch.full_like(lg, GHOST_VISIBILITY), rest)
         if not cost:
             return lab, None
         # cost-sensitive: each pixel weighs what the decision changes, |eh - eu|, over
@@ -253,8 +261,8 @@ def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0, detach=Fal
                false_ghost_weight=True, useful=None):
     """The recurrent pass over one batch of windows -> (loss, stats). `detach`: the state
     carries no gradient from one frame to the next (each frame's loss trains only that
-    frame's pass).  `useful`: (ratio, floor) of useful_ghost_labels, which then replace
-    the generator's ghosting labels in the classifier stage."""
+    frame's pass).  `useful`: (ratio, floor, cost) of useful_ghost_labels, which then
+    replace the generator's ghosting labels in the classifier stage."""
     T, B = batch["depth"].shape[:2]
     hist = step.initial_history(B)
     rule_color = torch.zeros_like(hist[:, 0:3]) if stage == "composition" else None

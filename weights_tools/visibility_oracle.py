@@ -47,15 +47,14 @@ def useful_hook(state, ratio, floor):
     import torch
 
     from .torch_frame import pq_encode
+    from .train import history_worse
 
     def hook(reject, ctx):
         ref = state["seq"]["reference"][state["t"]]
         ref = pq_encode(torch.from_numpy(np.ascontiguousarray(ref.transpose(2, 0, 1)))[None]
                         .to(reject.device), state["nits"])
         hist = ctx["hist_clipped"] if ctx["hist_clipped"] is not None else ctx["hist"]
-        eh = ((hist - ref) ** 2).sum(1, keepdim=True)
-        eu = ((ctx["up"] - ref) ** 2).sum(1, keepdim=True)
-        return eh > ratio * eu + floor
+        return history_worse(hist, ctx["up"], ref, ratio, floor)[0].unsqueeze(1)
     return hook
 
 

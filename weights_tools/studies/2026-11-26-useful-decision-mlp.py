@@ -31,15 +31,15 @@ def run(paths, hook_factory):
     return np.mean(rows, 0).round(3).tolist()
 def useful(st, ctx):
     ref = pq_encode(torch.from_numpy(np.ascontiguousarray(st["seq"]["reference"][st["t"]].transpose(2, 0, 1)))[None], PQ_NITS)
-    eh = ((ctx["hist_clipped"] - ref) ** 2).sum(1, keepdim=True); eu = ((ctx["up"] - ref) ** 2).sum(1, keepdim=True)
-    return eh, eu
+    from weights_tools.train import history_worse
+    bad, eh, eu = history_worse(ctx["hist_clipped"], ctx["up"], ref, 2.0, 1e-3)
+    return bad[:, None], eh[:, None], eu[:, None]
 # 1) collect on val with the oracle decision running (so the history is the oracle's)
 X, Y, C = [], [], []
 rng = np.random.default_rng(0)
 def collect(st):
     def f(reject, ctx):
-        eh, eu = useful(st, ctx)
-        bad = eh > 2 * eu + 1e-3
+        bad, eh, eu = useful(st, ctx)
         v = ctx["valid"][0, 0].reshape(-1).numpy()
         if st["t"] > 0:
             F_ = feats(ctx)[0].reshape(F_dim(ctx), -1).T.numpy()[v]
