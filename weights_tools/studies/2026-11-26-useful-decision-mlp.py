@@ -4,7 +4,7 @@ place of net mode's decision on held-out 0-7 and the Blender sequences (torch tw
 Run from the repository root: .venv/bin/python weights_tools/studies/2026-11-26-useful-decision-mlp.py"""
 import sys, glob, os, json
 sys.path.insert(0, '.')
-import numpy as np, torch; torch.set_num_threads(1)
+import numpy as np, torch; torch.set_num_threads(1); torch.manual_seed(0)
 from weights_tools.evaluate import Pipeline, evaluate_sequence, load_sequence
 from weights_tools.torch_frame import TorchUpscaler, pq_encode, PQ_NITS
 W = 'clss/weights/clss_trained.safetensors'
