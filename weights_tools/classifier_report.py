@@ -195,14 +195,9 @@ def report(paths, weights=None, device=None, log=sys.stderr):
                 BP.append(bp)
                 BL.append(bl)
         L = np.concatenate(L)
-        rows = {}
-        for who, pred in (("classifier", np.concatenate(P)), ("rules", np.concatenate(R)),
-                          ("2x2 bound", np.concatenate(BP)),
-                          ("classifier at margin", np.concatenate(M))):
-            ba, conf = balanced_accuracy(pred, L if who != "2x2 bound" else np.concatenate(BL))
-            rows[who] = {"balanced_accuracy": ba, "confusion": conf.tolist()}
-        freq = np.bincount(L.astype(np.int64), minlength=3) / max(len(L), 1)
-        res["heads"][head] = {"classes": list(names), "label_frequency": freq.tolist(), **rows}
+        res["heads"][head] = _head(names, L, {
+            "classifier": (P, L), "rules": (R, L), "2x2 bound": (BP, np.concatenate(BL)),
+            "classifier at margin": (M, L)})
     # the ghosting head against the labels consistent with the history it sees (`train
     # --ghost-labels useful` trains on these; no rule detector was tuned for them)
     P, M, L = [], [], []
@@ -212,14 +207,21 @@ def report(paths, weights=None, device=None, log=sys.stderr):
             M.append(cl[t][3][valid])
             L.append(cl[t][4][valid])
     L = np.concatenate(L)
-    rows = {}
-    for who, pred in (("classifier", np.concatenate(P)), ("classifier at margin", np.concatenate(M))):
-        ba, conf = balanced_accuracy(pred, L)
-        rows[who] = {"balanced_accuracy": ba, "confusion": conf.tolist()}
-    freq = np.bincount(L.astype(np.int64), minlength=3) / max(len(L), 1)
-    res["heads"]["useful"] = {"classes": list(GHOST_NAMES), "label_frequency": freq.tolist(),
-                              **rows}
+    res["heads"]["useful"] = _head(GHOST_NAMES, L, {"classifier": (P, L),
+                                                    "classifier at margin": (M, L)})
     return res
+
+
+def _head(names, labels, rows):
+    """One head's entry: its classes, the label frequencies of `labels`, and per row
+    (name: (list of prediction arrays, the labels they are scored against)) the balanced
+    accuracy and the confusion."""
+    out = {"classes": list(names), "label_frequency": (
+        np.bincount(labels.astype(np.int64), minlength=3) / max(len(labels), 1)).tolist()}
+    for who, (preds, lab) in rows.items():
+        ba, conf = balanced_accuracy(np.concatenate(preds), lab)
+        out[who] = {"balanced_accuracy": ba, "confusion": conf.tolist()}
+    return out
 
 
 def format_report(res) -> str:

@@ -128,17 +128,26 @@ def train_seeds(args, seeds, log=None):
 
 # ---- scoring -------------------------------------------------------------------------------
 
-def score_sequence(seq, mode, weights, device, warmup):
-    """(PSNR, tPSNR) of `mode` ("rules" or "net" with `weights`) on one sequence
-    (evaluate.load_sequence's dict): `eval`'s scoring (evaluate.evaluate_sequence) of the
-    torch twin, FLIP left out."""
+def twin_record(seq, mode, weights, device, warmup, wrap=None, **kw):
+    """`eval`'s record (evaluate.evaluate_sequence: psnr, tpsnr, disocclusion_psnr, ...) of
+    the torch twin in `mode` ("rules" or "net" with `weights`) on one sequence
+    (evaluate.load_sequence's dict), FLIP left out.  kw: TorchUpscaler's; `wrap`: f(the
+    Pipeline) -> the per-frame callable that runs it."""
     from .evaluate import Pipeline, evaluate_sequence
     from .torch_frame import TorchUpscaler
-    up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None, device=device)
+    up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None, device=device,
+                       **kw)
+    run = Pipeline(up) if wrap is None else wrap(Pipeline(up))
     with open(os.devnull, "w") as quiet:
-        rec = evaluate_sequence(seq, [mode], None, warmup=warmup, run={mode: Pipeline(up)},
+        rec = evaluate_sequence(seq, [mode], None, warmup=warmup, run={mode: run},
                                 net_trained=True, flip_every=0, log=quiet)
-    return rec["methods"][mode]["psnr"], rec["methods"][mode]["tpsnr"]
+    return rec["methods"][mode]
+
+
+def score_sequence(seq, mode, weights, device, warmup):
+    """(PSNR, tPSNR) of twin_record."""
+    m = twin_record(seq, mode, weights, device, warmup)
+    return m["psnr"], m["tpsnr"]
 
 
 def score_group(seqs, mode, weights, device, warmup):

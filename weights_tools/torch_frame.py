@@ -566,11 +566,13 @@ class FrameStep(nn.Module):
             reject = (lead >= self.vis_margin) | (p["dd_hr"] > self.depth_threshold)
         else:
             reject = p["dd_hr"] > self.depth_threshold
+        # s9's history as the blend uses it: clipped into the clamp box (both modes)
+        blend_hist = w_col
+        if self.clip:
+            blend_hist = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
         if self.reject_hook is not None:
             # studies only (weights_tools.visibility_oracle): replace the decision
-            clamp = None
-            if self.clip:
-                clamp = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
+            clamp = blend_hist if self.clip else None
             reject = self.reject_hook(reject, {"up": up, "hist": w_col, "hist_clipped": clamp,
                                                "valid": valid, "logits": logits,
                                                "dd_hr": p["dd_hr"], "depth_hr": p["depth_hr"],
@@ -593,9 +595,6 @@ class FrameStep(nn.Module):
                 w_rule = torch.maximum(inv_cnt, react)
                 rule_out = w_rule * up + (1.0 - w_rule) * cls_col
                 res["rule_color"] = rule_out
-            blend_hist = w_col
-            if self.clip:
-                blend_hist = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
             if self.blend == "net":
                 comp_in = torch.cat([up, blend_hist, p["depth_hr"], motion_hr, inv_cnt, c_min,
                                      c_max, logits], 1)
@@ -607,9 +606,6 @@ class FrameStep(nn.Module):
             new_logits = logits
         else:
             w0 = inv_cnt
-            blend_hist = w_col
-            if self.clip:
-                blend_hist = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
             new_logits = torch.zeros(B, len(LOGITS), H, W, device=up.device)
         wgt = torch.maximum(w0, react)
         out = wgt * up + (1.0 - wgt) * blend_hist

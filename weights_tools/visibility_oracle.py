@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 
 import numpy as np
@@ -58,36 +57,29 @@ def useful_hook(state, ratio, floor):
     return hook
 
 
-class _Stepper:
-    """evaluate's Pipeline that tells the hook which frame it is on."""
-
-    def __init__(self, up, state):
-        from .evaluate import Pipeline
-        self.pipe, self.state = Pipeline(up), state
-
-    def __call__(self, seq, t):
-        self.state["t"] = t
-        return self.pipe(seq, t)
+def _tracking(state):
+    """Wrap evaluate's Pipeline so that the hook knows which frame it is on."""
+    def wrap(pipe):
+        def run(seq, t):
+            state["t"] = t
+            return pipe(seq, t)
+        return run
+    return wrap
 
 
 def score(seqs, mode, weights, oracle, warmup=2, ratio=2.0, floor=1e-3, device="cpu"):
     """Mean PSNR, tPSNR and disocclusion PSNR (dB) over `seqs` (evaluate.load_sequence's
-    dicts, with `label_ghost` for the generator oracle) of `mode` ("rules"/"net") under `oracle` (None = as-is,
-    "generator", "useful")."""
-    from .evaluate import evaluate_sequence
-    from .torch_frame import PQ_NITS, TorchUpscaler
+    dicts, with `label_ghost` for the generator oracle) of `mode` ("rules"/"net") under
+    `oracle` (None = as-is, "generator", "useful")."""
+    from .seeds import twin_record
+    from .torch_frame import PQ_NITS
     rows = []
     for seq in seqs:
         state = {"seq": seq, "t": 0, "nits": PQ_NITS}
-        hook = {None: None, "generator": lambda: generator_hook(state),
-                "useful": lambda: useful_hook(state, ratio, floor)}[oracle]
-        up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None,
-                           device=device, reject_hook=hook() if hook else None)
-        with open(os.devnull, "w") as quiet:
-            rec = evaluate_sequence(seq, [mode], None, warmup=warmup,
-                                    run={mode: _Stepper(up, state)}, net_trained=True,
-                                    flip_every=0, log=quiet)
-        m = rec["methods"][mode]
+        hook = {None: lambda: None, "generator": lambda: generator_hook(state),
+                "useful": lambda: useful_hook(state, ratio, floor)}[oracle]()
+        m = twin_record(seq, mode, weights, device, warmup, wrap=_tracking(state),
+                        reject_hook=hook)
         rows.append((m["psnr"], m["tpsnr"], m["disocclusion_psnr"]))
     return [float(v) for v in np.nanmean(np.array(rows, np.float64), 0)]
 
@@ -112,9 +104,10 @@ def picture(seq, mode, weights, t, path, ratio=2.0, floor=1e-3, device="cpu"):
             seen["useful"] = useful(reject, ctx)[0, 0].cpu().numpy() & v
             seen["valid"] = v
         return reject
+    from .evaluate import Pipeline
     up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None,
                        device=device, reject_hook=hook)
-    step = _Stepper(up, state)
+    step = _tracking(state)(Pipeline(up))
     for k in range(t + 1):
         step(seq, k)
     if "mode" not in seen:
