@@ -118,17 +118,19 @@
 #define L_MY 2
 #define L_DD 3
 #define L_REACTIVE 4
-#define L_NMIN 5
-#define L_NMAX 8
-/* net mode only (L_CHANNELS 18): the classifier's measurements (s4b), in
+/* the depth test's own difference: dd less depth_slope x the local depth step (s4) */
+#define L_DDT 5
+#define L_NMIN 6
+#define L_NMAX 9
+/* net mode only (L_CHANNELS 19): the classifier's measurements (s4b), in
  * CLASSIFIER_INPUTS order: previous-depth difference, colour change, depth edge, colour
  * spread; then the pixel's own (entry-converted, not dilated) depth and motion x, y,
  * which prepare writes for them */
-#define L_MEASURE 11
+#define L_MEASURE 12
 #define MEASURES 4
-#define L_RAW_DEPTH 15
-#define L_RAW_MX 16
-#define L_RAW_MY 17
+#define L_RAW_DEPTH 16
+#define L_RAW_MX 17
+#define L_RAW_MY 18
 
 /* The buffer widths come from the host, where they are defined once: L_CHANNELS and HIST
  * from clss.pipeline.contract, CLS_IN and COMP_IN from clss.networks' channel layouts. */
@@ -530,8 +532,9 @@ __kernel void prepare(__global const float *color, __global const float *depth,
  * do net mode's measurements (s4b), which need it and the 3x3 neighbourhood too. */
 /** @param[in]     recon  [h*w] uint the reconstructed previous depth (prepare)
  *  @param[in]     X      [3, h, w] T the encoded colour (for the clamp box)
- *  @param[in,out] lr     the render-res stack: gets the depth difference and the clamp box (net: and the measurements, of the pixel's own depth and motion planes)
+ *  @param[in,out] lr     the render-res stack: gets the depth difference, the depth test's difference and the clamp box (net: and the measurements, of the pixel's own depth and motion planes)
  *  @param[in]     w, h   render width and height
+ *  @param[in]     depth_slope  the depth test's tolerance per unit of local relative depth step (contract.DEPTH_SLOPE; 0: the plain test)
  *  @param[in]     prev   net only: [4, h, w] float the previous accepted frame's encoded colour and own (not dilated) depth (not read on a reset)
  *  @param[out]    prev_out net only: [4, h, w] float this frame's, for the next one (the state once the frame is accepted)
  *  @param[in]     reset  net only: 1 on a camera cut or the first frame (the previous frame's measurements are 0)
@@ -540,7 +543,7 @@ __kernel void prepare(__global const float *color, __global const float *depth,
  *  @note -DCLSS_FP16=1: X in half (T)
  */
 __kernel void depth_diff(__global const uint *recon, __global const T *X, __global float *lr,
-                         int w, int h
+                         int w, int h, float depth_slope
 #if NET
                          , __global const float *prev, __global float *prev_out, int reset
 #endif
@@ -561,7 +564,20 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
             const float rk = on ? as_float(recon[edge(yk, h) * w + edge(xk, w)]) : 0.0f;
             rs = rs + rk * wk;
         }
-    lr[L_DD * hw + p] = clamp((rs - d) / fmax(rs, 1e-6f), -1.0f, 1.0f);
+    const float dd = clamp((rs - d) / fmax(rs, 1e-6f), -1.0f, 1.0f);
+    lr[L_DD * hw + p] = dd;
+    /* the depth test's difference (reference.md s4): dd less depth_slope x the local
+     * relative depth step, the smaller one-sided step in x plus that in y (edge pixels
+     * repeat: a step of 0). A grazing floor steps steadily, so both sides are large and
+     * its reprojection error passes; a silhouette is flat on one side and stays tested.
+     * Only the dilated depth plane is read, which no work-item of this kernel writes. */
+    {
+        __global const float *D = lr + L_DEPTH * hw;
+        const float l = D[i * w + max(j - 1, 0)], r = D[i * w + min(j + 1, w - 1)];
+        const float u = D[max(i - 1, 0) * w + j], b = D[min(i + 1, h - 1) * w + j];
+        const float sx = fmin(fabs(r - d), fabs(d - l)), sy = fmin(fabs(b - d), fabs(d - u));
+        lr[L_DDT * hw + p] = dd - depth_slope * ((sx + sy) / fmax(d, 1e-6f));
+    }
     /* auto-reactive (contract.AUTO_REACTIVE_*): where the dilated motion of the 3x3
      * neighbourhood diverges, surfaces move apart and a warped history mixes them, so the
      * blend weight is raised as the caller's reactive mask would (in-bounds neighbours;
@@ -670,7 +686,7 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
 /* What stages 4 and 5 give VEC output pixels. */
 typedef struct {
     fv up[3], col[3], mn[3], mx[3], lg[6];
-    fv depth, mvx, mvy, dd, react, cnt;
+    fv depth, mvx, mvy, dd, ddt, react, cnt;
     iv valid;
     fv bmin[3], bmax[3];
 #if NET
@@ -697,6 +713,7 @@ inline Gathered gather(int I, iv J, __global const T *X, __global const float *l
     g.mvx = linear_f(lr + L_MX * hw, lx, ly) * sx;
     g.mvy = linear_f(lr + L_MY * hw, lx, ly) * sy;
     g.dd = linear_f(lr + L_DD * hw, lx, ly);
+    g.ddt = linear_f(lr + L_DDT * hw, lx, ly);
     g.react = linear_f(lr + L_REACTIVE * hw, lx, ly);
     for (int c = 0; c < 3; ++c) {
         g.bmin[c] = linear_f(lr + (L_NMIN + c) * hw, lx, ly);
@@ -818,7 +835,7 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     KEEP_HISTORY_IF_REFUSED
     const Gathered g = gather(I, min(J0 + LANES, (iv)(W - 1)), X, lr, bx, by, jx, jy, w, h, W, H,
                               sx, sy, reset, hist);
-    const iv ghost = (g.dd > depth_threshold) | (g.valid == (iv)(0));
+    const iv ghost = (g.ddt > depth_threshold) | (g.valid == (iv)(0));
     const fv cnt = select(fmin(g.cnt + 1.0f, cap), FV(0.0f), ghost);
     const fv wgt = fmax(1.0f / (1.0f + cnt), g.react);
     fv hc[3];
@@ -850,8 +867,9 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
 #else
 /* Net mode, stages 4-6: the classifier input at the padded size (W16, H16), VEC pixels
  * per work-item (W16 is a multiple of 16, so rows hold whole vectors); pixels past
- * (W, H) replicate the edge (ONNX Pad "edge"). aux [6, H16, W16] T: warped counter,
- * valid, reactive and the clipped history colour (3) for `compose`. */
+ * (W, H) replicate the edge (ONNX Pad "edge"). aux [7, H16, W16] T: warped counter,
+ * valid, reactive, the clipped history colour (3) and the depth test's difference for
+ * `compose`. */
 /** @param[in]  X       [3, h, w] T the encoded colour
  *  @param[in]  lr      [L_CHANNELS, h, w] float the render-res stack
  *  @param[in]  bx      [W] float render x of each output column's centre, (X + 0.5) * w / W - 0.5
@@ -863,7 +881,7 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
  *  @param[in]  reset   1 on a camera cut (the history is not used)
  *  @param[in]  hist    [16, H, W] T the history
  *  @param[out] cls_in   [CLS_IN, H16, W16] T the classifier input, edge-replicated past (W, H)
- *  @param[out] aux      [6, H16, W16] T warped counter, valid, reactive, clipped history colour 3 (for compose)
+ *  @param[out] aux      [7, H16, W16] T warped counter, valid, reactive, clipped history colour 3, the depth test's difference (for compose)
  *  @param[in]  flags    prepare's flags
  *  @param[in]  W16, H16 W and H rounded up to multiples of 16
  *  @note -DNET=1 (this variant); -DHDR=0|1; -DVEC=8|4|1; -DCLIP_EPS=x
@@ -905,6 +923,7 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     clip_history(&g, hc);
     for (int c = 0; c < 3; ++c)
         STV(aux, (3 + c) * P + r, hc[c]);
+    STV(aux, 6 * P + r, g.ddt);
 }
 
 /* Net mode, stages 6 (logits x2), 7, 8, 9 in one pass, VEC pixels per work-item.
@@ -912,7 +931,7 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
  * half_pixel) evaluated at the output pixels only, which crops by construction.
  * w1: [HIDDEN, COMP_IN], b1: [HIDDEN], w2: [HIDDEN], b2: [1] (the composition MLP). */
 /** @param[in]  cls_in   [CLS_IN, H16, W16] T resolve's classifier input (the composition reads up, depth, motion and the colour range from it)
- *  @param[in]  aux      [6, H16, W16] T resolve's warped counter, valid, reactive, clipped history colour (3)
+ *  @param[in]  aux      [7, H16, W16] T resolve's warped counter, valid, reactive, clipped history colour (3), the depth test's difference
  *  @param[in]  logits   [6, H16/2, W16/2] T the classifier's output
  *  @param[in]  W, H     output width and height
  *  @param[in]  W16, H16 the padded size
@@ -960,10 +979,10 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
 
     /* visibility ghosting = the visibility logit leads the larger of logits 1-2 by at
      * least vis_margin (lead in this order, as the oracle and the torch twin; margin 0
-     * is the argmax, first index on ties), or the rule's depth test (cls_in plane 16 is
-     * dd_hr): the floor under the classifier (reference.md s7) */
+     * is the argmax, first index on ties), or the rule's depth test (on aux plane 6, the
+     * test's difference, s4): the floor under the classifier (reference.md s7) */
     const fv lead = lg[0] - fmax(lg[1], lg[2]);
-    const iv ghost = (lead >= vis_margin) | (LDV(cls_in, 16 * P + r) > depth_threshold)
+    const iv ghost = (lead >= vis_margin) | (LDV(aux, 6 * P + r) > depth_threshold)
                      | (LDV(aux, P + r) < 0.5f);
     const fv cnt = select(fmin(LDV(aux, r) + 1.0f, cap), FV(0.0f), ghost);
 

@@ -35,6 +35,7 @@ import pytest
 
 from clss import Upscaler
 from clss.methods.clss.oracle import OracleUpscaler
+from clss.methods.clss.frame import LR_MEASURE
 from helpers import RENDER, RESET_AT, compare_frame, frames, networks
 
 def _oracle(render, scale, mode, **kw):
@@ -101,7 +102,7 @@ def test_measurements_match_oracle(precision):
     """Net mode's classifier measurements (reference.md s4b) and its render-res state, the
     OpenCL step against the oracle at an odd size (13 x 17 x1.5 -> 20 x 26, padded to
     32 x 32) over 5 frames: a refused frame before frame 2 (the state must not move),
-    a reset at frame 3. The render-res planes (lr 11-14, of the pixel's own depth and
+    a reset at frame 3. The render-res planes (lr LR_MEASURE.. + 3, of the pixel's own depth and
     motion: the random depth edges make the dilated ones differ by up to 0.9), the
     classifier input 23-26 (the render pixel holding each output pixel's centre: exactly
     the kernel's own planes moved, in fp16 rounded to half once; against the oracle's
@@ -131,7 +132,7 @@ def test_measurements_match_oracle(precision):
         ours.step(color, depth, motion, jitter, reset=reset)
         ora.step(color, depth, motion, jitter, reset=reset)
         fs = ours._fs
-        got, want = fs.lr.get()[11:15], ora.debug["dbg_measurements"][0]
+        got, want = fs.lr.get()[LR_MEASURE:LR_MEASURE + 4], ora.debug["dbg_measurements"][0]
         got_hr = fs.dev.to_host(fs.cls_in)[0, 23:27, :fs.H, :fs.W]
         want_hr = ora.debug["dbg_cls_input"][0, 23:27]
         ri = (2 * np.arange(fs.H) + 1) * hh // (2 * fs.H)
@@ -176,7 +177,7 @@ def test_measurements_entry_conversions_match_oracle(opts):
             motion[7, 7, 1] = np.inf
         ours.step(color, depth, motion, (0.1, -0.2))
         ora.step(color, depth, motion, (0.1, -0.2))
-        got, want = ours._fs.lr.get()[11:15], ora.debug["dbg_measurements"][0]
+        got, want = ours._fs.lr.get()[LR_MEASURE:LR_MEASURE + 4], ora.debug["dbg_measurements"][0]
         for k in range(4):
             err = np.abs(got[k] - want[k]).max()
             assert err <= tol[k], f"{opts} frame {i} measurement {k}: {err:.3g}"

@@ -214,7 +214,7 @@ def np_sample(img, u, v, cubic):
 
 
 def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2.0, cap=4,
-                 thr=O.DEPTH_THRESHOLD):
+                 thr=O.DEPTH_THRESHOLD, slope=C.DEPTH_SLOPE):
     """reference.md, rule mode, on NCHW-less arrays ([C,h,w]); returns dict of buffers."""
     hh, ww = depth.shape
     H, W = C.output_size(hh, ww, scale)
@@ -235,8 +235,13 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
     div = np.nanmax(np.abs(mwin - m_dil[None]).sum(1), 0)
     auto = np.clip((div - C.AUTO_REACTIVE_LO) * C.AUTO_REACTIVE_SLOPE, 0, C.AUTO_REACTIVE_MAX)
     react = np.maximum(reactive, auto)
-    aux = np_sample(np.concatenate([d_dil[None], m_dil, dd[None], react[None], nmin, nmax]),
-                    u, v, False)
+    # the depth test's difference: dd less DEPTH_SLOPE x the smaller one-sided step (x + y)
+    dp = np.pad(d_dil, 1, mode="edge")
+    step = (np.minimum(np.abs(np.diff(dp, axis=1)[1:-1, 1:]), np.abs(np.diff(dp, axis=1)[1:-1, :-1]))
+            + np.minimum(np.abs(np.diff(dp, axis=0)[1:, 1:-1]), np.abs(np.diff(dp, axis=0)[:-1, 1:-1])))
+    ddt = dd - slope * step / np.maximum(d_dil, 1e-6)
+    aux = np_sample(np.concatenate([d_dil[None], m_dil, dd[None], react[None], nmin, nmax,
+                                    ddt[None]]), u, v, False)
     mhr = aux[1:3] * np.array([W / ww, H / hh])[:, None, None]
     su = np.arange(W)[None, :] + mhr[0]
     sv = np.arange(H)[:, None] + mhr[1]
@@ -247,7 +252,7 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
     wcol = np.where(valid, hc, up)
     wcnt = np.where(valid, ho[0], 0)
     wmin, wmax = np.where(valid, ho[1:4], up), np.where(valid, ho[4:7], up)
-    ghost = (aux[3] > thr) | ~valid
+    ghost = (aux[11] > thr) | ~valid
     cnt = np.where(ghost, 0, np.minimum(wcnt + 1, cap))
     wgt = np.maximum(1 / (1 + cnt), aux[4])
     # history clip: up + t (wcol - up), one t in [0, 1] for the three channels

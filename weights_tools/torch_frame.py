@@ -30,7 +30,8 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from clss.pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
-                                    CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD,
+                                    CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_SLOPE,
+                                    DEPTH_THRESHOLD,
                                     DILATE_OFFSETS, HISTORY_CHANNELS, MEASURE_KNEES, MODES,
                                     PQ_NITS, VIS_MARGIN,
                                     RULE_CLIP_EPS, SCATTER_WEIGHT_THRESHOLD, output_size,
@@ -349,7 +350,8 @@ class FrameStep(nn.Module):
 
     def __init__(self, mode, render_size, scale=2.0, classifier=None, composition=None,
                  cap=None, *, depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
-                 blend="net", clip=True, vis_margin=VIS_MARGIN, reject_hook=None):
+                 blend="net", clip=True, vis_margin=VIS_MARGIN, reject_hook=None,
+                 depth_slope=DEPTH_SLOPE):
         super().__init__()
         self.reject_hook = reject_hook
         if mode not in MODES:
@@ -364,6 +366,7 @@ class FrameStep(nn.Module):
         self.H, self.W = output_size(self.h, self.w, scale)
         self.cap = float(DEFAULT_CAP[mode] if cap is None else cap)
         self.depth_threshold = float(depth_threshold)
+        self.depth_slope = float(depth_slope)
         self.vis_margin = float(vis_margin)
         self.hdr, self.nits = bool(hdr), float(nits)
         self.classifier, self.composition = classifier, composition
@@ -430,6 +433,13 @@ class FrameStep(nn.Module):
             v = recon.gather(1, lin.reshape(B, -1)).reshape(B, 1, h, w) * on.float() * wk
             rs = v if rs is None else rs + v
         dd = torch.clamp((rs - d_dil) / torch.clamp(rs, min=DEPTH_EPS), -1.0, 1.0)
+        # s4 the depth test's own difference: dd less DEPTH_SLOPE x the local relative
+        # depth step (the smaller one-sided step, x plus y), so that a grazing floor,
+        # whose depth steps steadily, passes and a silhouette, flat on one side, does not
+        pdr = F.pad(d_dil, (1, 1, 1, 1), mode="replicate")
+        sx = torch.minimum((pdr[:, :, 1:-1, 2:] - d_dil).abs(), (d_dil - pdr[:, :, 1:-1, :-2]).abs())
+        sy = torch.minimum((pdr[:, :, 2:, 1:-1] - d_dil).abs(), (d_dil - pdr[:, :, :-2, 1:-1]).abs())
+        dd_test = dd - self.depth_slope * ((sx + sy) / torch.clamp(d_dil, min=DEPTH_EPS))
 
         # s5 jitter-aware sampling at output pixel centres.
         jx, jy = jitter[:, 0:1], jitter[:, 1:2]
@@ -452,7 +462,7 @@ class FrameStep(nn.Module):
         auto = torch.clamp((div - AUTO_REACTIVE_LO) * AUTO_REACTIVE_SLOPE, 0.0,
                            AUTO_REACTIVE_MAX)
         reactive = torch.maximum(reactive, auto)
-        lr = [d_dil, m_dil, dd, reactive]
+        lr = [d_dil, m_dil, dd, reactive, dd_test]
         # s4b: the measurements at the render pixel holding each output pixel centre
         meas = torch.cat(self.measurements(X, depth, motion, prev, reset), 1)
         measure_hr = meas.index_select(2, self.ri).index_select(3, self.rj)
@@ -474,9 +484,10 @@ class FrameStep(nn.Module):
                    torch.minimum(F.max_pool2d(X, 3, 1, 1), X + md + gsd)]
         aux = _sample(torch.cat(lr, 1), grid, False)
         return {"up": up, "depth_hr": aux[:, 0:1], "motion_hr": aux[:, 1:3] * self.motion_ratio,
-                "dd_hr": aux[:, 3:4], "reactive_hr": aux[:, 4:5], "measure_hr": measure_hr,
-                "clamp_min": aux[:, 5:8] if self.clip else None,
-                "clamp_max": aux[:, 8:11] if self.clip else None,
+                "dd_hr": aux[:, 3:4], "reactive_hr": aux[:, 4:5], "dd_test_hr": aux[:, 5:6],
+                "measure_hr": measure_hr,
+                "clamp_min": aux[:, 6:9] if self.clip else None,
+                "clamp_max": aux[:, 9:12] if self.clip else None,
                 "depth_diff": dd, "recon": recon[:, :h * w].reshape(B, 1, h, w),
                 "prev": torch.cat([X, depth], 1)}
 
@@ -563,9 +574,9 @@ class FrameStep(nn.Module):
             # visibility leads by vis_margin (0: argmax, first index on ties), with the
             # rule's depth test as a floor (reference.md section 7)
             lead = logits[:, 0:1] - torch.maximum(logits[:, 1:2], logits[:, 2:3])
-            reject = (lead >= self.vis_margin) | (p["dd_hr"] > self.depth_threshold)
+            reject = (lead >= self.vis_margin) | (p["dd_test_hr"] > self.depth_threshold)
         else:
-            reject = p["dd_hr"] > self.depth_threshold
+            reject = p["dd_test_hr"] > self.depth_threshold
         # s9's history as the blend uses it: clipped into the clamp box (both modes)
         blend_hist = w_col
         if self.clip:
@@ -628,11 +639,11 @@ class TorchUpscaler:
     def __init__(self, scale=2.0, mode="net", weights=None, cap=None, *, device=None,
                  depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
                  depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0, clip=True,
-                 vis_margin=VIS_MARGIN, reject_hook=None):
+                 vis_margin=VIS_MARGIN, reject_hook=None, depth_slope=DEPTH_SLOPE):
         self.scale, self.mode = float(scale), {"rules": "rule"}.get(mode, mode)
         self.device = pick_device(device)
         self.kw = dict(cap=cap, depth_threshold=depth_threshold, hdr=hdr, nits=nits, clip=clip,
-                       vis_margin=vis_margin, reject_hook=reject_hook)
+                       vis_margin=vis_margin, reject_hook=reject_hook, depth_slope=depth_slope)
         self.contract = dict(depth_inverted=depth_inverted, motion_scale=motion_scale,
                              exposure=exposure)
         self.nets = (None, None)

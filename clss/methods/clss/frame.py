@@ -38,14 +38,17 @@ from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from ...ops.conv import load_defines
 from ...pipeline.method import summed_event_ms
 from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
-                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_THRESHOLD, HISTORY_CHANNELS,
+                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_SLOPE, DEPTH_THRESHOLD,
+                                 HISTORY_CHANNELS,
                                  MEASURE_KNEES, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, VIS_MARGIN,
                                  output_size)
 
-LR_CHANNELS = 11  # depth, motion 2, dd, reactive, clamp box low 3 and high 3
+# depth, motion 2, dd, reactive, the depth test's difference, clamp box low 3 and high 3
+LR_CHANNELS = 12
 # net mode: and the classifier's 4 measurements (reference.md s4b), then the pixel's own
 # (not dilated) depth and motion 2 that prepare writes for them
-LR_NET_CHANNELS = 18
+LR_NET_CHANNELS = 19
+LR_MEASURE = 12     # the first measurement plane (frame.cl's L_MEASURE)
 PREV_CHANNELS = 4  # net mode's render-res state: encoded colour 3, own (not dilated) depth
 # The buffer widths kernels/frame.cl is built with (it has no defaults for them); net
 # mode builds with L_CHANNELS = LR_NET_CHANNELS.
@@ -171,7 +174,7 @@ class FrameStep:
 
     def __init__(self, dev: Device, prec: str, mode: str, render_size, scale, *, hdr=True,
                  nits=PQ_NITS, cap=None, depth_threshold=DEPTH_THRESHOLD,
-                 vis_margin=VIS_MARGIN, sanitize=False,
+                 depth_slope=DEPTH_SLOPE, vis_margin=VIS_MARGIN, sanitize=False,
                  classifier: onnx.ModelProto | None = None,
                  composition: onnx.ModelProto | None = None, classifier_backend=None,
                  profile=False):
@@ -182,6 +185,7 @@ class FrameStep:
         self.hdr, self.nits = bool(hdr), float(nits)
         self.cap = float(DEFAULT_CAP[mode] if cap is None else cap)
         self.depth_threshold = float(depth_threshold)
+        self.depth_slope = float(depth_slope)
         self.vis_margin = float(vis_margin)
         self.sanitize = bool(sanitize)
         self.profile = bool(profile)
@@ -231,8 +235,9 @@ class FrameStep:
             defines["HIDDEN"] = w1.shape[0]
             self.mlp = [dev.to_device(a) for a in (w1, b1, w2, b2)]
             self.cls_in = e((1, CLASSIFIER_CHANNELS, self.H16, self.W16), prec)
-            # warped counter, valid, reactive, clipped history colour (3)
-            self.aux = e((6, self.H16, self.W16), prec)
+            # warped counter, valid, reactive, clipped history colour (3), the depth
+            # test's difference
+            self.aux = e((7, self.H16, self.W16), prec)
             self.classifier = ClassifierRunner(dev, prec, classifier, self.cls_in.shape,
                                                force=classifier_backend)
             self._check_logits(self.classifier.output_shape())
@@ -261,7 +266,7 @@ class FrameStep:
     # ones by these names.
     PREPARE = ("color depth motion reactive has_reactive w h depth_inverted msx msy inv_exposure "
                "pq_scale recon X lr flags").split()
-    DEPTH_DIFF = "recon X lr w h".split()
+    DEPTH_DIFF = "recon X lr w h depth_slope".split()
     DEPTH_DIFF_NET = DEPTH_DIFF + "prev prev_out reset".split()
     RESOLVE = "X lr bx by jx jy w h W H sx sy reset hist".split()
     RESOLVE_RULE = RESOLVE + ("hist_out out flags depth_threshold cap inv_pq_scale exposure debug "
@@ -285,7 +290,7 @@ class FrameStep:
                     lr=self.lr.data, flags=self.flags.data, bx=self.bx.data, by=self.by.data,
                     jx=f(0), jy=f(0), W=i32(W), H=i32(H), sx=f(W / w), sy=f(H / h), reset=i32(1),
                     hist=hist, hist_out=self.history[1].data, out=self.out.data,
-                    depth_threshold=f(self.depth_threshold),
+                    depth_threshold=f(self.depth_threshold), depth_slope=f(self.depth_slope),
                     vis_margin=f(self.vis_margin), cap=f(self.cap),
                     inv_pq_scale=f(PQ_PEAK_NITS / self.nits), exposure=f(1), debug=i32(0),
                     dbg=self.dbg.data, W16=i32(self.W16), H16=i32(self.H16))

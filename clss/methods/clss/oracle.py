@@ -34,7 +34,8 @@ from ...pipeline.twin import pq_decode as _pq_decode
 from ...pipeline.twin import pq_encode as _pq_encode
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
 from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
-                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_THRESHOLD, DILATE_OFFSETS,
+                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_SLOPE,
+                                 DEPTH_THRESHOLD, DILATE_OFFSETS,
                        H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MEASURE_KNEES, MODES,
                        PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
                        SCATTER_WEIGHT_THRESHOLD, VIS_MARGIN, output_size, to_internal,
@@ -54,6 +55,7 @@ DEBUG_OUTPUTS = {
     "dbg_depth_hr": "[1,1,H,W] stage 4 bilinear dilated depth",
     "dbg_motion_hr": "[1,2,H,W] stage 4 bilinear dilated motion (output px)",
     "dbg_depth_diff_hr": "[1,1,H,W] stage 4 bilinear depth difference",
+    "dbg_depth_test_hr": "[1,1,H,W] stage 4 bilinear depth test's difference (less the slope term)",
     "dbg_reactive_hr": "[1,1,H,W] stage 4 bilinear reactive mask",
     "dbg_valid": "[1,1,H,W] stage 5 1 = history usable (on-screen and no reset)",
     "dbg_warped": "[1,16,H,W] stage 5 warped history, invalid pixels re-initialised",
@@ -128,11 +130,12 @@ def check_vis_margin(vis_margin) -> float:
 
 def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier=None,
                       composition=None, cap=None, *, depth_threshold=DEPTH_THRESHOLD,
-                      vis_margin=VIS_MARGIN, hdr=True, nits=PQ_NITS,
+                      depth_slope=DEPTH_SLOPE, vis_margin=VIS_MARGIN, hdr=True, nits=PQ_NITS,
                       debug=False) -> onnx.ModelProto:
     """One CLSS frame step as an ONNX model (see reference.md for every formula).
 
-    mode "rule": no networks, ghost = off-screen or reset or depth difference >
+    mode "rule": no networks, ghost = off-screen or reset or the depth test's difference
+    (the depth difference less `depth_slope` x the local relative depth step) >
     `depth_threshold`, w = 1/(1+counter), history clipped towards the current colour
     into the current 3x3 neighbourhood's box.  mode "net": `classifier` and `composition` (onnx.ModelProto from
     clss.networks) are inlined; ghost = the visibility logit leads the larger of the
@@ -178,9 +181,10 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     d_dil, m_dil = _stage1_dilate(g, h, w, dbg)
     taps, recon = _stage2_reconstruct(g, h, w, d_dil, m_dil, dbg)
     dd = _stage3_depth_diff(g, taps, recon, d_dil, dbg)
+    ddt = _depth_test_diff(g, h, w, dd, d_dil, depth_slope)
     # s4b: of the pixel's own depth and motion (the graph inputs), not the dilated ones
     meas = _measurements(g, h, w, X, "depth", "motion", dbg) if mode == "net" else None
-    hr = _stage4_upsample(g, (h, w), (H, W), X, d_dil, m_dil, dd, meas, dbg)
+    hr = _stage4_upsample(g, (h, w), (H, W), X, d_dil, m_dil, dd, ddt, meas, dbg)
     warped = _stage5_warp(g, (H, W), hr, dbg)
     ghost, logits = _stage6_classify(g, mode, (H, W), classifier, depth_threshold, vis_margin,
                                      hr, warped, dbg)
@@ -215,6 +219,7 @@ class _Upsampled(NamedTuple):
     depth: str       # [1,1,H,W] bilinear dilated depth
     motion: str      # [1,2,H,W] bilinear dilated motion, output pixels
     depth_diff: str  # [1,1,H,W]
+    depth_test: str  # [1,1,H,W] the depth test's difference (s4)
     reactive: str    # [1,1,H,W]
     box_lo: str      # [1,3,H,W] the current 3x3 neighbourhood's clamp box
     box_hi: str
@@ -376,7 +381,22 @@ def _measurements(g, h, w, X, d, m, dbg):
     return meas
 
 
-def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, meas, dbg) -> _Upsampled:
+def _depth_test_diff(g, h, w, dd, d_dil, depth_slope):
+    """s4: the depth test's difference, dd less depth_slope x the local relative depth
+    step (the smaller one-sided step in x plus that in y; edge pixels repeat, a step of 0),
+    in the kernel's order: a grazing floor steps steadily on both sides and passes, a
+    silhouette is flat on one side and stays tested."""
+    pd = g.op("Pad", d_dil, g.i64([0, 0, 1, 1, 0, 0, 1, 1]), mode="edge")
+    step = []
+    for (ax, ay), (bx, by) in (((1, 0), (-1, 0)), ((0, 1), (0, -1))):
+        ahead = g.op("Abs", g.sub(_shifted(g, pd, ax, ay, h, w), d_dil))
+        behind = g.op("Abs", g.sub(d_dil, _shifted(g, pd, bx, by, h, w)))
+        step.append(g.op("Min", ahead, behind))
+    rel = g.div(g.add(step[0], step[1]), g.op("Max", d_dil, g.const(DEPTH_EPS)))
+    return g.sub(dd, g.mul(g.const(float(depth_slope)), rel))
+
+
+def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, ddt, meas, dbg) -> _Upsampled:
     """Stage 4: upsample at output pixel centres, jitter-aware; the clamp box; in mode
     "net" (meas given) the classifier's measurements, nearest (s4b)."""
     (h, w), (H, W) = hw, HW
@@ -420,14 +440,16 @@ def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, meas, dbg) -> _Upsampled:
     nmax = g.op("Min", nmax, g.add(mu, gsd))
     react = _auto_reactive(g, m_dil, h, w)
     # the kernel's render-res stack (its lr buffer), in its channel order
-    aux = g.grid_sample(g.concat([d_dil, m_dil, dd, react, nmin, nmax]), grid_up, cubic=False)
+    aux = g.grid_sample(g.concat([d_dil, m_dil, dd, react, ddt, nmin, nmax]), grid_up,
+                        cubic=False)
     depth_hr = g.chan(aux, slice(0, 1))
     motion_hr = g.mul(g.chan(aux, slice(1, 3)),
                       g.const(np.array([W / w, H / h], np.float32).reshape(1, 2, 1, 1)))
     dd_hr = g.chan(aux, slice(3, 4))
     react_hr = g.chan(aux, slice(4, 5))
-    c_lo = g.chan(aux, slice(5, 8))
-    c_hi = g.chan(aux, slice(8, 11))
+    ddt_hr = g.chan(aux, slice(5, 6))
+    c_lo = g.chan(aux, slice(6, 9))
+    c_hi = g.chan(aux, slice(9, 12))
     meas_hr = None
     if meas is not None:
         # s4b: output pixel (I, J) takes the measurements of the render pixel holding its
@@ -437,9 +459,9 @@ def _stage4_upsample(g, hw, HW, X, d_dil, m_dil, dd, meas, dbg) -> _Upsampled:
         meas_hr = g.op("Gather", g.op("Gather", meas, g.i64(ri), axis=2), g.i64(rj), axis=3)
         dbg["dbg_measurements_hr"] = meas_hr
     dbg.update(dbg_upsampled=up, dbg_depth_hr=depth_hr, dbg_motion_hr=motion_hr,
-               dbg_depth_diff_hr=dd_hr, dbg_reactive_hr=react_hr, dbg_clamp_min=c_lo,
-               dbg_clamp_max=c_hi)
-    return _Upsampled(up, depth_hr, motion_hr, dd_hr, react_hr, c_lo, c_hi, meas_hr)
+               dbg_depth_diff_hr=dd_hr, dbg_depth_test_hr=ddt_hr, dbg_reactive_hr=react_hr,
+               dbg_clamp_min=c_lo, dbg_clamp_max=c_hi)
+    return _Upsampled(up, depth_hr, motion_hr, dd_hr, ddt_hr, react_hr, c_lo, c_hi, meas_hr)
 
 
 def _stage5_warp(g, HW, hr: _Upsampled, dbg) -> _Warped:
@@ -504,9 +526,9 @@ def _stage6_classify(g, mode, HW, classifier, depth_threshold, vis_margin, hr: _
         lead = g.sub(g.chan(logits, slice(0, 1)),
                      g.op("Max", g.chan(logits, slice(1, 2)), g.chan(logits, slice(2, 3))))
         reject = g.op("Or", g.op("GreaterOrEqual", lead, g.const(vis_margin)),
-                      g.op("Greater", hr.depth_diff, g.const(float(depth_threshold))))
+                      g.op("Greater", hr.depth_test, g.const(float(depth_threshold))))
     else:
-        reject = g.op("Greater", hr.depth_diff, g.const(float(depth_threshold)))
+        reject = g.op("Greater", hr.depth_test, g.const(float(depth_threshold)))
     ghost = g.op("Or", reject, g.op("Not", warped.valid))
     dbg["dbg_ghost"] = g.op("Cast", ghost, to=TensorProto.FLOAT)
     return ghost, logits
@@ -581,7 +603,8 @@ class OracleUpscaler:
     """
 
     def __init__(self, render_size, scale=2.0, mode="rule", classifier=None, composition=None,
-                 *, cap=None, depth_threshold=DEPTH_THRESHOLD, vis_margin=VIS_MARGIN,
+                 *, cap=None, depth_threshold=DEPTH_THRESHOLD, depth_slope=DEPTH_SLOPE,
+                 vis_margin=VIS_MARGIN,
                  depth_inverted=True,
                  motion_scale=(1.0, 1.0), exposure=1.0, hdr=True, nits=PQ_NITS,
                  sanitize=False, debug=False, session_options=None, providers=None):
@@ -603,7 +626,7 @@ class OracleUpscaler:
         self.debug_enabled = debug
         self.model = build_frame_graph(mode, self.render_size, self.scale, classifier,
                                        composition, cap, depth_threshold=depth_threshold,
-                                       vis_margin=vis_margin,
+                                       depth_slope=depth_slope, vis_margin=vis_margin,
                                        hdr=hdr, nits=nits, debug=debug)
         self.session = ort.InferenceSession(self.model.SerializeToString(),
                                             sess_options=session_options,

@@ -32,7 +32,8 @@ import warnings
 import numpy as np
 
 from ...networks import CLASSIFIER_CHANNELS, pad16
-from ...pipeline.contract import (DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS, VIS_MARGIN,
+from ...pipeline.contract import (DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
+                                 VIS_MARGIN,
                                  FrameInputError, check_jitter, ghost_classes, output_size,
                                  validate_frame)
 from ...pipeline.method import MethodSpec, MethodUpscaler
@@ -130,7 +131,9 @@ class ClssUpscaler(MethodUpscaler):
     cap (default 4 for rules, 32 for net).
     Keyword-only: exposure (colour is divided by it on entry, multiplied on exit),
     nits (linear 1.0 in cd/m2 for PQ), depth_threshold (the depth test: the rule in rules,
-    the floor under the classifier in net; > 1 turns it off), vis_margin (net: the
+    the floor under the classifier in net; > 1 turns it off), depth_slope (the test's
+    tolerance per unit of local relative depth step, >= 0; contract.DEPTH_SLOPE, 0 = the
+    plain test, reference.md s4), vis_margin (net: the
     classifier rejects the history where its visibility logit leads the larger of the
     other two by at least this, a finite number; contract.VIS_MARGIN, 0 = its argmax,
     reference.md s7), sanitize, classifier /
@@ -145,7 +148,7 @@ class ClssUpscaler(MethodUpscaler):
     def __init__(self, scale=2.0, mode="net", weights=None, device=None, precision="fp32",
                  depth_inverted=True, motion_scale=(1, 1), hdr=True, cap=None, *,
                  exposure=1.0, nits=PQ_NITS, depth_threshold=DEPTH_THRESHOLD,
-                 vis_margin=VIS_MARGIN, sanitize=False,
+                 depth_slope=DEPTH_SLOPE, vis_margin=VIS_MARGIN, sanitize=False,
                  classifier=None, composition=None, profile=False, debug=False,
                  classifier_backend=None):
         if mode not in MODE_NAMES:
@@ -167,6 +170,12 @@ class ClssUpscaler(MethodUpscaler):
         if not (math.isfinite(self.nits) and self.nits > 0):
             raise ValueError(f"nits: expected a number > 0, got {nits!r}")
         self.depth_threshold = float(depth_threshold)
+        if (isinstance(depth_slope, bool) or not isinstance(depth_slope, numbers.Real)
+                or not math.isfinite(depth_slope) or depth_slope < 0):
+            raise ValueError(f"depth_slope: expected a finite number >= 0 (the depth test's "
+                             f"tolerance per unit of depth step, 0 = the plain test), "
+                             f"got {depth_slope!r}")
+        self.depth_slope = float(depth_slope)
         if (isinstance(vis_margin, bool) or not isinstance(vis_margin, numbers.Real)
                 or not math.isfinite(vis_margin)):
             raise ValueError(f"vis_margin: expected a finite number (the visibility logit's "
@@ -224,7 +233,8 @@ class ClssUpscaler(MethodUpscaler):
             _check_classifier_size(self.classifier_model, pad16(H), pad16(W))
         fs = FrameStep(self.dev, self.precision, self.mode, (h, w), self.scale,
                        hdr=self.hdr, nits=self.nits, cap=self.cap,
-                       depth_threshold=self.depth_threshold, vis_margin=self.vis_margin,
+                       depth_threshold=self.depth_threshold, depth_slope=self.depth_slope,
+                       vis_margin=self.vis_margin,
                        sanitize=self.sanitize,
                        classifier=self.classifier_model, composition=self.composition_model,
                        classifier_backend=self.classifier_backend, profile=self.profile)
