@@ -1,10 +1,11 @@
-/* The CLSS frame step, fused (clss/pipeline/reference.md gives every formula; the
+/* The CLSS frame step, fused (clss/methods/clss/reference.md gives every formula; the
  * section numbers below are its sections).
  *
  *   clear                     zeroes the depth reconstruction and the flags
  *   prepare      render res   entry conversions, validity flags, transfer function,
  *                             dilation (s2), scatter of the previous depth (s3)
- *   depth_diff   render res   bilinear of the reconstructed depth -> dd (s4); the clamp
+ *   depth_diff   render res   bilinear of the reconstructed depth -> dd, and dd less
+ *                             the local depth slope's tolerance for the test (s4); the clamp
  *                             box of the encoded colour over 3x3 (s9); net mode: the
  *                             classifier's four measurements of the pixel's own depth and
  *                             motion against the previous frame's colour and depth (s4b),

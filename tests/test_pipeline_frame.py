@@ -187,6 +187,7 @@ def test_measurements_entry_conversions_match_oracle(opts):
 @pytest.mark.parametrize("opts", [
     dict(exposure=2.5), dict(hdr=False), dict(motion_scale=(-1.0, -1.0)),
     dict(depth_inverted=False), dict(cap=2, depth_threshold=0.05),
+    dict(depth_slope=0.0), dict(depth_slope=1.5, depth_threshold=0.05),
 ])
 def test_options_match_oracle(opts):
     seq = frames()[:4]
@@ -318,6 +319,42 @@ def test_visibility_margin_rejects_bad_values(bad):
         Upscaler(2.0, mode="net", vis_margin=bad)
     with pytest.raises(ValueError, match="vis_margin"):
         build_frame_graph("rule", (8, 8), 2.0, vis_margin=bad)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), -1.0, "4", None, True])
+def test_depth_slope_rejects_bad_values(bad):
+    """depth_slope must be a finite number >= 0: a ValueError naming it."""
+    with pytest.raises(ValueError, match="depth_slope"):
+        Upscaler(2.0, mode="rules", depth_slope=bad)
+
+
+@pytest.mark.parametrize("mode", ["rules", "net"])
+def test_depth_slope_passes_ramps_and_keeps_silhouettes(mode):
+    """The depth test's slope term (reference.md s4). A surface receding 20 % a pixel (a
+    grazing floor) moving half a pixel: the reconstruction's bilinear taps read the nearer
+    neighbour's depth, dd = 0.11 > 0.1, which the plain test rejects and the slope-aware
+    one keeps. A near block moving 2 pixels over a flat background: the strip it revealed
+    is rejected by both (flat on one side: no tolerance). Net mode: the floor under the
+    classifier (the untrained one, the margin out of reach, so only the floor decides)."""
+    h, w = 12, 20
+    color = np.full((h, w, 3), 0.3, np.float32)
+    depth = np.full((h, w), 0.2, np.float32)
+    motion = np.zeros((h, w, 2), np.float32)
+    depth[:, :10] = 0.5 * 0.8 ** np.arange(10)
+    motion[:, :10, 0] = 0.5
+    depth[3:9, 13:18] = 0.8
+    motion[3:9, 13:18, 0] = -2.0
+    ghosts = {}
+    for k in (0.0, 4.0):
+        kw = dict(weights="untrained", vis_margin=1e6) if mode == "net" else {}
+        up = Upscaler(2.0, mode=mode, depth_slope=k, debug=True, **kw)
+        for _ in range(2):
+            up.step(color, depth, motion, (0.0, 0.0))
+        ghosts[k] = up.debug_views()["ghost"] > 0.5
+    ramp = (slice(2, 22), slice(5, 15))       # output res: render columns 2-7
+    hole = (slice(8, 16), slice(20, 24))      # render columns 10-11, rows 4-7: revealed
+    assert ghosts[0.0][ramp].all() and not ghosts[4.0][ramp].any()
+    assert ghosts[0.0][hole].all() and ghosts[4.0][hole].all()
 
 
 OCLGRIND_SCRIPT = r"""
