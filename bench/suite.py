@@ -84,7 +84,10 @@ def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list
                 missing.append((f"{what} [{tier}]", f"{type(e).__name__}: {e}"))
                 continue
             if not got and tier == tiers[0]:
-                missing.append((what, f"{mod} not present yet"))
+                import os
+                here = os.path.exists(os.path.join(os.path.dirname(__file__), "..", mod))
+                missing.append((what, f"no case at the {tier} tier (see --full)" if here
+                                else f"{mod} not present yet"))
             cases += got
     if level == "quick":
         cases = [c for c in cases if c.quick]
