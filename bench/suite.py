@@ -2,6 +2,8 @@
 whole frame step (bench/netcases.py), per level and shape tier."""
 from __future__ import annotations
 
+import os
+
 from clss.networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from clss.pipeline.contract import output_size
 
@@ -84,7 +86,6 @@ def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list
                 missing.append((f"{what} [{tier}]", f"{type(e).__name__}: {e}"))
                 continue
             if not got and tier == tiers[0]:
-                import os
                 here = os.path.exists(os.path.join(os.path.dirname(__file__), "..", mod))
                 missing.append((what, f"no case at the {tier} tier (see --full)" if here
                                 else f"{mod} not present yet"))

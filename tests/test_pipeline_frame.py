@@ -102,7 +102,7 @@ def test_measurements_match_oracle(precision):
     """Net mode's classifier measurements (reference.md s4b) and its render-res state, the
     OpenCL step against the oracle at an odd size (13 x 17 x1.5 -> 20 x 26, padded to
     32 x 32) over 5 frames: a refused frame before frame 2 (the state must not move),
-    a reset at frame 3. The render-res planes (lr LR_MEASURE.. + 3, of the pixel's own depth and
+    a reset at frame 3. The render-res planes (lr planes LR_MEASURE to LR_MEASURE + 3, of the pixel's own depth and
     motion: the random depth edges make the dilated ones differ by up to 0.9), the
     classifier input 23-26 (the render pixel holding each output pixel's centre: exactly
     the kernel's own planes moved, in fp16 rounded to half once; against the oracle's
