@@ -1,9 +1,10 @@
 """Host waits: the wall time of one frame step against the OpenCL event time it enqueues.
 
-Per method whose step enqueues kernels and times its stages (clss, clss-rules, jbicubic,
-nsrr, nsrd: its G-buffers synthetic, bench/nsrdcases.py) and size: two upscalers
-on the same synthetic frame, warmed with a few frames first (PoCL compiles and specialises
-kernels on their first launches):
+Per method whose step enqueues kernels and times its stages (those its bench room names in
+HOST_WAITS, bench/methods/: today clss, clss-rules, jbicubic, nsrr and nsrd, whose
+G-buffers come from its bench room's `synthetic_gbuffers`) and size: two upscalers on the
+same synthetic frame, warmed with a few frames first (PoCL compiles and specialises kernels
+on their first launches):
 
 * profile=False: wall milliseconds of `step_device` plus the queue draining after it,
   per frame (what an application waits for);
@@ -19,11 +20,11 @@ import time
 
 import numpy as np
 
-METHODS = ("clss", "clss-rules", "jbicubic", "nsrr", "nsrd")
-# The methods whose frame step is CLSS's FrameStep (the enqueue column times its `run`);
-# another method's row has wall and event time only. (The MLP upscaler times no stage
-# events yet, so it has no row.)
-CLSS_FRAME = ("clss", "clss-rules", "jbicubic")
+from .methods import host_wait_methods
+
+# A method whose bench room has `enqueue_frame` also gets the enqueue column (the host's
+# time to enqueue one frame); another method's row has wall and event time only. (The MLP
+# upscaler times no stage events yet, so its room asks for no row.)
 # (render size, scale): 270p -> 540p, where launch cost shows, and 540p -> 1080p
 SIZES = (((270, 480), 2.0), ((540, 960), 2.0))
 TARGET = 1.15       # wall <= 1.15x event at 540p -> 1080p
@@ -48,10 +49,10 @@ def measure(dev, method: str, render_size, scale: float, prec: str = "fp32", war
     jitter = (0.25, -0.125)
     q = dev.queue
 
+    room = host_wait_methods()[method]
     gb = {}
-    if method == "nsrd":            # the one method here that reads G-buffers
-        from .nsrdcases import synthetic_gbuffers
-        gb = {k: dev.to_device(v, "fp32") for k, v in synthetic_gbuffers(h, w, scale).items()}
+    if hasattr(room, "synthetic_gbuffers"):     # a method that reads G-buffers
+        gb = {k: dev.to_device(v, "fp32") for k, v in room.synthetic_gbuffers(h, w, scale).items()}
 
     def step(up, i):
         up.step_device(*d, jitter, reset=i == 0, out=out, **gb)
@@ -78,14 +79,14 @@ def measure(dev, method: str, render_size, scale: float, prec: str = "fp32", war
     # The host's share: milliseconds to enqueue one frame (FrameStep.run returns once
     # everything is queued; the flags event it returns is then waited for, untimed).
     # On a GPU, where kernels are fast, this is what bounds a frame.
-    fs, enq = ups[0]._fs, []
-    for _ in range(frames if method in CLSS_FRAME else 0):
+    enq = []
+    for _ in range(frames if hasattr(room, "enqueue_frame") else 0):
         q.finish()
         t0 = time.perf_counter()
-        ev = fs.run(d[0], d[1], d[2], None, jitter, False, out=out)
+        ev, then = room.enqueue_frame(ups[0], d[0], d[1], d[2], jitter, out)
         enq.append((time.perf_counter() - t0) * 1e3)
         ev.wait()
-        fs.accept()
+        then()
     wall, event = statistics.median(walls), statistics.median(events)
     return {"method": method, "precision": prec, "shape": f"{h}x{w}->{H}x{W}",
             "wall_ms": round(wall, 3), "wall_min_ms": round(min(walls), 3),
@@ -94,7 +95,9 @@ def measure(dev, method: str, render_size, scale: float, prec: str = "fp32", war
             "stages": {k: round(statistics.median(v), 3) for k, v in stages.items()}}
 
 
-def run(dev, prec: str = "fp32", methods=METHODS, sizes=SIZES, log=None, **kw) -> list[dict]:
+def run(dev, prec: str = "fp32", methods=None, sizes=SIZES, log=None, **kw) -> list[dict]:
+    """Host-wait rows of `methods` (default: every method whose bench room asks for them)."""
+    methods = list(host_wait_methods()) if methods is None else methods
     rows = []
     for (h, w), scale in sizes:
         for m in methods:

@@ -1,14 +1,12 @@
-"""Whole-network and whole-frame bench cases: clss.Model against onnxruntime on the
-same network graph, and clss.Upscaler's device path against onnxruntime running
-the frame-step ONNX graph (clss/methods/clss/oracle.py). Imported only once those
-modules exist."""
+"""What the methods' bench rooms (bench/methods/) share: a whole network through clss.Model
+against onnxruntime on the same graph (`model_case`), the synthetic render-resolution frame,
+a frame step's device path as a timed runner, and the whole-network tolerances."""
 from __future__ import annotations
 
 import numpy as np
 import onnx
 
 from clss.device import storage_dtype
-from clss.networks import pad16
 from clss.ops.base import rng
 from clss.tolerance import Tolerance
 
@@ -98,48 +96,3 @@ def median_ms(fn, frames: int) -> float:
         fn()
         ts.append((time.perf_counter() - t) * 1e3)
     return float(np.median(ts))
-
-
-def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
-    from clss.methods.clss.oracle import build_frame_graph
-    from clss.pipeline.contract import output_size
-    from clss.networks import build_classifier, build_composition, frame_flops
-    h, w = render_size
-    H, W = output_size(h, w, scale)
-    flops = 0.0
-    if mode == "net":
-        flops = float(sum(frame_flops(build_classifier(), build_composition(), H, W)))
-
-    def build(dev, prec, params):
-        from clss import Upscaler
-        cls = build_classifier(height=pad16(H), width=pad16(W)) if mode == "net" else None
-        comp = build_composition() if mode == "net" else None
-        up = Upscaler(scale=scale, mode=mode, device=dev, precision=prec,
-                      classifier=cls, composition=comp)
-        run, (color, depth, motion) = frame_runner(dev, up, (h, w), (H, W))
-        twin = build_frame_graph("rule" if mode == "rules" else mode, (h, w), scale, cls,
-                                 comp)
-        names = {i.name for i in twin.graph.input}
-        feeds = {"color": color.transpose(2, 0, 1)[None].copy(), "depth": depth[None, None].copy(),
-                 "motion": motion.transpose(2, 0, 1)[None].copy(),
-                 "jitter": np.array(BENCH_JITTER, np.float32),
-                 "reset": np.array([1.0], np.float32), "reactive": np.zeros((1, 1, h, w), np.float32),
-                 "history": np.zeros((1, 16, H, W), np.float32),
-                 "prev": np.zeros((1, 4, h, w), np.float32)}     # net mode's render-res state
-        feeds = {k: v for k, v in feeds.items() if k in names}
-        ort_out = [o.name for o in twin.graph.output]
-        # Compulsory traffic per frame: the render-res inputs, the history (net: and prev)
-        # read and written, the output written.
-        st = storage_dtype(prec).itemsize
-        io = color.nbytes + depth.nbytes + motion.nbytes + H * W * 3 * 4
-        if mode == "net":       # and its render-res state prev read and written (float)
-            io += 2 * 4 * h * w * 4
-        eng = io + 2 * 16 * H * W * st
-        ort = io + 2 * 16 * H * W * 4
-        return Setup(run, twin, feeds, NET_TOL[prec], eng, ort,
-                     post=lambda outs: [outs[0].transpose(2, 0, 1)[None]],
-                     out_index=ort_out.index("output") if "output" in ort_out else 0,
-                     note=(f"classifier on {up.classifier_backend_name}" if mode == "net" else ""))
-    # Not in --quick: at 540p a net-mode frame costs seconds on a 2-core CPU.
-    return BenchCase(f"frame step {mode}", "frame", "frame", tier, flops, build,
-                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))

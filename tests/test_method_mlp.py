@@ -183,8 +183,8 @@ def test_bench_case_tiny(dev):
     import sys
     import os
     sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    from bench.mlpcases import mlp_cases
-    cases = mlp_cases(("tiny",))
+    from bench.methods.mlp import cases as mlp_cases
+    cases = mlp_cases("tiny")
     assert [c.name for c in cases] == ["frame step mlp x2", "frame step mlp x3"]
     st = cases[0].build(dev, "fp32", {})
     out = dev.to_host(st.run()[0])

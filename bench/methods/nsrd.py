@@ -1,17 +1,23 @@
-"""The NSRD frame step as a bench case: clss.Upscaler(method="nsrd")'s device path against
-onnxruntime on the same step's whole-frame ONNX graph (clss/methods/nsrd/oracle.py), at
-540p -> 1080p (2x) and 270p -> 1080p (4x). NSRD reads G-buffers: the synthetic frame
-gets a synthetic material (render and output resolution) and normal. Hooked into the
-suite by `_method_cases("nsrdcases", "nsrd_cases")` (bench/suite.py)."""
+"""NSRD's bench room: its frame step as a bench case, clss.Upscaler(method="nsrd")'s device
+path against onnxruntime on the same step's whole-frame ONNX graph
+(clss/methods/nsrd/oracle.py), at 540p -> 1080p (2x) and 270p -> 1080p (4x). NSRD reads
+G-buffers: the synthetic frame gets a synthetic material (render and output resolution)
+and normal (`synthetic_gbuffers`, which the host-wait bench feeds it too). The suite
+finds the room by its name (bench/methods/__init__.py).
+
+    python -m bench.methods.nsrd [fp32|fp16] [1080p|tiny]
+"""
 from __future__ import annotations
 
 import numpy as np
 
 from clss.device import storage_dtype
 
-from .cases import BenchCase, Setup
-from .netcases import BENCH_JITTER, NET_TOL, median_ms, synthetic_frame
+from ..cases import BenchCase, Setup
+from ..netcases import BENCH_JITTER, NET_TOL, median_ms, synthetic_frame
 
+# The host-wait bench (bench/hostwait.py) rows this method.
+HOST_WAITS = ("nsrd",)
 NSRD_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
               "tiny": (((16, 32), 2.0), ((16, 32), 4.0))}
 
@@ -77,8 +83,9 @@ def nsrd_frame_case(render_size, scale: float, tier: str, weights="untrained") -
                      shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
 
 
-def nsrd_cases(tiers=("1080p",)) -> list:
-    return [nsrd_frame_case(rs, s, t) for t in tiers for rs, s in NSRD_TIERS.get(t, ())]
+def cases(tier: str) -> list:
+    """The room's bench cases at one shape tier (none at a tier it has no shape for)."""
+    return [nsrd_frame_case(rs, s, tier) for rs, s in NSRD_TIERS.get(tier, ())]
 
 
 def measure(render_size, scale, prec="fp32", frames=3, weights=None, ort_threads=2, ort=True):

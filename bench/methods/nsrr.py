@@ -1,17 +1,22 @@
-"""The NSRR frame step as a bench case: clss.Upscaler(method="nsrr")'s device path against
-onnxruntime on the same step's whole-frame ONNX graph (clss/methods/nsrr/oracle.py), at
-540p -> 1080p (2x) and 270p -> 1080p (4x). Hooked into the suite by adding
-`nsrr_cases(tiers)` to the frame cases (see the module doc of bench/netcases.py)."""
+"""NSRR's bench room: its frame step as a bench case, clss.Upscaler(method="nsrr")'s device
+path against onnxruntime on the same step's whole-frame ONNX graph
+(clss/methods/nsrr/oracle.py), at 540p -> 1080p (2x) and 270p -> 1080p (4x). The suite
+finds it by the room's name (bench/methods/__init__.py).
+
+    python -m bench.methods.nsrr [fp32|fp16]
+"""
 from __future__ import annotations
 
 import numpy as np
 
 from clss.device import storage_dtype
 
-from .cases import BenchCase, Setup
-from .netcases import BENCH_JITTER, NET_TOL, frame_runner, median_ms, synthetic_frame
+from ..cases import BenchCase, Setup
+from ..netcases import BENCH_JITTER, NET_TOL, frame_runner, median_ms, synthetic_frame
 
 # render size and scale per tier: the issue's 1080p outputs, and a tiny smoke shape
+# The host-wait bench (bench/hostwait.py) rows this method.
+HOST_WAITS = ("nsrr",)
 NSRR_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
               "tiny": (((16, 32), 2.0), ((16, 32), 4.0))}
 
@@ -50,8 +55,9 @@ def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -
                      shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
 
 
-def nsrr_cases(tiers=("1080p",)) -> list:
-    return [nsrr_frame_case(rs, s, t) for t in tiers for rs, s in NSRR_TIERS.get(t, ())]
+def cases(tier: str) -> list:
+    """The room's bench cases at one shape tier (none at a tier it has no shape for)."""
+    return [nsrr_frame_case(rs, s, tier) for rs, s in NSRR_TIERS.get(tier, ())]
 
 
 def measure(render_size, scale, prec="fp32", frames=3, weights=None, ort_threads=2, ort=True):

@@ -1,18 +1,18 @@
-"""The shader MLP upscaler's frame step as a bench case: clss.Upscaler(method="mlp")'s
+"""The shader MLP's bench room: its frame step as a bench case, clss.Upscaler(method="mlp")'s
 device path (kernels/mlp_upscale.cl: the PQ pass, the pixel-vector block pass and the fold)
 against onnxruntime on the same step's whole-frame ONNX graph (clss/methods/mlp/oracle.py),
 at 540p -> 1080p (2x) and 360p -> 1080p (3x), with trained-like (random, non-zero) weights.
-Hooked into the suite by bench/suite.py's frame-step cases. `measure()` also times one
+The suite finds the room by its name (bench/methods/__init__.py). `measure()` also times one
 online training step (kernels/mlp_train.cl) beside the frame step.
 
-    python -m bench.mlpcases [fp32|fp16] [HxW]
+    python -m bench.methods.mlp [fp32|fp16] [HxW]
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .cases import BenchCase, Setup
-from .netcases import NET_TOL, median_ms, synthetic_frame
+from ..cases import BenchCase, Setup
+from ..netcases import NET_TOL, median_ms, synthetic_frame
 
 MLP_TIERS = {"540p": (((540, 960), 2),), "1080p": (((540, 960), 2), ((360, 640), 3)),
              "tiny": (((16, 32), 2), ((16, 32), 3))}
@@ -72,8 +72,9 @@ def mlp_frame_case(render_size, scale: int, tier: str) -> BenchCase:
                      shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
 
 
-def mlp_cases(tiers=("540p",)) -> list:
-    return [mlp_frame_case(rs, s, t) for t in tiers for rs, s in MLP_TIERS.get(t, ())]
+def cases(tier: str) -> list:
+    """The room's bench cases at one shape tier (none at a tier it has no shape for)."""
+    return [mlp_frame_case(rs, s, tier) for rs, s in MLP_TIERS.get(tier, ())]
 
 
 def measure(render_size=(540, 960), scale=2, prec="fp32", frames=3, ort=True, online=True,
