@@ -11,9 +11,10 @@ bit-exact for data movement, the op's tolerance otherwise. A variant that
 disagrees (or fails to build) is disabled with one warning naming the kernel,
 the variant and the device, and the op uses the reference variant.
 
-Verdicts are kept on disk ($CLSS_CACHE_DIR/selfcheck.json, default
-~/.cache/clss/selfcheck.json), keyed like the program cache: device, driver,
-hash of the kernel source, build options. ``CLSS_SELFCHECK`` chooses:
+Verdicts are kept on disk (selfcheck.json in clss's cache directory, `clss.cachedir`:
+$CLSS_CACHE_DIR, else $XDG_CACHE_HOME/clss, default ~/.cache/clss, on Linux), keyed like
+the program cache: device, driver, hash of the kernel source, build options.
+``CLSS_SELFCHECK`` chooses:
 
     auto   (default) check once, then trust the cached verdict
     force  check again in this process, whatever is cached
@@ -37,6 +38,8 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+
+from .cachedir import cache_dir
 
 MODES = ("auto", "force", "skip")
 
@@ -105,8 +108,7 @@ def mode() -> str:
 
 
 def cache_path() -> Path:
-    base = os.environ.get("CLSS_CACHE_DIR")
-    return (Path(base).expanduser() if base else Path.home() / ".cache" / "clss") / "selfcheck.json"
+    return cache_dir() / "selfcheck.json"
 
 
 @contextmanager

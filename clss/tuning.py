@@ -1,6 +1,7 @@
 """The tuning database: the best kernel tunables found by `clss tune`, per device.
 
-A JSON file ($CLSS_TUNING_DB, else ~/.cache/clss/tuning.json):
+A JSON file ($CLSS_TUNING_DB, else tuning.json in clss's cache directory,
+`clss.cachedir`: $CLSS_CACHE_DIR, else $XDG_CACHE_HOME/clss, default ~/.cache/clss, on Linux):
 
     {"version": 1,
      "devices": {"<device name> | <driver version>": {
@@ -26,6 +27,8 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 
+from .cachedir import cache_dir
+
 VERSION = 1
 _lock = threading.Lock()
 _cache: dict = {"path": None, "mtime": None, "data": None}
@@ -35,7 +38,7 @@ _seen: list | None = None             # (op, key, defaults) looked up, while rec
 
 def db_path() -> Path:
     p = os.environ.get("CLSS_TUNING_DB")
-    return Path(p).expanduser() if p else Path.home() / ".cache" / "clss" / "tuning.json"
+    return Path(p).expanduser() if p else cache_dir() / "tuning.json"
 
 
 def device_key(dev) -> str:
