@@ -262,7 +262,7 @@ def tune_main(argv=None) -> int:
         description="Search kernel tunables (register blocks, channels/pixels per work-item) and work-group "
                     "sizes for the bench cases on this device; each candidate's output is checked against "
                     "onnxruntime before it is timed; the fastest is stored in the tuning database "
-                    "($CLSS_TUNING_DB, default ~/.cache/clss/tuning.json), keyed by device name and driver "
+                    "($CLSS_TUNING_DB, default tuning.json in clss's cache directory: $CLSS_CACHE_DIR, else $XDG_CACHE_HOME/clss, else ~/.cache/clss), keyed by device name and driver "
                     "version, where the engine looks it up.",
         epilog="examples:\n  clss tune --quick\n  clss tune --filter conv --precision fp16\n"
                "  clss tune --filter 'conv cls.stem*' --dry-run",
@@ -278,7 +278,7 @@ def tune_main(argv=None) -> int:
                    help="cap on parameter combinations per case")
     p.add_argument("--no-local", action="store_true", help="do not search work-group sizes")
     p.add_argument("--all", action="store_true", help="also cases without tunables (work-group sizes only)")
-    p.add_argument("--db", default=None, help="tuning database file (default: $CLSS_TUNING_DB or ~/.cache/clss/tuning.json)")
+    p.add_argument("--db", default=None, help="tuning database file (default: $CLSS_TUNING_DB, else tuning.json in $CLSS_CACHE_DIR, $XDG_CACHE_HOME/clss or ~/.cache/clss)")
     p.add_argument("--dry-run", action="store_true", help="search and report, store nothing")
     a = p.parse_args(argv)
     from clss import tuning
