@@ -58,7 +58,7 @@ def _unpack(flat):
 
 @pytest.mark.parametrize("scale,feature", [(2, True), (3, True), (2, False)])
 def test_gradients_match_torch_autograd(scale, feature, dev):
-    from weights_tools.mlp_torch import MlpNet
+    from weights_tools.methods.mlp.twin import MlpNet
     torch.set_num_threads(1)
     wts = _weights()
     color, ref, dhr = _frame(scale)
@@ -81,7 +81,7 @@ def test_gradients_match_torch_autograd(scale, feature, dev):
 
 
 def test_adam_steps_match_torch(dev):
-    from weights_tools.mlp_torch import MlpNet
+    from weights_tools.methods.mlp.twin import MlpNet
     torch.set_num_threads(1)
     wts = _weights(7)
     color, ref, dhr = _frame(2, seed=5)

@@ -13,7 +13,7 @@ import clss  # noqa: E402
 from clss.methods.nsrd import networks as nets  # noqa: E402
 from clss.pipeline.contract import to_internal, validate_frame  # noqa: E402
 from helpers import frames  # noqa: E402
-from weights_tools.nsrd_torch import NsrdNet, TorchStep  # noqa: E402
+from weights_tools.methods.nsrd.twin import NsrdNet, TorchStep  # noqa: E402
 
 RENDER = (13, 17)
 

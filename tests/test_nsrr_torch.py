@@ -13,7 +13,7 @@ import clss
 from clss.methods.nsrr import networks as nets
 from clss.pipeline.contract import to_internal, validate_frame
 from helpers import frames
-from weights_tools.nsrr_torch import NsrrNet, TorchStep, pq_decode, rgbd_of
+from weights_tools.methods.nsrr.twin import NsrrNet, TorchStep, pq_decode, rgbd_of
 
 RENDER = (13, 17)
 

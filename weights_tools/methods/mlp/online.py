@@ -34,7 +34,7 @@ def main(argv=None):
     a = p.parse_args(argv)
     import clss
     from clss.device import get_device
-    from weights_tools.mlp_train import score_second_half
+    from .recipe import score_second_half
     os.makedirs(a.out, exist_ok=True)
     seq = np.load(a.seq)
     T = seq["color"].shape[0]

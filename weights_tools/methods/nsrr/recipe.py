@@ -29,7 +29,8 @@ import time
 
 import numpy as np
 
-from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, load_sequences,
+from weights_tools.methods import Recipe
+from weights_tools.trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, load_sequences,
                         lr_cosine, plot_losses, save_checkpoint)
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
@@ -142,7 +143,7 @@ class AliveProbe:
 
 
 def _prepare(seqs, torch):
-    from .nsrr_torch import pq_encode
+    from .twin import pq_encode
     out = []
     for s in seqs:
         c = torch.from_numpy(np.ascontiguousarray(s["color"].astype(np.float32).transpose(0, 3, 1, 2)))
@@ -224,8 +225,8 @@ def forward(step, rgbd, mot, jit, rst):
 def cmd_train(args):
     import torch
     from clss.methods.nsrr import networks as nets
-    from .nsrr_torch import NsrrNet, TorchStep
-    from .trainloop import ssim
+    from .twin import NsrrNet, TorchStep
+    from weights_tools.trainloop import ssim
     torch.set_num_threads(max(1, args.threads))
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
@@ -324,3 +325,6 @@ def cmd_train(args):
         json.dump(info, f, indent=1)
     print(f"wrote {os.path.join(args.out, 'weights.safetensors')} ({fmt_s(info['seconds'])})")
     return 0
+
+
+RECIPE = Recipe(add_arguments, cmd_train, __doc__)

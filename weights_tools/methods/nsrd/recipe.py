@@ -22,7 +22,8 @@ import time
 
 import numpy as np
 
-from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, load_sequences,
+from weights_tools.methods import Recipe
+from weights_tools.trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, load_sequences,
                         lr_cosine, plot_losses, save_checkpoint)
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale", "albedo",
@@ -120,7 +121,7 @@ def window_loss(step, fr, m, args):
     """The window through the step; the loss of every frame (smooth L1 + SSIM) and of
     every consecutive pair (temporal), on the display values inside the margin."""
     import torch.nn.functional as F
-    from .trainloop import ssim, temporal
+    from weights_tools.trainloop import ssim, temporal
     st, total, prev = None, 0.0, None
     for f in fr:
         out, st = step.step(f["color"], f["depth"], f["motion"], f["albedo"], f["normal"],
@@ -137,7 +138,7 @@ def window_loss(step, fr, m, args):
 def cmd_train(args):
     import torch
     from clss.methods.nsrd import networks as nets
-    from .nsrd_torch import NsrdNet, TorchStep
+    from .twin import NsrdNet, TorchStep
     torch.set_num_threads(max(1, args.threads))
     torch.manual_seed(args.seed)
     rng = np.random.default_rng(args.seed)
@@ -230,3 +231,6 @@ def cmd_train(args):
         json.dump(info, f, indent=1)
     print(f"wrote {os.path.join(args.out, 'weights.safetensors')} ({fmt_s(info['seconds'])})")
     return 0
+
+
+RECIPE = Recipe(add_arguments, cmd_train, __doc__)

@@ -23,6 +23,7 @@ import numpy as np
 # the patch geometry and the acceptance rule: clss/methods/mlp/patches.py (shared with the
 # online training on the device)
 from clss.methods.mlp.patches import MARGIN, PATCH  # noqa: E402
+from weights_tools.methods import Recipe  # noqa: E402
 
 
 def add_arguments(p):
@@ -96,7 +97,7 @@ def train(data_seqs, frames, scale, *, feature=True, steps=3000, batch=32, lr=2e
     """Returns (tensors, history). `frames[k]` = (first, end) frame range of sequence k."""
     import torch
     from clss.methods.mlp import transform as tf
-    from weights_tools.mlp_torch import MlpNet
+    from .twin import MlpNet
     from weights_tools.trainloop import PROGRESS_S, fmt_s, l1, lr_cosine, plot_losses
     torch.manual_seed(seed)
     data = _prepare(data_seqs, feature)
@@ -200,3 +201,6 @@ def cmd_train(a):
     if a.score and a.scene:
         score_second_half(a.scene, path, feature)
     return 0
+
+
+RECIPE = Recipe(add_arguments, cmd_train, __doc__)

@@ -20,7 +20,7 @@ from clss.methods.nsrr.oracle import zu_index
 from clss.pipeline.twin import base_grid
 from clss.pipeline.contract import PQ_NITS, output_size
 
-from .trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
+from weights_tools.trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
 FEAT = nets.FEAT
 

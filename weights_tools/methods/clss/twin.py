@@ -42,7 +42,7 @@ from clss.networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_ML
                        DEFAULT_WIDTHS, LOGITS, build_classifier, build_composition)
 from clss.networks import WeightsError, model_weights, torch_to_onnx_name
 
-from .trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
+from weights_tools.trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
 # Net mode's blend: "net" = the composition network (inference), "rule" = w = 1/(1+counter)
 # without a clamp, the paper's rule-based composition for training the classifier (s3.4).

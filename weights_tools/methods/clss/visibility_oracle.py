@@ -45,8 +45,8 @@ def useful_hook(state, ratio, floor):
     plus floor (the clip on; without it the warped history itself)."""
     import torch
 
-    from .torch_frame import pq_encode
-    from .train import history_worse
+    from .twin import pq_encode
+    from .recipe import history_worse
 
     def hook(reject, ctx):
         ref = state["seq"]["reference"][state["t"]]
@@ -71,8 +71,8 @@ def score(seqs, mode, weights, oracle, warmup=2, ratio=2.0, floor=1e-3, device="
     """Mean PSNR, tPSNR and disocclusion PSNR (dB) over `seqs` (evaluate.load_sequence's
     dicts, with `label_ghost` for the generator oracle) of `mode` ("rules"/"net") under
     `oracle` (None = as-is, "generator", "useful")."""
-    from .seeds import twin_record
-    from .torch_frame import PQ_NITS
+    from weights_tools.seeds import twin_record
+    from .twin import PQ_NITS
     rows = []
     for seq in seqs:
         state = {"seq": seq, "t": 0, "nits": PQ_NITS}
@@ -92,7 +92,7 @@ def picture(seq, mode, weights, t, path, ratio=2.0, floor=1e-3, device="cpu"):
 
     from clss import io as cio
     from clss.metrics import save_side_by_side
-    from .torch_frame import PQ_NITS, TorchUpscaler
+    from .twin import PQ_NITS, TorchUpscaler
     state = {"seq": seq, "t": 0, "nits": PQ_NITS}
     useful = useful_hook(state, ratio, floor)
     seen = {}
@@ -104,7 +104,7 @@ def picture(seq, mode, weights, t, path, ratio=2.0, floor=1e-3, device="cpu"):
             seen["useful"] = useful(reject, ctx)[0, 0].cpu().numpy() & v
             seen["valid"] = v
         return reject
-    from .evaluate import Pipeline
+    from weights_tools.evaluate import Pipeline
     up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None,
                        device=device, reject_hook=hook)
     step = _tracking(state)(Pipeline(up))
@@ -132,7 +132,7 @@ def picture(seq, mode, weights, t, path, ratio=2.0, floor=1e-3, device="cpu"):
 
 
 def load(paths):
-    from .evaluate import load_sequence
+    from weights_tools.evaluate import load_sequence
     seqs = []
     for p in paths:
         seq = load_sequence(p)

@@ -13,7 +13,7 @@ leaves open (ours, marked *):
   pixels labelled ghosting or aliasing, and the top --keep (25 %) kept.  The first frame
   of a window is a reset, as are the data's own cuts.
 * Recurrent training: every step runs the whole window through the torch twin of the
-  frame step (torch_frame.FrameStep), the state carried with gradients (BPTT over all
+  frame step (twin.FrameStep), the state carried with gradients (BPTT over all
   frames); the loss is applied to every frame.  *Pixels whose history is invalid (reset,
   or motion leaving the patch) carry no loss: the pipeline overrides every decision
   there, so they only add noise.
@@ -69,11 +69,12 @@ import time
 import numpy as np
 import torch
 
-from . import torch_frame
-from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, lr_cosine,
+from weights_tools.methods import Recipe
+from . import twin
+from weights_tools.trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, lr_cosine,
                         save_checkpoint)
-from .trainloop import load_sequences as _load_sequences
-from .trainloop import plot_losses as _plot_losses
+from weights_tools.trainloop import load_sequences as _load_sequences
+from weights_tools.trainloop import plot_losses as _plot_losses
 from clss.networks import load_weights, save_weights
 from clss.pipeline.contract import VIS_MARGIN
 
@@ -93,7 +94,7 @@ def load_sequences(data_dir, frames):
     arrays (reference PQ-encoded in float16 to halve the memory)."""
     def prepare(s):
         with torch.no_grad():
-            s["reference"] = torch_frame.pq_encode(torch.from_numpy(s["reference"])).numpy() \
+            s["reference"] = twin.pq_encode(torch.from_numpy(s["reference"])).numpy() \
                 .astype(np.float16)
     return _load_sequences(data_dir, frames, REQUIRED, prepare)
 
@@ -277,7 +278,7 @@ def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0, detach=Fal
         lg, la = batch["label_ghost"][t], batch["label_alias"][t]
         if stage == "classifier":
             if useful is not None:
-                ref_pq = torch_frame.pq_encode(batch["reference"][t], step.nits)
+                ref_pq = twin.pq_encode(batch["reference"][t], step.nits)
                 lg, cost = useful_ghost_labels(r, lg, ref_pq, *useful)
                 v = r["valid"][:, 0]
                 acc[2] = acc[2] + ((lg == GHOST_VISIBILITY) & v).sum()
@@ -315,7 +316,7 @@ def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
         z = np.load(p, allow_pickle=False)
         row = {"sequence": os.path.basename(p)}
         for mode in ("rules", "net"):
-            up = torch_frame.TorchUpscaler(float(z["scale"]), mode, tensors if mode == "net"
+            up = twin.TorchUpscaler(float(z["scale"]), mode, tensors if mode == "net"
                                            else None, device=device)
             se, n, since = 0.0, 0, 0
             for t in range(len(z["depth"])):
@@ -324,8 +325,8 @@ def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
                               tuple(z["jitter"][t]), reset=bool(z["reset"][t]))
                 if since >= warmup:
                     with torch.no_grad():
-                        a = torch_frame.pq_encode(torch.from_numpy(out))
-                        b = torch_frame.pq_encode(torch.from_numpy(z["reference"][t]))
+                        a = twin.pq_encode(torch.from_numpy(out))
+                        b = twin.pq_encode(torch.from_numpy(z["reference"][t]))
                     se += float(((a - b) ** 2).mean())
                     n += 1
             row[mode] = 10 * math.log10(1.0 / max(se / max(n, 1), 1e-12))
@@ -342,14 +343,14 @@ def export_checkpoint(out_dir):
     ck = torch.load(ckpt_path, weights_only=True)
     widths = tuple(int(ck["cls"][f"{n}.weight"].shape[0])
                    for n in ("stem", "down.0", "down.1", "down.2"))
-    cls = torch_frame.Classifier(widths)
-    comp = torch_frame.Composition(int(ck["comp"]["mlp.0.weight"].shape[0]))
+    cls = twin.Classifier(widths)
+    comp = twin.Composition(int(ck["comp"]["mlp.0.weight"].shape[0]))
     if "basis.A" in ck["cls"]:
-        torch_frame.use_basis(cls, comp)
+        twin.use_basis(cls, comp)
     cls.load_state_dict(ck["cls"])
     comp.load_state_dict(ck["comp"])
     out_path = os.path.join(out_dir, "weights.safetensors")
-    save_weights(torch_frame.tensors_from_networks(cls, comp), out_path)
+    save_weights(twin.tensors_from_networks(cls, comp), out_path)
     stage = STAGES[ck["stage"]] if ck["stage"] < len(STAGES) else "done"
     print(f"wrote {out_path} from the checkpoint (next: {stage} step {ck['step']})")
     return 0
@@ -357,7 +358,7 @@ def export_checkpoint(out_dir):
 
 def train(args):
     torch.set_num_threads(int(args.threads))
-    device = torch_frame.pick_device(args.device)
+    device = twin.pick_device(args.device)
     os.makedirs(args.out, exist_ok=True)
     ckpt_path = os.path.join(args.out, "checkpoint.pt")
     seqs = load_sequences(args.data, args.frames)
@@ -377,7 +378,7 @@ def train(args):
 
     torch.manual_seed(args.seed)
     init = load_weights(args.init) if args.init else None
-    cls, comp = torch_frame.networks_from_tensors(init, seed=args.seed)
+    cls, comp = twin.networks_from_tensors(init, seed=args.seed)
     if init is None:
         # the classifier's output conv starts at zero: its first logits are its biases'
         # (near uniform), not noise that Adam removes most cheaply by silencing the
@@ -385,7 +386,7 @@ def train(args):
         with torch.no_grad():
             cls.dec[-1].weight.zero_()
     if args.basis:
-        torch_frame.use_basis(cls, comp)
+        twin.use_basis(cls, comp)
     cls, comp = cls.to(device).to(memory_format=torch.channels_last), comp.to(device)
     steps = {"classifier": int(args.cls_steps), "composition": int(args.comp_steps)}
     log = {"settings": {k: v for k, v in vars(args).items() if k != "fn"},
@@ -416,7 +417,7 @@ def train(args):
         comp.requires_grad_(not train_cls)
         cls.train(train_cls)
         net = cls if train_cls else comp
-        step = torch_frame.FrameStep("net", (rsize, rsize), float(seqs[0]["scale"]), cls,
+        step = twin.FrameStep("net", (rsize, rsize), float(seqs[0]["scale"]), cls,
                                      None if train_cls else comp,
                                      blend="rule" if train_cls else "net",
                                      clip=not train_cls or args.ghost_labels != "generator",
@@ -472,7 +473,7 @@ def train(args):
                 t_ckpt = now
         opt_state = None
 
-    tensors = torch_frame.tensors_from_networks(cls, comp)
+    tensors = twin.tensors_from_networks(cls, comp)
     out_path = os.path.join(args.out, "weights.safetensors")
     save_weights(tensors, out_path)
     print(f"wrote {out_path}", flush=True)
@@ -566,3 +567,6 @@ def cmd_train(args):
     if not 0 < args.keep <= 1:
         raise TrainError(f"--keep: expected a fraction in (0, 1], got {args.keep}")
     return train(args)
+
+
+RECIPE = Recipe(add_arguments, cmd_train, __doc__)

@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from clss.methods.nsrd import networks as nets
 from clss.pipeline.contract import PQ_NITS
 
-from .trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
+from weights_tools.trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
 
 class NsrdNet(nn.Module):
