@@ -1,4 +1,4 @@
-"""The torch twin of NSRD (weights_tools/nsrd_torch.py) against the OpenCL frame step
+"""The torch twin of NSRD (weights_tools/methods/nsrd/twin.py) against the OpenCL frame step
 (clss/methods/nsrd/) over 9 frames with a reset at frame 4, at 4x and 2x (the no-mask
 ablation at 2x, the learned re-modulation at 4x): output within 1e-4 * max + 3e-4 * |ref| (fp32) on every pixel, the
 carried state (render-res history, output lighting, ConvLSTM h) within 2e-5."""

@@ -1,4 +1,4 @@
-"""The torch twin of NSRR (weights_tools/nsrr_torch.py) against the OpenCL frame step
+"""The torch twin of NSRR (weights_tools/methods/nsrr/twin.py) against the OpenCL frame step
 (clss/methods/nsrr/) over 9 frames with a reset at frame 4, in the zero and duplicate
 reset fills: output within 1e-4 * max + 3e-4 * |ref| (fp32) on every pixel, history
 within 1e-4."""

@@ -201,6 +201,21 @@ def test_train_method_without_recipe_says_why(capsys):
     assert "invalid choice" in capsys.readouterr().err
 
 
+def test_recipes_are_found_in_their_rooms():
+    """A method's training is its folder weights_tools/methods/<name>/ (twin.py, recipe.py
+    exporting RECIPE): `train` lists what it finds there, each a method of clss.methods."""
+    from clss import methods as runtime
+    from weights_tools import methods
+    assert {"clss", "mlp", "nsrr", "nsrd"} <= set(methods.names())
+    for name in methods.names():
+        assert name in runtime.names()
+        r = methods.recipe(name)
+        assert isinstance(r, methods.Recipe) and r.doc
+    assert methods.commands() == {"classifier": "weights_tools.methods.clss.classifier_report"}
+    with pytest.raises(KeyError, match="no training recipe for 'bicubic'"):
+        methods.recipe("bicubic")
+
+
 def test_trainloop_losses():
     import torch
     from weights_tools import trainloop
@@ -263,7 +278,7 @@ def test_classifier_report_scores_heads_rules_and_the_runtime_margin(tmp_path, c
 
 
 def test_visibility_oracle_hooks_and_cli(tmp_path, capsys):
-    """weights_tools.visibility_oracle: the generator hook rejects exactly the labelled
+    """weights_tools.methods.clss.visibility_oracle: the generator hook rejects exactly the labelled
     visibility pixels of the current frame; the useful hook exactly where the clipped
     history's squared error exceeds ratio x the upsample's plus the floor; the command
     prints a row per decision and writes them; a huge ratio never rejects, so it scores

@@ -1,5 +1,5 @@
-"""python -m weights_tools.visibility_oracle SEQ.npz ...: what CLSS's history decision could
-gain, with the answer known (issue 23).
+"""python -m weights_tools.methods.clss.visibility_oracle SEQ.npz ...: what CLSS's history
+decision could gain, with the answer known (issue 23).
 
 Runs the torch twin of the frame step (rule or net mode) over labelled sequences with its
 history decision (reject: drop the history and restart the counter, reference.md s7)
@@ -19,7 +19,8 @@ perfect classifier of the generator's labels would do to the picture, "useful" h
 perfect decision of the pipeline's own choice is worth.
 
 example:
-  python -m weights_tools.visibility_oracle out/data/heldout/seq_000[0-7].npz --mode net
+  python -m weights_tools.methods.clss.visibility_oracle out/data/heldout/seq_000[0-7].npz \
+      --mode net
 """
 from __future__ import annotations
 
@@ -144,7 +145,7 @@ def load(paths):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m weights_tools.visibility_oracle",
+    p = argparse.ArgumentParser(prog="python -m weights_tools.methods.clss.visibility_oracle",
                                 description=__doc__.split("\n\n")[0],
                                 epilog=__doc__.split("example:")[1].join(("example:", "")),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
