@@ -93,7 +93,7 @@ validation-data: $(STAMP)
 	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr weights_tools/validation --fp16 --check
 	$(BIN)/python -m weights_tools.blender.convert $(OUT)/validation-exr $(DATA)/validation
 
-# The shipped net-mode weights from scratch (recipe: weights_tools/train.py and
+# The shipped net-mode weights from scratch (recipe: weights_tools/methods/clss/recipe.py and
 # weights_tools/seeds.py): data, then the recipe trained with seeds $(TRAIN_SEEDS) (torch, the
 # [train] extra), each scored against rule mode, and the seed with the best PSNR on the
 # validation set copied into the package. The held-out and Blender scores are printed, not

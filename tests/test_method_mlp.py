@@ -119,7 +119,7 @@ def test_untrained_init_is_a_box_upscale(dev):
 @pytest.mark.parametrize("feature", [True, False])
 def test_torch_twin_matches_opencl(scale, feature, dev):
     pytest.importorskip("torch")
-    from weights_tools.mlp_torch import MlpNet, upscale
+    from weights_tools.methods.mlp.twin import MlpNet, upscale
     wts = _random_weights(11)
     color, dhr = _frame(scale, seed=4)
     name = "mlp" if feature else "mlp-nofeature"

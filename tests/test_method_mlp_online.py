@@ -1,6 +1,6 @@
 """Online training of the shader MLP upscaler on the device (clss/methods/mlp/online.py,
 kernels/mlp_train.cl): the gradients of forward + loss + backward against torch autograd on
-the same batch (the torch twin, weights_tools/mlp_torch.py), one and two Adam steps
+the same batch (the torch twin, weights_tools/methods/mlp/twin.py), one and two Adam steps
 against torch.optim.Adam, and a smoke online run through the Python API and the CLI.
 
 Tolerances (fp32): each gradient element within 1e-4 of the torch value relative to
@@ -58,7 +58,7 @@ def _unpack(flat):
 
 @pytest.mark.parametrize("scale,feature", [(2, True), (3, True), (2, False)])
 def test_gradients_match_torch_autograd(scale, feature, dev):
-    from weights_tools.mlp_torch import MlpNet
+    from weights_tools.methods.mlp.twin import MlpNet
     torch.set_num_threads(1)
     wts = _weights()
     color, ref, dhr = _frame(scale)
@@ -81,7 +81,7 @@ def test_gradients_match_torch_autograd(scale, feature, dev):
 
 
 def test_adam_steps_match_torch(dev):
-    from weights_tools.mlp_torch import MlpNet
+    from weights_tools.methods.mlp.twin import MlpNet
     torch.set_num_threads(1)
     wts = _weights(7)
     color, ref, dhr = _frame(2, seed=5)

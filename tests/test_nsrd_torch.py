@@ -1,4 +1,4 @@
-"""The torch twin of NSRD (weights_tools/nsrd_torch.py) against the OpenCL frame step
+"""The torch twin of NSRD (weights_tools/methods/nsrd/twin.py) against the OpenCL frame step
 (clss/methods/nsrd/) over 9 frames with a reset at frame 4, at 4x and 2x (the no-mask
 ablation at 2x, the learned re-modulation at 4x): output within 1e-4 * max + 3e-4 * |ref| (fp32) on every pixel, the
 carried state (render-res history, output lighting, ConvLSTM h) within 2e-5."""
@@ -13,7 +13,7 @@ import clss  # noqa: E402
 from clss.methods.nsrd import networks as nets  # noqa: E402
 from clss.pipeline.contract import to_internal, validate_frame  # noqa: E402
 from helpers import frames  # noqa: E402
-from weights_tools.nsrd_torch import NsrdNet, TorchStep  # noqa: E402
+from weights_tools.methods.nsrd.twin import NsrdNet, TorchStep  # noqa: E402
 
 RENDER = (13, 17)
 

@@ -1,4 +1,4 @@
-"""The torch twin of NSRR (weights_tools/nsrr_torch.py) against the OpenCL frame step
+"""The torch twin of NSRR (weights_tools/methods/nsrr/twin.py) against the OpenCL frame step
 (clss/methods/nsrr/) over 9 frames with a reset at frame 4, in the zero and duplicate
 reset fills: output within 1e-4 * max + 3e-4 * |ref| (fp32) on every pixel, history
 within 1e-4."""
@@ -13,7 +13,7 @@ import clss
 from clss.methods.nsrr import networks as nets
 from clss.pipeline.contract import to_internal, validate_frame
 from helpers import frames
-from weights_tools.nsrr_torch import NsrrNet, TorchStep, pq_decode, rgbd_of
+from weights_tools.methods.nsrr.twin import NsrrNet, TorchStep, pq_decode, rgbd_of
 
 RENDER = (13, 17)
 

@@ -1,4 +1,4 @@
-"""The PyTorch twin (weights_tools.torch_frame) against clss.Upscaler: what is trained is
+"""The PyTorch twin (weights_tools/methods/clss/twin.py) against clss.Upscaler: what is trained is
 what runs.
 
 Both run the same frames (clss.scene, 23x37 -> 46x74, padded to 48x80 for the
@@ -23,7 +23,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 from clss import Upscaler  # noqa: E402
-from weights_tools import torch_frame  # noqa: E402
+from weights_tools.methods.clss import twin as clss_twin  # noqa: E402
 from clss.networks import build_classifier, build_composition  # noqa: E402
 from clss.networks import apply_weights, model_weights  # noqa: E402
 
@@ -59,7 +59,7 @@ def test_twin_matches_upscaler(mode):
     if mode == "net":
         kw = dict(zip(("classifier", "composition"), _onnx_networks()))
     ours = Upscaler(2.0, mode="rules" if mode == "rule" else "net", **kw)
-    twin = torch_frame.TorchUpscaler(2.0, mode, weights=tensors, device="cpu")
+    twin = clss_twin.TorchUpscaler(2.0, mode, weights=tensors, device="cpu")
     for i, f in enumerate(frames()):
         reset = i == RESET_AT
         a = twin.step(f.color, f.depth, f.motion, f.jitter, reset=reset)
@@ -73,8 +73,8 @@ def test_twin_matches_upscaler(mode):
 def test_weights_round_trip():
     """Safetensors names -> torch modules -> the same tensors (shapes included)."""
     tensors = _seeded_tensors()
-    cls, comp = torch_frame.networks_from_tensors(tensors)
-    back = torch_frame.tensors_from_networks(cls, comp)
+    cls, comp = clss_twin.networks_from_tensors(tensors)
+    back = clss_twin.tensors_from_networks(cls, comp)
     assert sorted(back) == sorted(tensors)
     for k, v in tensors.items():
         assert back[k].shape == v.shape and np.array_equal(back[k], v), k
@@ -93,7 +93,7 @@ def test_space_to_depth_is_onnx_dcr():
     m = helper.make_model(g, opset_imports=[helper.make_opsetid("", 18)])
     m.ir_version = 10
     ref = ort.InferenceSession(m.SerializeToString()).run(None, {"x": x})[0]
-    got = torch_frame.space_to_depth(torch.from_numpy(x)).numpy()
+    got = clss_twin.space_to_depth(torch.from_numpy(x)).numpy()
     assert np.array_equal(got, ref)
 
 
@@ -101,8 +101,8 @@ def test_batch_equals_single():
     """Patches in a batch are independent: batch of 2 == two batches of 1."""
     torch.set_num_threads(2)
     seq = frames()[:3]
-    cls, comp = torch_frame.networks_from_tensors(_seeded_tensors())
-    step = torch_frame.FrameStep("net", RENDER, 2.0, cls, comp)
+    cls, comp = clss_twin.networks_from_tensors(_seeded_tensors())
+    step = clss_twin.FrameStep("net", RENDER, 2.0, cls, comp)
 
     def t(a, chw=True):
         a = torch.from_numpy(np.ascontiguousarray(a, np.float32))

@@ -79,7 +79,7 @@ def test_train_smoke(tiny_data, tmp_path, capsys):
     # they run in clss.Upscaler, agreeing with the torch twin
     from clss import Upscaler
     from clss.scene import render_sequence
-    from weights_tools.torch_frame import TorchUpscaler
+    from weights_tools.methods.clss.twin import TorchUpscaler
     up = Upscaler(2.0, mode="net", weights=os.path.join(out, "weights.safetensors"))
     twin = TorchUpscaler(2.0, "net", weights=trained, device="cpu")
     for f in render_sequence(3, (11, 13), 2.0, spp_ref=0):
@@ -105,7 +105,7 @@ def test_useful_ghost_labels_mark_where_the_history_is_worse():
     upsample's plus the floor; the generator's visibility becomes none, its shading stays;
     cost is |eh - eu| over its mean on valid pixels."""
     import torch
-    from weights_tools.train import useful_ghost_labels
+    from weights_tools.methods.clss.recipe import useful_ghost_labels
     ref = torch.zeros(1, 3, 1, 4)
     up = torch.full((1, 3, 1, 4), 0.1)
     hist = torch.tensor([0.0, 0.1, 0.2, 0.3]).view(1, 1, 1, 4).expand(1, 3, 1, 4)
@@ -201,6 +201,21 @@ def test_train_method_without_recipe_says_why(capsys):
     assert "invalid choice" in capsys.readouterr().err
 
 
+def test_recipes_are_found_in_their_rooms():
+    """A method's training is its folder weights_tools/methods/<name>/ (twin.py, recipe.py
+    exporting RECIPE): `train` lists what it finds there, each a method of clss.methods."""
+    from clss import methods as runtime
+    from weights_tools import methods
+    assert {"clss", "mlp", "nsrr", "nsrd"} <= set(methods.names())
+    for name in methods.names():
+        assert name in runtime.names()
+        r = methods.recipe(name)
+        assert isinstance(r, methods.Recipe) and r.doc
+    assert methods.commands() == {"classifier": "weights_tools.methods.clss.classifier_report"}
+    with pytest.raises(KeyError, match="no training recipe for 'bicubic'"):
+        methods.recipe("bicubic")
+
+
 def test_trainloop_losses():
     import torch
     from weights_tools import trainloop
@@ -230,7 +245,7 @@ def test_classifier_report_scores_heads_rules_and_the_runtime_margin(tmp_path, c
     both heads is a balanced accuracy in [0, 1] with its confusion counting the same valid
     pixels; the aliasing head's margin row is its argmax (the margin is the ghosting
     head's); the 2x2 bound is at least a constant's 1/3; one sequence is refused."""
-    from weights_tools import classifier_report as cr
+    from weights_tools.methods.clss import classifier_report as cr
     paths = []
     for k in range(2):
         p = str(tmp_path / f"s{k}.npz")
@@ -263,19 +278,19 @@ def test_classifier_report_scores_heads_rules_and_the_runtime_margin(tmp_path, c
 
 
 def test_visibility_oracle_hooks_and_cli(tmp_path, capsys):
-    """weights_tools.visibility_oracle: the generator hook rejects exactly the labelled
+    """weights_tools.methods.clss.visibility_oracle: the generator hook rejects exactly the labelled
     visibility pixels of the current frame; the useful hook exactly where the clipped
     history's squared error exceeds ratio x the upsample's plus the floor; the command
     prints a row per decision and writes them; a huge ratio never rejects, so it scores
     as the mode with its rejections turned off (a depth threshold above 1)."""
-    from weights_tools import visibility_oracle as vo
-    from weights_tools.torch_frame import TorchUpscaler
+    from weights_tools.methods.clss import visibility_oracle as vo
+    from weights_tools.methods.clss.twin import TorchUpscaler
     lab = np.array([[[0, 2], [1, 0]]], np.uint8)
     ref = np.full((1, 2, 2, 3), 0.5, np.float32)
     state = {"seq": {"label_ghost": lab, "reference": ref}, "t": 0, "nits": 10000.0}
     reject = torch.zeros(1, 1, 2, 2, dtype=torch.bool)
     assert vo.generator_hook(state)(reject, {}).view(-1).tolist() == [True, False, False, True]
-    from weights_tools.torch_frame import pq_encode
+    from weights_tools.methods.clss.twin import pq_encode
     r = pq_encode(torch.from_numpy(ref[0].transpose(2, 0, 1))[None], 10000.0)
     up = r + 0.01
     hist = r + torch.tensor([0.0, 0.01, 0.02, 0.05]).view(1, 1, 2, 2)

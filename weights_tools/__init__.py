@@ -1,6 +1,8 @@
-"""Training and conversion tools for the CLSS networks. The networks themselves (ONNX
-graphs with seeded weights, safetensors I/O, torch name import) live in clss.networks,
-re-exported here for the tools' users."""
+"""The tools above the runtime: data generation (scenegen, blender/), evaluation, and each
+method's training, one folder per method (methods/<name>/: its torch twin and recipe) on
+one loop (trainloop). The CLSS networks themselves (ONNX graphs with seeded weights,
+safetensors I/O, torch name import) live in clss.networks, re-exported here for the tools'
+users."""
 from clss.networks import (CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, COMPOSITION_CHANNELS,
                            COMPOSITION_INPUTS, DEFAULT_MLP_HIDDEN, DEFAULT_WIDTHS, LOGITS,
                            TORCH_NAME_MAP, WeightsError, apply_weights, build_classifier,

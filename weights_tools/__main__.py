@@ -142,8 +142,12 @@ def cmd_gen(args):
                                          in zip(names, stats["frequencies"][key])))
     return 0
 def _add_train(sub):
-    """`train` and `seeds` (the recipes, weights_tools/recipes.py) and `classifier` need
-    torch, the [train] extra; without it each says so instead of breaking the others."""
+    """`train` and `seeds` (the recipes, weights_tools/recipes.py) and the rooms' own
+    sub-commands (weights_tools.methods.commands(): CLSS's `classifier`) need torch, the
+    [train] extra; without it each says so instead of breaking the others."""
+    import importlib
+    from . import methods
+    commands = methods.commands()
     try:
         import torch  # noqa: F401
     except ModuleNotFoundError as e:
@@ -153,7 +157,7 @@ def _add_train(sub):
             print(f"error: {args.cmd} needs {missing} (pip install -e '.[train]')",
                   file=sys.stderr)
             return 1
-        for name in ("train", "seeds", "classifier"):
+        for name in ("train", "seeds", *commands):
             t = sub.add_parser(name, help=f"{name} (needs the [train] extra)")
             t.add_argument("rest", nargs=argparse.REMAINDER)
             t.set_defaults(fn=no_torch)
@@ -162,8 +166,8 @@ def _add_train(sub):
     add_train_parser(sub)
     from .seeds import add_parser as add_seeds
     add_seeds(sub)
-    from .classifier_report import add_parser as add_classifier
-    add_classifier(sub)
+    for module in commands.values():
+        importlib.import_module(module).add_parser(sub)
 
 
 def main(argv=None):

@@ -13,8 +13,8 @@ says little about a recipe.
 Each seed trains in its own process (`python -m weights_tools train --seed N`, the extra
 --train options appended; `--out/seed_N`, skipped when its weights.safetensors exists,
 resumed from its checkpoint otherwise), at most --jobs at once. Then each result is scored
-with the torch twin of the frame step (weights_tools.torch_frame, which the parity test
-holds to clss.Upscaler) on every --score group: PSNR and tPSNR of the display values, as
+with CLSS's torch twin of the frame step (weights_tools/methods/clss/twin.py, which the
+parity test holds to clss.Upscaler) on every --score group: PSNR and tPSNR of the display values, as
 `python -m weights_tools eval` scores them (warm-up --warmup frames after each reset), and
 the same for rule mode once. The table gives net - rules per seed and group, then the mean,
 standard deviation, worst and best over the seeds; seeds.json holds every figure.
@@ -134,7 +134,7 @@ def twin_record(seq, mode, weights, device, warmup, wrap=None, **kw):
     (evaluate.load_sequence's dict), FLIP left out.  kw: TorchUpscaler's; `wrap`: f(the
     Pipeline) -> the per-frame callable that runs it."""
     from .evaluate import Pipeline, evaluate_sequence
-    from .torch_frame import TorchUpscaler
+    from .methods.clss.twin import TorchUpscaler
     up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None, device=device,
                        **kw)
     run = Pipeline(up) if wrap is None else wrap(Pipeline(up))
@@ -259,9 +259,9 @@ def add_parser(sub):
                        description=__doc__.split("\n\n")[0],
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog=EXAMPLES)
-    from .recipes import RECIPES
-    p.add_argument("method", metavar="METHOD", choices=sorted(RECIPES),
-                   help=f"the method whose recipe is trained ({', '.join(sorted(RECIPES))}; "
+    from .methods import names
+    p.add_argument("method", metavar="METHOD", choices=names(),
+                   help=f"the method whose recipe is trained ({', '.join(names())}; "
                         "without it, clss)")
     p.add_argument("--data", required=True, help="training sequences (DATA.md .npz folder)")
     p.add_argument("--out", required=True, help="folder for seed_N/ runs and seeds.json")

@@ -1,14 +1,25 @@
-"""What every method's training shares (`python -m weights_tools train METHOD`): the
-reading of DATA.md sequences, the learning-rate schedule, progress lines, loss.png,
-atomic checkpoints, and the losses the papers use (L1, SSIM, temporal). A method's recipe
-(weights_tools/train.py for CLSS) adds only its networks, its own losses and its steps.
+"""The one training loop of every method (`python -m weights_tools train METHOD`): Run
+owns the seeding, resume, optimiser, learning-rate schedule, checkpoints and logging
+(progress lines, loss.png, train.json); beside it the reading of DATA.md sequences and the
+losses the papers use (L1, SSIM, temporal). A method's recipe
+(weights_tools/methods/<name>/recipe.py) gives only its model, its data and its loss:
+
+    run = Run(args, stages=("nsrr",))        # seeds torch; reads --out/checkpoint.pt on --resume
+    net = ...                                # the model, built after the seeding
+    run.track(net=net)                       # checkpointed from now on (restored on --resume)
+    rng = run.batch_rng("nsrr")              # the data's generator (see batch_rng, step_rng)
+    run.fit("nsrr", net.parameters(), lr=..., steps=..., loss=lambda it: (value, {parts}))
+    ...write the weights...; run.write_log()
 
 Needs torch (the [train] extra)."""
 from __future__ import annotations
 
 import glob
+import json
 import math
 import os
+import pickle
+import time
 
 import numpy as np
 import torch
@@ -126,6 +137,179 @@ def save_checkpoint(path, state):
     tmp = path + ".tmp"
     torch.save(state, tmp)
     os.replace(tmp, path)
+
+
+# ---- the run: seeding, resume, optimiser, schedule, checkpoints, logging ----------------------
+
+def add_arguments(p, threads=1, weights="weights.safetensors"):
+    """The options every recipe has, because Run reads them: --out, --seed, --threads,
+    --resume (`weights`: the file the recipe writes in --out, for the help)."""
+    p.add_argument("--out", required=True, help=f"directory for checkpoint.pt, loss.png, "
+                                                f"train.json and {weights}")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seeds the initial weights (torch) and the batches (numpy)")
+    p.add_argument("--threads", type=int, default=threads,
+                   help=f"torch CPU threads (default {threads}; the thread count changes the "
+                        "float results)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue from --out/checkpoint.pt (a run without one starts afresh); "
+                        "--steps may change")
+
+
+class Run:
+    """One training run in `args.out` (checkpoint.pt, loss.png, train.json), in `stages`,
+    each one optimiser's steps.
+
+    Seeding: torch's global generator from --seed when the run is made, before the recipe
+    builds its networks; the batches from numpy generators that batch_rng and step_rng
+    derive from --seed.  Resume (--resume): the checkpoint holds every tracked model, the
+    optimiser of the stage it was written in, the stage and its next step, and the log;
+    --steps may change on resume (a finished stage with more steps goes on).  Optimiser:
+    Adam, the learning rate decayed by lr_cosine after an optional linear warm-up, set before
+    every step.  Logging: a progress line every PROGRESS_S (and on the first and last step),
+    loss.png every PLOT_S, a checkpoint every CHECKPOINT_S and at the end of a stage, and
+    train.json (write_log): settings, losses per stage, each step's `parts`, seconds per
+    step, total seconds, and what the recipe adds to `log`."""
+
+    def __init__(self, args, stages, quiet=False):
+        self.out, self.seed, self.stages = args.out, int(args.seed), tuple(stages)
+        self.quiet = quiet
+        torch.set_num_threads(max(1, int(args.threads)))
+        torch.manual_seed(self.seed)
+        os.makedirs(self.out, exist_ok=True)
+        self.path = os.path.join(self.out, "checkpoint.pt")
+        self.log = {"settings": {k: v for k, v in vars(args).items() if k != "fn"},
+                    "losses": {s: [] for s in self.stages}, "parts": [], "step_s": {},
+                    "seconds": 0.0}
+        self.models = {}
+        self.at = (0, 0)            # (stage index, step) the run goes on from
+        self.stopped = False        # fit's max_seconds ran out: the later stages do not run
+        self._opt_state = None
+        self._ck = None
+        if args.resume:
+            if os.path.isfile(self.path):
+                try:
+                    self._ck = torch.load(self.path, weights_only=True)
+                except (pickle.UnpicklingError, RuntimeError, EOFError) as e:
+                    raise TrainError(f"--resume: {self.path} is not a checkpoint "
+                                     f"({str(e).splitlines()[0]})") from None
+                if not isinstance(self._ck, dict) or "models" not in self._ck:
+                    raise TrainError(f"--resume: {self.path} was written by an older version "
+                                     "of the recipe (retrain, or check out that version)")
+            else:
+                print(f"--resume: no checkpoint in {self.out}, starting afresh", flush=True)
+
+    def track(self, **models):
+        """The modules checkpointed under these names; on --resume their state (and where
+        the run stood) is restored from the checkpoint here."""
+        self.models = models
+        ck = self._ck
+        if ck is None:
+            return
+        missing = sorted(set(models) - set(ck["models"]))
+        if missing:
+            raise TrainError(f"--resume: {self.path} holds no {', '.join(missing)}")
+        for name, m in models.items():
+            m.load_state_dict(ck["models"][name])
+        settings = self.log["settings"]
+        self.log = json.loads(ck["log"])
+        self.log["settings"] = settings
+        self.at, self._opt_state = (int(ck["stage"]), int(ck["step"])), ck["opt"]
+        print(f"resumed from {self.path}: {self.stages[self.at[0]]} step {self.at[1]}",
+              flush=True)
+
+    def first_step(self, stage):
+        """The step `stage` starts from: the checkpoint's in its stage, else 0 (a stage
+        before the checkpoint's: done)."""
+        si = self.stages.index(stage)
+        return self.at[1] if si == self.at[0] else (0 if si > self.at[0] else math.inf)
+
+    def todo(self, stage, steps):
+        """Whether `stage` has steps left (of `steps`)."""
+        return not self.stopped and self.first_step(stage) < steps
+
+    def batch_rng(self, stage):
+        """A generator that draws one stage's batches in turn: default_rng(seed) from step 0,
+        default_rng([seed, step]) from a resumed step (so a resumed run draws other batches
+        than an uninterrupted one would)."""
+        first = self.first_step(stage)
+        return np.random.default_rng(self.seed if not first else [self.seed, int(first)])
+
+    def step_rng(self, stage, step):
+        """A generator for one step's batch, default_rng([seed, stage + 1, step]): a resumed
+        run draws the same batches as an uninterrupted one."""
+        return np.random.default_rng([self.seed, self.stages.index(stage) + 1, step])
+
+    def fit(self, stage, params, *, lr, steps, loss, warmup=0, clip=None, progress=None,
+            max_seconds=None):
+        """Adam on `params` for `stage`'s steps (from where the run stands). `loss(step)` ->
+        (the loss tensor, {name: float} parts logged with it); `clip`: the gradient norm's
+        bound; `progress()` -> text added to the progress lines; `max_seconds`: stop after
+        this many seconds of the run (all its resumes), checkpointed, `stopped` set."""
+        if not self.todo(stage, steps):
+            return
+        si, first = self.stages.index(stage), self.first_step(stage)
+        params = list(params)
+        opt = torch.optim.Adam(params, lr=lr)
+        if self._opt_state is not None and si == self.at[0]:
+            opt.load_state_dict(self._opt_state)
+        losses = self.log["losses"].setdefault(stage, [])
+        spent = self.log.get("seconds", 0.0)
+        t_start = t_print = t_ckpt = t_plot = time.time()
+        for it in range(first, steps):
+            rate = lr_cosine(lr, it, steps)
+            if it < warmup:
+                rate *= (it + 1) / warmup
+            for g in opt.param_groups:
+                g["lr"] = rate
+            value, parts = loss(it)
+            opt.zero_grad(set_to_none=True)
+            value.backward()
+            if clip is not None:
+                torch.nn.utils.clip_grad_norm_(params, clip)
+            opt.step()
+            lv = float(value.detach())
+            if not math.isfinite(lv):
+                raise RuntimeError(f"{stage} step {it}: loss is {lv}")
+            losses.append(lv)
+            if parts:
+                self.log["parts"].append(parts)
+            now = time.time()
+            self.log["seconds"] = spent + now - t_start
+            last = it + 1 == steps
+            self.stopped = bool(max_seconds) and self.log["seconds"] > max_seconds and not last
+            done = it + 1 - first
+            if now - t_print >= PROGRESS_S or last or self.stopped or done == 1:
+                per_s = done / max(now - t_start, 1e-9)
+                self.log["step_s"][stage] = 1.0 / per_s
+                if not self.quiet:
+                    extra = "".join(f"  {k} {v:.4f}" for k, v in parts.items())
+                    extra += progress() if progress is not None else ""
+                    print(f"[{stage}] step {it + 1}/{steps}  loss {lv:.4f} (last 20: "
+                          f"{np.mean(losses[-20:]):.4f}){extra}  {per_s:.2f} it/s  "
+                          f"elapsed {fmt_s(self.log['seconds'])}  "
+                          f"ETA {fmt_s((steps - it - 1) / per_s)}", flush=True)
+                t_print = now
+            if now - t_plot >= PLOT_S or last or self.stopped:
+                plot_losses(self.log["losses"], os.path.join(self.out, "loss.png"), self.stages)
+                t_plot = now
+            if now - t_ckpt >= CHECKPOINT_S or last or self.stopped:
+                self._checkpoint(si, it + 1, opt)
+                t_ckpt = now
+            if self.stopped:
+                print(f"stopped after {fmt_s(self.log['seconds'])} at {stage} step {it + 1}",
+                      flush=True)
+                break
+
+    def _checkpoint(self, si, step, opt):
+        save_checkpoint(self.path, {"stage": si, "step": step, "opt": opt.state_dict(),
+                                    "models": {n: m.state_dict() for n, m in self.models.items()},
+                                    "log": json.dumps(self.log)})
+
+    def write_log(self):
+        """train.json: the log (settings, losses, parts, seconds, and the recipe's keys)."""
+        with open(os.path.join(self.out, "train.json"), "w") as f:
+            json.dump(self.log, f, indent=1)
 
 
 # ---- losses ---------------------------------------------------------------------------------

@@ -6,7 +6,7 @@ import sys, glob, os, json
 sys.path.insert(0, '.')
 import numpy as np, torch; torch.set_num_threads(1); torch.manual_seed(0)
 from weights_tools.evaluate import Pipeline, evaluate_sequence, load_sequence
-from weights_tools.torch_frame import TorchUpscaler, pq_encode, PQ_NITS
+from weights_tools.methods.clss.twin import TorchUpscaler, pq_encode, PQ_NITS
 W = 'clss/weights/clss_trained.safetensors'
 from clss.networks import load_weights
 w = load_weights(W)
@@ -31,7 +31,7 @@ def run(paths, hook_factory):
     return np.mean(rows, 0).round(3).tolist()
 def useful(st, ctx):
     ref = pq_encode(torch.from_numpy(np.ascontiguousarray(st["seq"]["reference"][st["t"]].transpose(2, 0, 1)))[None], PQ_NITS)
-    from weights_tools.train import history_worse
+    from weights_tools.methods.clss.recipe import history_worse
     bad, eh, eu = history_worse(ctx["hist_clipped"], ctx["up"], ref, 2.0, 1e-3)
     return bad[:, None], eh[:, None], eu[:, None]
 # 1) collect on val with the oracle decision running (so the history is the oracle's)

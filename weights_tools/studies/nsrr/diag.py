@@ -4,8 +4,8 @@ un.8 bias mean, and the PSNR gain of the output over the base on the batch."""
 import sys, argparse, numpy as np, torch, torch.nn.functional as F
 sys.path.insert(0, ".")
 from clss.methods.nsrr import networks as nets
-from weights_tools import nsrr_train as T
-from weights_tools.nsrr_torch import NsrrNet, TorchStep
+from weights_tools.methods.nsrr import recipe as T
+from weights_tools.methods.nsrr.twin import NsrrNet, TorchStep
 from weights_tools.trainloop import load_sequences, ssim
 ap = argparse.ArgumentParser()
 ap.add_argument("--data", default="out/data/train4"); ap.add_argument("--steps", type=int, default=60)

@@ -3,7 +3,7 @@ metric) and tonemapped (eval's), torch twin: is the batch gain real on held-out?
 import sys, glob, numpy as np, torch
 from clss.methods.nsrr import networks as nets
 from clss import metrics
-from weights_tools.nsrr_torch import NsrrNet, TorchStep, rgbd_of, pq_decode, pq_encode
+from weights_tools.methods.nsrr.twin import NsrrNet, TorchStep, rgbd_of, pq_decode, pq_encode
 from clss.pipeline.contract import to_internal, validate_frame
 torch.set_num_threads(1)
 ck, pattern = sys.argv[1], sys.argv[2]

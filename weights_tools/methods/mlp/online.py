@@ -4,8 +4,8 @@ every frame trains the network on the device while it upscales; the second half 
 trained on) is scored after 0, 1, 2, 4, ..., `frames` training frames, against bicubic and,
 if given, the per-scene offline weights (`train mlp --scene SEQ --score`).
 
-    python -m weights_tools.mlp_online SEQ.npz --out DIR [--frames 64] [--start shipped|scratch|FILE]
-        [--steps K] [--batch P] [--lr LR] [--offline FILE]
+    python -m weights_tools.methods.mlp.online SEQ.npz --out DIR [--frames 64]
+        [--start shipped|scratch|FILE] [--steps K] [--batch P] [--lr LR] [--offline FILE]
 
 Writes DIR/online.json and DIR/online.png (second-half PSNR and training loss against
 frame number).
@@ -21,7 +21,7 @@ import numpy as np
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m weights_tools.mlp_online")
+    p = argparse.ArgumentParser(prog="python -m weights_tools.methods.mlp.online")
     p.add_argument("seq")
     p.add_argument("--out", required=True)
     p.add_argument("--frames", type=int, default=64)
@@ -34,7 +34,7 @@ def main(argv=None):
     a = p.parse_args(argv)
     import clss
     from clss.device import get_device
-    from weights_tools.mlp_train import score_second_half
+    from .recipe import score_second_half
     os.makedirs(a.out, exist_ok=True)
     seq = np.load(a.seq)
     T = seq["color"].shape[0]

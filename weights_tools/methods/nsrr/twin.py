@@ -1,8 +1,8 @@
 """The torch twin of the NSRR frame step (clss/methods/nsrr/): the same networks under the
 same weight names (fe.*, rw.*, un.*), the same zero-upsampling, motion upsampling,
 accumulative warp and reset fills, differentiable, batched. tests/test_nsrr_torch.py
-holds it to the OpenCL step over frames with a reset; weights_tools/nsrr_train.py trains
-it and writes the .safetensors file the OpenCL step loads.
+holds it to the OpenCL step over frames with a reset; weights_tools/methods/nsrr/recipe.py
+trains it and writes the .safetensors file the OpenCL step loads.
 
 Tensors are NCHW float32 in the step's internal domain: rgbd = PQ colour + reversed-Z
 depth, motion in render pixels, the history [N, 12*n_prev, H, W].
@@ -20,7 +20,7 @@ from clss.methods.nsrr.oracle import zu_index
 from clss.pipeline.twin import base_grid
 from clss.pipeline.contract import PQ_NITS, output_size
 
-from .trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
+from weights_tools.trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
 FEAT = nets.FEAT
 

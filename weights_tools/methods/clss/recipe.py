@@ -13,7 +13,7 @@ leaves open (ours, marked *):
   pixels labelled ghosting or aliasing, and the top --keep (25 %) kept.  The first frame
   of a window is a reset, as are the data's own cuts.
 * Recurrent training: every step runs the whole window through the torch twin of the
-  frame step (torch_frame.FrameStep), the state carried with gradients (BPTT over all
+  frame step (twin.FrameStep), the state carried with gradients (BPTT over all
   frames); the loss is applied to every frame.  *Pixels whose history is invalid (reset,
   or motion leaving the patch) carry no loss: the pipeline overrides every decision
   there, so they only add noise.
@@ -51,29 +51,28 @@ leaves open (ours, marked *):
   uninterrupted one.
 * Network widths: clss.networks defaults (16, 32, 64, 128; MLP 32).
 
-Progress lines every few seconds, loss.png (matplotlib) refreshed as it goes, a
-checkpoint (checkpoint.pt, torch's weights_only format) every minute and at the end of
-each stage; --resume continues from it.  The result: weights.safetensors in --out (the
-names of clss.networks; `clss.Upscaler(mode="net", weights=PATH)` runs it) and
-train.json (settings, class weights, per-step times, losses, held-out PSNR).
+The loop (weights_tools/trainloop.py): progress lines every few seconds, loss.png
+(matplotlib) refreshed as it goes, a checkpoint (checkpoint.pt, torch's weights_only
+format) every minute and at the end of each stage; --resume continues from it.  The
+result: weights.safetensors in --out (the names of clss.networks;
+`clss.Upscaler(mode="net", weights=PATH)` runs it) and train.json (settings, class
+weights, per-step times, losses, held-out PSNR).
 """
 from __future__ import annotations
 
 import argparse
 import glob
-import json
 import math
 import os
-import time
 
 import numpy as np
 import torch
 
-from . import torch_frame
-from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, lr_cosine,
-                        save_checkpoint)
-from .trainloop import load_sequences as _load_sequences
-from .trainloop import plot_losses as _plot_losses
+from weights_tools.methods import Recipe
+from . import twin
+from weights_tools.trainloop import Run, TrainError
+from weights_tools.trainloop import add_arguments as add_run_arguments
+from weights_tools.trainloop import load_sequences as _load_sequences
 from clss.networks import load_weights, save_weights
 from clss.pipeline.contract import VIS_MARGIN
 
@@ -93,7 +92,7 @@ def load_sequences(data_dir, frames):
     arrays (reference PQ-encoded in float16 to halve the memory)."""
     def prepare(s):
         with torch.no_grad():
-            s["reference"] = torch_frame.pq_encode(torch.from_numpy(s["reference"])).numpy() \
+            s["reference"] = twin.pq_encode(torch.from_numpy(s["reference"])).numpy() \
                 .astype(np.float16)
     return _load_sequences(data_dir, frames, REQUIRED, prepare)
 
@@ -230,7 +229,7 @@ def useful_ghost_labels(r, lg, ref_pq, ratio, floor, cost=False):
     `cost` also each pixel's weight.  The generator's visibility (the exact previous
     geometry, 1 % depth tolerance) lies mostly on edges whose clipped history beats the
     current frame: rejecting exactly those gains 0.14 dB on held-out, rejecting these 1.2
-    (weights_tools.visibility_oracle, issue 23)."""
+    (visibility_oracle.py beside this file, issue 23)."""
     with torch.no_grad():
         worse, eh, eu = history_worse(r["blend_hist"], r["up"], ref_pq, ratio, floor)
         rest = torch.where(lg == GHOST_VISIBILITY, torch.full_like(lg, GHOST_NONE), lg)
@@ -277,7 +276,7 @@ def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0, detach=Fal
         lg, la = batch["label_ghost"][t], batch["label_alias"][t]
         if stage == "classifier":
             if useful is not None:
-                ref_pq = torch_frame.pq_encode(batch["reference"][t], step.nits)
+                ref_pq = twin.pq_encode(batch["reference"][t], step.nits)
                 lg, cost = useful_ghost_labels(r, lg, ref_pq, *useful)
                 v = r["valid"][:, 0]
                 acc[2] = acc[2] + ((lg == GHOST_VISIBILITY) & v).sum()
@@ -301,10 +300,6 @@ def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0, detach=Fal
 
 # ---- the run -----------------------------------------------------------------------------
 
-def plot_losses(history, path):
-    _plot_losses(history, path, STAGES)
-
-
 def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
     """PSNR (PQ domain, frames after `warmup` following a reset) of rules and net (the
     trained `tensors`) on up to `max_sequences` held-out sequences: a sanity check, the
@@ -315,7 +310,7 @@ def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
         z = np.load(p, allow_pickle=False)
         row = {"sequence": os.path.basename(p)}
         for mode in ("rules", "net"):
-            up = torch_frame.TorchUpscaler(float(z["scale"]), mode, tensors if mode == "net"
+            up = twin.TorchUpscaler(float(z["scale"]), mode, tensors if mode == "net"
                                            else None, device=device)
             se, n, since = 0.0, 0, 0
             for t in range(len(z["depth"])):
@@ -324,8 +319,8 @@ def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
                               tuple(z["jitter"][t]), reset=bool(z["reset"][t]))
                 if since >= warmup:
                     with torch.no_grad():
-                        a = torch_frame.pq_encode(torch.from_numpy(out))
-                        b = torch_frame.pq_encode(torch.from_numpy(z["reference"][t]))
+                        a = twin.pq_encode(torch.from_numpy(out))
+                        b = twin.pq_encode(torch.from_numpy(z["reference"][t]))
                     se += float(((a - b) ** 2).mean())
                     n += 1
             row[mode] = 10 * math.log10(1.0 / max(se / max(n, 1), 1e-12))
@@ -340,26 +335,27 @@ def export_checkpoint(out_dir):
     if not os.path.isfile(ckpt_path):
         raise TrainError(f"--export: no checkpoint.pt in {out_dir}")
     ck = torch.load(ckpt_path, weights_only=True)
-    widths = tuple(int(ck["cls"][f"{n}.weight"].shape[0])
+    if "models" not in ck:
+        raise TrainError(f"--export: {ckpt_path} was written by an older version of the recipe")
+    sd_cls, sd_comp = ck["models"]["cls"], ck["models"]["comp"]
+    widths = tuple(int(sd_cls[f"{n}.weight"].shape[0])
                    for n in ("stem", "down.0", "down.1", "down.2"))
-    cls = torch_frame.Classifier(widths)
-    comp = torch_frame.Composition(int(ck["comp"]["mlp.0.weight"].shape[0]))
-    if "basis.A" in ck["cls"]:
-        torch_frame.use_basis(cls, comp)
-    cls.load_state_dict(ck["cls"])
-    comp.load_state_dict(ck["comp"])
+    cls = twin.Classifier(widths)
+    comp = twin.Composition(int(sd_comp["mlp.0.weight"].shape[0]))
+    if "basis.A" in sd_cls:
+        twin.use_basis(cls, comp)
+    cls.load_state_dict(sd_cls)
+    comp.load_state_dict(sd_comp)
     out_path = os.path.join(out_dir, "weights.safetensors")
-    save_weights(torch_frame.tensors_from_networks(cls, comp), out_path)
-    stage = STAGES[ck["stage"]] if ck["stage"] < len(STAGES) else "done"
-    print(f"wrote {out_path} from the checkpoint (next: {stage} step {ck['step']})")
+    save_weights(twin.tensors_from_networks(cls, comp), out_path)
+    print(f"wrote {out_path} from the checkpoint (written at {STAGES[ck['stage']]} step "
+          f"{ck['step']})")
     return 0
 
 
 def train(args):
-    torch.set_num_threads(int(args.threads))
-    device = torch_frame.pick_device(args.device)
-    os.makedirs(args.out, exist_ok=True)
-    ckpt_path = os.path.join(args.out, "checkpoint.pt")
+    run = Run(args, STAGES)
+    device = twin.pick_device(args.device)
     seqs = load_sequences(args.data, args.frames)
     rsize, osize = patch_size(seqs, args.patch)
     rng = np.random.default_rng([args.seed, 0])
@@ -375,9 +371,8 @@ def train(args):
                       dtype=torch.float32, device=device)
     wa = torch.tensor(cw["alias"]["weight"], dtype=torch.float32, device=device)
 
-    torch.manual_seed(args.seed)
     init = load_weights(args.init) if args.init else None
-    cls, comp = torch_frame.networks_from_tensors(init, seed=args.seed)
+    cls, comp = twin.networks_from_tensors(init, seed=args.seed)
     if init is None:
         # the classifier's output conv starts at zero: its first logits are its biases'
         # (near uniform), not noise that Adam removes most cheaply by silencing the
@@ -385,117 +380,58 @@ def train(args):
         with torch.no_grad():
             cls.dec[-1].weight.zero_()
     if args.basis:
-        torch_frame.use_basis(cls, comp)
+        twin.use_basis(cls, comp)
     cls, comp = cls.to(device).to(memory_format=torch.channels_last), comp.to(device)
+    run.track(cls=cls, comp=comp)
+    run.log.update(patches=len(items), patch_output_px=osize, class_weights=cw)
     steps = {"classifier": int(args.cls_steps), "composition": int(args.comp_steps)}
-    log = {"settings": {k: v for k, v in vars(args).items() if k != "fn"},
-           "patches": len(items), "patch_output_px": osize, "class_weights": cw,
-           "losses": {s: [] for s in STAGES}, "parts": [], "step_s": {}}
-    start = {"stage": 0, "step": 0}
-    opt_state = None
-    if args.resume and os.path.isfile(ckpt_path):
-        ck = torch.load(ckpt_path, weights_only=True)
-        cls.load_state_dict(ck["cls"])
-        comp.load_state_dict(ck["comp"])
-        log = json.loads(ck["log"])
-        log["settings"] = {k: v for k, v in vars(args).items() if k != "fn"}
-        start, opt_state = {"stage": ck["stage"], "step": ck["step"]}, ck["opt"]
-        print(f"resumed from {ckpt_path}: {STAGES[start['stage']]} step {start['step']}",
-              flush=True)
-    elif args.resume:
-        print(f"--resume: no checkpoint in {args.out}, starting afresh", flush=True)
 
     useful = ((args.useful_ratio, args.useful_floor, args.ghost_labels == "cost")
               if args.ghost_labels in ("useful", "cost") else None)
-    for si, stage in enumerate(STAGES):
-        if si < start["stage"]:
+    for stage in STAGES:
+        if not run.todo(stage, steps[stage]):
             continue
-        first = start["step"] if si == start["stage"] else 0
         train_cls = stage == "classifier"
         cls.requires_grad_(train_cls)
         comp.requires_grad_(not train_cls)
         cls.train(train_cls)
-        net = cls if train_cls else comp
-        step = torch_frame.FrameStep("net", (rsize, rsize), float(seqs[0]["scale"]), cls,
-                                     None if train_cls else comp,
-                                     blend="rule" if train_cls else "net",
-                                     clip=not train_cls or args.ghost_labels != "generator",
-                                     cap=args.cap,
-                                     vis_margin=args.vis_margin).to(device)
-        lr = args.cls_lr if train_cls else args.lr
-        opt = torch.optim.Adam(net.parameters(), lr=lr)
-        if opt_state is not None and si == start["stage"]:
-            opt.load_state_dict(opt_state)
-        total = steps[stage]
-        t_start = t_print = t_ckpt = t_plot = time.time()
-        done_here = 0
-        for it in range(first, total):
-            g = np.random.default_rng([args.seed, si + 1, it])
+        step = twin.FrameStep("net", (rsize, rsize), float(seqs[0]["scale"]), cls,
+                              None if train_cls else comp,
+                              blend="rule" if train_cls else "net",
+                              clip=not train_cls or args.ghost_labels != "generator",
+                              cap=args.cap, vis_margin=args.vis_margin).to(device)
+
+        def loss(it, stage=stage, step=step):
+            g = run.step_rng(stage, it)
             pick = g.choice(len(items), size=min(args.batch, len(items)), replace=False)
             batch = make_batch(seqs, [items[i] for i in pick], rsize, args.frames, device)
-            for pg in opt.param_groups:
-                pg["lr"] = lr_cosine(lr, it, total)
-            loss, parts = run_window(step, batch, stage, wg, wa, args.weight_loss,
-                                     detach=stage == "classifier" and args.cls_detach,
-                                     false_ghost_weight=args.false_ghost_weight,
-                                     useful=useful)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            lv = float(loss.detach())
-            if not math.isfinite(lv):
-                raise RuntimeError(f"{stage} step {it}: loss is {lv}")
-            log["losses"][stage].append(lv)
-            if parts:
-                log["parts"].append(parts)
-            done_here += 1
-            now = time.time()
-            last = it + 1 == total
-            if now - t_print >= PROGRESS_S or last or done_here == 1:
-                rate = done_here / max(now - t_start, 1e-9)
-                recent = np.mean(log["losses"][stage][-20:])
-                extra = "".join(f"  {k} {v:.4f}" for k, v in parts.items())
-                print(f"[{stage}] step {it + 1}/{total}  loss {lv:.4f} (last 20: {recent:.4f})"
-                      f"{extra}  {rate:.2f} it/s  ETA {fmt_s((total - it - 1) / rate)}",
-                      flush=True)
-                t_print = now
-                log["step_s"][stage] = 1.0 / rate
-            if now - t_plot >= PLOT_S or last:
-                plot_losses(log["losses"], os.path.join(args.out, "loss.png"))
-                t_plot = now
-            if now - t_ckpt >= CHECKPOINT_S or last:
-                nxt = (si, it + 1) if not last else (si + 1, 0)
-                save_checkpoint(ckpt_path, {"stage": nxt[0], "step": nxt[1],
-                                             "cls": cls.state_dict(), "comp": comp.state_dict(),
-                                             "opt": opt.state_dict() if not last else None,
-                                             "log": json.dumps(log)})
-                t_ckpt = now
-        opt_state = None
+            return run_window(step, batch, stage, wg, wa, args.weight_loss,
+                              detach=stage == "classifier" and args.cls_detach,
+                              false_ghost_weight=args.false_ghost_weight, useful=useful)
+        run.fit(stage, (cls if train_cls else comp).parameters(), steps=steps[stage], loss=loss,
+                lr=args.cls_lr if train_cls else args.lr)
 
-    tensors = torch_frame.tensors_from_networks(cls, comp)
+    tensors = twin.tensors_from_networks(cls, comp)
     out_path = os.path.join(args.out, "weights.safetensors")
     save_weights(tensors, out_path)
     print(f"wrote {out_path}", flush=True)
     if args.heldout:
         rows = psnr_table(args.heldout, tensors, device=device)
-        log["heldout_psnr_pq"] = rows
+        run.log["heldout_psnr_pq"] = rows
         print("held-out PSNR (PQ domain, dB)   rules     net")
         for r in rows:
             print(f"  {r['sequence']:28s} {r['rules']:8.2f} {r['net']:8.2f}")
         if rows:
             print(f"  {'mean':28s} {np.mean([r['rules'] for r in rows]):8.2f} "
                   f"{np.mean([r['net'] for r in rows]):8.2f}", flush=True)
-    with open(os.path.join(args.out, "train.json"), "w") as f:
-        json.dump(log, f, indent=1)
+    run.write_log()
     return 0
 
 
 def add_arguments(t):
     """The CLSS recipe's options (`train clss ...`)."""
     t.add_argument("--data", required=True, help="directory of DATA.md .npz sequences")
-    t.add_argument("--out", required=True, help="directory for checkpoints, loss.png, "
-                                                "weights.safetensors, train.json")
-    t.add_argument("--seed", type=int, default=0)
+    add_run_arguments(t, threads=2)
     # Defaults: the shipped recipe (issue 23), about 12 minutes of steps per seed on one
     # thread of this 2-core machine. 1200 composition steps instead of 400 gave, from the
     # same classifier, +0.03 / +0.21 / -0.11 / +0.17 dB on val / held-out / foliage /
@@ -507,7 +443,7 @@ def add_arguments(t):
                         "(all) or over the pixels that carry the loss (valid, the shipped "
                         "recipe: not a reset, motion inside the patch)")
     t.add_argument("--basis", action=argparse.BooleanOptionalAction, default=True,
-                   help="train on the normalised input basis (torch_frame: colours as "
+                   help="train on the normalised input basis (twin.py: colours as "
                         "differences to the current one, depth and motion at unit scale), "
                         "folded back into the shipped weights' raw basis at export "
                         "(default: on)")
@@ -542,12 +478,10 @@ def add_arguments(t):
                    help="net mode's counter cap while training (default: the runtime's)")
     t.add_argument("--weight-loss", type=float, default=1.0,
                    help="factor of the blend-weight L1 term of the composition loss")
-    t.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     t.add_argument("--device", default=None, help="torch device (default: cuda if present)")
     t.add_argument("--init", default=None, help="start from these weights (.safetensors)")
     t.add_argument("--heldout", default=None,
                    help="directory of held-out sequences: print rules/net PSNR at the end")
-    t.add_argument("--resume", action="store_true", help="continue from --out/checkpoint.pt")
     t.add_argument("--export", action="store_true",
                    help="only write --out/weights.safetensors from its checkpoint, no training")
 
@@ -566,3 +500,6 @@ def cmd_train(args):
     if not 0 < args.keep <= 1:
         raise TrainError(f"--keep: expected a fraction in (0, 1], got {args.keep}")
     return train(args)
+
+
+RECIPE = Recipe(add_arguments, cmd_train, __doc__)

@@ -1,7 +1,8 @@
 """The torch twin of the NSRD frame step (clss/methods/nsrd/): the same network under the
 same weight names, the same demodulation, depth-test mask, accumulative warps, sub-pixel
 output and re-modulation, differentiable and batched. tests/test_nsrd_torch.py holds it
-to the OpenCL step over frames with a reset; weights_tools/nsrd_train.py trains it.
+to the OpenCL step over frames with a reset; weights_tools/methods/nsrd/recipe.py
+trains it.
 
 Tensors are NCHW float32: colour linear (/ exposure), depth reversed-Z, motion in render
 pixels (previous = p + motion), G-buffers as the contract's. The state between frames is
@@ -19,7 +20,7 @@ import torch.nn.functional as F
 from clss.methods.nsrd import networks as nets
 from clss.pipeline.contract import PQ_NITS
 
-from .trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
+from weights_tools.trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
 
 class NsrdNet(nn.Module):

@@ -42,7 +42,7 @@ from clss.networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_ML
                        DEFAULT_WIDTHS, LOGITS, build_classifier, build_composition)
 from clss.networks import WeightsError, model_weights, torch_to_onnx_name
 
-from .trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
+from weights_tools.trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
 # Net mode's blend: "net" = the composition network (inference), "rule" = w = 1/(1+counter)
 # without a clamp, the paper's rule-based composition for training the classifier (s3.4).
@@ -339,7 +339,7 @@ class FrameStep(nn.Module):
     reject_hook (studies, not the runtime): f(reject [B,1,H,W] bool, ctx) -> reject, where
     ctx holds up, hist (warped), hist_clipped (None without clip), valid, logits, dd_hr,
     depth_hr, counter (warped), measure_hr, clamp_min / clamp_max (None without clip);
-    it replaces the history decision (weights_tools.visibility_oracle).
+    it replaces the history decision (visibility_oracle.py beside this file).
 
     Training extras (net mode): blend="rule" makes the paper's rule-based composition
     (w = 1/(1+counter), no clamp) instead of the composition network; `rule_color`
@@ -582,7 +582,7 @@ class FrameStep(nn.Module):
         if self.clip:
             blend_hist = clip_towards(w_col, up, p["clamp_min"], p["clamp_max"])
         if self.reject_hook is not None:
-            # studies only (weights_tools.visibility_oracle): replace the decision
+            # studies only (visibility_oracle.py beside this file): replace the decision
             clamp = blend_hist if self.clip else None
             reject = self.reject_hook(reject, {"up": up, "hist": w_col, "hist_clipped": clamp,
                                                "valid": valid, "logits": logits,

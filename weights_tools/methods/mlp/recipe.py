@@ -1,5 +1,5 @@
 """Train the shader MLP upscaler (`python -m weights_tools train mlp`): offline, in torch,
-on the torch twin of the frame step (weights_tools/mlp_torch.py), with the seed's L1 loss
+on the torch twin of the frame step (weights_tools/methods/mlp/twin.py), with the seed's L1 loss
 and its patch acceptance by gradient.
 
   generalist:  train mlp --data out/data/train2 --out out/mlp/gen2       (every sequence)
@@ -9,38 +9,39 @@ and its patch acceptance by gradient.
 Patches: accepted by gradient, the rule of clss/methods/mlp/patches.py (written once for
 this recipe and the online training on the device). The loss is L1 in the
 PQ domain on the folded output, over the patch's interior (where the crop gives exactly the
-whole-frame result). Adam, cosine learning rate. Writes OUT/mlp.safetensors and loss.png.
+whole-frame result). Adam, cosine learning rate (the loop of weights_tools/trainloop.py).
+Writes OUT/mlp.safetensors, loss.png, train.json and checkpoint.pt (--resume continues).
 """
 from __future__ import annotations
 
 import json
 import os
 import sys
-import time
 
 import numpy as np
 
 # the patch geometry and the acceptance rule: clss/methods/mlp/patches.py (shared with the
 # online training on the device)
 from clss.methods.mlp.patches import MARGIN, PATCH  # noqa: E402
+from weights_tools.methods import Recipe  # noqa: E402
 
 
 def add_arguments(p):
     p.add_argument("--data", default=None, help="directory of DATA.md sequences (generalist)")
     p.add_argument("--scene", default=None, metavar="SEQ.npz",
                    help="per-scene weights: train on the first half of this sequence's frames")
-    p.add_argument("--out", required=True, help="output directory (mlp.safetensors, loss.png)")
+    # imported here, not at the top: online.py imports this module and needs no torch
+    from weights_tools.trainloop import add_arguments as add_run_arguments
+    add_run_arguments(p, weights="mlp.safetensors")
     p.add_argument("--steps", type=int, default=3000)
     p.add_argument("--batch", type=int, default=32, help="patches per step")
     p.add_argument("--lr", type=float, default=2e-3)
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-feature", action="store_true",
                    help="the ablation: feature inputs zeroed (method mlp-nofeature)")
     p.add_argument("--init", default=None, help="start from these weights (.safetensors)")
-    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument("--score", action="store_true",
                    help="with --scene: score the second half (PSNR) against bicubic")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
 def _prepare(seqs, feature):
@@ -60,13 +61,14 @@ def _prepare(seqs, feature):
 
 
 class Sampler:
-    """Patches accepted by gradient (clss.methods.mlp.patches), as torch crops."""
+    """Patches accepted by gradient (clss.methods.mlp.patches), as torch crops, drawn with
+    the generator `rng`."""
 
-    def __init__(self, data, frames, scale, seed):
+    def __init__(self, data, frames, scale, rng):
         from clss.methods.mlp.patches import Sampler as Rule
         self.data, self.s = data, scale
         self.rule = Rule([tuple(d["color"].shape[2:]) for d in data], frames,
-                         lambda k, t: data[k]["integ"][t], scale, seed)
+                         lambda k, t: data[k]["integ"][t], scale, rng=rng)
 
     @property
     def tried(self):
@@ -91,14 +93,13 @@ class Sampler:
         return torch.stack(cs), (torch.stack(fs) if fs else None), torch.stack(rs)
 
 
-def train(data_seqs, frames, scale, *, feature=True, steps=3000, batch=32, lr=2e-3, seed=0,
-          init=None, log=print, quiet=False, plot_path=None):
-    """Returns (tensors, history). `frames[k]` = (first, end) frame range of sequence k."""
-    import torch
+def train(run, data_seqs, frames, scale, *, feature=True, steps=3000, batch=32, lr=2e-3,
+          seed=0, init=None):
+    """The recipe on `run` (a trainloop.Run): the network, the patches and the L1 loss.
+    Returns the trained tensors. `frames[k]` = (first, end) frame range of sequence k."""
     from clss.methods.mlp import transform as tf
-    from weights_tools.mlp_torch import MlpNet
-    from weights_tools.trainloop import PROGRESS_S, fmt_s, l1, lr_cosine, plot_losses
-    torch.manual_seed(seed)
+    from weights_tools.trainloop import l1
+    from .twin import MlpNet
     data = _prepare(data_seqs, feature)
     net = MlpNet(scale, feature, tf.load_weights(init)[0] if init else None)
     if init is None:       # trainable from the start: small random output layer
@@ -106,28 +107,18 @@ def train(data_seqs, frames, scale, *, feature=True, steps=3000, batch=32, lr=2e
         t = tf.init_weights(seed)
         t["fc3.weight"] = (g.standard_normal((25, 50)) * 0.01).astype(np.float32)
         net.load_tensors(t)
-    opt = torch.optim.Adam(net.parameters(), lr=lr)
-    sampler = Sampler(data, frames, scale, seed)
+    run.track(net=net)
+    sampler = Sampler(data, frames, scale, run.batch_rng("mlp"))
     s, m = scale, MARGIN
-    hist, t0, last = [], time.time(), 0.0
-    for step in range(steps):
-        for grp in opt.param_groups:
-            grp["lr"] = lr_cosine(lr, step, steps)
+
+    def loss(it):
         c, f, r = sampler.batch(batch)
         out = net(c, f)[..., s * m:s * (m + PATCH), s * m:s * (m + PATCH)]
-        loss = l1(out, r)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        hist.append(loss.item())
-        now = time.time()
-        if not quiet and (now - last >= PROGRESS_S or step == steps - 1):
-            last = now
-            log(f"step {step + 1}/{steps}  L1 {np.mean(hist[-50:]):.5f}  accepted "
-                f"{sampler.accepted}/{sampler.tried}  {fmt_s(now - t0)}")
-    if plot_path:
-        plot_losses({"L1 (PQ)": hist}, plot_path, ["L1 (PQ)"])
-    return net.tensors(), hist
+        return l1(out, r), {}
+
+    run.fit("mlp", net.parameters(), lr=lr, steps=steps, loss=loss,
+            progress=lambda: f"  accepted {sampler.accepted}/{sampler.tried}")
+    return net.tensors()
 
 
 def score_second_half(path, weights, feature=True, log=print):
@@ -152,10 +143,8 @@ def score_second_half(path, weights, feature=True, log=print):
 
 
 def cmd_train(a):
-    import torch
     from clss.methods.mlp import transform as tf
-    from weights_tools.trainloop import TrainError, load_sequences
-    torch.set_num_threads(max(1, a.threads))
+    from weights_tools.trainloop import Run, TrainError, fmt_s, load_sequences
     feature = not a.no_feature
     need = ["color", "reference", "depth", "scale"] + (["depth_hr"] if feature else [])
     try:
@@ -185,18 +174,20 @@ def cmd_train(a):
     except TrainError as e:
         print(f"error: train mlp: {e}", file=sys.stderr)
         return 2
-    os.makedirs(a.out, exist_ok=True)
-    t0 = time.time()
-    tensors, hist = train(seqs, frames, scale, feature=feature, steps=a.steps, batch=a.batch,
-                          lr=a.lr, seed=a.seed, init=a.init, quiet=a.quiet,
-                          plot_path=os.path.join(a.out, "loss.png"))
+    run = Run(a, ("mlp",), quiet=a.quiet)
+    tensors = train(run, seqs, frames, scale, feature=feature, steps=a.steps, batch=a.batch,
+                    lr=a.lr, seed=a.seed, init=a.init)
     path = os.path.join(a.out, "mlp.safetensors")
-    meta = {"recipe": "weights_tools/mlp_train.py", "scale": scale, "feature": feature,
+    meta = {"recipe": "weights_tools/methods/mlp/recipe.py", "scale": scale, "feature": feature,
             "steps": a.steps, "batch": a.batch, "lr": a.lr, "seed": a.seed,
             "data": os.path.basename(os.path.normpath(a.scene or a.data)),
-            "final_l1": round(float(np.mean(hist[-100:])), 6)}
+            "final_l1": round(float(np.mean(run.log["losses"]["mlp"][-100:])), 6)}
     tf.save_weights(tensors, path, meta)
-    print(f"wrote {path} ({time.time() - t0:.0f} s; {json.dumps(meta)})")
+    run.write_log()
+    print(f"wrote {path} ({fmt_s(run.log['seconds'])}; {json.dumps(meta)})")
     if a.score and a.scene:
         score_second_half(a.scene, path, feature)
     return 0
+
+
+RECIPE = Recipe(add_arguments, cmd_train, __doc__)

@@ -1,5 +1,5 @@
-"""python -m weights_tools.visibility_oracle SEQ.npz ...: what CLSS's history decision could
-gain, with the answer known (issue 23).
+"""python -m weights_tools.methods.clss.visibility_oracle SEQ.npz ...: what CLSS's history
+decision could gain, with the answer known (issue 23).
 
 Runs the torch twin of the frame step (rule or net mode) over labelled sequences with its
 history decision (reject: drop the history and restart the counter, reference.md s7)
@@ -19,7 +19,8 @@ perfect classifier of the generator's labels would do to the picture, "useful" h
 perfect decision of the pipeline's own choice is worth.
 
 example:
-  python -m weights_tools.visibility_oracle out/data/heldout/seq_000[0-7].npz --mode net
+  python -m weights_tools.methods.clss.visibility_oracle out/data/heldout/seq_000[0-7].npz \
+      --mode net
 """
 from __future__ import annotations
 
@@ -45,8 +46,8 @@ def useful_hook(state, ratio, floor):
     plus floor (the clip on; without it the warped history itself)."""
     import torch
 
-    from .torch_frame import pq_encode
-    from .train import history_worse
+    from .twin import pq_encode
+    from .recipe import history_worse
 
     def hook(reject, ctx):
         ref = state["seq"]["reference"][state["t"]]
@@ -71,8 +72,8 @@ def score(seqs, mode, weights, oracle, warmup=2, ratio=2.0, floor=1e-3, device="
     """Mean PSNR, tPSNR and disocclusion PSNR (dB) over `seqs` (evaluate.load_sequence's
     dicts, with `label_ghost` for the generator oracle) of `mode` ("rules"/"net") under
     `oracle` (None = as-is, "generator", "useful")."""
-    from .seeds import twin_record
-    from .torch_frame import PQ_NITS
+    from weights_tools.seeds import twin_record
+    from .twin import PQ_NITS
     rows = []
     for seq in seqs:
         state = {"seq": seq, "t": 0, "nits": PQ_NITS}
@@ -92,7 +93,7 @@ def picture(seq, mode, weights, t, path, ratio=2.0, floor=1e-3, device="cpu"):
 
     from clss import io as cio
     from clss.metrics import save_side_by_side
-    from .torch_frame import PQ_NITS, TorchUpscaler
+    from .twin import PQ_NITS, TorchUpscaler
     state = {"seq": seq, "t": 0, "nits": PQ_NITS}
     useful = useful_hook(state, ratio, floor)
     seen = {}
@@ -104,7 +105,7 @@ def picture(seq, mode, weights, t, path, ratio=2.0, floor=1e-3, device="cpu"):
             seen["useful"] = useful(reject, ctx)[0, 0].cpu().numpy() & v
             seen["valid"] = v
         return reject
-    from .evaluate import Pipeline
+    from weights_tools.evaluate import Pipeline
     up = TorchUpscaler(seq["scale"], mode, weights if mode == "net" else None,
                        device=device, reject_hook=hook)
     step = _tracking(state)(Pipeline(up))
@@ -132,7 +133,7 @@ def picture(seq, mode, weights, t, path, ratio=2.0, floor=1e-3, device="cpu"):
 
 
 def load(paths):
-    from .evaluate import load_sequence
+    from weights_tools.evaluate import load_sequence
     seqs = []
     for p in paths:
         seq = load_sequence(p)
@@ -144,7 +145,7 @@ def load(paths):
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m weights_tools.visibility_oracle",
+    p = argparse.ArgumentParser(prog="python -m weights_tools.methods.clss.visibility_oracle",
                                 description=__doc__.split("\n\n")[0],
                                 epilog=__doc__.split("example:")[1].join(("example:", "")),
                                 formatter_class=argparse.RawDescriptionHelpFormatter)

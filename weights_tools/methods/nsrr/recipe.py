@@ -23,23 +23,20 @@ weights.safetensors (the file the OpenCL step loads).
 """
 from __future__ import annotations
 
-import json
 import os
-import time
 
 import numpy as np
 
-from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, load_sequences,
-                        lr_cosine, plot_losses, save_checkpoint)
+from weights_tools.methods import Recipe
+from weights_tools.trainloop import Run, TrainError, fmt_s, load_sequences, ssim
+from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
 
 
 def add_arguments(t):
     t.add_argument("--data", required=True, help="directory of DATA.md .npz sequences (one scale)")
-    t.add_argument("--out", required=True, help="directory for checkpoint.pt, loss.png, "
-                                                "train.json, weights.safetensors")
-    t.add_argument("--seed", type=int, default=0)
+    add_run_arguments(t)
     t.add_argument("--steps", type=int, default=1500)
     t.add_argument("--batch", type=int, default=8)
     t.add_argument("--patch", type=int, default=64, help="patch size, output pixels (loss area)")
@@ -69,8 +66,6 @@ def add_arguments(t):
     t.add_argument("--perceptual-weight", type=float, default=0.1)
     t.add_argument("--candidates", type=int, default=4000, help="random patches scored")
     t.add_argument("--keep", type=float, default=0.3, help="fraction of candidates kept")
-    t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
-    t.add_argument("--resume", action="store_true", help="continue from --out/checkpoint.pt")
 
 
 class RandomFeatures:
@@ -142,7 +137,7 @@ class AliveProbe:
 
 
 def _prepare(seqs, torch):
-    from .nsrr_torch import pq_encode
+    from .twin import pq_encode
     out = []
     for s in seqs:
         c = torch.from_numpy(np.ascontiguousarray(s["color"].astype(np.float32).transpose(0, 3, 1, 2)))
@@ -224,12 +219,8 @@ def forward(step, rgbd, mot, jit, rst):
 def cmd_train(args):
     import torch
     from clss.methods.nsrr import networks as nets
-    from .nsrr_torch import NsrrNet, TorchStep
-    from .trainloop import ssim
-    torch.set_num_threads(max(1, args.threads))
-    torch.manual_seed(args.seed)
-    rng = np.random.default_rng(args.seed)
-    os.makedirs(args.out, exist_ok=True)
+    from .twin import NsrrNet, TorchStep
+    run = Run(args, ("nsrr",))
     seqs = _prepare(load_sequences(args.data, 1, REQUIRED), torch)
     sc = seqs[0]["scale"]
     if args.patch % sc:
@@ -246,18 +237,9 @@ def cmd_train(args):
     net = NsrrNet(cfg, w0)
     probe = AliveProbe(net)
     step = TorchStep(net, sc, reset_fill=args.reset_fill)
-    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
     perc = RandomFeatures() if args.perceptual == "random" else None
-    ck = os.path.join(args.out, "checkpoint.pt")
-    start, history, spent = 0, {"nsrr": []}, 0.0
-    if args.resume:
-        if not os.path.isfile(ck):
-            raise TrainError(f"--resume: no {ck}")
-        st = torch.load(ck, weights_only=False)
-        net.load_state_dict(st["net"])
-        opt.load_state_dict(st["opt"])
-        start, history, spent = st["step"], st["history"], st.get("seconds", 0.0)
-        rng = np.random.default_rng([args.seed, start])
+    run.track(net=net)
+    rng = run.batch_rng("nsrr")
     picks = choose_patches(seqs, args.candidates, args.keep, pr, args.margin,
                            np.random.default_rng(args.seed))
     print(f"nsrr x{sc}: {len(seqs)} sequences, {len(picks)} patches of {args.patch} px kept, "
@@ -265,62 +247,41 @@ def cmd_train(args):
           + (f" + {args.l1:g} L1" if args.l1 else "") + f", YCbCr (chroma x{args.chroma:g})"
           + (f" + {args.perceptual_weight} random-feature perceptual" if perc else ""), flush=True)
     m = args.margin * sc
-    gain = [] if cfg["residual"] else None
-    t0 = time.time() - spent
-    last_p = last_c = last_plot = time.time()
-    for it in range(start, args.steps):
-        lr = lr_cosine(args.lr, it, args.steps)
-        if it < args.warmup:
-            lr *= (it + 1) / args.warmup
-        for g in opt.param_groups:
-            g["lr"] = lr
+
+    def loss(it):
         rgbd, mot, jit, rst, ref = make_batch(seqs, picks, args.batch, pr, args.margin,
                                               cfg["n_prev"], args.p_short, rng, torch)
         y = forward(step, rgbd, mot, jit, rst)[:, :, m:m + args.patch, m:m + args.patch]
         ya, yb = ycbcr(y.clamp(0, 1), args.chroma), ycbcr(ref, args.chroma)
-        loss = 1.0 - ssim(ya, yb)
+        value = 1.0 - ssim(ya, yb)
         if args.l1:
-            loss = loss + args.l1 * (ya - yb).abs().mean()
+            value = value + args.l1 * (ya - yb).abs().mean()
         if perc is not None:
-            loss = loss + args.perceptual_weight * perc.loss(y, ref)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        history["nsrr"].append(loss.item())
+            value = value + args.perceptual_weight * perc.loss(y, ref)
         probe.record()
-        if gain is not None:
+        parts = {}
+        if cfg["residual"]:
+            # the PQ PSNR gain of the output over the residual base on this batch
             with torch.no_grad():
-                base = step.base(rgbd[-1], jit[-1])
-                if base is not None:
-                    base = base[:, :, m:m + args.patch, m:m + args.patch]
-                    mse = lambda a: float(((a.clamp(0, 1) - ref) ** 2).mean())
-                    gain.append(10 * np.log10(mse(base) / max(mse(y.detach()), 1e-12)))
-        now = time.time()
-        if now - last_p > PROGRESS_S or it == args.steps - 1:
-            last_p = now
-            el = now - t0
-            mean = np.mean(history["nsrr"][-50:])
-            alive, pos = probe.take()
-            g = f" vs base {np.mean(gain[-50:]):+.3f} dB" if gain else ""
-            print(f"step {it + 1}/{args.steps} loss {mean:.4f}{g} un.8 alive {alive:.2f} "
-                  f"(positive {pos:.2f}) elapsed {fmt_s(el)} "
-                  f"eta {fmt_s(el / (it + 1 - start) * (args.steps - it - 1) if it + 1 > start else 0)}",
-                  flush=True)
-        if now - last_plot > PLOT_S:
-            last_plot = now
-            plot_losses(history, os.path.join(args.out, "loss.png"), ["nsrr"])
-        if now - last_c > CHECKPOINT_S:
-            last_c = now
-            save_checkpoint(ck, {"net": net.state_dict(), "opt": opt.state_dict(), "step": it + 1,
-                                 "history": history, "seconds": now - t0})
-    save_checkpoint(ck, {"net": net.state_dict(), "opt": opt.state_dict(), "step": args.steps,
-                         "history": history, "seconds": time.time() - t0})
-    plot_losses(history, os.path.join(args.out, "loss.png"), ["nsrr"])
-    nets.save(os.path.join(args.out, "weights.safetensors"), cfg, net.numpy_weights())
-    info = {"scale": sc, "config": cfg, "args": {k: v for k, v in vars(args).items() if k != "fn"},
-            "seconds": time.time() - t0, "final_loss": float(np.mean(history["nsrr"][-50:])),
-            "un8_alive": probe.last[0], "un8_positive": probe.last[1]}
-    with open(os.path.join(args.out, "train.json"), "w") as f:
-        json.dump(info, f, indent=1)
-    print(f"wrote {os.path.join(args.out, 'weights.safetensors')} ({fmt_s(info['seconds'])})")
+                base = step.base(rgbd[-1], jit[-1])[:, :, m:m + args.patch, m:m + args.patch]
+                mse = lambda a: float(((a.clamp(0, 1) - ref) ** 2).mean())  # noqa: E731
+                parts["vs_base_db"] = 10 * float(np.log10(mse(base) / max(mse(y.detach()), 1e-12)))
+        return value, parts
+
+    def alive():
+        units, pos = probe.take()
+        return f"  un.8 alive {units:.2f} (positive {pos:.2f})"
+
+    run.fit("nsrr", net.parameters(), lr=args.lr, steps=args.steps, warmup=args.warmup,
+            loss=loss, progress=alive)
+    path = os.path.join(args.out, "weights.safetensors")
+    nets.save(path, cfg, net.numpy_weights())
+    losses = run.log["losses"]["nsrr"]
+    run.log.update(scale=sc, config=cfg, final_loss=float(np.mean(losses[-50:])),
+                   un8_alive=probe.last[0], un8_positive=probe.last[1])
+    run.write_log()
+    print(f"wrote {path} ({fmt_s(run.log['seconds'])})")
     return 0
+
+
+RECIPE = Recipe(add_arguments, cmd_train, __doc__)

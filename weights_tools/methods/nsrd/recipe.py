@@ -16,14 +16,13 @@ weights.safetensors (the file the OpenCL step loads).
 """
 from __future__ import annotations
 
-import json
 import os
-import time
 
 import numpy as np
 
-from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, load_sequences,
-                        lr_cosine, plot_losses, save_checkpoint)
+from weights_tools.methods import Recipe
+from weights_tools.trainloop import Run, TrainError, fmt_s, load_sequences, ssim, temporal
+from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale", "albedo",
             "normal", "albedo_hr")
@@ -32,9 +31,7 @@ REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale",
 def add_arguments(t):
     t.add_argument("--data", required=True, help="directory of DATA.md .npz sequences with "
                                                 "G-buffers (one integer scale)")
-    t.add_argument("--out", required=True, help="directory for checkpoint.pt, loss.png, "
-                                                "train.json, weights.safetensors")
-    t.add_argument("--seed", type=int, default=0)
+    add_run_arguments(t)
     t.add_argument("--steps", type=int, default=1200)
     t.add_argument("--batch", type=int, default=8)
     t.add_argument("--window", type=int, default=4, help="frames per recurrent window")
@@ -54,11 +51,9 @@ def add_arguments(t):
                    help="warp the ConvLSTM's h and c by the motion (networks.make_config)")
     t.add_argument("--init", default=None, help="start from these NSRD weights "
                                                 "(.safetensors; a fine-tune)")
-    t.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     t.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop (and write the weights) after this many minutes; the cosine "
                         "schedule is still the one of --steps")
-    t.add_argument("--resume", action="store_true", help="continue from --out/checkpoint.pt")
 
 
 def display(x):
@@ -120,7 +115,6 @@ def window_loss(step, fr, m, args):
     """The window through the step; the loss of every frame (smooth L1 + SSIM) and of
     every consecutive pair (temporal), on the display values inside the margin."""
     import torch.nn.functional as F
-    from .trainloop import ssim, temporal
     st, total, prev = None, 0.0, None
     for f in fr:
         out, st = step.step(f["color"], f["depth"], f["motion"], f["albedo"], f["normal"],
@@ -137,11 +131,8 @@ def window_loss(step, fr, m, args):
 def cmd_train(args):
     import torch
     from clss.methods.nsrd import networks as nets
-    from .nsrd_torch import NsrdNet, TorchStep
-    torch.set_num_threads(max(1, args.threads))
-    torch.manual_seed(args.seed)
-    rng = np.random.default_rng(args.seed)
-    os.makedirs(args.out, exist_ok=True)
+    from .twin import NsrdNet, TorchStep
+    run = Run(args, ("nsrd",))
     seqs = _prepare(load_sequences(args.data, args.window, REQUIRED), torch)
     sc = seqs[0]["scale"]
     R = args.patch + 2 * args.margin
@@ -171,62 +162,26 @@ def cmd_train(args):
         w0 = w1
     net = NsrdNet(cfg, w0)
     step = TorchStep(net)
-    opt = torch.optim.Adam(net.parameters(), lr=args.lr)
-    ck = os.path.join(args.out, "checkpoint.pt")
-    start, history, spent = 0, {"nsrd": []}, 0.0
-    if args.resume:
-        if not os.path.isfile(ck):
-            raise TrainError(f"--resume: no {ck}")
-        st = torch.load(ck, weights_only=False)
-        net.load_state_dict(st["net"])
-        opt.load_state_dict(st["opt"])
-        start, history, spent = st["step"], st["history"], st.get("seconds", 0.0)
-        rng = np.random.default_rng([args.seed, start])
+    run.track(net=net)
+    rng = run.batch_rng("nsrd")
     print(f"nsrd x{sc}: {len(seqs)} sequences, windows of {args.window} frames, patches "
           f"{args.patch}+2x{args.margin} render px, widths {cfg['name']} "
           f"({nets.macs_per_pixel(cfg) / 1e3:.0f} kMAC per render pixel), demod {cfg['demod']}, "
           f"mask {cfg['mask']}, remod {cfg['remod']}, {args.steps} steps of {args.batch}; loss smooth L1 + "
           f"{args.ssim:g} (1-SSIM) + {args.temporal:g} temporal on display values", flush=True)
     m = args.margin * sc
-    t0 = time.time() - spent
-    last_p = last_c = last_plot = time.time()
-    it = start
-    for it in range(start, args.steps):
-        for g in opt.param_groups:
-            g["lr"] = lr_cosine(args.lr, it, args.steps)
-        loss = window_loss(step, make_batch(seqs, args.batch, args.window, R, rng), m, args)
-        opt.zero_grad()
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-        opt.step()
-        history["nsrd"].append(loss.item())
-        now = time.time()
-        stop = args.max_minutes > 0 and now - t0 > args.max_minutes * 60
-        if now - last_p > PROGRESS_S or it == args.steps - 1 or stop:
-            last_p = now
-            el = now - t0
-            print(f"step {it + 1}/{args.steps} loss {np.mean(history['nsrd'][-50:]):.4f} "
-                  f"elapsed {fmt_s(el)} eta "
-                  f"{fmt_s(el / (it + 1) * (args.steps - it - 1))}", flush=True)
-        if now - last_plot > PLOT_S:
-            last_plot = now
-            plot_losses(history, os.path.join(args.out, "loss.png"), ["nsrd"])
-        if now - last_c > CHECKPOINT_S:
-            last_c = now
-            save_checkpoint(ck, {"net": net.state_dict(), "opt": opt.state_dict(), "step": it + 1,
-                                 "history": history, "seconds": now - t0})
-        if stop:
-            print(f"--max-minutes {args.max_minutes:g} reached at step {it + 1}", flush=True)
-            break
-    done = len(history["nsrd"])
-    save_checkpoint(ck, {"net": net.state_dict(), "opt": opt.state_dict(), "step": done,
-                         "history": history, "seconds": time.time() - t0})
-    plot_losses(history, os.path.join(args.out, "loss.png"), ["nsrd"])
-    nets.save(os.path.join(args.out, "weights.safetensors"), cfg, net.numpy_weights())
-    info = {"scale": sc, "config": cfg, "steps_done": done,
-            "args": {k: v for k, v in vars(args).items() if k != "fn"},
-            "seconds": time.time() - t0, "final_loss": float(np.mean(history["nsrd"][-50:]))}
-    with open(os.path.join(args.out, "train.json"), "w") as f:
-        json.dump(info, f, indent=1)
-    print(f"wrote {os.path.join(args.out, 'weights.safetensors')} ({fmt_s(info['seconds'])})")
+    run.fit("nsrd", net.parameters(), lr=args.lr, steps=args.steps, clip=1.0,
+            loss=lambda it: (window_loss(step, make_batch(seqs, args.batch, args.window, R, rng),
+                                         m, args), {}),
+            max_seconds=args.max_minutes * 60 if args.max_minutes > 0 else None)
+    path = os.path.join(args.out, "weights.safetensors")
+    nets.save(path, cfg, net.numpy_weights())
+    losses = run.log["losses"]["nsrd"]
+    run.log.update(scale=sc, config=cfg, steps_done=len(losses),
+                   final_loss=float(np.mean(losses[-50:])))
+    run.write_log()
+    print(f"wrote {path} ({fmt_s(run.log['seconds'])})")
     return 0
+
+
+RECIPE = Recipe(add_arguments, cmd_train, __doc__)

@@ -102,8 +102,8 @@ def run_classifier(seq, weights, device=None):
     USEFUL_FLOOR; the generator's shading, else none)."""
     import torch
     from clss.pipeline.contract import VIS_MARGIN, ghost_classes
-    from .torch_frame import TorchUpscaler, pq_encode
-    from .train import useful_ghost_labels
+    from .twin import TorchUpscaler, pq_encode
+    from .recipe import useful_ghost_labels
     up = TorchUpscaler(float(seq["scale"]), "net", weights, device=device)
     out = {}
     for t in range(len(seq["reset"])):
