@@ -132,6 +132,7 @@ def cmd_upscale(argv) -> int:
         p.error(f"--method: {e}" if a.method is not None else str(e))
     spec = methods.spec(name)
     check_weights_mode(a.weights, spec.weights() != "none needed")
+    spec.resolve_weights(a.weights, a.scale)    # a scale it ships no weights for: now
     if a.debug_views and "debug" not in (spec.parameters() or ()):
         have = [s.name for s in methods.specs() if "debug" in (s.parameters() or ())]
         raise UsageError(f"--debug-views: the method {name} has no debug views "
