@@ -189,10 +189,10 @@ class MethodSpec:
         return path if os.path.isfile(path) else None
 
     def resolve_weights(self, weights, scale, allow_untrained=False):
-        """weights= as given; for None the package's file for `scale`; without one
-        UNTRAINED (the seeded init) if the caller allows it, else a UserError naming the
-        scales that have weights."""
-        if weights is not None:
+        """weights= as given (and None for a method that needs none); for None the
+        package's file for `scale`; without one UNTRAINED (the seeded init) if the caller
+        allows it, else a UserError naming the scales that have weights."""
+        if weights is not None or not self.shipped:
             return weights
         path = self.shipped_file(scale)
         if path is not None:
