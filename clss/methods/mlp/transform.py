@@ -33,7 +33,7 @@ import sys
 import numpy as np
 
 from ...pipeline.contract import PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS
-from ...pipeline.method import UNTRAINED, WEIGHTS_DIR  # noqa: F401 (UNTRAINED: the twin's default)
+from ...pipeline.method import UNTRAINED, WEIGHTS_DIR
 
 SCALES = (2, 3)
 TAPS = 5                      # the 5x5 neighbourhoods

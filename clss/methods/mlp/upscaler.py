@@ -26,7 +26,7 @@ import functools
 import numpy as np
 
 from ...pipeline.contract import PQ_NITS, output_size
-from ...pipeline.method import (UNTRAINED, MethodSpec, MethodUpscaler, convert_storage)
+from ...pipeline.method import MethodSpec, MethodUpscaler, convert_storage
 from . import transform as tf
 from . import fastpath  # noqa: F401 (registers the kernel's fast path)
 
