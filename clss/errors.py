@@ -24,3 +24,13 @@ def cli_message(e: BaseException) -> str:
         # OSError's str() is "[Errno 2] No such file or directory: 'x'"; say it plainly.
         text = f"{e.filename}: {e.strerror.lower()}"
     return text
+
+
+class ArgumentError(TypeError):
+    """A keyword argument the callee does not take (a misspelt option): a TypeError, as
+    Python's own for an unexpected keyword, that names it and the closest valid name.
+    The command line reports it in one line like a UserError."""
+
+    def __init__(self, message: str, cli: str | None = None):
+        super().__init__(message)
+        self.cli = cli

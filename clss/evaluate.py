@@ -9,7 +9,7 @@ Sequences are .npz files in the format of weights_tools/DATA.md (inputs in clss'
 contract, optional G-buffers, plus the supersampled reference). Methods are the names of
 clss.methods (`clss methods` lists them; the older `rules` and `net` are aliases of
 clss-rules and clss), each run through clss.Upscaler(method=...) at the sequence's scale;
---weights goes to the methods with trained weights.
+--weights goes to the method with trained weights (`untrained`: to every such method).
 
 Scores (clss.metrics, on tone-mapped display values, as every clss metric): PSNR and SSIM
 per frame, averaged; tPSNR, the PSNR of the frame differences (out_t - out_{t-1} against
@@ -34,11 +34,11 @@ import time
 import numpy as np
 
 from . import methods as method_registry
+from .pipeline.method import UNTRAINED
 
 # The default set: every method that needs no G-buffer.
 METHODS = ("bicubic", "jbicubic", "clss-rules", "clss")
 INPUT_KEYS = ("color", "depth", "motion", "jitter", "reset", "reference")
-UNTRAINED = "untrained"
 
 
 class SequenceError(ValueError):
@@ -133,24 +133,27 @@ def _trainable(name) -> bool:
     return method_registry.spec(name).weights() != "none needed"
 
 
-def method_kwargs(weights):
+def method_kwargs(weights, methods=()):
     """(Upscaler keyword arguments for --weights, trained): None = the package default,
-    `untrained` = the seeded init asked for explicitly, else a directory or .safetensors
-    file (CLSS's networks)."""
+    `untrained` = the seeded init asked for explicitly (every method with trained
+    weights), else a weights file or directory, for the one such method among `methods`
+    (a ValueError if several would share it); each method reads its own format."""
     if weights is None:
         return {}, None
     if weights == UNTRAINED:
         return {"weights": UNTRAINED}, False
-    from .methods.clss.upscaler import load_networks
-    cls, comp, trained = load_networks(weights)
-    return {"classifier": cls, "composition": comp}, trained
+    takers = [m for m in methods if _trainable(m)]
+    if len(takers) > 1:
+        raise ValueError(f"weights: a weights file is one method's, but {', '.join(takers)} "
+                         f"all take weights; evaluate them in separate runs")
+    return {"weights": os.fspath(weights)}, True
 
 
 def make_method(name, seq, dev, precision="fp32", net_kwargs=None):
     """The runner of method `name` on `seq`: clss.Upscaler(method=name) at its scale;
-    `net_kwargs` go to the methods with trained weights."""
+    `net_kwargs` go to the methods with trained weights, each getting those it takes."""
     from .upscaler import Upscaler
-    kw = dict(net_kwargs or {}) if _trainable(name) else {}
+    kw = method_registry.options(name, **(net_kwargs or {})) if _trainable(name) else {}
     return Pipeline(Upscaler(method=name, scale=seq["scale"], device=dev, precision=precision,
                              **kw))
 
@@ -380,7 +383,8 @@ def run_eval(paths, methods=METHODS, weights=None, precision="fp32", warmup=4,
     except ImportError:
         raise ValueError("the FLIP column needs the flip-evaluator package: pip install "
                          "flip-evaluator (or pip install -e .[eval])") from None
-    net_kwargs, trained = method_kwargs(weights) if any(map(_trainable, methods)) else ({}, None)
+    net_kwargs, trained = (method_kwargs(weights, methods) if any(map(_trainable, methods))
+                           else ({}, None))
     dev = get_device(device)
     records = []
     for p in seqs_paths:

@@ -1,7 +1,8 @@
 """Every fast path at once. clss/selfcheck.py is the registry the ops register their
 fast paths in (it sits below them); this module sits above them and imports every
-module that registers one (the op families and the frame step), so `clss verify` can
-check them all and a variant's check can run in a child process:
+module that registers one (the op families, and each method's as its MethodSpec names
+it: `fast_paths`), so `clss verify` can check them all and a variant's check can run in
+a child process:
 
     python -m clss.selfcheck_runner DEVICE_INDEX PRECISION NAME
 """
@@ -12,13 +13,15 @@ from . import selfcheck
 
 def load_registrations() -> None:
     """Import every module that registers fast paths."""
+    import importlib
     import warnings as w
+    from . import methods
     from .ops import load_all
     with w.catch_warnings():
         w.simplefilter("ignore")
         load_all()
-    from .methods.clss import upscaler  # noqa: F401 (registers the frame step's, frame_selfcheck.py)
-    from .methods.mlp import fastpath  # noqa: F401 (the MLP upscaler's pixel-vector kernel)
+    for module in dict.fromkeys(s.fast_paths for s in methods.specs() if s.fast_paths):
+        importlib.import_module(module)
 
 
 def check_all(dev, precisions, kernels=None) -> list:

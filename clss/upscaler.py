@@ -16,19 +16,27 @@ from .pipeline.method import MethodUpscaler
 
 
 def method_name(method=None, mode=None) -> str:
-    """The registry name for `method` and the older `mode` ("net" / "rules")."""
-    if mode is not None and str(mode).lower() not in methods.ALIASES:
-        raise ValueError(f"mode: expected 'net' or 'rules', got {mode!r}")
-    if method is None:
-        return methods.canonical(mode if mode is not None else "clss")
-    name = methods.canonical(method)
+    """The registry name for `method` and the older `mode` ("net" / "rules"): a method's
+    spec names the modes that pick between the methods of its family (MethodSpec.modes)."""
+    name = methods.canonical(method if method is not None else methods.DEFAULT)
     if mode is None:
         return name
-    by_mode = methods.canonical(mode)
-    if name not in ("clss", "clss-rules"):
-        raise ValueError(f"mode: applies to the method 'clss' only (net or rules), not to "
-                         f"{name!r}; drop mode")
-    return by_mode
+    modes = methods.spec(name).modes
+    if not modes:
+        family = next((s.modes for s in methods.specs() if s.modes), {})
+        owner = next(iter(family.values()), "?")
+        raise ValueError(f"mode: applies to the method {owner!r} only "
+                         f"({' or '.join(family)}), not to {name!r}; drop mode")
+    key = str(mode).strip().lower()
+    if key in modes:
+        return modes[key]
+    try:            # an alias of one of them ("rule", "clss-net")
+        alias = methods.canonical(key)
+    except ValueError:
+        alias = None
+    if alias not in modes.values():
+        raise ValueError(f"mode: expected {' or '.join(map(repr, modes))}, got {mode!r}")
+    return alias
 
 
 class _UpscalerType(type):
@@ -40,15 +48,25 @@ class _UpscalerType(type):
 class Upscaler(metaclass=_UpscalerType):
     """Build the upscaler of a method: Upscaler(scale=2.0, mode=None, *args, method=None,
     **kwargs). `method`: a name of clss.methods.names() (default "clss"); `mode`: the older
-    "net" / "rules" for CLSS. Further arguments go to the method's upscaler (CLSS:
-    clss.methods.clss.upscaler.ClssUpscaler's weights, device, precision, ...; every
-    method takes device, precision, exposure, sanitize and profile)."""
+    "net" / "rules" for CLSS, whose further positional arguments follow its signature
+    (clss.methods.clss.upscaler.ClssUpscaler's weights, device, precision, ...). Keyword
+    arguments go to the method's upscaler (`clss methods` lists the methods; every method
+    takes device, precision, exposure, sanitize and profile); one it does not take is a
+    TypeError naming the closest one it does."""
 
     def __new__(cls, scale=2.0, mode=None, *args, method=None, **kwargs):
         name = method_name(method, mode)
-        if name in ("clss", "clss-rules"):
-            from .methods.clss.upscaler import ClssUpscaler
-            return ClssUpscaler(scale, "net" if name == "clss" else "rules", *args, **kwargs)
         if args:
-            raise TypeError(f"Upscaler(method={name!r}): pass its options as keywords")
+            spec = methods.spec(name)
+            if not spec.modes:
+                raise TypeError(f"Upscaler(method={name!r}): pass its options as keywords")
+            names = spec.positional()[1:]          # after the scale
+            if len(args) > len(names):
+                raise TypeError(f"Upscaler(method={name!r}): at most {len(names) + 2} "
+                                f"positional arguments (scale, mode, {', '.join(names)})")
+            for key, value in zip(names, args):
+                if key in kwargs:
+                    raise TypeError(f"Upscaler(method={name!r}): got multiple values for "
+                                    f"argument {key!r}")
+                kwargs[key] = value
         return methods.create(name, scale=scale, **kwargs)

@@ -111,6 +111,8 @@ BAD = [
     ("upscale {d}/seq -o {d}/o --exposure 0", "--exposure"),
     ("upscale {d}/bad_resets -o {d}/o", "'resets' must be a list of frame numbers"),
     ("upscale {d}/seq -o {d}/o --mode bogus", "--mode"),
+    ("upscale {d}/seq -o {d}/o --method nsrd --scale 3",
+     "--method nsrd --scale 3: no trained weights for this scale"),
     ("upscale {d}/nothing -o {d}/o", "no files match"),
     ("upscale {d}/seq", "-o/--out"),
     # demo
@@ -125,6 +127,7 @@ BAD = [
     ("demo -o {d}/o --spp 0", "--spp"),
     ("demo -o {d}/o --workers -1", "--workers"),
     ("demo -o {d}/o --weights {d}/weights/nan.safetensors", "nan.safetensors"),
+    ("demo -o {d}/o --methods nsrd --scale 3", "--weights untrained for the seeded init"),
     # verify, devices
     ("verify --json {d}/missing/v.json", "--json"),
     ("verify --json {d}", "is a directory"),
@@ -167,6 +170,20 @@ BAD = [
     # the command itself
     ("nosuch", "unknown command"),
 ]
+
+
+@pytest.mark.parametrize("method, key, close", [("nsrr", "widht", "widths"),
+                                                ("nsrd", "precison", "precision"),
+                                                ("mlp", "onlin", "online")])
+def test_an_unknown_upscaler_keyword_is_one_line(method, key, close, capsys):
+    """A keyword argument a method does not take (clss.Upscaler's TypeError) ends a
+    command in one line with status 2, as a UserError does."""
+    import clss
+    from clss.cli.main import run_command
+    rc = run_command("clss x", lambda argv: clss.Upscaler(method=method, **{key: 1}), [])
+    err = capsys.readouterr().err
+    assert rc == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert f"unexpected keyword argument {key!r}; did you mean {close!r}?" in err
 
 
 def _argv(template, d):

@@ -57,6 +57,72 @@ def test_upscaler_dispatch_and_mode_alias(dev):
         clss.Upscaler(method="jbicubic", precision="fp64", device=dev)
 
 
+@pytest.mark.parametrize("method, key, close", [("nsrr", "widht", "widths"),
+                                                ("nsrd", "precison", "precision"),
+                                                ("mlp", "onlin", "online")])
+def test_an_unknown_keyword_names_the_closest(method, key, close, dev):
+    with pytest.raises(TypeError, match=rf"method='{method}'\): unexpected keyword argument "
+                                        rf"'{key}'; did you mean '{close}'\?"):
+        clss.Upscaler(method=method, device=dev, **{key: 1})
+    # one with nothing close lists what the method takes
+    with pytest.raises(TypeError, match="'zzz'; it takes scale, device, precision"):
+        clss.Upscaler(method="bicubic", device=dev, zzz=1)
+    # a caller feeding several methods passes each only what it takes
+    assert methods.options("bicubic", depth_inverted=False, exposure=2.0, weights=None) == \
+        {"exposure": 2.0}
+
+
+def test_a_scale_without_shipped_weights_is_refused(dev):
+    spec = methods.spec("nsrd")
+    have = " and ".join(f"{s:g}" for s in spec.trained_scales())
+    assert have == "2 and 4"
+    with pytest.raises(ValueError, match=rf"nsrd: no trained weights for scale 3 \(the package "
+                                         rf"has weights for scales {have}\).*allow_untrained"):
+        clss.Upscaler(method="nsrd", scale=3, device=dev)
+    assert clss.Upscaler(method="nsrd", scale=3, device=dev, allow_untrained=True).trained is False
+    assert clss.Upscaler(method="nsrd", scale=3, device=dev, weights="untrained").trained is False
+    # NSRR's networks do not depend on the scale: the nearest trained one serves (docs)
+    assert clss.Upscaler(method="nsrr", scale=3, device=dev).trained is True
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("name", methods.names())
+def test_step_device_is_step_on_float32_arrays(name, precision, dev):
+    """Every method's step_device takes float32 arrays in both precisions, gives what step
+    gives, and raises the same error types."""
+    f = frames(RENDER, 1)[0]
+    up = clss.Upscaler(method=name, device=dev, precision=precision, **_kwargs(name))
+    ref = clss.Upscaler(method=name, device=dev, precision=precision, **_kwargs(name))
+
+    def d(a):
+        return dev.to_device(np.ascontiguousarray(a, np.float32))
+    gb = {k: d(v) for k, v in f.gbuffers.items()}
+    out = up.step_device(d(f.color), d(f.depth), d(f.motion), f.jitter, **gb)
+    assert out.dtype == np.float32 and out.shape == (26, 34, 3)
+    assert np.array_equal(out.get(), ref.step(f.color, f.depth, f.motion, f.jitter,
+                                               **f.gbuffers))
+    with pytest.raises(contract.FrameInputError, match="color: expected a pyopencl"):
+        up.step_device(f.color, d(f.depth), d(f.motion), f.jitter, **gb)
+    with pytest.raises(contract.FrameInputError, match=r"color: expected shape \(h, w, 3\)"):
+        up.step_device(d(f.color[..., :2]), d(f.depth), d(f.motion), f.jitter, **gb)
+
+
+def test_bicubic_device_path_stays_on_the_device(dev, monkeypatch):
+    import pyopencl.array as cla
+    f = frames(RENDER, 1)[0]
+    up = clss.Upscaler(method="bicubic", device=dev)
+    want = up.step(f.color)
+    c = dev.to_device(f.color)
+
+    def no_copy(*args, **kwargs):
+        raise AssertionError("step_device copied through the host")
+    monkeypatch.setattr(cla.Array, "get", no_copy)
+    monkeypatch.setattr(cla.Array, "set", no_copy)
+    out = up.step_device(c)
+    monkeypatch.undo()
+    assert np.array_equal(out.get(), want)
+
+
 def _kwargs(name):
     # the trained methods at their seeded init, which their twins build too
     return {"weights": "untrained"} if methods.spec(name).weights() != "none needed" else {}

@@ -194,28 +194,23 @@ def test_cli_build_and_inspect(tmp_path, capsys):
 
 
 def test_load_networks_default_and_untrained(monkeypatch, tmp_path):
-    """weights=None: the shipped trained weights; absent, the untrained init with one
-    warning; "untrained": the seeded init on request."""
-    import warnings
-
+    """weights=None: the shipped trained weights; absent, an error unless the caller
+    allows the untrained init; "untrained": the seeded init on request."""
     from clss.methods.clss import upscaler
     from clss.networks import build_classifier
     from clss.networks import model_weights
+    from clss.pipeline import method
     seeded = model_weights(build_classifier())
     cls, _, trained = upscaler.load_networks("untrained")
     assert not trained
     assert all(np.array_equal(model_weights(cls)[k], v) for k, v in seeded.items())
-    monkeypatch.setattr(upscaler, "SHIPPED_WEIGHTS", str(tmp_path / "none.safetensors"))
-    monkeypatch.setattr(upscaler, "_warned_no_shipped", [])
-    with pytest.warns(UserWarning, match="no trained weights"):
-        assert upscaler.load_networks(None)[2] is False
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")          # only once
+    monkeypatch.setattr(method, "WEIGHTS_DIR", str(tmp_path))       # a package without weights
+    with pytest.raises(ValueError, match="clss: no trained weights .* allow_untrained=True"):
         upscaler.load_networks(None)
-    shipped = tmp_path / "shipped.safetensors"
+    assert upscaler.load_networks(None, allow_untrained=True)[2] is False
+    shipped = tmp_path / upscaler.SHIPPED_NAME
     t = dict(seeded)
     t["cls.stem.bias"] = t["cls.stem.bias"] + 1
     save_weights(t, str(shipped))
-    monkeypatch.setattr(upscaler, "SHIPPED_WEIGHTS", str(shipped))
     cls, _, trained = upscaler.load_networks(None)
     assert trained and np.array_equal(model_weights(cls)["cls.stem.bias"], t["cls.stem.bias"])

@@ -58,9 +58,11 @@ OUTPUT_SET = ("input/*", "rules/*", "net/*", "debug/*", "side_by_side.png",
 WARM_FROM = 2      # frames before this pay for builds and first allocations
 
 
-def scene_methods(scale=None):
+def scene_methods(scale=None, weights=None):
     """The methods the sample scene can feed (it writes every G-buffer of the contract),
-    at `scale` when given (a method's spec says which scales it supports)."""
+    at `scale` when given (a method's spec says which scales it supports, and which it
+    ships weights for: without `weights`, a method that has none for the scale is left
+    out)."""
     from .. import methods
     from ..pipeline import contract
     have = set(contract.GBUFFERS)
@@ -72,6 +74,8 @@ def scene_methods(scale=None):
         if scale is not None:
             try:
                 s.check_scale(scale)
+                if weights is None:
+                    s.resolve_weights(None, scale)
             except ValueError:
                 continue
         out.append(n)
@@ -116,7 +120,7 @@ def _pick_methods(p, a):
     if a.methods is not None and a.modes is not None:
         p.error("give --methods or --modes, not both")
     if text is None:
-        return scene_methods(a.scale)
+        return scene_methods(a.scale, a.weights)
     flag = "--methods" if a.methods is not None else "--modes"
     try:
         picked = []
@@ -158,9 +162,8 @@ def main(argv=None) -> int:
     dev = get_device(a.device)
     ups = {}
     for m in names:
-        kw = {"weights": a.weights} if m in trainable else {}
-        if m.startswith("clss") or m == "jbicubic":
-            kw["debug"] = m != "jbicubic"
+        # the debug views of the methods that have them (jbicubic's would be rule mode's)
+        kw = registry.options(m, weights=a.weights, debug=m != "jbicubic")
         ups[m] = Upscaler(method=m, scale=a.scale, device=dev, precision=a.precision,
                           profile=True, **kw)
     start_output(a.out, stale)

@@ -44,15 +44,17 @@ def _version() -> str:
     return __version__
 
 
-# What a user's mistake raises (a bad flag value, file, device, model or frame); each
-# ends the command with one line and exit status 2. Anything else is a bug in clss and
-# keeps its traceback. CLSS_TRACEBACK=1 shows the traceback of these too.
+# What a user's mistake raises (a bad flag value, file, device, model or frame, an option a
+# method does not take); each ends the command with one line and exit status 2. Anything
+# else is a bug in clss and keeps its traceback. CLSS_TRACEBACK=1 shows the traceback of
+# these too.
 USER_ERRORS = (ValueError, OSError)
 
 
 def _user_errors():
     from ..device import DeviceError
-    return USER_ERRORS + (DeviceError,)
+    from ..errors import ArgumentError
+    return USER_ERRORS + (DeviceError, ArgumentError)
 
 
 def main(argv=None) -> int:

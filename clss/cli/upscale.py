@@ -104,10 +104,19 @@ def _parser() -> ArgParser:
     p.add_argument("--sanitize", action="store_true",
                    help="replace NaN/Inf inputs and report how many, in which frames "
                         "(default: refuse such frames and stop)")
-    from ..methods.mlp import cli_online
-    cli_online.add_arguments(p)
+    for ext in _method_options():
+        ext.add_arguments(p)
     p.dash_values = ("--motion-scale",)
     return p
+
+
+def _method_options() -> list:
+    """The modules of the options some methods add to `clss upscale` (MethodSpec.cli: the
+    MLP's online training), each once."""
+    import importlib
+    from .. import methods
+    return [importlib.import_module(m)
+            for m in dict.fromkeys(s.cli for s in methods.specs() if s.cli)]
 
 
 def cmd_upscale(argv) -> int:
@@ -122,11 +131,12 @@ def cmd_upscale(argv) -> int:
     except ValueError as e:
         p.error(f"--method: {e}" if a.method is not None else str(e))
     spec = methods.spec(name)
-    clss_frame = name in ("clss", "clss-rules")
     check_weights_mode(a.weights, spec.weights() != "none needed")
-    if a.debug_views and not clss_frame:
-        raise UsageError(f"--debug-views: the method {name} has no debug views (clss and "
-                         "clss-rules have them)")
+    spec.resolve_weights(a.weights, a.scale)    # a scale it ships no weights for: now
+    if a.debug_views and "debug" not in (spec.parameters() or ()):
+        have = [s.name for s in methods.specs() if "debug" in (s.parameters() or ())]
+        raise UsageError(f"--debug-views: the method {name} has no debug views "
+                         f"({', '.join(have)} have them)")
     channels = parse_channels(a.channels)
     seq = read_sequence(a.input, channels=channels, jitter=a.jitter, scale=a.scale)
     n = len(seq) if a.frames is None else min(len(seq), a.frames)
@@ -134,22 +144,20 @@ def cmd_upscale(argv) -> int:
     _check_gbuffers(name, spec, first, a.scale)     # before anything is written
     inputs = seq.files + ([a.jitter] if a.jitter and os.path.isfile(a.jitter) else [])
     stale = prepare_output_dir(a.out, "-o", inputs, a.overwrite, OUTPUT_SET)
+    # The input's description goes to every method that reads it (one that does not,
+    # e.g. bicubic and depth, is left out); the options methods add check themselves.
     kw = dict(depth_inverted=not a.depth_standard,
               motion_scale=resolve_motion_scale(a.motion_scale, first.color.shape[:2]),
-              exposure=a.exposure, sanitize=a.sanitize, profile=True)
-    if a.weights is not None:
-        kw["weights"] = a.weights
-    if clss_frame or name == "jbicubic":
-        kw.update(hdr=not a.ldr)
-    if clss_frame:
-        kw.update(debug=a.debug_views)
-    from ..methods.mlp import cli_online
-    kw.update(cli_online.check(a, name, UsageError))
-    up = Upscaler(method=name, scale=a.scale, device=a.device, precision=a.precision, **kw)
+              exposure=a.exposure, sanitize=a.sanitize, profile=True, weights=a.weights,
+              hdr=not a.ldr, debug=a.debug_views)
+    for ext in _method_options():
+        kw.update(ext.check(a, name, UsageError))
+    up = Upscaler(method=name, scale=a.scale, device=a.device, precision=a.precision,
+                  **methods.options(name, **kw))
     start_output(a.out, stale)
     print(f"clss upscale: {n} frames from {a.input}, method {name}, x{a.scale:g}, "
           f"{a.precision}, device {up.dev.info.name}", file=sys.stderr)
-    if name == "clss" and not up.trained:
+    if getattr(up, "trained", None) is False:
         print("clss upscale: note: the networks are untrained (seeded init)", file=sys.stderr)
     scores, sanitized = [], []
     t0 = time.perf_counter()
@@ -171,8 +179,8 @@ def cmd_upscale(argv) -> int:
     done = files.done_frames
     dt = time.perf_counter() - t0
     _print_summary(a, up, done, dt, sanitized, scores)
-    from ..methods.mlp import cli_online
-    cli_online.finish(a, up)
+    for ext in _method_options():
+        ext.finish(a, up)
     return 0
 
 
@@ -196,21 +204,23 @@ def _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written):
     """Upscale and write frames 0..n-1; a refused frame ends the run with a UsageError."""
     from ..io import write_exr, write_png
     from ..pipeline.contract import FrameInputError
-    from ..methods.mlp import cli_online
     from ..progress import progress
+    exts = _method_options()
     dbg_dir = os.path.join(a.out, "debug")
     for i in progress(range(n), desc="upscale", unit="frame", total=n):
         f = first if i == 0 else seq[i]
         number = f.meta.get("frame", i)
         try:
-            ref = cli_online.reference(a, i, f)
+            extra = {}
+            for ext in exts:
+                extra.update(ext.step_kwargs(a, i, f))
             out = up.step(f.color, f.depth, f.motion, f.jitter, reset=f.reset,
-                          **(getattr(f, "gbuffers", None) or {}),
-                          **({"reference": ref} if ref is not None else {}))
+                          **(getattr(f, "gbuffers", None) or {}), **extra)
         except FrameInputError as e:
             where = f.meta.get("files", {}).get("color", "?")
             raise UsageError(f"frame {number} ({where}): {cli_message(e)}; {written()}") from None
-        cli_online.report(a, up, number)
+        for ext in exts:
+            ext.report(a, up, number)
         if up.last_report:
             sanitized.append((number, dict(up.last_report)))
         stem = os.path.join(a.out, f"frame.{number:04d}")
@@ -233,8 +243,9 @@ def _print_summary(a, up, done, dt, sanitized, scores):
           f"-> {a.out}")
     if a.sanitize:
         print(format_sanitized(sanitized, done))
-    if up.method == "clss":
-        print(f"classifier: {up.classifier_backend_name}")
+    backend = getattr(up, "classifier_backend_name", None)     # a method with a classifier
+    if backend is not None:
+        print(f"classifier: {backend}")
     stages = up.stage_ms()
     if stages:
         print("per-stage time per frame (OpenCL events; classifier: wall time):")

@@ -5,7 +5,9 @@
 
 A room exports SPECS {name: clss.pipeline.method.MethodSpec}. This registry names the
 room of each method and imports it only when the method is asked for, so listing the
-methods (`clss methods`) costs one import per room and no device.
+methods (`clss methods`) costs one import per room and no device. What a method adds to
+the shared code (fast paths, command-line options, the older mode= alias) is named by its
+spec; the shared code asks the spec (`specs()`), never the room.
 """
 from __future__ import annotations
 
@@ -19,6 +21,8 @@ ROOMS = {"bicubic": "bicubic", "jbicubic": "clss", "clss-rules": "clss", "clss":
 ALIASES = {"rules": "clss-rules", "rule": "clss-rules", "net": "clss", "clss-net": "clss"}
 # Methods the paper seeds describe that are not built yet (`clss methods` lists them as such).
 PLANNED: dict = {}
+# The method of clss.Upscaler() and `clss upscale` without one.
+DEFAULT = "clss"
 
 
 def names() -> list[str]:
@@ -48,8 +52,17 @@ def specs() -> list:
 
 
 def create(name: str, **kwargs):
-    """The upscaler of method `name` (keyword arguments as clss.Upscaler's)."""
-    return spec(name).create(**kwargs)
+    """The upscaler of method `name` (keyword arguments as clss.Upscaler's); a keyword
+    argument the method does not take is a TypeError naming the closest one it does."""
+    s = spec(name)
+    s.check_arguments(kwargs)
+    return s.create(**kwargs)
+
+
+def options(name: str, **kwargs) -> dict:
+    """Those of `kwargs` that method `name` takes (None values left out): for a caller
+    that feeds several methods the same options (eval, the command line, the demo)."""
+    return spec(name).options(kwargs)
 
 
 def twin(name: str, render_size, scale, **kwargs):

@@ -2,30 +2,46 @@
 
 A method (clss/methods/<room>/) describes itself with a `MethodSpec`: the inputs of the
 frame contract it reads, the G-buffers it needs or uses, the scales and precisions it
-supports, whether its weights are trained, and how to build its upscaler. `clss methods`
-prints the specs; `clss.Upscaler(method=NAME)` builds through them.
+supports, the weights it ships, what it adds to the shared code (fast-path self-checks,
+command-line options, the older mode= alias), and how to build its upscaler.
+`clss methods` prints the specs; `clss.Upscaler(method=NAME)` builds through them, and
+refuses a keyword argument the method does not take (naming the closest one).
 
-Every method's upscaler derives from `MethodUpscaler`, which holds what they share and
-must not be copied into each room: the argument checks (scale, precision, exposure,
-motion scale), the pending reset of a camera cut, the rule that a new render size needs
-a reset, and the G-buffer check of the contract (a missing one is a named error before
-anything runs).
+Every method's upscaler derives from `MethodUpscaler`, a template that holds what they
+share and must not be copied into each room: the argument checks (scale, precision,
+exposure, motion scale), the host `step` (the pending reset of a camera cut, the frame
+and G-buffer checks of the contract, the upload into the frame step's input buffers,
+the run and the read-back), the device `step_device` (the same on pyopencl arrays),
+the rule that a new render size needs a reset, and the one weights resolver (the
+package's files, UNTRAINED, WEIGHTS_DIR). A room implements only what differs: building
+its frame step for a render size and enqueuing one frame (see MethodUpscaler).
 """
 from __future__ import annotations
 
+import difflib
+import functools
+import inspect
 import math
 import os
-import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
-from .contract import FrameInputError, check_exposure, check_motion_scale, validate_frame
+from ..errors import ArgumentError, UserError
+from .contract import (GBUFFERS, FrameInputError, MissingInputError, check_exposure,
+                       check_jitter, check_motion_scale, gbuffer_sources, output_size,
+                       validate_frame)
 
 # The frame contract's inputs (docs/input-contract.md) in the order `step` takes them.
 CONTRACT_INPUTS = ("color", "depth", "motion", "jitter")
 PRECISIONS = ("fp32", "fp16")
+
+# The package's trained weights (clss/weights/, written by the training recipes), and the
+# weights= value that asks for a method's seeded init.
+WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                           "weights")
+UNTRAINED = "untrained"
 
 
 @dataclass(frozen=True)
@@ -33,14 +49,34 @@ class MethodSpec:
     """One method, as `clss methods` lists it and `clss.Upscaler(method=...)` builds it.
 
     name: the registry name (`--method NAME`); label: how tables and pictures call it;
-    summary: one line; inputs: the contract inputs it reads; gbuffers: the optional
-    inputs it needs (refused without them); optional: those it uses when given;
-    scales: (lowest, highest) scale; precisions: what `precision=` accepts; temporal:
-    whether it carries a history between frames; weights: callable -> "trained",
-    "untrained" or "none needed" (the state of the package's weights); create:
-    callable(**kwargs) -> MethodUpscaler; doc: its page under docs/; twin: "module:name"
-    of its whole-frame ONNX twin, a callable(method, render_size, scale, **kwargs) -> a
-    runner with the same `step` on onnxruntime (clss.methods.twin builds it)."""
+    summary: one line; create: the upscaler class, or a functools.partial of it that
+    fixes what tells the methods of one room apart (CLSS's mode, the MLP's feature): its
+    signature is the method's keyword arguments (`parameters`), and any other one is
+    refused; inputs: the contract inputs it reads; gbuffers: the optional inputs it needs
+    (refused without them); optional: those it uses when given; scales: (lowest, highest)
+    scale; precisions: what `precision=` accepts; temporal: whether it carries a history
+    between frames; doc: its page under docs/; twin: "module:name" of its whole-frame
+    ONNX twin, a callable(method, render_size, scale, **kwargs) -> a runner with the same
+    `step` on onnxruntime (clss.methods.twin builds it).
+
+    Weights (`resolve_weights`): shipped: ((scale, file name under WEIGHTS_DIR), ...) of
+    the trained weights the package ships, scale None for a file that serves every scale
+    (empty: the method needs none); nearest_scale: a scale without a file of its own
+    takes the nearest shipped one (ties: the larger), for networks that do not depend on
+    the scale (NSRR); otherwise such a scale is refused unless the caller gives weights=
+    or allow_untrained=True.
+
+    What the method adds to the shared code, named here so that the shared code asks the
+    spec instead of importing the room: fast_paths: a module whose import registers the
+    method's fast paths with clss.selfcheck (clss.selfcheck_runner imports it, so `clss
+    verify` and a child process check them); cli: a module with the method's own options
+    of `clss upscale` (add_arguments(parser); check(args, method, usage_error) -> its
+    keyword arguments for the upscaler, refusing its options for another method;
+    step_kwargs(args, i, frame) -> what `step` takes besides the frame at position i;
+    report(args, up, number); finish(args, up)); modes: {older mode= value: method name} for the methods the older
+    `clss.Upscaler(scale, mode)` picks between (CLSS's "net" / "rules"), the same on each
+    of them; positional arguments after the mode go to such a method in its signature's
+    order."""
     name: str
     label: str
     summary: str
@@ -51,9 +87,13 @@ class MethodSpec:
     scales: tuple = (1.0, 16.0)
     precisions: tuple = PRECISIONS
     temporal: bool = True
-    weights: Callable = field(default=lambda: "none needed", repr=False)
     doc: str = ""
     twin: str = ""
+    shipped: tuple = ()
+    nearest_scale: bool = False
+    fast_paths: str = ""
+    cli: str = ""
+    modes: dict = field(default_factory=dict, repr=False, compare=False)
 
     def check_scale(self, scale) -> float:
         try:
@@ -72,6 +112,114 @@ class MethodSpec:
                              f"(method {self.name!r}), got {precision!r}")
         return precision
 
+    # -- keyword arguments ------------------------------------------------------------
+    def _signature(self):
+        fn, fixed = self.create, {}
+        if isinstance(fn, functools.partial):
+            fn, fixed = fn.func, dict(fn.keywords)
+        return inspect.signature(fn), fixed
+
+    def parameters(self) -> tuple | None:
+        """The keyword arguments the method's upscaler takes, in its signature's order
+        (those `create` fixes left out); None when it takes any (a **kwargs test double)."""
+        sig, fixed = self._signature()
+        names = []
+        for p in sig.parameters.values():
+            if p.kind is p.VAR_KEYWORD:
+                return None
+            if p.kind is not p.VAR_POSITIONAL and p.name not in fixed:
+                names.append(p.name)
+        return tuple(names)
+
+    def positional(self) -> tuple:
+        """The parameters that may be given by position, in order (scale first)."""
+        sig, fixed = self._signature()
+        return tuple(p.name for p in sig.parameters.values()
+                     if p.kind is p.POSITIONAL_OR_KEYWORD and p.name not in fixed)
+
+    def check_arguments(self, kwargs) -> None:
+        """An ArgumentError (a TypeError) for the first keyword argument the method does
+        not take, naming the closest one it does."""
+        names = self.parameters()
+        if names is None:
+            return
+        for key in kwargs:
+            if key in names:
+                continue
+            close = difflib.get_close_matches(key, names, n=1)
+            hint = (f"did you mean {close[0]!r}?" if close else
+                    f"it takes {', '.join(names)}")
+            raise ArgumentError(f"clss.Upscaler(method={self.name!r}): unexpected keyword "
+                                f"argument {key!r}; {hint}")
+
+    def options(self, kwargs: dict) -> dict:
+        """Those of `kwargs` the method takes: for a caller that feeds several methods
+        the same options (eval, the command line, the demo); None values left out."""
+        names = self.parameters()
+        return {k: v for k, v in kwargs.items()
+                if v is not None and (names is None or k in names)}
+
+    # -- weights ----------------------------------------------------------------------
+    def weights(self) -> str:
+        """"trained", "untrained" or "none needed": the state of the package's weights."""
+        if not self.shipped:
+            return "none needed"
+        return "trained" if any(os.path.isfile(os.path.join(WEIGHTS_DIR, f))
+                                for _, f in self.shipped) else "untrained"
+
+    def trained_scales(self) -> list:
+        """The scales whose shipped weights file is in the package."""
+        return [s for s, f in self.shipped
+                if s is not None and os.path.isfile(os.path.join(WEIGHTS_DIR, f))]
+
+    def shipped_file(self, scale) -> str | None:
+        """The package's weights file that serves `scale`, if it is there."""
+        if not self.shipped:
+            return None
+        files = dict(self.shipped)
+        if None in files:
+            key = None
+        elif self.nearest_scale:
+            key = min(files, key=lambda s: (abs(float(scale) - s), -s))
+        else:
+            key = next((s for s in files if float(s) == float(scale)), False)
+            if key is False:
+                return None
+        path = os.path.join(WEIGHTS_DIR, files[key])
+        return path if os.path.isfile(path) else None
+
+    def resolve_weights(self, weights, scale, allow_untrained=False):
+        """weights= as given (and None for a method that needs none); for None the
+        package's file for `scale`; without one UNTRAINED (the seeded init) if the caller
+        allows it, else a UserError naming the scales that have weights."""
+        if weights is not None or not self.shipped:
+            return weights
+        path = self.shipped_file(scale)
+        if path is not None:
+            return path
+        if allow_untrained:
+            return UNTRAINED
+        have = self.trained_scales()
+        where = (f"the package has weights for scale{'s' if len(have) > 1 else ''} "
+                 f"{' and '.join(f'{s:g}' for s in have)}" if have else
+                 "the package has no trained weights for it")
+        s = float(scale)
+        raise UserError(
+            f"{self.name}: no trained weights for scale {s:g} ({where}); pass weights= (a "
+            f"weights file, or {UNTRAINED!r} for the seeded init) or allow_untrained=True",
+            cli=f"--method {self.name} --scale {s:g}: no trained weights for this scale "
+                f"({where}); give --weights FILE, or --weights {UNTRAINED} for the seeded init")
+
+
+def weights_file(weights, what: str) -> str:
+    """weights= given as a path: it must be an existing .safetensors file (`what`, e.g.
+    "an NSRR .safetensors file", names what was expected)."""
+    path = os.fspath(weights)
+    if not (os.path.isfile(path) and path.endswith(".safetensors")):
+        raise ValueError(f"weights: expected {what}, got {path!r}"
+                         + ("" if os.path.exists(path) else " (does not exist)"))
+    return path
+
 
 def summed_event_ms(events, stages) -> dict:
     """{stage: milliseconds} of [(stage, pyopencl.Event)] (profiled events), in the order
@@ -85,13 +233,33 @@ def summed_event_ms(events, stages) -> dict:
 
 
 class MethodUpscaler:
-    """The part of every method's upscaler that is the same for all (see the module doc).
+    """The part of every method's upscaler that is the same for all (see the module doc):
+    a template whose `step` and `step_device` run any room's frame step.
 
-    Subclasses set `spec` and implement `step` / `step_device` with the contract's
-    arguments (color, depth, motion, jitter, reset=False, reactive=None, **gbuffers),
-    `render_size` / `output_size` (None before the first frame) and, where they time
-    their stages, `stage_ms` / `reset_timings`."""
+    A room sets `spec` and calls `_init_common` in its constructor, and implements:
+
+    _build_frame_step(h, w): its frame step for render size h x w: an object with h, w,
+      H, W, an `in_<name>` device buffer for each input the host step uploads (see
+      `inputs`; float32, or the precision's storage type), and, where the method times
+      its stages, stage_ms() (with STAGES) and device_bytes();
+    _enqueue(fs, arrays, jitter, out): enqueue one frame on `fs` from `arrays` ({input
+      name: device array}, the `in_` buffers on the host path, the caller's arrays on the
+      device path), the checked jitter and `out` (None: the frame step's own output);
+      returns (output array, the frame's last event). The pending reset is
+      `self._pending_reset`.
+
+    and where it differs from the default: REACTIVE (its frame step reads the reactive
+    mask), VALUES_ON_DEVICE (its frame step checks the values itself: `_run` then judges
+    the frame after it ran, as CLSS's prepare kernel does), `_run` (enqueue and complete
+    one frame), `_host_frame_hook` (a method that learns from the host frame: the MLP's
+    online training), `render_size` / `output_size` (None before the first frame) and
+    `stage_ms` / `reset_timings`.
+
+    Inputs are float32 in image layout on both paths (the contract's); step_device also
+    takes float16 and converts it on the device. Either path returns H x W x 3 float32."""
     spec: MethodSpec
+    REACTIVE = False
+    VALUES_ON_DEVICE = False
 
     def _init_common(self, scale, device, precision, *, depth_inverted=True,
                      motion_scale=(1, 1), exposure=1.0, sanitize=False, profile=False):
@@ -109,14 +277,13 @@ class MethodUpscaler:
         self.last_report: dict = {}
         self._fs = None             # the frame step of the current render size
         self._totals: dict[str, float] = {}     # per-stage ms summed over flushed frame steps
-        self._timed = 0             # frames those sums cover (the subclass counts them)
+        self._timed = 0             # frames those sums cover (_frame_done counts them)
 
     @property
     def method(self) -> str:
         return self.spec.name
 
-    # A method with a device frame step (`_fs`, with h, w, H, W) has its sizes from it;
-    # None before the first frame.
+    # The frame step (`_fs`, with h, w, H, W) has the sizes; None before the first frame.
     @property
     def render_size(self):
         fs = getattr(self, "_fs", None)
@@ -127,9 +294,170 @@ class MethodUpscaler:
         fs = getattr(self, "_fs", None)
         return None if fs is None else (fs.H, fs.W)
 
+    def device_bytes(self) -> int:
+        """Bytes of the device buffers the frame step holds."""
+        fs = getattr(self, "_fs", None)
+        return 0 if fs is None or not hasattr(fs, "device_bytes") else fs.device_bytes()
+
     def reset(self):
         """The next frame starts afresh (a camera cut)."""
         self._pending_reset = True
+
+    @property
+    def inputs(self) -> tuple:
+        """The inputs the frame step reads, in the order `step` takes them: the spec's
+        contract inputs (the jitter aside, it is an argument), "reactive" where
+        REACTIVE, then the G-buffers it needs or uses."""
+        spec = self.spec
+        return (tuple(n for n in spec.inputs if n != "jitter")
+                + (("reactive",) if self.REACTIVE else ()) + tuple(spec.gbuffers)
+                + tuple(spec.optional))
+
+    # -- the host path ----------------------------------------------------------------
+    def step(self, color, depth=None, motion=None, jitter=(0.0, 0.0), reset=False,
+             reactive=None, **gbuffers) -> np.ndarray:
+        """One frame from host arrays (docs/input-contract.md); returns the H x W x 3
+        float32 linear output. G-buffers are keyword arguments; those the method does not
+        use are ignored (one caller may feed every method the same frame), as are the
+        contract inputs it does not read."""
+        if reset:
+            self._pending_reset = True          # kept if this frame is refused
+        frame = self._host_frame(color, depth, motion, jitter, reactive, reset)
+        hw = frame["color"].shape[:2]
+        gb = self._gbuffers(gbuffers, hw, output_size(*hw, self.scale))
+        self._host_frame_hook(frame, gb, gbuffers)
+        fs = self._frame_step(hw, reset)
+        arrays = {}
+        for name in self.inputs:
+            value = gb.get(name) if name in GBUFFERS else frame.get(name)
+            if value is None:
+                continue
+            buf = getattr(fs, "in_" + name)
+            buf.set(np.ascontiguousarray(value, buf.dtype))
+            arrays[name] = buf
+        return self.dev.to_host(self._run(fs, arrays, frame["jitter"], None, host=frame))
+
+    def _host_frame(self, color, depth, motion, jitter, reactive, reset) -> dict:
+        """validate_frame's dict for the host step: the layout always, the values unless
+        the frame step checks them (VALUES_ON_DEVICE); the render size held to the
+        sequence's. A method that reads the colour alone gets placeholders for the rest."""
+        reset = reset or self._pending_reset
+        if "depth" not in self.spec.inputs:
+            return self._color_frame(color, reset)
+        if isinstance(color, np.ndarray) and color.ndim == 3:
+            # before validate_frame, whose shape error would not say that a reset is missing
+            self._check_render_size(color.shape[:2], reset)
+        return validate_frame(color, depth, motion, jitter,
+                              reactive if self.REACTIVE else None,
+                              render_size=None if reset or self._fs is None else self.render_size,
+                              sanitize=self.sanitize, depth_inverted=self.depth_inverted,
+                              values=not self.VALUES_ON_DEVICE)
+
+    def _color_frame(self, color, reset):
+        """For a method that reads the colour alone: validate_frame's dict, the colour
+        checked as the contract says and the render size held to the sequence's."""
+        color = np.asarray(color)
+        if color.ndim == 3:
+            self._check_render_size(color.shape[:2], reset)
+        h, w = color.shape[:2] if color.ndim >= 2 else (0, 0)
+        # placeholders for the inputs such a method does not read
+        return validate_frame(color, np.zeros((h, w), np.float32),
+                              np.zeros((h, w, 2), np.float32), (0.0, 0.0),
+                              sanitize=self.sanitize)
+
+    def _host_frame_hook(self, frame, gbuffers, extra):
+        """Called by the host step once the frame and its G-buffers (`gbuffers`) passed
+        the checks, before the upload; `extra` holds every keyword argument of the step
+        (a method may take more than G-buffers there: the MLP's `reference`)."""
+
+    def _gbuffers(self, given: dict, render_size, output_size) -> dict:
+        """The G-buffers this method needs or uses, checked against the contract; a
+        missing needed one is a named error (nothing has run yet). Buffers the method
+        does not use are ignored, so one caller can feed every method the same frame."""
+        spec = self.spec
+        if not spec.gbuffers and not spec.optional:
+            return {}
+        from . import contract
+        return contract.validate_gbuffers(spec.name, spec.gbuffers, spec.optional,
+                                          {k: v for k, v in given.items() if v is not None},
+                                          render_size, output_size, sanitize=self.sanitize)
+
+    # -- the device path --------------------------------------------------------------
+    def step_device(self, color, depth=None, motion=None, jitter=(0.0, 0.0), reset=False,
+                    reactive=None, out=None, **gbuffers):
+        """One frame from pyopencl arrays in image layout (float32; float16 is converted,
+        which allocates), the G-buffers as keywords; returns the H x W x 3 float32 output
+        on the device: `out` if given, else a buffer of the frame step that the next step
+        overwrites. No host copies; the values are checked on the device by a method whose
+        frame step does (VALUES_ON_DEVICE), else not here."""
+        given = dict(gbuffers, color=color, depth=depth, motion=motion, reactive=reactive)
+        names = [n for n in self.inputs if n != "reactive" or reactive is not None]
+        missing = [n for n in self.spec.gbuffers if given.get(n) is None]
+        if missing:
+            if reset:
+                self._pending_reset = True
+            raise MissingInputError(
+                f"method {self.spec.name!r} needs {', '.join(missing)}, which the frame "
+                "does not carry; pass " + "; ".join(gbuffer_sources(n) for n in missing))
+        hw = self._device_frame(reset, out=out, **{n: given[n] for n in names})
+        fs = self._frame_step(hw, reset)
+        sizes = {"color": (3,), "depth": (), "motion": (2,), "reactive": ()}
+        arrays = {}
+        for n in names:
+            shape = (tuple(hw) + sizes[n] if n in sizes else
+                     GBUFFERS[n].shape(hw, (fs.H, fs.W)))
+            arrays[n] = self._device_input(n, given[n], shape)
+        if out is not None and (out.shape != (fs.H, fs.W, 3) or out.dtype != np.float32):
+            raise FrameInputError(f"out: expected a float32 array of shape {(fs.H, fs.W, 3)}, "
+                                  f"got {out.dtype} {out.shape}")
+        return self._run(fs, arrays, check_jitter(jitter), out)
+
+    def _device_frame(self, reset, **arrays):
+        """step_device's common entry: a reset is remembered (kept if the frame is then
+        refused), every given array must be a pyopencl array, the colour h x w x 3;
+        returns (h, w)."""
+        import pyopencl.array as cla
+        if reset:
+            self._pending_reset = True
+        for name, a in arrays.items():
+            if (a is not None or name != "out") and not isinstance(a, cla.Array):
+                raise FrameInputError(f"{name}: expected a pyopencl.array.Array, got "
+                                      f"{type(a).__name__} (use step() for numpy arrays)")
+        color = arrays["color"]
+        if color.ndim != 3 or color.shape[2] != 3:
+            raise FrameInputError(f"color: expected shape (h, w, 3), got {color.shape}")
+        return tuple(color.shape[:2])
+
+    def _device_input(self, name, a, shape):
+        """A device input checked for shape (a plane may be h x w x 1), dtype (float32;
+        float16 converted on the device) and layout (contiguous, at offset 0)."""
+        shape = tuple(int(v) for v in shape)
+        if a.shape != shape and not (len(shape) == 2 and a.shape == shape + (1,)):
+            raise FrameInputError(f"{name}: expected shape {shape}, got {a.shape}")
+        if a.dtype not in (np.float32, np.float16):
+            raise FrameInputError(f"{name}: expected dtype float32 or float16, got {a.dtype}")
+        if not a.flags.c_contiguous or a.offset:
+            raise FrameInputError(f"{name}: expected a contiguous array at offset 0")
+        return convert_storage(a, np.float32) if a.dtype == np.float16 else a
+
+    # -- one frame --------------------------------------------------------------------
+    def _frame_step(self, hw, reset):
+        """The frame step for render size hw, built anew (buffers, programs) when it changes."""
+        return self._frame_step_for(hw, reset, self._build_frame_step)
+
+    def _build_frame_step(self, h, w):
+        raise NotImplementedError(f"{type(self).__name__} builds no frame step")
+
+    def _enqueue(self, fs, arrays, jitter, out):
+        raise NotImplementedError(f"{type(self).__name__} enqueues no frame")
+
+    def _run(self, fs, arrays, jitter, out, host=None):
+        """Enqueue one frame and complete it; returns the output array (float32). `host`:
+        the host step's validated frame (None on the device path)."""
+        res, ev = self._enqueue(fs, arrays, jitter, out)
+        self._frame_done(ev)
+        self.last_report = {} if host is None else host["sanitized"]
+        return res
 
     def _check_render_size(self, hw, reset):
         """A render size other than the sequence's needs a reset (a camera cut)."""
@@ -143,7 +471,7 @@ class MethodUpscaler:
         """The device frame step (`self._fs`, with .h and .w) for render size hw: the
         current one, or `build(h, w)` after `_release_frame_step()` (a new size is a new
         sequence: buffers and programs built anew, and the next frame a reset)."""
-        self._check_render_size(hw, reset)
+        self._check_render_size(hw, reset or self._pending_reset)
         fs = getattr(self, "_fs", None)
         if fs is not None and (fs.h, fs.w) == tuple(hw):
             return fs
@@ -162,33 +490,6 @@ class MethodUpscaler:
         its per-stage timings are kept."""
         self._flush_timings()
 
-    def _device_frame(self, reset, **arrays):
-        """step_device's common entry: a reset is remembered (kept if the frame is then
-        refused), every given array must be a pyopencl array, the colour h x w x 3;
-        returns (h, w)."""
-        import pyopencl.array as cla
-        if reset:
-            self._pending_reset = True
-        for name, a in arrays.items():
-            if a is not None and not isinstance(a, cla.Array):
-                raise FrameInputError(f"{name}: expected a pyopencl.array.Array, got "
-                                      f"{type(a).__name__} (use step() for numpy arrays)")
-        color = arrays["color"]
-        if color.ndim != 3 or color.shape[2] != 3:
-            raise FrameInputError(f"color: expected shape (h, w, 3), got {color.shape}")
-        return tuple(color.shape[:2])
-
-    @staticmethod
-    def _check_device_arrays(shaped, out=None, out_shape=None):
-        """step_device's per-array check: each (name, array, shape) float32 of that many
-        values, and `out` (if given) a float32 array of `out_shape`."""
-        for name, a, shape in shaped:
-            if a.size != int(np.prod(shape)) or a.dtype != np.float32:
-                raise FrameInputError(f"{name}: expected float32 of shape {tuple(shape)}, got "
-                                      f"{a.dtype} {a.shape}")
-        if out is not None and (out.shape != tuple(out_shape) or out.dtype != np.float32):
-            raise FrameInputError(f"out: expected a float32 array of shape {tuple(out_shape)}")
-
     def _frame_done(self, event):
         """After a frame step enqueued a whole frame: wait for its last event, then count
         the frame (the pending reset is spent; a timed frame for stage_ms)."""
@@ -198,35 +499,10 @@ class MethodUpscaler:
         if self.profile:
             self._timed += 1
 
-    def _color_frame(self, color, reset):
-        """For a method that reads the colour alone: (validate_frame's dict, (h, w)), the
-        colour checked as the contract says and the render size held to the sequence's."""
-        color = np.asarray(color)
-        if color.ndim == 3:
-            self._check_render_size(color.shape[:2], reset or self._pending_reset)
-        h, w = color.shape[:2] if color.ndim >= 2 else (0, 0)
-        # placeholders for the inputs such a method does not read
-        frame = validate_frame(color, np.zeros((h, w), np.float32),
-                               np.zeros((h, w, 2), np.float32), (0.0, 0.0),
-                               sanitize=self.sanitize)
-        return frame, (h, w)
-
-    def _gbuffers(self, given: dict, render_size, output_size) -> dict:
-        """The G-buffers this method needs or uses, checked against the contract; a
-        missing needed one is a named error (nothing has run yet). Buffers the method
-        does not use are ignored, so one caller can feed every method the same frame."""
-        spec = self.spec
-        if not spec.gbuffers and not spec.optional:
-            return {}
-        from . import contract
-        return contract.validate_gbuffers(spec.name, spec.gbuffers, spec.optional,
-                                          {k: v for k, v in given.items() if v is not None},
-                                          render_size, output_size, sanitize=self.sanitize)
-
     # -- timings ----------------------------------------------------------------------
     # The stages a method's frame step times with OpenCL events (its `stage_ms()` gives the
     # milliseconds summed since its last call); a method without stage events names none
-    # and reports none. The method counts each timed frame in `_timed`.
+    # and reports none.
     STAGES: tuple = ()
 
     def _flush_timings(self):
@@ -249,34 +525,36 @@ class MethodUpscaler:
         n = max(self._timed, 1)
         return {k: self._totals[k] / n for k in self.STAGES if k in self._totals}
 
-    def device_bytes(self) -> int:
-        return 0
+
+# ---- float16 <-> float32 on the device ------------------------------------------------------
+# OpenCL 1.2 reads and writes half storage with vload_half / vstore_half (no cl_khr_fp16
+# needed; PoCL has none), so the buffers are passed as ushort. Round to nearest even, as
+# numpy's astype(float16).
+_CONVERT = {}
 
 
-# ---- a method's weights= argument ----------------------------------------------------------
-UNTRAINED = "untrained"
-
-
-def weights_or_shipped(weights, shipped, method: str, scale, warned: list, where: str):
-    """`weights` as given; for None the package's file `shipped`, and without one UNTRAINED
-    with a warning (once per process: `warned`) that the seeded init runs."""
-    if weights is not None:
-        return weights
-    if shipped is not None:
-        return shipped
-    if not warned:
-        warned.append(True)
-        warnings.warn(f"{method}: no trained weights for scale {float(scale):g} in the "
-                      f"package ({where}); running the untrained (seeded) networks",
-                      stacklevel=4)
-    return UNTRAINED
-
-
-def weights_file(weights, what: str) -> str:
-    """weights= given as a path: it must be an existing .safetensors file (`what`, e.g.
-    "an NSRR .safetensors file", names what was expected)."""
-    path = os.fspath(weights)
-    if not (os.path.isfile(path) and path.endswith(".safetensors")):
-        raise ValueError(f"weights: expected {what}, got {path!r}"
-                         + ("" if os.path.exists(path) else " (does not exist)"))
-    return path
+def convert_storage(a, dtype, out=None):
+    """`a` (a float32 or float16 device array) as `dtype` (float32 or float16): into `out`
+    (same shape) if given, else a new array; `a` itself when it has that dtype already."""
+    import pyopencl.array as cla
+    from pyopencl.elementwise import ElementwiseKernel
+    dtype = np.dtype(dtype)
+    if a.dtype == dtype and out is None:
+        return a
+    key = (a.context.int_ptr, a.dtype.char, dtype.char)
+    k = _CONVERT.get(key)
+    if k is None:
+        src = "float" if a.dtype == np.float32 else "ushort"
+        dst = "float" if dtype == np.float32 else "ushort"
+        load = "x[i]" if src == "float" else "vload_half(i, (__global const half *)x)"
+        op = (f"z[i] = {load}" if dst == "float" else
+              f"vstore_half_rte({load}, i, (__global half *)z)")
+        k = ElementwiseKernel(a.context, f"__global {dst} *z, __global const {src} *x", op,
+                              f"clss_{src}_to_{dst}")
+        _CONVERT[key] = k
+    z = cla.empty(a.queue, a.shape, dtype) if out is None else out
+    if z.dtype != dtype or z.shape != a.shape:
+        raise ValueError(f"convert_storage: out is {z.dtype} {z.shape}, expected {dtype} {a.shape}")
+    k(z.view(np.uint16) if dtype == np.float16 else z,
+      a if a.dtype == np.float32 else a.view(np.uint16))
+    return z

@@ -1,27 +1,52 @@
 """The plain bicubic baseline: Keys bicubic (a = -0.75, half-pixel centres) of each render
 frame, on the device, in the PQ domain so that it rings as the pipeline's colour would.
-It ignores the jitter, depth and motion: what a spatial upscaler without history gives."""
+It ignores the jitter, depth and motion: what a spatial upscaler without history gives.
+
+The frame step (`BicubicFrame`): kernels/bicubic.cl encodes the colour to PQ planes, the
+resize op (clss.ops.resize) upsamples them, kernels/bicubic.cl decodes to the caller's
+image; the host `step` and `step_device` are MethodUpscaler's (no copy through the host on
+the device path).
+"""
 from __future__ import annotations
 
 import numpy as np
 
-from ...pipeline.contract import output_size, pq_decode, pq_encode
+from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from ...pipeline.method import MethodSpec, MethodUpscaler
 
 
-class Bicubic:
-    """Plain bicubic of one frame to `out_hw` (H, W) on `dev`, in `precision` (fp16: half
-    storage of the encoded colour, float arithmetic)."""
+class BicubicFrame:
+    """Device buffers and launches of one frame at render size (h, w) to `scale`, in
+    `precision` (fp16: half storage of the encoded colour, float arithmetic)."""
 
-    def __init__(self, dev, out_hw, precision="fp32"):
-        self.dev, self.out_hw, self.precision = dev, out_hw, precision
+    def __init__(self, dev, precision, render_size, scale, nits=PQ_NITS):
+        self.dev, self.prec = dev, precision
+        self.h, self.w = (int(v) for v in render_size)
+        self.H, self.W = output_size(self.h, self.w, scale)
+        self.nits = float(nits)
+        e = dev.empty
+        self.in_color = e((self.h, self.w, 3), dtype=np.float32)
+        self.x = e((1, 3, self.h, self.w), precision)
+        self.y = e((1, 3, self.H, self.W), precision)
+        self.out = e((self.H, self.W, 3), dtype=np.float32)
 
-    def __call__(self, color):
+    def run(self, color, exposure=1.0, out=None):
+        """Enqueue one frame (colour h x w x 3 float32 on the device); returns the output
+        array (`out` or the internal one) and the last event."""
         from ...ops.resize import resize
-        x = self.dev.to_device(pq_encode(color).transpose(2, 0, 1)[None], self.precision)
-        y = resize(self.dev, self.precision, x, out_hw=self.out_hw, mode="cubic")
-        y = self.dev.to_host(y)
-        return pq_decode(np.clip(y[0].transpose(1, 2, 0), 0, 1))
+        dev, i32, f = self.dev, np.int32, np.float32
+        out = self.out if out is None else out
+        dev.launch(dev.kernel("bicubic", "bicubic_encode", self.prec), (self.w, self.h),
+                   (color.data, self.x.data, i32(self.h), i32(self.w), f(1.0 / exposure),
+                    f(self.nits / PQ_PEAK_NITS)))
+        resize(dev, self.prec, self.x, out_hw=(self.H, self.W), mode="cubic", out=self.y)
+        ev = dev.launch(dev.kernel("bicubic", "bicubic_decode", self.prec), (self.W, self.H),
+                        (self.y.data, out.data, i32(self.H), i32(self.W),
+                         f(PQ_PEAK_NITS / self.nits * exposure)))
+        return out, ev
+
+    def device_bytes(self) -> int:
+        return sum(int(a.nbytes) for a in (self.in_color, self.x, self.y, self.out))
 
 
 class BicubicUpscaler(MethodUpscaler):
@@ -29,48 +54,21 @@ class BicubicUpscaler(MethodUpscaler):
     jitter are accepted (the contract's step) and not used."""
 
     def __init__(self, scale=2.0, device=None, precision="fp32", *, exposure=1.0,
-                 sanitize=False, profile=False, **unused):
+                 sanitize=False, profile=False):
         self.spec = SPEC
         self._init_common(scale, device, precision, exposure=exposure, sanitize=sanitize,
                           profile=profile)
-        self._hw = None
-        self._up = None
 
-    @property
-    def render_size(self):
-        return self._hw
+    def _build_frame_step(self, h, w):
+        return BicubicFrame(self.dev, self.precision, (h, w), self.scale)
 
-    @property
-    def output_size(self):
-        return None if self._hw is None else output_size(*self._hw, self.scale)
-
-    def step(self, color, depth=None, motion=None, jitter=(0.0, 0.0), reset=False,
-             reactive=None, **gbuffers) -> np.ndarray:
-        frame, (h, w) = self._color_frame(color, reset)
-        if self._hw != (h, w):
-            self._hw = (h, w)
-            self._up = Bicubic(self.dev, output_size(h, w, self.scale), self.precision)
-        self.last_report = frame["sanitized"]
-        self._pending_reset = False
-        self.frame_index += 1
-        c = frame["color"]
-        if self.exposure != 1.0:
-            c = c * np.float32(1.0 / self.exposure)
-        out = self._up(c)
-        return out * np.float32(self.exposure) if self.exposure != 1.0 else out
-
-    def step_device(self, color, depth=None, motion=None, jitter=(0.0, 0.0), reset=False,
-                    reactive=None, out=None, **gbuffers):
-        y = self.step(color.get(), reset=reset)
-        if out is None:
-            return self.dev.to_device(y)
-        out.set(np.ascontiguousarray(y, np.float32))
-        return out
+    def _enqueue(self, fs, arrays, jitter, out):
+        return fs.run(arrays["color"], exposure=self.exposure, out=out)
 
 
 SPEC = MethodSpec(
     "bicubic", "bicubic", "plain Keys bicubic of each frame, jitter-unaware, in the PQ domain",
-    lambda **kw: BicubicUpscaler(**kw), inputs=("color",), precisions=("fp32", "fp16"),
+    BicubicUpscaler, inputs=("color",), precisions=("fp32", "fp16"),
     temporal=False, doc="docs/methods/baselines.md",
     twin="clss.methods.bicubic.oracle:OracleBicubic")
 SPECS = {"bicubic": SPEC}

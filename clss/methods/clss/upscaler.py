@@ -24,37 +24,34 @@ application that renders with OpenCL never copies through the host; every buffer
 """
 from __future__ import annotations
 
+import functools
+import inspect
 import math
 import numbers
 import os
-import warnings
 
 import numpy as np
 
 from ...networks import CLASSIFIER_CHANNELS, pad16
 from ...pipeline.contract import (DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
-                                 VIS_MARGIN,
-                                 FrameInputError, check_jitter, ghost_classes, output_size,
+                                 VIS_MARGIN, FrameInputError, ghost_classes, output_size,
                                  validate_frame)
-from ...pipeline.method import MethodSpec, MethodUpscaler
+from ...pipeline.method import UNTRAINED, WEIGHTS_DIR, MethodSpec, MethodUpscaler
 from .frame import STAGES, FrameStep
 from .frame_selfcheck import register_fast_paths
 
 MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
 # The trained networks shipped in the package (`make train` writes them; recipe in
-# weights_tools/train.py), the default of mode "net".
-SHIPPED_WEIGHTS = os.path.join(
-    os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))),
-    "weights", "clss_trained.safetensors")
-UNTRAINED = "untrained"
-_warned_no_shipped = []
+# weights_tools/train.py), the default of mode "net", for every scale.
+SHIPPED_NAME = "clss_trained.safetensors"
+SHIPPED_WEIGHTS = os.path.join(WEIGHTS_DIR, SHIPPED_NAME)
 
 
-def load_networks(weights=None):
+def load_networks(weights=None, allow_untrained=False):
     """(classifier, composition, trained) from `weights`:
 
     None: the shipped trained weights (SHIPPED_WEIGHTS); if the package has none, the
-      untrained init with one warning;
+      untrained init with allow_untrained, else an error (MethodSpec.resolve_weights);
     "untrained": the seeded clss.networks (untrained, trained = False);
     a directory: classifier.onnx and composition.onnx if present (else the default
       architectures), then weights.safetensors (or the only *.safetensors) applied;
@@ -62,15 +59,8 @@ def load_networks(weights=None):
     """
     from ...networks import build_classifier, build_composition
     from ...networks import apply_weights, load_weights
-    if weights is None:
-        if os.path.isfile(SHIPPED_WEIGHTS):
-            weights = SHIPPED_WEIGHTS
-        else:
-            if not _warned_no_shipped:
-                _warned_no_shipped.append(True)
-                warnings.warn(f"clss: no trained weights in the package ({SHIPPED_WEIGHTS}); "
-                              "net mode runs the untrained (seeded) networks", stacklevel=3)
-            weights = UNTRAINED
+    # None: the one shipped file, which serves every scale
+    weights = SPECS["clss"].resolve_weights(weights, 1.0, allow_untrained)
     if isinstance(weights, str) and weights == UNTRAINED:
         return build_classifier(), build_composition(), False
     path = os.fspath(weights)
@@ -140,17 +130,24 @@ class ClssUpscaler(MethodUpscaler):
     composition (onnx.ModelProto, instead of weights), profile (per-stage times),
     debug (keep blend weight, ghost and depth difference for `debug_views`),
     classifier_backend (None: clss.Model, else onnxruntime with a warning;
-    "clss" or "onnxruntime" to force one).
+    "clss" or "onnxruntime" to force one), allow_untrained (net: the seeded init where
+    the package has no trained weights).
+
+    The host step and step_device are MethodUpscaler's; the frame step reads a reactive
+    mask and checks the values itself (its prepare kernel's flags, on both paths), so a
+    frame is judged after it ran (`_run`).
     """
 
     STAGES = STAGES     # the per-stage timings (MethodUpscaler.stage_ms)
+    REACTIVE = True
+    VALUES_ON_DEVICE = True
 
     def __init__(self, scale=2.0, mode="net", weights=None, device=None, precision="fp32",
                  depth_inverted=True, motion_scale=(1, 1), hdr=True, cap=None, *,
                  exposure=1.0, nits=PQ_NITS, depth_threshold=DEPTH_THRESHOLD,
                  depth_slope=DEPTH_SLOPE, vis_margin=VIS_MARGIN, sanitize=False,
                  classifier=None, composition=None, profile=False, debug=False,
-                 classifier_backend=None):
+                 classifier_backend=None, allow_untrained=False):
         if mode not in MODE_NAMES:
             raise ValueError(f"mode: expected 'net' or 'rules', got {mode!r}")
         self.mode = MODE_NAMES[mode]
@@ -194,7 +191,8 @@ class ClssUpscaler(MethodUpscaler):
                 self.classifier_model, self.composition_model = classifier, composition
                 self.trained = True
             else:
-                self.classifier_model, self.composition_model, self.trained = load_networks(weights)
+                self.classifier_model, self.composition_model, self.trained = \
+                    load_networks(weights, allow_untrained)
         self._fs: FrameStep | None = None
 
     # -- sizes and state ----------------------------------------------------------
@@ -219,14 +217,6 @@ class ClssUpscaler(MethodUpscaler):
             st["prev"] = self.dev.to_host(self._fs.prev_state)[None]
         return st
 
-    def device_bytes(self) -> int:
-        """Bytes of the device buffers this upscaler holds (the classifier's own aside)."""
-        return 0 if self._fs is None else self._fs.device_bytes()
-
-    def _frame_step(self, hw, reset):
-        """The FrameStep for render size hw, built anew (buffers, programs) when it changes."""
-        return self._frame_step_for(hw, reset, self._build_frame_step)
-
     def _build_frame_step(self, h, w):
         H, W = output_size(h, w, self.scale)
         if self.mode == "net":
@@ -241,96 +231,32 @@ class ClssUpscaler(MethodUpscaler):
         fs.debug = self.debug
         return fs
 
-    # -- the host path ----------------------------------------------------------------
-    def step(self, color, depth, motion, jitter, reset=False, reactive=None,
-             **gbuffers) -> np.ndarray:
-        """One frame from host arrays; returns the H x W x 3 float32 linear output.
-        G-buffers (keyword arguments) are not used by CLSS and are ignored."""
-        if reset:
-            self._pending_reset = True          # kept if this frame is refused
-        if isinstance(color, np.ndarray) and color.ndim == 3:
-            # before validate_frame, whose shape error would not say that a reset is missing
-            self._check_render_size(color.shape[:2], reset)
-        # The layout here; the values (finite, ranges) once, by the prepare kernel's flags,
-        # as on the device path (_run explains a refusal with the host check).
-        frame = validate_frame(color, depth, motion, jitter, reactive,
-                               render_size=None if reset or self._fs is None else self.render_size,
-                               depth_inverted=self.depth_inverted, values=False)
-        fs = self._frame_step(frame["depth"].shape, reset)
-        fs.in_color.set(frame["color"])
-        fs.in_depth.set(frame["depth"])
-        fs.in_motion.set(frame["motion"])
-        reactive = None
-        if frame["reactive"] is not None:
-            fs.in_reactive.set(frame["reactive"])
-            reactive = fs.in_reactive
-        self._run(fs, fs.in_color, fs.in_depth, fs.in_motion, reactive, frame["jitter"], reset,
-                  None, host=frame)
-        return fs.out.get()
-
-    # -- the device path -----------------------------------------------------------------
-    def step_device(self, color, depth, motion, jitter, reset=False, reactive=None, out=None,
-                    **gbuffers):
-        """One frame from pyopencl arrays in image layout (float32; float16 is converted,
-        which allocates): color h x w x 3, depth h x w, motion h x w x 2, reactive h x w.
-        Returns the H x W x 3 float32 output on the device: `out` if given, else an
-        internal buffer that the next step overwrites."""
-        hw = self._device_frame(reset, color=color, depth=depth, motion=motion,
-                                reactive=reactive, out=out)
-        fs = self._frame_step(hw, reset)
-
-        def as_f32(name, a, tail):
-            want = tuple(hw) + tail
-            if a.shape != want and not (not tail and a.shape == want + (1,)):
-                raise FrameInputError(f"{name}: expected shape {want}, got {a.shape}")
-            if a.dtype == np.float16:
-                a = a.astype(np.float32)
-            elif a.dtype != np.float32:
-                raise FrameInputError(f"{name}: expected dtype float32 or float16, got {a.dtype}")
-            if not a.flags.c_contiguous or a.offset:
-                raise FrameInputError(f"{name}: expected a contiguous array at offset 0")
-            return a
-
-        color = as_f32("color", color, (3,))
-        depth = as_f32("depth", depth, ())
-        motion = as_f32("motion", motion, (2,))
-        if reactive is not None:
-            reactive = as_f32("reactive", reactive, ())
-        if out is not None and (out.shape != (fs.H, fs.W, 3) or out.dtype != np.float32):
-            raise FrameInputError(f"out: expected a float32 array of shape {(fs.H, fs.W, 3)}, got "
-                                  f"{out.dtype} {out.shape}")
-        j = check_jitter(jitter)
-        self._run(fs, color, depth, motion, reactive, j, reset, out)
-        return out if out is not None else fs.out
-
-    # -- shared --------------------------------------------------------------------------
-    def _run(self, fs, color, depth, motion, reactive, jitter, reset, out, host=None):
+    # -- one frame ------------------------------------------------------------------------
+    def _run(self, fs, arrays, jitter, out, host=None):
         """Run the frame; the prepare kernel's flags decide on the values. `host`: the
         host arrays of step() (None on the device path, which copies them back only to
         explain a refusal)."""
-        use_reset = self._pending_reset
-        ev = fs.run(color, depth, motion, reactive, jitter,
-                    use_reset, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
-                    exposure=self.exposure, out=out)
+        a = arrays
+        ev = fs.run(a["color"], a["depth"], a["motion"], a.get("reactive"), jitter,
+                    self._pending_reset, depth_inverted=self.depth_inverted,
+                    motion_scale=self.motion_scale, exposure=self.exposure, out=out)
         ev.wait()
         refused, sanitized = fs.verdict()
         if refused:
             # The kernels already copied the history through; explain with the host check,
             # whose error names the input, the count and the first bad pixel.
             if host is None:
-                host = {"color": color.get(), "depth": depth.get(), "motion": motion.get(),
-                        "reactive": None if reactive is None else reactive.get()}
+                host = {k: None if a.get(k) is None else a[k].get()
+                        for k in ("color", "depth", "motion", "reactive")}
             validate_frame(host["color"], host["depth"], host["motion"], jitter,
                            host["reactive"], render_size=(fs.h, fs.w), sanitize=self.sanitize,
                            depth_inverted=self.depth_inverted)
             what = "; ".join(f"{n}: {w} values" for n, w in refused)
             raise FrameInputError(f"frame refused ({what}); the history is unchanged")
         fs.accept()
-        self._pending_reset = False
-        self.frame_index += 1
+        self._frame_done(ev)
         self.last_report = sanitized
-        if self.profile:
-            self._timed += 1
+        return fs.out if out is None else out
 
     # -- timings and debug views ---------------------------------------------------------
 
@@ -373,30 +299,39 @@ class JitterBicubic(ClssUpscaler):
         return super().step_device(color, depth, motion, jitter, True, reactive, out)
 
 
+# JitterBicubic's keyword arguments are ClssUpscaler's less those of the networks (its
+# **kwargs pass them on): the signature clss.Upscaler checks a caller's keywords against.
+_sig = inspect.signature(ClssUpscaler)
+JitterBicubic.__signature__ = _sig.replace(parameters=[
+    p for p in _sig.parameters.values() if p.name not in (
+        "mode", "weights", "classifier", "composition", "classifier_backend",
+        "allow_untrained")])
+
 # The frame step's fast-path checks run two frames through this class.
 register_fast_paths(ClssUpscaler)
-
-
-def _net_weights():
-    return "trained" if os.path.isfile(SHIPPED_WEIGHTS) else "untrained"
 
 
 DOC = "docs/methods/clss.md"
 # The whole-frame ONNX twin, named rather than imported: the frame step never loads its
 # oracle (.importlinter), whoever asks for the twin does (clss.methods.twin).
 TWIN = "clss.methods.clss.oracle:twin"
+# Importing this module registers the frame step's fast paths (clss verify checks them).
+FAST_PATHS = __name__
+# The older clss.Upscaler(scale, mode="net" | "rules") picks between the two modes.
+MODES = {"net": "clss", "rules": "clss-rules"}
 SPECS = {
     "clss": MethodSpec(
         "clss", "CLSS net", "CLSS (Guo et al. 2022): a classifier of ghosting and aliasing, "
         "auxiliary history, a per-pixel MLP blend weight",
-        lambda **kw: ClssUpscaler(mode="net", **kw), weights=_net_weights, doc=DOC,
-        twin=TWIN),
+        functools.partial(ClssUpscaler, mode="net"), doc=DOC, twin=TWIN,
+        shipped=((None, SHIPPED_NAME),), fast_paths=FAST_PATHS, modes=MODES),
     "clss-rules": MethodSpec(
         "clss-rules", "CLSS rules", "CLSS's frame step with rules instead of networks: depth "
         "test, variance clamp, 1/(1+n) blend (TAAU-like)",
-        lambda **kw: ClssUpscaler(mode="rules", **kw), doc=DOC, twin=TWIN),
+        functools.partial(ClssUpscaler, mode="rules"), doc=DOC, twin=TWIN,
+        fast_paths=FAST_PATHS, modes=MODES),
     "jbicubic": MethodSpec(
         "jbicubic", "jitter-aware bicubic", "each render sample placed at its jittered "
-        "position, a cubic over them; no history", lambda **kw: JitterBicubic(**kw),
-        temporal=False, doc="docs/methods/baselines.md", twin=TWIN),
+        "position, a cubic over them; no history", JitterBicubic,
+        temporal=False, doc="docs/methods/baselines.md", twin=TWIN, fast_paths=FAST_PATHS),
 }

@@ -1,6 +1,7 @@
 """`clss upscale --method mlp --online`: the shader MLP learns on the device while it
-upscales (online.py), from the sequence's reference frames. Kept here so that the shared
-clss/cli/upscale.py only adds the flag and a few calls."""
+upscales (online.py), from the sequence's reference frames. The mlp specs name this
+module (MethodSpec.cli), so that the shared clss/cli/upscale.py asks the specs for the
+options methods add and calls these functions, knowing no method."""
 from __future__ import annotations
 
 import sys
@@ -50,11 +51,12 @@ def check(a, name, usage_error):
                 online_lr=a.online_lr)
 
 
-def reference(a, i, frame):
-    """The reference the step trains on at position i, or None."""
+def step_kwargs(a, i, frame) -> dict:
+    """What the step at position i takes besides the frame: the reference it trains on."""
     if not getattr(a, "online", False) or i % a.train_every:
-        return None
-    return getattr(frame, "reference", None)
+        return {}
+    ref = getattr(frame, "reference", None)
+    return {} if ref is None else {"reference": ref}
 
 
 def report(a, up, number):

@@ -33,6 +33,7 @@ import sys
 import numpy as np
 
 from ...pipeline.contract import PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS
+from ...pipeline.method import UNTRAINED, WEIGHTS_DIR
 
 SCALES = (2, 3)
 TAPS = 5                      # the 5x5 neighbourhoods
@@ -102,16 +103,11 @@ def pq_scales(nits=PQ_NITS):
 
 # ---- weights --------------------------------------------------------------------------------
 
-WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(
-    os.path.abspath(__file__)))), "weights")
-UNTRAINED = "untrained"
-
-
-def shipped_path(feature=True, scale=2) -> str:
-    """The shipped generalist (`make train-mlp`): one file per variant and scale (the
-    block geometry, and so the network, differs between 2x and 3x)."""
-    return os.path.join(WEIGHTS_DIR, f"mlp_{'generalist' if feature else 'nofeature'}"
-                                     f"_x{check_scale(scale)}.safetensors")
+def shipped_name(feature=True, scale=2) -> str:
+    """The shipped generalist's file name under clss/weights (`make train-mlp`): one file
+    per variant and scale (the block geometry, and so the network, differs between 2x and
+    3x)."""
+    return f"mlp_{'generalist' if feature else 'nofeature'}_x{check_scale(scale)}.safetensors"
 
 
 def init_weights(seed=0) -> dict:
@@ -147,15 +143,13 @@ def check_weights(tensors: dict, where="weights") -> dict:
 
 
 def load_weights(weights=None, feature=True, scale=2):
-    """(tensors, trained) from None (the shipped file of the variant and scale, else the
-    seeded init), "untrained", a dict of arrays, or a .safetensors path."""
+    """(tensors, trained) from None (the shipped file of the variant and scale; the
+    upscaler resolves None through its MethodSpec, which refuses a scale without one),
+    "untrained", a dict of arrays, or a .safetensors path."""
     if isinstance(weights, dict):
         return check_weights(weights), True
     if weights is None:
-        p = shipped_path(feature, scale)
-        if not os.path.isfile(p):
-            return init_weights(), False
-        weights = p
+        weights = os.path.join(WEIGHTS_DIR, shipped_name(feature, scale))
     if isinstance(weights, str) and weights == UNTRAINED:
         return init_weights(), False
     path = os.fspath(weights)

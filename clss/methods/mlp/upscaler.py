@@ -21,27 +21,54 @@ geometry and transform are transform.py's (docs/methods/mlp.md).
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ...pipeline.contract import PQ_NITS, output_size
-from ...pipeline.method import MethodSpec, MethodUpscaler
+from ...pipeline.method import MethodSpec, MethodUpscaler, convert_storage
 from . import transform as tf
 from . import fastpath  # noqa: F401 (registers the kernel's fast path)
 
 
+class MlpFrame:
+    """The device buffers of one frame at render size (h, w), scale s, in `precision`'s
+    storage (the kernels read and write it): the inputs, the blocks and the output."""
+
+    def __init__(self, dev, precision, render_size, s, feature):
+        self.dev, self.prec = dev, precision
+        self.h, self.w = (int(v) for v in render_size)
+        self.H, self.W = output_size(self.h, self.w, s)
+        b = tf.block(s)
+        e = dev.empty
+        self.in_color = e((self.h, self.w, 3), precision)
+        # the ablation reads no feature: a buffer it never looks at stands for it
+        self.in_depth_hr = e((self.H, self.W), precision)
+        self.blocks = e((3, b * b, self.h, self.w), precision)
+        self.out = e((self.H, self.W, 3), precision)
+        # the caller's float32 output when the storage is half
+        self.out32 = None if precision == "fp32" else e((self.H, self.W, 3), dtype=np.float32)
+
+    def device_bytes(self) -> int:
+        return sum(int(a.nbytes) for a in (self.in_color, self.in_depth_hr, self.blocks,
+                                           self.out, self.out32) if a is not None)
+
+
 class MlpUpscaler(MethodUpscaler):
-    """weights: None (the shipped weights of the variant, else the seeded init),
-    "untrained", "scratch" (the seeded init with a small random output layer, where online
-    training starts from nothing), a .safetensors path or a dict of arrays
-    (transform.check_weights).
-    online: train on the device on frames given a `reference` (online.py); online_lr,
-    online_batch (patches per step), online_steps (steps per training frame),
-    online_seed."""
+    """weights: None (the shipped weights of the variant and scale), "untrained",
+    "scratch" (the seeded init with a small random output layer, where online training
+    starts from nothing), a .safetensors path or a dict of arrays
+    (transform.check_weights); allow_untrained: the seeded init where the package has no
+    weights for the scale.
+    online: train on the device on frames given a `reference` (online.py): `step(...,
+    reference=full_res)` trains on it first (train_step), then upscales with the updated
+    weights; online_lr, online_batch (patches per step), online_steps (steps per training
+    frame), online_seed."""
 
     def __init__(self, scale=2.0, device=None, precision="fp32", *, weights=None,
                  feature=True, exposure=1.0, sanitize=False, profile=False, online=False,
                  online_lr=None, online_batch=None, online_steps=None, online_seed=0,
-                 **unused):
+                 allow_untrained=False):
         self.spec = SPECS["mlp" if feature else "mlp-nofeature"]
         self._init_common(scale, device, precision, exposure=exposure, sanitize=sanitize,
                           profile=profile)
@@ -51,8 +78,8 @@ class MlpUpscaler(MethodUpscaler):
             from .online import scratch_weights
             self.tensors, self.trained = scratch_weights(online_seed), False
         else:
-            self.tensors, self.trained = tf.load_weights(weights, feature=self.feature,
-                                                         scale=self.s)
+            weights = self.spec.resolve_weights(weights, self.s, allow_untrained)
+            self.tensors, self.trained = tf.load_weights(weights)
         self.defines = tf.kernel_defines(self.s, self.feature)
         self.pq_scale, self.inv_pq_scale = tf.pq_scales(PQ_NITS)
         from ...ops.mlp_upscale import pack_weights
@@ -70,9 +97,6 @@ class MlpUpscaler(MethodUpscaler):
                 batch=ol.DEFAULT_BATCH if online_batch is None else online_batch,
                 steps=ol.DEFAULT_STEPS if online_steps is None else online_steps,
                 seed=online_seed)
-        self._hw = None
-        self._blocks = None
-        self._zero_feat = None
 
     def set_weights(self, tensors):
         """Swap the network (a dict of arrays); the next frame uses it."""
@@ -115,75 +139,40 @@ class MlpUpscaler(MethodUpscaler):
         meta.update(metadata or {})
         tf.save_weights(self.learnt_tensors(), path, meta)
 
-    @property
-    def render_size(self):
-        return self._hw
+    # ---- the frame step ------------------------------------------------------------------
+    def _build_frame_step(self, h, w):
+        return MlpFrame(self.dev, self.precision, (h, w), self.s, self.feature)
 
-    @property
-    def output_size(self):
-        return None if self._hw is None else output_size(*self._hw, self.s)
-
-    def device_bytes(self) -> int:
-        return int(self._blocks.nbytes) if self._blocks is not None else 0
-
-    def _prepare(self, hw, reset):
-        self._check_render_size(hw, reset or self._pending_reset)
-        if self._hw != tuple(hw):
-            self._hw = tuple(hw)
-            b = tf.block(self.s)
-            self._blocks = self.dev.empty((3, b * b) + self._hw, self.precision)
-            self._zero_feat = None
-
-    def _run(self, color_d, feat_d, out=None):
-        from ...ops import mlp_upscale as ops
-        if feat_d is None:          # the ablation: the kernel reads no feature
-            if self._zero_feat is None:
-                H, W = self.output_size
-                self._zero_feat = self.dev.empty((H, W), self.precision)
-            feat_d = self._zero_feat
-        ops.blocks(self.dev, self.precision, color_d, feat_d, self._w, self.defines,
-                   inv_exposure=1.0 / self.exposure, pq_scale=self.pq_scale, out=self._blocks)
-        return ops.fold(self.dev, self.precision, self._blocks, self.defines,
-                        exposure=self.exposure, inv_pq_scale=self.inv_pq_scale, out=out)
-
-    def step(self, color, depth=None, motion=None, jitter=(0.0, 0.0), reset=False,
-             reactive=None, reference=None, **gbuffers) -> np.ndarray:
-        """reference: a full-resolution frame [H, W, 3]; with online=True the step trains
-        on it first (train_step), then upscales with the updated weights; else unused."""
-        frame, (h, w) = self._color_frame(color, reset)
-        gb = self._gbuffers(gbuffers, (h, w), output_size(h, w, self.s))
-        self._prepare((h, w), reset)
-        self.last_report = frame["sanitized"]
-        self._pending_reset = False
+    def _host_frame_hook(self, frame, gbuffers, extra):
+        """Online training: a frame given with its full-resolution `reference` trains the
+        network first (train_step); the step then upscales with the updated weights."""
+        reference = extra.get("reference")
         if self.online is not None and reference is not None:
             self.last_loss = self.train_step(frame["color"], reference,
-                                             gb.get("depth_hr") if self.feature else None)
-        self.frame_index += 1
-        c = self.dev.to_device(frame["color"], self.precision)
-        f = self.dev.to_device(gb["depth_hr"], self.precision) if self.feature else None
-        return self.dev.to_host(self._run(c, f))
+                                             gbuffers.get("depth_hr") if self.feature else None)
 
-    def step_device(self, color, depth=None, motion=None, jitter=(0.0, 0.0), reset=False,
-                    reactive=None, out=None, depth_hr=None, **gbuffers):
-        """The step on pyopencl arrays in the precision's storage type: color [h, w, 3],
-        depth_hr [H, W]; no host copies. Non-finite values are not checked here."""
-        if color.ndim != 3 or color.shape[2] != 3:
-            raise ValueError(f"color: expected [h, w, 3], got {color.shape}")
-        hw = color.shape[:2]
-        if self.feature and depth_hr is None:
-            self._gbuffers({}, hw, output_size(*hw, self.s))       # the named error
-        self._prepare(hw, reset)
-        self._pending_reset = False
-        self.frame_index += 1
-        return self._run(color, depth_hr if self.feature else None, out=out)
-
-
-def _weights_state(feature):
-    def fn():
-        import os
-        return "trained" if all(os.path.isfile(tf.shipped_path(feature, s))
-                                for s in tf.SCALES) else "untrained"
-    return fn
+    def _enqueue(self, fs, arrays, jitter, out):
+        import pyopencl as cl
+        from ...ops import mlp_upscale as ops
+        # the kernels read the precision's storage: the device path's float32 inputs
+        # are converted into the frame step's own buffers (the host path's are there)
+        color = arrays["color"]
+        if color is not fs.in_color:
+            color = convert_storage(color, fs.in_color.dtype, out=fs.in_color)
+        feat = arrays.get("depth_hr") if self.feature else fs.in_depth_hr
+        if feat is not fs.in_depth_hr:
+            feat = convert_storage(feat, fs.in_depth_hr.dtype, out=fs.in_depth_hr)
+        ops.blocks(self.dev, self.precision, color, feat, self._w, self.defines,
+                   inv_exposure=1.0 / self.exposure, pq_scale=self.pq_scale, out=fs.blocks)
+        if fs.out32 is None:
+            res = ops.fold(self.dev, self.precision, fs.blocks, self.defines,
+                           exposure=self.exposure, inv_pq_scale=self.inv_pq_scale,
+                           out=fs.out if out is None else out)
+        else:
+            ops.fold(self.dev, self.precision, fs.blocks, self.defines, exposure=self.exposure,
+                     inv_pq_scale=self.inv_pq_scale, out=fs.out)
+            res = convert_storage(fs.out, np.float32, out=fs.out32 if out is None else out)
+        return res, cl.enqueue_marker(self.dev.queue)
 
 
 SPECS = {
@@ -191,15 +180,17 @@ SPECS = {
         "mlp", "shader MLP",
         "per-pixel 50-50-50-25 MLP on the 5x5 beauty and 5x5 output-res depth "
         "neighbourhoods (Spencer 2022)",
-        lambda **kw: MlpUpscaler(feature=True, **kw), inputs=("color",),
+        functools.partial(MlpUpscaler, feature=True), inputs=("color",),
         gbuffers=("depth_hr",), scales=(2.0, 3.0), precisions=("fp32", "fp16"),
-        temporal=False, weights=_weights_state(True), doc="docs/methods/mlp.md",
-        twin="clss.methods.mlp.oracle:twin"),
+        temporal=False, doc="docs/methods/mlp.md", twin="clss.methods.mlp.oracle:twin",
+        shipped=tuple((float(s), tf.shipped_name(True, s)) for s in tf.SCALES),
+        fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online"),
     "mlp-nofeature": MethodSpec(
         "mlp-nofeature", "shader MLP, no feature pass",
         "the shader MLP with its feature inputs zeroed (the seed's ablation); needs no "
-        "G-buffer", lambda **kw: MlpUpscaler(feature=False, **kw), inputs=("color",),
+        "G-buffer", functools.partial(MlpUpscaler, feature=False), inputs=("color",),
         scales=(2.0, 3.0), precisions=("fp32", "fp16"), temporal=False,
-        weights=_weights_state(False), doc="docs/methods/mlp.md",
-        twin="clss.methods.mlp.oracle:twin"),
+        doc="docs/methods/mlp.md", twin="clss.methods.mlp.oracle:twin",
+        shipped=tuple((float(s), tf.shipped_name(False, s)) for s in tf.SCALES),
+        fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online"),
 }
