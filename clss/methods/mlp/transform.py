@@ -1,6 +1,6 @@
 """The shader MLP upscaler's geometry and transform, written once (docs/methods/mlp.md).
 
-Everything the device frame step (kernels/mlp_upscale.cl, by -D options from
+Everything the device frame step (mlp_upscale.cl, by -D options from
 `kernel_defines`), the whole-frame ONNX twin (oracle.py) and the torch twin
 (weights_tools/mlp_torch.py) must agree on lives here: the neighbourhood and block
 geometry at each scale, the DC removal and gamma ramp with their constants, the network's
@@ -87,7 +87,7 @@ def ramp_inv(y):
 
 
 def kernel_defines(scale, feature=True) -> dict:
-    """The -D options of kernels/mlp_upscale.cl that carry this module's constants."""
+    """The -D options of mlp_upscale.cl that carry this module's constants."""
     s = check_scale(scale)
     return dict(S=s, B=s + 2, FEATURE=int(bool(feature)), GAMMA=float(GAMMA),
                 INV_GAMMA=float(1.0 / GAMMA), EPS=float(EPS), EPS_ROOT=float(EPS_ROOT),

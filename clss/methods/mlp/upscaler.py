@@ -55,7 +55,7 @@ class MlpUpscaler(MethodUpscaler):
                                                          scale=self.s)
         self.defines = tf.kernel_defines(self.s, self.feature)
         self.pq_scale, self.inv_pq_scale = tf.pq_scales(PQ_NITS)
-        from ...ops.mlp_upscale import pack_weights
+        from .mlp_upscale import pack_weights
         self._w = pack_weights(self.dev, self.precision, tf.packed(self.tensors))
         self.online = None
         self.last_loss = None
@@ -76,7 +76,7 @@ class MlpUpscaler(MethodUpscaler):
 
     def set_weights(self, tensors):
         """Swap the network (a dict of arrays); the next frame uses it."""
-        from ...ops.mlp_upscale import pack_weights
+        from .mlp_upscale import pack_weights
         self.tensors = tf.check_weights(tensors)
         if self.online is not None:
             self.online.weights.set(tf.packed(self.tensors))
@@ -97,7 +97,7 @@ class MlpUpscaler(MethodUpscaler):
         loss = self.online.train_frame(color, depth_hr, reference, self.defines,
                                        exposure=self.exposure, frame=self.frame_index)
         if self.precision != "fp32":       # the frame step's half-rounded copy
-            from ...ops.mlp_upscale import pack_weights
+            from .mlp_upscale import pack_weights
             self._w = pack_weights(self.dev, self.precision, self.online.weights.get())
         self.trained = True
         return loss
@@ -135,7 +135,7 @@ class MlpUpscaler(MethodUpscaler):
             self._zero_feat = None
 
     def _run(self, color_d, feat_d, out=None):
-        from ...ops import mlp_upscale as ops
+        from . import mlp_upscale as ops
         if feat_d is None:          # the ablation: the kernel reads no feature
             if self._zero_feat is None:
                 H, W = self.output_size

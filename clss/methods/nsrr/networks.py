@@ -13,7 +13,7 @@ a multiple of 4 (two poolings). The output is the frame in the PQ domain.
 
 Residual (config "residual", a deviation from the paper, on by default): the U-Net's
 output is added to `base` [1,3,H,W], the current frame's PQ colour resampled bilinearly
-at the output pixel centres with its jitter (kernels/nsrr.cl). The network then learns a
+at the output pixel centres with its jitter (nsrr.cl). The network then learns a
 correction instead of the image; with the ~1000 training steps this machine affords, the
 paper's form (residual False, still supported) stayed hazy and grey well below the
 spatial baselines (docs/methods/nsrr.md).
