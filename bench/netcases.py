@@ -8,7 +8,7 @@ import numpy as np
 import onnx
 
 from clss.device import storage_dtype
-from clss.networks import pad16
+from clss.methods.clss.networks import pad16
 from clss.ops.base import rng
 from clss.tolerance import Tolerance
 
@@ -103,7 +103,7 @@ def median_ms(fn, frames: int) -> float:
 def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
     from clss.methods.clss.oracle import build_frame_graph
     from clss.pipeline.contract import output_size
-    from clss.networks import build_classifier, build_composition, frame_flops
+    from clss.methods.clss.networks import build_classifier, build_composition, frame_flops
     h, w = render_size
     H, W = output_size(h, w, scale)
     flops = 0.0

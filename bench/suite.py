@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from clss.networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
+from clss.methods.clss.networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from clss.pipeline.contract import output_size
 
 from . import netcases
@@ -17,7 +17,7 @@ def network_cases(tier):
     """The two CLSS networks through clss.Model, once clss/model/__init__.py exists."""
     if not _has("clss.model"):
         return []
-    from clss.networks import build_classifier, build_composition, count_flops
+    from clss.methods.clss.networks import build_classifier, build_composition, count_flops
     (h, w), scale = TIERS[tier]
     H, W = output_size(h, w, scale)
     Hp, Wp = pad16(H), pad16(W)

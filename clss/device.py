@@ -54,7 +54,7 @@ def kernels_dir() -> Path:
 def kernel_path(source: str | os.PathLike) -> Path:
     """The .cl file of a kernel source. A stem ("conv") names kernels/<stem>.cl, an operator
     family any method may use; a path names a method's own frame kernels, which sit in its
-    room beside its frame.py (clss/methods/nsrr/nsrr.cl), so that the floors below
+    room beside its frame.py (clss/methods/<name>/<name>.cl), so that the floors below
     clss.methods name no method."""
     if isinstance(source, os.PathLike):
         return Path(source)
@@ -62,7 +62,7 @@ def kernel_path(source: str | os.PathLike) -> Path:
 
 
 def kernel_label(source: str | os.PathLike) -> str:
-    """A kernel source as messages name it: kernels/conv.cl, clss/methods/nsrr/nsrr.cl."""
+    """A kernel source as messages name it: kernels/conv.cl, clss/methods/<name>/<name>.cl."""
     if not isinstance(source, os.PathLike):
         return f"kernels/{source}.cl"
     path = Path(source).resolve()
@@ -262,7 +262,7 @@ class Device:
     def source(stem: str | os.PathLike) -> str:
         """The source of `stem` (see kernel_path) with its headers (`#include "name.h"`)
         inlined, once each, so that the program hash covers all of it. A header is looked
-        for beside the source first (a room's own, e.g. mlp_layout.h), then in kernels/
+        for beside the source first (a room's own), then in kernels/
         (the shared ones: common.h, pq.h, ...), as `-I <room> -I kernels` would."""
         path = kernel_path(stem)
         if not path.is_file():

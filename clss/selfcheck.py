@@ -69,7 +69,7 @@ class FastPath:
 
     @property
     def family(self) -> str:
-        """The kernel source's name ("conv", "frame"), as `clss verify --family` names it."""
+        """The source's file name without .cl ("conv"): what `clss verify --family` takes."""
         return Path(self.kernel).stem
 
     def options(self, fast: bool) -> str:

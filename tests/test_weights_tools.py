@@ -199,7 +199,7 @@ def test_load_networks_default_and_untrained(monkeypatch, tmp_path):
     import warnings
 
     from clss.methods.clss import upscaler
-    from clss.networks import build_classifier
+    from clss.methods.clss.networks import build_classifier
     from clss.networks import model_weights
     seeded = model_weights(build_classifier())
     cls, _, trained = upscaler.load_networks("untrained")

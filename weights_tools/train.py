@@ -75,7 +75,7 @@ from .trainloop import (CHECKPOINT_S, PLOT_S, PROGRESS_S, TrainError, fmt_s, lr_
 from .trainloop import load_sequences as _load_sequences
 from .trainloop import plot_losses as _plot_losses
 from clss.networks import load_weights, save_weights
-from clss.pipeline.contract import VIS_MARGIN
+from clss.methods.clss.contract import VIS_MARGIN
 
 CLASS_WEIGHT_RATIO = 100.0
 GHOST_VISIBILITY, GHOST_NONE, ALIAS_GEOMETRY, ALIAS_NONE = 0, 2, 0, 2

@@ -134,9 +134,9 @@
 #define L_RAW_MY 18
 
 /* The buffer widths come from the host, where they are defined once: L_CHANNELS and HIST
- * from clss.pipeline.contract, CLS_IN and COMP_IN from clss.networks' channel layouts. */
+ * from frame.py and contract.py, CLS_IN and COMP_IN from networks.py's channel layouts. */
 #if !defined(L_CHANNELS) || !defined(HIST) || !defined(CLS_IN) || !defined(COMP_IN)
-#error "frame.cl: build with -DL_CHANNELS -DHIST -DCLS_IN -DCOMP_IN (clss/pipeline/frame.py)"
+#error "frame.cl: build with -DL_CHANNELS -DHIST -DCLS_IN -DCOMP_IN (clss/methods/clss/frame.py)"
 #endif
 
 #include "pq.h"

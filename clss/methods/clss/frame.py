@@ -35,14 +35,13 @@ from onnx import numpy_helper
 
 from ... import selfcheck
 from ...device import Device
-from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
+from .networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from ...ops.conv import load_defines
 from ...pipeline.method import summed_event_ms
-from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
-                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_SLOPE, DEPTH_THRESHOLD,
-                                 HISTORY_CHANNELS,
-                                 MEASURE_KNEES, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, VIS_MARGIN,
-                                 output_size)
+from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
+from .contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE, CLIP_GAMMA,
+                       DEFAULT_CAP, DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, MEASURE_KNEES,
+                       RULE_CLIP_EPS, VIS_MARGIN)
 
 KERNEL = Path(__file__).with_name("frame.cl")   # the frame kernels, beside this file
 # depth, motion 2, dd, reactive, the depth test's difference, clamp box low 3 and high 3

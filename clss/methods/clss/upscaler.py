@@ -31,11 +31,9 @@ import warnings
 
 import numpy as np
 
-from ...networks import CLASSIFIER_CHANNELS, pad16
-from ...pipeline.contract import (DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
-                                 VIS_MARGIN,
-                                 FrameInputError, check_jitter, ghost_classes, output_size,
-                                 validate_frame)
+from .networks import CLASSIFIER_CHANNELS, pad16
+from ...pipeline.contract import PQ_NITS, FrameInputError, check_jitter, output_size, validate_frame
+from .contract import DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, VIS_MARGIN, ghost_classes
 from ...pipeline.method import MethodSpec, MethodUpscaler
 from .frame import STAGES, FrameStep
 from .frame_selfcheck import register_fast_paths
@@ -60,7 +58,7 @@ def load_networks(weights=None):
       architectures), then weights.safetensors (or the only *.safetensors) applied;
     a .safetensors file: applied to the default architectures (every tensor must fit).
     """
-    from ...networks import build_classifier, build_composition
+    from .networks import build_classifier, build_composition
     from ...networks import apply_weights, load_weights
     if weights is None:
         if os.path.isfile(SHIPPED_WEIGHTS):

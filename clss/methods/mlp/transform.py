@@ -172,22 +172,11 @@ def load_weights(weights=None, feature=True, scale=2):
 def save_weights(tensors: dict, path, metadata=None):
     """Atomic write; one metadata entry (a deterministic header)."""
     import json
-    import tempfile
 
-    from safetensors.numpy import save_file
+    from ...networks.weights import write_safetensors
     t = check_weights(tensors)
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".safetensors.tmp", dir=d)
-    os.close(fd)
-    try:
-        save_file(t, tmp, metadata={"clss": json.dumps(metadata or {}, sort_keys=True)})
-        from ...filemode import new_file_mode
-        os.chmod(tmp, new_file_mode())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    write_safetensors(t, path, {"clss": json.dumps(metadata or {}, sort_keys=True)})
 
 
 def packed(tensors: dict) -> np.ndarray:
