@@ -9,7 +9,7 @@ OUT ?= out
 .PHONY: setup opencl-driver test test-large demo eval eval-scales verify devices bench bench-quick oclgrind clean \
 	train-data validation-data train
 
-$(STAMP): setup.cfg pyproject.toml
+$(STAMP): setup.cfg setup.py pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[test]'

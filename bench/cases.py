@@ -11,7 +11,7 @@ Shapes come from the frame step at a render size and scale 2 (clss-frame.md):
 tier "540p" is 540x960 -> 1080x1920 (the default set), tier "1080p" is
 1080x1920 -> 2160x3840 (--full). The classifier runs on the output padded to a
 multiple of 16 (1088x1920 at 1080p), after SpaceToDepth(2) at 544x960; its conv
-layers are read from clss.networks so they follow the network's widths.
+layers are read from clss.methods.clss.networks so they follow the network's widths.
 
 A family's cases appear once its module exists in clss/ops (they land one by one);
 network cases once clss/model/__init__.py exists, the frame step once clss.pipeline has an
@@ -29,7 +29,7 @@ import onnx
 from onnx import helper
 
 from clss.device import Device, DeviceError, storage_dtype
-from clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, pad16
+from clss.methods.clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, pad16
 from clss.ops.base import rng
 from clss.tolerance import DEFAULT_TOL, EXACT, Tolerance
 from clss.pipeline.contract import output_size
@@ -155,7 +155,7 @@ def classifier_layers(height: int, width: int) -> list[dict]:
     """The conv layers of weights_tools' classifier for an output frame of
     height x width (padded to 16), with their input shapes, seeded weights, and
     the fused epilogue (ReLU, residual Add before the ReLU)."""
-    from clss.networks import build_classifier
+    from clss.methods.clss.networks import build_classifier
     H, W = pad16(height), pad16(width)
     m = build_classifier(height=H, width=W)
     inferred = onnx.shape_inference.infer_shapes(m)
@@ -528,7 +528,7 @@ def mlp_cases(tier):
     (h, w), scale = TIERS[tier]
     H, W = output_size(h, w, scale)
     mlp = _family("mlp")
-    from clss.networks import build_composition
+    from clss.methods.clss.networks import build_composition
     m = build_composition(height=H, width=W)
     inits = {t.name: onnx.numpy_helper.to_array(t) for t in m.graph.initializer}
     w1, b1 = inits["comp.fc1.weight"], inits["comp.fc1.bias"]

@@ -40,7 +40,8 @@ class KernelBuildError(RuntimeError):
 
 
 def kernels_dir() -> Path:
-    """The .cl sources: the repo's kernels/ in a checkout, clss/kernels when installed."""
+    """The shared .cl sources (the operator families) and headers: the repo's kernels/ in a
+    checkout, clss/kernels when installed. A method's own frame kernels are in its room."""
     repo = Path(__file__).resolve().parent.parent / "kernels"
     if (repo / "common.h").is_file():
         return repo
@@ -48,6 +49,27 @@ def kernels_dir() -> Path:
     if (installed / "common.h").is_file():
         return installed
     raise DeviceError(f"kernel sources not found (looked in {repo} and {installed})")
+
+
+def kernel_path(source: str | os.PathLike) -> Path:
+    """The .cl file of a kernel source. A stem ("conv") names kernels/<stem>.cl, an operator
+    family any method may use; a path names a method's own frame kernels, which sit in its
+    room beside its frame.py (clss/methods/<name>/<name>.cl), so that the floors below
+    clss.methods name no method."""
+    if isinstance(source, os.PathLike):
+        return Path(source)
+    return kernels_dir() / f"{source}.cl"
+
+
+def kernel_label(source: str | os.PathLike) -> str:
+    """A kernel source as messages name it: kernels/conv.cl, clss/methods/<name>/<name>.cl."""
+    if not isinstance(source, os.PathLike):
+        return f"kernels/{source}.cl"
+    path = Path(source).resolve()
+    try:
+        return path.relative_to(Path(__file__).resolve().parent.parent).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def storage_dtype(precision: str) -> np.dtype:
@@ -207,7 +229,9 @@ class DeviceInfo:
 
 class Device:
     """A context and an in-order profiling queue on one OpenCL device, plus a
-    program cache keyed by (source hash, build options)."""
+    program cache keyed by (source hash, build options): the hash covers the source with
+    its headers inlined, so that sources of the same stem in two folders, or a changed
+    header, are programs of their own."""
 
     def __init__(self, cl_device: cl.Device):
         self.cl_device = cl_device
@@ -235,18 +259,21 @@ class Device:
 
     # -- programs ---------------------------------------------------------
     @staticmethod
-    def source(stem: str) -> str:
-        """kernels/<stem>.cl with its headers (`#include "name.h"` of kernels/, e.g.
-        common.h) inlined, once each, so the program hash covers all of it."""
-        d = kernels_dir()
-        path = d / f"{stem}.cl"
+    def source(stem: str | os.PathLike) -> str:
+        """The source of `stem` (see kernel_path) with its headers (`#include "name.h"`)
+        inlined, once each, so that the program hash covers all of it. A header is looked
+        for beside the source first (a room's own), then in kernels/
+        (the shared ones: common.h, pq.h, ...), as `-I <room> -I kernels` would."""
+        path = kernel_path(stem)
         if not path.is_file():
             raise KernelBuildError(f"no kernel source {path}")
         src = path.read_text()
+        dirs = dict.fromkeys((path.parent, kernels_dir()))
         for name in dict.fromkeys(re.findall(r'#include "([\w.]+\.h)"', src)):
-            header = d / name
-            if not header.is_file():
-                raise KernelBuildError(f"{path.name}: no header {header}")
+            header = next((d / name for d in dirs if (d / name).is_file()), None)
+            if header is None:
+                raise KernelBuildError(f"{path.name}: no header {name} in "
+                                       + " or ".join(str(d) for d in dirs))
             src = src.replace(f'#include "{name}"', header.read_text(), 1)
         return src
 
@@ -261,7 +288,7 @@ class Device:
         extra = os.environ.get("CLSS_BUILD_OPTIONS", "").strip()
         return f"{options} {extra}" if extra else options
 
-    def program(self, stem: str, precision: str = "fp32", **defines) -> cl.Program:
+    def program(self, stem: str | os.PathLike, precision: str = "fp32", **defines) -> cl.Program:
         self.require(precision)
         options = self.build_options(precision, **defines)
         src = self.source(stem)
@@ -277,12 +304,12 @@ class Device:
                     except cl.RuntimeError as e:
                         log = _build_log(prog, self.cl_device) or str(e)
                         raise KernelBuildError(
-                            f"kernel source kernels/{stem}.cl failed to build on {self.info.name} "
+                            f"kernel source {kernel_label(stem)} failed to build on {self.info.name} "
                             f"({self.info.driver}) with options '{options}':\n{log}{_build_hint(log)}") from None
                     self._programs[key] = prog
         return prog
 
-    def kernel(self, stem: str, name: str, precision: str = "fp32", **defines) -> cl.Kernel:
+    def kernel(self, stem: str | os.PathLike, name: str, precision: str = "fp32", **defines) -> cl.Kernel:
         """A kernel object, cached and shared: Device.launch sets all its args on each launch;
         a prepared Launch (Device.prepare) has a kernel object of its own."""
         prog = self.program(stem, precision, **defines)
@@ -292,7 +319,7 @@ class Device:
             try:
                 k = getattr(prog, name)
             except AttributeError:
-                raise KernelBuildError(f"kernels/{stem}.cl has no kernel named {name!r}") from None
+                raise KernelBuildError(f"{kernel_label(stem)} has no kernel named {name!r}") from None
             self._kernels[key] = k
         return k
 

@@ -40,6 +40,7 @@ from typing import Callable
 import numpy as np
 
 from .cachedir import cache_dir
+from .device import kernel_label
 
 MODES = ("auto", "force", "skip")
 
@@ -50,14 +51,16 @@ class FastPathDisabled(UserWarning):
 
 @dataclass(frozen=True)
 class FastPath:
-    """One fast variant of kernels/<kernel>.cl and its portable reference.
+    """One fast variant of a kernel source and its portable reference. ``kernel`` is the
+    source as clss.device takes it: a stem of kernels/ ("conv") or the path of a room's
+    own .cl file; its file name without .cl is the family `check_all` filters by.
 
     ``check(dev, prec) -> list of host arrays`` runs the op on a small seeded
     input; the registry calls it once with the fast and once with the reference
     variant forced. ``tolerance(prec)`` is EXACT for data movement, else the op's
     Tolerance (clss/tolerance.py), or a list of those, one per output."""
     name: str
-    kernel: str
+    kernel: str | os.PathLike
     fast: dict
     reference: dict
     check: Callable = field(compare=False)
@@ -65,6 +68,11 @@ class FastPath:
     what: str = ""
     isolate: bool = True     # check in a child process (see _check_isolated)
     applies: Callable = field(default=lambda dev: True, compare=False)   # does the op use it on dev?
+
+    @property
+    def family(self) -> str:
+        """The source's file name without .cl ("conv"): what `clss verify --family` takes."""
+        return Path(self.kernel).stem
 
     def options(self, fast: bool) -> str:
         d = self.fast if fast else self.reference
@@ -177,7 +185,7 @@ def enabled(dev, prec: str, name: str) -> bool:
             _verdicts[key] = v
         if not v.ok and key not in _warned:
             _warned.add(key)
-            warnings.warn(f"fast path {fp.name} ({fp.options(True)}) of kernels/{fp.kernel}.cl disabled "
+            warnings.warn(f"fast path {fp.name} ({fp.options(True)}) of {kernel_label(fp.kernel)} disabled "
                           f"on {v.device} [{prec}]: {v.detail}; using the reference variant "
                           f"({fp.options(False)})", FastPathDisabled, stacklevel=3)
         _memo[memo] = v.ok
@@ -185,21 +193,21 @@ def enabled(dev, prec: str, name: str) -> bool:
 
 
 def check_all(dev, precisions, kernels=None) -> list[Verdict]:
-    """Verdicts of every registered fast path on dev (of `kernels`, stems of
-    kernels/*.cl, if given), checking what is not yet known. Only the variants
+    """Verdicts of every registered fast path on dev (of `kernels`, the families of
+    their sources (FastPath.family), if given), checking what is not yet known. Only the variants
     registered so far: clss.selfcheck_runner.check_all imports every registering
     module first."""
     dev = getattr(dev, "base", dev)
     out = []
     for name in sorted(REGISTRY):
-        if (kernels is not None and REGISTRY[name].kernel not in kernels) or not REGISTRY[name].applies(dev):
+        if (kernels is not None and REGISTRY[name].family not in kernels) or not REGISTRY[name].applies(dev):
             continue
         for prec in precisions:
             if prec == "fp16-native" and not dev.has_fp16:
                 continue
             enabled(dev, prec, name)
             out.append(_verdicts.get(_key(dev, prec, REGISTRY[name])) or Verdict(
-                name, REGISTRY[name].kernel, prec, _device_name(dev), True, "not checked (CLSS_SELFCHECK=skip)"))
+                name, REGISTRY[name].family, prec, _device_name(dev), True, "not checked (CLSS_SELFCHECK=skip)"))
     return out
 
 
@@ -238,7 +246,7 @@ def _disk_key(key: tuple) -> str:
 def _run_check(dev, prec: str, fp: FastPath) -> Verdict:
     from .tolerance import compare
     now = datetime.datetime.now().isoformat(timespec="seconds")
-    v = Verdict(fp.name, fp.kernel, prec, _device_name(dev), True, "", fp.options(True), now)
+    v = Verdict(fp.name, fp.family, prec, _device_name(dev), True, "", fp.options(True), now)
     with forcing(fp.name, False):
         ref = fp.check(dev, prec)      # a reference that fails is the op's own error: raised
     try:
@@ -281,7 +289,7 @@ def _check_isolated(dev, prec: str, fp: FastPath) -> Verdict:
         detail = f"its self-check process died ({why})" + (f": {err[-1][:200]}" if err else "")
     except subprocess.TimeoutExpired:
         detail = f"its self-check process did not finish in {_CHILD_TIMEOUT_S} s"
-    return Verdict(fp.name, fp.kernel, prec, _device_name(dev), False, detail, fp.options(True), now)
+    return Verdict(fp.name, fp.family, prec, _device_name(dev), False, detail, fp.options(True), now)
 
 
 _CHILD_TIMEOUT_S = 600

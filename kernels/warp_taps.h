@@ -1,4 +1,4 @@
-/* The bilinear taps of a backward warp (nsrr.cl, nsrd.cl): the sample at (xs, ys) in
+/* The bilinear taps of a backward warp (the frame kernels' history warps): the sample at (xs, ys) in
  * index coordinates of a W x H grid, zero padding per tap as ONNX GridSample
  * padding_mode="zeros" (the twins' warps). Include after `#pragma OPENCL FP_CONTRACT OFF`:
  * the weights are plain products, as the twins compute them. */

@@ -1,5 +1,5 @@
 /* Where a jittered render sample lands at output resolution (zero-upsampling), shared by
- * kernels/zero_upsample.cl and kernels/nsrr.cl. */
+ * kernels/zero_upsample.cl and the frame kernels that place samples as it does. */
 #ifndef ZERO_UPSAMPLE_H
 #define ZERO_UPSAMPLE_H
 

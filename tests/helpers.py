@@ -116,7 +116,7 @@ def frames(render=RENDER, n=FRAMES, scale=2.0):
 
 def networks():
     if not _nets:
-        from clss.networks import build_classifier, build_composition
+        from clss.methods.clss.networks import build_classifier, build_composition
         _nets["cls"], _nets["comp"] = build_classifier(), build_composition()
     return _nets["cls"], _nets["comp"]
 

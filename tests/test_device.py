@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -108,16 +110,45 @@ def test_missing_kernel_name(dev):
         dev.kernel("space_to_depth", "nope", "fp32")
 
 
+def room_sources():
+    """The methods' own frame kernels, each in its room beside its frame.py."""
+    import clss.methods
+    return sorted(Path(clss.methods.__file__).parent.glob("*/*.cl"))
+
+
 def test_every_kernel_builds_in_both_precisions(dev):
     # A porter's first question: does each source compile on my compiler? (Default -D options,
-    # and for frame.cl the buffer widths it takes from the host.)
-    from clss.methods.clss.frame import LR_NET_CHANNELS, WIDTH_DEFINES
-    for src in sorted(D.kernels_dir().glob("*.cl")):
+    # and for CLSS's frame.cl the buffer widths it takes from the host.) The operator
+    # families of kernels/ by stem, the rooms' sources by path (their headers beside them,
+    # the shared ones in kernels/).
+    from clss.methods.clss.frame import KERNEL as FRAME, LR_NET_CHANNELS, WIDTH_DEFINES
+    sources = [p.stem for p in sorted(D.kernels_dir().glob("*.cl"))] + room_sources()
+    assert FRAME in sources
+    for src in sources:
         for prec in ("fp32", "fp16"):
-            dev.program(src.stem, prec, **(WIDTH_DEFINES if src.stem == "frame" else {}))
-            if src.stem == "frame":     # and its net-mode variant (other kernel signatures)
-                dev.program(src.stem, prec, **{**WIDTH_DEFINES, "NET": 1,
-                                               "L_CHANNELS": LR_NET_CHANNELS})
+            dev.program(src, prec, **(WIDTH_DEFINES if src == FRAME else {}))
+            if src == FRAME:     # and its net-mode variant (other kernel signatures)
+                dev.program(src, prec, **{**WIDTH_DEFINES, "NET": 1,
+                                          "L_CHANNELS": LR_NET_CHANNELS})
+
+
+def test_room_source_named_by_its_path(dev, tmp_path):
+    # A room's source: its own headers beside it, the shared ones from kernels/; errors name
+    # the file where it is (no method's source is in kernels/).
+    assert not any(p.stem in {s.stem for s in room_sources()} for p in D.kernels_dir().glob("*.cl"))
+    from clss.methods.mlp.mlp_upscale import KERNEL
+    assert D.kernel_label(KERNEL) == "clss/methods/mlp/mlp_upscale.cl"
+    src = D.Device.source(KERNEL)
+    assert "#define OFF1" in src and "CLSS_PQ_H" in src    # mlp_layout.h beside it, pq.h shared
+    (tmp_path / "room.h").write_text("#define ROOM_VALUE 2\n")
+    (tmp_path / "room.cl").write_text('#include "room.h"\n#include "common.h"\n'
+                                      "__kernel void f(__global T *x) { x[0] = ROOM_VALUE + missing; }\n")
+    with pytest.raises(D.KernelBuildError) as e:
+        dev.kernel(tmp_path / "room.cl", "f", "fp32")
+    assert "room.cl failed to build" in str(e.value) and "missing" in str(e.value)
+    (tmp_path / "lost.cl").write_text('#include "nowhere.h"\n')
+    with pytest.raises(D.KernelBuildError, match="no header nowhere.h"):
+        D.Device.source(tmp_path / "lost.cl")
 
 
 def test_absurd_allocation_refused(dev):

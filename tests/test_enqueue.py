@@ -82,7 +82,7 @@ def test_model_launch_plan_replays_bit_identical(dev):
     """run_device with `out`: recorded once per buffer set, then replayed, with the same
     result as the unrecorded path; new buffers re-record."""
     from clss.model import Model
-    from clss.networks import CLASSIFIER_CHANNELS, build_classifier
+    from clss.methods.clss.networks import CLASSIFIER_CHANNELS, build_classifier
     shape = (1, CLASSIFIER_CHANNELS, 32, 48)
     m = Model(build_classifier(), device=dev, input_shapes={"x": shape})
     x = np.random.default_rng(1).uniform(0, 1, shape).astype(np.float32)

@@ -165,7 +165,7 @@ def test_smoke_training_offline(tmp_path, dev, capsys):
 def test_pixel_vector_fast_path_matches_reference(precision, dev):
     # the fast path (8 render pixels per work-item, PQ hoisted) against the scalar kernel,
     # on a width with a partial last vector and an interior that takes the vector loads
-    from clss.ops import mlp_upscale as ops
+    from clss.methods.mlp import mlp_upscale as ops
     g = np.random.default_rng(8)
     for s, feature in ((2, True), (3, False)):
         h, w = 6, 27

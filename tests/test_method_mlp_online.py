@@ -1,5 +1,5 @@
 """Online training of the shader MLP upscaler on the device (clss/methods/mlp/online.py,
-kernels/mlp_train.cl): the gradients of forward + loss + backward against torch autograd on
+clss/methods/mlp/mlp_train.cl): the gradients of forward + loss + backward against torch autograd on
 the same batch (the torch twin, weights_tools/methods/mlp/twin.py), one and two Adam steps
 against torch.optim.Adam, and a smoke online run through the Python API and the CLI.
 

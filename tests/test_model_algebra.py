@@ -75,7 +75,7 @@ def test_conv_through_resize_fires_on_the_clss_decoder():
     import clss
     from clss.tolerance import Tolerance, compare
     from clss.verify.twin import run_ort
-    from clss.networks import CLASSIFIER_CHANNELS, build_classifier
+    from clss.methods.clss.networks import CLASSIFIER_CHANNELS, build_classifier
     m = build_classifier(height=48, width=80)
     x = np.random.default_rng(1).standard_normal((1, CLASSIFIER_CHANNELS, 48, 80)).astype(np.float32)
     cm = clss.Model(m)

@@ -266,7 +266,7 @@ def test_shader_mlp(prec):
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
 def test_clss_networks(prec):
-    nets = pytest.importorskip("clss.networks")
+    nets = pytest.importorskip("clss.methods.clss.networks")
     g = np.random.default_rng(5)
     h, w = 32, 48
     cls = nets.build_classifier()
@@ -301,7 +301,7 @@ def test_cli_compare_ort(prec, tmp_path, capsys):
     """`clss run --compare-ort` on an NSRR-shaped network and a CLSS network."""
     import onnx
     from clss.cli import main
-    nets = pytest.importorskip("clss.networks")
+    nets = pytest.importorskip("clss.methods.clss.networks")
     model, feeds = build_nsrr()
     cls = nets.build_classifier()
     for name, m, fs in (("nsrr", model, feeds),

@@ -32,7 +32,7 @@ def test_family_clean_under_oclgrind(family, tmp_path, forced=None):
 
 @pytest.mark.oclgrind
 @pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
-@pytest.mark.xfail(reason="kernels/mlp_upscale.cl mlp_upscale_blocks_v: oclgrind reports "
+@pytest.mark.xfail(reason="clss/methods/mlp/mlp_upscale.cl mlp_upscale_blocks_v: oclgrind reports "
                           "'Controlflow depends on uninitialized value' in the gamma ramp of "
                           "the gathered vectors (the one-pixel reference kernel is clean and "
                           "the fast path matches it to 7e-7); not yet understood", strict=False)

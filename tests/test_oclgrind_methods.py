@@ -1,4 +1,4 @@
-"""The NSRR and NSRD frame kernels (kernels/nsrr.cl, kernels/nsrd.cl) on tiny frames under
+"""The NSRR and NSRD frame kernels (clss/methods/nsrr/nsrr.cl, clss/methods/nsrd/nsrd.cl) on tiny frames under
 oclgrind's out-of-bounds, uninitialised-read and data-race checks: three frames with a
 reset, fp32 and fp16 storage, odd sizes (their networks run through clss.Model, whose
 kernels have their own oclgrind tests). Any diagnostic fails.

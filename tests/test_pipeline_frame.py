@@ -112,7 +112,8 @@ def test_measurements_match_oracle(precision):
     slope (s11; fp16: the half rounding of X times the slope). Measured: fp32 tdd and edge
     bitwise, cc 4.3e-5, spread 3.6e-6; fp16 cc 4.5e-3, spread 6.1e-4, the classifier
     input's tdd and edge 2.4e-4 (half rounding)."""
-    from clss.pipeline.contract import MEASURE_KNEES, FrameInputError
+    from clss.pipeline.contract import FrameInputError
+    from clss.methods.clss.contract import MEASURE_KNEES
     rng = np.random.default_rng(7)
     hh, ww, scale = 13, 17, 1.5
     ours = _ours(scale, "net", precision)
@@ -250,7 +251,7 @@ def _lead_classifier(h16, w16):
     float, so the two sides compute the same leads there, ties included; the mixtures at
     the bands' edges agree to an ulp."""
     from onnx import TensorProto, helper, numpy_helper
-    from clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, channel_slices
+    from clss.methods.clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, channel_slices
     wgt = np.zeros((6, CLASSIFIER_CHANNELS, 2, 2), np.float32)
     wgt[0, channel_slices(CLASSIFIER_INPUTS)["depth"]] = 8.0 / 4
     b = np.array([-3, 0, -1, 0, 0, 0], np.float32)
@@ -273,7 +274,7 @@ def test_visibility_margin_matches_oracle():
     bands' edges. Margin 0 rejects exactly where the argmax of logits 0-2 is 0 (first index
     on ties: the tie band too); margins 1 (the lead-1 band sits on it: >= rejects it) and
     2 move the decision; the ghost planes and the counters equal the oracle's exactly."""
-    from clss.networks import build_composition
+    from clss.methods.clss.networks import build_composition
     hh, ww = 16, 24
     depth = np.repeat(np.array([0.25, 0.375, 0.5, 0.75], np.float32), ww // 4)[None].repeat(hh, 0)
     color = np.full((hh, ww, 3), 0.5, np.float32)

@@ -9,6 +9,7 @@ import onnx
 import onnxruntime as ort
 import pytest
 
+from clss.methods.clss import contract as RC   # the CLSS frame step's own constants
 from clss.pipeline import contract as C
 from clss.methods.clss import oracle as O
 
@@ -214,7 +215,7 @@ def np_sample(img, u, v, cubic):
 
 
 def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2.0, cap=4,
-                 thr=O.DEPTH_THRESHOLD, slope=C.DEPTH_SLOPE):
+                 thr=O.DEPTH_THRESHOLD, slope=RC.DEPTH_SLOPE):
     """reference.md, rule mode, on NCHW-less arrays ([C,h,w]); returns dict of buffers."""
     hh, ww = depth.shape
     H, W = C.output_size(hh, ww, scale)
@@ -227,13 +228,13 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
     pad = np.pad(X, ((0, 0), (1, 1), (1, 1)), constant_values=np.nan)
     win = np.stack([pad[:, 1 + dy:1 + dy + hh, 1 + dx:1 + dx + ww] for dx, dy in OFFS])
     # the clamp box: min/max narrowed to mean +- CLIP_GAMMA std (float64 here)
-    mu, sd = np.nanmean(win, 0), C.CLIP_GAMMA * np.nanstd(win, 0)
+    mu, sd = np.nanmean(win, 0), RC.CLIP_GAMMA * np.nanstd(win, 0)
     nmin, nmax = np.maximum(np.nanmin(win, 0), mu - sd), np.minimum(np.nanmax(win, 0), mu + sd)
     # auto-reactive: the largest |dmx| + |dmy| of the dilated motion over the in-bounds 3x3
     mp = np.pad(m_dil, ((0, 0), (1, 1), (1, 1)), constant_values=np.nan)
     mwin = np.stack([mp[:, 1 + dy:1 + dy + hh, 1 + dx:1 + dx + ww] for dx, dy in OFFS])
     div = np.nanmax(np.abs(mwin - m_dil[None]).sum(1), 0)
-    auto = np.clip((div - C.AUTO_REACTIVE_LO) * C.AUTO_REACTIVE_SLOPE, 0, C.AUTO_REACTIVE_MAX)
+    auto = np.clip((div - RC.AUTO_REACTIVE_LO) * RC.AUTO_REACTIVE_SLOPE, 0, RC.AUTO_REACTIVE_MAX)
     react = np.maximum(reactive, auto)
     # the depth test's difference: dd less DEPTH_SLOPE x the smaller one-sided step (x + y)
     dp = np.pad(d_dil, 1, mode="edge")
@@ -257,7 +258,7 @@ def np_rule_step(color, depth, motion, jitter, reactive, history, reset, scale=2
     wgt = np.maximum(1 / (1 + cnt), aux[4])
     # history clip: up + t (wcol - up), one t in [0, 1] for the three channels
     d = wcol - up
-    eps = C.RULE_CLIP_EPS     # the box widened by eps on every side
+    eps = RC.RULE_CLIP_EPS     # the box widened by eps on every side
     lim = np.where(d > 0, aux[8:11] + eps - up, aux[5:8] - eps - up)
     tc = np.where(d != 0, lim / np.where(d != 0, d, 1), 1)
     t = np.minimum(np.maximum(tc, 0).min(0), 1)
@@ -296,7 +297,7 @@ def np_measurements(X, d, m, prev, reset):
     xwin = np.stack([px[:, 1 + dy:1 + dy + hh, 1 + dx:1 + dx + ww] for dx, dy in OFFS])
     spread = (np.nanmax(xwin, 0) - np.nanmin(xwin, 0)).max(0)
     return np.stack([v / (np.abs(v) + np.float32(k))
-                     for v, k in zip((tdd, cc, edge, spread), C.MEASURE_KNEES)]).astype(np.float32)
+                     for v, k in zip((tdd, cc, edge, spread), RC.MEASURE_KNEES)]).astype(np.float32)
 
 
 def np_measurements_hr(meas, H, W):
@@ -351,7 +352,7 @@ def test_measurements_match_numpy_reference():
         if f in (0, 2):
             assert not got[:2].any()
         else:
-            assert (got[0] == np.float32(1) / np.float32(1 + C.MEASURE_KNEES[0])).any()   # off screen
+            assert (got[0] == np.float32(1) / np.float32(1 + RC.MEASURE_KNEES[0])).any()   # off screen
         # output res: the graph's own measurements moved exactly (Gather), which the
         # jitter-aware bilinear sampling of section 5 would not give
         got_hr = dbg["dbg_measurements_hr"][0]
@@ -385,8 +386,8 @@ def test_rule_history_clip_hand_cases():
     up = np.array([[.5, .5, .5], [.5, .5, .5], [.9, .5, .5], [.5, .5, .5]], np.float32)
     hist = np.array([[.6, .45, .5], [.6, .7, .4], [.95, .5, .5], [.5, .5, .5]], np.float32)
     # the clip widens the box by eps on every side: fed narrowed by eps, it is [.4, .6]
-    lo = np.full((4, 3), .4 + C.RULE_CLIP_EPS, np.float32)
-    hi = np.full((4, 3), .6 - C.RULE_CLIP_EPS, np.float32)
+    lo = np.full((4, 3), .4 + RC.RULE_CLIP_EPS, np.float32)
+    hi = np.full((4, 3), .6 - RC.RULE_CLIP_EPS, np.float32)
     want = np.array([[.6, .45, .5], [.55, .6, .45], [.9, .5, .5], [.5, .5, .5]], np.float32)
     feed = {k: np.ascontiguousarray(v.T.reshape(1, 3, 1, 4))
             for k, v in (("hist", hist), ("up", up), ("lo", lo), ("hi", hi))}
@@ -460,7 +461,8 @@ class _VisibilityFromDepthDiff:
     def build(gain=40.0):
         """gain 0: a classifier that never says visibility ghosting (logit -2 < 0)."""
         from onnx import helper, numpy_helper, TensorProto
-        from clss.networks import CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS, channel_slices
+        from clss.methods.clss.networks import (CLASSIFIER_CHANNELS, CLASSIFIER_INPUTS,
+                                                channel_slices)
         wgt = np.zeros((6, CLASSIFIER_CHANNELS, 2, 2), np.float32)
         # gain x the average of the 2x2 block of depth_difference
         wgt[0, channel_slices(CLASSIFIER_INPUTS)["depth_difference"]] = gain / 4
@@ -477,7 +479,7 @@ class _VisibilityFromDepthDiff:
 
 
 def _networks(handmade=False):
-    from clss.networks import build_classifier, build_composition
+    from clss.methods.clss.networks import build_classifier, build_composition
     cls = _VisibilityFromDepthDiff.build() if handmade else build_classifier(widths=(4, 8, 8, 8))
     return dict(classifier=cls, composition=build_composition(hidden=8))
 
@@ -582,7 +584,7 @@ def test_net_depth_test_is_a_floor(depth_threshold, flagged):
     """Net mode rejects the history where the rule's depth test fires even when the
     classifier never says visibility ghosting (reference.md s7); a threshold above 1
     turns the floor off, and then only the classifier decides."""
-    from clss.networks import build_composition
+    from clss.methods.clss.networks import build_composition
     up = upscaler("net", classifier=_VisibilityFromDepthDiff.build(gain=0.0),
                   composition=build_composition(hidden=8), depth_threshold=depth_threshold)
     for f in range(4):
@@ -605,7 +607,7 @@ def test_net_graph_inlines_networks_exactly():
     """Odd output size (42 x 54 pads to 48 x 64): the inlined classifier's logits equal
     running it alone on the edge-padded input, bilinear x2 and cropped; the composition
     likewise."""
-    from clss.networks import build_classifier, build_composition
+    from clss.methods.clss.networks import build_classifier, build_composition
     cls, comp = build_classifier(widths=(4, 8, 8, 8), seed=1), build_composition(hidden=8, seed=1)
     up = O.OracleUpscaler((21, 27), 2.0, "net", cls, comp, debug=True, session_options=_opts())
     rng = np.random.default_rng(0)
@@ -694,7 +696,7 @@ def test_graph_is_plain_onnx():
     onnx.checker.check_model(m, full_check=True)
     with pytest.raises(ValueError, match="needs both"):
         O.build_frame_graph("net", (8, 8), 2.0)
-    from clss.networks import build_classifier, build_composition
+    from clss.methods.clss.networks import build_classifier, build_composition
     # A classifier built for a fixed size must match the padded output size (21x27 -> 48x64).
     comp = build_composition(hidden=4)
     O.build_frame_graph("net", (21, 27), 2.0, build_classifier((2, 2, 2, 2), height=48, width=64), comp)

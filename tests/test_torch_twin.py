@@ -24,7 +24,7 @@ torch = pytest.importorskip("torch")
 
 from clss import Upscaler  # noqa: E402
 from weights_tools.methods.clss import twin as clss_twin  # noqa: E402
-from clss.networks import build_classifier, build_composition  # noqa: E402
+from clss.methods.clss.networks import build_classifier, build_composition  # noqa: E402
 from clss.networks import apply_weights, model_weights  # noqa: E402
 
 from helpers import FRAMES, RENDER, RESET_AT, compare_frame, frames  # noqa: E402

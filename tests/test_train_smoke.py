@@ -69,7 +69,7 @@ def test_train_smoke(tiny_data, tmp_path, capsys):
     assert all(np.array_equal(again[k], v) for k, v in trained.items())
 
     # the weights moved away from the seeded init
-    from clss.networks import build_classifier, build_composition
+    from clss.methods.clss.networks import build_classifier, build_composition
     from clss.networks import model_weights
     init = {**model_weights(build_classifier()), **model_weights(build_composition())}
     assert sorted(trained) == sorted(init)

@@ -197,7 +197,7 @@ def test_load_networks_default_and_untrained(monkeypatch, tmp_path):
     """weights=None: the shipped trained weights; absent, an error unless the caller
     allows the untrained init; "untrained": the seeded init on request."""
     from clss.methods.clss import upscaler
-    from clss.networks import build_classifier
+    from clss.methods.clss.networks import build_classifier
     from clss.networks import model_weights
     from clss.pipeline import method
     seeded = model_weights(build_classifier())

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import onnx
 
-from clss.networks import graphs as networks
+from clss.methods.clss import networks
 from clss.networks import weights
 
 from . import evaluate

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from clss.device import storage_dtype
-from clss.networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
+from clss.methods.clss.networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from clss.pipeline.contract import output_size
 
 from ..cases import TIERS, BenchCase, Setup
@@ -30,7 +30,7 @@ def enqueue_frame(up, color, depth, motion, jitter, out):
 
 def network_cases(tier):
     """The two CLSS networks through clss.Model."""
-    from clss.networks import build_classifier, build_composition, count_flops
+    from clss.methods.clss.networks import build_classifier, build_composition, count_flops
     (h, w), scale = TIERS[tier]
     H, W = output_size(h, w, scale)
     Hp, Wp = pad16(H), pad16(W)
@@ -51,7 +51,7 @@ def cases(tier: str) -> list:
 
 def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
     from clss.methods.clss.oracle import build_frame_graph
-    from clss.networks import build_classifier, build_composition, frame_flops
+    from clss.methods.clss.networks import build_classifier, build_composition, frame_flops
     h, w = render_size
     H, W = output_size(h, w, scale)
     flops = 0.0

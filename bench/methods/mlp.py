@@ -1,9 +1,9 @@
 """The shader MLP's bench room: its frame step as a bench case, clss.Upscaler(method="mlp")'s
-device path (kernels/mlp_upscale.cl: the PQ pass, the pixel-vector block pass and the fold)
+device path (clss/methods/mlp/mlp_upscale.cl: the PQ pass, the pixel-vector block pass and the fold)
 against onnxruntime on the same step's whole-frame ONNX graph (clss/methods/mlp/oracle.py),
 at 540p -> 1080p (2x) and 360p -> 1080p (3x), with trained-like (random, non-zero) weights.
 The suite finds the room by its name (bench/methods/__init__.py). `measure()` also times one
-online training step (kernels/mlp_train.cl) beside the frame step.
+online training step (clss/methods/mlp/mlp_train.cl) beside the frame step.
 
     python -m bench.methods.mlp [fp32|fp16] [HxW]
 """
@@ -85,7 +85,7 @@ def measure(render_size=(540, 960), scale=2, prec="fp32", frames=3, ort=True, on
     (`batch` patches; its host part: cutting the patches) per frame, same process."""
     from clss import Upscaler
     from clss.device import get_device
-    from clss.ops import mlp_upscale as ops
+    from clss.methods.mlp import mlp_upscale as ops
     dev = get_device()
     h, w = render_size
     H, W = scale * h, scale * w

@@ -124,7 +124,7 @@ class Model:
         arguments bound (clss.device.Launch); later calls with the same buffers
         replay it, one enqueue per launch and nothing else (a frame step's networks).
         The last PLANS_KEPT plans are kept: a caller that alternates between two
-        buffer sets (NSRR's double-buffered stack) replays both instead of recording
+        buffer sets (a frame step's double-buffered stack) replays both instead of recording
         again every call (the intermediates are the load-time memory plan's, shared)."""
         feeds = self._check_device(inputs)
         if out is not None:

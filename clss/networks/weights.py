@@ -1,39 +1,18 @@
-"""Network weights as safetensors: save, load, apply to a graph, fp16, torch import."""
+"""Network weights as safetensors, for every method's networks: save, load (checked),
+apply to a graph, fp16, and a method's file of weights plus its config."""
 from __future__ import annotations
 
 import json
 import os
-import re
 import struct
 import tempfile
+from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from onnx import numpy_helper
 
 from clss.errors import UserError
-
-# How a PyTorch re-implementation of the networks names its parameters, mapped to our
-# initializer names. The torch modules this assumes (documented so that a trainer can
-# match them):
-#   classifier: stem = Conv2d(92, c0, 1); enc = ModuleList(4 x Bottleneck(conv1 1x1
-#     reduce, conv2 3x3, conv3 1x1 expand)); down = ModuleList(3 x Conv2d(k3, s2)),
-#     down[i] feeds enc[i+1]; dec = Sequential(Conv2d 1x1, ReLU, Conv2d 3x3, ReLU,
-#     Conv2d 1x1 -> 6). Optional "classifier." / "cls." / "module." prefixes.
-#   composition: mlp = Sequential(Linear(22, hidden), ReLU, Linear(hidden, 1));
-#     Linear [out, in] weights become 1x1 conv [out, in, 1, 1].
-TORCH_NAME_MAP = (
-    (r"stem\.(weight|bias)", "cls.stem.{0}"),
-    (r"enc\.(\d)\.conv1\.(weight|bias)", "cls.enc{0}.reduce.{1}"),
-    (r"enc\.(\d)\.conv2\.(weight|bias)", "cls.enc{0}.mid.{1}"),
-    (r"enc\.(\d)\.conv3\.(weight|bias)", "cls.enc{0}.expand.{1}"),
-    (r"down\.(\d)\.(weight|bias)", "cls.down{0+1}.{1}"),
-    (r"dec\.0\.(weight|bias)", "cls.dec.fuse.{0}"),
-    (r"dec\.2\.(weight|bias)", "cls.dec.conv.{0}"),
-    (r"dec\.4\.(weight|bias)", "cls.dec.out.{0}"),
-    (r"mlp\.0\.(weight|bias)", "comp.fc1.{0}"),
-    (r"mlp\.2\.(weight|bias)", "comp.fc2.{0}"),
-)
-_TORCH_PREFIXES = ("module.", "classifier.", "cls.", "composition.", "comp.")
 
 
 class WeightsError(UserError):
@@ -65,9 +44,6 @@ def save_weights(model_or_tensors, path, half=False):
     """Write the learned tensors of one or more models (or a dict) to safetensors.
 
     Accepts a ModelProto, a dict name -> array, or a list of either. Atomic."""
-    from safetensors.numpy import save_file
-
-    from ..filemode import new_file_mode
     items = model_or_tensors if isinstance(model_or_tensors, (list, tuple)) else [model_or_tensors]
     tensors = {}
     for it in items:
@@ -75,16 +51,26 @@ def save_weights(model_or_tensors, path, half=False):
     if half:
         tensors = to_fp16(tensors)
     tensors = {k: np.ascontiguousarray(v) for k, v in tensors.items()}
+    # One metadata entry: safetensors keeps the metadata in a hash map whose order
+    # changes from process to process, so two entries made the same tensors into
+    # files that differed in their header (and `make train` byte-identical by chance).
+    write_safetensors(tensors, path, {"producer": f"weights_tools ({'float16' if half else 'float32'})"})
+
+
+def write_safetensors(tensors: dict, path, metadata: dict) -> None:
+    """tensors (contiguous arrays) and metadata (str -> str, one entry for a header that does
+    not depend on a hash map's order) to `path`, atomically: a temporary file beside it,
+    renamed over it, with the permissions a new file gets (mkstemp's 0600 would ignore the
+    umask). Every weights file of clss is written here."""
+    from safetensors.numpy import save_file
+
+    from ..filemode import new_file_mode
     d = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(suffix=".safetensors.tmp", dir=d)
     os.close(fd)
     try:
-        # One metadata entry: safetensors keeps the metadata in a hash map whose order
-        # changes from process to process, so two entries made the same tensors into
-        # files that differed in their header (and `make train` byte-identical by chance).
-        save_file(tensors, tmp, metadata={
-            "producer": f"weights_tools ({'float16' if half else 'float32'})"})
-        os.chmod(tmp, new_file_mode())       # mkstemp's 0600 would ignore the umask
+        save_file(tensors, tmp, metadata=metadata)
+        os.chmod(tmp, new_file_mode())
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)
@@ -191,55 +177,17 @@ def apply_weights(model, tensors: dict, strict=False):
     return applied
 
 
-def torch_to_onnx_name(name):
-    """Our initializer name for a torch parameter name, or None if not a network weight."""
-    for p in _TORCH_PREFIXES:
-        if name.startswith(p):
-            name = name[len(p):]
-    for pattern, template in TORCH_NAME_MAP:
-        m = re.fullmatch(pattern, name)
-        if m:
-            groups = list(m.groups())
-            # "{0+1}": torch down[i] is our down{i+1}.
-            return re.sub(r"\{(\d)(\+1)?\}",
-                          lambda r: str(int(groups[int(r.group(1))]) + 1) if r.group(2)
-                          else groups[int(r.group(1))], template)
-    return None
-
-
-def import_torch_state_dict(path, model, strict=True):
-    """Load a torch state dict saved as safetensors into `model` (in place) using
-    TORCH_NAME_MAP. Linear weights [out, in] become 1x1 conv weights. Tensors that do
-    not belong to this model (the other network, optimizer buffers such as BatchNorm
-    running stats) are ignored; with strict, every learned initializer of the model
-    must be covered. Returns the list of (torch name, onnx name) applied."""
-    src = load_weights(path)
-    shapes = {k: v.shape for k, v in model_weights(model).items()}
-    mapped, pairs = {}, []
-    for tname, arr in src.items():
-        oname = torch_to_onnx_name(tname)
-        if oname is None or oname not in shapes:
-            continue
-        if arr.ndim == 2 and len(shapes[oname]) == 4:
-            arr = arr.reshape(arr.shape + (1, 1))
-        mapped[oname] = arr
-        pairs.append((tname, oname))
-    apply_weights(model, mapped, strict=strict)
-    return pairs
-
-
 def save_with_config(path, key: str, cfg: dict, weights: dict) -> None:
     """A method's network file: its float32 tensors, sorted, and its config as JSON under
     the one metadata entry `key` (one entry: safetensors' header order then does not
     depend on a hash map, so a rerun writes the same bytes)."""
-    from safetensors.numpy import save_file
-    save_file({k: np.ascontiguousarray(v, np.float32) for k, v in sorted(weights.items())},
-              path, metadata={key: json.dumps(cfg, sort_keys=True)})
+    write_safetensors({k: np.ascontiguousarray(v, np.float32) for k, v in sorted(weights.items())},
+                      path, {key: json.dumps(cfg, sort_keys=True)})
 
 
 def load_with_config(path, key: str, what: str) -> tuple[dict, dict]:
     """(config, float32 tensors) of a file save_with_config wrote; a file without `key`
-    is refused as not `what` (e.g. "an NSRR weights file")."""
+    is refused as not `what` (e.g. "<METHOD> weights")."""
     from safetensors import safe_open
     with safe_open(path, "np") as f:
         meta = f.metadata() or {}
@@ -247,3 +195,50 @@ def load_with_config(path, key: str, what: str) -> tuple[dict, dict]:
     if key not in meta:
         raise ValueError(f"weights: {path} has no {key} metadata (not {what})")
     return json.loads(meta[key]), weights
+
+
+def preset_widths(widths, presets: dict) -> dict:
+    """A config's widths: a preset by name (a key of `presets`, recorded as "name") or a
+    dict of the room's own (named "custom" unless it says)."""
+    if isinstance(widths, str):
+        if widths not in presets:
+            raise ValueError(f"widths: expected one of {', '.join(presets)}, got {widths!r}")
+        return dict(presets[widths], name=widths)
+    w = dict(widths)
+    w.setdefault("name", "custom")
+    return w
+
+
+@dataclass(frozen=True)
+class ConfiguredWeights:
+    """The weights file of a method whose networks a config describes (a room's
+    networks.py): float32 tensors, the config under the metadata entry `key`, and the
+    check that the tensors are the ones the config's convolutions need. A room gives its
+    name, its key and `layers(cfg) -> {layer: (cout, cin, k)}` (tensors "<layer>.weight"
+    [cout, cin, k, k] and "<layer>.bias" [cout]); `describe(cfg)` names the config in
+    messages."""
+    method: str
+    key: str
+    layers: Callable[[dict], dict]
+    describe: Callable[[dict], str] = field(default=lambda cfg: str(cfg.get("name")))
+
+    def check(self, cfg: dict, weights: dict) -> None:
+        """ValueError naming the first tensor missing or of a shape the config does not give."""
+        for name, (co, ci, k) in self.layers(cfg).items():
+            for key, shape in ((f"{name}.weight", (co, ci, k, k)), (f"{name}.bias", (co,))):
+                if key not in weights:
+                    raise ValueError(f"{self.method} weights: missing tensor {key}")
+                if tuple(weights[key].shape) != shape:
+                    raise ValueError(f"{self.method} weights: {key} has shape "
+                                     f"{tuple(weights[key].shape)}, the config "
+                                     f"{self.describe(cfg)} needs {shape}")
+
+    def save(self, path, cfg: dict, weights: dict) -> None:
+        self.check(cfg, weights)
+        save_with_config(path, self.key, cfg, weights)
+
+    def load(self, path) -> tuple[dict, dict]:
+        """(config, weights) of a file `save` wrote, checked."""
+        cfg, weights = load_with_config(path, self.key, f"{self.method.upper()} weights")
+        self.check(cfg, weights)
+        return cfg, weights

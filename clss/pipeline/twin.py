@@ -1,7 +1,8 @@
-"""What the whole-frame ONNX twins of every method share: a small graph builder (named
-nodes, deduplicated constants, a few ops, inlining of a network) and the PQ transfer as
-nodes, written once so that each method's twin (clss/methods/*/oracle.py) encodes and
-decodes exactly as contract.pq_encode / pq_decode do."""
+"""What the ONNX graphs of every method share: a small graph builder (named nodes,
+deduplicated constants, a few ops, inlining of a network), its form for a network built
+from named weights (`NetworkBuilder`, the rooms' networks.py), and the PQ transfer as
+nodes, written once so that each method's whole-frame twin (clss/methods/*/oracle.py)
+encodes and decodes exactly as contract.pq_encode / pq_decode do."""
 from __future__ import annotations
 
 import numpy as np
@@ -118,6 +119,44 @@ class GraphBuilder:
         if missing:
             raise ValueError(f"{prefix}: model has no graph input named {missing}")
 
+    def model(self, name, inputs, outputs, producer, doc_string=None) -> onnx.ModelProto:
+        """The graph built so far as a ModelProto (make_model)."""
+        return make_model(self.nodes, self.inits, name, inputs, outputs, producer, self.opset,
+                          doc_string)
+
+
+class NetworkBuilder(GraphBuilder):
+    """A network's graph from named weights: each weight becomes an initializer once, under
+    its own name (the torch twin's state_dict key), and `conv` takes its kernel size from
+    the weight. `hidden` is what act="hidden" means: the network's hidden activation (an
+    ONNX op, and LeakyRelu's alpha)."""
+
+    def __init__(self, weights: dict, opset: int, hidden: tuple = ("Relu", None)):
+        super().__init__(opset)
+        self.w, self.hidden = weights, hidden
+        self._params = set()
+
+    def param(self, key):
+        if key not in self._params:
+            self._params.add(key)
+            self.inits.append(numpy_helper.from_array(np.asarray(self.w[key], np.float32), key))
+        return key
+
+    def act(self, x, op, name=None):
+        """x through the activation `op` ("hidden": the network's)."""
+        op, alpha = self.hidden if op == "hidden" else (op, None)
+        attrs = {"alpha": alpha} if op == "LeakyRelu" and alpha is not None else {}
+        return self.op(op, x, name=name, **attrs)
+
+    def conv(self, x, layer, act=None, stride=1, name=None):
+        """The square 'same' convolution of `layer`.weight / .bias, then the activation `act`
+        (None: linear); `name` names the last node's output."""
+        k = int(self.w[f"{layer}.weight"].shape[2])
+        p = k // 2
+        strides = {"strides": [stride, stride]} if stride != 1 else {}
+        y = self.op("Conv", x, self.param(f"{layer}.weight"), self.param(f"{layer}.bias"),
+                    name=None if act else name, pads=[p] * 4, kernel_shape=[k, k], **strides)
+        return self.act(y, act, name) if act else y
 
 
 def pq_encode(g, x, nits):
@@ -159,8 +198,8 @@ def make_model(nodes, inits, name, inputs, outputs, producer, opset,
 def base_grid(render_size, out_size, jitter) -> np.ndarray:
     """[1,H,W,2] GridSample coordinates (align_corners=0) of each output pixel centre in
     the render frame whose sample j was taken at j + 0.5 + jitter: where a twin reads the
-    current render-res image bilinearly as the base its network corrects (NSRR's residual,
-    NSRD's lighting). Constants in float64, rounded once."""
+    current render-res image bilinearly as the base its network corrects (a residual
+    network's base). Constants in float64, rounded once."""
     (h, w), (H, W) = render_size, out_size
     jx, jy = (float(v) for v in jitter)
     u = (np.arange(W, dtype=np.float64) + 0.5) * (w / W) - 0.5 - jx

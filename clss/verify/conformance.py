@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ..device import Device
+from ..device import Device, kernel_label
 from ..tolerance import compare
 from .case import Case, round_inputs
 from .twin import run_ort
@@ -93,5 +93,6 @@ def format_fast_paths(verdicts) -> str:
     for v in bad:
         fp = REGISTRY.get(v.name)
         ref = f", using {fp.options(False)}" if fp else ""
-        lines.append(f"  DISABLED {v.name} [{v.precision}] ({v.options}, kernels/{v.kernel}.cl): {v.detail}{ref}")
+        src = kernel_label(fp.kernel) if fp else v.kernel
+        lines.append(f"  DISABLED {v.name} [{v.precision}] ({v.options}, {src}): {v.detail}{ref}")
     return "\n".join(lines)

@@ -2,17 +2,21 @@
 frame, on the device, in the PQ domain so that it rings as the pipeline's colour would.
 It ignores the jitter, depth and motion: what a spatial upscaler without history gives.
 
-The frame step (`BicubicFrame`): kernels/bicubic.cl encodes the colour to PQ planes, the
-resize op (clss.ops.resize) upsamples them, kernels/bicubic.cl decodes to the caller's
+The frame step (`BicubicFrame`): bicubic.cl (beside this file) encodes the colour to PQ planes, the
+resize op (clss.ops.resize) upsamples them, bicubic.cl decodes to the caller's
 image; the host `step` and `step_device` are MethodUpscaler's (no copy through the host on
 the device path).
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from ...pipeline.method import MethodSpec, MethodUpscaler
+
+KERNEL = Path(__file__).with_name("bicubic.cl")   # the frame kernels, beside this file
 
 
 class BicubicFrame:
@@ -36,11 +40,11 @@ class BicubicFrame:
         from ...ops.resize import resize
         dev, i32, f = self.dev, np.int32, np.float32
         out = self.out if out is None else out
-        dev.launch(dev.kernel("bicubic", "bicubic_encode", self.prec), (self.w, self.h),
+        dev.launch(dev.kernel(KERNEL, "bicubic_encode", self.prec), (self.w, self.h),
                    (color.data, self.x.data, i32(self.h), i32(self.w), f(1.0 / exposure),
                     f(self.nits / PQ_PEAK_NITS)))
         resize(dev, self.prec, self.x, out_hw=(self.H, self.W), mode="cubic", out=self.y)
-        ev = dev.launch(dev.kernel("bicubic", "bicubic_decode", self.prec), (self.W, self.H),
+        ev = dev.launch(dev.kernel(KERNEL, "bicubic_decode", self.prec), (self.W, self.H),
                         (self.y.data, out.data, i32(self.H), i32(self.W),
                          f(PQ_PEAK_NITS / self.nits * exposure)))
         return out, ev

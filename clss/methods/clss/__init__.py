@@ -1,5 +1,5 @@
 """The CLSS room (Guo et al. 2022, seed 002): the frame step on the device (frame.py,
-kernels/frame.cl), its networks and shipped weights (upscaler.load_networks), its
+frame.cl), its networks and shipped weights (upscaler.load_networks), its
 whole-frame ONNX twin (oracle.py) and the written formulas (reference.md).
 
 Three methods live here because they are one frame step in three settings:

@@ -1,7 +1,7 @@
 """The CLSS frame step on an OpenCL device: buffers, launches and timings.
 
 `FrameStep` owns every device buffer of one render size and runs the fused kernels of
-kernels/frame.cl (formulas: reference.md) plus, in mode "net", the classification
+frame.cl (formulas: reference.md) plus, in mode "net", the classification
 network through `clss.Model`. It works on device arrays only; clss.pipeline.Upscaler
 puts the caller-facing contract around it.
 
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -34,15 +35,15 @@ from onnx import numpy_helper
 
 from ... import selfcheck
 from ...device import Device
-from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
+from .networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from ...ops.conv import load_defines
 from ...pipeline.method import summed_event_ms
-from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
-                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_SLOPE, DEPTH_THRESHOLD,
-                                 HISTORY_CHANNELS,
-                                 MEASURE_KNEES, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS, VIS_MARGIN,
-                                 output_size)
+from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
+from .contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE, CLIP_GAMMA,
+                       DEFAULT_CAP, DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, MEASURE_KNEES,
+                       RULE_CLIP_EPS, VIS_MARGIN)
 
+KERNEL = Path(__file__).with_name("frame.cl")   # the frame kernels, beside this file
 # depth, motion 2, dd, reactive, the depth test's difference, clamp box low 3 and high 3
 LR_CHANNELS = 12
 # net mode: and the classifier's 4 measurements (reference.md s4b), then the pixel's own
@@ -50,11 +51,11 @@ LR_CHANNELS = 12
 LR_NET_CHANNELS = 19
 LR_MEASURE = 12     # the first measurement plane (frame.cl's L_MEASURE)
 PREV_CHANNELS = 4  # net mode's render-res state: encoded colour 3, own (not dilated) depth
-# The buffer widths kernels/frame.cl is built with (it has no defaults for them); net
+# The buffer widths frame.cl is built with (it has no defaults for them); net
 # mode builds with L_CHANNELS = LR_NET_CHANNELS.
 WIDTH_DEFINES = dict(L_CHANNELS=LR_CHANNELS, HIST=HISTORY_CHANNELS,
                      CLS_IN=CLASSIFIER_CHANNELS, COMP_IN=COMPOSITION_CHANNELS)
-# flags[0] bits, as kernels/frame.cl
+# flags[0] bits, as frame.cl
 FLAG_BITS = {1: ("color", "non-finite"), 2: ("depth", "non-finite"), 4: ("motion", "non-finite"),
              8: ("reactive", "non-finite"), 16: ("depth", "outside [0, 1]"),
              32: ("reactive", "outside [0, 1]")}
@@ -63,7 +64,7 @@ STAGES = ("prepare", "depth_diff", "resolve", "classifier", "compose")
 
 
 def pixels_per_item(dev: Device, prec: str = "fp32", mode: str = "rule") -> int:
-    """VEC of kernels/frame.cl: CPUs get 8 pixels per work-item as explicit vectors (what
+    """VEC of frame.cl: CPUs get 8 pixels per work-item as explicit vectors (what
     their OpenCL compilers vectorise) once the fast-path self-check has compared that
     with VEC = 1 on the device (clss/selfcheck.py), other devices one (a work-item is
     already a lane). $CLSS_FRAME_VEC (1, 4 or 8) overrides it, unchecked."""
@@ -241,7 +242,7 @@ class FrameStep:
             self.classifier = ClassifierRunner(dev, prec, classifier, self.cls_in.shape,
                                                force=classifier_backend)
             self._check_logits(self.classifier.output_shape())
-        self.k = {name: dev.kernel("frame", name, prec, **defines) for name in
+        self.k = {name: dev.kernel(KERNEL, name, prec, **defines) for name in
                   ("clear", "prepare", "depth_diff", "resolve") + (("compose",) if net else ())}
         # zeroed once: no kernel then ever reads uninitialised memory (oclgrind checks it)
         self._clear(*self.history)
@@ -262,7 +263,7 @@ class FrameStep:
 
     # -- the launch list --------------------------------------------------------
     # Each launch's arguments in the order of the @param lines at its __kernel in
-    # kernels/frame.cl (which name and explain them); run() re-binds the per-frame
+    # frame.cl (which name and explain them); run() re-binds the per-frame
     # ones by these names.
     PREPARE = ("color depth motion reactive has_reactive w h depth_inverted msx msy inv_exposure "
                "pq_scale recon X lr flags").split()

@@ -1,4 +1,4 @@
-"""The frame step's fast paths (kernels/frame.cl: VEC = 8 pixel vectors, builtin-free half
+"""The frame step's fast paths (frame.cl: VEC = 8 pixel vectors, builtin-free half
 loads), registered with clss.selfcheck and checked by running two frames through the
 Upscaler. upscaler.py calls register_fast_paths(Upscaler) once it has defined the class:
 this module does not import upscaler.py, which imports frame.py, so nothing here closes
@@ -13,6 +13,7 @@ from ...device import Device
 from ...ops.base import rng
 from ...ops.conv import builtin_free
 from ...tolerance import DEFAULT_TOL
+from .frame import KERNEL
 
 
 def _selfcheck_run(mode: str, Upscaler):
@@ -37,12 +38,12 @@ def register_fast_paths(Upscaler) -> None:
     # may round differently from their vector forms, hence the op tolerance, not bit-exact.
     for _mode in ("rule", "net"):
         selfcheck.register(selfcheck.FastPath(
-            f"frame.pixel_vectors.{_mode}", "frame", {"VEC": 8, "NET": int(_mode == "net")},
+            f"frame.pixel_vectors.{_mode}", KERNEL, {"VEC": 8, "NET": int(_mode == "net")},
             {"VEC": 1, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode, Upscaler),
             tolerance=DEFAULT_TOL.__getitem__, what=f"8 output pixels per work-item as vectors ({_mode} mode)",
             applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU)))
         selfcheck.register(selfcheck.FastPath(
-            f"frame.{_mode}.builtin_free_loads", "frame", {"CLSS_CLANG_VECTORS": 1, "NET": int(_mode == "net")},
+            f"frame.{_mode}.builtin_free_loads", KERNEL, {"CLSS_CLANG_VECTORS": 1, "NET": int(_mode == "net")},
             {"CLSS_CLANG_VECTORS": 0, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode, Upscaler),
             tolerance=DEFAULT_TOL.__getitem__,
             what=f"half loads/stores as clang vector conversions ({_mode} mode)", applies=builtin_free))

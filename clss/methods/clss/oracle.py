@@ -25,21 +25,20 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
-from ...networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
-from ...networks import pad16 as _pad16
+from .networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
+from .networks import pad16 as _pad16
 from ...model.graph import fill_output_shapes
 from ...pipeline.twin import GraphBuilder as _Graph
 from ...pipeline.twin import IR_VERSION, make_model  # noqa: F401 (IR_VERSION: read as oracle.IR_VERSION)
 from ...pipeline.twin import pq_decode as _pq_decode
 from ...pipeline.twin import pq_encode as _pq_encode
 # (H_* and the other constants are also read as oracle.NAME by tests and tools.)
-from ...pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
-                                 CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_SLOPE,
-                                 DEPTH_THRESHOLD, DILATE_OFFSETS,
-                       H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MEASURE_KNEES, MODES,
-                       PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS, RULE_CLIP_EPS,
-                       SCATTER_WEIGHT_THRESHOLD, VIS_MARGIN, output_size, to_internal,
-                       validate_frame)
+from ...pipeline.contract import (PQ_C1, PQ_C2, PQ_C3, PQ_M1, PQ_M2, PQ_NITS, PQ_PEAK_NITS,
+                                  output_size, to_internal, validate_frame)
+from .contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE, CLIP_GAMMA,
+                       DEFAULT_CAP, DEPTH_EPS, DEPTH_SLOPE, DEPTH_THRESHOLD, DILATE_OFFSETS,
+                       H_COLOR, H_COUNTER, H_LOGITS, H_MAX, H_MIN, HISTORY_CHANNELS, MEASURE_KNEES,
+                       MODES, RULE_CLIP_EPS, SCATTER_WEIGHT_THRESHOLD, VIS_MARGIN)
 
 OPSET = 18
 PREV_CHANNELS = 4   # mode "net": the render-res state prev (encoded colour 3, own depth)
@@ -138,7 +137,7 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     (the depth difference less `depth_slope` x the local relative depth step) >
     `depth_threshold`, w = 1/(1+counter), history clipped towards the current colour
     into the current 3x3 neighbourhood's box.  mode "net": `classifier` and `composition` (onnx.ModelProto from
-    clss.networks) are inlined; ghost = the visibility logit leads the larger of the
+    networks.py) are inlined; ghost = the visibility logit leads the larger of the
     other two by >= `vis_margin` (0: the argmax) or the depth test, or off-screen or
     reset.  `render_size` = (h, w).  `cap`: counter cap
     (default 4 for rule, 32 for net).  `hdr=False`: LDR in/out, no PQ (values clamped
@@ -614,7 +613,7 @@ class OracleUpscaler:
         self.scale = float(scale)
         self.output_size = output_size(*self.render_size, self.scale)
         if mode == "net" and (classifier is None or composition is None):
-            from ...networks import build_classifier, build_composition
+            from .networks import build_classifier, build_composition
             classifier = classifier or build_classifier()
             composition = composition or build_composition()
         self.mode = mode

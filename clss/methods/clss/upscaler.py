@@ -32,17 +32,16 @@ import os
 
 import numpy as np
 
-from ...networks import CLASSIFIER_CHANNELS, pad16
-from ...pipeline.contract import (DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, PQ_NITS,
-                                 VIS_MARGIN, FrameInputError, ghost_classes, output_size,
-                                 validate_frame)
+from .networks import CLASSIFIER_CHANNELS, pad16
+from ...pipeline.contract import PQ_NITS, FrameInputError, output_size, validate_frame
+from .contract import DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, VIS_MARGIN, ghost_classes
 from ...pipeline.method import UNTRAINED, WEIGHTS_DIR, MethodSpec, MethodUpscaler
 from .frame import STAGES, FrameStep
 from .frame_selfcheck import register_fast_paths
 
 MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
 # The trained networks shipped in the package (`make train` writes them; recipe in
-# weights_tools/train.py), the default of mode "net", for every scale.
+# weights_tools/methods/clss/recipe.py), the default of mode "net", for every scale.
 SHIPPED_NAME = "clss_trained.safetensors"
 SHIPPED_WEIGHTS = os.path.join(WEIGHTS_DIR, SHIPPED_NAME)
 
@@ -57,7 +56,7 @@ def load_networks(weights=None, allow_untrained=False):
       architectures), then weights.safetensors (or the only *.safetensors) applied;
     a .safetensors file: applied to the default architectures (every tensor must fit).
     """
-    from ...networks import build_classifier, build_composition
+    from .networks import build_classifier, build_composition
     from ...networks import apply_weights, load_weights
     # None: the one shipped file, which serves every scale
     weights = SPECS["clss"].resolve_weights(weights, 1.0, allow_untrained)

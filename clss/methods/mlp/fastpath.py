@@ -1,4 +1,4 @@
-"""The MLP upscaler's fast path (kernels/mlp_upscale.cl: VEC = 8 render pixels per
+"""The MLP upscaler's fast path (mlp_upscale.cl: VEC = 8 render pixels per
 work-item as vectors, the PQ encode hoisted into its own pass), registered with
 clss.selfcheck and checked against the one-pixel reference kernel on a seeded frame, at 2x
 and 3x, with and without the feature pass. It lives in the room (as CLSS's
@@ -12,7 +12,7 @@ import pyopencl as cl
 from ... import selfcheck
 from ...device import Device
 from ...ops.base import rng
-from ...ops.mlp_upscale import FAST, blocks, pack_weights
+from .mlp_upscale import FAST, KERNEL, blocks, pack_weights
 from . import transform as tf
 
 
@@ -40,6 +40,6 @@ def _tolerance(prec):
 # The vector form computes the same formulas: the same FMAs per lane; pow's vector form may
 # round differently from the scalar one, hence the op tolerance.
 selfcheck.register(selfcheck.FastPath(
-    FAST, "mlp_upscale", {"VEC": 8}, {"VEC": 1}, check=_selfcheck_run, tolerance=_tolerance,
+    FAST, KERNEL, {"VEC": 8}, {"VEC": 1}, check=_selfcheck_run, tolerance=_tolerance,
     what="8 render pixels per work-item as vectors, the PQ encode hoisted",
     applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU)))

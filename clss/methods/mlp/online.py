@@ -5,7 +5,7 @@ Contract: a frame that carries a full-resolution `reference` (the renderer affor
 and then) is a training frame. Per training frame the engine draws `batch` patches of that
 frame accepted by gradient (clss.methods.mlp.patches, the offline recipe's rule), and runs
 `steps` optimiser steps of forward, backward and Adam on the device
-(kernels/mlp_train.cl), in place on the packed weights the frame step reads; then the frame
+(mlp_train.cl), in place on the packed weights the frame step reads; then the frame
 is upscaled with the updated weights. Loss: the offline recipe's (L1 in PQ on the folded
 output over each patch's loss region). Adam: torch's defaults (betas 0.9, 0.999, eps 1e-8),
 learning rate `lr`, no decay (a stream has no end to decay towards).
@@ -42,7 +42,7 @@ class OnlineTrainer:
 
     def __init__(self, dev, scale, feature, weights, *, lr=DEFAULT_LR, batch=DEFAULT_BATCH,
                  steps=DEFAULT_STEPS, seed=0, nits=None):
-        from ...ops.mlp_upscale import WEIGHT_COUNT
+        from .mlp_upscale import WEIGHT_COUNT
         from ...pipeline.contract import PQ_NITS
         self.dev, self.s, self.feature = dev, tf.check_scale(scale), bool(feature)
         self.lr, self.batch, self.steps = float(lr), int(batch), int(steps)
@@ -60,7 +60,7 @@ class OnlineTrainer:
         self.accepted = self.tried = 0
 
     def _buffers(self, defines):
-        from ...ops.mlp_train import TrainBuffers, defines as train_defines
+        from .mlp_train import TrainBuffers, defines as train_defines
         if self.tb is None:
             self.tb = TrainBuffers(self.dev, self.batch, self.s, self.s + 2, pt.PATCH, pt.MARGIN)
             self.defines = train_defines(defines, pt.PATCH, pt.MARGIN)
@@ -107,7 +107,7 @@ class OnlineTrainer:
 
     def gradients(self, defines):
         """Forward, loss and backward on the loaded batch: (gradient buffer, L1 loss)."""
-        from ...ops.mlp_train import forward_backward
+        from .mlp_train import forward_backward
         tb = self._buffers(defines)
         g = forward_backward(self.dev, tb, self.weights, self.defines)
         loss = float(np.abs(tb.diff.get()).mean())
@@ -115,7 +115,7 @@ class OnlineTrainer:
 
     def step(self, defines):
         """One optimiser step on the loaded batch; returns its loss (before the step)."""
-        from ...ops.mlp_train import adam
+        from .mlp_train import adam
         g, loss = self.gradients(defines)
         self.t += 1
         adam(self.dev, self.weights, g, self.m, self.v, self.t, self.lr)

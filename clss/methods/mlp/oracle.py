@@ -1,5 +1,5 @@
 """The whole-frame ONNX twin of the shader MLP upscaler (onnxruntime): the same frame step
-as kernels/mlp_upscale.cl, written with ONNX nodes from transform.py's constants.
+as mlp_upscale.cl, written with ONNX nodes from transform.py's constants.
 
     color [h, w, 3] -> PQ encode -> edge pad 2 -> Conv (25 one-hot 5x5 filters) = the 5x5
     neighbourhoods [3, 25, h, w] -> minus their mean -> ramp;

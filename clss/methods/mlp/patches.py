@@ -1,5 +1,5 @@
 """Training patches of the shader MLP upscaler, accepted by gradient: written once for the
-offline recipe (weights_tools/mlp_train.py) and the online training on the device
+offline recipe (weights_tools/methods/mlp/recipe.py) and the online training on the device
 (online.py), numpy only.
 
 A patch is PATCH x PATCH render pixels of loss with MARGIN render pixels around them (2 for

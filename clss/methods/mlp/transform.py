@@ -1,8 +1,8 @@
 """The shader MLP upscaler's geometry and transform, written once (docs/methods/mlp.md).
 
-Everything the device frame step (kernels/mlp_upscale.cl, by -D options from
+Everything the device frame step (mlp_upscale.cl, by -D options from
 `kernel_defines`), the whole-frame ONNX twin (oracle.py) and the torch twin
-(weights_tools/mlp_torch.py) must agree on lives here: the neighbourhood and block
+(weights_tools/methods/mlp/twin.py) must agree on lives here: the neighbourhood and block
 geometry at each scale, the DC removal and gamma ramp with their constants, the network's
 widths and activations, and the weights file format.
 
@@ -88,7 +88,7 @@ def ramp_inv(y):
 
 
 def kernel_defines(scale, feature=True) -> dict:
-    """The -D options of kernels/mlp_upscale.cl that carry this module's constants."""
+    """The -D options of mlp_upscale.cl that carry this module's constants."""
     s = check_scale(scale)
     return dict(S=s, B=s + 2, FEATURE=int(bool(feature)), GAMMA=float(GAMMA),
                 INV_GAMMA=float(1.0 / GAMMA), EPS=float(EPS), EPS_ROOT=float(EPS_ROOT),
@@ -166,22 +166,11 @@ def load_weights(weights=None, feature=True, scale=2):
 def save_weights(tensors: dict, path, metadata=None):
     """Atomic write; one metadata entry (a deterministic header)."""
     import json
-    import tempfile
 
-    from safetensors.numpy import save_file
+    from ...networks.weights import write_safetensors
     t = check_weights(tensors)
-    d = os.path.dirname(os.path.abspath(path))
-    os.makedirs(d, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".safetensors.tmp", dir=d)
-    os.close(fd)
-    try:
-        save_file(t, tmp, metadata={"clss": json.dumps(metadata or {}, sort_keys=True)})
-        from ...filemode import new_file_mode
-        os.chmod(tmp, new_file_mode())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    write_safetensors(t, path, {"clss": json.dumps(metadata or {}, sort_keys=True)})
 
 
 def packed(tensors: dict) -> np.ndarray:

@@ -15,7 +15,7 @@ methods "mlp" (beauty + the depth feature pass at output resolution) and "mlp-no
 
 Not temporal: each frame is upscaled on its own (depth, motion and jitter are accepted,
 as the contract's step, and not used). The frame step is two kernels
-(kernels/mlp_upscale.cl, launched by clss.ops.mlp_upscale): the fused gather + transform
+(mlp_upscale.cl in this room, launched by its mlp_upscale.py): the fused gather + transform
 + MLP per render pixel, and the overlap average + PQ decode per output pixel; the
 geometry and transform are transform.py's (docs/methods/mlp.md).
 """
@@ -82,7 +82,7 @@ class MlpUpscaler(MethodUpscaler):
             self.tensors, self.trained = tf.load_weights(weights)
         self.defines = tf.kernel_defines(self.s, self.feature)
         self.pq_scale, self.inv_pq_scale = tf.pq_scales(PQ_NITS)
-        from ...ops.mlp_upscale import pack_weights
+        from .mlp_upscale import pack_weights
         self._w = pack_weights(self.dev, self.precision, tf.packed(self.tensors))
         self.online = None
         self.last_loss = None
@@ -100,7 +100,7 @@ class MlpUpscaler(MethodUpscaler):
 
     def set_weights(self, tensors):
         """Swap the network (a dict of arrays); the next frame uses it."""
-        from ...ops.mlp_upscale import pack_weights
+        from .mlp_upscale import pack_weights
         self.tensors = tf.check_weights(tensors)
         if self.online is not None:
             self.online.weights.set(tf.packed(self.tensors))
@@ -121,7 +121,7 @@ class MlpUpscaler(MethodUpscaler):
         loss = self.online.train_frame(color, depth_hr, reference, self.defines,
                                        exposure=self.exposure, frame=self.frame_index)
         if self.precision != "fp32":       # the frame step's half-rounded copy
-            from ...ops.mlp_upscale import pack_weights
+            from .mlp_upscale import pack_weights
             self._w = pack_weights(self.dev, self.precision, self.online.weights.get())
         self.trained = True
         return loss
@@ -153,7 +153,7 @@ class MlpUpscaler(MethodUpscaler):
 
     def _enqueue(self, fs, arrays, jitter, out):
         import pyopencl as cl
-        from ...ops import mlp_upscale as ops
+        from . import mlp_upscale as ops
         # the kernels read the precision's storage: the device path's float32 inputs
         # are converted into the frame step's own buffers (the host path's are there)
         color = arrays["color"]

@@ -3,7 +3,7 @@
 Per frame (render h x w, padded hp x wp = even; output H x W = h s x w s):
 
     prepare   colour / material -> lighting (PQ); the state warped; the depth-test mask;
-              cur [10,hp,wp], warp [8,hp,wp]; the next state [8,h,w]   (kernels/nsrd.cl)
+              cur [10,hp,wp], warp [8,hp,wp]; the next state [8,h,w]   (nsrd.cl)
     prev      the previous output's lighting warped at H x W, unshuffled to [3s^2,hp,wp]
     network   cur, warp, prev, h, c -> y [3s^2,hp,wp], h', c'        (clss.Model)
     finish    y shuffled to H x W + the bilinear lighting, clipped (the next history),
@@ -17,6 +17,8 @@ on a reset). Nothing is allocated per frame, so a long run holds memory flat.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pyopencl as cl
 
@@ -24,6 +26,8 @@ from ...device import Device
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS
 from ...pipeline.method import summed_event_ms
 from . import networks as nets
+
+KERNEL = Path(__file__).with_name("nsrd.cl")   # the frame kernels, beside this file
 
 STAGES = ("prepare", "prev", "network", "finish")
 
@@ -71,7 +75,7 @@ class NsrdFrameStep:
             dev.zero(a)
         from ...model import Model
         self.network = Model(nets.build_network(cfg, weights, hp, wp), device=dev, precision=prec)
-        k = {n: dev.kernel("nsrd", n, prec)
+        k = {n: dev.kernel(KERNEL, n, prec)
              for n in ("nsrd_prepare", "nsrd_prev", "nsrd_finish", "nsrd_decode")}
         i32, f = np.int32, np.float32
         demod, eps = i32(bool(cfg["demod"])), f(nets.DEMOD_EPS)

@@ -16,7 +16,7 @@ down/up level), in the PQ domain of the lighting:
                           bilinear current lighting to it)
     h_out, c_out          the next state
 
-Layers (weight names = the torch twin's state_dict keys, weights_tools/nsrd_torch.py):
+Layers (weight names = the torch twin's state_dict keys, weights_tools/methods/nsrd/twin.py):
     ga.f, ga.g   reliable warping: a gated conv over [cur, warp]: LeakyReLU(f) * sigmoid(g)
     pf, cf       features of prev and of cur (LeakyReLU)
     lstm         ConvLSTM gates over [gated, pf, cf, h] -> i, f, o, g (4 x hid)
@@ -31,13 +31,12 @@ one CPU thread for about half an hour (docs/methods/nsrd.md).
 """
 from __future__ import annotations
 
-
 import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from ...networks.weights import load_with_config, save_with_config
-from ...pipeline.twin import base_grid, make_model, value_info  # noqa: F401 (base_grid: also this module's API)
+from ...networks.weights import ConfiguredWeights, preset_widths
+from ...pipeline.twin import NetworkBuilder, base_grid, value_info  # noqa: F401 (base_grid: also this module's API)
 
 OPSET = 18
 CUR = 10                 # lighting 3, material 3, normal 3, depth 1
@@ -92,13 +91,7 @@ def make_config(scale, widths="default", demod=True, mask=True, remod="blur",
     if not s.is_integer() or not 2 <= s <= 4:
         raise ValueError(f"scale: NSRD runs at the integer scales 2, 3 and 4 (sub-pixel "
                          f"upsampling), got {scale!r}")
-    if isinstance(widths, str):
-        if widths not in WIDTHS:
-            raise ValueError(f"widths: expected one of {', '.join(WIDTHS)}, got {widths!r}")
-        w = dict(WIDTHS[widths], name=widths)
-    else:
-        w = dict(widths)
-        w.setdefault("name", "custom")
+    w = preset_widths(widths, WIDTHS)
     if remod not in REMODS:
         raise ValueError(f"remod: expected one of {', '.join(REMODS)}, got {remod!r}")
     # warp_state: the ConvLSTM's h and c warped by the motion before the cell (the paper
@@ -147,67 +140,25 @@ def init_weights(cfg, seed=0) -> dict:
     return out
 
 
-def check_weights(cfg, weights: dict) -> None:
-    for name, (co, ci, k) in layer_shapes(cfg).items():
-        for key, shape in ((f"{name}.weight", (co, ci, k, k)), (f"{name}.bias", (co,))):
-            if key not in weights:
-                raise ValueError(f"nsrd weights: missing tensor {key}")
-            if tuple(weights[key].shape) != shape:
-                raise ValueError(f"nsrd weights: {key} has shape {tuple(weights[key].shape)}, "
-                                 f"the config ({cfg.get('name')}, x{cfg['scale']}) needs {shape}")
+# The weights file: tensors, and the config under "nsrd_config" (clss.networks).
+FILE = ConfiguredWeights("nsrd", "nsrd_config", layer_shapes,
+                         describe=lambda cfg: f"({cfg.get('name')}, x{cfg['scale']})")
+check_weights, save, load = FILE.check, FILE.save, FILE.load
 
 
-def save(path, cfg, weights: dict) -> None:
-    check_weights(cfg, weights)
-    save_with_config(path, "nsrd_config", cfg, weights)
-
-
-def load(path) -> tuple[dict, dict]:
-    """(config, weights) of an NSRD .safetensors file (config from its metadata)."""
-    cfg, weights = load_with_config(path, "nsrd_config", "an NSRD weights file")
-    check_weights(cfg, weights)
-    return cfg, weights
-
-
-class _G:
-    def __init__(self, weights):
-        self.w, self.nodes, self.inits, self.k, self.used = weights, [], [], 0, set()
-
-    def op(self, op, *inputs, out=None, **attrs):
-        self.k += 1
-        y = out or f"{op.lower()}_{self.k}"
-        self.nodes.append(helper.make_node(op, list(inputs), [y], name=y, **attrs))
-        return y
-
-    def param(self, key):
-        if key not in self.used:
-            self.used.add(key)
-            self.inits.append(numpy_helper.from_array(np.asarray(self.w[key], np.float32), key))
-        return key
-
-    def conv(self, x, layer, act=None, stride=1, out=None):
-        k = self.w[f"{layer}.weight"].shape[2]
-        p = k // 2
-        y = self.op("Conv", x, self.param(f"{layer}.weight"), self.param(f"{layer}.bias"),
-                    pads=[p] * 4, kernel_shape=[k, k], strides=[stride, stride],
-                    out=None if act else out)
-        if act == "lrelu":
-            return self.op("LeakyRelu", y, alpha=ALPHA, out=out)
-        return self.op(act, y, out=out) if act else y
-
-    def rcab(self, x, name):
-        r = self.conv(self.conv(x, f"{name}.0", "lrelu"), f"{name}.1")
-        a = self.op("GlobalAveragePool", r)
-        a = self.conv(self.conv(a, f"{name}.a0", "Relu"), f"{name}.a1", "Sigmoid")
-        return self.op("Add", x, self.op("Mul", r, a))
+def _rcab(g, x, name):
+    r = g.conv(g.conv(x, f"{name}.0", "hidden"), f"{name}.1")
+    a = g.op("GlobalAveragePool", r)
+    a = g.conv(g.conv(a, f"{name}.a0", "Relu"), f"{name}.a1", "Sigmoid")
+    return g.op("Add", x, g.op("Mul", r, a))
 
 
 def build_network(cfg, weights, hp="h", wp="w") -> onnx.ModelProto:
     hid, s2, so = cfg["hid"], 3 * cfg["scale"] ** 2, out_channels(cfg)
-    g = _G(weights)
+    g = NetworkBuilder(weights, OPSET, hidden=("LeakyRelu", ALPHA))
     x = g.op("Concat", "cur", "warp", axis=1)
-    gated = g.op("Mul", g.conv(x, "ga.f", "lrelu"), g.conv(x, "ga.g", "Sigmoid"))
-    xt = g.op("Concat", gated, g.conv("prev", "pf", "lrelu"), g.conv("cur", "cf", "lrelu"), "h",
+    gated = g.op("Mul", g.conv(x, "ga.f", "hidden"), g.conv(x, "ga.g", "Sigmoid"))
+    xt = g.op("Concat", gated, g.conv("prev", "pf", "hidden"), g.conv("cur", "cf", "hidden"), "h",
               axis=1)
     gates = g.conv(xt, "lstm")
     names = [f"gate_{q}" for q in "ifog"]
@@ -215,19 +166,19 @@ def build_network(cfg, weights, hp="h", wp="w") -> onnx.ModelProto:
     g.nodes.append(helper.make_node("Split", [gates, sizes], names, name="split_gates", axis=1))
     i, f, o = (g.op("Sigmoid", n) for n in names[:3])
     gg = g.op("Tanh", names[3])
-    c = g.op("Add", g.op("Mul", f, "c"), g.op("Mul", i, gg), out="c_out")
-    h = g.op("Mul", o, g.op("Tanh", c), out="h_out")
-    d = g.rcab(g.conv(h, "dn", "lrelu", stride=2), "r1")
+    c = g.op("Add", g.op("Mul", f, "c"), g.op("Mul", i, gg), name="c_out")
+    h = g.op("Mul", o, g.op("Tanh", c), name="h_out")
+    d = _rcab(g, g.conv(h, "dn", "hidden", stride=2), "r1")
     u = g.op("DepthToSpace", g.conv(d, "up"), blocksize=2, mode="CRD")
-    u = g.rcab(g.op("Add", u, h), "r0")
-    g.conv(u, "out", out="y")
+    u = _rcab(g, g.op("Add", u, h), "r0")
+    g.conv(u, "out", name="y")
     vi = value_info
-    return make_model(g.nodes, g.inits, "nsrd_network",
-                      [vi("cur", [1, CUR, hp, wp]), vi("warp", [1, WARP, hp, wp]),
-                       vi("prev", [1, s2, hp, wp]), vi("h", [1, hid, hp, wp]),
-                       vi("c", [1, hid, hp, wp])],
-                      [vi("y", [1, so, hp, wp]), vi("h_out", [1, hid, hp, wp]),
-                       vi("c_out", [1, hid, hp, wp])], __name__, OPSET)
+    return g.model("nsrd_network",
+                   [vi("cur", [1, CUR, hp, wp]), vi("warp", [1, WARP, hp, wp]),
+                    vi("prev", [1, s2, hp, wp]), vi("h", [1, hid, hp, wp]),
+                    vi("c", [1, hid, hp, wp])],
+                   [vi("y", [1, so, hp, wp]), vi("h_out", [1, hid, hp, wp]),
+                    vi("c_out", [1, hid, hp, wp])], __name__)
 
 
 def macs_per_pixel(cfg) -> float:

@@ -1,11 +1,11 @@
 """The whole NSRD frame step as one ONNX graph, run by onnxruntime: the oracle that tests
-hold the OpenCL step (frame.py, kernels/nsrd.cl) to. State is explicit: the graph takes
+hold the OpenCL step (frame.py, nsrd.cl) to. State is explicit: the graph takes
 the state of the previous frame and returns the next one.
 
 Graph inputs (internal conventions, contract.to_internal; G-buffers NCHW):
     color [1,3,h,w] linear / exposure   depth [1,1,h,w] reversed-Z   motion [1,2,h,w]
     albedo, normal [1,3,h,w]            albedo_hr [1,3,H,W]
-    state [1,8,h,w]   the render-resolution history (kernels/nsrd.cl's file comment)
+    state [1,8,h,w]   the render-resolution history (nsrd.cl's file comment)
     hist [1,3,H,W]    the previous output's lighting (PQ)
     h, c [1,hid,hp,wp] the ConvLSTM state
     keep [1]: 0 on a reset          base_grid [1,H,W,2]: where each output pixel centre

@@ -1,4 +1,4 @@
-"""The NSRR room (Xiao et al. 2020): the frame step (frame.py, kernels/nsrr.cl), its
+"""The NSRR room (Xiao et al. 2020): the frame step (frame.py, nsrr.cl), its
 networks (networks.py), the upscaler (upscaler.py) and its whole-frame ONNX twin
 (oracle.py). docs/methods/nsrr.md describes the method and its measured results."""
 from .upscaler import SPECS

@@ -22,6 +22,7 @@ clss.Model launch plans into buffers allocated here once.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
@@ -30,6 +31,8 @@ from ...device import Device
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from ...pipeline.method import summed_event_ms
 from .networks import FEAT, build_features, build_reconstruct
+
+KERNEL = Path(__file__).with_name("nsrr.cl")   # the frame kernels, beside this file
 
 STAGES = ("prepare", "features", "reproject", "reconstruct", "finish")
 RESET_FILLS = ("zero", "duplicate")
@@ -88,7 +91,7 @@ class NsrrFrameStep:
         from ...model import Model
         self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
         self.reconstruct = Model(build_reconstruct(cfg, weights, Hp, Wp), device=dev, precision=prec)
-        k = {n: dev.kernel("nsrr", n, prec) for n in ("nsrr_prepare", "nsrr_reproject", "nsrr_finish")}
+        k = {n: dev.kernel(KERNEL, n, prec) for n in ("nsrr_prepare", "nsrr_reproject", "nsrr_finish")}
         i32, f = np.int32, np.float32
         self.L = {
             "prepare": dev.prepare(k["nsrr_prepare"], (w, h), [

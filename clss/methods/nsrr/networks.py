@@ -13,7 +13,7 @@ a multiple of 4 (two poolings). The output is the frame in the PQ domain.
 
 Residual (config "residual", a deviation from the paper, on by default): the U-Net's
 output is added to `base` [1,3,H,W], the current frame's PQ colour resampled bilinearly
-at the output pixel centres with its jitter (kernels/nsrr.cl). The network then learns a
+at the output pixel centres with its jitter (nsrr.cl). The network then learns a
 correction instead of the image; with the ~1000 training steps this machine affords, the
 paper's form (residual False, still supported) stayed hazy and grey well below the
 spatial baselines (docs/methods/nsrr.md).
@@ -26,18 +26,16 @@ pixel (190 GFLOP a 1080p frame); "fast" halves the U-Net again except its last l
 paper's "Ours-Fast", 19 kMAC); "paper" is the paper's. One config, stored with the
 weights (safetensors metadata), builds the OpenCL step, the ONNX twin and the torch twin.
 
-The same weight names are the torch twin's state_dict keys (weights_tools/nsrr_torch.py):
+The same weight names are the torch twin's state_dict keys (weights_tools/methods/nsrr/twin.py):
 fe.{0,1,2}.{weight,bias}, rw.{0,1,2}.*, un.{0..9}.*.
 """
 from __future__ import annotations
 
-
 import numpy as np
 import onnx
-from onnx import helper, numpy_helper
 
-from ...networks.weights import load_with_config, save_with_config
-from ...pipeline.twin import make_model, value_info
+from ...networks.weights import ConfiguredWeights, preset_widths
+from ...pipeline.twin import NetworkBuilder, value_info
 
 FEAT_LEARNED = 8
 FEAT = 4 + FEAT_LEARNED            # RGB-D + learned
@@ -57,13 +55,7 @@ WIDTHS = {
 
 
 def make_config(widths="default", n_prev=MAX_PREV, residual=True, act="relu") -> dict:
-    if isinstance(widths, str):
-        if widths not in WIDTHS:
-            raise ValueError(f"widths: expected one of {', '.join(WIDTHS)}, got {widths!r}")
-        w = dict(WIDTHS[widths], name=widths)
-    else:
-        w = dict(widths)
-        w.setdefault("name", "custom")
+    w = preset_widths(widths, WIDTHS)
     n_prev = int(n_prev)
     if not 1 <= n_prev <= MAX_PREV:
         raise ValueError(f"n_prev: expected 1..{MAX_PREV}, got {n_prev}")
@@ -121,113 +113,60 @@ def init_weights(cfg, seed=0) -> dict:
     return out
 
 
-def check_weights(cfg, weights: dict) -> None:
-    for name, (co, ci) in layer_shapes(cfg).items():
-        for k, shape in ((f"{name}.weight", (co, ci, 3, 3)), (f"{name}.bias", (co,))):
-            if k not in weights:
-                raise ValueError(f"nsrr weights: missing tensor {k}")
-            if tuple(weights[k].shape) != shape:
-                raise ValueError(f"nsrr weights: {k} has shape {tuple(weights[k].shape)}, the "
-                                 f"config {cfg.get('name')} needs {shape}")
+# The weights file: tensors, and the config under "nsrr_config" (clss.networks).
+FILE = ConfiguredWeights("nsrr", "nsrr_config",
+                         lambda cfg: {n: (co, ci, 3) for n, (co, ci) in layer_shapes(cfg).items()})
+check_weights, save, load = FILE.check, FILE.save, FILE.load
 
 
-def save(path, cfg, weights: dict) -> None:
-    check_weights(cfg, weights)
-    save_with_config(path, "nsrr_config", cfg, weights)
-
-
-def load(path) -> tuple[dict, dict]:
-    """(config, weights) of an NSRR .safetensors file (config from its metadata)."""
-    cfg, weights = load_with_config(path, "nsrr_config", "an NSRR weights file")
-    check_weights(cfg, weights)
-    return cfg, weights
-
-
-class _G:
-    """Nodes and initializers of one network."""
-
-    def __init__(self, weights, cfg=None):
-        self.w, self.nodes, self.inits, self.k, self.used = weights, [], [], 0, set()
-        self.act, self.alpha = act_of(cfg or {})
-
-    def name(self, hint):
-        self.k += 1
-        return f"{hint}_{self.k}"
-
-    def op(self, op, *inputs, out=None, **attrs):
-        y = out or self.name(op.lower())
-        self.nodes.append(helper.make_node(op, list(inputs), [y], name=y, **attrs))
-        return y
-
-    def const(self, arr, hint="c"):
-        n = self.name(hint)
-        self.inits.append(numpy_helper.from_array(np.asarray(arr), n))
-        return n
-
-    def param(self, key):
-        if key not in self.used:
-            self.used.add(key)
-            self.inits.append(numpy_helper.from_array(np.asarray(self.w[key], np.float32), key))
-        return key
-
-    def conv(self, x, layer, act="hidden", out=None):
-        """3x3 conv; act "hidden" = the config's hidden activation, None = linear."""
-        y = self.op("Conv", x, self.param(f"{layer}.weight"), self.param(f"{layer}.bias"),
-                    pads=[1, 1, 1, 1], kernel_shape=[3, 3], out=None if act else out)
-        if act == "hidden":
-            act = self.act
-            if act == "LeakyRelu":
-                return self.op(act, y, out=out, alpha=self.alpha)
-        return self.op(act, y, out=out) if act else y
-
-    def slice(self, x, c0, c1):
-        return self.op("Slice", x, self.const(np.array([c0], np.int64), "s"),
-                       self.const(np.array([c1], np.int64), "e"),
-                       self.const(np.array([1], np.int64), "a"))
-
-    def model(self, name, inputs, outputs):
-        return make_model(self.nodes, self.inits, name, inputs, outputs, __name__, OPSET)
+def _builder(cfg, weights) -> NetworkBuilder:
+    return NetworkBuilder(weights, OPSET, hidden=act_of(cfg))
 
 
 _vi = value_info
 
 
 def build_features(cfg, weights, h="h", w="w") -> onnx.ModelProto:
-    g = _G(weights, cfg)
-    y = g.conv(g.conv(g.conv("rgbd", "fe.0"), "fe.1"), "fe.2")
-    g.op("Concat", "rgbd", y, axis=1, out="feat")
-    return g.model("nsrr_features", [_vi("rgbd", [1, 4, h, w])], [_vi("feat", [1, FEAT, h, w])])
+    g = _builder(cfg, weights)
+    y = g.conv(g.conv(g.conv("rgbd", "fe.0", "hidden"), "fe.1", "hidden"), "fe.2", "hidden")
+    g.op("Concat", "rgbd", y, axis=1, name="feat")
+    return g.model("nsrr_features", [_vi("rgbd", [1, 4, h, w])], [_vi("feat", [1, FEAT, h, w])],
+                   __name__)
 
 
 def build_reconstruct(cfg, weights, H="H", W="W") -> onnx.ModelProto:
     n = cfg["n_prev"]
     residual = bool(cfg.get("residual", False))
-    g = _G(weights, cfg)
+    g = _builder(cfg, weights)
+
+    def conv2(x, a, b):           # two 3x3 convs with the hidden activation
+        return g.conv(g.conv(x, a, "hidden"), b, "hidden")
+
     x = "stack"
     # Feature reweighting on the RGB-D of the current and every previous slot.
-    rgbd = g.op("Concat", *[g.slice(x, FEAT * k, FEAT * k + 4) for k in range(n + 1)], axis=1)
-    r = g.conv(g.conv(g.conv(rgbd, "rw.0"), "rw.1"), "rw.2", act="Tanh")
-    half = g.const(np.float32(WEIGHT_SCALE / 2), "half_scale")
-    r = g.op("Mul", g.op("Add", r, g.const(np.float32(1.0), "one")), half)
-    parts = [g.op("Mul", g.slice(x, FEAT * k, FEAT * (k + 1)), g.slice(r, k - 1, k))
+    rgbd = g.op("Concat", *[g.slice(x, 1, FEAT * k, FEAT * k + 4) for k in range(n + 1)], axis=1)
+    r = g.conv(conv2(rgbd, "rw.0", "rw.1"), "rw.2", act="Tanh")
+    half = g.const(np.float32(WEIGHT_SCALE / 2), hint="half_scale")
+    r = g.op("Mul", g.op("Add", r, g.const(np.float32(1.0), hint="one")), half)
+    parts = [g.op("Mul", g.slice(x, 1, FEAT * k, FEAT * (k + 1)), g.slice(r, 1, k - 1, k))
              for k in range(1, n + 1)]
-    x = g.op("Concat", g.slice("stack", 0, FEAT), *parts, axis=1)
+    x = g.op("Concat", g.slice("stack", 1, 0, FEAT), *parts, axis=1)
     # The reconstruction U-Net.
     pool = dict(kernel_shape=[2, 2], strides=[2, 2])
-    up = g.const(np.array([1, 1, 2, 2], np.float32), "scales")
-    e1 = g.conv(g.conv(x, "un.0"), "un.1")
-    e2 = g.conv(g.conv(g.op("MaxPool", e1, **pool), "un.2"), "un.3")
-    b = g.conv(g.conv(g.op("MaxPool", e2, **pool), "un.4"), "un.5")
+    up = g.const(np.array([1, 1, 2, 2], np.float32), hint="scales")
+    e1 = conv2(x, "un.0", "un.1")
+    e2 = conv2(g.op("MaxPool", e1, **pool), "un.2", "un.3")
+    b = conv2(g.op("MaxPool", e2, **pool), "un.4", "un.5")
     rs = dict(mode="nearest", coordinate_transformation_mode="asymmetric", nearest_mode="floor")
     d2 = g.op("Concat", g.op("Resize", b, "", up, **rs), e2, axis=1)
-    d2 = g.conv(g.conv(d2, "un.6"), "un.7")
+    d2 = conv2(d2, "un.6", "un.7")
     d1 = g.op("Concat", g.op("Resize", d2, "", up, **rs), e1, axis=1)
-    y = g.conv(g.conv(d1, "un.8"), "un.9", act=None, out=None if residual else "y")
+    y = g.conv(g.conv(d1, "un.8", "hidden"), "un.9", name=None if residual else "y")
     inputs = [_vi("stack", [1, FEAT * (n + 1), H, W])]
     if residual:
-        g.op("Add", y, "base", out="y")
+        g.op("Add", y, "base", name="y")
         inputs.append(_vi("base", [1, 3, H, W]))
-    return g.model("nsrr_reconstruct", inputs, [_vi("y", [1, 3, H, W])])
+    return g.model("nsrr_reconstruct", inputs, [_vi("y", [1, 3, H, W])], __name__)
 
 
 def macs_per_pixel(cfg, scale) -> dict:

@@ -1,5 +1,5 @@
 """The whole NSRR frame step as one ONNX graph, run by onnxruntime: the oracle that
-tests hold the OpenCL step (frame.py, kernels/nsrr.cl) to. State is explicit: the graph
+tests hold the OpenCL step (frame.py, nsrr.cl) to. State is explicit: the graph
 takes the history [1,12N,H,W] and returns the next one.
 
 Graph inputs (internal conventions, contract.to_internal):
@@ -9,7 +9,7 @@ Graph inputs (internal conventions, contract.to_internal):
         render frame, jitter-aware (`base_grid`)
     zu_y [H], zu_x [W] int64: the render row / column whose jittered sample lands on
         each output row / column, or h / w (a zero row / column) where none does
-        (computed from the jitter by `zu_index`, as kernels/nsrr.cl places samples)
+        (computed from the jitter by `zu_index`, as nsrr.cl places samples)
     keep [1]: 1 = warp the history, 0 = a reset;  dup [1]: 1 = after a reset every
         valid slot is the current frame's features ("duplicate"), 0 = zeros
 Outputs: output [1,3,H,W] linear (/ exposure), hist_out [1,12N,H,W].

@@ -94,7 +94,7 @@ def cases(level: str = "quick") -> list[Case]:
     return full
 
 
-# The shader MLP upscaler's fused kernels (kernels/mlp_upscale.cl) run with this family's
+# The shader MLP upscaler's fused kernels (clss/methods/mlp/mlp_upscale.cl) run with this family's
 # cases, so that `clss verify` checks them (clss.ops.FAMILIES lists the families).
 _cases_per_pixel_mlp = cases
 

@@ -1,15 +1,15 @@
-"""Conformance cases of the shader MLP upscaler's kernels (kernels/mlp_upscale.cl,
-clss/ops/mlp_upscale.py): each kernel against its ONNX twin from the method's oracle
+"""Conformance cases of the shader MLP upscaler's kernels (clss/methods/mlp/mlp_upscale.cl,
+launched by clss/methods/mlp/mlp_upscale.py): each kernel against its ONNX twin from the method's oracle
 (clss/methods/mlp/oracle.py, the same nodes as the whole-frame twin). They run with the
 mlp family's cases (clss/verify/cases/mlp.py appends them), so `clss verify` checks them."""
 from __future__ import annotations
 
 import numpy as np
 
-from ...methods.mlp import oracle, transform as tf
-from ...ops.base import rng
-from ...ops.mlp_upscale import blocks, fold, pack_weights
 from ...methods.mlp import fastpath  # noqa: F401 (the fast path blocks() looks up)
+from ...methods.mlp import oracle, transform as tf
+from ...methods.mlp.mlp_upscale import blocks, fold, pack_weights
+from ...ops.base import rng
 from ...tolerance import Tolerance
 from ..case import Case
 

@@ -101,7 +101,7 @@ def run_classifier(seq, weights, device=None):
     history's squared error exceeds USEFUL_RATIO x the current upsample's plus
     USEFUL_FLOOR; the generator's shading, else none)."""
     import torch
-    from clss.pipeline.contract import VIS_MARGIN, ghost_classes
+    from clss.methods.clss.contract import VIS_MARGIN, ghost_classes
     from .twin import TorchUpscaler, pq_encode
     from .recipe import useful_ghost_labels
     up = TorchUpscaler(float(seq["scale"]), "net", weights, device=device)

@@ -74,7 +74,7 @@ from weights_tools.trainloop import Run, TrainError
 from weights_tools.trainloop import add_arguments as add_run_arguments
 from weights_tools.trainloop import load_sequences as _load_sequences
 from clss.networks import load_weights, save_weights
-from clss.pipeline.contract import VIS_MARGIN
+from clss.methods.clss.contract import VIS_MARGIN
 
 CLASS_WEIGHT_RATIO = 100.0
 GHOST_VISIBILITY, GHOST_NONE, ALIAS_GEOMETRY, ALIAS_NONE = 0, 2, 0, 2

@@ -29,18 +29,19 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from clss.pipeline.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
-                                    CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_SLOPE,
-                                    DEPTH_THRESHOLD,
-                                    DILATE_OFFSETS, HISTORY_CHANNELS, MEASURE_KNEES, MODES,
-                                    PQ_NITS, VIS_MARGIN,
-                                    RULE_CLIP_EPS, SCATTER_WEIGHT_THRESHOLD, output_size,
-                                    to_internal, validate_frame)
+from clss.pipeline.contract import PQ_NITS, output_size, to_internal, validate_frame
+from clss.methods.clss.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE,
+                                        CLIP_GAMMA, DEFAULT_CAP, DEPTH_EPS, DEPTH_SLOPE,
+                                        DEPTH_THRESHOLD, DILATE_OFFSETS, HISTORY_CHANNELS,
+                                        MEASURE_KNEES, MODES, VIS_MARGIN, RULE_CLIP_EPS,
+                                        SCATTER_WEIGHT_THRESHOLD)
 
-from clss.networks import pad16 as _pad16
-from clss.networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, DEFAULT_MLP_HIDDEN,
-                       DEFAULT_WIDTHS, LOGITS, build_classifier, build_composition)
-from clss.networks import WeightsError, model_weights, torch_to_onnx_name
+from clss.methods.clss.networks import pad16 as _pad16
+from clss.methods.clss.networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS,
+                                        DEFAULT_MLP_HIDDEN, DEFAULT_WIDTHS, LOGITS,
+                                        build_classifier, build_composition)
+from clss.networks import WeightsError, model_weights
+from clss.methods.clss.networks import torch_to_onnx_name
 
 from weights_tools.trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
@@ -229,7 +230,7 @@ class Composition(nn.Module):
 def use_basis(classifier, composition):
     """Train both networks on the input basis (module doc above); the function they
     compute does not change (their first layers are re-expressed on z)."""
-    from clss.networks import CLASSIFIER_INPUTS, COMPOSITION_INPUTS
+    from clss.methods.clss.networks import CLASSIFIER_INPUTS, COMPOSITION_INPUTS
     for net, inputs, first, groups in ((classifier, CLASSIFIER_INPUTS, "stem", 4),
                                        (composition, COMPOSITION_INPUTS, "mlp.0", 1)):
         if net.basis is not None:

@@ -29,27 +29,12 @@
 #include "common.h"
 
 #include "mlp_layout.h"
+/* the PQ transfer with the library pow (the seed's; its twins use ONNX Pow); without -D
+ * options, pq.h's defaults are the contract's constants */
+#include "pq.h"
 
-#ifndef PQ_M1 /* a porter building the source as is: contract.py's PQ constants */
-#define PQ_M1 0.1593017578125f
-#define PQ_M2 78.84375f
-#define PQ_C1 0.8359375f
-#define PQ_C2 18.8515625f
-#define PQ_C3 18.6875f
-#endif
-
-inline float mu_pq_encode(float x, float pq_scale)
-{
-    const float y = clamp(x * pq_scale, 0.0f, 1.0f);
-    const float ym = pow(y, (float)PQ_M1);
-    return pow((PQ_C1 + PQ_C2 * ym) / (1.0f + PQ_C3 * ym), (float)PQ_M2);
-}
-
-inline float mu_pq_decode(float e, float inv_pq_scale)
-{
-    const float ep = pow(clamp(e, 0.0f, 1.0f), 1.0f / (float)PQ_M2);
-    return pow(fmax(ep - PQ_C1, 0.0f) / (PQ_C2 - PQ_C3 * ep), 1.0f / (float)PQ_M1) * inv_pq_scale;
-}
+inline PQ_ENCODE(float, mu_pq_encode, pow)
+inline PQ_DECODE(float, mu_pq_decode, pow, fmax)
 
 /* IN [CI] -> OUT [CO] = act(W IN + b); leaky when LEAKY. */
 #define DENSE(IN, OUT, CI, CO, WOFF, LEAKY)                                  \
@@ -167,7 +152,7 @@ __kernel void mlp_upscale_fold(__global const T *blocks, __global T *out, int h,
         ST(out, ((long)y * W + x) * 3 + c, mu_pq_decode(acc[c] * inv_n, inv_pq_scale) * exposure);
 }
 
-/* ---- the fast path (-DVEC=8 or 16; clss/ops/mlp_upscale.py registers it with
+/* ---- the fast path (-DVEC=8 or 16; fastpath.py registers it with
  * clss.selfcheck against the scalar kernels above) ----------------------------------------
  *
  *   mlp_upscale_pq        per render pixel: the PQ encode, once ([3][h][w] float planes),

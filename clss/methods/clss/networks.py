@@ -1,4 +1,5 @@
-"""The two CLSS networks (classification, composition) as ONNX graphs, seeded init.
+"""The two CLSS networks (classification, composition) as ONNX graphs, seeded init, and
+the torch names of their parameters (`TORCH_NAME_MAP`, `import_torch_state_dict`).
 
 The paper (Guo et al. 2022, Fig. 4) gives the shape of the networks but not the
 widths (those are in an unpublished supplement); the widths below are ours, chosen
@@ -25,13 +26,17 @@ Composition graph: "x" [1,22,H,W] -> Conv1x1 22->hidden, ReLU -> Conv1x1 hidden-
 Sigmoid -> "w" [1,1,H,W] (the paper's per-pixel two-layer MLP as 1x1 convolutions).
 
 Initializer names are "cls.<layer>.weight|bias" and "comp.<layer>.weight|bias" so one
-safetensors file holds both networks.
+safetensors file holds both networks (clss.networks reads and writes it).
 """
 from __future__ import annotations
+
+import re
 
 import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
+
+from ...networks.weights import apply_weights, load_weights, model_weights
 
 IR_VERSION = 10
 OPSET = 18
@@ -252,3 +257,64 @@ def frame_flops(classifier, composition, height, width):
     on the frame padded up to multiples of 16 as the pipeline does."""
     return (count_flops(classifier, pad16(height), pad16(width)),
             count_flops(composition, height, width))
+
+
+# How a PyTorch re-implementation of the networks names its parameters, mapped to our
+# initializer names. The torch modules this assumes (documented so that a trainer can
+# match them):
+#   classifier: stem = Conv2d(92, c0, 1); enc = ModuleList(4 x Bottleneck(conv1 1x1
+#     reduce, conv2 3x3, conv3 1x1 expand)); down = ModuleList(3 x Conv2d(k3, s2)),
+#     down[i] feeds enc[i+1]; dec = Sequential(Conv2d 1x1, ReLU, Conv2d 3x3, ReLU,
+#     Conv2d 1x1 -> 6). Optional "classifier." / "cls." / "module." prefixes.
+#   composition: mlp = Sequential(Linear(22, hidden), ReLU, Linear(hidden, 1));
+#     Linear [out, in] weights become 1x1 conv [out, in, 1, 1].
+TORCH_NAME_MAP = (
+    (r"stem\.(weight|bias)", "cls.stem.{0}"),
+    (r"enc\.(\d)\.conv1\.(weight|bias)", "cls.enc{0}.reduce.{1}"),
+    (r"enc\.(\d)\.conv2\.(weight|bias)", "cls.enc{0}.mid.{1}"),
+    (r"enc\.(\d)\.conv3\.(weight|bias)", "cls.enc{0}.expand.{1}"),
+    (r"down\.(\d)\.(weight|bias)", "cls.down{0+1}.{1}"),
+    (r"dec\.0\.(weight|bias)", "cls.dec.fuse.{0}"),
+    (r"dec\.2\.(weight|bias)", "cls.dec.conv.{0}"),
+    (r"dec\.4\.(weight|bias)", "cls.dec.out.{0}"),
+    (r"mlp\.0\.(weight|bias)", "comp.fc1.{0}"),
+    (r"mlp\.2\.(weight|bias)", "comp.fc2.{0}"),
+)
+_TORCH_PREFIXES = ("module.", "classifier.", "cls.", "composition.", "comp.")
+
+
+def torch_to_onnx_name(name):
+    """Our initializer name for a torch parameter name, or None if not a network weight."""
+    for p in _TORCH_PREFIXES:
+        if name.startswith(p):
+            name = name[len(p):]
+    for pattern, template in TORCH_NAME_MAP:
+        m = re.fullmatch(pattern, name)
+        if m:
+            groups = list(m.groups())
+            # "{0+1}": torch down[i] is our down{i+1}.
+            return re.sub(r"\{(\d)(\+1)?\}",
+                          lambda r: str(int(groups[int(r.group(1))]) + 1) if r.group(2)
+                          else groups[int(r.group(1))], template)
+    return None
+
+
+def import_torch_state_dict(path, model, strict=True):
+    """Load a torch state dict saved as safetensors into `model` (in place) using
+    TORCH_NAME_MAP. Linear weights [out, in] become 1x1 conv weights. Tensors that do
+    not belong to this model (the other network, optimizer buffers such as BatchNorm
+    running stats) are ignored; with strict, every learned initializer of the model
+    must be covered. Returns the list of (torch name, onnx name) applied."""
+    src = load_weights(path)
+    shapes = {k: v.shape for k, v in model_weights(model).items()}
+    mapped, pairs = {}, []
+    for tname, arr in src.items():
+        oname = torch_to_onnx_name(tname)
+        if oname is None or oname not in shapes:
+            continue
+        if arr.ndim == 2 and len(shapes[oname]) == 4:
+            arr = arr.reshape(arr.shape + (1, 1))
+        mapped[oname] = arr
+        pairs.append((tname, oname))
+    apply_weights(model, mapped, strict=strict)
+    return pairs

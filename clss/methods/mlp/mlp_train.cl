@@ -26,7 +26,7 @@
  * per patch and channel, crop pixels MARGIN-1 .. MARGIN+PATCH; sample n = ((p*3 + c)*R +
  * a)*R + b. Per-sample buffers are feature-major ([K][N]) so that the weight-gradient
  * sums walk contiguous memory. Geometry and constants: -D options from
- * clss/methods/mlp/transform.py (as kernels/mlp_upscale.cl), plus -DPATCH, -DMARGIN.
+ * clss/methods/mlp/transform.py (as mlp_upscale.cl), plus -DPATCH, -DMARGIN.
  */
 #include "common.h"
 

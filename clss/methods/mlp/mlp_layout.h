@@ -1,4 +1,4 @@
-/* What the MLP upscaler's kernels share (kernels/mlp_upscale.cl, kernels/mlp_train.cl):
+/* What the MLP upscaler's kernels share (mlp_upscale.cl, mlp_train.cl):
  * the geometry and transform constants, the packed weight layout and the gamma ramp of
  * the seed's transform. The values come as -D options from
  * clss/methods/mlp/transform.py (kernel_defines), the one place they are written; the

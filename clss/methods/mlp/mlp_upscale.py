@@ -1,15 +1,19 @@
-"""The shader MLP upscaler's two kernels (kernels/mlp_upscale.cl): the fused gather +
+"""The shader MLP upscaler's two kernels (mlp_upscale.cl, beside this file): the fused gather +
 DC removal + gamma ramp + 50-50-50-25 MLP per render pixel (`blocks`), and the overlap
 average + PQ decode per output pixel (`fold`). The constants and geometry arrive as -D
 options (`defines`, built by clss.methods.mlp.transform.kernel_defines, the one place
 they are written); their ONNX twins are in clss/verify/cases/mlp_upscale.py."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
-from .. import selfcheck
-from ..device import Device
-from .base import check_storage
+from ... import selfcheck
+from ...device import Device
+from ...ops.base import check_storage
+
+KERNEL = Path(__file__).with_name("mlp_upscale.cl")
 
 # Work-group shape: a fixed one, so PoCL compiles one work-group function per build, not
 # one per frame size (the kernels guard their bounds).
@@ -59,16 +63,16 @@ def blocks(dev: Device, prec: str, color, feat, weights, defines: dict, *,
     if v > 1:
         opts = dict(defines, VEC=v)
         pq = dev.empty((3, h, w), "fp32")
-        dev.launch(dev.kernel("mlp_upscale", "mlp_upscale_pq", prec, **opts),
+        dev.launch(dev.kernel(KERNEL, "mlp_upscale_pq", prec, **opts),
                    (_round_up(w, LOCAL[0]), _round_up(h, LOCAL[1])),
                    (color.data, pq.data, np.int32(h), np.int32(w), np.float32(inv_exposure),
                     np.float32(pq_scale)), local_size=LOCAL)
-        dev.launch(dev.kernel("mlp_upscale", "mlp_upscale_blocks_v", prec, **opts),
+        dev.launch(dev.kernel(KERNEL, "mlp_upscale_blocks_v", prec, **opts),
                    (_round_up(-(-w // v), VLOCAL[0]), _round_up(h, VLOCAL[1])),
                    (pq.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
                     np.int32(H), np.int32(W)), local_size=VLOCAL)
         return out
-    kern = dev.kernel("mlp_upscale", "mlp_upscale_blocks", prec, **defines)
+    kern = dev.kernel(KERNEL, "mlp_upscale_blocks", prec, **defines)
     dev.launch(kern, (_round_up(w, LOCAL[0]), _round_up(h, LOCAL[1])),
                (color.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
                 np.int32(H), np.int32(W), np.float32(inv_exposure), np.float32(pq_scale)),
@@ -88,13 +92,12 @@ def fold(dev: Device, prec: str, blk, defines: dict, *, exposure=1.0, inv_pq_sca
     H, W = s * h, s * w
     if out is None:
         out = dev.empty((H, W, 3), prec)
-    kern = dev.kernel("mlp_upscale", "mlp_upscale_fold", prec, **defines)
+    kern = dev.kernel(KERNEL, "mlp_upscale_fold", prec, **defines)
     dev.launch(kern, (_round_up(W, LOCAL[0]), _round_up(H, LOCAL[1])),
                (blk.data, out.data, np.int32(h), np.int32(w), np.int32(H), np.int32(W),
                 np.float32(exposure), np.float32(inv_pq_scale)), local_size=LOCAL)
     return out
 
 
-# The fast path (VEC pixel vectors) is registered with clss.selfcheck by the method's room,
-# clss/methods/mlp/fastpath.py, whose check runs the method's own geometry and weights
-# (an op must not import the method above it).
+# The fast path (VEC pixel vectors) is registered with clss.selfcheck by fastpath.py,
+# whose check runs the method's own geometry and weights.

@@ -1,16 +1,18 @@
-"""The shader MLP upscaler's online training kernels (kernels/mlp_train.cl): forward with
-the activations kept, the L1 loss's residual on the folded output, backward, the weight
-gradients per layer and torch's Adam update, fp32, on the packed weights the frame step
-reads (clss/ops/mlp_upscale.py). Buffers and batch layout: TrainBuffers; the driver:
-clss/methods/mlp/online.py."""
+"""The shader MLP upscaler's online training kernels (mlp_train.cl, beside this file):
+forward with the activations kept, the L1 loss's residual on the folded output, backward,
+the weight gradients per layer and torch's Adam update, fp32, on the packed weights the
+frame step reads (mlp_upscale.py). Buffers and batch layout: TrainBuffers; the driver:
+online.py."""
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
-from ..device import Device
+from ...device import Device
 from .mlp_upscale import WEIGHT_COUNT
 
-STEM = "mlp_train"
+KERNEL = Path(__file__).with_name("mlp_train.cl")
 WG = 64
 
 
@@ -53,7 +55,7 @@ def defines(base: dict, patch: int, margin: int) -> dict:
 def forward_backward(dev: Device, tb: TrainBuffers, weights, defs: dict):
     """forward, loss residual (tb.diff), backward and the weight gradients (tb.G)."""
     N = np.int32(tb.N)
-    k = lambda name: dev.kernel(STEM, name, "fp32", **defs)  # noqa: E731
+    k = lambda name: dev.kernel(KERNEL, name, "fp32", **defs)  # noqa: E731
     dev.launch(k("mlp_train_forward"), (_round_up(tb.N, WG),),
                (tb.col.data, tb.feat.data, weights.data, tb.X.data, tb.H1.data, tb.H2.data,
                 tb.Y.data, tb.BLK.data, N), local_size=(WG,))
@@ -80,7 +82,7 @@ def adam(dev: Device, weights, grad, m, v, step: int, lr: float, betas=(0.9, 0.9
     b1, b2 = betas
     bc1 = 1.0 - b1 ** step
     bc2 = 1.0 - b2 ** step
-    kern = dev.kernel(STEM, "mlp_train_adam", "fp32")
+    kern = dev.kernel(KERNEL, "mlp_train_adam", "fp32")
     dev.launch(kern, (_round_up(WEIGHT_COUNT, WG),),
                (weights.data, grad.data, m.data, v.data, np.int32(WEIGHT_COUNT),
                 np.float32(lr), np.float32(b1), np.float32(b2), np.float32(eps),

@@ -134,17 +134,12 @@
 #define L_RAW_MY 18
 
 /* The buffer widths come from the host, where they are defined once: L_CHANNELS and HIST
- * from clss.pipeline.contract, CLS_IN and COMP_IN from clss.networks' channel layouts. */
+ * from frame.py and contract.py, CLS_IN and COMP_IN from networks.py's channel layouts. */
 #if !defined(L_CHANNELS) || !defined(HIST) || !defined(CLS_IN) || !defined(COMP_IN)
-#error "frame.cl: build with -DL_CHANNELS -DHIST -DCLS_IN -DCOMP_IN (clss/pipeline/frame.py)"
+#error "frame.cl: build with -DL_CHANNELS -DHIST -DCLS_IN -DCOMP_IN (clss/methods/clss/frame.py)"
 #endif
 
-/* SMPTE ST 2084 */
-#define PQ_M1 0.1593017578125f
-#define PQ_M2 78.84375f
-#define PQ_C1 0.8359375f
-#define PQ_C2 18.8515625f
-#define PQ_C3 18.6875f
+#include "pq.h"
 
 /* The output-res arithmetic (aux update, MLP, blend, transfer function) runs on VEC
  * consecutive pixels of a row per work-item as explicit vectors: PoCL's CPU device then
@@ -207,28 +202,21 @@ typedef int iv;
  * 0 stays 0 (log2 0 = -inf). */
 #define POWP(x, y) exp2((y) * log2(x))
 
+/* The transfer on VEC pixels: pq.h's PQ (inv_pq_scale = 10000 / nits), or a clamp. */
+#if HDR
+inline PQ_ENCODE(fv, encode, POWP)
+inline PQ_DECODE(fv, decode, POWP, fmax)
+#else
 inline fv encode(fv x, float pq_scale)
 {
-#if HDR
-    const fv y = clamp(x * pq_scale, 0.0f, 1.0f);
-    const fv ym = POWP(y, PQ_M1);
-    return POWP((PQ_C1 + PQ_C2 * ym) / (1.0f + PQ_C3 * ym), PQ_M2);
-#else
     return clamp(x, 0.0f, 1.0f);
-#endif
 }
 
-/* VEC pixels; inv_pq_scale = 10000 / nits; the encoded value is clamped to [0, 1] first. */
 inline fv decode(fv e, float inv_pq_scale)
 {
-#if HDR
-    const fv ep = POWP(clamp(e, 0.0f, 1.0f), 1.0f / PQ_M2);
-    const fv y = POWP(fmax(ep - PQ_C1, 0.0f) / (PQ_C2 - PQ_C3 * ep), 1.0f / PQ_M1);
-    return y * inv_pq_scale;
-#else
     return e;
-#endif
 }
+#endif
 
 /* v (VEC pixels) to plane p at q .. q + n - 1; n < VEC at the right edge of a row. */
 inline void st_plane(__global T *p, int q, fv v, int n)
