@@ -4,7 +4,7 @@ what runs.
 Both run the same frames (clss.scene, 23x37 -> 46x74, padded to 48x80 for the
 classifier) and the same weights (seeded init, seed 3, not the default) for 8 frames
 with the state carried and a reset in the middle, in both modes, fp32.  Per frame
-(the tolerances of tests/test_pipeline_frame.py vs the oracle):
+(the tolerances of tests/test_method_clss_frame.py vs the oracle):
   * the sample counter (decided by an argmax or a threshold, then carried) may differ on
     <= 1 % of pixels; those pixels are left out of the other comparisons;
   * output |d| <= 1e-4 * max|ref| + 1e-4 * |ref| (linear, after the PQ decode);

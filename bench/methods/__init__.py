@@ -20,9 +20,9 @@ import importlib.util
 
 
 def rooms() -> list[str]:
-    """The method rooms in registry order (each once)."""
+    """The method rooms in registry order."""
     from clss.methods import ROOMS
-    return list(dict.fromkeys(ROOMS.values()))
+    return list(ROOMS)
 
 
 def room(name: str):

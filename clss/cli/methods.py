@@ -13,7 +13,8 @@ def _spec_record(s) -> dict:
     return {"name": s.name, "label": s.label, "summary": s.summary, "inputs": list(s.inputs),
             "gbuffers": list(s.gbuffers), "optional": list(s.optional),
             "scales": list(s.scales), "precisions": list(s.precisions),
-            "temporal": s.temporal, "weights": s.weights(), "doc": s.doc}
+            "temporal": s.temporal, "weights": s.weights(), "doc": s.doc,
+            "parts": {k: list(v) if isinstance(v, tuple) else v for k, v in s.parts().items()}}
 
 
 def cmd_methods(argv) -> int:
@@ -24,7 +25,10 @@ def cmd_methods(argv) -> int:
                               "`clss upscale --method NAME` and clss.Upscaler(method=NAME) run one.",
                   epilog="examples:\n  clss methods\n  clss methods --json",
                   formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--json", action="store_true", help="print the table as JSON")
+    p.add_argument("--json", action="store_true",
+                   help="print the table as JSON, with what each method owns and where it lives "
+                        "(\"parts\": its room, kernels, weights, twins, recipe, bench, page, "
+                        "tests; docs/architecture.md, 'Adding a method')")
     a = p.parse_args(argv)
     from .. import methods
     recs = [_spec_record(s) for s in methods.specs()]

@@ -1,22 +1,34 @@
 """The upscaling methods, one room each; no room imports another (tests/test_architecture.py).
 
-    clss/methods/clss/     CLSS: net mode "clss", rule mode "clss-rules", and "jbicubic"
-    clss/methods/bicubic/  the plain bicubic baseline
+    clss/methods/bicubic/  the plain bicubic baseline "bicubic"
+    clss/methods/clss/     CLSS: "jbicubic", rule mode "clss-rules" and net mode "clss"
+    clss/methods/mlp/      the shader MLP: "mlp" and its ablation "mlp-nofeature"
+    clss/methods/nsrr/     NSRR: "nsrr"
+    clss/methods/nsrd/     NSRD: "nsrd"
 
-A room exports SPECS {name: clss.pipeline.method.MethodSpec}. This registry names the
-room of each method and imports it only when the method is asked for, so listing the
-methods (`clss methods`) costs one import per room and no device. What a method adds to
-the shared code (fast paths, command-line options, the older mode= alias) is named by its
-spec; the shared code asks the spec (`specs()`), never the room.
+A room exports SPECS {name: clss.pipeline.method.MethodSpec}; `ROOMS` below is the one
+line a room adds here, and every other list of methods or rooms is derived from it and
+the specs: the method names (`names()`), the bench's rooms (bench/methods/), the training
+rooms (weights_tools/methods/), the import contracts (.importlinter's wildcards). Listing
+the methods (`clss methods`) imports each room once and touches no device. What a method
+owns (`MethodSpec.parts()`) and what it adds to the shared code (fast paths, command-line
+options, the older mode= alias) is named by its spec; the shared code asks the spec
+(`specs()`), never the room. docs/architecture.md walks through adding a method.
 """
 from __future__ import annotations
 
+import functools
 import importlib
 
-# name -> room (a module under clss.methods), in the order `clss methods` lists them:
-# the baselines first, then by increasing cost.
-ROOMS = {"bicubic": "bicubic", "jbicubic": "clss", "clss-rules": "clss", "clss": "clss",
-         "mlp": "mlp", "mlp-nofeature": "mlp", "nsrr": "nsrr", "nsrd": "nsrd"}
+# The registry: one line per room (a package clss/methods/<room>/ exporting SPECS), in the
+# order `clss methods` lists their methods: the baselines first, then by increasing cost.
+ROOMS = (
+    "bicubic",
+    "clss",
+    "mlp",
+    "nsrr",
+    "nsrd",
+)
 # Names that earlier versions used (`--mode rules|net`, eval's `rules` / `net`).
 ALIASES = {"rules": "clss-rules", "rule": "clss-rules", "net": "clss", "clss-net": "clss"}
 # Methods the paper seeds describe that are not built yet (`clss methods` lists them as such).
@@ -25,30 +37,49 @@ PLANNED: dict = {}
 DEFAULT = "clss"
 
 
+def room_specs(room: str) -> dict:
+    """The SPECS of room `room` ({method name: MethodSpec}, in the room's order)."""
+    return importlib.import_module(f"{__name__}.{room}").SPECS
+
+
+@functools.lru_cache(maxsize=None)
+def _by_name(rooms: tuple) -> dict:
+    # {method name: MethodSpec} over the rooms, in their order; each room imported once.
+    out = {}
+    for room in rooms:
+        for name, s in room_specs(room).items():
+            if name in out:
+                raise RuntimeError(f"method {name!r} is defined by two rooms "
+                                   f"({out[name].room} and {room})")
+            out[name] = s
+    return out
+
+
 def names() -> list[str]:
-    return list(ROOMS)
+    """Every method's name, in the order `clss methods` lists them."""
+    return list(_by_name(ROOMS))
 
 
 def canonical(name: str) -> str:
     """The registry name of `name` (aliases resolved); a ValueError lists the methods."""
     key = str(name).strip().lower()
     key = ALIASES.get(key, key)
-    if key in ROOMS:
+    known = _by_name(ROOMS)
+    if key in known:
         return key
     if key in PLANNED:
         raise ValueError(f"method: {key!r} is not built yet ({PLANNED[key]}); available: "
-                         f"{', '.join(ROOMS)}")
-    raise ValueError(f"method: expected one of {', '.join(ROOMS)}, got {name!r}")
+                         f"{', '.join(known)}")
+    raise ValueError(f"method: expected one of {', '.join(known)}, got {name!r}")
 
 
 def spec(name: str):
     """The MethodSpec of `name`."""
-    key = canonical(name)
-    return importlib.import_module(f"{__name__}.{ROOMS[key]}").SPECS[key]
+    return _by_name(ROOMS)[canonical(name)]
 
 
 def specs() -> list:
-    return [spec(n) for n in ROOMS]
+    return list(_by_name(ROOMS).values())
 
 
 def create(name: str, **kwargs):

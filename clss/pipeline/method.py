@@ -44,6 +44,11 @@ WEIGHTS_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__fil
 UNTRAINED = "untrained"
 
 
+# The keys of MethodSpec.parts(): what a method owns (docs/architecture.md, "Adding a method").
+PARTS = ("room", "kernels", "weights", "onnx_twin", "torch_twin", "recipe", "bench", "doc",
+         "tests")
+
+
 @dataclass(frozen=True)
 class MethodSpec:
     """One method, as `clss methods` lists it and `clss.Upscaler(method=...)` builds it.
@@ -57,7 +62,9 @@ class MethodSpec:
     scale; precisions: what `precision=` accepts; temporal: whether it carries a history
     between frames; doc: its page under docs/; twin: "module:name" of its whole-frame
     ONNX twin, a callable(method, render_size, scale, **kwargs) -> a runner with the same
-    `step` on onnxruntime (clss.methods.twin builds it).
+    `step` on onnxruntime (clss.methods.twin builds it); kernels: the OpenCL sources of its
+    frame step, file names in its room (beside frame.py; headers shared by every method
+    are in kernels/). `parts()` lists everything the method owns, where it lives.
 
     Weights (`resolve_weights`): shipped: ((scale, file name under WEIGHTS_DIR), ...) of
     the trained weights the package ships, scale None for a file that serves every scale
@@ -89,6 +96,7 @@ class MethodSpec:
     temporal: bool = True
     doc: str = ""
     twin: str = ""
+    kernels: tuple = ()
     shipped: tuple = ()
     nearest_scale: bool = False
     fast_paths: str = ""
@@ -111,6 +119,37 @@ class MethodSpec:
             raise ValueError(f"precision: expected {' or '.join(repr(p) for p in self.precisions)} "
                              f"(method {self.name!r}), got {precision!r}")
         return precision
+
+    # -- what the method owns -----------------------------------------------------------
+    @property
+    def room(self) -> str:
+        """The room (the package under clss.methods) whose SPECS define the method."""
+        fn = self.create.func if isinstance(self.create, functools.partial) else self.create
+        parts = fn.__module__.split(".")
+        return parts[2] if parts[:2] == ["clss", "methods"] and len(parts) > 2 else ""
+
+    def parts(self) -> dict:
+        """Everything the method owns and where it lives, as paths from the repository's
+        root (PARTS names the keys; docs/architecture.md walks a newcomer through them and
+        tests/test_house.py holds the two to each other and to the files): its room, its
+        frame kernels, the weights files the package ships for it, its whole-frame ONNX twin, its torch twin and
+        training recipe (weights_tools/methods/<room>/, for a method that ships trained
+        weights), its bench cases (bench/methods/<room>.py), its page and its tests. None
+        where the method has no such part."""
+        room = self.room
+        trained = bool(self.shipped)
+        return {
+            "room": f"clss/methods/{room}/",
+            "kernels": tuple(f"clss/methods/{room}/{k}" for k in self.kernels),
+            "weights": tuple(f"clss/weights/{f}" for _, f in self.shipped
+                             if os.path.isfile(os.path.join(WEIGHTS_DIR, f))),
+            "onnx_twin": self.twin or None,
+            "torch_twin": f"weights_tools/methods/{room}/twin.py" if trained else None,
+            "recipe": f"weights_tools/methods/{room}/recipe.py" if trained else None,
+            "bench": f"bench/methods/{room}.py",
+            "doc": self.doc or None,
+            "tests": f"tests/test_method_{room}.py",
+        }
 
     # -- keyword arguments ------------------------------------------------------------
     def _signature(self):

@@ -73,6 +73,6 @@ class BicubicUpscaler(MethodUpscaler):
 SPEC = MethodSpec(
     "bicubic", "bicubic", "plain Keys bicubic of each frame, jitter-unaware, in the PQ domain",
     BicubicUpscaler, inputs=("color",), precisions=("fp32", "fp16"),
-    temporal=False, doc="docs/methods/baselines.md",
+    temporal=False, kernels=(KERNEL.name,), doc="docs/methods/baselines.md",
     twin="clss.methods.bicubic.oracle:OracleBicubic")
 SPECS = {"bicubic": SPEC}

@@ -21,7 +21,7 @@ RULE_CLIP_EPS = 2.0 / 1023.0
 # widen a min/max box so far that it keeps their ghosts. Rule mode, cap 4, mean over the
 # 2 Blender validation and 16 held-out generated sequences (PSNR / tPSNR, dB): min/max
 # 25.87 / 24.09, gamma 0.75 26.11 / 24.14, 1.0 26.07 / 24.18, 1.25 26.01 / 24.16. 1.25
-# keeps a static textured scene converging (tests/test_pipeline_oracle.py: +2 dB in 8
+# keeps a static textured scene converging (tests/test_method_clss_oracle.py: +2 dB in 8
 # frames; 0.75 and 1.0 clip too much of a right history there).
 CLIP_GAMMA = 1.25
 

@@ -36,7 +36,7 @@ from .networks import CLASSIFIER_CHANNELS, pad16
 from ...pipeline.contract import PQ_NITS, FrameInputError, output_size, validate_frame
 from .contract import DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, VIS_MARGIN, ghost_classes
 from ...pipeline.method import UNTRAINED, WEIGHTS_DIR, MethodSpec, MethodUpscaler
-from .frame import STAGES, FrameStep
+from .frame import KERNEL as FRAME_KERNEL, STAGES, FrameStep
 from .frame_selfcheck import register_fast_paths
 
 MODE_NAMES = {"rules": "rule", "rule": "rule", "net": "net"}
@@ -316,21 +316,24 @@ DOC = "docs/methods/clss.md"
 TWIN = "clss.methods.clss.oracle:twin"
 # Importing this module registers the frame step's fast paths (clss verify checks them).
 FAST_PATHS = __name__
+# The frame step's kernels, beside frame.py (MethodSpec.kernels).
+KERNELS = (FRAME_KERNEL.name,)
 # The older clss.Upscaler(scale, mode="net" | "rules") picks between the two modes.
 MODES = {"net": "clss", "rules": "clss-rules"}
+# In the order `clss methods` lists them: the baseline first.
 SPECS = {
-    "clss": MethodSpec(
-        "clss", "CLSS net", "CLSS (Guo et al. 2022): a classifier of ghosting and aliasing, "
-        "auxiliary history, a per-pixel MLP blend weight",
-        functools.partial(ClssUpscaler, mode="net"), doc=DOC, twin=TWIN,
-        shipped=((None, SHIPPED_NAME),), fast_paths=FAST_PATHS, modes=MODES),
+    "jbicubic": MethodSpec(
+        "jbicubic", "jitter-aware bicubic", "each render sample placed at its jittered "
+        "position, a cubic over them; no history", JitterBicubic,
+        temporal=False, doc="docs/methods/baselines.md", twin=TWIN, kernels=KERNELS, fast_paths=FAST_PATHS),
     "clss-rules": MethodSpec(
         "clss-rules", "CLSS rules", "CLSS's frame step with rules instead of networks: depth "
         "test, variance clamp, 1/(1+n) blend (TAAU-like)",
         functools.partial(ClssUpscaler, mode="rules"), doc=DOC, twin=TWIN,
-        fast_paths=FAST_PATHS, modes=MODES),
-    "jbicubic": MethodSpec(
-        "jbicubic", "jitter-aware bicubic", "each render sample placed at its jittered "
-        "position, a cubic over them; no history", JitterBicubic,
-        temporal=False, doc="docs/methods/baselines.md", twin=TWIN, fast_paths=FAST_PATHS),
+        kernels=KERNELS, fast_paths=FAST_PATHS, modes=MODES),
+    "clss": MethodSpec(
+        "clss", "CLSS net", "CLSS (Guo et al. 2022): a classifier of ghosting and aliasing, "
+        "auxiliary history, a per-pixel MLP blend weight",
+        functools.partial(ClssUpscaler, mode="net"), doc=DOC, twin=TWIN,
+        shipped=((None, SHIPPED_NAME),), kernels=KERNELS, fast_paths=FAST_PATHS, modes=MODES),
 }

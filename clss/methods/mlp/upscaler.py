@@ -175,6 +175,8 @@ class MlpUpscaler(MethodUpscaler):
         return res, cl.enqueue_marker(self.dev.queue)
 
 
+# The room's kernels (mlp_upscale.py and mlp_train.py build them; imported when a frame runs).
+KERNELS = ("mlp_upscale.cl", "mlp_train.cl")
 SPECS = {
     "mlp": MethodSpec(
         "mlp", "shader MLP",
@@ -184,7 +186,7 @@ SPECS = {
         gbuffers=("depth_hr",), scales=(2.0, 3.0), precisions=("fp32", "fp16"),
         temporal=False, doc="docs/methods/mlp.md", twin="clss.methods.mlp.oracle:twin",
         shipped=tuple((float(s), tf.shipped_name(True, s)) for s in tf.SCALES),
-        fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online"),
+        kernels=KERNELS, fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online"),
     "mlp-nofeature": MethodSpec(
         "mlp-nofeature", "shader MLP, no feature pass",
         "the shader MLP with its feature inputs zeroed (the seed's ablation); needs no "
@@ -192,5 +194,5 @@ SPECS = {
         scales=(2.0, 3.0), precisions=("fp32", "fp16"), temporal=False,
         doc="docs/methods/mlp.md", twin="clss.methods.mlp.oracle:twin",
         shipped=tuple((float(s), tf.shipped_name(False, s)) for s in tf.SCALES),
-        fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online"),
+        kernels=KERNELS, fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online"),
 }

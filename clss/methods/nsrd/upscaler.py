@@ -17,7 +17,7 @@ from __future__ import annotations
 from ...pipeline.contract import PQ_NITS
 from ...pipeline.method import UNTRAINED, MethodSpec, MethodUpscaler, weights_file
 from . import networks as nets
-from .frame import STAGES, NsrdFrameStep
+from .frame import KERNEL, STAGES, NsrdFrameStep
 
 GBUFFERS = ("albedo", "normal", "albedo_hr")
 
@@ -81,7 +81,7 @@ SPEC = MethodSpec(
     "nsrd", "NSRD", "NSRD (Li et al. 2024): radiance demodulation, a depth-test occlusion "
     "mask, gated-conv warping of 2 previous frames, ConvLSTM, U-shaped RCAB reconstruction, "
     "sub-pixel upsampling, re-modulation",
-    NsrdUpscaler, gbuffers=GBUFFERS, scales=(2.0, 4.0), doc="docs/methods/nsrd.md",
+    NsrdUpscaler, gbuffers=GBUFFERS, scales=(2.0, 4.0), kernels=(KERNEL.name,), doc="docs/methods/nsrd.md",
     twin="clss.methods.nsrd.oracle:twin",
     shipped=tuple((float(s), f"nsrd_x{s}.safetensors") for s in (2, 3, 4)))
 SPECS = {"nsrd": SPEC}

@@ -15,7 +15,7 @@ from __future__ import annotations
 from ...pipeline.contract import PQ_NITS
 from ...pipeline.method import UNTRAINED, MethodSpec, MethodUpscaler, weights_file
 from . import networks as nets
-from .frame import RESET_FILLS, STAGES, NsrrFrameStep
+from .frame import KERNEL, RESET_FILLS, STAGES, NsrrFrameStep
 
 
 def load_weights(weights, scale, widths="default", allow_untrained=False) -> tuple[dict, dict, bool]:
@@ -79,7 +79,7 @@ class NsrrUpscaler(MethodUpscaler):
 SPEC = MethodSpec(
     "nsrr", "NSRR", "NSRR (Xiao et al. 2020): per-frame features, zero-upsampling, "
     "accumulative warping of 4 previous frames, learned reweighting, a U-Net",
-    NsrrUpscaler, scales=(2.0, 4.0), doc="docs/methods/nsrr.md",
+    NsrrUpscaler, scales=(2.0, 4.0), kernels=(KERNEL.name,), doc="docs/methods/nsrr.md",
     twin="clss.methods.nsrr.oracle:twin",
     shipped=((2.0, "nsrr_x2.safetensors"), (4.0, "nsrr_x4.safetensors")), nearest_scale=True)
 SPECS = {"nsrr": SPEC}

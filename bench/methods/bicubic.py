@@ -1,0 +1,42 @@
+"""The bicubic baseline's bench room: its frame step (PQ encode, the cubic resize, PQ decode:
+clss/methods/bicubic/) against onnxruntime on the same step's whole-frame ONNX graph
+(clss/methods/bicubic/oracle.py), at 540p -> 1080p (2x). The suite finds the room by its
+name (bench/methods/__init__.py). The floor under every learned method's figures: its frame
+step is one resize and two elementwise passes, so it measures launch and memory costs."""
+from __future__ import annotations
+
+from clss.device import storage_dtype
+
+from ..cases import BenchCase, Setup, _resize_flops
+from ..netcases import NET_TOL, frame_runner
+
+BICUBIC_TIERS = {"540p": (((540, 960), 2.0),), "1080p": (((540, 960), 2.0),),
+                 "tiny": (((16, 32), 2.0),)}
+
+
+def bicubic_frame_case(render_size, scale: float, tier: str) -> BenchCase:
+    from clss.methods.bicubic.oracle import build_graph
+    from clss.pipeline.contract import output_size
+    h, w = render_size
+    H, W = output_size(h, w, scale)
+    flops = _resize_flops("cubic", 3 * H * W)
+
+    def build(dev, prec, params):
+        from clss import Upscaler
+        up = Upscaler(method="bicubic", scale=scale, device=dev, precision=prec)
+        run, (color, _, _) = frame_runner(dev, up, (h, w), (H, W))
+        st = storage_dtype(prec).itemsize
+        io = color.nbytes + H * W * 3 * 4
+        # the PQ planes written and read at both resolutions
+        planes = 2 * 3 * (h * w + H * W)
+        return Setup(run, build_graph((h, w), scale),
+                     {"color": color.transpose(2, 0, 1)[None].copy()}, NET_TOL[prec],
+                     io + planes * st, io + planes * 4,
+                     post=lambda outs: [outs[0].transpose(2, 0, 1)[None]], out_index=0)
+    return BenchCase(f"frame step bicubic x{scale:g}", "frame", "frame", tier, flops, build,
+                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
+
+
+def cases(tier: str) -> list:
+    """The room's bench cases at one shape tier (none at a tier it has no shape for)."""
+    return [bicubic_frame_case(rs, s, tier) for rs, s in BICUBIC_TIERS.get(tier, ())]
