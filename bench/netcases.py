@@ -87,6 +87,22 @@ def frame_runner(dev, up, render_size, output_hw):
     return run, (color, depth, motion)
 
 
+def frame_setup(run, twin, feeds, prec, eng_bytes, ort_bytes, note="") -> Setup:
+    """The Setup of a frame step whose output is the caller's H x W x 3 image and whose twin
+    writes [1,3,H,W] as its first output (checked at the whole-network tolerance)."""
+    return Setup(run, twin, feeds, NET_TOL[prec], eng_bytes, ort_bytes,
+                 post=lambda outs: [outs[0].transpose(2, 0, 1)[None]], out_index=0, note=note)
+
+
+def frame_bench_case(method: str, scale: float, tier: str, flops: float, build, render_size,
+                     output_hw) -> BenchCase:
+    """A method's frame step as a bench case, "frame step <method> x<scale>", in fp32 and fp16
+    (half storage)."""
+    (h, w), (H, W) = render_size, output_hw
+    return BenchCase(f"frame step {method} x{scale:g}", "frame", "frame", tier, flops, build,
+                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
+
+
 def median_ms(fn, frames: int) -> float:
     """The median wall milliseconds of `frames` calls of fn (warm it first)."""
     import time

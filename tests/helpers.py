@@ -114,6 +114,29 @@ def frames(render=RENDER, n=FRAMES, scale=2.0):
     return _seq[key]
 
 
+def tiny_sequence_npz(path, n, gbuffers=()):
+    """A tiny generated sequence (16 x 24 -> 2x, 2 spp reference) saved as the training
+    data's .npz (weights_tools/DATA.md), with the named G-buffers: the train smoke tests'."""
+    seq = render_sequence(n, (16, 24), 2.0, spp_ref=2, seed=0)
+    np.savez(path, color=np.stack([f.color for f in seq]), depth=np.stack([f.depth for f in seq]),
+             motion=np.stack([f.motion for f in seq]),
+             jitter=np.array([f.jitter for f in seq], np.float32),
+             reset=np.array([i == 0 for i in range(n)]),
+             reference=np.stack([f.reference for f in seq]), scale=np.float32(2.0),
+             **{k: np.stack([f.gbuffers[k] for f in seq]) for k in gbuffers})
+
+
+def mlp_weights(seed=3):
+    """The shader MLP's seeded init with a random, non-zero output layer (the zero one makes
+    every block the input's DC): trained-like weights for its tests."""
+    from clss.methods.mlp import transform as tf
+    g = np.random.default_rng(seed)
+    t = tf.init_weights(seed)
+    t["fc3.weight"] = (g.standard_normal((25, 50)) * 0.1).astype(np.float32)
+    t["fc3.bias"] = (g.standard_normal(25) * 0.05).astype(np.float32)
+    return t
+
+
 def networks():
     if not _nets:
         from clss.methods.clss.networks import build_classifier, build_composition

@@ -131,11 +131,9 @@ class ToyFrame:
 
 
 class ToyUpscaler(MethodUpscaler):
-    def __init__(self, scale=2.0, device=None, precision="fp32", *, exposure=1.0,
-                 sanitize=False, profile=False):
+    def __init__(self, scale=2.0, device=None, precision="fp32"):
         self.spec = SPEC
-        self._init_common(scale, device, precision, exposure=exposure, sanitize=sanitize,
-                          profile=profile)
+        self._init_common(scale, device, precision)
 
     def _build_frame_step(self, h, w):
         return ToyFrame(self.dev, h, w, self.scale)
@@ -193,8 +191,8 @@ def test_a_new_method_is_a_folder_plus_one_line(toy_method, dev, capsys):
     out = up.step(color, np.zeros((5, 7), np.float32), np.zeros((5, 7, 2), np.float32), (0, 0))
     assert out.shape == (10, 14, 3) and np.array_equal(out, color.repeat(2, 0).repeat(2, 1))
     assert np.array_equal(up.step_device(dev.to_device(color)).get(), out)
-    with pytest.raises(TypeError, match="did you mean 'exposure'"):
-        clss.Upscaler(method="toy", exposur=2.0)
+    with pytest.raises(TypeError, match="did you mean 'precision'"):
+        clss.Upscaler(method="toy", precison="fp32")
     # `clss methods` lists it, the bench finds its bench room and host-wait row
     from clss.cli.main import main
     assert main(["methods"]) == 0

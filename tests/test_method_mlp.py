@@ -17,18 +17,10 @@ from clss import methods
 from clss.methods.mlp import transform as tf
 from clss.pipeline import contract
 from clss.pipeline.contract import pq_encode
-from helpers import assert_case, frames
+from helpers import assert_case, frames, mlp_weights
 
 RENDER = (13, 17)
 TOL = {"fp32": 1e-4, "fp16": 2e-3}
-
-
-def _random_weights(seed=3):
-    g = np.random.default_rng(seed)
-    t = tf.init_weights(seed)
-    t["fc3.weight"] = (g.standard_normal((25, 50)) * 0.1).astype(np.float32)
-    t["fc3.bias"] = (g.standard_normal(25) * 0.05).astype(np.float32)
-    return t
 
 
 def _frame(scale, seed=1):
@@ -46,7 +38,7 @@ def _frame(scale, seed=1):
 @pytest.mark.parametrize("scale", [2, 3])
 @pytest.mark.parametrize("name", ["mlp", "mlp-nofeature"])
 def test_frame_step_matches_onnx_twin(name, scale, precision, dev):
-    wts = _random_weights()
+    wts = mlp_weights()
     color, dhr = _frame(scale)
     up = clss.Upscaler(method=name, scale=scale, device=dev, precision=precision, weights=wts)
     twin = methods.twin(name, RENDER, scale, weights=wts, precision=precision)
@@ -58,7 +50,7 @@ def test_frame_step_matches_onnx_twin(name, scale, precision, dev):
 
 
 def test_exposure_and_step_device(dev):
-    wts = _random_weights(5)
+    wts = mlp_weights(5)
     color, dhr = _frame(2, seed=2)
     up = clss.Upscaler(method="mlp", scale=2, device=dev, weights=wts, exposure=4.0)
     twin = methods.twin("mlp", RENDER, 2, weights=wts, exposure=4.0)
@@ -91,7 +83,7 @@ def test_interface(dev, tmp_path):
     with pytest.raises(ValueError, match="scale"):
         clss.Upscaler(method="mlp", scale=4, device=dev)
     # weights files: save, load, the same output; a wrong file is one line naming it
-    wts = _random_weights(9)
+    wts = mlp_weights(9)
     p = tmp_path / "w.safetensors"
     tf.save_weights(wts, p, {"what": "test"})
     a = clss.Upscaler(method="mlp", device=dev, weights=str(p)).step(f.color, **f.gbuffers)
@@ -120,7 +112,7 @@ def test_untrained_init_is_a_box_upscale(dev):
 def test_torch_twin_matches_opencl(scale, feature, dev):
     pytest.importorskip("torch")
     from weights_tools.methods.mlp.twin import MlpNet, upscale
-    wts = _random_weights(11)
+    wts = mlp_weights(11)
     color, dhr = _frame(scale, seed=4)
     name = "mlp" if feature else "mlp-nofeature"
     a = clss.Upscaler(method=name, scale=scale, device=dev, weights=wts).step(color, depth_hr=dhr)
@@ -171,7 +163,7 @@ def test_pixel_vector_fast_path_matches_reference(precision, dev):
         h, w = 6, 27
         color = dev.to_device(g.uniform(0, 4, (h, w, 3)).astype(np.float32), precision)
         feat = dev.to_device(g.uniform(0, 1, (s * h, s * w)).astype(np.float32), precision)
-        wts = ops.pack_weights(dev, precision, tf.packed(_random_weights(s)))
+        wts = ops.pack_weights(dev, precision, tf.packed(mlp_weights(s)))
         d = tf.kernel_defines(s, feature)
         a = dev.to_host(ops.blocks(dev, precision, color, feat, wts, d, vec=1))
         b = dev.to_host(ops.blocks(dev, precision, color, feat, wts, d, vec=8))

@@ -16,16 +16,9 @@ import clss
 from clss.methods.mlp import patches as pt
 from clss.methods.mlp import transform as tf
 from clss.methods.mlp.online import OnlineTrainer
+from helpers import mlp_weights
 
 torch = pytest.importorskip("torch")
-
-
-def _weights(seed=3):
-    g = np.random.default_rng(seed)
-    t = tf.init_weights(seed)
-    t["fc3.weight"] = (g.standard_normal((25, 50)) * 0.1).astype(np.float32)
-    t["fc3.bias"] = (g.standard_normal(25) * 0.05).astype(np.float32)
-    return t
 
 
 def _frame(s, h=30, w=34, seed=1):
@@ -60,7 +53,7 @@ def _unpack(flat):
 def test_gradients_match_torch_autograd(scale, feature, dev):
     from weights_tools.methods.mlp.twin import MlpNet
     torch.set_num_threads(1)
-    wts = _weights()
+    wts = mlp_weights()
     color, ref, dhr = _frame(scale)
     tr = OnlineTrainer(dev, scale, feature, dev.to_device(tf.packed(wts)), batch=3, seed=2)
     defs = tf.kernel_defines(scale, feature)
@@ -83,7 +76,7 @@ def test_gradients_match_torch_autograd(scale, feature, dev):
 def test_adam_steps_match_torch(dev):
     from weights_tools.methods.mlp.twin import MlpNet
     torch.set_num_threads(1)
-    wts = _weights(7)
+    wts = mlp_weights(7)
     color, ref, dhr = _frame(2, seed=5)
     w = dev.to_device(tf.packed(wts))
     tr = OnlineTrainer(dev, 2, True, w, batch=2, lr=1e-3, seed=1)

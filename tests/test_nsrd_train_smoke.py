@@ -14,19 +14,13 @@ pytest.importorskip("torch")
 import clss  # noqa: E402
 from clss.methods.nsrd import networks as nets  # noqa: E402
 from weights_tools.__main__ import main  # noqa: E402
+from helpers import tiny_sequence_npz  # noqa: E402
 
 GB = ("albedo", "normal", "albedo_hr")
 
 
 def _tiny(path, n=5):
-    from clss.scene import render_sequence
-    seq = render_sequence(n, (16, 24), 2.0, spp_ref=2, seed=0)
-    np.savez(path, color=np.stack([f.color for f in seq]), depth=np.stack([f.depth for f in seq]),
-             motion=np.stack([f.motion for f in seq]),
-             jitter=np.array([f.jitter for f in seq], np.float32),
-             reset=np.array([i == 0 for i in range(n)]),
-             reference=np.stack([f.reference for f in seq]), scale=np.float32(2.0),
-             **{k: np.stack([f.gbuffers[k] for f in seq]) for k in GB})
+    tiny_sequence_npz(path, n, GB)
 
 
 def test_train_nsrd_smoke_and_resume(tmp_path, capsys, dev):

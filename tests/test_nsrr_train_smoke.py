@@ -13,16 +13,11 @@ pytest.importorskip("torch")
 import clss  # noqa: E402
 from clss.methods.nsrr import networks as nets  # noqa: E402
 from weights_tools.__main__ import main  # noqa: E402
+from helpers import tiny_sequence_npz  # noqa: E402
 
 
 def _tiny(path, n=6):
-    from clss.scene import render_sequence
-    seq = render_sequence(n, (16, 24), 2.0, spp_ref=2, seed=0)
-    np.savez(path, color=np.stack([f.color for f in seq]), depth=np.stack([f.depth for f in seq]),
-             motion=np.stack([f.motion for f in seq]),
-             jitter=np.array([f.jitter for f in seq], np.float32),
-             reset=np.array([i == 0 for i in range(n)]),
-             reference=np.stack([f.reference for f in seq]), scale=np.float32(2.0))
+    tiny_sequence_npz(path, n)
 
 
 def test_train_nsrr_smoke_and_resume(tmp_path, capsys, dev):

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from clss.device import storage_dtype
 
-from ..cases import BenchCase, Setup, _resize_flops
-from ..netcases import NET_TOL, frame_runner
+from ..cases import BenchCase, _resize_flops
+from ..netcases import frame_bench_case, frame_runner, frame_setup
 
 BICUBIC_TIERS = {"540p": (((540, 960), 2.0),), "1080p": (((540, 960), 2.0),),
                  "tiny": (((16, 32), 2.0),)}
@@ -29,12 +29,10 @@ def bicubic_frame_case(render_size, scale: float, tier: str) -> BenchCase:
         io = color.nbytes + H * W * 3 * 4
         # the PQ planes written and read at both resolutions
         planes = 2 * 3 * (h * w + H * W)
-        return Setup(run, build_graph((h, w), scale),
-                     {"color": color.transpose(2, 0, 1)[None].copy()}, NET_TOL[prec],
-                     io + planes * st, io + planes * 4,
-                     post=lambda outs: [outs[0].transpose(2, 0, 1)[None]], out_index=0)
-    return BenchCase(f"frame step bicubic x{scale:g}", "frame", "frame", tier, flops, build,
-                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
+        return frame_setup(run, build_graph((h, w), scale),
+                           {"color": color.transpose(2, 0, 1)[None].copy()}, prec,
+                           io + planes * st, io + planes * 4)
+    return frame_bench_case("bicubic", scale, tier, flops, build, (h, w), (H, W))
 
 
 def cases(tier: str) -> list:

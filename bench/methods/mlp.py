@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..cases import BenchCase, Setup
-from ..netcases import NET_TOL, median_ms, synthetic_frame
+from ..netcases import NET_TOL, frame_bench_case, median_ms, synthetic_frame
 
 MLP_TIERS = {"540p": (((540, 960), 2),), "1080p": (((540, 960), 2), ((360, 640), 3)),
              "tiny": (((16, 32), 2), ((16, 32), 3))}
@@ -69,8 +69,7 @@ def mlp_frame_case(render_size, scale: int, tier: str) -> BenchCase:
         return Setup(run, twin, {"color": color, "depth_hr": dhr}, NET_TOL[prec],
                      io + 2 * blocks * st + 2 * 3 * h * w * 4,
                      io * 4 // st + 2 * blocks * 4, out_index=0)
-    return BenchCase(f"frame step mlp x{scale}", "frame", "frame", tier, flops, build,
-                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
+    return frame_bench_case("mlp", scale, tier, flops, build, (h, w), (H, W))
 
 
 def cases(tier: str) -> list:

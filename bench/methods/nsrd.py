@@ -13,8 +13,8 @@ import numpy as np
 
 from clss.device import storage_dtype
 
-from ..cases import BenchCase, Setup
-from ..netcases import BENCH_JITTER, NET_TOL, median_ms, synthetic_frame
+from ..cases import BenchCase
+from ..netcases import BENCH_JITTER, frame_bench_case, frame_setup, median_ms, synthetic_frame
 
 # The host-wait bench (bench/hostwait.py) rows this method.
 HOST_WAITS = ("nsrd",)
@@ -75,12 +75,9 @@ def nsrd_frame_case(render_size, scale: float, tier: str, weights="untrained") -
         # state and previous output read and written (float32), the network's inputs
         hist = (2 * nets.STATE * h * w + 2 * 3 * H * W) * 4
         net_io = (nets.CUR + nets.WARP + 2 * 3 * s * s + 4 * cfg["hid"]) * h * w
-        return Setup(run, twin, feeds, NET_TOL[prec], io + hist + net_io * st,
-                     io + hist + net_io * 4,
-                     post=lambda outs: [outs[0].transpose(2, 0, 1)[None]], out_index=0,
-                     note=f"widths {cfg['name']}")
-    return BenchCase(f"frame step nsrd x{scale:g}", "frame", "frame", tier, flops, build,
-                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
+        return frame_setup(run, twin, feeds, prec, io + hist + net_io * st,
+                           io + hist + net_io * 4, note=f"widths {cfg['name']}")
+    return frame_bench_case("nsrd", scale, tier, flops, build, (h, w), (H, W))
 
 
 def cases(tier: str) -> list:

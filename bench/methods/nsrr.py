@@ -11,8 +11,9 @@ import numpy as np
 
 from clss.device import storage_dtype
 
-from ..cases import BenchCase, Setup
-from ..netcases import BENCH_JITTER, NET_TOL, frame_runner, median_ms, synthetic_frame
+from ..cases import BenchCase
+from ..netcases import (BENCH_JITTER, frame_bench_case, frame_runner, frame_setup, median_ms,
+                        synthetic_frame)
 
 # render size and scale per tier: the 1080p outputs, and a tiny smoke shape
 # The host-wait bench (bench/hostwait.py) rows this method.
@@ -47,12 +48,9 @@ def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -
         # the history read and written, the stack written and read
         hist = nets.FEAT * n * H * W
         stack = nets.FEAT * (n + 1) * H * W
-        return Setup(run, twin, feeds, NET_TOL[prec], io + (2 * hist + 2 * stack) * st,
-                     io + (2 * hist + 2 * stack) * 4,
-                     post=lambda outs: [outs[0].transpose(2, 0, 1)[None]], out_index=0,
-                     note=f"widths {cfg['name']}")
-    return BenchCase(f"frame step nsrr x{scale:g}", "frame", "frame", tier, flops, build,
-                     shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))
+        return frame_setup(run, twin, feeds, prec, io + (2 * hist + 2 * stack) * st,
+                           io + (2 * hist + 2 * stack) * 4, note=f"widths {cfg['name']}")
+    return frame_bench_case("nsrr", scale, tier, flops, build, (h, w), (H, W))
 
 
 def cases(tier: str) -> list:

@@ -68,7 +68,8 @@ def cmd_verify(argv) -> int:
     p.add_argument("--json", metavar="FILE", help="write every row (and the device) as JSON")
     p.add_argument("--filter", "-k", default=None, help="only ops whose name contains this substring")
     p.add_argument("--family", default=None,
-                   help="only one kernel family (a stem of kernels/*.cl, e.g. conv, resize, warp)")
+                   help="only one family of cases (conv, resize, warp, mlp, ...: an unknown "
+                        "name lists them; the MLP upscaler's kernels are in mlp)")
     p.add_argument("--level", default="quick", choices=("tiny", "quick", "full"),
                    help="case set: tiny (smallest shapes, used under oclgrind), quick (default), "
                         "full (odd shapes and parameter sweeps, as the tests)")
