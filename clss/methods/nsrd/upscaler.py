@@ -7,7 +7,7 @@
 Inputs follow the frame contract (docs/input-contract.md) plus three G-buffers: the
 material component at render and at output resolution (albedo, albedo_hr) and the
 render-resolution normal. Without them the step stops with MissingInputError naming
-them. The frame step is frame.py (kernels/nsrd.cl around one clss.Model network); its
+them. The frame step is frame.py (nsrd.cl, beside it, around one clss.Model network); its
 history (state, previous output, ConvLSTM) stays on the device. Weights: the package's
 clss/weights/nsrd_x{2,3,4}.safetensors for the scale; a scale without its file (3 today)
 needs weights= or allow_untrained=True (the seeded init).

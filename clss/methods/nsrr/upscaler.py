@@ -4,7 +4,7 @@
     out = up.step(color, depth, motion, jitter, reset=cut)        # H x W x 3 linear
 
 Inputs follow the frame contract (docs/input-contract.md). The frame step is frame.py
-(kernels/nsrr.cl around two clss.Model networks); the history (the previous frames'
+(nsrr.cl, beside it, around two clss.Model networks); the history (the previous frames'
 zero-upsampled, accumulatively warped features) stays on the device. Weights: the
 package's clss/weights/nsrr_x{2,4}.safetensors for the nearest trained scale (the networks
 do not depend on the scale); weights="untrained" or allow_untrained=True for the seeded

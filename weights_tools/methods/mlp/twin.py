@@ -1,5 +1,5 @@
 """The torch twin of the shader MLP upscaler's frame step (clss/methods/mlp/): the same
-geometry, transform and network as kernels/mlp_upscale.cl and the ONNX twin, from the
+geometry, transform and network as clss/methods/mlp/mlp_upscale.cl and the ONNX twin, from the
 constants and functions of clss.methods.mlp.transform (ramp, ramp_inv, widths, scales),
 so that training optimises exactly what the engine runs. tests/test_method_mlp.py holds it
 to the OpenCL step.

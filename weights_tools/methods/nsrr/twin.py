@@ -79,7 +79,7 @@ class NsrrNet(nn.Module):
 
 def zero_upsample(feat, H, W, jitters):
     """feat [N,C,h,w], jitters [(jx, jy)] per item -> [N,C,H,W], each sample where its
-    jitter puts it (as kernels/nsrr.cl; index maps from the oracle's zu_index)."""
+    jitter puts it (as clss/methods/nsrr/nsrr.cl; index maps from the oracle's zu_index)."""
     N, C, h, w = feat.shape
     out = []
     for i in range(N):
