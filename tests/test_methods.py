@@ -33,6 +33,10 @@ def test_registry_names_aliases_and_errors():
             methods.canonical(planned)
     with pytest.raises(ValueError, match="expected one of bicubic, jbicubic"):
         methods.canonical("taa")
+    with pytest.raises(ValueError, match=r"got 'nsrdd'; did you mean 'nsrd'\?"):
+        methods.canonical("nsrdd")
+    with pytest.raises(ValueError, match=r"did you mean 'clss-rules'\?"):
+        methods.canonical("rulez")          # an alias's misspelling names the method
     for s in methods.specs():
         assert s.doc.startswith("docs/methods/") and s.label and s.summary
         assert s.weights() in ("trained", "untrained", "none needed")

@@ -17,6 +17,7 @@ options, the older mode= alias) is named by its spec; the shared code asks the s
 """
 from __future__ import annotations
 
+import difflib
 import functools
 import importlib
 
@@ -70,7 +71,9 @@ def canonical(name: str) -> str:
     if key in PLANNED:
         raise ValueError(f"method: {key!r} is not built yet ({PLANNED[key]}); available: "
                          f"{', '.join(known)}")
-    raise ValueError(f"method: expected one of {', '.join(known)}, got {name!r}")
+    close = difflib.get_close_matches(key, list(known) + list(ALIASES), n=1)
+    hint = f"; did you mean {ALIASES.get(close[0], close[0])!r}?" if close else ""
+    raise ValueError(f"method: expected one of {', '.join(known)}, got {name!r}{hint}")
 
 
 def spec(name: str):
