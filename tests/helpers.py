@@ -126,6 +126,26 @@ def tiny_sequence_npz(path, n, gbuffers=()):
              **{k: np.stack([f.gbuffers[k] for f in seq]) for k in gbuffers})
 
 
+def train_smoke(tmp_path, capsys, method, flags, n, gbuffers=(), resume_flags=()):
+    """`python -m weights_tools train METHOD` on a tiny sequence: 2 steps, then resumed to 3
+    (with `resume_flags`), checking the progress line and the files every recipe writes;
+    returns (the sequence's path, the run's folder)."""
+    from weights_tools.__main__ import main
+    data = tmp_path / "data"
+    data.mkdir()
+    seq = str(data / "a.npz")
+    tiny_sequence_npz(seq, n, gbuffers)
+    out = str(tmp_path / "run")
+    args = ["train", method, "--data", str(data), "--out", out, *flags]
+    assert main(args + ["--steps", "2"]) == 0
+    assert main(args + ["--steps", "3", "--resume", *resume_flags]) == 0
+    text = capsys.readouterr().out
+    assert "step 3/3" in text and "wrote" in text
+    for f in ("loss.png", "train.json", "checkpoint.pt", "weights.safetensors"):
+        assert os.path.isfile(os.path.join(out, f)), f
+    return seq, out
+
+
 def mlp_weights(seed=3):
     """The shader MLP's seeded init with a random, non-zero output layer (the zero one makes
     every block the input's DC): trained-like weights for its tests."""

@@ -14,38 +14,26 @@ pytest.importorskip("torch")
 import clss  # noqa: E402
 from clss.methods.nsrd import networks as nets  # noqa: E402
 from weights_tools.__main__ import main  # noqa: E402
-from helpers import tiny_sequence_npz  # noqa: E402
+from helpers import train_smoke  # noqa: E402
 
 GB = ("albedo", "normal", "albedo_hr")
 
 
-def _tiny(path, n=5):
-    tiny_sequence_npz(path, n, GB)
-
-
 def test_train_nsrd_smoke_and_resume(tmp_path, capsys, dev):
-    data = tmp_path / "data"
-    data.mkdir()
-    _tiny(str(data / "a.npz"))
-    out = str(tmp_path / "run")
-    args = ["train", "nsrd", "--data", str(data), "--out", out, "--batch", "2", "--patch", "8",
-            "--margin", "2", "--window", "3", "--widths", "fast", "--threads", "1"]
-    assert main(args + ["--steps", "2"]) == 0
-    assert main(args + ["--steps", "3", "--resume"]) == 0
-    text = capsys.readouterr().out
-    assert "step 3/3" in text and "wrote" in text
-    for f in ("loss.png", "train.json", "checkpoint.pt", "weights.safetensors"):
-        assert os.path.isfile(os.path.join(out, f)), f
+    flags = ["--batch", "2", "--patch", "8", "--margin", "2", "--window", "3", "--widths", "fast",
+             "--threads", "1"]
+    seq, out = train_smoke(tmp_path, capsys, "nsrd", flags, 5, GB)
     cfg, w = nets.load(os.path.join(out, "weights.safetensors"))
     assert cfg["name"] == "fast" and cfg["scale"] == 2 and cfg["demod"] and cfg["mask"]
     assert json.load(open(os.path.join(out, "train.json")))["scale"] == 2
     up = clss.Upscaler(method="nsrd", scale=2, device=dev,
                        weights=os.path.join(out, "weights.safetensors"))
-    z = np.load(str(data / "a.npz"))
+    z = np.load(seq)
     y = up.step(z["color"][0], z["depth"][0], z["motion"][0], tuple(z["jitter"][0]),
                 **{k: z[k][0] for k in GB})
     assert y.shape == (32, 48, 3) and np.isfinite(y).all()
     out2 = str(tmp_path / "ablation")
-    assert main(args[:5] + [out2] + args[6:] + ["--steps", "1", "--no-demod", "--no-mask"]) == 0
+    assert main(["train", "nsrd", "--data", os.path.dirname(seq), "--out", out2, *flags,
+                 "--steps", "1", "--no-demod", "--no-mask"]) == 0
     cfg, _ = nets.load(os.path.join(out2, "weights.safetensors"))
     assert not cfg["demod"] and not cfg["mask"]
