@@ -130,7 +130,12 @@ class Pipeline:
 
 
 def _trainable(name) -> bool:
-    return method_registry.spec(name).weights() != "none needed"
+    """Whether method `name` has weights (False for a name the registry does not know: a
+    caller's own runner)."""
+    try:
+        return method_registry.spec(name).weights() != "none needed"
+    except ValueError:
+        return False
 
 
 def method_kwargs(weights, methods=()):
@@ -217,9 +222,11 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
     scored_set = set(scored)
     if run is None:
         run = {m: make_method(m, seq, dev, precision, net_kwargs) for m in methods}
-    net = next((m for m in methods if method_registry.ALIASES.get(m, m) == "clss"), None)
-    if net is not None and net_trained is None:       # the package's default weights
-        net_trained = getattr(run[net].up, "trained", None)
+    # Each method with weights says whether they are trained (its upscaler's `trained`; the
+    # package's default weights unless --weights chose), or `net_trained` says it for all.
+    trained = {m: bool(net_trained) if net_trained is not None else
+               getattr(getattr(run[m], "up", None), "trained", None)
+               for m in methods if _trainable(m)}
     acc = {m: {"psnr": [], "ssim": [], "flip": [], "tpsnr": metrics.TemporalPSNR(), "s": 0.0,
                "dis": [0.0, 0]} for m in methods}
     names = list(methods) + ["reference"]
@@ -274,14 +281,15 @@ def evaluate_sequence(seq, methods, dev, *, precision="fp32", warmup=4, net_kwar
             "tpsnr": a["tpsnr"].value(), "flip": float(np.mean(a["flip"])) if a["flip"] else None,
             "disocclusion_psnr": _psnr_of(*a["dis"]), "disocclusion_pixels": a["dis"][1] // 3,
             "ms_per_frame": a["s"] / max(T - 1, 1) * 1e3,
-            "psnr_frames": a["psnr"], "ssim_frames": a["ssim"], "flip_frames": a["flip"]}
+            "psnr_frames": a["psnr"], "ssim_frames": a["ssim"], "flip_frames": a["flip"],
+            "trained": trained.get(m)}
         record["tpsnr_pairs"] = a["tpsnr"].pairs // (H * W * 3)
-    if net is not None:
-        record["net_trained"] = bool(net_trained)
-        record["net_weights"] = "trained" if net_trained else "untrained (seeded)"
+    if trained:     # the keys of earlier records: every method with weights trained?
+        record["net_trained"] = all(v is not False for v in trained.values())
+        record["net_weights"] = "trained" if record["net_trained"] else "untrained (seeded)"
     if out_dir is not None:
         record["pictures"] = _write_pictures(out_dir, seq, methods, lines, last, place,
-                                             net_trained)
+                                             _untrained(record["methods"]))
     return record
 
 
@@ -298,21 +306,22 @@ def _nearest(img, H, W):
     return metrics.display(metrics.nearest(np.asarray(img, np.float32), H, W))
 
 
-def _labels(methods, net_trained):
-    out = []
-    for m in methods:
-        lab = label(m)
-        if method_registry.ALIASES.get(m, m) == "clss" and net_trained is False:
-            lab += " (untrained)"
-        out.append(lab)
-    return out
+def _untrained(methods_record, net_trained=None) -> set:
+    """The methods of a record whose weights are the seeded init (each method's own
+    "trained"; net_trained=False marks every method with weights)."""
+    return {m for m, r in methods_record.items()
+            if r.get("trained") is False or (net_trained is False and _trainable(m))}
 
 
-def _write_pictures(out_dir, seq, methods, lines, last, place, net_trained):
+def _labels(methods, untrained=()):
+    return [label(m) + (" (untrained)" if m in untrained else "") for m in methods]
+
+
+def _write_pictures(out_dir, seq, methods, lines, last, place, untrained):
     from . import metrics
     d = os.path.join(out_dir, seq["name"])
     os.makedirs(d, exist_ok=True)
-    labels = _labels(methods, net_trained)
+    labels = _labels(methods, untrained)
     row, span = place
     T = len(lines["reference"])
     prof = os.path.join(d, "temporal_profile.png")
@@ -342,7 +351,7 @@ COLUMNS = (("PSNR dB", "psnr", "{:8.2f}"), ("SSIM", "ssim", "{:7.4f}"),
 
 def format_table(methods_record, net_trained=None) -> str:
     names = list(methods_record)
-    labels = dict(zip(names, _labels(names, net_trained)))
+    labels = dict(zip(names, _labels(names, _untrained(methods_record, net_trained))))
     width = max(len(v) for v in labels.values()) + 2
     head = f"{'method':{width}s}" + "".join(f"{c:>{len(f.format(0.0))}s}" for c, _, f in COLUMNS)
     rows = [head]

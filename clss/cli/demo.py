@@ -167,7 +167,10 @@ def main(argv=None) -> int:
         ups[m] = Upscaler(method=m, scale=a.scale, device=dev, precision=a.precision,
                           profile=True, **kw)
     start_output(a.out, stale)
-    trained = getattr(ups.get("clss"), "trained", None)
+    # whether the methods with weights run trained ones (None: no such method in the run)
+    with_weights = [getattr(up, "trained", None) for up in ups.values()]
+    with_weights = [t for t in with_weights if t is not None]
+    trained = all(with_weights) if with_weights else None
     out = a.out
     print(f"clss demo: {a.frames} frames {w}x{h} -> {W}x{H} (x{a.scale:g}), {a.precision}, "
           f"device {dev.info.name}, methods {','.join(names)}; writing to {out}",
@@ -265,10 +268,10 @@ def _upscale_frames(a, ups, names, out_hw, in_dir, files, run):
         t = time.perf_counter()
 
 
-def _label(m, trained):
+def _label(m, ups):
     from .. import methods
     lab = methods.spec(m).label
-    return lab + " (untrained)" if m == "clss" and not trained else lab
+    return lab + " (untrained)" if getattr(ups[m], "trained", None) is False else lab
 
 
 def _write_pictures(a, ups, names, trained, out_hw, run) -> str:
@@ -280,7 +283,7 @@ def _write_pictures(a, ups, names, trained, out_hw, run) -> str:
     out = a.out
     methods = list(names)
     order = ["input"] + methods + ["reference"]
-    labels = (["input (nearest)"] + [_label(m, trained) for m in methods]
+    labels = (["input (nearest)"] + [_label(m, ups) for m in methods]
               + [f"reference {a.spp} spp"])
     pics = [run.last[k] for k in order]
     side = os.path.join(out, "side_by_side.png")
@@ -311,32 +314,35 @@ def _write_summary(a, dev, ups, names, trained, render_hw, out_hw, run, total_s,
                ("trained" if trained else "untrained (seeded)"),
                "methods": {}, "stage_ms": stage, "render_s": run.render_s, "io_s": run.io_s,
                "total_s": total_s, "warm_from_frame": min(WARM_FROM, a.frames - 1)}
-    if "clss" in ups:
-        summary["classifier_backend"] = ups["clss"].classifier_backend_name
+    backends = {m: up.classifier_backend_name for m, up in ups.items()
+                if getattr(up, "classifier_backend_name", None)}
+    if backends:        # where a method's classifier runs (CLSS net: clss.Model or a kernel)
+        summary["classifier_backend"] = next(iter(backends.values()))
     print(f"\nsample scene, {a.frames} frames {w}x{h} -> {W}x{H}; metrics on tone-mapped frames "
           f"{summary['metrics_from_frame']}..{a.frames - 1} against the {a.spp}-spp reference; "
           f"ms/frame: the median step from frame {summary['warm_from_frame']} on (warm); "
           "first frame: the step that built the kernels")
-    lw = max(len("method"), *(len(_label(m, trained)) for m in names)) + 1
+    lw = max(len("method"), *(len(_label(m, ups)) for m in names)) + 1
     print(f"{'method':{lw}s} {'PSNR dB':>8s} {'SSIM':>7s} {'ms/frame':>9s} {'first frame ms':>15s}")
     for m in names:
         ps, ss = np.mean(scores[m]["psnr"]), np.mean(scores[m]["ssim"])
         st = run.step_s[m]
         warm = float(np.median(st[summary["warm_from_frame"]:])) * 1e3
         first = st[0] * 1e3
-        print(f"{_label(m, trained):{lw}s} {ps:8.2f} {ss:7.4f} {warm:9.1f} {first:15.1f}")
+        print(f"{_label(m, ups):{lw}s} {ps:8.2f} {ss:7.4f} {warm:9.1f} {first:15.1f}")
         summary["methods"][m] = {"psnr": scores[m]["psnr"], "ssim": scores[m]["ssim"],
                                  "psnr_mean": float(ps), "ssim_mean": float(ss),
                                  "ms_per_frame": warm, "first_frame_ms": first,
                                  "step_ms": [v * 1e3 for v in st]}
-    if "clss" in names and not trained:
-        print("note: the net weights are untrained (seeded He init); its numbers show the "
-              "pipeline runs, not the quality of a trained CLSS")
+    untrained = [m for m in names if getattr(ups[m], "trained", None) is False]
+    if untrained:
+        print(f"note: the weights of {', '.join(untrained)} are untrained (seeded init); their "
+              "numbers show the pipeline runs, not the quality of the trained method")
     for m, st in stage.items():
-        print(f"\n{_label(m, trained)}, per-stage time per frame ({dev.info.name}; OpenCL events, "
+        print(f"\n{_label(m, ups)}, per-stage time per frame ({dev.info.name}; OpenCL events, "
               f"classifier wall time):")
         print(format_stage_table(st))
-    if "clss" in ups:
+    if backends:
         print(f"classifier backend: {summary['classifier_backend']}")
     print(f"\nscene rendering {run.render_s:.1f} s, file writing {run.io_s:.1f} s, total "
           f"{total_s:.1f} s; pictures: {side}")
