@@ -65,6 +65,18 @@ for d in m.BUILD_VARIANTS:
 """
 
 
+def assert_fp16_native_builds(tmp_path, module, stem):
+    """Every BUILD_VARIANTS entry of clss.ops.<module> builds with half arithmetic under
+    oclgrind: PoCL here lacks cl_khr_fp16, so half arithmetic never runs, but oclgrind's
+    compiler still type-checks it (what "correct by construction" can mean)."""
+    import subprocess
+    import sys
+    code = FP16_NATIVE_BUILD.format(module=module, stem=stem)
+    p = subprocess.run([sys.executable, "-c", code], env=oclgrind_env(tmp_path),
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+
+
 # --- random graphs through clss.Model ----------------------------------------------------
 
 # Chains store every intermediate in fp16: one rounding per op compounds.

@@ -1,6 +1,4 @@
 import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -9,7 +7,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from clss.ops import elementwise as ew
 from clss.verify.cases import elementwise as ew_cases
 from clss.tolerance import DEFAULT_TOL, compare
-from helpers import FP16_NATIVE_BUILD, ICD, PRECISIONS, assert_case, oclgrind_env
+from helpers import ICD, PRECISIONS, assert_case, assert_fp16_native_builds
 
 SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -190,11 +188,7 @@ def test_bad_arguments_raise(dev):
 
 @pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
 def test_fp16_native_variants_build(tmp_path):
-    # Every variant type-checks with half arithmetic (see test_ops_pool.py).
-    code = FP16_NATIVE_BUILD.format(module="elementwise", stem="elementwise")
-    p = subprocess.run([sys.executable, "-c", code], env=oclgrind_env(tmp_path), capture_output=True,
-                       text=True, timeout=600)
-    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    assert_fp16_native_builds(tmp_path, "elementwise", "elementwise")
 
 
 @pytest.mark.parametrize("precision", ["fp32", "fp16"])

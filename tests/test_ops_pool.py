@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from clss.ops import pool
 from clss.verify.cases import pool as pool_cases
-from helpers import FP16_NATIVE_BUILD, ICD, assert_case, oclgrind_env
+from helpers import ICD, assert_case, assert_fp16_native_builds
 
 
 @st.composite
@@ -93,12 +93,7 @@ def test_bad_arguments_raise(dev):
 
 @pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
 def test_fp16_native_variants_build(tmp_path):
-    # PoCL here lacks cl_khr_fp16, so half arithmetic never runs; oclgrind's
-    # compiler still type-checks it, which is what "correct by construction" can mean.
-    code = FP16_NATIVE_BUILD.format(module="pool", stem="pool")
-    p = subprocess.run([sys.executable, "-c", code], env=oclgrind_env(tmp_path), capture_output=True,
-                       text=True, timeout=600)
-    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    assert_fp16_native_builds(tmp_path, "pool", "pool")
 
 
 @pytest.mark.parametrize("precision", ["fp32", "fp16"])
