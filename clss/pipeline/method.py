@@ -260,6 +260,25 @@ def weights_file(weights, what: str) -> str:
     return path
 
 
+# The channels of the frame's own inputs in image layout (h x w x c; one channel: h x w).
+FRAME_CHANNELS = {"color": 3, "depth": 1, "motion": 2, "reactive": 1}
+
+
+def input_buffers(dev, names, render_size, output_size=None) -> list:
+    """Float32 device buffers in the contract's image layout for the named inputs (the
+    frame's own and the G-buffers), in order: a frame step's `in_<name>` buffers, which
+    MethodUpscaler's host step uploads into."""
+    out = []
+    for name in names:
+        if name in FRAME_CHANNELS:
+            c = FRAME_CHANNELS[name]
+            shape = tuple(int(v) for v in render_size) + ((c,) if c > 1 else ())
+        else:
+            shape = GBUFFERS[name].shape(render_size, output_size)
+        out.append(dev.empty(shape, dtype=np.float32))
+    return out
+
+
 def summed_event_ms(events, stages) -> dict:
     """{stage: milliseconds} of [(stage, pyopencl.Event)] (profiled events), in the order
     of `stages`; waits for each event and empties the list."""

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
-from ...pipeline.method import MethodSpec, MethodUpscaler
+from ...pipeline.method import MethodSpec, MethodUpscaler, input_buffers
 
 KERNEL = Path(__file__).with_name("bicubic.cl")   # the frame kernels, beside this file
 
@@ -29,7 +29,7 @@ class BicubicFrame:
         self.H, self.W = output_size(self.h, self.w, scale)
         self.nits = float(nits)
         e = dev.empty
-        self.in_color = e((self.h, self.w, 3), dtype=np.float32)
+        (self.in_color,) = input_buffers(dev, ("color",), (self.h, self.w))
         self.x = e((1, 3, self.h, self.w), precision)
         self.y = e((1, 3, self.H, self.W), precision)
         self.out = e((self.H, self.W, 3), dtype=np.float32)

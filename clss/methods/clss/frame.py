@@ -37,7 +37,7 @@ from ... import selfcheck
 from ...device import Device
 from .networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from ...ops.conv import load_defines
-from ...pipeline.method import summed_event_ms
+from ...pipeline.method import input_buffers, summed_event_ms
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from .contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUTO_REACTIVE_SLOPE, CLIP_GAMMA,
                        DEFAULT_CAP, DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, MEASURE_KNEES,
@@ -206,10 +206,8 @@ class FrameStep:
         f32 = np.float32
         e = dev.empty
         # The caller-facing inputs (image layout, float32) for the host path.
-        self.in_color = e((h, w, 3), dtype=f32)
-        self.in_depth = e((h, w), dtype=f32)
-        self.in_motion = e((h, w, 2), dtype=f32)
-        self.in_reactive = e((h, w), dtype=f32)
+        self.in_color, self.in_depth, self.in_motion, self.in_reactive = input_buffers(
+            dev, ("color", "depth", "motion", "reactive"), (h, w))
         self.recon = e((h * w,), dtype=np.uint32)
         self.X = e((3, h, w), prec)
         self.lr = e((LR_NET_CHANNELS if net else LR_CHANNELS, h, w), dtype=f32)

@@ -24,7 +24,7 @@ import pyopencl as cl
 
 from ...device import Device
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS
-from ...pipeline.method import summed_event_ms
+from ...pipeline.method import input_buffers, summed_event_ms
 from . import networks as nets
 
 KERNEL = Path(__file__).with_name("nsrd.cl")   # the frame kernels, beside this file
@@ -46,12 +46,9 @@ class NsrdFrameStep:
         h, w, H, W, hp, wp = self.h, self.w, self.H, self.W, self.hp, self.wp
         f32, e = np.float32, dev.empty
         hid = cfg["hid"]
-        self.in_color = e((h, w, 3), dtype=f32)
-        self.in_depth = e((h, w), dtype=f32)
-        self.in_motion = e((h, w, 2), dtype=f32)
-        self.in_albedo = e((h, w, 3), dtype=f32)
-        self.in_normal = e((h, w, 3), dtype=f32)
-        self.in_albedo_hr = e((H, W, 3), dtype=f32)
+        (self.in_color, self.in_depth, self.in_motion, self.in_albedo, self.in_normal,
+         self.in_albedo_hr) = input_buffers(
+            dev, ("color", "depth", "motion", "albedo", "normal", "albedo_hr"), (h, w), (H, W))
         self.states = [e((nets.STATE, h, w), dtype=f32) for _ in range(2)]
         self.cur_i = 0                  # states[cur_i] was written last
         self.hist = e((3, H, W), dtype=f32)

@@ -29,7 +29,7 @@ import pyopencl as cl
 
 from ...device import Device
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
-from ...pipeline.method import summed_event_ms
+from ...pipeline.method import input_buffers, summed_event_ms
 from .networks import FEAT, build_features, build_reconstruct
 
 KERNEL = Path(__file__).with_name("nsrr.cl")   # the frame kernels, beside this file
@@ -73,9 +73,8 @@ class NsrrFrameStep:
         h, w, Hp, Wp = self.h, self.w, self.Hp, self.Wp
         f32 = np.float32
         e = dev.empty
-        self.in_color = e((h, w, 3), dtype=f32)
-        self.in_depth = e((h, w), dtype=f32)
-        self.in_motion = e((h, w, 2), dtype=f32)
+        self.in_color, self.in_depth, self.in_motion = input_buffers(
+            dev, ("color", "depth", "motion"), (h, w))
         self.rgbd = e((1, 4, h, w), prec)
         self.mv = e((2, h, w), dtype=f32)
         self.feat = e((1, FEAT, h, w), prec)
