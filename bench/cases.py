@@ -13,6 +13,10 @@ tier "540p" is 540x960 -> 1080x1920 (the default set), tier "1080p" is
 multiple of 16 (1088x1920 at 1080p), after SpaceToDepth(2) at 544x960; its conv
 layers are read from clss.methods.clss.networks so they follow the network's widths.
 
+Any ONNX network's conv layers become cases the same way (`network_layers`, `layer_case`):
+the classifier's here, the other methods' networks in their bench rooms
+(bench/netcases.py network_cases).
+
 A family's cases appear once its module exists in clss/ops (they land one by one);
 network cases once clss/model/__init__.py exists, the frame step once clss.pipeline has an
 OpenCL Upscaler.
@@ -149,6 +153,157 @@ def _family(name: str):
     return importlib.import_module(f"clss.ops.{name}")
 
 
+# --- a network's conv layers -----------------------------------------------------------
+
+def fixed_inputs(model: onnx.ModelProto, input_shapes: dict) -> onnx.ModelProto:
+    """The model with its symbolic input dims fixed, so shape inference and onnxruntime
+    plan for the shape."""
+    m = onnx.ModelProto()
+    m.CopyFrom(model)
+    for vi in m.graph.input:
+        if vi.name in input_shapes:
+            for d, s in zip(vi.type.tensor_type.shape.dim, input_shapes[vi.name]):
+                d.Clear()
+                d.dim_value = int(s)
+    return m
+
+
+def network_layers(model: onnx.ModelProto, input_shapes: dict | None = None) -> list[dict]:
+    """Every Conv and ConvTranspose node of an ONNX network, in graph order: its name (the
+    weight's initializer name without ".weight", else the node's), op, input and output
+    shapes (ONNX shape inference, the graph inputs' symbolic dims fixed by `input_shapes`),
+    weight and bias (initializers), attributes, and the epilogue clss.Model fuses into it
+    (clss.model.passes.fuse_conv_epilogues): the activation that alone reads its output,
+    or a residual Add of the output's shape that alone reads it, then such an activation."""
+    from clss.model.passes import ACT_OPS
+    m = fixed_inputs(model, input_shapes or {})
+    inferred = onnx.shape_inference.infer_shapes(m)
+    shapes = {v.name: tuple(d.dim_value for d in v.type.tensor_type.shape.dim)
+              for g in (inferred.graph.value_info, inferred.graph.input, inferred.graph.output) for v in g}
+    inits = {t.name: onnx.numpy_helper.to_array(t) for t in m.graph.initializer}
+    outputs = {o.name for o in m.graph.output}
+    consumers: dict[str, list] = {}
+    for n in m.graph.node:
+        for i in n.input:
+            consumers.setdefault(i, []).append(n)
+
+    def only_reader(t):
+        c = consumers.get(t, [])
+        return c[0] if len(c) == 1 and t not in outputs else None
+
+    layers = []
+    for n in m.graph.node:
+        if n.op_type not in ("Conv", "ConvTranspose"):
+            continue
+        a = {x.name: helper.get_attribute_value(x) for x in n.attribute}
+        if a.get("auto_pad", b"NOTSET") not in (b"NOTSET", "NOTSET") or "output_shape" in a:
+            raise ValueError(f"{n.name or n.op_type}: auto_pad / output_shape layers are not benched "
+                             "(explicit pads only)")
+        if n.input[1] not in inits:
+            raise ValueError(f"{n.name or n.op_type}: its weight is not an initializer")
+        y, act, alpha, residual = n.output[0], "none", 0.01, False
+        nxt = only_reader(y)
+        if (nxt is not None and nxt.op_type == "Add" and len(nxt.input) == 2
+                and nxt.input[0] != nxt.input[1]):
+            other = nxt.input[1] if nxt.input[0] == y else nxt.input[0]
+            if shapes.get(other) == shapes[y]:
+                residual, y = True, nxt.output[0]
+                nxt = only_reader(y)
+        if nxt is not None and nxt.op_type in ACT_OPS:
+            act = ACT_OPS[nxt.op_type]
+            alpha = float(next((helper.get_attribute_value(x) for x in nxt.attribute if x.name == "alpha"),
+                               0.01))
+        wname = n.input[1]
+        bias = n.input[2] if len(n.input) > 2 and n.input[2] else None
+        layers.append(dict(
+            name=wname[:-len(".weight")] if wname.endswith(".weight") else (n.name or wname),
+            op=n.op_type, x_shape=shapes[n.input[0]], o_shape=shapes[n.output[0]],
+            w=inits[wname], b=None if bias is None else inits[bias],
+            strides=tuple(a.get("strides", (1, 1))), pads=tuple(a.get("pads", (0,) * 4)),
+            dilations=tuple(a.get("dilations", (1, 1))), group=int(a.get("group", 1)),
+            output_padding=tuple(a.get("output_padding", (0, 0))),
+            act=act, alpha=alpha, residual=residual))
+    return layers
+
+
+def layer_flops(L: dict) -> float:
+    """2 x the multiply-adds of one layer of network_layers."""
+    kh, kw = L["w"].shape[2:]
+    if L["op"] == "ConvTranspose":        # every input value into Cout/group x kh x kw outputs
+        return 2.0 * float(np.prod(L["x_shape"])) * L["w"].shape[1] * kh * kw
+    return 2.0 * float(np.prod(L["o_shape"])) * L["w"].shape[1] * kh * kw
+
+
+def layer_key(L: dict) -> tuple:
+    """What makes two layers the same workload: op, weight shape, stride, pads, dilation,
+    group, input shape and fused epilogue."""
+    return (L["op"], tuple(L["w"].shape), L["strides"], L["pads"], L["dilations"], L["group"],
+            tuple(L["x_shape"]), L["b"] is not None, L["act"], L["alpha"] if L["act"] == "leaky_relu" else None,
+            L["residual"])
+
+
+def layer_label(L: dict) -> str:
+    """A layer's name and geometry: "<name> 3x3/s2 16->32 add+relu"."""
+    T = L["op"] == "ConvTranspose"
+    kh, kw = L["w"].shape[2:]
+    cin, cout = (L["w"].shape[0], L["w"].shape[1] * L["group"]) if T else (L["x_shape"][1], L["w"].shape[0])
+    s, d = L["strides"][0], L["dilations"][0]
+    geo = (f"{kh}x{kw}{'T' if T else ''}{'/s' + str(s) if s > 1 else ''}{'/d' + str(d) if d > 1 else ''}"
+           f"{' g' + str(L['group']) if L['group'] > 1 else ''}")
+    epi = "+".join(filter(None, ["add" if L["residual"] else "", L["act"] if L["act"] != "none" else ""]))
+    return f"{L['name']} {geo} {cin}->{cout}{' ' + epi if epi else ''}"
+
+
+def layer_case(L: dict, tier: str, name: str, quick: bool = False) -> BenchCase:
+    """One layer of network_layers as a bench case: clss.ops.conv on seeded inputs (the
+    layer's own weights) against onnxruntime on the same single node and epilogue."""
+    conv = _family("conv")
+    T = L["op"] == "ConvTranspose"
+    op = "conv_transpose2d" if T else "conv2d"
+    x_shape, o_shape, wt = L["x_shape"], L["o_shape"], L["w"]
+    attrs = dict(kernel_shape=list(wt.shape[2:]), strides=list(L["strides"]), pads=list(L["pads"]))
+    if L["dilations"] != (1, 1):
+        attrs["dilations"] = list(L["dilations"])
+    if T and L["output_padding"] != (0, 0):
+        attrs["output_padding"] = list(L["output_padding"])
+    if L["group"] != 1:
+        attrs["group"] = L["group"]
+
+    def build(dev, prec, params):
+        arrays = {"x": np.maximum(_normal(("bench conv x", L["name"]), x_shape), 0), "w": wt}
+        if L["b"] is not None:
+            arrays["b"] = L["b"]
+        if L["residual"]:
+            arrays["r"] = _normal(("bench conv r", L["name"]), o_shape)
+
+        def engine(d):
+            # params is read on every run: the tuner changes it between candidates.
+            # (only what differs from the defaults: the tuning database decides the rest)
+            defaults = getattr(conv, "TUNING", {})
+            tuning = {k: v for k, v in params.items() if k in defaults and v != defaults[k]}
+            kw = dict(strides=L["strides"], pads=L["pads"], dilations=L["dilations"], group=L["group"],
+                      activation=L["act"], alpha=L["alpha"], residual=d.get("r"),
+                      **({"tuning": tuning} if tuning else {}))
+            if T:
+                return conv.conv_transpose2d(dev, prec, d["x"], d["w"], d.get("b"),
+                                             output_padding=L["output_padding"], **kw)
+            return conv.conv2d(dev, prec, d["x"], d["w"], d.get("b"), **kw)
+        # Long dot products: the reference's summation order differs (fp32: 9*C terms).
+        tol = {"fp32": Tolerance(1e-5, 1e-4), "fp16": Tolerance(2e-3, 2e-3)}.get(prec)
+
+        def twin(host):
+            return conv_twins.twin(L["op"], {k: host.get(k) for k in ("x", "w", "b", "r")},
+                                   activation=L["act"], alpha=L["alpha"],
+                                   consts=tuple(k for k in ("w", "b") if k in host), **attrs)
+        return make_setup(dev, prec, arrays, twin, engine, [o_shape], tol=tol)
+    # conv.cl: XV in {1, 2} (A8 vectors along x), CB output channels per work-item.
+    tunables = {k: tuple(v) for k, v in getattr(conv, "TUNABLES", {}).get(op, {}).items()}
+    return BenchCase(name, "conv", "conv", tier, layer_flops(L), build, quick=quick,
+                     shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}",
+                     tunables=tunables, defaults=dict(getattr(conv, "TUNING", {})), tune_op=op,
+                     tune_key=f"{_shape(*x_shape)}/{_shape(*wt.shape)}/s{L['strides'][0]}")
+
+
 # --- the classifier's layers ---------------------------------------------------------
 
 def classifier_layers(height: int, width: int) -> list[dict]:
@@ -156,88 +311,15 @@ def classifier_layers(height: int, width: int) -> list[dict]:
     height x width (padded to 16), with their input shapes, seeded weights, and
     the fused epilogue (ReLU, residual Add before the ReLU)."""
     from clss.methods.clss.networks import build_classifier
-    H, W = pad16(height), pad16(width)
-    m = build_classifier(height=H, width=W)
-    inferred = onnx.shape_inference.infer_shapes(m)
-    shapes = {v.name: tuple(d.dim_value for d in v.type.tensor_type.shape.dim)
-              for v in list(inferred.graph.value_info) + list(inferred.graph.input)}
-    inits = {t.name: onnx.numpy_helper.to_array(t) for t in m.graph.initializer}
-    consumers: dict[str, list] = {}
-    for n in m.graph.node:
-        for i in n.input:
-            consumers.setdefault(i, []).append(n)
-    layers = []
-    for n in m.graph.node:
-        if n.op_type != "Conv":
-            continue
-        a = {x.name: helper.get_attribute_value(x) for x in n.attribute}
-        w = inits[n.input[1]]
-        nxt = consumers.get(n.output[0], [])
-        act, residual = "none", False
-        if len(nxt) == 1 and nxt[0].op_type == "Relu":
-            act = "relu"
-        elif len(nxt) == 1 and nxt[0].op_type == "Add":
-            after = consumers.get(nxt[0].output[0], [])
-            residual = True
-            act = "relu" if len(after) == 1 and after[0].op_type == "Relu" else "none"
-        layers.append(dict(name=n.name, x_shape=shapes[n.input[0]], w=w, b=inits[n.input[2]],
-                           strides=tuple(a.get("strides", (1, 1))), pads=tuple(a.get("pads", (0,) * 4)),
-                           act=act, residual=residual))
-    return layers
-
-
-def _conv_out(x_shape, w, strides, pads):
-    n, _, h, wd = x_shape
-    kh, kw = w.shape[2:]
-    ho = (h + pads[0] + pads[2] - kh) // strides[0] + 1
-    wo = (wd + pads[1] + pads[3] - kw) // strides[1] + 1
-    return (n, w.shape[0], ho, wo)
+    return network_layers(build_classifier(height=pad16(height), width=pad16(width)))
 
 
 def conv_cases(tier: str, quick_layers=("cls.stem", "cls.enc0.mid", "cls.down1")):
     (h, w), scale = TIERS[tier]
     H, W = output_size(h, w, scale)
     conv = _family("conv")
-    out = []
-    for L in classifier_layers(H, W):
-        x_shape, wt, b = L["x_shape"], L["w"], L["b"]
-        o_shape = _conv_out(x_shape, wt, L["strides"], L["pads"])
-        cout, cin, kh, kw = wt.shape
-        flops = 2.0 * cout * cin * kh * kw * o_shape[2] * o_shape[3]
-        epi = "+".join(filter(None, ["add" if L["residual"] else "", L["act"] if L["act"] != "none" else ""]))
-        name = (f"conv {L['name']} {kh}x{kw}{'/s' + str(L['strides'][0]) if L['strides'][0] > 1 else ''} "
-                f"{cin}->{cout}{' ' + epi if epi else ''}")
-
-        def build(dev, prec, params, L=L, x_shape=x_shape, o_shape=o_shape):
-            arrays = {"x": np.maximum(_normal(("bench conv x", L["name"]), x_shape), 0),
-                      "w": L["w"], "b": L["b"]}
-            if L["residual"]:
-                arrays["r"] = _normal(("bench conv r", L["name"]), o_shape)
-
-            def engine(d):
-                # params is read on every run: the tuner changes it between candidates.
-                # (only what differs from the defaults: the tuning database decides the rest)
-                defaults = getattr(conv, "TUNING", {})
-                tuning = {k: v for k, v in params.items() if k in defaults and v != defaults[k]}
-                return conv.conv2d(dev, prec, d["x"], d["w"], d["b"], strides=L["strides"], pads=L["pads"],
-                                   activation=L["act"], residual=d.get("r"),
-                                   **({"tuning": tuning} if tuning else {}))
-            # Long dot products: the reference's summation order differs (fp32: 9*C terms).
-            tol = {"fp32": Tolerance(1e-5, 1e-4), "fp16": Tolerance(2e-3, 2e-3)}.get(prec)
-            def twin(host):
-                return conv_twins.twin("Conv", {k: host.get(k) for k in ("x", "w", "b", "r")},
-                                       activation=L["act"], consts=("w", "b"),
-                                       kernel_shape=list(L["w"].shape[2:]), strides=list(L["strides"]),
-                                       pads=list(L["pads"]))
-            return make_setup(dev, prec, arrays, twin, engine, [o_shape], tol=tol)
-        # conv.cl: XV in {1, 2} (A8 vectors along x), CB output channels per work-item.
-        tunables = {"XV": (1, 2), "CB": (1, 2, 4, 8)} if hasattr(conv, "TUNING") else {}
-        out.append(BenchCase(name, "conv", "conv", tier, flops, build,
-                             quick=L["name"] in quick_layers,
-                             shape=f"{_shape(*x_shape)}->{_shape(*o_shape)}",
-                             tunables=tunables, defaults=dict(getattr(conv, "TUNING", {})),
-                             tune_op="conv2d",
-                             tune_key=f"{_shape(*x_shape)}/{_shape(*wt.shape)}/s{L['strides'][0]}"))
+    out = [layer_case(L, tier, f"conv {layer_label(L)}", quick=L["name"] in quick_layers)
+           for L in classifier_layers(H, W)]
     if hasattr(conv, "conv_transpose2d"):
         out.append(_conv_transpose_case(conv, tier, h, w))
     return out

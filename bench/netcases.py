@@ -1,6 +1,7 @@
 """What the methods' bench rooms (bench/methods/) share: a whole network through clss.Model
-against onnxruntime on the same graph (`model_case`), the synthetic render-resolution frame,
-a frame step's device path as a timed runner, and the whole-network tolerances."""
+against onnxruntime on the same graph (`model_case`), a method's networks and every conv
+layer in them as cases (`network_cases`), the synthetic render-resolution frame, a frame
+step's device path as a timed runner, and the whole-network tolerances."""
 from __future__ import annotations
 
 import numpy as np
@@ -10,7 +11,8 @@ from clss.device import storage_dtype
 from clss.ops.base import rng
 from clss.tolerance import Tolerance
 
-from .cases import BenchCase, Setup, _nbytes, _rounded, smooth_motion
+from .cases import (BenchCase, Setup, _nbytes, _rounded, fixed_inputs, layer_case, layer_flops, layer_key,
+                    layer_label, network_layers, smooth_motion)
 
 # Whole networks and frames chain dozens of roundings and an in-graph bilinear and
 # sigmoid; the check is a sanity check here (the op and pipeline tests are the strict ones).
@@ -32,7 +34,7 @@ def model_case(name, model: onnx.ModelProto, input_shapes: dict, tier: str, flop
         eng = sum(float(a.nbytes) for a in d_in.values()) + weights * st.itemsize / 4 + \
             sum(_nbytes(s, st) for s in out_shapes)
         ort = sum(float(v.nbytes) for v in host.values()) + weights + sum(_nbytes(s, np.float32) for s in out_shapes)
-        twin = _static(model, input_shapes)
+        twin = fixed_inputs(model, input_shapes)
 
         def run():
             return list(m.run_device(d_in).values())
@@ -42,16 +44,57 @@ def model_case(name, model: onnx.ModelProto, input_shapes: dict, tier: str, flop
     return BenchCase(name, "network", "network", tier, float(flops), build, quick=quick, shape=shape)
 
 
-def _static(model: onnx.ModelProto, input_shapes: dict) -> onnx.ModelProto:
-    """The model with its symbolic input dims fixed, so onnxruntime plans for the shape."""
-    m = onnx.ModelProto()
-    m.CopyFrom(model)
-    for vi in m.graph.input:
-        if vi.name in input_shapes:
-            for d, s in zip(vi.type.tensor_type.shape.dim, input_shapes[vi.name]):
-                d.Clear()
-                d.dim_value = int(s)
-    return m
+def network_cases(method: str, tier: str, nets) -> list[BenchCase]:
+    """A method's networks at one tier: "network <method> <net>" for each whole network
+    through clss.Model (`model_case`), then "layer <method> <net>.<layer> <geometry>" for
+    each Conv / ConvTranspose node in them against onnxruntime on the same single node
+    (bench/cases.py network_layers, layer_case).
+
+    nets: (net, variant, model[, input_shapes]) at the shapes a frame step of the method
+    runs each (input_shapes fix the graph inputs' symbolic dims; without them the graph's
+    inputs must be static; variant tells the same net at two frame steps apart, e.g.
+    "x4"). A workload is benched once: a network whose graph is
+    an earlier one's at the same shapes, a layer with an earlier one's op, kernel,
+    stride, channels, input size and fused epilogue. A name that two different workloads
+    would share gets the variant appended."""
+    import hashlib
+    networks, layers = {}, {}        # key -> (base name, variant, payload)
+    for net, variant, model, *given in nets:
+        shapes = given[0] if given else static_input_shapes(model)
+        key = (net, hashlib.sha1(fixed_inputs(model, shapes).SerializeToString()).hexdigest())
+        if key in networks:
+            continue
+        ls = network_layers(model, shapes)
+        networks[key] = (f"network {method} {net}", variant, (model, shapes, sum(map(layer_flops, ls))))
+        for L in ls:
+            layers.setdefault(layer_key(L), (f"layer {method} {net}.{layer_label(L)}", variant, L))
+    return ([model_case(name, m, shapes, tier, flops) for name, (m, shapes, flops) in _named(networks)]
+            + [layer_case(L, tier, name) for name, L in _named(layers)])
+
+
+def static_input_shapes(model: onnx.ModelProto) -> dict:
+    """{input: shape} of a graph whose inputs have static dims."""
+    init = {t.name for t in model.graph.initializer}
+    out = {}
+    for i in model.graph.input:
+        if i.name in init:
+            continue
+        dims = i.type.tensor_type.shape.dim
+        if not all(d.HasField("dim_value") for d in dims):
+            raise ValueError(f"{model.graph.name}: input {i.name} has a symbolic dim; build the network "
+                             "at the frame step's shape")
+        out[i.name] = tuple(int(d.dim_value) for d in dims)
+    return out
+
+
+def _named(items: dict) -> list:
+    """(name, payload) of each (base name, variant, payload): the base name, with the
+    variant appended where several different workloads share it."""
+    count: dict[str, int] = {}
+    for base, _, _ in items.values():
+        count[base] = count.get(base, 0) + 1
+    return [(base if count[base] == 1 else f"{base} {variant}", payload)
+            for base, variant, payload in items.values()]
 
 
 def synthetic_frame(h: int, w: int):

@@ -199,3 +199,30 @@ def test_host_waits_table(tmp_path):
             else r["enqueue_ms"] is None
         assert r["ratio"] == pytest.approx(r["wall_ms"] / r["event_ms"], rel=1e-2)
     assert "Host waits" in (out / "bench.md").read_text()
+
+
+def test_tiny_suite_benches_nsrr_and_nsrd_networks_and_layers(dev):
+    """NSRR's and NSRD's networks are "network" cases and every conv layer in them a
+    "layer" case (one per distinct workload) at the tiny tier; a layer of each builds and
+    matches onnxruntime on the same node."""
+    from bench.cases import layer_key, network_layers
+    from bench.methods import nsrd, nsrr
+    from bench.runner import OrtRunner, check_setup
+    cases, _ = all_cases("default", ("tiny",))
+    by_name = {c.name: c for c in cases}
+    for room in (nsrr, nsrd):
+        m = room.__name__.rsplit(".", 1)[1]
+        nets = [c for c in cases if c.name.startswith(f"network {m} ")]
+        layers = [c for c in cases if c.name.startswith(f"layer {m} ")]
+        assert nets and all(c.kind == "network" for c in nets), m
+        assert layers and all(c.kind == "conv" and c.family == "conv" for c in layers), m
+        keys = {layer_key(L) for _, _, model in room.networks("tiny") for L in network_layers(model)}
+        assert len(layers) == len(keys), m
+    # NSRR's last layer carries the residual Add, NSRD's down layer is a stride-2 LeakyReLU
+    for name in ("layer nsrr reconstruct.un.9 3x3 16->3 add x2",
+                 "layer nsrd net.dn 3x3/s2 16->32 leaky_relu"):
+        st = by_name[name].build(dev, "fp32", {})
+        host = [dev.to_host(o) for o in st.run()]
+        refs = OrtRunner(1).session(st.twin).run(None, st.feeds)
+        assert check_setup(st, host, refs)[0] == "pass", name
+        st.release()

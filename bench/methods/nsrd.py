@@ -1,9 +1,10 @@
-"""NSRD's bench room: its frame step as a bench case, clss.Upscaler(method="nsrd")'s device
-path against onnxruntime on the same step's whole-frame ONNX graph
-(clss/methods/nsrd/oracle.py), at 540p -> 1080p (2x) and 270p -> 1080p (4x). NSRD reads
-G-buffers: the synthetic frame gets a synthetic material (render and output resolution)
-and normal (`synthetic_gbuffers`, which the host-wait bench feeds it too). The suite
-finds the room by its name (bench/methods/__init__.py).
+"""NSRD's bench room: its network and every conv layer in it through clss.Model /
+clss.ops.conv against onnxruntime on the same graphs, and its frame step as a bench case,
+clss.Upscaler(method="nsrd")'s device path against onnxruntime on the same step's
+whole-frame ONNX graph (clss/methods/nsrd/oracle.py), at 540p -> 1080p (2x) and
+270p -> 1080p (4x). NSRD reads G-buffers: the synthetic frame gets a synthetic material
+(render and output resolution) and normal (`synthetic_gbuffers`, which the host-wait bench
+feeds it too). The suite finds the room by its name (bench/methods/__init__.py).
 
     python -m bench.methods.nsrd [fp32|fp16] [1080p|tiny]
 """
@@ -14,7 +15,8 @@ import numpy as np
 from clss.device import storage_dtype
 
 from ..cases import BenchCase
-from ..netcases import BENCH_JITTER, frame_bench_case, frame_setup, median_ms, synthetic_frame
+from ..netcases import (BENCH_JITTER, frame_bench_case, frame_setup, median_ms, network_cases,
+                        synthetic_frame)
 
 # The host-wait bench (bench/hostwait.py) rows this method.
 HOST_WAITS = ("nsrd",)
@@ -80,9 +82,24 @@ def nsrd_frame_case(render_size, scale: float, tier: str, weights="untrained") -
     return frame_bench_case("nsrd", scale, tier, flops, build, (h, w), (H, W))
 
 
+def networks(tier: str, weights="untrained") -> list:
+    """(net, variant, model) of the network, built as each frame step of the tier builds it
+    (clss/methods/nsrd/frame.py): at the render size padded to even; one network per
+    scale (its prev input and output are 3 s^2 channels)."""
+    from clss.methods.nsrd import networks as nets
+    from clss.methods.nsrd.upscaler import load_weights
+    out = []
+    for (h, w), scale in NSRD_TIERS.get(tier, ()):
+        cfg, wts, _ = load_weights(weights, scale)
+        out.append(("net", f"x{scale:g}", nets.build_network(cfg, wts, nets.pad2(h), nets.pad2(w))))
+    return out
+
+
 def cases(tier: str) -> list:
-    """The room's bench cases at one shape tier (none at a tier it has no shape for)."""
-    return [nsrd_frame_case(rs, s, tier) for rs, s in NSRD_TIERS.get(tier, ())]
+    """The room's bench cases at one shape tier (none at a tier it has no shape for): the
+    network and its layers, then the frame steps."""
+    return (network_cases("nsrd", tier, networks(tier))
+            + [nsrd_frame_case(rs, s, tier) for rs, s in NSRD_TIERS.get(tier, ())])
 
 
 def measure(render_size, scale, prec="fp32", frames=3, weights=None, ort_threads=2, ort=True):

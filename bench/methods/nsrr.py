@@ -1,7 +1,8 @@
-"""NSRR's bench room: its frame step as a bench case, clss.Upscaler(method="nsrr")'s device
-path against onnxruntime on the same step's whole-frame ONNX graph
-(clss/methods/nsrr/oracle.py), at 540p -> 1080p (2x) and 270p -> 1080p (4x). The suite
-finds it by the room's name (bench/methods/__init__.py).
+"""NSRR's bench room: its two networks (features, reconstruct) and every conv layer in them
+through clss.Model / clss.ops.conv against onnxruntime on the same graphs, and its frame step
+as a bench case, clss.Upscaler(method="nsrr")'s device path against onnxruntime on the same
+step's whole-frame ONNX graph (clss/methods/nsrr/oracle.py), at 540p -> 1080p (2x) and
+270p -> 1080p (4x). The suite finds it by the room's name (bench/methods/__init__.py).
 
     python -m bench.methods.nsrr [fp32|fp16]
 """
@@ -13,7 +14,7 @@ from clss.device import storage_dtype
 
 from ..cases import BenchCase
 from ..netcases import (BENCH_JITTER, frame_bench_case, frame_runner, frame_setup, median_ms,
-                        synthetic_frame)
+                        network_cases, synthetic_frame)
 
 # render size and scale per tier: the issue's 1080p outputs, and a tiny smoke shape
 # The host-wait bench (bench/hostwait.py) rows this method.
@@ -53,9 +54,28 @@ def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -
     return frame_bench_case("nsrr", scale, tier, flops, build, (h, w), (H, W))
 
 
+def networks(tier: str, weights="untrained") -> list:
+    """(net, variant, model) of the two networks, built as each frame step of the tier
+    builds them (clss/methods/nsrr/frame.py): features at the render size, reconstruct at
+    the output size padded to a multiple of 4."""
+    from clss.methods.nsrr import networks as nets
+    from clss.methods.nsrr.frame import pad4
+    from clss.methods.nsrr.upscaler import load_weights
+    from clss.pipeline.contract import output_size
+    out = []
+    for (h, w), scale in NSRR_TIERS.get(tier, ()):
+        cfg, wts, _ = load_weights(weights, scale)
+        H, W = output_size(h, w, scale)
+        out += [("features", f"x{scale:g}", nets.build_features(cfg, wts, h, w)),
+                ("reconstruct", f"x{scale:g}", nets.build_reconstruct(cfg, wts, pad4(H), pad4(W)))]
+    return out
+
+
 def cases(tier: str) -> list:
-    """The room's bench cases at one shape tier (none at a tier it has no shape for)."""
-    return [nsrr_frame_case(rs, s, tier) for rs, s in NSRR_TIERS.get(tier, ())]
+    """The room's bench cases at one shape tier (none at a tier it has no shape for): the
+    networks and their layers, then the frame steps."""
+    return (network_cases("nsrr", tier, networks(tier))
+            + [nsrr_frame_case(rs, s, tier) for rs, s in NSRR_TIERS.get(tier, ())])
 
 
 def measure(render_size, scale, prec="fp32", frames=3, weights=None, ort_threads=2, ort=True):
