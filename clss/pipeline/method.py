@@ -264,19 +264,21 @@ def weights_file(weights, what: str) -> str:
 FRAME_CHANNELS = {"color": 3, "depth": 1, "motion": 2, "reactive": 1}
 
 
+def input_shape(name, render_size, output_size=None) -> tuple:
+    """The contract's image-layout shape of input `name` (the frame's own or a G-buffer)
+    for a frame of these sizes."""
+    if name in FRAME_CHANNELS:
+        c = FRAME_CHANNELS[name]
+        return tuple(int(v) for v in render_size) + ((c,) if c > 1 else ())
+    return GBUFFERS[name].shape(render_size, output_size)
+
+
 def input_buffers(dev, names, render_size, output_size=None) -> list:
     """Float32 device buffers in the contract's image layout for the named inputs (the
     frame's own and the G-buffers), in order: a frame step's `in_<name>` buffers, which
     MethodUpscaler's host step uploads into."""
-    out = []
-    for name in names:
-        if name in FRAME_CHANNELS:
-            c = FRAME_CHANNELS[name]
-            shape = tuple(int(v) for v in render_size) + ((c,) if c > 1 else ())
-        else:
-            shape = GBUFFERS[name].shape(render_size, output_size)
-        out.append(dev.empty(shape, dtype=np.float32))
-    return out
+    return [dev.empty(input_shape(n, render_size, output_size), dtype=np.float32)
+            for n in names]
 
 
 def summed_event_ms(events, stages) -> dict:
@@ -459,12 +461,8 @@ class MethodUpscaler:
                 "does not carry; pass " + "; ".join(gbuffer_sources(n) for n in missing))
         hw = self._device_frame(reset, out=out, **{n: given[n] for n in names})
         fs = self._frame_step(hw, reset)
-        sizes = {"color": (3,), "depth": (), "motion": (2,), "reactive": ()}
-        arrays = {}
-        for n in names:
-            shape = (tuple(hw) + sizes[n] if n in sizes else
-                     GBUFFERS[n].shape(hw, (fs.H, fs.W)))
-            arrays[n] = self._device_input(n, given[n], shape)
+        arrays = {n: self._device_input(n, given[n], input_shape(n, hw, (fs.H, fs.W)))
+                  for n in names}
         if out is not None and (out.shape != (fs.H, fs.W, 3) or out.dtype != np.float32):
             raise FrameInputError(f"out: expected a float32 array of shape {(fs.H, fs.W, 3)}, "
                                   f"got {out.dtype} {out.shape}")
