@@ -244,3 +244,24 @@ def test_upscale_refuses_a_method_without_its_gbuffers_before_writing(tmp_path):
     with pytest.raises(UsageError, match="needs albedo") as e:
         _check_gbuffers("needy", spec, Frame, 2.0)
     assert "nothing was written" in str(e.value) and "--channels 'albedo=" in str(e.value)
+
+
+def test_step_device_takes_float16_arrays(dev):
+    """step_device converts float16 device arrays on the device (pipeline.method.
+    convert_storage, round to nearest even both ways, as numpy): bit-equal to numpy, and
+    the frame equals the host step on the same values."""
+    from clss.pipeline.method import convert_storage
+    g = np.random.default_rng(0)
+    x = np.concatenate([g.standard_normal(997) * 100, [0.5 + 2.0 ** -11, 65504.0, 1e-6, -0.0]])
+    x = x.astype(np.float32)
+    h = convert_storage(dev.to_device(x), np.float16)
+    assert h.dtype == np.float16 and np.array_equal(h.get(), x.astype(np.float16))
+    assert np.array_equal(convert_storage(h, np.float32).get(), x.astype(np.float16).astype(np.float32))
+    f = frames(RENDER, 1)[0]
+    c16 = f.color.astype(np.float16)
+    want = clss.Upscaler(method="clss-rules", device=dev).step(
+        c16.astype(np.float32), f.depth, f.motion, f.jitter)
+    got = clss.Upscaler(method="clss-rules", device=dev).step_device(
+        convert_storage(dev.to_device(f.color), np.float16), dev.to_device(f.depth),
+        dev.to_device(f.motion), f.jitter)
+    assert np.array_equal(got.get(), want)
