@@ -421,3 +421,213 @@ __kernel void weights_to_float(__global const T *w, __global float *out, int n)
     if (i < n)
         out[i] = LD(w, i);
 }
+
+/* ---------------------------------------------------------------------------
+ * conv2d on a channel-blocked input (the fast path for groups == 1), after
+ * oneDNN's and MLAS's NCHWc kernels.
+ *
+ * Why: in NCHW, the inputs one work-item needs for successive input channels
+ * lie H*W elements apart, so a 3x3 window over 64 channels touches 192 cache
+ * lines that alias to a few L1 sets. Blocked, the ICV channels of a pixel are
+ * one contiguous run: the channel loop walks one line per pixel.
+ *
+ * Register tile: each work-item holds NV vectors of OCV output channels (the
+ * device's float vector width: 16 = one AVX-512 register) times PX output
+ * pixels of one row: NV*PX accumulators. Per kernel tap and input channel it
+ * loads NV weight vectors (packed once, contiguous) and PX input scalars, each
+ * broadcast into NV FMAs (on x86, vfmadd231ps with a {1to16} memory operand).
+ * The output is written as NCHW (transposed out of the tile), with the epilogue
+ * of conv2d above (bias, residual before/after the activation).
+ *
+ * Build options: -DKH, -DKW, -DSX (compile time), -DOCV=4|8|16 (channels per
+ * vector), -DNV=1..4 (vectors per work-item), -DPX=1..16 (pixels per work-item),
+ * -DICV (input channels per block, any 1..16), -DACT. The reference is conv2d
+ * above (fast path conv.blocked; `clss verify` compares them).
+ * --------------------------------------------------------------------------- */
+#ifndef OCV
+#define OCV 16
+#endif
+#ifndef NV
+#define NV 1
+#endif
+#ifndef PX
+#define PX 8
+#endif
+#ifndef ICV
+#define ICV 16
+#endif
+#define OCB (OCV * NV)
+typedef A AV __attribute__((ext_vector_type(OCV)));
+/* element-aligned vector access to the packed weights and biases */
+typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
+
+/* NCHW -> blocked [N][Cb][H][W][ICV], channels past C zero. Pure data movement
+ * (bits copied through TB). NDRange: (W, H, N * Cb). */
+/** @param[in]  x   [N, C, H, W]
+ *  @param[out] xb  [N, Cb, H, W, ICV] with Cb = ceil(C / ICV)
+ *  @param[in]  C   channels
+ *  @param[in]  H   height
+ *  @param[in]  W   width
+ *  @param[in]  Cb  channel blocks
+ *  @note -DICV: channels per block
+ */
+__kernel void to_blocked(__global const TB *x, __global TB *xb, int C, int H, int W, int Cb)
+{
+    const int ix = get_global_id(0), iy = get_global_id(1), z = get_global_id(2);
+    if (ix >= W || iy >= H || z >= get_global_size(2))
+        return;
+    const int cb = z % Cb, n = z / Cb;
+    const long hw = (long)H * W;
+    const __global TB *src = x + ((long)n * C + cb * ICV) * hw + (long)iy * W + ix;
+    __global TB *dst = xb + (((long)z * H + iy) * W + ix) * ICV;
+    for (int c = 0; c < ICV; ++c)
+        dst[c] = cb * ICV + c < C ? src[c * hw] : (TB)0;
+}
+
+/* Weights [Cout, Cin, KH, KW] -> packed [ncb][Cb][KH][KW][ICV][OCB] in the
+ * arithmetic type A, zero past Cout and Cin. NDRange: (OCB, ICV, ncb * Cb * KH * KW). */
+/** @param[in]  w     [Cout, Cin, KH, KW] weights
+ *  @param[out] wp    [ncb, Cb, KH, KW, ICV, OCB] packed
+ *  @param[in]  Cout  output channels
+ *  @param[in]  Cin   input channels
+ *  @param[in]  Cb    input channel blocks, ceil(Cin / ICV)
+ *  @note -DKH, -DKW, -DOCV, -DNV, -DICV: the layout; -DCLSS_FP16*: the storage precision
+ */
+__kernel void pack_blocked_weights(__global const T *w, __global A *wp, int Cout, int Cin, int Cb)
+{
+    const int j = get_global_id(0), cc = get_global_id(1), z = get_global_id(2);
+    const int k = z % KK, c = (z / KK) % Cb, cb = z / (KK * Cb);
+    const int co = cb * OCB + j, ci = c * ICV + cc;
+    wp[(long)z * ICV * OCB + cc * OCB + j] =
+        co < Cout && ci < Cin ? LD(w, ((long)co * Cin + ci) * KK + k) : A_ZERO;
+}
+
+/* Bias, padded to whole OCB blocks (zero where absent). NDRange: (ncb * OCB). */
+/** @param[in]  b      [Cout] bias
+ *  @param[out] bp     [ncb * OCB] padded bias
+ *  @param[in]  Cout   output channels
+ *  @param[in]  has_b  0: no bias (zeros)
+ */
+__kernel void pack_blocked_bias(__global const T *b, __global A *bp, int Cout, int has_b)
+{
+    const int i = get_global_id(0);
+    bp[i] = has_b && i < Cout ? LD(b, i) : A_ZERO;
+}
+
+/** @param[in]  x      [N, Cb, H, W, ICV] blocked input (to_blocked)
+ *  @param[in]  wp     packed weights (pack_blocked_weights)
+ *  @param[in]  bp     packed bias (pack_blocked_bias)
+ *  @param[in]  res    [N, Cout, Ho, Wo] residual (read when flags has 2 or 4)
+ *  @param[out] y      [N, Cout, Ho, Wo] output (NCHW)
+ *  @param[in]  Cb     input channel blocks
+ *  @param[in]  H      input height
+ *  @param[in]  W      input width
+ *  @param[in]  Cout   output channels
+ *  @param[in]  Ho     output height
+ *  @param[in]  Wo     output width
+ *  @param[in]  ncb    output channel blocks, ceil(Cout / OCB)
+ *  @param[in]  sy     stride along y
+ *  @param[in]  pt     top pad
+ *  @param[in]  pl     left pad
+ *  @param[in]  dy     dilation along y
+ *  @param[in]  dx     dilation along x
+ *  @param[in]  flags  2 residual added before the activation, 4 after it (the bias is always added)
+ *  @param[in]  alpha  the activation's parameter (leaky_relu slope)
+ *  @param[in]  nz     the extent of NDRange dimension 2 that is real work (N * ncb)
+ *  @note NDRange: (ceil(Wo / PX), Ho, N * ncb)
+ *  @note -DKH, -DKW, -DSX; -DOCV, -DNV, -DPX, -DICV: the register tile and block (tunable); -DACT
+ */
+__kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global const A *bp,
+                             __global const T *res, __global T *y,
+                             int Cb, int H, int W, int Cout, int Ho, int Wo, int ncb,
+                             int sy, int pt, int pl, int dy, int dx,
+                             int flags, float alpha, int nz)
+{
+    const int xb = get_global_id(0), oy = get_global_id(1), z = get_global_id(2);
+    if (xb * PX >= Wo || oy >= Ho || z >= nz)
+        return;
+    const int cb = z % ncb, n = z / ncb;
+    const int co0 = cb * OCB, nco = IMIN(OCB, Cout - co0);
+    const int ox0 = xb * PX, ix0 = ox0 * SX - pl, iy0 = oy * sy - pt;
+    const int inside = ix0 >= 0 && ix0 + (PX - 1) * SX + (KW - 1) * dx < W;
+
+    AV acc[NV][PX];
+    for (int v = 0; v < NV; ++v)
+        for (int p = 0; p < PX; ++p)
+            acc[v][p] = (AV)A_ZERO;
+
+    const __global T *xg = x + (long)n * Cb * H * W * ICV;
+    const __global A *wg = wp + (long)cb * Cb * KK * ICV * OCB;
+    const int ky0 = iy0 < 0 ? (-iy0 + dy - 1) / dy : 0;
+    const int ky1 = IMIN(KH, (H - iy0 + dy - 1) / dy);
+/* The tap loop is not unrolled: unrolled, the compiler keeps inputs shared by
+ * neighbouring taps in registers and spills the tile. Offsets are compile-time
+ * constants from one pointer per tap, so each load folds into its FMA. */
+#define BLOCKED_LOOP(INSIDE)                                                     \
+    for (int c = 0; c < Cb; ++c) {                                               \
+        for (int ky = ky0; ky < ky1; ++ky) {                                     \
+            const __global T *row = xg + ((long)c * H + iy0 + ky * dy) * W * ICV; \
+            const __global A *wr = wg + (c * KH + ky) * KW * ICV * OCB;          \
+            _Pragma("nounroll") for (int kx = 0; kx < KW; ++kx) {                \
+                const int ixk = ix0 + kx * dx;                                   \
+                const __global T *xp = row + (long)ixk * ICV;                    \
+                const __global A *wk = wr + kx * ICV * OCB;                      \
+                _Pragma("unroll") for (int cc = 0; cc < ICV; ++cc) {             \
+                    AV wv[NV];                                                   \
+                    _Pragma("unroll") for (int v = 0; v < NV; ++v)               \
+                        wv[v] = *(__global const AVu *)(wk + cc * OCB + v * OCV); \
+                    _Pragma("unroll") for (int p = 0; p < PX; ++p) {             \
+                        const int q = ixk + p * SX;                              \
+                        const A s = (INSIDE || (q >= 0 && q < W))                \
+                            ? FLD(xp, p * SX * ICV + cc) : A_ZERO;               \
+                        _Pragma("unroll") for (int v = 0; v < NV; ++v)           \
+                            acc[v][p] += wv[v] * s;                              \
+                    }                                                            \
+                }                                                                \
+            }                                                                    \
+        }                                                                        \
+    }
+    if (inside) {
+        BLOCKED_LOOP(1)
+    } else {
+        BLOCKED_LOOP(0)
+    }
+
+    const int np = IMIN(PX, Wo - ox0);
+    const long hwo = (long)Ho * Wo;
+    const long o0 = ((long)n * Cout + co0) * hwo + (long)oy * Wo + ox0;
+    for (int v = 0; v < NV; ++v) {
+        const AV b = *(__global const AVu *)(bp + co0 + v * OCV);
+        union { AV v; A e[OCV]; } u[PX];
+        for (int p = 0; p < PX; ++p)
+            u[p].v = acc[v][p] + b;
+        if (!(flags & (F_RES_BEFORE | F_RES_AFTER))) {
+            for (int p = 0; p < PX; ++p)
+                u[p].v = APPLY_ACT(u[p].v, alpha);
+        }
+        for (int j = 0; j < OCV; ++j) {
+            const int c = v * OCV + j;
+            if (c >= nco)
+                break;
+            const long o = o0 + (long)c * hwo;
+            if (flags & (F_RES_BEFORE | F_RES_AFTER)) {
+                for (int p = 0; p < np; ++p) {
+                    const A r = FLD(res, o + p);
+                    A t = u[p].e[j];
+                    if (flags & F_RES_BEFORE)
+                        t += r;
+                    t = APPLY_ACT(t, alpha);
+                    if (flags & F_RES_AFTER)
+                        t += r;
+                    FST(y, o + p, t);
+                }
+            } else if (np == PX) {
+                for (int p = 0; p < PX; ++p)
+                    FST(y, o + p, u[p].e[j]);
+            } else {
+                for (int p = 0; p < np; ++p)
+                    FST(y, o + p, u[p].e[j]);
+            }
+        }
+    }
+}

@@ -32,6 +32,44 @@ def test_parameter_combinations(dev, op, n, cpg, opg, group, h, w, k, s, d, pads
     assert_case(case, dev, "fp32")
 
 
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(n=st.integers(1, 2), cin=st.integers(8, 40), cout=st.integers(8, 40), h=st.integers(1, 9),
+       w=st.integers(1, 41), s=st.sampled_from([1, 2]), d=st.integers(1, 2),
+       pads=st.tuples(*[st.integers(0, 2)] * 4), act=st.sampled_from(["none", "leaky_relu"]),
+       residual=st.sampled_from([None, "before", "after"]), bias=st.booleans(),
+       tile=st.sampled_from([(1, 14), (2, 6), (3, 4), (1, 5)]))
+def test_blocked_parameter_combinations(dev, n, cin, cout, h, w, s, d, pads, act, residual, bias, tile):
+    # conv2d_blocked (dense 3x3, >= 8 channels in and out) against onnxruntime: any channel
+    # counts (partial input blocks and output vectors), edges, strides, dilations, tiles.
+    pads = tuple(min(p, 2) for p in pads)
+    if h + pads[0] + pads[2] < 2 * d + 1 or w + pads[1] + pads[3] < 2 * d + 1:
+        return
+    case = conv_cases.make_case(n=n, cin=cin, h=h, w=w, cout=cout, strides=(s, s), pads=pads,
+                                dilations=(d, d), bias=bias, activation=act, alpha=0.1, residual=residual)
+    fn = case.run
+    tuning = {"NV": tile[0], "PX": tile[1]}
+    case.run = lambda dv, p, i: _with_tuning(tuning, fn, dv, p, i)
+    assert check(case, dev, "fp32").passed
+
+
+@pytest.mark.parametrize("precision", PRECISIONS)
+def test_blocked_and_reference_agree(dev, precision):
+    # The fast path (conv.blocked) and its reference (the NCHW kernel) on the same layer.
+    from clss import selfcheck
+    dev.require(precision)
+    g = np.random.default_rng(7)
+    x = dev.to_device(g.standard_normal((1, 21, 9, 45)).astype(np.float32), precision)
+    w = dev.to_device(g.standard_normal((19, 21, 3, 3)).astype(np.float32) * 0.2, precision)
+    b = dev.to_device(g.standard_normal(19).astype(np.float32), precision)
+    outs = []
+    for fast in (True, False):
+        with selfcheck.forcing("conv.blocked", fast):
+            outs.append(dev.to_host(conv.conv2d(dev, precision, x, w, b, pads=(1, 1, 1, 1),
+                                                activation="relu")).astype(np.float32))
+    tol = 1e-5 if precision == "fp32" else 2e-2
+    np.testing.assert_allclose(outs[0], outs[1], rtol=tol, atol=tol)
+
+
 @pytest.mark.parametrize("tuning", [{"XV": 1, "CB": 8}, {"XV": 2, "CB": 3}, {"XV": 1, "CB": 1}],
                          ids=lambda t: f"XV{t['XV']}-CB{t['CB']}")
 def test_other_register_blocks(dev, tuning):

@@ -82,7 +82,7 @@ def _conv(dev, prec, attrs, inputs):
               group=attrs["group"], activation=attrs["activation"], alpha=attrs["alpha"], residual=r)
     if attrs.get("transpose"):
         return [conv.conv_transpose2d(dev, prec, x, w, b, output_padding=attrs["output_padding"], **kw)]
-    return [conv.conv2d(dev, prec, x, w, b, **kw)]
+    return [conv.conv2d(dev, prec, x, w, b, packed=attrs.setdefault("_packed", {}), **kw)]
 
 
 @internal_op("clss.BinaryRelu")
@@ -116,7 +116,7 @@ def packed_bytes(attrs: dict) -> int:
     """Device bytes of weights an internal op packed for itself."""
     total = 0
     for w in attrs.get("_packed", {}).values():
-        total += sum(c.buffer.nbytes for c in getattr(w, "chunks", ()))
+        total += w.nbytes if hasattr(w, "nbytes") else sum(c.buffer.nbytes for c in getattr(w, "chunks", ()))
     return total
 
 

@@ -21,6 +21,9 @@ TUNING = {"XV": 2, "CB": 4, "LX": 8, "LZ": 16, "S2K3": 1}
 # What `clss tune` searches (bench/tune.py), per op; the engine reads the winner back
 # from the tuning database (clss/tuning.py) at each launch (_tunables).
 TUNABLES = {op: {"XV": (1, 2), "CB": (1, 2, 4, 8)} for op in ("conv2d", "conv_transpose2d")}
+# The channel-blocked conv2d (kernels/conv.cl conv2d_blocked): PX output pixels times NV
+# vectors of output channels per work-item, BLX work-items along x per work-group.
+TUNABLES["conv2d_blocked"] = {"PX": (4, 6, 8, 10, 12, 14, 16), "NV": (1, 2, 3, 4), "BLX": (4, 8, 16, 32)}
 
 _F_BIAS, _F_RES_BEFORE, _F_RES_AFTER = 1, 2, 4
 
@@ -121,6 +124,117 @@ def _tunables(dev: Device, prec: str, op: str, x, w, strides, explicit, groups: 
     return t
 
 
+def vector_width(dev: Device) -> int:
+    """Output channels per accumulator vector of conv2d_blocked: the device's preferred
+    float vector width (16 on AVX-512, 8 on AVX2), at least 8 (GPUs report 1; there
+    a work-item's 8 channels are 8 registers)."""
+    try:
+        w = int(dev.cl_device.preferred_vector_width_float)
+    except Exception:
+        w = 8
+    return 16 if w >= 16 else 8
+
+
+def blocked_eligible(x, w, group: int) -> bool:
+    """Layers conv2d_blocked covers: dense (one group) spatial convolutions with enough
+    channels that a vector of output channels is mostly real work. 1x1 layers and thin
+    ones (< 8 in or out) keep the NCHW kernel."""
+    cout, cin_g, kh, kw = w.shape
+    return group == 1 and kh * kw > 1 and cin_g >= 8 and cout >= 8
+
+
+def blocked_tiling(dev: Device, prec: str, x, w, strides, explicit) -> dict:
+    """OCV, NV, PX, ICV and BLX for conv2d_blocked on this layer: defaults from the
+    device's vector width and the layer's channels, laid under the tuning database's
+    entry and the caller's `tuning=`. NV vectors cover the output channels with the
+    least padding (at most 2, so NV*PX accumulators stay in registers); PX fills the
+    register file (about 28 accumulators on a 32-register AVX-512 core)."""
+    cout, cin = w.shape[0], w.shape[1]
+    ocv = vector_width(dev)
+    nvec = -(-cout // ocv)
+    nv = 2 if nvec >= 2 and nvec % 2 == 0 else 1
+    px = 14 if nv == 1 else 6
+    # TUNING's PX/NV/BLX, where a test sets them, replace the per-layer defaults
+    defaults = {"PX": px, "NV": nv, "BLX": 16, **{k: TUNING[k] for k in ("PX", "NV", "BLX") if k in TUNING}}
+    key = tuning_db.shape_key(tuple(x.shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec)
+    t = tuning_db.lookup(dev, "conv2d_blocked", key, defaults,
+                         explicit={k: v for k, v in (explicit or {}).items() if k in ("PX", "NV", "BLX")},
+                         allowed=TUNABLES["conv2d_blocked"])
+    cb = -(-cin // 16)
+    t.update(OCV=ocv, ICV=-(-cin // cb), CB=cb)
+    return t
+
+
+class BlockedWeights:
+    """A layer's weights and bias packed for conv2d_blocked (pack_blocked)."""
+
+    def __init__(self, wp, bp, key):
+        self.wp, self.bp, self.key = wp, bp, key
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.wp.nbytes + self.bp.nbytes)
+
+
+def pack_blocked(dev: Device, prec: str, w, b, t: dict) -> BlockedWeights:
+    """Weights [Cout, Cin, KH, KW] as [ncb][Cb][KH][KW][ICV][OCB] and the bias padded to
+    whole OCB blocks, in the kernels' arithmetic type (float, half in fp16-native)."""
+    cout, cin, kh, kw = w.shape
+    ocb = t["OCV"] * t["NV"]
+    ncb = -(-cout // ocb)
+    apre = "fp16" if prec == "fp16-native" else "fp32"
+    wp = dev.empty((ncb, t["CB"], kh, kw, t["ICV"], ocb), apre)
+    bp = dev.empty((ncb * ocb,), apre)
+    d = dict(KH=kh, KW=kw, OCV=t["OCV"], NV=t["NV"], ICV=t["ICV"])
+    dev.launch(dev.kernel("conv", "pack_blocked_weights", prec, **d), (ocb, t["ICV"], ncb * t["CB"] * kh * kw),
+               (w.data, wp.data, np.int32(cout), np.int32(cin), np.int32(t["CB"])))
+    dev.launch(dev.kernel("conv", "pack_blocked_bias", prec, **d), (ncb * ocb,),
+               (w.data if b is None else b.data, bp.data, np.int32(cout), np.int32(b is not None)))
+    return BlockedWeights(wp, bp, _pack_key(t))
+
+
+def _pack_key(t: dict) -> tuple:
+    return t["OCV"], t["NV"], t["ICV"], t["CB"]
+
+
+def to_blocked(dev: Device, prec: str, x, icv: int, cb: int):
+    """NCHW -> [N][Cb][H][W][ICV] (zero channels past C): the conv2d_blocked input."""
+    n, c, h, wd = x.shape
+    xb = dev.empty((n, cb, h, wd, icv), prec)
+    dev.launch(dev.kernel("conv", "to_blocked", prec, ICV=icv), (wd, h, n * cb),
+               (x.data, xb.data, np.int32(c), np.int32(h), np.int32(wd), np.int32(cb)))
+    return xb
+
+
+def _conv2d_blocked(dev, prec, x, w, b, t, packed, strides, pads, dilations, activation, alpha,
+                    residual, residual_before_act, out, ho, wo):
+    n, cin, h, wd = x.shape
+    cout, _, kh, kw = w.shape
+    sy, sx = strides
+    dy, dx = dilations
+    pt, pl = pads[0], pads[1]
+    pw = None if packed is None else packed.get(prec)
+    if pw is None or pw.key != _pack_key(t):
+        pw = pack_blocked(getattr(dev, "base", dev), prec, w, b, t)
+        if packed is not None:
+            packed[prec] = pw
+    xb = to_blocked(dev, prec, x, t["ICV"], t["CB"])
+    ocb = t["OCV"] * t["NV"]
+    ncb = -(-cout // ocb)
+    k = dev.kernel("conv", "conv2d_blocked", prec, KH=kh, KW=kw, SX=sx, OCV=t["OCV"], NV=t["NV"],
+                   PX=t["PX"], ICV=t["ICV"], ACT=_act(activation), **load_defines(dev, prec, "conv"))
+    nz = n * ncb
+    lx = t["BLX"]
+    gs = (-(-(-(-wo // t["PX"])) // lx) * lx, ho, nz)
+    flags = _flags(b, residual, residual_before_act) & ~_F_BIAS
+    dev.launch(k, gs, (xb.data, pw.wp.data, pw.bp.data, None if residual is None else residual.data, out.data,
+                       np.int32(t["CB"]), np.int32(h), np.int32(wd), np.int32(cout), np.int32(ho), np.int32(wo),
+                       np.int32(ncb), np.int32(sy), np.int32(pt), np.int32(pl), np.int32(dy), np.int32(dx),
+                       np.int32(flags), np.float32(alpha), np.int32(nz)),
+               local_size=(lx, 1, 1))
+    return out
+
+
 def _flags(b, residual, residual_before_act):
     f = _F_BIAS if b is not None else 0
     if residual is not None:
@@ -147,7 +261,7 @@ def conv_output_size(size: int, k: int, stride: int, pad_total: int, dilation: i
 
 def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 0, 0),
            dilations=(1, 1), group: int = 1, activation: str = "none", alpha: float = 0.01,
-           residual=None, residual_before_act: bool = True, out=None, tuning=None):
+           residual=None, residual_before_act: bool = True, out=None, tuning=None, packed=None):
     """ONNX Conv on NCHW: x [N,Cin,H,W], w [Cout,Cin/group,kh,kw], b [Cout] or None;
     pads [top,left,bottom,right]. Fused epilogue: y = act(conv + b + residual)
     (residual_before_act, the ResNet pattern Conv -> Add -> Relu), or
@@ -168,6 +282,11 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     _check_common(x, w, b, residual, prec, (n, cout, ho, wo), cout)
     out = out if out is not None else dev.empty((n, cout, ho, wo), prec)
     cout_g = cout // group
+    if (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
+            and selfcheck.enabled(dev, prec, "conv.blocked")):
+        t = blocked_tiling(dev, prec, x, w, (sy, sx), tuning)
+        return _conv2d_blocked(dev, prec, x, w, b, t, packed, (sy, sx), (pt, pl), (dy, dx), activation,
+                               alpha, residual, residual_before_act, out, ho, wo)
     t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning, group)
     # A pointwise conv with unit stride and no padding is a GEMM over flattened
     # pixels: one row of H*W, so only the image's last block takes the edge path.
@@ -265,6 +384,24 @@ def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
     return [dev.to_host(o) for o in outs]
 
 
+def _selfcheck_blocked(dev: Device, prec: str) -> list[np.ndarray]:
+    """conv2d_blocked against the NCHW kernel: 19 input channels (two blocks of 10),
+    17 and 40 outputs (a partial vector), residuals before and after the activation,
+    stride 2 with a dilation, edge and inside work-items."""
+    g = rng("conv blocked selfcheck")
+    xw = dev.to_device(g.standard_normal((2, 19, 5, 37)).astype(np.float32), prec)
+    w17 = dev.to_device(g.standard_normal((17, 19, 3, 3)).astype(np.float32) * 0.2, prec)
+    w40 = dev.to_device(g.standard_normal((40, 19, 3, 3)).astype(np.float32) * 0.2, prec)
+    b17 = dev.to_device(g.standard_normal(17).astype(np.float32), prec)
+    r17 = dev.to_device(g.standard_normal((2, 17, 5, 37)).astype(np.float32), prec)
+    outs = [conv2d(dev, prec, xw, w17, b17, pads=(1, 1, 1, 1), activation="relu", residual=r17),
+            conv2d(dev, prec, xw, w17, None, pads=(1, 1, 1, 1), residual=r17, residual_before_act=False,
+                   activation="leaky_relu", alpha=0.1),
+            conv2d(dev, prec, xw, w40, None, strides=(2, 2), pads=(2, 1, 2, 1), dilations=(2, 1),
+                   activation="sigmoid")]
+    return [dev.to_host(o) for o in outs]
+
+
 for _name, _fast, _ref, _what, _applies in (
         ("conv.builtin_free_loads", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0},
          "loads and stores as clang vector types instead of vload/vstore builtins (PoCL)", builtin_free),
@@ -275,9 +412,13 @@ for _name, _fast, _ref, _what, _applies in (
          lambda dev: True),
         ("conv.register_block", {k: TUNING[k] for k in ("XV", "CB")}, {"XV": 1, "CB": 1},
          "8*XV outputs times CB channels per work-item (default block) / one vector, one channel",
-         lambda dev: True)):
-    selfcheck.register(selfcheck.FastPath(_name, "conv", _fast, _ref, check=_selfcheck_run,
-                                          tolerance=DEFAULT_TOL.__getitem__, what=_what, applies=_applies))
+         lambda dev: True),
+        ("conv.blocked", {"BLOCKED": 1}, {"BLOCKED": 0},
+         "dense spatial convs on a channel-blocked input with a register tile of output-channel "
+         "vectors x pixels (conv2d_blocked) / the NCHW kernel (conv2d)", lambda dev: True)):
+    selfcheck.register(selfcheck.FastPath(
+        _name, "conv", _fast, _ref, check=_selfcheck_blocked if _name == "conv.blocked" else _selfcheck_run,
+        tolerance=DEFAULT_TOL.__getitem__, what=_what, applies=_applies))
 
 
 # --- ONNX -----------------------------------------------------------------------

@@ -120,12 +120,18 @@ def cases(level: str = "quick") -> list[Case]:
           residual="before"),
         C("convT", cin=2, h=4, w=19, cout=3, k=(3, 3), strides=(1, 1), pads=(0, 2, 1, 0),
           dilations=(2, 2), bias=False, activation="leaky_relu", residual="after"),
+        # the channel-blocked kernel (conv2d_blocked, >= 8 channels in and out, one group):
+        # two input blocks of 5, a partial output vector, inside and edge work-items, stride 2
+        C(cin=10, h=4, w=23, cout=9, activation="relu", residual="before"),
+        C(n=2, cin=9, h=5, w=19, cout=11, strides=(2, 2), pads=(0, 1, 2, 1), dilations=(2, 1),
+          bias=False, activation="leaky_relu", alpha=0.2, residual="after"),
     ]
     if level == "tiny":
         return tiny
     quick = tiny + [
         C(cin=16, h=12, w=37, cout=16, activation="relu", residual="before"),
         C("convT", cin=16, h=9, w=13, cout=8, k=(2, 2), strides=(2, 2), pads=(0, 0, 0, 0), activation="relu"),
+        C(cin=37, h=11, w=53, cout=40, strides=(2, 2), activation="sigmoid"),     # blocked: 3 input blocks
     ]
     if level == "quick":
         return quick
@@ -163,6 +169,10 @@ def cases(level: str = "quick") -> list[Case]:
         C(cin=3, h=9, w=67, cout=5, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1), dilations=(2, 1)),
         C(cin=3, h=9, w=67, cout=5, k=(3, 3), strides=(2, 2), pads=(2, 2, 2, 2), dilations=(1, 2)),
         C(cin=67, h=7, w=37, cout=131, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1), activation="relu"),
+        # blocked, at the networks' channel counts: 60 -> 24 (NSRR), 64 -> 64 (NSRD's ConvLSTM), 5x5
+        C(cin=60, h=9, w=41, cout=24, activation="relu"),
+        C(cin=64, h=7, w=43, cout=64, residual="before"),
+        C(cin=12, h=13, w=29, cout=16, k=(5, 5), pads=(2, 2, 2, 2), activation="tanh"),
         C("convT", n=2, cin=8, h=7, w=13, cout=4, k=(2, 2), strides=(2, 2), pads=(0, 0, 0, 0)),
         C("convT", cin=6, h=9, w=11, cout=6, k=(3, 3), strides=(2, 2), pads=(1, 1, 1, 1), group=6,
           output_padding=(1, 1)),
