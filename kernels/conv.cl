@@ -460,51 +460,66 @@ __kernel void weights_to_float(__global const T *w, __global float *out, int n)
 typedef A AV __attribute__((ext_vector_type(OCV)));
 /* element-aligned vector access to the packed weights and biases */
 typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
+#if OCV == 16
+#define VSTORE_AV vstore16
+#elif OCV == 8
+#define VSTORE_AV vstore8
+#elif OCV == 4
+#define VSTORE_AV vstore4
+#else
+#error "OCV must be 4, 8 or 16"
+#endif
 
-/* NCHW -> blocked [N][Cb][H][W][ICV], channels past C zero. Pure data movement
+/* The layout kernels take the block sizes as arguments, not -D options: they are
+ * memory-bound, and one build serves every layer (under oclgrind a build is slow). */
+
+/* NCHW -> blocked [N][Cb][H][W][icv], channels past C zero. Pure data movement
  * (bits copied through TB). NDRange: (W, H, N * Cb). */
-/** @param[in]  x   [N, C, H, W]
- *  @param[out] xb  [N, Cb, H, W, ICV] with Cb = ceil(C / ICV)
- *  @param[in]  C   channels
- *  @param[in]  H   height
- *  @param[in]  W   width
- *  @param[in]  Cb  channel blocks
- *  @note -DICV: channels per block
+/** @param[in]  x    [N, C, H, W]
+ *  @param[out] xb   [N, Cb, H, W, icv] with Cb = ceil(C / icv)
+ *  @param[in]  C    channels
+ *  @param[in]  H    height
+ *  @param[in]  W    width
+ *  @param[in]  Cb   channel blocks
+ *  @param[in]  icv  channels per block
  */
-__kernel void to_blocked(__global const TB *x, __global TB *xb, int C, int H, int W, int Cb)
+__kernel void to_blocked(__global const TB *x, __global TB *xb, int C, int H, int W, int Cb, int icv)
 {
     const int ix = get_global_id(0), iy = get_global_id(1), z = get_global_id(2);
-    if (ix >= W || iy >= H || z >= get_global_size(2))
+    if (ix >= W || iy >= H)
         return;
     const int cb = z % Cb, n = z / Cb;
     const long hw = (long)H * W;
-    const __global TB *src = x + ((long)n * C + cb * ICV) * hw + (long)iy * W + ix;
-    __global TB *dst = xb + (((long)z * H + iy) * W + ix) * ICV;
-    for (int c = 0; c < ICV; ++c)
-        dst[c] = cb * ICV + c < C ? src[c * hw] : (TB)0;
+    const __global TB *src = x + ((long)n * C + cb * icv) * hw + (long)iy * W + ix;
+    __global TB *dst = xb + (((long)z * H + iy) * W + ix) * icv;
+    for (int c = 0; c < icv; ++c)
+        dst[c] = cb * icv + c < C ? src[c * hw] : (TB)0;
 }
 
-/* Weights [Cout, Cin, KH, KW] -> packed [ncb][Cb][KH][KW][ICV][OCB] in the
- * arithmetic type A, zero past Cout and Cin. NDRange: (OCB, ICV, ncb * Cb * KH * KW). */
-/** @param[in]  w     [Cout, Cin, KH, KW] weights
- *  @param[out] wp    [ncb, Cb, KH, KW, ICV, OCB] packed
+/* Weights [Cout, Cin, kk] -> packed [ncb][Cb][kk][icv][ocb] in the arithmetic
+ * type A, zero past Cout and Cin. NDRange: (ocb, icv, ncb * Cb * kk). */
+/** @param[in]  w     [Cout, Cin, KH, KW] weights (kk = KH * KW taps)
+ *  @param[out] wp    [ncb, Cb, KH, KW, icv, ocb] packed
  *  @param[in]  Cout  output channels
  *  @param[in]  Cin   input channels
- *  @param[in]  Cb    input channel blocks, ceil(Cin / ICV)
- *  @note -DKH, -DKW, -DOCV, -DNV, -DICV: the layout; -DCLSS_FP16*: the storage precision
+ *  @param[in]  Cb    input channel blocks, ceil(Cin / icv)
+ *  @param[in]  kk    taps per channel
+ *  @param[in]  icv   input channels per block
+ *  @param[in]  ocb   output channels per block (OCV * NV of the conv)
  */
-__kernel void pack_blocked_weights(__global const T *w, __global A *wp, int Cout, int Cin, int Cb)
+__kernel void pack_blocked_weights(__global const T *w, __global A *wp, int Cout, int Cin, int Cb,
+                                   int kk, int icv, int ocb)
 {
     const int j = get_global_id(0), cc = get_global_id(1), z = get_global_id(2);
-    const int k = z % KK, c = (z / KK) % Cb, cb = z / (KK * Cb);
-    const int co = cb * OCB + j, ci = c * ICV + cc;
-    wp[(long)z * ICV * OCB + cc * OCB + j] =
-        co < Cout && ci < Cin ? LD(w, ((long)co * Cin + ci) * KK + k) : A_ZERO;
+    const int k = z % kk, c = (z / kk) % Cb, cb = z / (kk * Cb);
+    const int co = cb * ocb + j, ci = c * icv + cc;
+    wp[((long)z * icv + cc) * ocb + j] =
+        co < Cout && ci < Cin ? LD(w, ((long)co * Cin + ci) * kk + k) : A_ZERO;
 }
 
-/* Bias, padded to whole OCB blocks (zero where absent). NDRange: (ncb * OCB). */
+/* Bias, padded to whole output blocks (zero where absent). NDRange: (ncb * ocb). */
 /** @param[in]  b      [Cout] bias
- *  @param[out] bp     [ncb * OCB] padded bias
+ *  @param[out] bp     [ncb * ocb] padded bias
  *  @param[in]  Cout   output channels
  *  @param[in]  has_b  0: no bias (zeros)
  */
@@ -598,12 +613,15 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
     const long o0 = ((long)n * Cout + co0) * hwo + (long)oy * Wo + ox0;
     for (int v = 0; v < NV; ++v) {
         const AV b = *(__global const AVu *)(bp + co0 + v * OCV);
-        union { AV v; A e[OCV]; } u[PX];
-        for (int p = 0; p < PX; ++p)
-            u[p].v = acc[v][p] + b;
-        if (!(flags & (F_RES_BEFORE | F_RES_AFTER))) {
-            for (int p = 0; p < PX; ++p)
-                u[p].v = APPLY_ACT(u[p].v, alpha);
+        /* The tile goes through a private array by vstore: lanes read back by a
+         * variable index (a union, or a subscript) confuse oclgrind's
+         * uninitialised-value tracking on the kernel's second launch. */
+        A u[PX][OCV];
+        for (int p = 0; p < PX; ++p) {
+            AV t = acc[v][p] + b;
+            if (!(flags & (F_RES_BEFORE | F_RES_AFTER)))
+                t = APPLY_ACT(t, alpha);
+            VSTORE_AV(t, 0, u[p]);
         }
         for (int j = 0; j < OCV; ++j) {
             const int c = v * OCV + j;
@@ -613,7 +631,7 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
             if (flags & (F_RES_BEFORE | F_RES_AFTER)) {
                 for (int p = 0; p < np; ++p) {
                     const A r = FLD(res, o + p);
-                    A t = u[p].e[j];
+                    A t = u[p][j];
                     if (flags & F_RES_BEFORE)
                         t += r;
                     t = APPLY_ACT(t, alpha);
@@ -623,10 +641,10 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
                 }
             } else if (np == PX) {
                 for (int p = 0; p < PX; ++p)
-                    FST(y, o + p, u[p].e[j]);
+                    FST(y, o + p, u[p][j]);
             } else {
                 for (int p = 0; p < np; ++p)
-                    FST(y, o + p, u[p].e[j]);
+                    FST(y, o + p, u[p][j]);
             }
         }
     }
