@@ -105,12 +105,12 @@ FUSED_ROWS = 32       # block rows a work-item of the fused kernel walks down
 
 
 def frame(dev: Device, prec: str, color, feat, weights, defines: dict, *, exposure=1.0,
-          pq_scale=0.01, inv_pq_scale=100.0, out=None, blk=None, fused=None, rows=None, vec=None):
+          pq_scale=0.01, inv_pq_scale=100.0, out=None, blk=None, pq=None, fused=None, rows=None, vec=None):
     """The whole frame step: color [h, w, 3] linear, feat [H, W] -> [H, W, 3] linear.
     fused: None (the fused fast path where its self-check passed on this device, else the
     reference pair blocks + fold, which writes its blocks to `blk` when given), False (the
     reference pair) or True (mlp_upscale_pq_v + mlp_upscale_fused, `vec` lanes, `rows` block
-    rows per work-item)."""
+    rows per work-item; `pq` its [3, h, w] float32 scratch when given)."""
     check_storage("color", color, prec)
     check_storage("feat", feat, prec)
     h, w, _ = color.shape
@@ -132,7 +132,8 @@ def frame(dev: Device, prec: str, color, feat, weights, defines: dict, *, exposu
     v = int(vec or FUSED_VEC)
     opts = dict(defines, VEC=v, FUSED=1)
     rows = FUSED_ROWS if rows is None else int(rows)
-    pq = dev.empty((3, h, w), "fp32")
+    if pq is None:
+        pq = dev.empty((3, h, w), "fp32")
     dev.launch(dev.kernel(KERNEL, "mlp_upscale_pq_v", prec, **opts),
                (_round_up(-(-w // v), VLOCAL[0]), _round_up(h, VLOCAL[1])),
                (color.data, pq.data, np.int32(h), np.int32(w), np.float32(1.0 / exposure),
