@@ -369,11 +369,16 @@ typedef float FV __attribute__((ext_vector_type(VEC)));
 typedef float FVu __attribute__((ext_vector_type(VEC), aligned(4)));
 typedef int IV __attribute__((ext_vector_type(VEC)));
 
-#if VEC == 16
-#define LSHIFT(v) __builtin_shufflevector((v), (v), 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 15)
-#else
-#define LSHIFT(v) __builtin_shufflevector((v), (v), 1, 2, 3, 4, 5, 6, 7, 7)
-#endif
+/* lane l <- lane l+1, the last lane zero; lane by lane (the optimiser makes it one
+ * shuffle): oclgrind's uninitialised-value tracking reports every __builtin_shufflevector */
+inline FV fu_lshift(FV v)
+{
+    FV r = (FV)(0.0f);
+    _Pragma("unroll") for (int l = 0; l < VEC - 1; ++l)
+        r[l] = v[l + 1];
+    return r;
+}
+#define LSHIFT(v) fu_lshift(v)
 
 /* |x| and sign by selects: no builtin calls */
 #define FABS(x) ((x) < 0.0f ? -(x) : (x))
@@ -439,23 +444,25 @@ __kernel void mlp_upscale_pq_v(__global const T *color, __global float *pq, int 
     const int n = min(VEC, w - j0);
     for (int c = 0; c < 3; ++c) {
         FV v = (FV)(0.0f);
-        float *pv = (float *)&v;
         for (int l = 0; l < n; ++l)
-            pv[l] = FLD(color, (p0 + l) * 3 + c);
+            v[l] = FLD(color, (p0 + l) * 3 + c);
         v = fu_pq_encode(v * inv_exposure, pq_scale);
         if (n == VEC) {
             *(__global FVu *)(pq + c * hw + p0) = v;
         } else {
             for (int l = 0; l < n; ++l)
-                pq[c * hw + p0 + l] = pv[l];
+                pq[c * hw + p0 + l] = v[l];
         }
     }
 }
 
 /* K outputs of a dense layer at a time: ACC[k] += W[k][q] * IN[q] for q < NIN, the weight
- * a broadcast scalar at a compile-time offset from WB (row stride STRIDE). */
+ * a broadcast scalar at a compile-time offset from WB + q (row stride STRIDE). The q loop
+ * is not unrolled: unrolled, the scheduler computes one output after the other (one
+ * accumulator, a chain of dependent FMAs at the FMA latency) to save registers; a loop
+ * iteration keeps the K independent accumulators in flight. */
 #define FU_GEMM(ACC, K, WB, STRIDE, IN, NIN)                                  \
-    _Pragma("unroll") for (int q = 0; q < (NIN); ++q) {                       \
+    _Pragma("nounroll") for (int q = 0; q < (NIN); ++q) {                     \
         const FV xq = IN[q];                                                  \
         _Pragma("unroll") for (int k = 0; k < (K); ++k)                       \
             ACC[k] = (FV)((WB)[k * (STRIDE) + q]) * xq + ACC[k];              \
@@ -475,12 +482,11 @@ __kernel void mlp_upscale_pq_v(__global const T *color, __global float *pq, int 
         for (int t = 0; t < S; ++t) {                                            \
             const FV lin = fu_pq_decode(V[t] * (INV[t] * (VSCALE)), inv_pq_scale) \
                            * exposure;                                           \
-            const float *pl = (const float *)&lin;                               \
             __global T *orow = out + (long)(yy) * W * 3 + c;                     \
             for (int l = 0; l < VEC - 1; ++l) {                                  \
                 const int xx = S * (jb0 + l) + 1 + t;                            \
                 if (xx >= 0 && xx < W)                                           \
-                    FST(orow, (long)xx * 3, pl[l]);                              \
+                    FST(orow, (long)xx * 3, lin[l]);                             \
             }                                                                    \
         }                                                                        \
     }
@@ -506,11 +512,10 @@ __kernel void mlp_upscale_fused(__global const float *pq, __global const T *feat
     const long hw = (long)h * w;
 
     /* lane masks and the reciprocal counts of the S column classes */
-    FV lm, inv_h[S];
+    FV lm = (FV)(0.0f), inv_h[S];
     {
-        float *p = (float *)&lm;
         for (int l = 0; l < VEC; ++l)
-            p[l] = (jb0 + l >= 0 && jb0 + l < w) ? 1.0f : 0.0f;
+            lm[l] = (jb0 + l >= 0 && jb0 + l < w) ? 1.0f : 0.0f;
         const FV both = lm + LSHIFT(lm);
         for (int t = 0; t < S; ++t)
             inv_h[t] = 1.0f / (t >= S - 2 ? both : lm);
@@ -535,9 +540,8 @@ __kernel void mlp_upscale_fused(__global const float *pq, __global const T *feat
                     const long row = (long)clamp(S * ib - 1 + dy, 0, H - 1) * W;
                     for (int dx = 0; dx < TAPS; ++dx) {
                         FV v = (FV)(0.0f);
-                        float *pv = (float *)&v;
                         for (int l = 0; l < VEC; ++l)
-                            pv[l] = FLD(feat, row + clamp(S * clamp(jb0 + l, 0, w - 1) - 1 + dx,
+                            v[l] = FLD(feat, row + clamp(S * clamp(jb0 + l, 0, w - 1) - 1 + dx,
                                                           0, W - 1));
                         x[dy * TAPS + dx] = v;
                         m += v;
@@ -574,9 +578,8 @@ __kernel void mlp_upscale_fused(__global const float *pq, __global const T *feat
                             v = *(__global const FVu *)(pc + row + jb0 - 2 + dx);
                         } else {
                             v = (FV)(0.0f);
-                            float *pv = (float *)&v;
                             for (int l = 0; l < VEC; ++l)
-                                pv[l] = pc[row + clamp(jb0 + l - 2 + dx, 0, w - 1)];
+                                v[l] = pc[row + clamp(jb0 + l - 2 + dx, 0, w - 1)];
                         }
                         x[dy * TAPS + dx] = v;
                         m += v;
