@@ -1,5 +1,6 @@
 """The shader MLP's bench room: its frame step as a bench case, clss.Upscaler(method="mlp")'s
-device path (clss/methods/mlp/mlp_upscale.cl: the PQ pass, the pixel-vector block pass and the fold)
+device path (clss/methods/mlp/mlp_upscale.cl: the PQ pass and the fused GEMM + fold kernel, or
+the reference pair where the fast path is disabled)
 against onnxruntime on the same step's whole-frame ONNX graph (clss/methods/mlp/oracle.py),
 at 540p -> 1080p (2x) and 360p -> 1080p (3x), with trained-like (random, non-zero) weights.
 The suite finds the room by its name (bench/methods/__init__.py). `measure()` also times one
@@ -66,8 +67,10 @@ def mlp_frame_case(render_size, scale: int, tier: str) -> BenchCase:
         st = 2 if prec != "fp32" else 4
         io = (color.size + dhr.size + H * W * 3) * st
         blocks = 3 * (scale + 2) ** 2 * h * w
+        # the fused step moves the frame and the PQ planes once; the blocks go through
+        # memory only on the reference pair (and onnxruntime)
         return Setup(run, twin, {"color": color, "depth_hr": dhr}, NET_TOL[prec],
-                     io + 2 * blocks * st + 2 * 3 * h * w * 4,
+                     io + 2 * 3 * h * w * 4,
                      io * 4 // st + 2 * blocks * 4, out_index=0)
     return frame_bench_case("mlp", scale, tier, flops, build, (h, w), (H, W))
 

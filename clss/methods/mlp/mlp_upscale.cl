@@ -343,3 +343,313 @@ __kernel void mlp_upscale_blocks_v(__global const float *pq, __global const T *f
     }
 }
 #endif
+
+/* ---- the fused fast path (-DFUSED=1 -DVEC=8|16; fastpath.py registers it with
+ * clss.selfcheck against the reference pair mlp_upscale_blocks + mlp_upscale_fold) -------
+ *
+ *   mlp_upscale_pq_v     per VEC render pixels: the PQ encode into [3][h][w] float planes
+ *                        (exp2/log2 on whole vectors);
+ *   mlp_upscale_fused    the MLP as a GEMM whose M dimension is the render pixels: VEC
+ *                        horizontally adjacent blocks are the lanes of a vector, each weight
+ *                        a scalar broadcast into the FMAs, K outputs at a time in registers;
+ *                        the fold in the same kernel: a work-item walks `rows` block rows
+ *                        down, the lanes of one block row are folded with the next lane by a
+ *                        lane shift, the rows with the previous row's bottom held in private
+ *                        memory; each output pixel is written once, PQ-decoded.
+ *
+ * Ownership: block (i, j) owns the output pixels (S*i+1 .. S*i+S, S*j+1 .. S*j+S); those
+ * are covered by blocks i, i+1 and j, j+1 only, so that lane l (block j0+l) owns its S
+ * columns with lane l+1's help: VEC lanes own VEC-1 blocks and the last lane is computed
+ * for its neighbour's sake. Block -1 (outside the frame, masked to zero) owns output row
+ * and column 0. The gamma ramp at GAMMA = 2 is a square root and a square (the same values
+ * as pow to an ulp), with no library call among the vector registers. */
+#if defined(FUSED) && defined(VEC) && VEC > 1
+#pragma OPENCL FP_CONTRACT ON
+typedef float FV __attribute__((ext_vector_type(VEC)));
+typedef float FVu __attribute__((ext_vector_type(VEC), aligned(4)));
+typedef int IV __attribute__((ext_vector_type(VEC)));
+
+/* lane l <- lane l+1, the last lane zero; lane by lane (the optimiser makes it one
+ * shuffle): oclgrind's uninitialised-value tracking reports every __builtin_shufflevector */
+inline FV fu_lshift(FV v)
+{
+    FV r = (FV)(0.0f);
+    _Pragma("unroll") for (int l = 0; l < VEC - 1; ++l)
+        r[l] = v[l + 1];
+    return r;
+}
+#define LSHIFT(v) fu_lshift(v)
+
+/* |x| and sign by selects: no builtin calls */
+#define FABS(x) ((x) < 0.0f ? -(x) : (x))
+
+inline FV fu_ramp(FV r)
+{
+    const FV a = FABS(r) + (float)EPS;
+    FV mag;
+    if ((float)GAMMA == 2.0f)
+        mag = sqrt(a) - (float)EPS_ROOT;
+    else
+        mag = exp2(log2(a) * (float)INV_GAMMA) - (float)EPS_ROOT;
+    return r > 0.0f ? mag : (r < 0.0f ? -mag : (FV)(0.0f));
+}
+
+inline FV fu_ramp_inv(FV y)
+{
+    const FV a = FABS(y) + (float)EPS_ROOT;
+    FV mag;
+    if ((float)GAMMA == 2.0f)
+        mag = a * a - (float)EPS;
+    else
+        mag = exp2(log2(a) * (float)GAMMA) - (float)EPS;
+    return y > 0.0f ? mag : (y < 0.0f ? -mag : (FV)(0.0f));
+}
+
+/* x^y for x >= 0 (0 at 0), whole vectors: exp2/log2 vectorise */
+inline FV fu_pow(FV x, float y)
+{
+    return x > 0.0f ? exp2(y * log2(x)) : (FV)(0.0f);
+}
+
+inline FV fu_clamp01(FV x)
+{
+    return x < 0.0f ? (FV)(0.0f) : (x > 1.0f ? (FV)(1.0f) : x);
+}
+
+inline FV fu_pq_encode(FV x, float pq_scale)
+{
+    const FV y = fu_clamp01(x * pq_scale);
+    const FV ym = fu_pow(y, (float)PQ_M1);
+    return fu_pow((PQ_C1 + PQ_C2 * ym) / (1.0f + PQ_C3 * ym), (float)PQ_M2);
+}
+
+inline FV fu_pq_decode(FV e, float inv_pq_scale)
+{
+    const FV ep = fu_pow(fu_clamp01(e), 1.0f / (float)PQ_M2);
+    const FV d = ep - PQ_C1;
+    return fu_pow((d < 0.0f ? (FV)(0.0f) : d) / (PQ_C2 - PQ_C3 * ep), 1.0f / (float)PQ_M1)
+           * inv_pq_scale;
+}
+
+/** @param[in]  color  [h][w][3] linear colour
+ *  @param[out] pq     [3][h][w] PQ-encoded planes (float)
+ *  NDRange: (ceil(w / VEC), h) rounded up to the work-group; the kernel guards. */
+__kernel void mlp_upscale_pq_v(__global const T *color, __global float *pq, int h, int w,
+                               float inv_exposure, float pq_scale)
+{
+    const int j0 = get_global_id(0) * VEC, i = get_global_id(1);
+    if (j0 >= w || i >= h)
+        return;
+    const long p0 = (long)i * w + j0, hw = (long)h * w;
+    const int n = min(VEC, w - j0);
+    for (int c = 0; c < 3; ++c) {
+        FV v = (FV)(0.0f);
+        for (int l = 0; l < n; ++l)
+            v[l] = FLD(color, (p0 + l) * 3 + c);
+        v = fu_pq_encode(v * inv_exposure, pq_scale);
+        if (n == VEC) {
+            *(__global FVu *)(pq + c * hw + p0) = v;
+        } else {
+            for (int l = 0; l < n; ++l)
+                pq[c * hw + p0 + l] = v[l];
+        }
+    }
+}
+
+/* K outputs of a dense layer at a time: ACC[k] += W[k][q] * IN[q] for q < NIN, the weight
+ * a broadcast scalar at a compile-time offset from WB + q (row stride STRIDE). The q loop
+ * is not unrolled: unrolled, the scheduler computes one output after the other (one
+ * accumulator, a chain of dependent FMAs at the FMA latency) to save registers; a loop
+ * iteration keeps the K independent accumulators in flight. */
+#define FU_GEMM(ACC, K, WB, STRIDE, IN, NIN)                                  \
+    _Pragma("nounroll") for (int q = 0; q < (NIN); ++q) {                     \
+        const FV xq = IN[q];                                                  \
+        _Pragma("unroll") for (int k = 0; k < (K); ++k)                       \
+            ACC[k] = (FV)((WB)[k * (STRIDE) + q]) * xq + ACC[k];              \
+    }
+
+#define FU_K 10          /* hidden outputs per register tile (50 = 5 x 10) */
+#if BB % 8 == 0
+#define FU_K3 8
+#else
+#define FU_K3 5
+#endif
+
+/* Store one output row's S column classes of one channel: V[t] the sums, INV[t] the
+ * reciprocal counts (lanes), y the output row. */
+#define FU_STORE_ROW(V, INV, VSCALE, yy)                                         \
+    if ((yy) >= 0 && (yy) < H) {                                                 \
+        for (int t = 0; t < S; ++t) {                                            \
+            const FV lin = fu_pq_decode(V[t] * (INV[t] * (VSCALE)), inv_pq_scale) \
+                           * exposure;                                           \
+            __global T *orow = out + (long)(yy) * W * 3 + c;                     \
+            for (int l = 0; l < VEC - 1; ++l) {                                  \
+                const int xx = S * (jb0 + l) + 1 + t;                            \
+                if (xx >= 0 && xx < W)                                           \
+                    FST(orow, (long)xx * 3, lin[l]);                             \
+            }                                                                    \
+        }                                                                        \
+    }
+
+/** @param[in]  pq            [3][h][w] from mlp_upscale_pq_v
+ *  @param[in]  feat          [H][W] depth at output resolution (unused when FEATURE=0)
+ *  @param[in]  wp            the packed weights (float)
+ *  @param[out] out           [H][W][3] linear colour
+ *  @param[in]  h, w, H, W    render and output sizes
+ *  @param[in]  rows          block rows a work-item owns
+ *  @param[in]  exposure      applied after the PQ decode
+ *  @param[in]  inv_pq_scale  10000 / nits
+ *  NDRange: (ceil((w + 1) / (VEC - 1)), ceil((h + 1) / rows)); any work-group. */
+__kernel void mlp_upscale_fused(__global const float *pq, __global const T *feat,
+                                __global const float *wp, __global T *out,
+                                int h, int w, int H, int W, int rows, float exposure,
+                                float inv_pq_scale)
+{
+    const int jb0 = (int)get_global_id(0) * (VEC - 1) - 1;
+    const int ib0 = (int)get_global_id(1) * rows - 1;
+    if (jb0 >= w || ib0 >= h)
+        return;
+    const long hw = (long)h * w;
+
+    /* lane masks and the reciprocal counts of the S column classes */
+    FV lm = (FV)(0.0f), inv_h[S];
+    {
+        for (int l = 0; l < VEC; ++l)
+            lm[l] = (jb0 + l >= 0 && jb0 + l < w) ? 1.0f : 0.0f;
+        const FV both = lm + LSHIFT(lm);
+        for (int t = 0; t < S; ++t)
+            inv_h[t] = 1.0f / (t >= S - 2 ? both : lm);
+    }
+    /* lane l reads the clamped block column (blocks outside the frame are masked out) */
+    const int interior = jb0 >= 2 && jb0 + VEC + 2 <= w;
+
+    FV carry[3][2][S];          /* the previous block row's unit rows S and S+1, folded */
+    float carry_valid = 0.0f;
+    FV f1[NH], x[NT], h1[NH], h2[NH], vb[BB], hr[B][S];
+
+    for (int ib = ib0; ib <= ib0 + rows; ++ib) {
+        const int valid = ib >= 0 && ib < h;
+        const float rv = valid ? 1.0f : 0.0f;
+        const int owned = ib < ib0 + rows;
+        if (valid) {
+            /* the feature half of layer 1 (+ bias), shared by the three channels */
+#if FEATURE
+            {
+                FV m = (FV)(0.0f);
+                for (int dy = 0; dy < TAPS; ++dy) {
+                    const long row = (long)clamp(S * ib - 1 + dy, 0, H - 1) * W;
+                    for (int dx = 0; dx < TAPS; ++dx) {
+                        FV v = (FV)(0.0f);
+                        for (int l = 0; l < VEC; ++l)
+                            v[l] = FLD(feat, row + clamp(S * clamp(jb0 + l, 0, w - 1) - 1 + dx,
+                                                          0, W - 1));
+                        x[dy * TAPS + dx] = v;
+                        m += v;
+                    }
+                }
+                m *= 1.0f / NT;
+                for (int k = 0; k < NT; ++k)
+                    x[k] = fu_ramp(x[k] - m);
+                _Pragma("nounroll") for (int o = 0; o < NH; o += FU_K) {
+                    FV a[FU_K];
+                    __global const float *w0 = wp + OFF1 + o * NI + NT;
+                    _Pragma("unroll") for (int k = 0; k < FU_K; ++k)
+                        a[k] = (FV)(wp[OFF1 + NH * NI + o + k]);
+                    FU_GEMM(a, FU_K, w0, NI, x, NT)
+                    _Pragma("unroll") for (int k = 0; k < FU_K; ++k)
+                        f1[o + k] = a[k];
+                }
+            }
+#else
+            for (int o = 0; o < NH; ++o)
+                f1[o] = (FV)(wp[OFF1 + NH * NI + o]);
+#endif
+        }
+
+        for (int c = 0; c < 3; ++c) {
+            if (valid) {
+                __global const float *pc = pq + c * hw;
+                FV m = (FV)(0.0f);
+                for (int dy = 0; dy < TAPS; ++dy) {
+                    const long row = (long)clamp(ib - 2 + dy, 0, h - 1) * w;
+                    for (int dx = 0; dx < TAPS; ++dx) {
+                        FV v;
+                        if (interior) {
+                            v = *(__global const FVu *)(pc + row + jb0 - 2 + dx);
+                        } else {
+                            v = (FV)(0.0f);
+                            for (int l = 0; l < VEC; ++l)
+                                v[l] = pc[row + clamp(jb0 + l - 2 + dx, 0, w - 1)];
+                        }
+                        x[dy * TAPS + dx] = v;
+                        m += v;
+                    }
+                }
+                m *= 1.0f / NT;
+                for (int k = 0; k < NT; ++k)
+                    x[k] = fu_ramp(x[k] - m);
+
+                _Pragma("nounroll") for (int o = 0; o < NH; o += FU_K) {
+                    FV a[FU_K];
+                    __global const float *w0 = wp + OFF1 + o * NI;
+                    _Pragma("unroll") for (int k = 0; k < FU_K; ++k)
+                        a[k] = f1[o + k];
+                    FU_GEMM(a, FU_K, w0, NI, x, NT)
+                    _Pragma("unroll") for (int k = 0; k < FU_K; ++k)
+                        h1[o + k] = a[k] < 0.0f ? a[k] * (float)ALPHA : a[k];
+                }
+                _Pragma("nounroll") for (int o = 0; o < NH; o += FU_K) {
+                    FV a[FU_K];
+                    __global const float *w0 = wp + OFF2 + o * NH;
+                    _Pragma("unroll") for (int k = 0; k < FU_K; ++k)
+                        a[k] = (FV)(wp[OFF2 + NH * NH + o + k]);
+                    FU_GEMM(a, FU_K, w0, NH, h1, NH)
+                    _Pragma("unroll") for (int k = 0; k < FU_K; ++k)
+                        h2[o + k] = a[k] < 0.0f ? a[k] * (float)ALPHA : a[k];
+                }
+                _Pragma("nounroll") for (int o = 0; o < BB; o += FU_K3) {
+                    FV a[FU_K3];
+                    __global const float *w0 = wp + OFF3 + o * NH;
+                    _Pragma("unroll") for (int k = 0; k < FU_K3; ++k)
+                        a[k] = (FV)(wp[OFF3 + NO * NH + o + k]);
+                    FU_GEMM(a, FU_K3, w0, NH, h2, NH)
+                    _Pragma("unroll") for (int k = 0; k < FU_K3; ++k)
+                        vb[o + k] = (m + fu_ramp_inv(a[k])) * lm;
+                }
+                /* fold each unit row with the next lane's block: column class t of lane
+                 * l is output column S*j+1+t, unit t+2 of its block and, for t >= S-2,
+                 * unit t+2-S of block j+1 */
+                for (int r = 0; r < B; ++r)
+                    for (int t = 0; t < S; ++t)
+                        hr[r][t] = t >= S - 2 ? vb[r * B + t + 2] + LSHIFT(vb[r * B + t + 2 - S])
+                                              : vb[r * B + t + 2];
+            } else {
+                for (int r = 0; r < B; ++r)
+                    for (int t = 0; t < S; ++t)
+                        hr[r][t] = (FV)(0.0f);
+            }
+
+            /* rows S*ib-1 and S*ib: the previous block row's units S, S+1 and this one's
+             * units 0, 1 */
+            if (ib > ib0) {
+                const float vs = 1.0f / (carry_valid + rv);
+                for (int k = 0; k < 2; ++k) {
+                    FV sum[S];
+                    for (int t = 0; t < S; ++t)
+                        sum[t] = carry[c][k][t] + hr[k][t];
+                    FU_STORE_ROW(sum, inv_h, vs, S * ib - 1 + k)
+                }
+            }
+            if (owned) {
+                /* rows S*ib+1 .. S*ib+S-2: this block row alone */
+                for (int k = 2; k < S; ++k)
+                    FU_STORE_ROW(hr[k], inv_h, 1.0f, S * ib - 1 + k)
+                for (int k = 0; k < 2; ++k)
+                    for (int t = 0; t < S; ++t)
+                        carry[c][k][t] = hr[S + k][t];
+            }
+        }
+        carry_valid = rv;
+    }
+}
+#endif

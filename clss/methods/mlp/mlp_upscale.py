@@ -99,5 +99,52 @@ def fold(dev: Device, prec: str, blk, defines: dict, *, exposure=1.0, inv_pq_sca
     return out
 
 
+FUSED = "mlp_upscale.fused"
+FUSED_VEC = 16       # render pixels (blocks) per vector: 15 owned, one for the neighbour
+FUSED_ROWS = 32       # block rows a work-item of the fused kernel walks down
+
+
+def frame(dev: Device, prec: str, color, feat, weights, defines: dict, *, exposure=1.0,
+          pq_scale=0.01, inv_pq_scale=100.0, out=None, blk=None, pq=None, fused=None, rows=None, vec=None):
+    """The whole frame step: color [h, w, 3] linear, feat [H, W] -> [H, W, 3] linear.
+    fused: None (the fused fast path where its self-check passed on this device, else the
+    reference pair blocks + fold, which writes its blocks to `blk` when given), False (the
+    reference pair) or True (mlp_upscale_pq_v + mlp_upscale_fused, `vec` lanes, `rows` block
+    rows per work-item; `pq` its [3, h, w] float32 scratch when given)."""
+    check_storage("color", color, prec)
+    check_storage("feat", feat, prec)
+    h, w, _ = color.shape
+    s = int(defines["S"])
+    H, W = s * h, s * w
+    if out is None:
+        out = dev.empty((H, W, 3), prec)
+    if fused is None:
+        fused = selfcheck.enabled(dev, prec, FUSED)
+    if not fused:
+        blk = blocks(dev, prec, color, feat, weights, defines, inv_exposure=1.0 / exposure,
+                     pq_scale=pq_scale, out=blk)
+        return fold(dev, prec, blk, defines, exposure=exposure, inv_pq_scale=inv_pq_scale,
+                    out=out)
+    if weights.dtype != np.float32 or weights.size != WEIGHT_COUNT:
+        raise ValueError("mlp_upscale.frame: weights must come from pack_weights")
+    if feat.shape[:2] != (H, W):
+        raise ValueError(f"feat: expected [{H}, {W}] at scale {s}, got {feat.shape}")
+    v = int(vec or FUSED_VEC)
+    opts = dict(defines, VEC=v, FUSED=1)
+    rows = FUSED_ROWS if rows is None else int(rows)
+    if pq is None:
+        pq = dev.empty((3, h, w), "fp32")
+    dev.launch(dev.kernel(KERNEL, "mlp_upscale_pq_v", prec, **opts),
+               (_round_up(-(-w // v), VLOCAL[0]), _round_up(h, VLOCAL[1])),
+               (color.data, pq.data, np.int32(h), np.int32(w), np.float32(1.0 / exposure),
+                np.float32(pq_scale)), local_size=VLOCAL)
+    dev.launch(dev.kernel(KERNEL, "mlp_upscale_fused", prec, **opts),
+               (-(-(w + 1) // (v - 1)), -(-(h + 1) // rows)),
+               (pq.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
+                np.int32(H), np.int32(W), np.int32(rows), np.float32(exposure),
+                np.float32(inv_pq_scale)), local_size=(1, 1))
+    return out
+
+
 # The fast path (VEC pixel vectors) is registered with clss.selfcheck by fastpath.py,
 # whose check runs the method's own geometry and weights.

@@ -142,6 +142,24 @@ def fold_graph(render_size, scale) -> onnx.ModelProto:
                   "mlp_upscale_fold")
 
 
+def frame_pq_graph(render_size, scale, tensors, feature=True, nits=PQ_NITS) -> onnx.ModelProto:
+    """The twin of the whole frame step (mlp_upscale.frame: the fused kernel or the pair)
+    with the output PQ-encoded again, so that a conformance case compares code values as
+    the method's tests do: color [h, w, 3], feat [H, W] -> output_pq [H, W, 3]."""
+    h, w = render_size
+    s = tf.check_scale(scale)
+    g = GraphBuilder(OPSET)
+    blk = add_blocks(g, "color", "feat", tensors, render_size, s, feature, nits)
+    lin = add_fold(g, blk, render_size, s, nits, name="linear")
+    g.op("Identity", pq_encode(g, lin, nits), name="output_pq")
+    inputs = [_vi("color", (h, w, 3)), _vi("feat", (s * h, s * w))]
+    outs = [_vi("output_pq", (s * h, s * w, 3))]
+    if not feature:
+        g.op("Identity", "feat", name="feat_unused")
+        outs.append(_vi("feat_unused", (s * h, s * w)))
+    return _model(g, inputs, outs, "mlp_upscale_frame")
+
+
 class OracleMlp:
     """Frame-by-frame runner of the twin with the contract's `step`. precision="fp16"
     feeds it the fp16-rounded weights the device's fp16 path uses."""

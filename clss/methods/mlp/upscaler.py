@@ -14,10 +14,13 @@ methods "mlp" (beauty + the depth feature pass at output resolution) and "mlp-no
     up.save_weights("learnt.safetensors")
 
 Not temporal: each frame is upscaled on its own (depth, motion and jitter are accepted,
-as the contract's step, and not used). The frame step is two kernels
-(mlp_upscale.cl in this room, launched by its mlp_upscale.py): the fused gather + transform
-+ MLP per render pixel, and the overlap average + PQ decode per output pixel; the
-geometry and transform are transform.py's (docs/methods/mlp.md).
+as the contract's step, and not used). The frame step
+(mlp_upscale.cl in this room, launched by its mlp_upscale.frame): a PQ pass and one kernel
+that runs the MLP as a GEMM over render pixels and writes each output pixel once, the
+overlapping blocks averaged in registers (the fast path, self-checked); its reference is
+the pair of the fused gather + transform + MLP per render pixel and the overlap average +
+PQ decode per output pixel; the geometry and transform are transform.py's
+(docs/methods/mlp.md).
 """
 from __future__ import annotations
 
@@ -44,14 +47,17 @@ class MlpFrame:
         self.in_color = e((self.h, self.w, 3), precision)
         # the ablation reads no feature: a buffer it never looks at stands for it
         self.in_depth_hr = e((self.H, self.W), precision)
-        self.blocks = e((3, b * b, self.h, self.w), precision)
+        # the reference pair's blocks [3][B*B][h][w], made when that pair runs (the fused
+        # frame step needs none)
+        self.bb, self.blocks = b * b, None
+        self.pq = None        # the fused step's PQ planes [3][h][w] float, made when it runs
         self.out = e((self.H, self.W, 3), precision)
         # the caller's float32 output when the storage is half
         self.out32 = None if precision == "fp32" else e((self.H, self.W, 3), dtype=np.float32)
 
     def device_bytes(self) -> int:
         return sum(int(a.nbytes) for a in (self.in_color, self.in_depth_hr, self.blocks,
-                                           self.out, self.out32) if a is not None)
+                                           self.pq, self.out, self.out32) if a is not None)
 
 
 class MlpUpscaler(MethodUpscaler):
@@ -162,15 +168,20 @@ class MlpUpscaler(MethodUpscaler):
         feat = arrays.get("depth_hr") if self.feature else fs.in_depth_hr
         if feat is not fs.in_depth_hr:
             feat = convert_storage(feat, fs.in_depth_hr.dtype, out=fs.in_depth_hr)
-        ops.blocks(self.dev, self.precision, color, feat, self._w, self.defines,
-                   inv_exposure=1.0 / self.exposure, pq_scale=self.pq_scale, out=fs.blocks)
+        from ... import selfcheck
+        fused = selfcheck.enabled(self.dev, self.precision, ops.FUSED)
+        if not fused and fs.blocks is None:
+            fs.blocks = fs.dev.empty((3, fs.bb, fs.h, fs.w), fs.prec)
+        if fused and fs.pq is None:
+            fs.pq = fs.dev.empty((3, fs.h, fs.w), "fp32")
+        kw = dict(exposure=self.exposure, pq_scale=self.pq_scale,
+                  inv_pq_scale=self.inv_pq_scale, blk=fs.blocks, pq=fs.pq, fused=fused)
         if fs.out32 is None:
-            res = ops.fold(self.dev, self.precision, fs.blocks, self.defines,
-                           exposure=self.exposure, inv_pq_scale=self.inv_pq_scale,
-                           out=fs.out if out is None else out)
+            res = ops.frame(self.dev, self.precision, color, feat, self._w, self.defines,
+                            out=fs.out if out is None else out, **kw)
         else:
-            ops.fold(self.dev, self.precision, fs.blocks, self.defines, exposure=self.exposure,
-                     inv_pq_scale=self.inv_pq_scale, out=fs.out)
+            ops.frame(self.dev, self.precision, color, feat, self._w, self.defines,
+                      out=fs.out, **kw)
             res = convert_storage(fs.out, np.float32, out=fs.out32 if out is None else out)
         return res, cl.enqueue_marker(self.dev.queue)
 

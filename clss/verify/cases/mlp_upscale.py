@@ -8,7 +8,7 @@ import numpy as np
 
 from ...methods.mlp import fastpath  # noqa: F401 (the fast path blocks() looks up)
 from ...methods.mlp import oracle, transform as tf
-from ...methods.mlp.mlp_upscale import blocks, fold, pack_weights
+from ...methods.mlp.mlp_upscale import blocks, fold, frame, pack_weights
 from ...ops.base import rng
 from ...tolerance import Tolerance
 from ..case import Case
@@ -61,12 +61,42 @@ def fold_case(h, w, scale) -> Case:
                 oracle.fold_graph((h, w), s), run, tol=dict(_TOL))
 
 
+# the whole frame in PQ code values, absolute: the method's test tolerances
+_FRAME_TOL = {"fp32": Tolerance(atol=1e-4, rtol=0.0), "fp16": Tolerance(atol=2e-3, rtol=0.0),
+              "fp16-native": Tolerance(atol=2e-3, rtol=0.0)}
+
+
+def frame_case(h, w, scale, feature=True) -> Case:
+    """The whole frame step (mlp_upscale.frame: the fused kernel where its fast path is
+    enabled, else blocks + fold), compared PQ-encoded."""
+    from ...pipeline.contract import pq_encode
+    g = rng("mlp_upscale.frame", h, w, scale, feature)
+    s = tf.check_scale(scale)
+    t = _weights(g)
+    color = (g.random((h, w, 3)) * 3.0).astype(np.float32)
+    feat = g.random((s * h, s * w)).astype(np.float32)
+    defines = tf.kernel_defines(s, feature)
+
+    def run(dev, prec, inputs):
+        c = dev.to_device(inputs["color"], prec)
+        f = dev.to_device(inputs["feat"], prec)
+        y = frame(dev, prec, c, f, pack_weights(dev, prec, tf.packed(t)), defines)
+        out = [pq_encode(np.asarray(dev.to_host(y), np.float32))]
+        return out if feature else out + [inputs["feat"]]
+
+    return Case("mlp_upscale_frame", f"{h}x{w} x{s}" + ("" if feature else " no-feature"),
+                {"color": color, "feat": feat}, oracle.frame_pq_graph((h, w), s, t, feature), run,
+                tol=dict(_FRAME_TOL))
+
+
 def cases(level: str = "quick") -> list[Case]:
     out = [blocks_case(5, 7, 2), fold_case(5, 7, 3)]
     if level == "tiny":
+        # the frame case runs under oclgrind on its own (tests/test_oclgrind.py)
         return out
-    out += [blocks_case(9, 11, 3), blocks_case(6, 9, 2, feature=False), fold_case(9, 11, 2)]
+    out += [blocks_case(9, 11, 3), blocks_case(6, 9, 2, feature=False), fold_case(9, 11, 2),
+            frame_case(5, 7, 3), frame_case(9, 37, 2), frame_case(6, 20, 3, feature=False)]
     if level == "quick":
         return out
     return out + [blocks_case(1, 1, 3), blocks_case(17, 23, 2), fold_case(1, 2, 2),
-                  fold_case(13, 19, 3)]
+                  fold_case(13, 19, 3), frame_case(1, 1, 2), frame_case(40, 47, 3)]
