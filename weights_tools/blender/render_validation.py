@@ -107,6 +107,8 @@ def new_scene():
     vl.use_pass_glossy_color = True
     vl.use_pass_normal = True
     s = scene.render.image_settings
+    if hasattr(s, "media_type"):        # Blender >= 5.0: multilayer is a media type
+        s.media_type = "MULTI_LAYER_IMAGE"
     s.file_format = "OPEN_EXR_MULTILAYER"
     s.color_depth = "32"
     s.exr_codec = "ZIP"
@@ -168,7 +170,8 @@ def material(name, color=(0.8, 0.8, 0.8), rough=0.5, tex=None, scale=10.0, color
         out = ramp.outputs["Color"] if tex in ("wave", "planks", "noise") else t.outputs["Color"]
         nt.links.new(out, bsdf.inputs["Base Color"])
     if emission:
-        bsdf.inputs["Emission"].default_value = (*emission, 1.0)
+        emit = bsdf.inputs.get("Emission Color") or bsdf.inputs["Emission"]   # 4.0 renamed it
+        emit.default_value = (*emission, 1.0)
         bsdf.inputs["Emission Strength"].default_value = strength
     return m
 
