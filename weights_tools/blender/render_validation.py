@@ -79,7 +79,9 @@ def halton_jitter(index, scale):
     return halton(k, 2) - 0.5, halton(k, 3) - 0.5
 
 
-def new_scene():
+def new_scene(threads=None):
+    """An empty Cycles scene with the passes of the contract; `threads`: Cycles' CPU
+    threads (default: up to 2; 1 when several renders share the machine)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -97,7 +99,7 @@ def new_scene():
     scene.render.film_transparent = False
     scene.render.resolution_percentage = 100
     scene.render.threads_mode = "FIXED"
-    scene.render.threads = max(1, min(2, os.cpu_count() or 1))
+    scene.render.threads = threads or max(1, min(2, os.cpu_count() or 1))
     vl = scene.view_layers[0]
     vl.use_pass_z = True
     vl.use_pass_vector = True
@@ -473,9 +475,15 @@ def camera_rotation(cam_obj):
     return [[float(m[i][j]) for j in range(3)] for i in range(3)]
 
 
-def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4):
-    scene = new_scene()
-    description = SCENES[name](scene, frames)
+def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4, build=None,
+                 threads=None, log=print):
+    """Render `frames` frames of scene `name` (SCENES) into out_dir (see the module's
+    docstring). `build(scene, frames)` replaces SCENES[name] (weights_tools.blender.families
+    passes its seeded families); it returns the description, or (description, cuts):
+    cuts are the frames (0-based) that start a new shot, recorded as resets."""
+    scene = new_scene(threads)
+    built = (build or SCENES[name])(scene, frames)
+    description, cuts = built if isinstance(built, tuple) else (built, ())
     w, h = size
     W, H = int(math.floor(w * scale + 0.5)), int(math.floor(h * scale + 0.5))
     cam = scene.camera.data
@@ -514,14 +522,18 @@ def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4):
         bpy.ops.render.render(write_still=True)
         t_hr += time.time() - t0
         record["frames"].append(dict(lr=f"lr_{f:04d}.exr", ref=f"ref_{f:04d}.exr",
-                                     hr=f"hr_{f:04d}.exr", jitter=[jx, jy], reset=f == 0,
+                                     hr=f"hr_{f:04d}.exr", jitter=[jx, jy],
+                                     reset=f == 0 or f in cuts,
                                      camera_rotation=camera_rotation(scene.camera)))
-        print(f"[render_validation] {name} frame {f + 1}/{frames}", flush=True)
+        if log:
+            log(f"[render_validation] {name} frame {f + 1}/{frames}")
     record["seconds"] = dict(lr=round(t_lr, 1), ref=round(t_ref, 1), hr=round(t_hr, 1))
     with open(os.path.join(out_dir, "frames.json"), "w") as fh:
         json.dump(record, fh, indent=1)
-    print(f"[render_validation] {name}: {frames} frames, low res {t_lr:.1f} s, "
-          f"reference {t_ref:.1f} s, output-res G-buffers {t_hr:.1f} s", flush=True)
+    if log:
+        log(f"[render_validation] {name}: {frames} frames, low res {t_lr:.1f} s, "
+            f"reference {t_ref:.1f} s, output-res G-buffers {t_hr:.1f} s")
+    return record
 
 
 def main(argv):
