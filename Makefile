@@ -85,6 +85,25 @@ train-data: $(STAMP)
 	test -f $(DATA)/val/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/val --sequences 8 --frames 12 --seed 2000 --size 90x160
 	test -f $(DATA)/heldout/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/heldout --sequences 16 --frames 12 --seed 1000 --size 90x160
 
+# Blender training data (issue 31; weights_tools/blender/shards.py, the [data] extra: bpy and
+# ray): the training families (BLENDER_SEQS sequences each) and the validation split,
+# then the held-out test families, 12 frames of 90x160 -> 180x320 each, Cycles at
+# 16 spp (colour) and 32 spp (reference), two Ray tasks of one Cycles thread side by side.
+# A killed run resumes (finished shards are kept). Measured on this shared 2-core machine:
+# see weights_tools/DATA.md (Blender shards).
+BLENDER_SEQS ?= 3
+BLENDER_ARGS ?=
+DATA_STAMP := $(VENV)/.data-stamp
+$(DATA_STAMP): $(STAMP)
+	$(BIN)/python -m pip install -q -e '.[test,data]'
+	touch $@
+
+.PHONY: train-data-blender
+train-data-blender: $(DATA_STAMP)
+	$(BIN)/python -m weights_tools blender --out $(DATA)/blender --split train --sequences $(BLENDER_SEQS) $(BLENDER_ARGS)
+	$(BIN)/python -m weights_tools blender --out $(DATA)/blender --split validation --sequences 1 $(BLENDER_ARGS)
+	$(BIN)/python -m weights_tools blender --out $(DATA)/blender --split test --sequences 2 $(BLENDER_ARGS)
+
 # Blender validation sequences (sparingly: about 20 minutes on 2 cores; needs
 # `apt-get install blender`): renders EXRs, converts them to weights_tools/validation/
 # (float16, committed) and $(DATA)/validation (float32).

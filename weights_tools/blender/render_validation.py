@@ -52,10 +52,10 @@ import os
 import sys
 import time
 
-try:
-    import bpy
-except ImportError:     # imported outside Blender (tests read the constants and halton)
-    bpy = None
+# Inside Blender (-P) bpy is already imported; elsewhere (weights_tools, tests reading the
+# constants and halton) it is imported by new_scene, the first bpy call of a render, so
+# that importing this module costs nothing where bpy is installed as a module (pip bpy).
+bpy = sys.modules.get("bpy")
 
 NEAR = 0.1   # camera clip start = the reversed-Z near plane of DATA.md
 
@@ -82,6 +82,9 @@ def halton_jitter(index, scale):
 def new_scene(threads=None):
     """An empty Cycles scene with the passes of the contract; `threads`: Cycles' CPU
     threads (default: up to 2; 1 when several renders share the machine)."""
+    global bpy
+    if bpy is None:
+        import bpy
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
