@@ -104,6 +104,15 @@ train-data-blender: $(DATA_STAMP)
 	$(BIN)/python -m weights_tools blender --out $(DATA)/blender --split validation --sequences 1 $(BLENDER_ARGS)
 	$(BIN)/python -m weights_tools blender --out $(DATA)/blender --split test --sequences 2 $(BLENDER_ARGS)
 
+# Every method on the held-out Blender families (the test split of train-data-blender):
+# README's "held-out Blender families" column. A method that needs a G-buffer a sequence
+# lacks skips that sequence, saying so.
+BLENDER_METHODS ?= bicubic,jbicubic,clss-rules,clss,mlp,mlp-nofeature,nsrr,nsrd
+.PHONY: eval-blender
+eval-blender: $(STAMP)
+	@test -f $(DATA)/blender/test/READY || { echo "make eval-blender: no held-out Blender set in $(DATA)/blender/test (make train-data-blender)"; exit 2; }
+	$(BIN)/python -m weights_tools eval $(DATA)/blender/test/*.npz --methods $(BLENDER_METHODS) --out $(OUT)/eval-blender --flip-every 4 $(EVAL_ARGS)
+
 # Blender validation sequences (sparingly: about 20 minutes on 2 cores; needs
 # `apt-get install blender`): renders EXRs, converts them to weights_tools/validation/
 # (float16, committed) and $(DATA)/validation (float32).
