@@ -147,18 +147,17 @@ def run(out, splits, family_names=None, sequences=2, jobs=2, threads=None, ray_a
     results = (_ray_results(todo, opts, ray_address, jobs) if use_ray and todo
                else (render_shard(j, opts) for j in todo))
 
-    def frames():
-        for r in results:
-            done["n"] += 1
-            done["frames"] += r["frames"]
-            done["task_s"] += r["seconds"]
-            done["render_s"] += r["render_seconds"]
-            for _ in range(r["frames"]):
-                yield r
-    for _ in progress(frames(), desc="blender", unit="frame",
-                      total=len(todo) * opts["frames"], file=log,
-                      status=lambda: f"{done['n']}/{len(todo)} sequences"):
-        pass
+    def status():
+        dt = time.perf_counter() - t0
+        return f"{done['frames']} frames, {done['frames'] / dt:.3f} frames/s"
+    # One item per finished sequence (a task reports when its shard is written); the
+    # status gives the frames and frames per second.
+    for r in progress(results, desc="blender", unit="sequence", total=len(todo), file=log,
+                      status=status):
+        done["n"] += 1
+        done["frames"] += r["frames"]
+        done["task_s"] += r["seconds"]
+        done["render_s"] += r["render_seconds"]
     wall = time.perf_counter() - t0
     stats = dict(sequences=len(todo), kept=len(all_jobs) - len(todo), frames=done["frames"],
                  seconds=round(wall, 1), task_seconds=round(done["task_s"], 1),
