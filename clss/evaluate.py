@@ -365,13 +365,27 @@ def format_table(methods_record, net_trained=None) -> str:
 
 def mean_over_sequences(records) -> dict:
     """Per method, the mean of each column over the sequences (those that have it: FLIP
-    may be off, and a sequence may have no disoccluded pixel)."""
+    may be off, a sequence may have no disoccluded pixel, and a method may have been
+    skipped on a sequence without the G-buffers it needs)."""
     def mean(values):
         v = [x for x in values if x is not None]
         return float(np.mean(v)) if v else None
-    methods = list(records[0]["methods"])
-    return {m: {k: mean([r["methods"][m].get(k) for r in records]) for _, k, _ in COLUMNS}
+    methods = []
+    for r in records:
+        methods += [m for m in r["methods"] if m not in methods]
+    return {m: {k: mean([r["methods"][m].get(k) for r in records if m in r["methods"]])
+                for _, k, _ in COLUMNS}
             for m in methods}
+
+
+def missing_gbuffers(name, seq) -> tuple:
+    """The G-buffers method `name` needs (its spec's `gbuffers`) that `seq` does not
+    carry; () for a name the registry does not know (a caller's own runner)."""
+    try:
+        needs = method_registry.spec(name).gbuffers
+    except ValueError:
+        return ()
+    return tuple(g for g in needs if g not in seq.get("gbuffers", {}))
 
 
 def run_eval(paths, methods=METHODS, weights=None, precision="fp32", warmup=4,
@@ -400,12 +414,24 @@ def run_eval(paths, methods=METHODS, weights=None, precision="fp32", warmup=4,
         seq = load_sequence(p)
         T, h, w = seq["color"].shape[:3]
         H, W = seq["reference"].shape[1:3]
+        # A method that needs a G-buffer this sequence lacks skips this sequence only.
+        skipped = {m: missing_gbuffers(m, seq) for m in methods}
+        skipped = {m: g for m, g in skipped.items() if g}
+        for m, g in skipped.items():
+            print(f"skip {m} on {seq['name']}: it needs the G-buffer(s) {', '.join(g)}, "
+                  f"which {seq['path']} does not carry", file=log, flush=True)
+        these = [m for m in methods if m not in skipped]
+        if not these:
+            print(f"skip {seq['name']}: no method left to score", file=log, flush=True)
+            continue
         print(f"{seq['name']}: {T} frames {w}x{h} -> {W}x{H} (x{seq['scale']:g}), "
-              f"{len(methods)} methods, {precision}", file=log, flush=True)
-        rec = evaluate_sequence(seq, methods, dev, precision=precision, warmup=warmup,
+              f"{len(these)} methods, {precision}", file=log, flush=True)
+        rec = evaluate_sequence(seq, these, dev, precision=precision, warmup=warmup,
                                 net_kwargs=net_kwargs, net_trained=trained, out_dir=out_dir,
                                 flip_every=flip_every, log=log)
         rec["name"] = seq["name"]
+        if skipped:
+            rec["skipped"] = {m: {"missing_gbuffers": list(g)} for m, g in skipped.items()}
         records.append(rec)
         print(f"\n{seq['name']}: {T} frames, {w}x{h} -> {W}x{H} (x{seq['scale']:g}), "
               f"{len(rec['scored_frames'])} scored (warm-up {warmup} per reset), {precision}")

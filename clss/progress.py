@@ -10,17 +10,27 @@ LOG_INTERVAL_S = 5.0
 
 
 def progress(iterable, desc: str = "", unit: str = "it", total=None, file=None,
-             interval: float = LOG_INTERVAL_S):
+             interval: float = LOG_INTERVAL_S, status=None):
+    """`status`: optional callable -> short text shown after the count (tqdm's postfix;
+    appended to each plain line), read after every item."""
     out = file or sys.stderr
     if getattr(out, "isatty", lambda: False)():
         from tqdm import tqdm
-        return tqdm(iterable, desc=desc, unit=unit, total=total, file=out, dynamic_ncols=True)
+        bar = tqdm(iterable, desc=desc, unit=unit, total=total, file=out, dynamic_ncols=True)
+        return bar if status is None else _with_postfix(bar, status)
     if total is None and hasattr(iterable, "__len__"):
         total = len(iterable)
-    return _log_lines(iterable, desc, unit, total, out, interval)
+    return _log_lines(iterable, desc, unit, total, out, interval, status)
 
 
-def _log_lines(iterable, desc, unit, total, out, interval):
+def _with_postfix(bar, status):
+    with bar:
+        for item in bar:
+            yield item
+            bar.set_postfix_str(status(), refresh=False)
+
+
+def _log_lines(iterable, desc, unit, total, out, interval, status=None):
     """Yield from iterable; every `interval` seconds print 'desc: n/total unit (rate,
     ETA)'. Nothing for runs shorter than one interval."""
     t0 = last = time.perf_counter()
@@ -35,4 +45,5 @@ def _log_lines(iterable, desc, unit, total, out, interval):
             line = f"{desc}: {n}" + (f"/{total}" if total else "") + f" {unit}s ({rate:.2f} {unit}/s"
             if total and rate > 0:
                 line += f", ETA {(total - n) / rate:.0f} s"
-            print(line + ")", file=out, flush=True)
+            print(line + ")" + (f" {status()}" if status is not None else ""), file=out,
+                  flush=True)

@@ -22,14 +22,29 @@ def test_jitter_matches_clss_scene():
             assert rv.halton_jitter(i, scale) == scene.halton_jitter(i, scale)
 
 
-@pytest.mark.skipif(BLENDER is None, reason="blender not installed")
-def test_pan_test_conventions(tmp_path):
-    script = os.path.join(os.path.dirname(rv.__file__), "render_validation.py")
+def _has_bpy():
+    import importlib.util
+    return importlib.util.find_spec("bpy") is not None
+
+
+@pytest.mark.parametrize("how", ["blender", "bpy"])
+def test_pan_test_conventions(tmp_path, how):
+    """Through Debian's blender (a subprocess) and through bpy (Blender 5 as a module,
+    the [data] extra), each where installed."""
     h, w = 18, 32
-    subprocess.run([BLENDER, "-b", "--factory-startup", "-P", script, "--",
-                    "--out", str(tmp_path), "--scenes", "pan_test", "--frames", "3",
-                    "--size", f"{h}x{w}", "--spp", "2", "--ref-spp", "16"],
-                   check=True, capture_output=True, timeout=300)
+    if how == "blender":
+        if BLENDER is None:
+            pytest.skip("blender not installed (apt-get install blender)")
+        script = os.path.join(os.path.dirname(rv.__file__), "render_validation.py")
+        subprocess.run([BLENDER, "-b", "--factory-startup", "-P", script, "--",
+                        "--out", str(tmp_path), "--scenes", "pan_test", "--frames", "3",
+                        "--size", f"{h}x{w}", "--spp", "2", "--ref-spp", "16"],
+                       check=True, capture_output=True, timeout=300)
+    else:
+        if not _has_bpy():
+            pytest.skip("bpy (Blender as a module) not installed: pip install -e '.[data]'")
+        rv.render_scene("pan_test", str(tmp_path / "pan_test"), 3, (w, h), 2.0, 2, 16,
+                        log=None)
     data = convert.convert_scene(str(tmp_path / "pan_test"))
     assert data["color"].shape == (3, h, w, 3) and data["reference"].shape == (3, 2 * h, 2 * w, 3)
     # The camera moves right and up: the plane's points were right (+x) and above (-y,

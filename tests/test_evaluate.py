@@ -142,3 +142,28 @@ def test_eval_bad_input(tmp_path, capsys):
         with pytest.raises(SystemExit):
             wt_main(["eval", good, *args])
         assert msg in capsys.readouterr().err
+
+
+def test_eval_skips_a_method_without_its_gbuffers(tiny_seq):
+    """A method that needs a G-buffer the sequence does not carry (NSRD: albedo, normal,
+    ...; the tiny sequence has none) skips that sequence with a line saying why; the
+    other methods are scored and the run goes on (issue 31)."""
+    from clss import methods
+    need = methods.spec("nsrd").gbuffers
+    import io
+    log = io.StringIO()
+    r = evaluate.run_eval([tiny_seq], ["jbicubic", "nsrd"], warmup=2, out_dir=None, log=log)
+    err = log.getvalue()
+    assert f"skip nsrd on tiny: it needs the G-buffer(s) {', '.join(need)}" in err
+    seq = r["sequences"][0]
+    assert list(seq["methods"]) == ["jbicubic"]
+    assert seq["skipped"] == {"nsrd": {"missing_gbuffers": list(need)}}
+    # every method skipped: the sequence is left out, the run still ends normally
+    log = io.StringIO()
+    r = evaluate.run_eval([tiny_seq, tiny_seq], ["nsrd"], warmup=2, out_dir=None, log=log)
+    assert r["sequences"] == [] and "skip tiny: no method left to score" in log.getvalue()
+    # the mean over sequences takes each method over the sequences that scored it
+    a = {"methods": {"jbicubic": {"psnr": 20.0}, "nsrd": {"psnr": 30.0}}}
+    b = {"methods": {"jbicubic": {"psnr": 22.0}}}
+    mean = evaluate.mean_over_sequences([b, a])
+    assert mean["jbicubic"]["psnr"] == 21.0 and mean["nsrd"]["psnr"] == 30.0

@@ -1,5 +1,5 @@
 """python -m weights_tools build --out DIR [...] | inspect FILE | gen --out DIR [...] |
-eval SEQ.npz [--methods a,b,c] | train METHOD --data DIR --out DIR [...] | seeds METHOD [...]"""
+eval SEQ.npz [--methods a,b,c] | blender --out DIR [...] | train METHOD --data DIR --out DIR [...] | seeds METHOD [...]"""
 from __future__ import annotations
 
 import argparse
@@ -202,6 +202,8 @@ def main(argv=None):
     g.add_argument("--workers", type=int, default=2, help="processes")
     g.add_argument("--quiet", action="store_true")
     g.set_defaults(fn=cmd_gen)
+    from .blender import shards
+    shards.add_parser(sub, _size)
     _add_train(sub)
     from .recipes import with_default_method
     argv = with_default_method(sys.argv[1:] if argv is None else argv, "train")

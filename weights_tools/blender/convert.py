@@ -42,24 +42,39 @@ import sys
 import numpy as np
 
 NO_HIT_DEPTH = 1e9      # Cycles writes 1e10 for rays that leave the scene
+# Blender 5 spells some passes out; read_exr gives them the short names of Blender <= 4.
+PASS_NAMES = {"Diffuse Color": "DiffCol", "Glossy Color": "GlossCol"}
 
 
 def read_exr(path):
     """Channels of a (multilayer) EXR: {name: float32 (H, W)}, names without the view
-    layer prefix ("Combined.R", "Depth.Z", "Vector.X", ...)."""
+    layer prefix ("Combined.R", "Depth.Z", "Vector.X", ...). Blender up to 4.x writes one
+    part with every pass; Blender 5 writes a multi-part EXR, one part (OIIO subimage) per
+    pass: every part is read."""
     import OpenImageIO as oiio
     inp = oiio.ImageInput.open(path)
     if inp is None:
         raise OSError(f"{path}: cannot read ({oiio.geterror()})")
+    out = {}
     try:
-        names = list(inp.spec().channelnames)
-        pixels = inp.read_image(oiio.FLOAT)
+        part = 0
+        while inp.seek_subimage(part, 0):
+            names = list(inp.spec().channelnames)
+            pixels = inp.read_image(part, 0, 0, len(names), oiio.FLOAT)
+            if pixels is None:
+                raise OSError(f"{path}: cannot read the pixels of part {part}")
+            pixels = pixels.reshape(pixels.shape[0], pixels.shape[1], len(names))
+            for k, n in enumerate(names):
+                n = n.split(".", 1)[1] if n.count(".") >= 2 else n
+                layer, _, c = n.rpartition(".")
+                out[f"{PASS_NAMES.get(layer, layer)}.{c}" if layer else n] = \
+                    np.ascontiguousarray(pixels[..., k])
+            part += 1
     finally:
         inp.close()
-    if pixels is None:
-        raise OSError(f"{path}: cannot read its pixels")
-    return {n.split(".", 1)[1] if n.count(".") >= 2 else n: np.ascontiguousarray(pixels[..., k])
-            for k, n in enumerate(names)}
+    if not out:
+        raise OSError(f"{path}: no image in the file")
+    return out
 
 
 def _rgb(ch, path):

@@ -52,10 +52,10 @@ import os
 import sys
 import time
 
-try:
-    import bpy
-except ImportError:     # imported outside Blender (tests read the constants and halton)
-    bpy = None
+# Inside Blender (-P) bpy is already imported; elsewhere (weights_tools, tests reading the
+# constants and halton) it is imported by new_scene, the first bpy call of a render, so
+# that importing this module costs nothing where bpy is installed as a module (pip bpy).
+bpy = sys.modules.get("bpy")
 
 NEAR = 0.1   # camera clip start = the reversed-Z near plane of DATA.md
 
@@ -79,7 +79,12 @@ def halton_jitter(index, scale):
     return halton(k, 2) - 0.5, halton(k, 3) - 0.5
 
 
-def new_scene():
+def new_scene(threads=None):
+    """An empty Cycles scene with the passes of the contract; `threads`: Cycles' CPU
+    threads (default: up to 2; 1 when several renders share the machine)."""
+    global bpy
+    if bpy is None:
+        import bpy
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -97,7 +102,7 @@ def new_scene():
     scene.render.film_transparent = False
     scene.render.resolution_percentage = 100
     scene.render.threads_mode = "FIXED"
-    scene.render.threads = max(1, min(2, os.cpu_count() or 1))
+    scene.render.threads = threads or max(1, min(2, os.cpu_count() or 1))
     vl = scene.view_layers[0]
     vl.use_pass_z = True
     vl.use_pass_vector = True
@@ -107,6 +112,8 @@ def new_scene():
     vl.use_pass_glossy_color = True
     vl.use_pass_normal = True
     s = scene.render.image_settings
+    if hasattr(s, "media_type"):        # Blender >= 5.0: multilayer is a media type
+        s.media_type = "MULTI_LAYER_IMAGE"
     s.file_format = "OPEN_EXR_MULTILAYER"
     s.color_depth = "32"
     s.exr_codec = "ZIP"
@@ -168,7 +175,8 @@ def material(name, color=(0.8, 0.8, 0.8), rough=0.5, tex=None, scale=10.0, color
         out = ramp.outputs["Color"] if tex in ("wave", "planks", "noise") else t.outputs["Color"]
         nt.links.new(out, bsdf.inputs["Base Color"])
     if emission:
-        bsdf.inputs["Emission"].default_value = (*emission, 1.0)
+        emit = bsdf.inputs.get("Emission Color") or bsdf.inputs["Emission"]   # 4.0 renamed it
+        emit.default_value = (*emission, 1.0)
         bsdf.inputs["Emission Strength"].default_value = strength
     return m
 
@@ -470,9 +478,15 @@ def camera_rotation(cam_obj):
     return [[float(m[i][j]) for j in range(3)] for i in range(3)]
 
 
-def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4):
-    scene = new_scene()
-    description = SCENES[name](scene, frames)
+def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4, build=None,
+                 threads=None, log=print):
+    """Render `frames` frames of scene `name` (SCENES) into out_dir (see the module's
+    docstring). `build(scene, frames)` replaces SCENES[name] (weights_tools.blender.families
+    passes its seeded families); it returns the description, or (description, cuts):
+    cuts are the frames (0-based) that start a new shot, recorded as resets."""
+    scene = new_scene(threads)
+    built = (build or SCENES[name])(scene, frames)
+    description, cuts = built if isinstance(built, tuple) else (built, ())
     w, h = size
     W, H = int(math.floor(w * scale + 0.5)), int(math.floor(h * scale + 0.5))
     cam = scene.camera.data
@@ -511,14 +525,18 @@ def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4):
         bpy.ops.render.render(write_still=True)
         t_hr += time.time() - t0
         record["frames"].append(dict(lr=f"lr_{f:04d}.exr", ref=f"ref_{f:04d}.exr",
-                                     hr=f"hr_{f:04d}.exr", jitter=[jx, jy], reset=f == 0,
+                                     hr=f"hr_{f:04d}.exr", jitter=[jx, jy],
+                                     reset=f == 0 or f in cuts,
                                      camera_rotation=camera_rotation(scene.camera)))
-        print(f"[render_validation] {name} frame {f + 1}/{frames}", flush=True)
+        if log:
+            log(f"[render_validation] {name} frame {f + 1}/{frames}")
     record["seconds"] = dict(lr=round(t_lr, 1), ref=round(t_ref, 1), hr=round(t_hr, 1))
     with open(os.path.join(out_dir, "frames.json"), "w") as fh:
         json.dump(record, fh, indent=1)
-    print(f"[render_validation] {name}: {frames} frames, low res {t_lr:.1f} s, "
-          f"reference {t_ref:.1f} s, output-res G-buffers {t_hr:.1f} s", flush=True)
+    if log:
+        log(f"[render_validation] {name}: {frames} frames, low res {t_lr:.1f} s, "
+            f"reference {t_ref:.1f} s, output-res G-buffers {t_hr:.1f} s")
+    return record
 
 
 def main(argv):
