@@ -97,8 +97,12 @@ BLENDER_SEQS ?= 2
 BLENDER_FRAMES ?= 8
 BLENDER_ARGS ?=
 DATA_STAMP := $(VENV)/.data-stamp
+# bpy's metadata pins numpy<2, which would break OpenImageIO's numpy-2 build: numpy 2 is
+# put back afterwards (bpy was checked to render with numpy 2.4; pip prints the conflict).
 $(DATA_STAMP): $(STAMP)
 	$(BIN)/python -m pip install -q -e '.[test,data]'
+	$(BIN)/python -m pip install -q 'numpy>=2'
+	$(BIN)/python -c "import OpenImageIO, bpy, ray"
 	touch $@
 
 .PHONY: train-data-blender
