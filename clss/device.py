@@ -345,9 +345,11 @@ class Device:
         return Launch(self.queue, kernel, gs, args, local_size)
 
     def copy(self, dst: cla.Array, src: cla.Array):
-        """Enqueue dst <- src (arrays of equal bytes); None when there is nothing to copy."""
+        """Enqueue dst <- src (arrays of equal bytes, views at an offset too); None when
+        there is nothing to copy."""
         if src.nbytes:
-            return cl.enqueue_copy(self.queue, dst.data, src.data, byte_count=src.nbytes)
+            return cl.enqueue_copy(self.queue, dst.base_data, src.base_data, byte_count=src.nbytes,
+                                   src_offset=src.offset, dst_offset=dst.offset)
         return None
 
     def fill(self, a: cla.Array, value) -> None:

@@ -474,7 +474,10 @@ typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
  * memory-bound, and one build serves every layer (under oclgrind a build is slow). */
 
 /* NCHW -> blocked [N][Cb][H][W][icv], channels past C zero. Pure data movement
- * (bits copied through TB). NDRange: (W, H, N * Cb). */
+ * (bits copied through TB). A work-item moves 16 pixels of a row: per channel one
+ * 64-byte run (channel planes H*W apart often alias to one L1 set, so each line is
+ * read whole, once), written into one contiguous 16*icv run.
+ * NDRange: (ceil(W / 16), H, N * Cb). */
 /** @param[in]  x    [N, C, H, W]
  *  @param[out] xb   [N, Cb, H, W, icv] with Cb = ceil(C / icv)
  *  @param[in]  C    channels
@@ -485,15 +488,28 @@ typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
  */
 __kernel void to_blocked(__global const TB *x, __global TB *xb, int C, int H, int W, int Cb, int icv)
 {
-    const int ix = get_global_id(0), iy = get_global_id(1), z = get_global_id(2);
-    if (ix >= W || iy >= H)
+    const int ix0 = get_global_id(0) * 16, iy = get_global_id(1), z = get_global_id(2);
+    if (ix0 >= W || iy >= H)
         return;
     const int cb = z % Cb, n = z / Cb;
+    const int np = IMIN(16, W - ix0);
     const long hw = (long)H * W;
-    const __global TB *src = x + ((long)n * C + cb * icv) * hw + (long)iy * W + ix;
-    __global TB *dst = xb + (((long)z * H + iy) * W + ix) * icv;
-    for (int c = 0; c < icv; ++c)
-        dst[c] = cb * icv + c < C ? src[c * hw] : (TB)0;
+    const __global TB *src = x + ((long)n * C + cb * icv) * hw + (long)iy * W + ix0;
+    __global TB *dst = xb + (((long)z * H + iy) * W + ix0) * icv;
+    for (int c = 0; c < icv; ++c) {
+        const int real = cb * icv + c < C;
+        const __global TB *s = src + c * hw;
+        if (real && np == 16) {
+            TB16 v = vload16(0, s);
+            dst[0 * icv + c] = v.s0; dst[1 * icv + c] = v.s1; dst[2 * icv + c] = v.s2; dst[3 * icv + c] = v.s3;
+            dst[4 * icv + c] = v.s4; dst[5 * icv + c] = v.s5; dst[6 * icv + c] = v.s6; dst[7 * icv + c] = v.s7;
+            dst[8 * icv + c] = v.s8; dst[9 * icv + c] = v.s9; dst[10 * icv + c] = v.sa; dst[11 * icv + c] = v.sb;
+            dst[12 * icv + c] = v.sc; dst[13 * icv + c] = v.sd; dst[14 * icv + c] = v.se; dst[15 * icv + c] = v.sf;
+        } else {
+            for (int p = 0; p < np; ++p)
+                dst[p * icv + c] = real ? s[p] : (TB)0;
+        }
+    }
 }
 
 /* Weights [Cout, Cin, kk] -> packed [ncb][Cb][kk][icv][ocb] in the arithmetic

@@ -201,7 +201,7 @@ def to_blocked(dev: Device, prec: str, x, icv: int, cb: int):
     """NCHW -> [N][Cb][H][W][ICV] (zero channels past C): the conv2d_blocked input."""
     n, c, h, wd = x.shape
     xb = dev.empty((n, cb, h, wd, icv), prec)
-    dev.launch(dev.kernel("conv", "to_blocked", prec), (wd, h, n * cb),
+    dev.launch(dev.kernel("conv", "to_blocked", prec), (-(-wd // 16), h, n * cb),
                (x.data, xb.data, np.int32(c), np.int32(h), np.int32(wd), np.int32(cb), np.int32(icv)))
     return xb
 
