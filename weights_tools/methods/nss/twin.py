@@ -186,4 +186,5 @@ class TorchStep:
         ak = alpha * t["valid"].view(N, 1, H, W) * keep
         acc = (rt + (ct - rt) * ak).clamp(0.0, nets.TM_MAX)
         out = acc / (1.0 - acc.amax(1, keepdim=True))
-        return out, {"hist": out, "deriv": torch.cat([der, luma], 1), "tp": tp}
+        # "filtered": the kernel filter's output (the model gym's out_filtered, a loss term)
+        return out, {"hist": out, "deriv": torch.cat([der, luma], 1), "tp": tp, "filtered": m1}
