@@ -2,8 +2,8 @@
 twin in fp32 and fp16 (both kernel presets, an odd render size the network pads to
 multiples of 8, a reset mid-sequence), with the carried state (history, luma
 derivative) and the reconstructed depth compared too; the portable depth path against
-the atomic one; the registry entry; the scale; step_device and flat memory over 300
-frames; `clss upscale --method nss`.
+the atomic one; each kernel against its own twin (clss verify's cases); the registry
+entry; the scale; step_device and flat memory over 300 frames; `clss upscale --method nss`.
 
 Tolerances (per frame): fp32 |d| <= 3e-4 * max|ref| on every output pixel (the
 neighbourhood clamp takes the square root of a variance E[c^2] - E[c]^2 whose
@@ -18,7 +18,7 @@ import pytest
 import clss
 from clss import methods
 from clss.methods.nss import networks as nets
-from helpers import RESET_AT, frames
+from helpers import RESET_AT, assert_case, frames
 
 RENDER = (13, 17)          # odd: the network runs on 16 x 24 inside
 
@@ -55,6 +55,19 @@ def test_frame_step_matches_its_onnx_twin(quality, precision, dev):
     x = fs.dev.to_host(fs.x).astype(np.float32)
     # the network's input is used: some disocclusion, some history, a derivative somewhere
     assert 0 < x[0, 6].mean() < 1 and x[0, 0:3].max() > 0 and x[0, 7:11].max() > 0
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+def test_kernel_conformance_cases(precision, dev):
+    """Each nss.cl kernel (and the atomic depth path) against its own twin
+    (oracle.inputs_graph / depth_graph / pre_graph / post_graph), as `clss verify` runs them."""
+    from clss.verify.cases import nss, scatter
+    cases = nss.cases("quick")
+    assert {c.op for c in cases} == {"nss_inputs", "nss_depth_gather", "nss_depth_atomic",
+                                     "nss_pre", "nss_post"}
+    assert {c.name for c in cases} <= {c.name for c in scatter.cases("quick")}
+    for case in cases:
+        assert_case(case, dev, precision)
 
 
 def test_the_portable_depth_path_matches_the_atomic_one(dev):

@@ -88,27 +88,34 @@ def _catmull(g, f):
             g.sub(g.mul(c(0.5), f3), g.mul(c(0.5), f2))]
 
 
-def build_graph(render_size, cfg, weights) -> onnx.ModelProto:
-    h, w = (int(v) for v in render_size)
-    H, W, hp, wp = 2 * h, 2 * w, nets.pad8(h), nets.pad8(w)
-    K = int(cfg["kpn"])
-    g = GraphBuilder(OPSET)
-    c = lambda v: g.const(np.float32(v))  # noqa: E731
-    one, zero = c(1.0), c(0.0)
-    col = g.clip("color", 0.0, nets.COLOR_MAX)
-    keep = "keep"
-    mx, my = g.chan("motion", slice(0, 1)), g.chan("motion", slice(1, 2))
+def _coords(g, motion, h, w):
+    """The motion's channels and the previous-frame positions p + motion [1,1,h,w]."""
+    mx, my = g.chan(motion, slice(0, 1)), g.chan(motion, slice(1, 2))
     xg = g.const(np.arange(w, dtype=np.float32).reshape(1, 1, 1, w))
     yg = g.const(np.arange(h, dtype=np.float32).reshape(1, 1, h, 1))
-    xs, ys = g.add(xg, mx), g.add(yg, my)
+    return mx, my, g.add(xg, mx), g.add(yg, my)
+
+
+def _depth(g, depth, motion, h, w, name="recon"):
+    """The reconstructed previous depth (scatter_depth / nss_depth_gather) as `name`."""
+    _, _, xs, ys = _coords(g, motion, h, w)
+    _scatter_depth(g, depth, xs, ys, h, w)
+    g.nodes[-1].output[0] = name
+    return name
+
+
+def _pre(g, col, depth, motion, recon, hist, tp, deriv, keep, h, w, *, x="x",
+         deriv_out="deriv_out"):
+    """nss_pre: the network's input `x` [1,12,hp,wp] and the next derivative state."""
+    H, W, hp, wp = 2 * h, 2 * w, nets.pad8(h), nets.pad8(w)
+    c = lambda v: g.const(np.float32(v))  # noqa: E731
+    one, zero = c(1.0), c(0.0)
+    mx, my, xs, ys = _coords(g, motion, h, w)
     # disocclusion from the reconstructed previous depth
-    recon = _scatter_depth(g, "depth", xs, ys, h, w)
-    g.nodes[-1].output[0] = "recon"
-    recon = "recon"
     grid = _grid(g, xs, ys, w, h)
     dr = _sample(g, recon, grid)
-    den = g.add(g.mul(c(nets.DEPTH_TOL), g.op("Max", "depth", dr)), c(nets.DEPTH_FLOOR))
-    rel = g.div(g.op("Max", g.sub(dr, "depth"), zero), den)
+    den = g.add(g.mul(c(nets.DEPTH_TOL), g.op("Max", depth, dr)), c(nets.DEPTH_FLOOR))
+    rel = g.div(g.op("Max", g.sub(dr, depth), zero), den)
     ins = one
     for v, n in ((xs, w), (ys, h)):
         ok = g.op("And", g.op("GreaterOrEqual", v, c(-0.5)), g.op("LessOrEqual", v, c(n - 0.5)))
@@ -119,11 +126,11 @@ def build_graph(render_size, cfg, weights) -> onnx.ModelProto:
                g.mul(c(2.0), mx))
     hy = g.add(g.const((2 * np.arange(h, dtype=np.float32) + 0.5).reshape(1, 1, h, 1)),
                g.mul(c(2.0), my))
-    hc = _karis(g, g.mul(_sample(g, "hist", _grid(g, hx, hy, W, H)), keep))
+    hc = _karis(g, g.mul(_sample(g, hist, _grid(g, hx, hy, W, H)), keep))
     cc = _karis(g, col)
-    tpr = g.slice(g.slice("tp", 2, 0, h), 3, 0, w)
+    tpr = g.slice(g.slice(tp, 2, 0, h), 3, 0, w)
     fb = g.mul(g.mul(_sample(g, tpr, grid), keep), g.sub(one, dis))
-    s = g.mul(_sample(g, "deriv", grid), keep)
+    s = g.mul(_sample(g, deriv, grid), keep)
     dp, lp = g.chan(s, slice(0, 1)), g.chan(s, slice(1, 2))
     lum = g.const(np.asarray(nets.LUMA, np.float32).reshape(1, 3, 1, 1))
     lum_ = g.op("ReduceSum", g.mul(cc, lum), g.i64([1]), keepdims=1)
@@ -131,22 +138,29 @@ def build_graph(render_size, cfg, weights) -> onnx.ModelProto:
                       c(nets.D_MAX - nets.D_MIN)), 0.0, 1.0)
     rate = g.mul(c(nets.D_ALPHA), g.sub(one, g.mul(c(0.9), g.op("Min", g.div(dp, c(nets.D_MAX)), one))))
     der = g.mul(g.add(dp, g.mul(rate, g.sub(g.mul(tt, g.op("Sqrt", tt)), dp))), g.sub(one, dis))
-    g.concat([der, lum_], name="deriv_out")
-    x = g.concat([hc, cc, dis, fb, der])
-    x = g.op("Pad", x, g.i64([0, 0, 0, 0, 0, 0, hp - h, wp - w]), mode="edge", name="x")
-    g.inline(nets.build_network(cfg, weights, hp, wp), "net", {"x": x},
-             {"kpn": "kpn", "tp": "tp_out"})
+    g.concat([der, lum_], name=deriv_out)
+    xc = g.concat([hc, cc, dis, fb, der])
+    g.op("Pad", xc, g.i64([0, 0, 0, 0, 0, 0, hp - h, wp - w]), mode="edge", name=x)
+    return x, deriv_out
+
+
+def _post(g, col, motion, kpn, tp, hist, keep, K, h, w, *, out="output"):
+    """nss_post: the kernel-prediction filter (the tap layout: the feeds taps, tent, kq,
+    centre, valid), the Catmull-Rom history, clamp, rectify, accumulate -> `out`."""
+    H, W, hp, wp = 2 * h, 2 * w, nets.pad8(h), nets.pad8(w)
+    c = lambda v: g.const(np.float32(v))  # noqa: E731
+    one = c(1.0)
     # the kernel-prediction filter (jitter-aware taps: the feeds)
     cflat = g.reshape(col, [1, 3, h * w])
     taps = g.reshape(g.op("Gather", cflat, "taps", axis=2), [1, 3, K * K, H, W])
-    kw = g.op("Gather", g.reshape("kpn", [1, K * K, (hp // 4) * (wp // 4)]), "kq", axis=2)
+    kw = g.op("Gather", g.reshape(kpn, [1, K * K, (hp // 4) * (wp // 4)]), "kq", axis=2)
     kw = g.mul(g.op("Max", g.reshape(kw, [1, 1, K * K, H, W]), c(nets.KPN_EPS)), "tent")
     ax2 = g.i64([2])
     ws = g.op("ReduceSum", kw, ax2, keepdims=0)
     m1 = g.div(g.op("ReduceSum", g.mul(kw, taps), ax2, keepdims=0), ws)
     m2 = g.div(g.op("ReduceSum", g.mul(kw, g.mul(taps, taps)), ax2, keepdims=0), ws)
     # the temporal parameters at the output pixels
-    tpo = g.slice(g.slice("tp_out", 2, 0, h), 3, 0, w)
+    tpo = g.slice(g.slice(tp, 2, 0, h), 3, 0, w)
     pr = _sample(g, tpo, g.const(base_grid((h, w), (H, W), (0.0, 0.0))), "border")
     p0, p1, p2 = (g.chan(pr, slice(i, i + 1)) for i in range(3))
     ta, tb = g.mul(p0, p0), g.mul(g.sub(one, p0), g.sub(one, p0))
@@ -154,7 +168,7 @@ def build_graph(render_size, cfg, weights) -> onnx.ModelProto:
     alpha = g.add(c(nets.ALPHA_RANGE[0]), g.mul(c(nets.ALPHA_RANGE[1] - nets.ALPHA_RANGE[0]), p1))
     gamma = g.mul(c(nets.GAMMA_SCALE), p2)
     # the previous output, Catmull-Rom at the pixel moved by its render pixel's motion
-    mu = g.op("Resize", "motion", "", g.const(np.array([1, 1, 2, 2], np.float32)),
+    mu = g.op("Resize", motion, "", g.const(np.array([1, 1, 2, 2], np.float32)),
               mode="nearest", coordinate_transformation_mode="asymmetric", nearest_mode="floor")
     Hx = g.add(g.const(np.arange(W, dtype=np.float32).reshape(1, 1, 1, W)),
                g.mul(c(2.0), g.chan(mu, slice(0, 1))))
@@ -171,7 +185,7 @@ def build_graph(render_size, cfg, weights) -> onnx.ModelProto:
     cols = [g.op("Clip", g.add(x0, g.i64(i - 1)), g.i64(0), g.i64(W - 1)) for i in range(4)]
     rows = [g.mul(g.op("Clip", g.add(y0, g.i64(j - 1)), g.i64(0), g.i64(H - 1)), g.i64(W))
             for j in range(4)]
-    hflat = g.reshape("hist", [1, 3, H * W])
+    hflat = g.reshape(hist, [1, 3, H * W])
     hv = None
     for j in range(4):
         r = None
@@ -191,19 +205,113 @@ def build_graph(render_size, cfg, weights) -> onnx.ModelProto:
     ak = g.mul(g.mul(alpha, "valid"), keep)
     acc = g.clip(g.add(rt, g.mul(g.sub(ct, rt), ak)), 0.0, nets.TM_MAX)
     inv = g.div(one, g.sub(one, g.op("ReduceMax", acc, g.i64([1]), keepdims=1)))
-    g.op("Mul", acc, inv, name="output")
+    g.op("Mul", acc, inv, name=out)
+    return out
+
+
+def _tap_inputs(K, h, w):
+    vi = value_info
+    H, W = 2 * h, 2 * w
+    f, i64 = onnx.TensorProto.FLOAT, onnx.TensorProto.INT64
+    return [vi("taps", [K * K * H * W], i64), vi("tent", [1, 1, K * K, H, W], f),
+            vi("kq", [H * W], i64), vi("centre", [H * W], i64), vi("valid", [1, 1, H, W])]
+
+
+def build_graph(render_size, cfg, weights) -> onnx.ModelProto:
+    h, w = (int(v) for v in render_size)
+    H, W, hp, wp = 2 * h, 2 * w, nets.pad8(h), nets.pad8(w)
+    K = int(cfg["kpn"])
+    g = GraphBuilder(OPSET)
+    col = g.clip("color", 0.0, nets.COLOR_MAX)
+    recon = _depth(g, "depth", "motion", h, w)
+    x, _ = _pre(g, col, "depth", "motion", recon, "hist", "tp", "deriv", "keep", h, w)
+    g.inline(nets.build_network(cfg, weights, hp, wp), "net", {"x": x},
+             {"kpn": "kpn", "tp": "tp_out"})
+    _post(g, col, "motion", "kpn", "tp_out", "hist", "keep", K, h, w)
     g.op("Identity", "output", name="hist_out")
     vi = value_info
-    f, i64 = onnx.TensorProto.FLOAT, onnx.TensorProto.INT64
     inputs = [vi("color", [1, 3, h, w]), vi("depth", [1, 1, h, w]), vi("motion", [1, 2, h, w]),
               vi("hist", [1, 3, H, W]), vi("deriv", [1, 2, h, w]),
-              vi("tp", [1, nets.TEMPORAL, hp, wp]), vi("keep", [1]),
-              vi("taps", [K * K * H * W], i64), vi("tent", [1, 1, K * K, H, W], f),
-              vi("kq", [H * W], i64), vi("centre", [H * W], i64), vi("valid", [1, 1, H, W])]
+              vi("tp", [1, nets.TEMPORAL, hp, wp]), vi("keep", [1]), *_tap_inputs(K, h, w)]
     outputs = [vi("output", [1, 3, H, W]), vi("hist_out", [1, 3, H, W]),
                vi("deriv_out", [1, 2, h, w]), vi("tp_out", [1, nets.TEMPORAL, hp, wp]),
                vi("x", [1, nets.IN, hp, wp]), vi("recon", [1, 1, h, w])]
     return make_model(g.nodes, g.inits, "nss_frame", inputs, outputs, __name__, OPSET)
+
+
+# ---- one graph per kernel of nss.cl: the twins of clss verify's nss cases (the same
+# nodes as the whole-frame graph above; clss/verify/cases/nss.py) ---------------------------
+
+def inputs_graph(render_size, depth_inverted=True, motion_scale=(1.0, 1.0),
+                 exposure=1.0) -> onnx.ModelProto:
+    """nss_inputs: color [h,w,3], depth [h,w], motion [h,w,2] (the caller's image layout;
+    non-finite values replaced as the kernel does) -> col [3,h,w], dz [h,w], mv [2,h,w]."""
+    h, w = (int(v) for v in render_size)
+    g = GraphBuilder(OPSET)
+    c = lambda v: g.const(np.float32(v))  # noqa: E731
+
+    def fin(x, fill):
+        bad = g.op("Or", g.op("IsNaN", x), g.op("IsInf", x))
+        return g.where(bad, c(fill), x)
+
+    col = g.clip(g.mul(fin("color", 0.0), c(np.float32(1.0) / np.float32(exposure))),
+                 0.0, nets.COLOR_MAX)
+    g.op("Transpose", col, perm=[2, 0, 1], name="col")
+    d = fin("depth", 0.0 if depth_inverted else 1.0)
+    g.op("Identity" if depth_inverted else "Sub", *((d,) if depth_inverted else (c(1.0), d)),
+         name="dz")
+    m = g.mul(fin("motion", 0.0), g.const(np.asarray(motion_scale, np.float32)))
+    g.op("Transpose", m, perm=[2, 0, 1], name="mv")
+    vi = value_info
+    return make_model(g.nodes, g.inits, "nss_inputs",
+                      [vi("color", [h, w, 3]), vi("depth", [h, w]), vi("motion", [h, w, 2])],
+                      [vi("col", [3, h, w]), vi("dz", [h, w]), vi("mv", [2, h, w])],
+                      __name__, OPSET)
+
+
+def depth_graph(render_size) -> onnx.ModelProto:
+    """scatter_depth / nss_depth_gather: depth [1,1,h,w], motion [1,2,h,w] -> recon
+    [1,1,h,w] (0 where nothing lands)."""
+    h, w = (int(v) for v in render_size)
+    g = GraphBuilder(OPSET)
+    _depth(g, "depth", "motion", h, w)
+    vi = value_info
+    return make_model(g.nodes, g.inits, "nss_depth",
+                      [vi("depth", [1, 1, h, w]), vi("motion", [1, 2, h, w])],
+                      [vi("recon", [1, 1, h, w])], __name__, OPSET)
+
+
+def pre_graph(render_size) -> onnx.ModelProto:
+    """nss_pre: col, depth, motion, recon, hist, tp (the previous), deriv, keep -> x,
+    deriv_out."""
+    h, w = (int(v) for v in render_size)
+    hp, wp = nets.pad8(h), nets.pad8(w)
+    g = GraphBuilder(OPSET)
+    _pre(g, "color", "depth", "motion", "recon", "hist", "tp", "deriv", "keep", h, w)
+    vi = value_info
+    return make_model(g.nodes, g.inits, "nss_pre",
+                      [vi("color", [1, 3, h, w]), vi("depth", [1, 1, h, w]),
+                       vi("motion", [1, 2, h, w]), vi("recon", [1, 1, h, w]),
+                       vi("hist", [1, 3, 2 * h, 2 * w]), vi("tp", [1, nets.TEMPORAL, hp, wp]),
+                       vi("deriv", [1, 2, h, w]), vi("keep", [1])],
+                      [vi("x", [1, nets.IN, hp, wp]), vi("deriv_out", [1, 2, h, w])],
+                      __name__, OPSET)
+
+
+def post_graph(render_size, K) -> onnx.ModelProto:
+    """nss_post: col, motion, kpn, tp (this frame's), hist, keep and the tap layout
+    (tap_feeds) -> output [1,3,H,W] (linear / exposure: the next history)."""
+    h, w = (int(v) for v in render_size)
+    hp, wp = nets.pad8(h), nets.pad8(w)
+    g = GraphBuilder(OPSET)
+    _post(g, "color", "motion", "kpn", "tp", "hist", "keep", int(K), h, w)
+    vi = value_info
+    return make_model(g.nodes, g.inits, "nss_post",
+                      [vi("color", [1, 3, h, w]), vi("motion", [1, 2, h, w]),
+                       vi("kpn", [1, K * K, hp // 4, wp // 4]),
+                       vi("tp", [1, nets.TEMPORAL, hp, wp]), vi("hist", [1, 3, 2 * h, 2 * w]),
+                       vi("keep", [1]), *_tap_inputs(int(K), h, w)],
+                      [vi("output", [1, 3, 2 * h, 2 * w])], __name__, OPSET)
 
 
 def tap_feeds(cfg, render_size, jitter) -> dict:
