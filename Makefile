@@ -218,3 +218,13 @@ train-nsrd: train-data $(TRAIN_STAMP)
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-mask --steps $(NSRD_STEPS) --no-mask && \
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-mask-lw --steps $(NSRD_FT_STEPS) --lr 1e-3 --no-mask --remod learned --warp-state --init $(OUT)/train-nsrd/x4-no-mask/weights.safetensors; \
 	fi
+
+# NSS (issue 32; docs/methods/nss.md): recurrent rollouts of 16 frames through the torch
+# twin, on one torch thread, from the 2x training set (sequences of 12 frames are too
+# short for 16-frame rollouts: a set of 16-frame sequences is generated beside it). The
+# weights are not copied into the package by this target: check them first (clss eval).
+NSS_STEPS ?= 2000
+.PHONY: train-nss
+train-nss: $(STAMP) $(TRAIN_STAMP)
+	test -f $(DATA)/train-nss/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train-nss --sequences 48 --frames 16 --seed 0 --size 72x128
+	$(BIN)/python -m weights_tools train nss --data $(DATA)/train-nss --out $(OUT)/train-nss/x2 --steps $(NSS_STEPS) --threads 1 --resume

@@ -1,7 +1,7 @@
 """Host waits: the wall time of one frame step against the OpenCL event time it enqueues.
 
 Per method whose step enqueues kernels and times its stages (those its bench room names in
-HOST_WAITS, bench/methods/: today clss, clss-rules, jbicubic, nsrr and nsrd, whose
+HOST_WAITS, bench/methods/: today clss, clss-rules, jbicubic, nsrr, nsrd and nss, whose
 G-buffers come from its bench room's `synthetic_gbuffers`) and size: two upscalers on the
 same synthetic frame, warmed with a few frames first (PoCL compiles and specialises kernels
 on their first launches):
@@ -31,8 +31,12 @@ TARGET = 1.15       # wall <= 1.15x event at 540p -> 1080p
 
 
 def _upscaler(dev, method, scale, prec, profile):
-    from clss import Upscaler
-    return Upscaler(method=method, scale=scale, device=dev, precision=prec, profile=profile)
+    from clss import Upscaler, methods
+    # timing only: a method whose package has no weights for this scale (nss, until it
+    # ships some) runs its seeded init, which enqueues the same kernels
+    spec = methods.spec(method)
+    kw = {"weights": "untrained"} if spec.shipped and spec.shipped_file(scale) is None else {}
+    return Upscaler(method=method, scale=scale, device=dev, precision=prec, profile=profile, **kw)
 
 
 def measure(dev, method: str, render_size, scale: float, prec: str = "fp32", warm: int = 3,

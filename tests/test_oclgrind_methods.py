@@ -1,4 +1,5 @@
-"""The NSRR and NSRD frame kernels (clss/methods/nsrr/nsrr.cl, clss/methods/nsrd/nsrd.cl) on tiny frames under
+"""The NSRR, NSRD and NSS frame kernels (clss/methods/nsrr/nsrr.cl, clss/methods/nsrd/nsrd.cl,
+clss/methods/nss/nss.cl with both depth paths) on tiny frames under
 oclgrind's out-of-bounds, uninitialised-read and data-race checks: three frames with a
 reset, fp32 and fp16 storage, odd sizes (their networks run through clss.Model, whose
 kernels have their own oclgrind tests). Any diagnostic fails.
@@ -20,7 +21,7 @@ warnings.simplefilter("ignore")
 h, w, s = 5, 7, {scale}
 H, W = h * s, w * s
 rng = np.random.default_rng(0)
-up = clss.Upscaler(method="{method}", scale=s, weights="untrained", precision="{prec}")
+up = clss.Upscaler(method="{method}", scale=s, weights="untrained", precision="{prec}"{extra})
 for t in range(3):
     g = dict(albedo=rng.uniform(0, 1, (h, w, 3)).astype(np.float32),
              normal=rng.uniform(-1, 1, (h, w, 3)).astype(np.float32),
@@ -36,13 +37,14 @@ print("method kernels ok")
 
 @pytest.mark.oclgrind
 @pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
-@pytest.mark.parametrize("method, scale, prec", [("nsrr", 2, "fp32"), ("nsrd", 2, "fp32"),
-                                                 ("nsrd", 3, "fp16")])
-def test_method_kernels_clean_under_oclgrind(method, scale, prec, tmp_path):
+@pytest.mark.parametrize("method, scale, prec, extra", [
+    ("nsrr", 2, "fp32", ""), ("nsrd", 2, "fp32", ""), ("nsrd", 3, "fp16", ""),
+    ("nss", 2, "fp32", ""), ("nss", 2, "fp16", ', depth_scatter="gather"')])
+def test_method_kernels_clean_under_oclgrind(method, scale, prec, extra, tmp_path):
     env = oclgrind_env(tmp_path)
     env["PYTHONPATH"] = os.pathsep.join([os.getcwd(), env.get("PYTHONPATH", "")])
     p = subprocess.run([sys.executable, "-W", "ignore", "-c",
-                        SCRIPT.format(method=method, scale=scale, prec=prec)],
+                        SCRIPT.format(method=method, scale=scale, prec=prec, extra=extra)],
                        env=env, capture_output=True, text=True, timeout=900)
     diags = [line for line in p.stderr.splitlines() if DIAGNOSTIC.search(line)]
     assert not diags, "oclgrind reported:\n" + "\n".join(p.stderr.splitlines()[:60])

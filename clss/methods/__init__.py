@@ -5,6 +5,7 @@
     clss/methods/mlp/      the shader MLP: "mlp" and its ablation "mlp-nofeature"
     clss/methods/nsrr/     NSRR: "nsrr"
     clss/methods/nsrd/     NSRD: "nsrd"
+    clss/methods/nss/      NSS: "nss"
 
 A room exports SPECS {name: clss.pipeline.method.MethodSpec}; `ROOMS` below is the one
 line a room adds here, and every other list of methods or rooms is derived from it and
@@ -29,6 +30,7 @@ ROOMS = (
     "mlp",
     "nsrr",
     "nsrd",
+    "nss",
 )
 # Names that earlier versions used (`--mode rules|net`, eval's `rules` / `net`).
 ALIASES = {"rules": "clss-rules", "rule": "clss-rules", "net": "clss", "clss-net": "clss"}

@@ -147,3 +147,14 @@ def cases(level: str = "quick") -> list[Case]:
         out.append(elements_case((2, 3, 5, 7), (1, 3, 4, 7), -3, red, idx_dtype=np.int32))
         out.append(elements_case((3, 1, 2, 1, 2, 1, 3, 2), (2, 1, 2, 1, 1, 1, 3, 2), 6, red))
     return out
+
+
+# NSS's frame kernels (clss/methods/nss/nss.cl; its atomic depth path is scatter_depth) run
+# with this family's cases, so that `clss verify` checks them (clss.ops.FAMILIES lists the
+# families).
+_cases_scatter = cases
+
+
+def cases(level: str = "quick") -> list[Case]:  # noqa: F811
+    from .nss import cases as nss_cases
+    return _cases_scatter(level) + nss_cases(level)

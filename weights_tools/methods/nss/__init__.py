@@ -1,0 +1,1 @@
+"""NSS's training room: the torch twin (twin.py) and the recipe (recipe.py)."""
