@@ -51,6 +51,23 @@ def pq_decode(e, nits=PQ_NITS):
 
 # ---- data --------------------------------------------------------------------------------
 
+def nchw_sequences(seqs, torch, images: dict) -> list[dict]:
+    """Sequences as torch tensors for a recurrent recipe: each image of `images`
+    ({key in the result: key in the sequence}) as [T, C, H, W] float32 (a [T, H, W] plane
+    gets C = 1), with "jitter", "reset" (frame 0 always a reset), "scale" and "name"."""
+    def nchw(a):
+        a = np.asarray(a, np.float32)
+        return torch.from_numpy(np.ascontiguousarray(a.transpose(0, 3, 1, 2) if a.ndim == 4 else a[:, None]))
+    out = []
+    for s in seqs:
+        r = np.asarray(s["reset"], bool).copy()
+        r[0] = True
+        out.append({**{k: nchw(s[src]) for k, src in images.items()},
+                    "jitter": np.asarray(s["jitter"], np.float32), "reset": r,
+                    "scale": s["scale"], "name": s["name"]})
+    return out
+
+
 def load_sequences(data_dir, frames, required, prepare=None):
     """The DATA.md sequences of `data_dir` with at least `frames` frames and every key of
     `required`, as dicts of arrays with "scale" (an integer: patches are cut at the same

@@ -249,6 +249,24 @@ class MethodSpec:
             cli=f"--method {self.name} --scale {s:g}: no trained weights for this scale "
                 f"({where}); give --weights FILE, or --weights {UNTRAINED} for the seeded init")
 
+    def load_network(self, nets, weights, scale, make_config, allow_untrained=False,
+                     what: str = "a .safetensors file") -> tuple[dict, dict, bool]:
+        """(config, weights, trained) of a method's network, from weights= as the upscalers
+        take it: None (the package's file, resolve_weights), UNTRAINED (the seeded init of
+        make_config()), a .safetensors path (`what` names it in the error) or a
+        (config, weights dict) pair. `nets` is the room's networks module (init_weights,
+        check_weights, load)."""
+        weights = self.resolve_weights(weights, scale, allow_untrained)
+        if isinstance(weights, str) and weights == UNTRAINED:
+            cfg = make_config()
+            return cfg, nets.init_weights(cfg), False
+        if isinstance(weights, tuple):
+            cfg, w = weights
+            nets.check_weights(cfg, w)
+            return cfg, w, True
+        cfg, w = nets.load(weights_file(weights, what))
+        return cfg, w, True
+
 
 def weights_file(weights, what: str) -> str:
     """weights= given as a path: it must be an existing .safetensors file (`what`, e.g.

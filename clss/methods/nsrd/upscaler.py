@@ -15,7 +15,7 @@ needs weights= or allow_untrained=True (the seeded init).
 from __future__ import annotations
 
 from ...pipeline.contract import PQ_NITS
-from ...pipeline.method import UNTRAINED, MethodSpec, MethodUpscaler, weights_file
+from ...pipeline.method import MethodSpec, MethodUpscaler
 from . import networks as nets
 from .frame import KERNEL, STAGES, NsrdFrameStep
 
@@ -28,14 +28,10 @@ def load_weights(weights, scale, widths="default", allow_untrained=False) -> tup
     package has no file for is refused unless allow_untrained (the seeded init;
     MethodSpec.resolve_weights). The config's scale must be the upscaler's."""
     cfg0 = nets.make_config(scale, widths)        # checks the scale (integer, 2..4)
-    weights = SPEC.resolve_weights(weights, scale, allow_untrained)
-    if isinstance(weights, str) and weights == UNTRAINED:
-        return cfg0, nets.init_weights(cfg0), False
-    if isinstance(weights, tuple):
-        cfg, w = weights
-        nets.check_weights(cfg, w)
-    else:
-        cfg, w = nets.load(weights_file(weights, "an NSRD .safetensors file"))
+    cfg, w, trained = SPEC.load_network(nets, weights, scale, lambda: cfg0, allow_untrained,
+                                        "an NSRD .safetensors file")
+    if not trained:
+        return cfg, w, False
     if int(cfg["scale"]) != int(cfg0["scale"]):
         raise ValueError(f"weights: the network was trained for scale {cfg['scale']}, the "
                          f"upscaler runs at {cfg0['scale']}")

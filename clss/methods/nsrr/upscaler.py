@@ -13,7 +13,7 @@ init.
 from __future__ import annotations
 
 from ...pipeline.contract import PQ_NITS
-from ...pipeline.method import UNTRAINED, MethodSpec, MethodUpscaler, weights_file
+from ...pipeline.method import MethodSpec, MethodUpscaler
 from . import networks as nets
 from .frame import KERNEL, RESET_FILLS, STAGES, NsrrFrameStep
 
@@ -23,16 +23,8 @@ def load_weights(weights, scale, widths="default", allow_untrained=False) -> tup
     nearest to `scale`: 2 below 3, else 4), "untrained", a .safetensors path, or a
     (config, weights dict) pair. Without a shipped file, the seeded init only with
     allow_untrained (MethodSpec.resolve_weights)."""
-    weights = SPEC.resolve_weights(weights, scale, allow_untrained)
-    if isinstance(weights, tuple):
-        cfg, w = weights
-        nets.check_weights(cfg, w)
-        return cfg, w, True
-    if isinstance(weights, str) and weights == UNTRAINED:
-        cfg = nets.make_config(widths)
-        return cfg, nets.init_weights(cfg), False
-    cfg, w = nets.load(weights_file(weights, "an NSRR .safetensors file"))
-    return cfg, w, True
+    return SPEC.load_network(nets, weights, scale, lambda: nets.make_config(widths), allow_untrained,
+                             "an NSRR .safetensors file")
 
 
 class NsrrUpscaler(MethodUpscaler):

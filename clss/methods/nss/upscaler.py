@@ -12,7 +12,7 @@ one; without it weights= or allow_untrained=True (the seeded init).
 """
 from __future__ import annotations
 
-from ...pipeline.method import UNTRAINED, MethodSpec, MethodUpscaler, weights_file
+from ...pipeline.method import MethodSpec, MethodUpscaler
 from . import networks as nets
 from .frame import KERNEL, STAGES, NssFrameStep
 
@@ -21,15 +21,7 @@ def load_weights(weights, scale, quality="mid", allow_untrained=False) -> tuple[
     """(config, weights, trained). weights: None (the shipped file), "untrained", a
     .safetensors path, or a (config, weights dict) pair."""
     cfg0 = nets.make_config(scale, quality)        # checks the scale (2) and the preset
-    weights = SPEC.resolve_weights(weights, scale, allow_untrained)
-    if isinstance(weights, str) and weights == UNTRAINED:
-        return cfg0, nets.init_weights(cfg0), False
-    if isinstance(weights, tuple):
-        cfg, w = weights
-        nets.check_weights(cfg, w)
-    else:
-        cfg, w = nets.load(weights_file(weights, "an NSS .safetensors file"))
-    return cfg, w, True
+    return SPEC.load_network(nets, weights, scale, lambda: cfg0, allow_untrained, "an NSS .safetensors file")
 
 
 class NssUpscaler(MethodUpscaler):

@@ -21,7 +21,7 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, fmt_s, load_sequences, ssim, temporal
+from weights_tools.trainloop import Run, TrainError, nchw_sequences, fmt_s, load_sequences, ssim, temporal
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale", "albedo",
@@ -65,22 +65,9 @@ def display(x):
                        1.055 * y.clamp_min(0.0031308).pow(1 / 2.4) - 0.055)
 
 
-def _nchw(a, torch):
-    a = np.asarray(a, np.float32)
-    return torch.from_numpy(np.ascontiguousarray(a.transpose(0, 3, 1, 2) if a.ndim == 4 else a[:, None]))
-
-
 def _prepare(seqs, torch):
-    out = []
-    for s in seqs:
-        r = np.asarray(s["reset"], bool).copy()
-        r[0] = True
-        out.append({"color": _nchw(s["color"], torch), "depth": _nchw(s["depth"], torch),
-                    "motion": _nchw(s["motion"], torch), "albedo": _nchw(s["albedo"], torch),
-                    "normal": _nchw(s["normal"], torch), "albedo_hr": _nchw(s["albedo_hr"], torch),
-                    "ref": _nchw(s["reference"], torch), "jitter": np.asarray(s["jitter"], np.float32),
-                    "reset": r, "scale": s["scale"], "name": s["name"]})
-    return out
+    return nchw_sequences(seqs, torch, {"color": "color", "depth": "depth", "motion": "motion", "albedo": "albedo",
+                           "normal": "normal", "albedo_hr": "albedo_hr", "ref": "reference"})
 
 
 def make_batch(seqs, batch, window, R, rng):
