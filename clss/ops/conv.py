@@ -228,7 +228,8 @@ def _conv2d_blocked(dev, prec, x, w, b, t, packed, strides, pads, dilations, act
     gs = (-(-(-(-wo // t["PX"])) // lx) * lx, ho, nz)
     flags = _flags(b, residual, residual_before_act) & ~_F_BIAS
     dev.launch(k, gs, (xb.data, pw.wp.data, pw.bp.data, None if residual is None else residual.data, out.data,
-                       np.int32(t["CB"]), np.int32(h), np.int32(wd), np.int32(cout), np.int32(ho), np.int32(wo),
+                       np.int32(t["CB"]), np.int32(h), np.int32(wd), np.int32(cout), np.int32(ho),
+                       np.int32(wo),
                        np.int32(ncb), np.int32(sy), np.int32(pt), np.int32(pl), np.int32(dy), np.int32(dx),
                        np.int32(flags), np.float32(alpha), np.int32(nz)),
                local_size=(lx, 1, 1))

@@ -207,3 +207,37 @@ def base_grid(render_size, out_size, jitter) -> np.ndarray:
     gx = np.broadcast_to(((2 * u + 1) / w - 1)[None, :], (H, W))
     gy = np.broadcast_to(((2 * v + 1) / h - 1)[:, None], (H, W))
     return np.stack([gx, gy], -1)[None].astype(np.float32)
+
+
+class TwinRunner:
+    """What the temporal rooms' ONNX twins (oracle.py) share: an onnxruntime session on the
+    whole-frame graph, the contract's settings, and each frame checked and converted to the
+    internal conventions with the first frame a reset. A room's runner sets `model` and its
+    state, then calls `_start`; its step calls `_frame`."""
+
+    def _start(self, model, render_size, scale, depth_inverted, motion_scale, exposure, threads):
+        import onnxruntime as ort
+        self.model = model
+        self.render_size, self.scale = tuple(int(v) for v in render_size), float(scale)
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = threads
+        self.session = ort.InferenceSession(model.SerializeToString(), sess_options=so,
+                                            providers=["CPUExecutionProvider"])
+        self.depth_inverted, self.motion_scale, self.exposure = depth_inverted, motion_scale, exposure
+        self.first = True
+
+    def _frame(self, color, depth, motion, jitter, reset):
+        """(the frame's internal arrays, whether it is a reset: asked, or the first)."""
+        from .contract import to_internal, validate_frame
+        f = validate_frame(color, depth, motion, jitter, render_size=self.render_size,
+                           depth_inverted=self.depth_inverted)
+        x = to_internal(f, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
+                        exposure=self.exposure)
+        reset = bool(reset) or self.first
+        self.first = False
+        return x, reset
+
+    def _image(self, out):
+        """A [1, 3, H, W] graph output as the contract's H x W x 3 image, exposure undone."""
+        return np.ascontiguousarray(out[0].transpose(1, 2, 0)) * np.float32(self.exposure)
+

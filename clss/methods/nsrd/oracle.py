@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 import onnx
 
-from ...pipeline.contract import PQ_NITS, to_internal, validate_frame, validate_gbuffers
-from ...pipeline.twin import GraphBuilder, make_model, pq_decode, pq_encode, value_info
+from ...pipeline.contract import PQ_NITS, validate_gbuffers
+from ...pipeline.twin import GraphBuilder, TwinRunner, make_model, pq_decode, pq_encode, value_info
 from . import networks as nets
 from .upscaler import GBUFFERS, load_weights
 
@@ -156,41 +156,28 @@ def zero_state(cfg, render_size) -> dict:
             "h": np.zeros((1, hid, hp, wp), np.float32), "c": np.zeros((1, hid, hp, wp), np.float32)}
 
 
-class OracleNsrd:
+class OracleNsrd(TwinRunner):
     """Frame-by-frame runner of the twin with the contract's `step` (onnxruntime).
     weights: as the upscaler's, except that the default is the seeded init ("untrained");
     None = the shipped file."""
 
     def __init__(self, render_size, scale=4.0, weights="untrained", *, depth_inverted=True,
                  motion_scale=(1, 1), exposure=1.0, widths="default", threads=2, **unused):
-        import onnxruntime as ort
-        self.render_size, self.scale = tuple(int(v) for v in render_size), float(scale)
-        self.cfg, self.weights, _ = load_weights(weights, self.scale, widths)
-        self.model = build_graph(self.render_size, self.cfg, self.weights)
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = threads
-        self.session = ort.InferenceSession(self.model.SerializeToString(), sess_options=so,
-                                            providers=["CPUExecutionProvider"])
-        self.depth_inverted, self.motion_scale = depth_inverted, motion_scale
-        self.exposure = exposure
+        self.cfg, self.weights, _ = load_weights(weights, float(scale), widths)
+        self._start(build_graph(tuple(int(v) for v in render_size), self.cfg, self.weights), render_size,
+                    scale, depth_inverted, motion_scale, exposure, threads)
         s = int(self.cfg["scale"])
         h, w = self.render_size
         self.H, self.W = h * s, w * s
         self.st = zero_state(self.cfg, self.render_size)
-        self.first = True
 
     def step(self, color, depth, motion, jitter, reset=False, **gbuffers):
-        f = validate_frame(color, depth, motion, jitter, render_size=self.render_size,
-                           depth_inverted=self.depth_inverted)
+        x, reset = self._frame(color, depth, motion, jitter, reset)
         gb = validate_gbuffers("nsrd", GBUFFERS, (), gbuffers, self.render_size, (self.H, self.W))
-        x = to_internal(f, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
-                        exposure=self.exposure)
-        reset = bool(reset) or self.first
-        self.first = False
         outs = self.session.run(["output", "state_out", "hist_out", "h_out", "c_out"],
                                 frame_feeds(self.cfg, x, gb, self.st, reset))
         self.st = dict(zip(("state", "hist", "h", "c"), outs[1:]))
-        return np.ascontiguousarray(outs[0][0].transpose(1, 2, 0)) * np.float32(self.exposure)
+        return self._image(outs[0])
 
 
 def twin(method, render_size, scale=4.0, **kwargs):

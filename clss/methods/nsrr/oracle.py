@@ -24,8 +24,8 @@ import onnx
 from onnx import TensorProto
 
 from ...ops.zero_upsample import placement
-from ...pipeline.contract import PQ_NITS, output_size, to_internal, validate_frame
-from ...pipeline.twin import GraphBuilder, base_grid, make_model, pq_decode, pq_encode, value_info  # noqa: F401 (base_grid: also this module's API)
+from ...pipeline.contract import PQ_NITS, output_size
+from ...pipeline.twin import GraphBuilder, TwinRunner, base_grid, make_model, pq_decode, pq_encode, value_info  # noqa: F401 (base_grid: also this module's API)
 from . import networks as nets
 from .frame import pad4
 from .upscaler import load_weights
@@ -104,7 +104,7 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
                       __name__, OPSET)
 
 
-class OracleNsrr:
+class OracleNsrr(TwinRunner):
     """Frame-by-frame runner of the twin with the contract's `step` (onnxruntime).
     weights: as the upscaler's, except that the default is the seeded init ("untrained"),
     as every method's twin builds it (tests/test_methods.py); None = the shipped file."""
@@ -112,32 +112,19 @@ class OracleNsrr:
     def __init__(self, render_size, scale=4.0, weights="untrained", *, history=None,
                  reset_fill="zero", depth_inverted=True, motion_scale=(1, 1), exposure=1.0,
                  widths="default", threads=2, **unused):
-        import onnxruntime as ort
-        self.render_size, self.scale = tuple(int(v) for v in render_size), float(scale)
-        self.cfg, self.weights, _ = load_weights(weights, self.scale, widths)
-        self.model = build_graph(self.render_size, self.scale, self.cfg, self.weights, history)
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = threads
-        self.session = ort.InferenceSession(self.model.SerializeToString(), sess_options=so,
-                                            providers=["CPUExecutionProvider"])
+        self.cfg, self.weights, _ = load_weights(weights, float(scale), widths)
+        model = build_graph(tuple(int(v) for v in render_size), float(scale), self.cfg, self.weights, history)
+        self._start(model, render_size, scale, depth_inverted, motion_scale, exposure, threads)
         self.reset_fill = reset_fill
-        self.depth_inverted, self.motion_scale = depth_inverted, motion_scale
-        self.exposure = exposure
         h, w = self.render_size
         self.H, self.W = output_size(h, w, self.scale)
         self.hist = np.zeros((1, nets.FEAT * self.cfg["n_prev"], self.H, self.W), np.float32)
-        self.first = True
 
     def step(self, color, depth, motion, jitter, reset=False, **unused):
-        f = validate_frame(color, depth, motion, jitter, render_size=self.render_size,
-                           depth_inverted=self.depth_inverted)
-        x = to_internal(f, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
-                        exposure=self.exposure)
-        reset = bool(reset) or self.first
-        self.first = False
+        x, reset = self._frame(color, depth, motion, jitter, reset)
         feeds = frame_feeds(self.cfg, x, self.hist, reset, self.reset_fill)
         y, self.hist = self.session.run(["output", "hist_out"], feeds)
-        return np.ascontiguousarray(y[0].transpose(1, 2, 0)) * np.float32(self.exposure)
+        return self._image(y)
 
 
 def frame_feeds(cfg, x, hist, reset, reset_fill="zero") -> dict:

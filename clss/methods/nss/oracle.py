@@ -21,8 +21,7 @@ from __future__ import annotations
 import numpy as np
 import onnx
 
-from ...pipeline.contract import to_internal, validate_frame
-from ...pipeline.twin import GraphBuilder, base_grid, make_model, value_info
+from ...pipeline.twin import GraphBuilder, TwinRunner, base_grid, make_model, value_info
 from . import networks as nets
 from .upscaler import load_weights
 
@@ -349,7 +348,7 @@ def frame_feeds(cfg, x, st, reset) -> dict:
     return feeds
 
 
-class OracleNss:
+class OracleNss(TwinRunner):
     """Frame-by-frame runner of the twin with the contract's `step` (onnxruntime).
     weights: as the upscaler's, except that the default is the seeded init."""
 
@@ -357,32 +356,19 @@ class OracleNss:
 
     def __init__(self, render_size, scale=2.0, weights="untrained", *, depth_inverted=True,
                  motion_scale=(1, 1), exposure=1.0, quality="mid", threads=2, **unused):
-        import onnxruntime as ort
-        self.render_size, self.scale = tuple(int(v) for v in render_size), float(scale)
-        self.cfg, self.weights, _ = load_weights(weights, self.scale, quality)
-        self.model = build_graph(self.render_size, self.cfg, self.weights)
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = threads
-        self.session = ort.InferenceSession(self.model.SerializeToString(), sess_options=so,
-                                            providers=["CPUExecutionProvider"])
-        self.depth_inverted, self.motion_scale = depth_inverted, motion_scale
-        self.exposure = exposure
+        self.cfg, self.weights, _ = load_weights(weights, float(scale), quality)
+        self._start(build_graph(tuple(int(v) for v in render_size), self.cfg, self.weights), render_size,
+                    scale, depth_inverted, motion_scale, exposure, threads)
         self.st = zero_state(self.cfg, self.render_size)
         self.last: dict = {}
-        self.first = True
 
     def step(self, color, depth, motion, jitter, reset=False, **unused):
-        f = validate_frame(color, depth, motion, jitter, render_size=self.render_size,
-                           depth_inverted=self.depth_inverted)
-        x = to_internal(f, depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
-                        exposure=self.exposure)
-        reset = bool(reset) or self.first
-        self.first = False
+        x, reset = self._frame(color, depth, motion, jitter, reset)
         outs = dict(zip(self.OUTPUTS, self.session.run(list(self.OUTPUTS),
                                                        frame_feeds(self.cfg, x, self.st, reset))))
         self.st = {"hist": outs["hist_out"], "deriv": outs["deriv_out"], "tp": outs["tp_out"]}
         self.last = outs
-        return np.ascontiguousarray(outs["output"][0].transpose(1, 2, 0)) * np.float32(self.exposure)
+        return self._image(outs["output"])
 
 
 def twin(method, render_size, scale=2.0, **kwargs):
