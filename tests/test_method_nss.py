@@ -171,3 +171,17 @@ def test_upscale_cli(tmp_path, capsys):
                      "-o", str(tmp_path / "none")]) == 2
         err = capsys.readouterr().err
         assert "no trained weights" in err and "Traceback" not in err
+
+
+def test_kernel_defaults_are_the_networks_constants():
+    # nss.cl builds on its own (a porter's build, tests/test_device.py) with #ifndef defaults;
+    # they must be the very values frame.py passes as -D, or the two builds would differ.
+    import re
+    from clss.device import _define_value
+    from clss.methods.nss import networks as nets
+    from clss.methods.nss.frame import KERNEL, kernel_defines
+    src = open(KERNEL).read()
+    defaults = dict(re.findall(r"#ifndef (\w+)\n#define \1 (\S+)\n#endif", src))
+    passed = kernel_defines(nets.make_config(2, "mid"))
+    assert set(passed) <= set(defaults), set(passed) - set(defaults)
+    assert {k: _define_value(v) for k, v in passed.items()} == {k: defaults[k] for k in passed}

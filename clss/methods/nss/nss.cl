@@ -38,6 +38,56 @@
 #ifndef KPN
 #define KPN 4
 #endif
+/* Defaults: networks.py's values (frame.py passes them as -D; tests/test_method_nss.py checks
+ * these equal them), so the source also builds on its own, as a porter builds it. */
+#ifndef COLOR_MAX
+#define COLOR_MAX 65504.0f
+#endif
+#ifndef DEPTH_TOL
+#define DEPTH_TOL 0.05f
+#endif
+#ifndef DEPTH_FLOOR
+#define DEPTH_FLOOR 1e-06f
+#endif
+#ifndef GATHER_R
+#define GATHER_R 2
+#endif
+#ifndef D_MIN
+#define D_MIN 0.05f
+#endif
+#ifndef D_MAX
+#define D_MAX 0.3f
+#endif
+#ifndef D_ALPHA
+#define D_ALPHA 0.1f
+#endif
+#ifndef LUMA_R
+#define LUMA_R 0.2126f
+#endif
+#ifndef LUMA_G
+#define LUMA_G 0.7152f
+#endif
+#ifndef LUMA_B
+#define LUMA_B 0.0722f
+#endif
+#ifndef KPN_EPS
+#define KPN_EPS 1e-07f
+#endif
+#ifndef CLAMP_EPS
+#define CLAMP_EPS 1e-07f
+#endif
+#ifndef TM_MAX
+#define TM_MAX 0.9999990463256836f
+#endif
+#ifndef ALPHA_LO
+#define ALPHA_LO 0.05f
+#endif
+#ifndef ALPHA_HI
+#define ALPHA_HI 0.4f
+#endif
+#ifndef GAMMA_SCALE
+#define GAMMA_SCALE 2.0f
+#endif
 
 static float fin(float v, float fill)
 {
