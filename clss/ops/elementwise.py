@@ -393,10 +393,6 @@ def _gather(dev, prec, x, out, base: int, src_strides, what: str):
     """out[i] = x[base + sum_d i_d * src_strides[d]] over out's shape: the
     strided copy that slice, transpose and expand are."""
     dims, (src,) = coalesce(out.shape, [list(src_strides)])
-    if len(dims) == 1 and src == [1]:
-        # one contiguous run (a channel range of an NCHW batch of one, say): a buffer copy
-        dev.copy(out, x.reshape(-1)[base:base + dims[0]])
-        return
     dims, (src,) = _four(dims, [src], what)
     gs, dargs = _grid(dims)
     k = dev.kernel("elementwise", "gather", prec)
