@@ -13,7 +13,7 @@ import numpy as np
 from clss.device import storage_dtype
 
 from ..cases import BenchCase
-from ..netcases import (BENCH_JITTER, frame_bench_case, frame_setup, median_ms, network_cases,
+from ..netcases import (BENCH_JITTER, frame_bench_case, frame_runner, frame_setup, median_ms, network_cases,
                         synthetic_frame)
 
 # The host-wait bench (bench/hostwait.py) rows this method (its frame step enqueues
@@ -40,17 +40,8 @@ def nss_frame_case(render_size, tier: str, weights=None) -> BenchCase:
     def build(dev, prec, params):
         from clss import Upscaler
         up = Upscaler(method="nss", scale=2, device=dev, precision=prec, weights=(cfg, wts))
-        color, depth, motion = synthetic_frame(h, w)
-        d = [dev.to_device(a, "fp32") for a in (color, depth, motion)]
+        run, (color, depth, motion) = frame_runner(dev, up, (h, w), (H, W))
         jitter = np.array(BENCH_JITTER, np.float32)
-        out = dev.empty((H, W, 3), dtype=np.float32)
-        up.step_device(*d, jitter, reset=True, out=out)
-        calls = [0]
-
-        def run():
-            up.step_device(*d, jitter, reset=calls[0] == 0, out=out)
-            calls[0] += 1
-            return [out]
         twin = build_graph((h, w), cfg, wts)
         x = {"color": color.transpose(2, 0, 1)[None].copy(), "depth": depth[None, None].copy(),
              "motion": motion.transpose(2, 0, 1)[None].copy(), "jitter": jitter}
