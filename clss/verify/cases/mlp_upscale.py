@@ -29,8 +29,11 @@ def _weights(g):
 _TOL = {"fp16": Tolerance(atol=2e-3, rtol=2e-3), "fp16-native": Tolerance(atol=2e-3, rtol=2e-3)}
 
 
-def blocks_case(h, w, scale, feature=True) -> Case:
-    g = rng("mlp_upscale.blocks", h, w, scale, feature)
+def _network_case(name, h, w, scale, feature, graph, launch, post, tol) -> Case:
+    """A case of the MLP on seeded weights, colour and feature: `launch(dev, prec, colour,
+    feature, packed weights, defines)` against the twin `graph`; `post` maps its output
+    to what is compared (blocks as they are, the frame PQ-encoded)."""
+    g = rng(name.replace("mlp_upscale_", "mlp_upscale."), h, w, scale, feature)
     s = tf.check_scale(scale)
     t = _weights(g)
     color = (g.random((h, w, 3)) * 3.0).astype(np.float32)
@@ -40,12 +43,17 @@ def blocks_case(h, w, scale, feature=True) -> Case:
     def run(dev, prec, inputs):
         c = dev.to_device(inputs["color"], prec)
         f = dev.to_device(inputs["feat"], prec)
-        out = [dev.to_host(blocks(dev, prec, c, f, pack_weights(dev, prec, tf.packed(t)), defines))]
+        y = launch(dev, prec, c, f, pack_weights(dev, prec, tf.packed(t)), defines)
+        out = [post(dev.to_host(y))]
         return out if feature else out + [inputs["feat"]]
 
-    return Case("mlp_upscale_blocks", f"{h}x{w} x{s}" + ("" if feature else " no-feature"),
-                {"color": color, "feat": feat}, oracle.blocks_graph((h, w), s, t, feature), run,
-                tol=dict(_TOL))
+    return Case(name, f"{h}x{w} x{s}" + ("" if feature else " no-feature"),
+                {"color": color, "feat": feat}, graph((h, w), s, t, feature), run, tol=dict(tol))
+
+
+def blocks_case(h, w, scale, feature=True) -> Case:
+    return _network_case("mlp_upscale_blocks", h, w, scale, feature, oracle.blocks_graph, blocks,
+                         lambda y: y, _TOL)
 
 
 def fold_case(h, w, scale) -> Case:
@@ -70,23 +78,8 @@ def frame_case(h, w, scale, feature=True) -> Case:
     """The whole frame step (mlp_upscale.frame: the fused kernel where its fast path is
     enabled, else blocks + fold), compared PQ-encoded."""
     from ...pipeline.contract import pq_encode
-    g = rng("mlp_upscale.frame", h, w, scale, feature)
-    s = tf.check_scale(scale)
-    t = _weights(g)
-    color = (g.random((h, w, 3)) * 3.0).astype(np.float32)
-    feat = g.random((s * h, s * w)).astype(np.float32)
-    defines = tf.kernel_defines(s, feature)
-
-    def run(dev, prec, inputs):
-        c = dev.to_device(inputs["color"], prec)
-        f = dev.to_device(inputs["feat"], prec)
-        y = frame(dev, prec, c, f, pack_weights(dev, prec, tf.packed(t)), defines)
-        out = [pq_encode(np.asarray(dev.to_host(y), np.float32))]
-        return out if feature else out + [inputs["feat"]]
-
-    return Case("mlp_upscale_frame", f"{h}x{w} x{s}" + ("" if feature else " no-feature"),
-                {"color": color, "feat": feat}, oracle.frame_pq_graph((h, w), s, t, feature), run,
-                tol=dict(_FRAME_TOL))
+    return _network_case("mlp_upscale_frame", h, w, scale, feature, oracle.frame_pq_graph, frame,
+                         lambda y: pq_encode(np.asarray(y, np.float32)), _FRAME_TOL)
 
 
 def cases(level: str = "quick") -> list[Case]:
