@@ -219,15 +219,21 @@ def main_args(a):
     if not 1.0 <= a.scale <= 4.0:
         print(f"error: --scale must be in [1, 4], got {a.scale}", file=sys.stderr)
         return 2
+    splits = [s for s in a.split.split(",") if s]
+    families = [f for f in a.families.split(",") if f] if a.families else None
+    try:
+        plan(a.out, splits, families, a.sequences)   # a flag's mistake first, bpy or not
+    except UsageError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     missing = [m for m in ("bpy",) + (() if a.no_ray else ("ray",)) if not _importable(m)]
     if missing:
         print(f"error: blender needs {' and '.join(missing)} (pip install -e '.[data]')",
               file=sys.stderr)
         return 2
     try:
-        stats = run(a.out, [s for s in a.split.split(",") if s],
-                    [f for f in a.families.split(",") if f] if a.families else None,
-                    a.sequences, a.jobs, a.threads, a.ray_address, not a.no_ray,
+        stats = run(a.out, splits, families, a.sequences, a.jobs, a.threads,
+                    a.ray_address, not a.no_ray,
                     frames=a.frames, size=a.size, scale=a.scale, spp=a.spp,
                     ref_spp=a.ref_spp, hr_spp=a.hr_spp)
     except UsageError as e:
