@@ -323,3 +323,32 @@ def test_visibility_oracle_hooks_and_cli(tmp_path, capsys):
     assert spec.width > 4 * 48 and spec.height > 32
     assert vo.main([p, "--mode", "rules", "--picture", png, "--frame", "99"]) == 1
     assert "--frame 99" in capsys.readouterr().err
+
+
+def test_data_mix_draws_each_directory_by_its_share(tmp_path, capsys):
+    """--data DIR[:SHARE],...: the sequences are listed in proportion to the shares (the
+    same arrays, so a conversion runs once per sequence), and a bad mix is one line."""
+    from weights_tools import trainloop
+    a, b = tmp_path / "gen", tmp_path / "blender"
+    a.mkdir(), b.mkdir()
+    for i in range(3):
+        write_tiny_sequence(str(a / f"g{i}.npz"), n=3, seed=i)
+    write_tiny_sequence(str(b / "b0.npz"), n=3, seed=7)
+    need = ("color", "reference", "depth", "scale")
+    seqs = trainloop.load_sequences(f"{a},{b}:0.25", 1, need)
+    names = [s["name"] for s in seqs]
+    assert len(seqs) == trainloop.MIX_SLOTS
+    assert names.count("b0.npz") == 250 and {names.count(f"g{i}.npz") for i in range(3)} == {250}
+    assert len({id(s) for s in seqs}) == 4
+    converted = trainloop.per_sequence(seqs, lambda s: {"n": s["name"]})
+    assert len({id(c) for c in converted}) == 4 and converted[-1]["n"] == "b0.npz"
+    assert [s["name"] for s in trainloop.load_sequences(str(a), 1, need)] == \
+        ["g0.npz", "g1.npz", "g2.npz"]
+    for bad, says in ((f"{a},{b}:1.5", "between 0 and 1"), (f"{a}:0.5,{b}:0.6", "add up to 1.1"),
+                      (f"{a},{b}:x", "must be a number"), (f"{a},{tmp_path}/none", "not a directory")):
+        with pytest.raises(trainloop.TrainError, match=says):
+            trainloop.load_sequences(bad, 1, need)
+    assert main(["train", "nsrr", "--data", f"{a},{b}:2", "--out", str(tmp_path / "o"),
+                 "--steps", "1"]) != 0
+    err = capsys.readouterr().err
+    assert "--data:" in err and "Traceback" not in err

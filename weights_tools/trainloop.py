@@ -58,21 +58,78 @@ def nchw_sequences(seqs, torch, images: dict) -> list[dict]:
     def nchw(a):
         a = np.asarray(a, np.float32)
         return torch.from_numpy(np.ascontiguousarray(a.transpose(0, 3, 1, 2) if a.ndim == 4 else a[:, None]))
-    out = []
-    for s in seqs:
+    def one(s):
         r = np.asarray(s["reset"], bool).copy()
         r[0] = True
-        out.append({**{k: nchw(s[src]) for k, src in images.items()},
-                    "jitter": np.asarray(s["jitter"], np.float32), "reset": r,
-                    "scale": s["scale"], "name": s["name"]})
+        return {**{k: nchw(s[src]) for k, src in images.items()},
+                "jitter": np.asarray(s["jitter"], np.float32), "reset": r,
+                "scale": s["scale"], "name": s["name"]}
+    return per_sequence(seqs, one)
+
+
+def per_sequence(seqs, fn):
+    """[fn(s) for s in seqs], with fn run once per distinct sequence: a mix (load_sequences)
+    lists a sequence several times, and its conversions share one copy too."""
+    done = {}
+    return [done[id(s)] if id(s) in done else done.setdefault(id(s), fn(s)) for s in seqs]
+
+
+def parse_mix(data):
+    """--data as the recipes take it: one directory, or a mix "DIR[:SHARE],DIR[:SHARE],..."
+    (e.g. out/data/train,out/data/blender/train:0.3). A SHARE is the fraction of the draws
+    that come from that directory's sequences; the directories without one share the rest
+    equally. Returns [(directory, share)]."""
+    parts = [p for p in str(data).split(",") if p]
+    if not parts:
+        raise TrainError("--data: no directory given")
+    out = []
+    for p in parts:
+        d, sep, share = p.rpartition(":")
+        if not sep or os.path.isdir(p):
+            out.append((p, None))
+            continue
+        try:
+            v = float(share)
+        except ValueError:
+            raise TrainError(f"--data: {p!r}: the share after ':' must be a number") from None
+        if not 0.0 < v < 1.0:
+            raise TrainError(f"--data: {p!r}: a share is between 0 and 1 (exclusive), got {v:g}")
+        out.append((d, v))
+    given = sum(v for _, v in out if v is not None)
+    free = [d for d, v in out if v is None]
+    if given >= 1.0 + 1e-9 or (not free and abs(given - 1.0) > 1e-6):
+        raise TrainError(f"--data: the shares add up to {given:g}; they leave the directories "
+                         "without one a positive share, or add up to 1")
+    return [(d, v if v is not None else (1.0 - given) / len(free)) for d, v in out]
+
+
+def load_sequences(data, frames, required, prepare=None):
+    """The DATA.md sequences of `data` (a directory, or a mix: parse_mix) with at least
+    `frames` frames and every key of `required`, as dicts of arrays with "scale" (an
+    integer: patches are cut at the same place at render and output resolution) and "name".
+    `prepare(seq)` converts a sequence in place (e.g. the reference to the training
+    domain). The recipes draw a sequence uniformly from the list, so a mix repeats each
+    directory's sequences (the same arrays, not copies) in proportion to its share, to
+    within one sequence in MIX_SLOTS."""
+    mix = parse_mix(data)
+    if len(mix) == 1:
+        return _load_dir(mix[0][0], frames, required, prepare)
+    loaded = [(_load_dir(d, frames, required, prepare), v) for d, v in mix]
+    scales = {s["scale"] for seqs, _ in loaded for s in seqs}
+    if len(scales) > 1:
+        raise TrainError(f"--data: the mix has sequences at several scales {sorted(scales)}; "
+                         "train one scale")
+    out = []
+    for seqs, v in loaded:
+        n = max(1, round(v * MIX_SLOTS))
+        out += [seqs[i % len(seqs)] for i in range(n)]
     return out
 
 
-def load_sequences(data_dir, frames, required, prepare=None):
-    """The DATA.md sequences of `data_dir` with at least `frames` frames and every key of
-    `required`, as dicts of arrays with "scale" (an integer: patches are cut at the same
-    place at render and output resolution) and "name". `prepare(seq)` converts a
-    sequence in place (e.g. the reference to the training domain)."""
+MIX_SLOTS = 1000
+
+
+def _load_dir(data_dir, frames, required, prepare):
     if not os.path.isdir(data_dir):
         raise TrainError(f"--data: {data_dir} is not a directory")
     paths = sorted(glob.glob(os.path.join(data_dir, "*.npz")))

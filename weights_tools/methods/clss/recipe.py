@@ -430,7 +430,7 @@ def train(args):
 
 def add_arguments(t):
     """The CLSS recipe's options (`train clss ...`)."""
-    t.add_argument("--data", required=True, help="directory of DATA.md .npz sequences")
+    t.add_argument("--data", required=True, help="a directory of DATA.md .npz sequences; or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
     add_run_arguments(t, threads=2)
     # Defaults: the shipped recipe (issue 23), about 12 minutes of steps per seed on one
     # thread of this 2-core machine. 1200 composition steps instead of 400 gave, from the

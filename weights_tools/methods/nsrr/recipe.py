@@ -28,14 +28,14 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, fmt_s, load_sequences, ssim
+from weights_tools.trainloop import Run, TrainError, fmt_s, load_sequences, per_sequence, ssim
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
 
 
 def add_arguments(t):
-    t.add_argument("--data", required=True, help="directory of DATA.md .npz sequences (one scale)")
+    t.add_argument("--data", required=True, help="a directory of DATA.md .npz sequences (one scale); or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
     add_run_arguments(t)
     t.add_argument("--steps", type=int, default=1500)
     t.add_argument("--batch", type=int, default=8)
@@ -138,8 +138,8 @@ class AliveProbe:
 
 def _prepare(seqs, torch):
     from .twin import pq_encode
-    out = []
-    for s in seqs:
+
+    def one(s):
         c = torch.from_numpy(np.ascontiguousarray(s["color"].astype(np.float32).transpose(0, 3, 1, 2)))
         d = torch.from_numpy(np.ascontiguousarray(s["depth"].astype(np.float32)[:, None]))
         r = torch.from_numpy(np.ascontiguousarray(s["reference"].astype(np.float32).transpose(0, 3, 1, 2)))
@@ -148,12 +148,12 @@ def _prepare(seqs, torch):
         last = np.zeros(len(resets), int)     # the last reset at or before each frame
         for t in range(len(resets)):
             last[t] = t if resets[t] else last[t - 1]
-        out.append({"rgbd": torch.cat([pq_encode(c), d], 1),
-                    "motion": torch.from_numpy(np.ascontiguousarray(
-                        s["motion"].astype(np.float32).transpose(0, 3, 1, 2))),
-                    "jitter": np.asarray(s["jitter"], np.float32), "last": last,
-                    "ref": pq_encode(r), "scale": s["scale"], "name": s["name"]})
-    return out
+        return {"rgbd": torch.cat([pq_encode(c), d], 1),
+                "motion": torch.from_numpy(np.ascontiguousarray(
+                    s["motion"].astype(np.float32).transpose(0, 3, 1, 2))),
+                "jitter": np.asarray(s["jitter"], np.float32), "last": last,
+                "ref": pq_encode(r), "scale": s["scale"], "name": s["name"]}
+    return per_sequence(seqs, one)
 
 
 def choose_patches(seqs, n, keep, pr, margin, rng):
