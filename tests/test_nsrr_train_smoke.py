@@ -26,3 +26,24 @@ def test_train_nsrr_smoke_and_resume(tmp_path, capsys, dev):
     z = np.load(seq)
     y = up.step(z["color"][0], z["depth"][0], z["motion"][0], tuple(z["jitter"][0]))
     assert y.shape == (32, 48, 3) and np.isfinite(y).all()
+
+
+def test_train_nsrr_fine_tunes_from_init(tmp_path, capsys):
+    """--init: a fine-tune starts from a file's weights and config (issue 31's retraining
+    on the Blender mix starts from the shipped weights); a missing file is one line."""
+    from weights_tools.__main__ import main
+    seq, out = train_smoke(tmp_path, capsys, "nsrr",
+                           ["--batch", "2", "--patch", "16", "--margin", "2", "--candidates", "8",
+                            "--widths", "fast"], 6)
+    first = os.path.join(out, "weights.safetensors")
+    out2 = str(tmp_path / "ft")
+    args = ["train", "nsrr", "--data", os.path.dirname(seq), "--out", out2, "--batch", "2",
+            "--patch", "16", "--margin", "2", "--candidates", "8", "--steps", "1"]
+    assert main(args + ["--init", first]) == 0
+    (c0, w0), (c1, w1) = nets.load(first), nets.load(os.path.join(out2, "weights.safetensors"))
+    assert c1 == c0 and c1["name"] == "fast"            # the file's config, not --widths'
+    assert 0 < max(float(np.abs(w1[k] - w0[k]).max()) for k in w0) < 0.1
+    capsys.readouterr()
+    assert main(args + ["--init", str(tmp_path / "none.safetensors")]) != 0
+    err = capsys.readouterr().err
+    assert "--init:" in err and "Traceback" not in err

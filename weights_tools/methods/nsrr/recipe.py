@@ -64,6 +64,8 @@ def add_arguments(t):
                    help="weight of the chroma channels in the YCbCr loss (1 = plain YCbCr)")
     t.add_argument("--perceptual", choices=("none", "random"), default="none")
     t.add_argument("--perceptual-weight", type=float, default=0.1)
+    t.add_argument("--init", default=None, help="start from these NSRR weights (.safetensors; "
+                   "their config replaces --widths, --n-prev, --act and --no-residual)")
     t.add_argument("--candidates", type=int, default=4000, help="random patches scored")
     t.add_argument("--keep", type=float, default=0.3, help="fraction of candidates kept")
 
@@ -230,10 +232,19 @@ def cmd_train(args):
     if pr + 2 * args.margin > min(h, w):
         raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
                          f"{h}x{w} frames")
-    cfg = nets.make_config(args.widths, args.n_prev, residual=not args.no_residual, act=args.act)
-    w0 = nets.init_weights(cfg, args.seed)
-    if args.last_init == "zero" and cfg["residual"]:
-        w0["un.9.weight"][:] = 0.0
+    if args.init:
+        if not os.path.isfile(args.init):
+            raise TrainError(f"--init: {args.init} is not a file (NSRR weights, .safetensors)")
+        try:
+            cfg, w0 = nets.load(args.init)
+        except (ValueError, OSError) as e:
+            raise TrainError(f"--init: {args.init}: {e}") from None
+    else:
+        cfg = nets.make_config(args.widths, args.n_prev, residual=not args.no_residual,
+                               act=args.act)
+        w0 = nets.init_weights(cfg, args.seed)
+        if args.last_init == "zero" and cfg["residual"]:
+            w0["un.9.weight"][:] = 0.0
     net = NsrrNet(cfg, w0)
     probe = AliveProbe(net)
     step = TorchStep(net, sc, reset_fill=args.reset_fill)
