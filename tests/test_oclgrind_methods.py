@@ -35,21 +35,43 @@ print("method kernels ok")
 """
 
 
-@pytest.mark.oclgrind
-@pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
-@pytest.mark.parametrize("method, scale, prec, extra", [
-    ("nsrr", 2, "fp32", ""), ("nsrd", 2, "fp32", ""), ("nsrd", 3, "fp16", ""),
-    ("nss", 2, "fp32", ""), ("nss", 2, "fp16", ', depth_scatter="gather"')])
-def test_method_kernels_clean_under_oclgrind(method, scale, prec, extra, tmp_path):
-    env = oclgrind_env(tmp_path)
+CASES = [("nsrr", 2, "fp32", ""), ("nsrd", 2, "fp32", ""), ("nsrd", 3, "fp16", ""),
+         ("nss", 2, "fp32", ""), ("nss", 2, "fp16", ', depth_scatter="gather"')]
+
+
+def _run(case, tmp):
+    method, scale, prec, extra = case
+    env = oclgrind_env(tmp)
     # the networks' convolutions on the NCHW kernel: the channel-blocked one is run under
     # oclgrind on its own (tests/test_oclgrind.py, xfail: a second launch in one process
     # reads as uninitialised there)
     env["CLSS_SELFCHECK_FORCED"] = "conv.blocked=0"
     env["PYTHONPATH"] = os.pathsep.join([os.getcwd(), env.get("PYTHONPATH", "")])
-    p = subprocess.run([sys.executable, "-W", "ignore", "-c",
-                        SCRIPT.format(method=method, scale=scale, prec=prec, extra=extra)],
-                       env=env, capture_output=True, text=True, timeout=900)
+    return subprocess.run([sys.executable, "-W", "ignore", "-c",
+                           SCRIPT.format(method=method, scale=scale, prec=prec, extra=extra)],
+                          env=env, capture_output=True, text=True, timeout=900)
+
+
+@pytest.fixture(scope="module")
+def runs(request, tmp_path_factory):
+    """The selected cases' oclgrind runs, started together two at a time: oclgrind
+    interprets on one thread, and these runs are most of their module's time (about 7
+    minutes one after the other)."""
+    from concurrent.futures import ThreadPoolExecutor
+    chosen = [tuple(it.callspec.params[k] for k in ("method", "scale", "prec", "extra"))
+              for it in request.session.items
+              if getattr(it, "originalname", "") == "test_method_kernels_clean_under_oclgrind"]
+    pool = ThreadPoolExecutor(2)
+    futures = {c: pool.submit(_run, c, tmp_path_factory.mktemp("oclgrind")) for c in chosen}
+    yield futures
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
+@pytest.mark.oclgrind
+@pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
+@pytest.mark.parametrize("method, scale, prec, extra", CASES)
+def test_method_kernels_clean_under_oclgrind(method, scale, prec, extra, runs):
+    p = runs[(method, scale, prec, extra)].result()
     diags = [line for line in p.stderr.splitlines() if DIAGNOSTIC.search(line)]
     assert not diags, "oclgrind reported:\n" + "\n".join(p.stderr.splitlines()[:60])
     assert p.returncode == 0 and "method kernels ok" in p.stdout, p.stdout[-3000:] + p.stderr[-3000:]
