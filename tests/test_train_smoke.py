@@ -352,3 +352,32 @@ def test_data_mix_draws_each_directory_by_its_share(tmp_path, capsys):
                  "--steps", "1"]) != 0
     err = capsys.readouterr().err
     assert "--data:" in err and "Traceback" not in err
+
+
+def test_unlabelled_shards_fine_tune_the_composition_only(tiny_data, tmp_path, capsys):
+    """Blender shards carry no ghost/alias labels: in a mix they are refused while the
+    classifier stage trains (one line saying what to do), and with --cls-steps 0 the
+    composition fine-tunes on them (the classifier's weights stay the --init file's)."""
+    from clss.networks import save_weights
+    from clss.methods.clss.networks import build_classifier, build_composition
+    from clss.networks import model_weights
+    blend = tmp_path / "blender"
+    blend.mkdir()
+    z = dict(np.load(os.path.join(tiny_data, "a.npz")))
+    np.savez(blend / "b.npz", **{k: v for k, v in z.items() if not k.startswith("label_")})
+    mix = f"{tiny_data},{blend}:0.5"
+    out = str(tmp_path / "ft")
+    assert main(["train", "--data", mix, "--out", out] + ARGS) == 1
+    err = capsys.readouterr().err
+    assert "lacks label_ghost, label_alias" in err and "--cls-steps 0" in err
+    init = {**model_weights(build_classifier()), **model_weights(build_composition())}
+    save_weights(init, str(tmp_path / "init.safetensors"))
+    args = [a if a != "3" else "0" for a in ARGS]           # --cls-steps 0
+    assert main(["train", "--data", mix, "--out", out, "--init",
+                 str(tmp_path / "init.safetensors")] + args) == 0
+    w = load_weights(os.path.join(out, "weights.safetensors"))
+    # (the classifier goes through the normalised basis and back: float rounding only)
+    assert all(np.allclose(w[k], v, rtol=1e-4, atol=1e-6) for k, v in init.items()
+               if k.startswith("cls."))
+    assert any(not np.allclose(w[k], v, rtol=1e-3, atol=1e-5) for k, v in init.items()
+               if k.startswith("comp."))

@@ -103,18 +103,18 @@ def parse_mix(data):
     return [(d, v if v is not None else (1.0 - given) / len(free)) for d, v in out]
 
 
-def load_sequences(data, frames, required, prepare=None):
+def load_sequences(data, frames, required, prepare=None, optional=()):
     """The DATA.md sequences of `data` (a directory, or a mix: parse_mix) with at least
     `frames` frames and every key of `required`, as dicts of arrays with "scale" (an
     integer: patches are cut at the same place at render and output resolution) and "name".
     `prepare(seq)` converts a sequence in place (e.g. the reference to the training
-    domain). The recipes draw a sequence uniformly from the list, so a mix repeats each
+    domain); the keys of `optional` are loaded where a sequence has them. The recipes draw a sequence uniformly from the list, so a mix repeats each
     directory's sequences (the same arrays, not copies) in proportion to its share, to
     within one sequence in MIX_SLOTS."""
     mix = parse_mix(data)
     if len(mix) == 1:
-        return _load_dir(mix[0][0], frames, required, prepare)
-    loaded = [(_load_dir(d, frames, required, prepare), v) for d, v in mix]
+        return _load_dir(mix[0][0], frames, required, prepare, optional)
+    loaded = [(_load_dir(d, frames, required, prepare, optional), v) for d, v in mix]
     scales = {s["scale"] for seqs, _ in loaded for s in seqs}
     if len(scales) > 1:
         raise TrainError(f"--data: the mix has sequences at several scales {sorted(scales)}; "
@@ -129,7 +129,7 @@ def load_sequences(data, frames, required, prepare=None):
 MIX_SLOTS = 1000
 
 
-def _load_dir(data_dir, frames, required, prepare):
+def _load_dir(data_dir, frames, required, prepare, optional):
     if not os.path.isdir(data_dir):
         raise TrainError(f"--data: {data_dir} is not a directory")
     paths = sorted(glob.glob(os.path.join(data_dir, "*.npz")))
@@ -143,7 +143,7 @@ def _load_dir(data_dir, frames, required, prepare):
             missing = [k for k in required if k not in z.files]
             if missing:
                 raise TrainError(f"--data: {p} lacks {', '.join(missing)} (see weights_tools/DATA.md)")
-            s = {k: z[k] for k in required}
+            s = {k: z[k] for k in tuple(required) + tuple(optional) if k in z.files}
         except (OSError, ValueError) as e:
             if isinstance(e, TrainError):
                 raise

@@ -83,18 +83,30 @@ STAGES = ("classifier", "composition")
 
 # ---- data --------------------------------------------------------------------------------
 
-REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "label_ghost",
-            "label_alias", "scale")
+REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
+LABELS = ("label_ghost", "label_alias")
 
 
-def load_sequences(data_dir, frames):
+def load_sequences(data_dir, frames, labels_needed=True):
     """The DATA.md sequences of `data_dir` with at least `frames` frames, as dicts of
-    arrays (reference PQ-encoded in float16 to halve the memory)."""
+    arrays (reference PQ-encoded in float16 to halve the memory). Sequences without the
+    generator's labels (Blender shards) are refused when `labels_needed` (the classifier
+    stage trains on them); otherwise they get the "none" class everywhere, which leaves the
+    composition stage an L1 loss against the reference on all their pixels."""
     def prepare(s):
         with torch.no_grad():
             s["reference"] = twin.pq_encode(torch.from_numpy(s["reference"])).numpy() \
                 .astype(np.float16)
-    return _load_sequences(data_dir, frames, REQUIRED, prepare)
+        missing = [k for k in LABELS if k not in s]
+        if missing and labels_needed:
+            raise TrainError(f"--data: a sequence lacks {', '.join(missing)} (Blender shards "
+                             "carry no labels): the classifier stage needs them; fine-tune "
+                             "the composition only with --init W --cls-steps 0")
+        T, h, w = s["depth"].shape
+        shape = (T,) + s["reference"].shape[1:3]
+        s.setdefault("label_ghost", np.full(shape, GHOST_NONE, np.uint8))
+        s.setdefault("label_alias", np.full(shape, ALIAS_NONE, np.uint8))
+    return _load_sequences(data_dir, frames, REQUIRED, prepare, optional=LABELS)
 
 
 def select_patches(seqs, patch, frames, candidates, keep, rng):
@@ -356,7 +368,7 @@ def export_checkpoint(out_dir):
 def train(args):
     run = Run(args, STAGES)
     device = twin.pick_device(args.device)
-    seqs = load_sequences(args.data, args.frames)
+    seqs = load_sequences(args.data, args.frames, labels_needed=args.cls_steps > 0)
     rsize, osize = patch_size(seqs, args.patch)
     rng = np.random.default_rng([args.seed, 0])
     items, mean_score = select_patches(seqs, osize, args.frames, args.candidates, args.keep, rng)
