@@ -49,15 +49,16 @@ def _prepare(seqs, feature):
     import torch
     from clss.methods.mlp.patches import gradient_integral
     from clss.pipeline.contract import pq_encode
-    out = []
-    for s in seqs:
+    from weights_tools.trainloop import per_sequence
+
+    def one(s):
         c = torch.from_numpy(pq_encode(s["color"]).transpose(0, 3, 1, 2).copy())
         r = torch.from_numpy(pq_encode(s["reference"]).transpose(0, 3, 1, 2).copy())
         f = torch.from_numpy(np.asarray(s["depth_hr"], np.float32)[:, None].copy()) \
             if feature else None
         integ = gradient_integral(r.numpy().transpose(0, 2, 3, 1))
-        out.append({"color": c, "ref": r, "feat": f, "integ": integ, "name": s["name"]})
-    return out
+        return {"color": c, "ref": r, "feat": f, "integ": integ, "name": s["name"]}
+    return per_sequence(seqs, one)
 
 
 class Sampler:
