@@ -181,7 +181,8 @@ def cmd_train(a):
     path = os.path.join(a.out, "mlp.safetensors")
     meta = {"recipe": "weights_tools/methods/mlp/recipe.py", "scale": scale, "feature": feature,
             "steps": a.steps, "batch": a.batch, "lr": a.lr, "seed": a.seed,
-            "data": os.path.basename(os.path.normpath(a.scene or a.data)),
+            "data": (os.path.basename(os.path.normpath(a.scene or a.data)) if "," not in
+                     str(a.data) else a.data),     # a mix: its directories and shares
             "final_l1": round(float(np.mean(run.log["losses"]["mlp"][-100:])), 6)}
     tf.save_weights(tensors, path, meta)
     run.write_log()
