@@ -68,9 +68,9 @@ def _logger(bar):
 def _bench_parser() -> ArgParser:
     p = ArgParser(
         prog="clss bench",
-        description="Benchmark every clss kernel (and, once they exist, the CLSS networks and the whole "
-                    "frame step) against onnxruntime running the same ONNX twin on the CPU, in one process, "
-                    "alternating, after warm-up. Reports median and min wall time, OpenCL event time, GFLOP/s "
+        description="Benchmark every clss kernel, the methods' networks and their conv layers, and every "
+                    "method's frame step against onnxruntime running the same ONNX twin on the CPU, in one "
+                    "process, alternating, after warm-up. Reports median and min wall time, OpenCL event time, GFLOP/s "
                     "or GB/s, onnxruntime time / engine time, and the share of the device's measured peak "
                     "(FMA and stream probes). " + LEVEL_HELP + ".",
         epilog="examples:\n  clss bench --quick\n  clss bench --filter conv --precision fp32 --out out/bench\n"
