@@ -7,11 +7,12 @@ device outputs), the twin and its feeds for onnxruntime, the tolerance for the
 one-time output check, and the compulsory bytes each side moves (inputs read once,
 outputs written once: the floor every implementation pays).
 
-Shapes come from the frame step at a render size and scale 2 (clss-frame.md):
-tier "540p" is 540x960 -> 1080x1920 (the default set), tier "1080p" is
-1080x1920 -> 2160x3840 (--full). The classifier runs on the output padded to a
-multiple of 16 (1088x1920 at 1080p), after SpaceToDepth(2) at 544x960; its conv
-layers are read from clss.methods.clss.networks so they follow the network's widths.
+Shapes come from the frame step at a render size and scale 2 (clss-frame.md). A tier is
+named by the frame's output resolution, for every case and method alike: tier "1080p" is
+540x960 -> 1080x1920 here (the default set), tier "2160p" is 1080x1920 -> 2160x3840
+(--full). The classifier runs on the output padded to a multiple of 16 (1088x1920 at
+1080p), after SpaceToDepth(2) at 544x960; its conv layers are read from
+clss.methods.clss.networks so they follow the network's widths.
 
 Any ONNX network's conv layers become cases the same way (`network_layers`, `layer_case`):
 the classifier's here, the other methods' networks in their bench rooms
@@ -42,10 +43,15 @@ from clss.verify.cases import scatter as scatter_twins, space_to_depth as s2d_tw
 from clss.verify.cases import warp as warp_twins
 from clss.verify.twin import make_model, node_model
 
-TIERS = {"540p": ((540, 960), 2.0), "1080p": ((1080, 1920), 2.0),
+# Tiers are named by the OUTPUT resolution, so that one name means one frame whatever
+# the method: "1080p" is a 1080x1920 output (540x960 at 2x, 360x640 at 3x, 270x480 at 4x),
+# "2160p" a 2160x3840 one. The value is CLSS's frame step to that output (render size,
+# scale), whose shapes this module's kernel cases take; the method rooms (bench/methods/)
+# choose their render sizes and scales per tier.
+TIERS = {"1080p": ((540, 960), 2.0), "2160p": ((1080, 1920), 2.0),
          # a smoke test of the bench itself (tests, --tiny): every case, numbers meaningless
          "tiny": ((16, 32), 2.0)}
-LEVEL_TIERS = {"quick": ("540p",), "default": ("540p",), "full": ("540p", "1080p")}
+LEVEL_TIERS = {"quick": ("1080p",), "default": ("1080p",), "full": ("1080p", "2160p")}
 # What each kind is judged against (the issue's targets) and which peak bounds it.
 KINDS = ("conv", "memory", "compute", "network", "frame")
 
@@ -63,6 +69,10 @@ class Setup:
     post: Callable | None = None     # host outputs -> the twin's layout, for the check
     out_index: int | None = None     # check only this twin output (others are state)
     note: str = ""
+    # A frame step's {stage: event ms} of the frames since the last call, where the room
+    # times its stages: its launches are prepared once (clss.device.Launch), out of the
+    # sight of the runner's Capture, which sees only Device.launch.
+    stages: Callable[[], dict] | None = None
 
 
 @dataclass

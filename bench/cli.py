@@ -11,8 +11,13 @@ from clss.cli.args import (DEVICE_HELP, ArgParser, UsageError, check_output_file
                            positive_int, prepare_output_dir)
 from clss.errors import cli_message
 
-LEVEL_HELP = ("--quick: a small subset (about a minute); default: every kernel at the CLSS "
-              "540p -> 1080p shapes; --full: adds 1080p -> 2160p")
+LEVEL_HELP = ("Tiers are named by the frame's output resolution, whatever the method: [1080p] is a "
+              "1080x1920 output (render 540x960 at 2x, 360x640 at 3x, 270x480 at 4x), [2160p] a "
+              "2160x3840 one. --quick: a small subset (about a minute); default: every kernel at the "
+              "CLSS 540p -> 1080p shapes, the CLSS networks and the frame steps at 1080p, but NSRR's, "
+              "NSRD's and NSS's (minutes: `--list` says why); --full: adds those and the 2160p tier "
+              "(CLSS 1080p -> 2160p)")
+FULL_HELP = "also the NSRR, NSRD and NSS networks, layers and frame steps, and the 2160p-output tier"
 
 
 def _level(a) -> str:
@@ -63,16 +68,17 @@ def _logger(bar):
 def _bench_parser() -> ArgParser:
     p = ArgParser(
         prog="clss bench",
-        description="Benchmark every clss kernel (and, once they exist, the CLSS networks and the whole "
-                    "frame step) against onnxruntime running the same ONNX twin on the CPU, in one process, "
-                    "alternating, after warm-up. Reports median and min wall time, OpenCL event time, GFLOP/s "
+        description="Benchmark every clss kernel, the methods' networks and their conv layers, and every "
+                    "method's frame step against onnxruntime running the same ONNX twin on the CPU, in one "
+                    "process, alternating, after warm-up. Reports median and min wall time, OpenCL event time, GFLOP/s "
                     "or GB/s, onnxruntime time / engine time, and the share of the device's measured peak "
                     "(FMA and stream probes). " + LEVEL_HELP + ".",
         epilog="examples:\n  clss bench --quick\n  clss bench --filter conv --precision fp32 --out out/bench\n"
-               "  clss bench --full --json full.json\n  clss bench --compare before.json after.json",
+               "  clss bench --full --json full.json\n  clss bench --methods --full -p fp32\n"
+               "  clss bench --compare before.json after.json",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="a small subset that finishes in about a minute")
-    p.add_argument("--full", action="store_true", help="also the 1080p -> 2160p shapes")
+    p.add_argument("--full", action="store_true", help=FULL_HELP)
     p.add_argument("--tiny", action="store_true",
                    help="tiny shapes and a brief peak probe: a smoke test of the bench itself (numbers meaningless)")
     p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
@@ -97,8 +103,14 @@ def _bench_parser() -> ArgParser:
     p.add_argument("--no-check", action="store_true", help="skip the one-time output check per case")
     p.add_argument("--host-waits", action="store_true",
                    help="instead of the cases: wall time per frame step against its summed OpenCL event "
-                        "time and the host's enqueue time, per method (clss, clss-rules, jbicubic) at "
-                        "270p -> 540p and 540p -> 1080p (--tiny: 34x60 -> 68x120), after warm-up frames")
+                        "time and the host's enqueue time, per method (clss, clss-rules, jbicubic, nsrr, nsrd, "
+                        "nss) at 270p -> 540p and 540p -> 1080p after warm-up frames (--tiny: the tiny tier's "
+                        "16x32 -> 32x64 after one); --runs: the timed frames (default 5, --tiny 2)")
+    p.add_argument("--methods", action="store_true",
+                   help="only the methods' frame steps at the level's tiers (clss net and rule, bicubic, mlp; "
+                        "with --full also nsrr, nsrd, nss), one row each: clss and onnxruntime time, their "
+                        "ratio, and where clss's time goes (the OpenCL event ms of one timed frame step per "
+                        "kernel, largest first); no peak probes")
     p.add_argument("--list", action="store_true", help="list the cases and exit")
     p.add_argument("--compare", nargs=2, metavar=("A.json", "B.json"), help="compare two runs and exit")
     return p
@@ -108,6 +120,8 @@ def bench_main(argv=None) -> int:
     a = _bench_parser().parse_args(argv)
 
     level = _level(a)
+    if a.methods and a.host_waits:
+        raise UsageError("--methods and --host-waits exclude each other")
     if a.json is not None:
         check_output_file(a.json, "--json", inputs=a.compare or ())
     if a.out and not a.compare and not a.list:
@@ -136,6 +150,8 @@ def bench_main(argv=None) -> int:
     if a.host_waits:
         return _host_waits(a, dev, precs, level)
     cases, unavailable = all_cases(level, ("tiny",) if a.tiny else None)
+    if a.methods:
+        cases = [c for c in cases if c.kind == "frame"]
     cases = _select(cases, a.filter)
     if not cases and not a.list:
         print(f"clss bench: --filter {a.filter!r} matches no case (`clss bench --list` lists them)",
@@ -145,12 +161,13 @@ def bench_main(argv=None) -> int:
         for c in cases:
             print(f"{c.label:60s} {c.family:15s} {c.kind:8s} {c.shape}{'  (quick)' if c.quick else ''}")
         for what, why in unavailable:
-            print(f"(not available) {what}: {why}")
+            print(f"(not benchmarked) {what}: {why}")
         return 0
     settings = _settings(a, level)
     _announce(dev, cases, precs, settings, unavailable)
     rows, peak, t0 = _run_all(a, dev, cases, precs, settings, level)
-    doc = report.document(rows, dev, peak, settings, level + ("-tiny" if a.tiny else ""), unavailable,
+    doc = report.document(rows, dev, peak, settings,
+                          level + ("-tiny" if a.tiny else "") + ("-methods" if a.methods else ""), unavailable,
                           extra={"seconds": round(time.perf_counter() - t0, 1)})
     _write_results(a, doc, rows, peak)
     bad = [r for r in rows if r.status != "ok" and not r.status.startswith("skipped")]
@@ -161,8 +178,10 @@ def _host_waits(a, dev, precs, level) -> int:
     """clss bench --host-waits: the wall / event table, in bench.json as "host_waits"."""
     from . import hostwait, report
     t0 = time.perf_counter()
-    sizes = (((34, 60), 2.0),) if a.tiny else hostwait.SIZES
-    kw = dict(warm=1, frames=2) if a.tiny else dict(frames=a.runs or 5)
+    from .cases import TIERS
+    # --tiny: the frame steps of the tiny tier's cases, whose kernels a smoke run has built
+    sizes = (TIERS["tiny"],) if a.tiny else hostwait.SIZES
+    kw = dict(warm=1, frames=a.runs or 2) if a.tiny else dict(frames=a.runs or 5)
     rows = [r for prec in precs for r in hostwait.run(dev, prec, sizes=sizes, log=lambda m: print(
         m, file=sys.stderr), **kw)]
     doc = report.document([], dev, None, None, level + ("-tiny" if a.tiny else "") + "-host-waits",
@@ -211,7 +230,7 @@ def _run_all(a, dev, cases, precs, settings, level):
     from .runner import OrtRunner, run_case
     t0 = time.perf_counter()
     peak = None
-    if not a.no_peak:
+    if not a.no_peak and not a.methods:
         peak = measure(dev, quick=level == "quick", log=lambda m: print(m, file=sys.stderr),
                        **(dict(target_s=0.02, mib=8) if a.tiny else {}))
     ort = OrtRunner(settings.ort_threads, settings.ort_spinning)
@@ -233,10 +252,13 @@ def _run_all(a, dev, cases, precs, settings, level):
 def _write_results(a, doc, rows, peak):
     """The table on stdout, then bench.json, bench.md, roofline.png and --json."""
     from . import report
-    print(report.format_table(rows))
-    if peak:
-        print("\n" + report.format_peak(peak))
-    print("\ntargets (540p -> 1080p, fp32):\n" + report.format_targets(doc["targets"]))
+    if a.methods:
+        print(report.format_methods(rows))
+    else:
+        print(report.format_table(rows))
+        if peak:
+            print("\n" + report.format_peak(peak))
+        print("\ntargets (1080p output, fp32):\n" + report.format_targets(doc["targets"]))
     print(f"\n{len(rows)} rows in {doc['seconds']:.0f} s")
     written = []
     if a.out:
@@ -268,7 +290,7 @@ def tune_main(argv=None) -> int:
                "  clss tune --filter 'conv cls.stem*' --dry-run",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="only the --quick bench cases")
-    p.add_argument("--full", action="store_true", help="also the 1080p -> 2160p shapes")
+    p.add_argument("--full", action="store_true", help=FULL_HELP)
     p.add_argument("--tiny", action="store_true", help="tiny shapes (a smoke test of the tuner)")
     p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     p.add_argument("--precision", "-p", default="fp32", help="fp32, fp16, fp16-native, a comma list, or all")

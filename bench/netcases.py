@@ -18,6 +18,11 @@ from .cases import (BenchCase, Setup, _nbytes, _rounded, fixed_inputs, layer_cas
 # sigmoid; the check is a sanity check here (the op and pipeline tests are the strict ones).
 NET_TOL = {"fp32": Tolerance(1e-4, 1e-3), "fp16": Tolerance(2e-2, 2e-2), "fp16-native": Tolerance(5e-2, 5e-2)}
 
+# A room's FULL_ONLY (bench/methods/__init__.py) where its networks are the paper-sized ones:
+# dozens of cases of seconds each would make the default level take the better part of an hour.
+FULL_ONLY_NETWORKS = ("its networks, their conv layers and its frame steps take minutes at full-HD "
+                      "output on a CPU")
+
 
 def model_case(name, model: onnx.ModelProto, input_shapes: dict, tier: str, flops: float,
                quick: bool = False) -> BenchCase:
@@ -130,11 +135,26 @@ def frame_runner(dev, up, render_size, output_hw):
     return run, (color, depth, motion)
 
 
-def frame_setup(run, twin, feeds, prec, eng_bytes, ort_bytes, note="") -> Setup:
+def frame_setup(run, twin, feeds, prec, eng_bytes, ort_bytes, note="", up=None) -> Setup:
     """The Setup of a frame step whose output is the caller's H x W x 3 image and whose twin
-    writes [1,3,H,W] as its first output (checked at the whole-network tolerance)."""
+    writes [1,3,H,W] as its first output (checked at the whole-network tolerance); `up`: its
+    Upscaler, for the stage times (`stage_timer`)."""
     return Setup(run, twin, feeds, NET_TOL[prec], eng_bytes, ort_bytes,
-                 post=lambda outs: [outs[0].transpose(2, 0, 1)[None]], out_index=0, note=note)
+                 post=lambda outs: [outs[0].transpose(2, 0, 1)[None]], out_index=0, note=note,
+                 stages=stage_timer(up))
+
+
+def stage_timer(up):
+    """A Setup's `stages` for an Upscaler built with profile=True (an event list per frame:
+    no host wait) whose frame step times its stages (STAGES); None for another."""
+    if up is None or not (up.profile and up.STAGES):
+        return None
+
+    def stages():
+        st = up.stage_ms()
+        up.reset_timings()
+        return st
+    return stages
 
 
 def frame_bench_case(method: str, scale: float, tier: str, flops: float, build, render_size,

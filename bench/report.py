@@ -7,6 +7,7 @@ import json
 import math
 import os
 import platform
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -14,12 +15,15 @@ from pathlib import Path
 from .peak import Peak
 
 SCHEMA = "clss-bench/1"
+# How the rows' tiers are named: by the frame's output resolution (bench/cases.py TIERS).
+# Files without the field named CLSS's tiers by the render size; load_json renames theirs.
+TIER_NAMING = "output"
 ROW_KEYS = ("name", "tier", "family", "kind", "precision", "shape", "status", "engine_ms", "engine_min_ms",
             "engine_event_ms", "engine_event_min_ms", "ort_ms", "ort_min_ms", "speedup_vs_ort", "flops",
             "bytes", "ort_bytes", "intensity", "gflops", "gbs", "ort_gflops", "ort_gbs", "bound",
             "peak_share", "launches", "runs", "check", "max_err")
 
-# The issue's targets (benchmark figures, not test assertions), PoCL CPU, 540p -> 1080p.
+# The issue's targets (benchmark figures, not test assertions), PoCL CPU, 1080p output.
 CONV_TARGET = 0.5          # every CLSS conv layer at >= 0.5x onnxruntime's speed
 MEMORY_TARGET = 0.60       # memory-bound kernels at >= 60% of the stream bandwidth
 FRAME_TARGET = 1.0         # the net-mode frame step at >= 1.0x onnxruntime
@@ -64,6 +68,7 @@ def _versions() -> dict:
 def document(rows, dev, peak: Peak | None, settings, level: str, unavailable=(), extra=None) -> dict:
     return {
         "schema": SCHEMA,
+        "tier_naming": TIER_NAMING,
         "created": datetime.datetime.now().isoformat(timespec="seconds"),
         "level": level,
         "machine": {"hostname": platform.node(), "cpu": _cpu_model(), "cores": os.cpu_count(),
@@ -108,7 +113,31 @@ def load_json(path) -> dict:
     schema = doc.get("schema") if isinstance(doc, dict) else None
     if schema != SCHEMA:
         raise ValueError(f"{path}: not a clss bench result (schema {schema!r}, expected {SCHEMA!r})")
+    if "tier_naming" not in doc:
+        doc["rows"] = output_named(doc["rows"])
+        doc["tier_naming"] = TIER_NAMING
     return doc
+
+
+# The method rooms' cases other than CLSS's (frame steps "frame step <method> x<scale>",
+# "network <method> <net>", "layer ..."): their tiers were named by the output already.
+_ROOM_CASE = re.compile(r"frame step \S+ x\d|network (?!classifier$|composition$)|layer ")
+
+
+def output_named(rows) -> list:
+    """Rows of a file written before tiers were named by the output: CLSS's "540p" (render
+    540x960, output 1080x1920) becomes "1080p" and its "1080p" "2160p"; the rooms' "1080p"
+    stays. A workload that the old naming listed in both tiers (bicubic x2, mlp x2 at
+    540x960) is kept once, as its first row."""
+    out, seen = [], set()
+    for r in rows:
+        old = r["tier"]
+        tier = {"540p": "1080p", "1080p": "1080p" if _ROOM_CASE.match(r["name"]) else "2160p"}.get(old, old)
+        key = (r["name"], tier, r["precision"])
+        if key not in seen:
+            seen.add(key)
+            out.append(dict(r, tier=tier))
+    return out
 
 
 def _get(r, k):
@@ -119,9 +148,10 @@ def _get(r, k):
 # --- targets ---------------------------------------------------------------------------
 
 def targets(rows) -> dict:
-    """Where each of the issue's three targets stands, from the 540p rows in fp32."""
+    """Where each of the issue's three targets stands, from the 1080p-output rows in fp32."""
     rs = [r if isinstance(r, dict) else r.as_dict() for r in rows]
-    ok = [r for r in rs if r.get("status") == "ok" and r.get("tier") == "540p" and r.get("precision") == "fp32"]
+    ok = [r for r in rs
+          if r.get("status") == "ok" and r.get("tier") == "1080p" and r.get("precision") == "fp32"]
 
     def summary(sel, key, goal, lower_is_worse=True):
         vals = [(r["name"], _get(r, key)) for r in sel if math.isfinite(_get(r, key))]
@@ -166,24 +196,57 @@ def _f(v, fmt):
 def format_table(rows) -> str:
     head = ("case", "tier", "prec", "engine ms", "min", "event ms", "ort ms", "vs ort", "GFLOP/s", "GB/s",
             "bound", "of peak", "check")
-    body = []
-    for r in rows:
-        r = r if isinstance(r, dict) else r.as_dict()
-        if r["status"].startswith(("error", "skipped")):
-            body.append((r["name"], r["tier"], r["precision"], *("-",) * 9, r["status"][:60]))
-            continue
-        body.append((r["name"], r["tier"], r["precision"], _f(r["engine_ms"], ".2f"), _f(r["engine_min_ms"], ".2f"),
-                     _f(r["engine_event_ms"], ".2f"), _f(r["ort_ms"], ".2f"), _f(r["speedup_vs_ort"], ".2f"),
-                     _f(r["gflops"], ".1f") if r["flops"] else "-", _f(r["gbs"], ".1f"), r["bound"] or "-",
-                     _f(r["peak_share"], ".0%"), r["check"] if r["check"] in ("pass", "skipped") else "FAIL"))
-    widths = [max(len(str(x[i])) for x in [head] + body) for i in range(len(head))]
-    fmt = "  ".join(f"{{:{'<' if i in (0, 1, 2, 10, 12) else '>'}{w}}}" for i, w in enumerate(widths))
-    lines = [fmt.format(*head), fmt.format(*("-" * w for w in widths))] + [fmt.format(*b) for b in body]
+    lines = _case_grid(rows, head, lambda r: (
+        _f(r["engine_ms"], ".2f"), _f(r["engine_min_ms"], ".2f"), _f(r["engine_event_ms"], ".2f"),
+        _f(r["ort_ms"], ".2f"), _f(r["speedup_vs_ort"], ".2f"), _f(r["gflops"], ".1f") if r["flops"] else "-",
+        _f(r["gbs"], ".1f"), r["bound"] or "-", _f(r["peak_share"], ".0%"),
+        r["check"] if r["check"] in ("pass", "skipped") else "FAIL"), left=(0, 1, 2, 10, 12))
     for r in rows:
         r = r if isinstance(r, dict) else r.as_dict()
         if r["check"].startswith("FAIL"):
             lines.append(f"{r['name']} [{r['precision']}]: {r['check']}")
     return "\n".join(lines)
+
+
+def _grid(head, body, left) -> list[str]:
+    """Header, rule and body lines of a table whose columns fit their widest cell; the
+    columns in `left` align left, the rest (numbers) right."""
+    widths = [max(len(str(x[i])) for x in [head] + body) for i in range(len(head))]
+    fmt = "  ".join(f"{{:{'<' if i in left else '>'}{w}}}" for i, w in enumerate(widths))
+    return [fmt.format(*head), fmt.format(*("-" * w for w in widths))] + [fmt.format(*b) for b in body]
+
+
+def _case_grid(rows, head, cells, left) -> list[str]:
+    """_grid of a line per row: its name, tier and precision, then cells(row); a row that did
+    not run has "-" there and its status last."""
+    body = []
+    for r in rows:
+        r = r if isinstance(r, dict) else r.as_dict()
+        if r["status"].startswith(("error", "skipped")):
+            body.append((r["name"], r["tier"], r["precision"], *("-",) * (len(head) - 4), r["status"][:60]))
+        else:
+            body.append((r["name"], r["tier"], r["precision"], *cells(r)))
+    return _grid(head, body, left)
+
+
+def format_methods(rows, top: int = 4) -> str:
+    """clss bench --methods: a line per frame step and precision, clss's time against
+    onnxruntime's, and where clss's time goes: the event ms of the `top` kernels (or the
+    room's stages) of one timed frame step (the row's `kernels`), largest first, with the
+    rest summed."""
+    head = ("frame step", "tier", "prec", "clss ms", "ort ms", "ort/clss",
+            "where clss's time goes: event ms per kernel or stage, one frame (share)")
+
+    def cells(r):
+        ks = list((r.get("kernels") or {}).items())
+        total = sum(v for _, v in ks) or float("nan")
+        where = [f"{k} {v:.2f} ({v / total:.0%})" for k, v in ks[:top]]
+        if ks[top:]:
+            rest = sum(v for _, v in ks[top:])
+            where.append(f"{len(ks) - top} more {rest:.2f} ({rest / total:.0%})")
+        return (_f(r["engine_ms"], ".2f"), _f(r["ort_ms"], ".2f"), _f(r["speedup_vs_ort"], ".2f"),
+                ", ".join(where) or "-")
+    return "\n".join(_case_grid(rows, head, cells, left=(0, 1, 2, 6)))
 
 
 def format_peak(peak: Peak) -> str:
@@ -334,12 +397,8 @@ def compare_docs(a: dict, b: dict) -> str:
         body.append((*k, _f(ea, ".2f"), _f(eb, ".2f"), "-" if not math.isfinite(ch) else f"{ch:+.1%}",
                      _f(_get(x, "speedup_vs_ort"), ".2f"), _f(_get(y, "speedup_vs_ort"), ".2f"),
                      _f(oa / ob if ob else float("nan"), ".2f")))
-    widths = [max(len(str(r[i])) for r in [head] + body) for i in range(len(head))]
-    fmt = "  ".join(f"{{:{'<' if i < 3 else '>'}{w}}}" for i, w in enumerate(widths))
     lines = [f"A: {a['created']} {a['git']['commit'][:10]} {a['device']['name'] if a.get('device') else ''}",
              f"B: {b['created']} {b['git']['commit'][:10]} {b['device']['name'] if b.get('device') else ''}",
              "change = B engine time / A engine time - 1 (negative: B faster); "
-             "ort A/B far from 1 means the machine's load differed", "",
-             fmt.format(*head), fmt.format(*("-" * w for w in widths))]
-    lines += [fmt.format(*r) for r in body]
-    return "\n".join(lines)
+             "ort A/B far from 1 means the machine's load differed", ""]
+    return "\n".join(lines + _grid(head, body, left=(0, 1, 2)))

@@ -71,7 +71,8 @@ class Row:
     check: str = ""                          # pass | FAIL ... | skipped
     max_err: float = float("nan")
     note: str = ""
-    kernels: dict = field(default_factory=dict)   # {kernel: event ms} of the last timed run
+    # {kernel: event ms} of the last timed run (a frame step that times its stages: {stage: ms})
+    kernels: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -148,12 +149,19 @@ def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: 
         sess = ort.session(setup.twin)
         out_names = [o.name for o in sess.get_outputs()]
 
+        stages = {}
+
         def engine_once():
             cap.start_run()
             t0 = time.perf_counter()
             outs = setup.run()
             dev.queue.finish()
-            return (time.perf_counter() - t0) * 1e3, cap.event_ms(), outs
+            wall = (time.perf_counter() - t0) * 1e3
+            if setup.stages is None:
+                return wall, cap.event_ms(), outs
+            stages.clear()
+            stages.update(setup.stages())
+            return wall, sum(stages.values()), outs
 
         def ort_once():
             t0 = time.perf_counter()
@@ -190,7 +198,8 @@ def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: 
                 e_wall.append(w)
                 e_ev.append(ev)
                 o_wall.append(ort_once()[0])
-            row.kernels = {k: round(v, 4) for k, v in cap.per_kernel_ms().items()}
+            by_time = sorted(stages.items(), key=lambda kv: -kv[1]) if stages else cap.per_kernel_ms().items()
+            row.kernels = {k: round(v, 4) for k, v in by_time}
         row.runs = n
         row.engine_ms, row.engine_min_ms = statistics.median(e_wall), min(e_wall)
         row.engine_event_ms, row.engine_event_min_ms = statistics.median(e_ev), min(e_ev)

@@ -11,7 +11,8 @@ from .cases import FAMILY_CASES, LEVEL_TIERS, BenchCase
 def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list[tuple[str, str]]]:
     """(cases, unavailable): the suite for a level ("quick", "default", "full"), and
     (what, why) for the parts that cannot be built yet (a family not landed, an API
-    that failed). `tiers` replaces the level's shape tiers (e.g. ("tiny",))."""
+    that failed) or that the level leaves out (a room's FULL_ONLY). `tiers` replaces the
+    level's shape tiers (e.g. ("tiny",))."""
     if level not in LEVEL_TIERS:
         raise ValueError(f"level must be one of {', '.join(LEVEL_TIERS)}")
     tiers = tuple(tiers or LEVEL_TIERS[level])
@@ -33,13 +34,18 @@ def all_cases(level: str = "default", tiers=None) -> tuple[list[BenchCase], list
                 missing.append((f"{fam} [{tier}]", f"{type(e).__name__}: {e}"))
         for name, room in methods.bench_rooms():
             what = f"{name} (bench/methods/{name}.py)"
+            why = getattr(room, "FULL_ONLY", "")
+            # (the tiny tier is a smoke test of every case: there they cost nothing)
+            if why and level != "full" and tier != "tiny":
+                missing.append((f"{what} [{tier}]", f"only with --full: {why}"))
+                continue
             try:
                 got = room.cases(tier)
             except Exception as e:      # a method whose API moved: report, bench the rest
                 missing.append((f"{what} [{tier}]", f"{type(e).__name__}: {e}"))
                 continue
             if not got and tier == tiers[0]:
-                missing.append((what, f"no case at the {tier} tier (see --full)"))
+                missing.append((what, f"no case at the {tier} tier"))
             cases += got
     if level == "quick":
         cases = [c for c in cases if c.quick]

@@ -154,6 +154,7 @@ BAD = [
     ("run {d}/symbolic.onnx --json {d}/missing/r.json", "does not exist"),
     # bench, tune
     ("bench --quick --full", "--quick and --full"),
+    ("bench --methods --host-waits", "--methods and --host-waits"),
     ("bench --compare {d}/bench.json {d}/bench.json", "not a clss bench result"),
     ("bench --compare {d}/nothing.json {d}/bench.json", "nothing.json: no such file"),
     ("bench --json {d}/missing/b.json", "--json"),

@@ -6,7 +6,10 @@ rooms (clss.methods.ROOMS) and imports the bench room of the same name where one
 A bench room exports
     cases(tier) -> list[BenchCase]      its cases at one shape tier of bench/cases.py
                                         (an empty list at a tier it has no shape for)
-and optionally, for the host-wait bench (bench/hostwait.py),
+and optionally
+    FULL_ONLY                           why its cases run only with --full (their cost); at
+                                        the tiny tier they run at every level
+and, for the host-wait bench (bench/hostwait.py),
     HOST_WAITS                          the room's method names that get a row
     synthetic_gbuffers(h, w, scale)     the G-buffers its methods need, as numpy arrays
     enqueue_frame(up, color, depth, motion, jitter, out) -> (event, then)

@@ -1,17 +1,18 @@
 """The bicubic baseline's bench room: its frame step (PQ encode, the cubic resize, PQ decode:
 clss/methods/bicubic/) against onnxruntime on the same step's whole-frame ONNX graph
-(clss/methods/bicubic/oracle.py), at 540p -> 1080p (2x). The suite finds the room by its
-name (bench/methods/__init__.py). The floor under every learned method's figures: its frame
-step is one resize and two elementwise passes, so it measures launch and memory costs."""
+(clss/methods/bicubic/oracle.py), at each tier's CLSS frame step (540p -> 1080p and
+1080p -> 2160p, 2x). The suite finds the room by its name (bench/methods/__init__.py). The
+floor under every learned method's figures: its frame step is one resize and two
+elementwise passes, so it measures launch and memory costs."""
 from __future__ import annotations
 
 from clss.device import storage_dtype
 
-from ..cases import BenchCase, _resize_flops
+from ..cases import TIERS, BenchCase, _resize_flops
 from ..netcases import frame_bench_case, frame_runner, frame_setup
 
-BICUBIC_TIERS = {"540p": (((540, 960), 2.0),), "1080p": (((540, 960), 2.0),),
-                 "tiny": (((16, 32), 2.0),)}
+# CLSS's frame step of each tier: the floor under the learned methods at the same output
+BICUBIC_TIERS = {tier: (step,) for tier, step in TIERS.items()}
 
 
 def bicubic_frame_case(render_size, scale: float, tier: str) -> BenchCase:

@@ -13,7 +13,7 @@ from clss.methods.clss.networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
 from clss.pipeline.contract import output_size
 
 from ..cases import TIERS, BenchCase, Setup
-from ..netcases import BENCH_JITTER, NET_TOL, frame_runner, model_case
+from ..netcases import BENCH_JITTER, NET_TOL, frame_runner, model_case, stage_timer
 
 # The methods of this room that the host-wait bench (bench/hostwait.py) rows.
 HOST_WAITS = ("clss", "clss-rules", "jbicubic")
@@ -63,7 +63,7 @@ def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
         cls = build_classifier(height=pad16(H), width=pad16(W)) if mode == "net" else None
         comp = build_composition() if mode == "net" else None
         up = Upscaler(scale=scale, mode=mode, device=dev, precision=prec,
-                      classifier=cls, composition=comp)
+                      classifier=cls, composition=comp, profile=True)
         run, (color, depth, motion) = frame_runner(dev, up, (h, w), (H, W))
         twin = build_frame_graph("rule" if mode == "rules" else mode, (h, w), scale, cls,
                                  comp)
@@ -87,7 +87,8 @@ def frame_case(mode: str, render_size, scale: float, tier: str) -> BenchCase:
         return Setup(run, twin, feeds, NET_TOL[prec], eng, ort,
                      post=lambda outs: [outs[0].transpose(2, 0, 1)[None]],
                      out_index=ort_out.index("output") if "output" in ort_out else 0,
-                     note=(f"classifier on {up.classifier_backend_name}" if mode == "net" else ""))
+                     note=(f"classifier on {up.classifier_backend_name}" if mode == "net" else ""),
+                     stages=stage_timer(up))
     # Not in --quick: at 540p a net-mode frame costs seconds on a 2-core CPU.
     return BenchCase(f"frame step {mode}", "frame", "frame", tier, flops, build,
                      shape=f"{h}x{w}->{H}x{W}", precisions=("fp32", "fp16"))

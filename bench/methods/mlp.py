@@ -15,7 +15,8 @@ import numpy as np
 from ..cases import BenchCase, Setup
 from ..netcases import NET_TOL, frame_bench_case, median_ms, synthetic_frame
 
-MLP_TIERS = {"540p": (((540, 960), 2),), "1080p": (((540, 960), 2), ((360, 640), 3)),
+# (render size, scale) per tier, the tier named by the output (bench/cases.py TIERS)
+MLP_TIERS = {"1080p": (((540, 960), 2), ((360, 640), 3)),
              "tiny": (((16, 32), 2), ((16, 32), 3))}
 
 

@@ -15,11 +15,12 @@ import numpy as np
 from clss.device import storage_dtype
 
 from ..cases import BenchCase
-from ..netcases import (BENCH_JITTER, frame_bench_case, frame_setup, median_ms, network_cases,
-                        synthetic_frame)
+from ..netcases import (BENCH_JITTER, FULL_ONLY_NETWORKS, frame_bench_case, frame_setup, median_ms,
+                        network_cases, synthetic_frame)
 
 # The host-wait bench (bench/hostwait.py) rows this method.
 HOST_WAITS = ("nsrd",)
+FULL_ONLY = FULL_ONLY_NETWORKS
 NSRD_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
               "tiny": (((16, 32), 2.0), ((16, 32), 4.0))}
 
@@ -55,7 +56,8 @@ def nsrd_frame_case(render_size, scale: float, tier: str, weights="untrained") -
 
     def build(dev, prec, params):
         from clss import Upscaler
-        up = Upscaler(method="nsrd", scale=scale, device=dev, precision=prec, weights=(cfg, wts))
+        up = Upscaler(method="nsrd", scale=scale, device=dev, precision=prec, weights=(cfg, wts),
+                      profile=True)
         (color, depth, motion), gb, d, dg = _device_inputs(dev, h, w, scale)
         jitter = np.array(BENCH_JITTER, np.float32)
         out = dev.empty((H, W, 3), dtype=np.float32)
@@ -78,7 +80,7 @@ def nsrd_frame_case(render_size, scale: float, tier: str, weights="untrained") -
         hist = (2 * nets.STATE * h * w + 2 * 3 * H * W) * 4
         net_io = (nets.CUR + nets.WARP + 2 * 3 * s * s + 4 * cfg["hid"]) * h * w
         return frame_setup(run, twin, feeds, prec, io + hist + net_io * st,
-                           io + hist + net_io * 4, note=f"widths {cfg['name']}")
+                           io + hist + net_io * 4, note=f"widths {cfg['name']}", up=up)
     return frame_bench_case("nsrd", scale, tier, flops, build, (h, w), (H, W))
 
 

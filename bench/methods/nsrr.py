@@ -13,12 +13,14 @@ import numpy as np
 from clss.device import storage_dtype
 
 from ..cases import BenchCase
-from ..netcases import (BENCH_JITTER, frame_bench_case, frame_runner, frame_setup, median_ms,
-                        network_cases, synthetic_frame)
+from ..netcases import (BENCH_JITTER, FULL_ONLY_NETWORKS, frame_bench_case, frame_runner, frame_setup,
+                        median_ms, network_cases, synthetic_frame)
 
-# render size and scale per tier: the 1080p outputs, and a tiny smoke shape
 # The host-wait bench (bench/hostwait.py) rows this method.
 HOST_WAITS = ("nsrr",)
+FULL_ONLY = FULL_ONLY_NETWORKS
+# render size and scale per tier (named by the output, bench/cases.py TIERS): the issue's
+# 1080p outputs, and a tiny smoke shape
 NSRR_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
               "tiny": (((16, 32), 2.0), ((16, 32), 4.0))}
 
@@ -35,7 +37,8 @@ def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -
 
     def build(dev, prec, params):
         from clss import Upscaler
-        up = Upscaler(method="nsrr", scale=scale, device=dev, precision=prec, weights=(cfg, wts))
+        up = Upscaler(method="nsrr", scale=scale, device=dev, precision=prec, weights=(cfg, wts),
+                      profile=True)
         run, (color, depth, motion) = frame_runner(dev, up, (h, w), (H, W))
         jitter = np.array(BENCH_JITTER, np.float32)
         twin = build_graph((h, w), scale, cfg, wts)
@@ -50,7 +53,7 @@ def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -
         hist = nets.FEAT * n * H * W
         stack = nets.FEAT * (n + 1) * H * W
         return frame_setup(run, twin, feeds, prec, io + (2 * hist + 2 * stack) * st,
-                           io + (2 * hist + 2 * stack) * 4, note=f"widths {cfg['name']}")
+                           io + (2 * hist + 2 * stack) * 4, note=f"widths {cfg['name']}", up=up)
     return frame_bench_case("nsrr", scale, tier, flops, build, (h, w), (H, W))
 
 

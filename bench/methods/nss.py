@@ -13,13 +13,14 @@ import numpy as np
 from clss.device import storage_dtype
 
 from ..cases import BenchCase
-from ..netcases import (BENCH_JITTER, frame_bench_case, frame_runner, frame_setup, median_ms, network_cases,
-                        synthetic_frame)
+from ..netcases import (BENCH_JITTER, FULL_ONLY_NETWORKS, frame_bench_case, frame_runner, frame_setup,
+                        median_ms, network_cases, synthetic_frame)
 
 # The host-wait bench (bench/hostwait.py) rows this method (its frame step enqueues
 # inputs, depth, pre, the network and post with no host wait; the seeded init where the
 # package has no weights).
 HOST_WAITS = ("nss",)
+FULL_ONLY = FULL_ONLY_NETWORKS
 NSS_TIERS = {"1080p": ((540, 960),), "tiny": ((16, 32),)}
 
 
@@ -39,7 +40,8 @@ def nss_frame_case(render_size, tier: str, weights=None) -> BenchCase:
 
     def build(dev, prec, params):
         from clss import Upscaler
-        up = Upscaler(method="nss", scale=2, device=dev, precision=prec, weights=(cfg, wts))
+        up = Upscaler(method="nss", scale=2, device=dev, precision=prec, weights=(cfg, wts),
+                      profile=True)
         run, (color, depth, motion) = frame_runner(dev, up, (h, w), (H, W))
         jitter = np.array(BENCH_JITTER, np.float32)
         twin = build_graph((h, w), cfg, wts)
@@ -51,7 +53,7 @@ def nss_frame_case(render_size, tier: str, weights=None) -> BenchCase:
         hist = (2 * 3 * H * W + 2 * 2 * h * w) * 4
         net_io = (nets.IN + 2 * nets.TEMPORAL) * nets.pad8(h) * nets.pad8(w)
         return frame_setup(run, twin, feeds, prec, io + hist + net_io * st,
-                           io + hist + net_io * 4, note=f"quality {cfg['quality']}")
+                           io + hist + net_io * 4, note=f"quality {cfg['quality']}", up=up)
     return frame_bench_case("nss", 2.0, tier, flops, build, (h, w), (H, W))
 
 
