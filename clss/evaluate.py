@@ -409,7 +409,7 @@ def run_eval(paths, methods=METHODS, weights=None, precision="fp32", warmup=4,
     net_kwargs, trained = (method_kwargs(weights, methods) if any(map(_trainable, methods))
                            else ({}, None))
     dev = get_device(device)
-    records = []
+    records, short = [], []
     for p in seqs_paths:
         seq = load_sequence(p)
         T, h, w = seq["color"].shape[:3]
@@ -424,6 +424,12 @@ def run_eval(paths, methods=METHODS, weights=None, precision="fp32", warmup=4,
         if not these:
             print(f"skip {seq['name']}: no method left to score", file=log, flush=True)
             continue
+        if not scored_frames(seq["reset"], warmup):
+            # (a sequence cut often, e.g. Blender's `cuts` family, next to longer shots)
+            short.append(f"{seq['path']}: no frame left to score after a warm-up of {warmup} "
+                         f"frames per reset ({T} frames); lower --warmup")
+            print(f"skip {seq['name']}: {short[-1].split(': ', 1)[1]}", file=log, flush=True)
+            continue
         print(f"{seq['name']}: {T} frames {w}x{h} -> {W}x{H} (x{seq['scale']:g}), "
               f"{len(these)} methods, {precision}", file=log, flush=True)
         rec = evaluate_sequence(seq, these, dev, precision=precision, warmup=warmup,
@@ -437,6 +443,8 @@ def run_eval(paths, methods=METHODS, weights=None, precision="fp32", warmup=4,
               f"{len(rec['scored_frames'])} scored (warm-up {warmup} per reset), {precision}")
         trained = rec.get("net_trained", trained)
         print(format_table(rec["methods"], trained))
+    if short and not records:
+        raise ValueError(short[0])
     result = {"device": dev.info.name, "precision": precision, "warmup": warmup,
               "net_weights": None if "clss" not in methods else
               (os.fspath(weights) if weights not in (None, UNTRAINED) else

@@ -167,3 +167,17 @@ def test_eval_skips_a_method_without_its_gbuffers(tiny_seq):
     b = {"methods": {"jbicubic": {"psnr": 22.0}}}
     mean = evaluate.mean_over_sequences([b, a])
     assert mean["jbicubic"]["psnr"] == 21.0 and mean["nsrd"]["psnr"] == 30.0
+
+
+def test_eval_skips_a_sequence_too_short_for_the_warmup(tmp_path):
+    """A sequence cut so often that the warm-up leaves no frame (Blender's `cuts` family
+    beside longer shots) is skipped with a line saying why; alone, it is the error."""
+    import io
+    long = _tiny_sequence(tmp_path / "long.npz", n=4)
+    cut = _tiny_sequence(tmp_path / "cut.npz", n=4, reset_at=(2, 3))
+    log = io.StringIO()
+    r = evaluate.run_eval([cut, long], ["bicubic"], warmup=2, out_dir=None, log=log)
+    assert [s["name"] for s in r["sequences"]] == ["long"]
+    assert "skip cut: no frame left to score after a warm-up of 2" in log.getvalue()
+    with pytest.raises(ValueError, match="cut.npz: no frame left to score"):
+        evaluate.run_eval([cut], ["bicubic"], warmup=2, out_dir=None, log=io.StringIO())
