@@ -114,7 +114,7 @@ train-data-blender: $(DATA_STAMP)
 # The retrained methods (issue 31) fine-tune on a mix of the generator's set and these
 # Blender training shards: BLENDER_SHARE of the draws come from Blender (picked on the
 # validation split, docs/training.md); the training targets below need the [data] extra.
-BLENDER_SHARE ?= 0.5
+BLENDER_SHARE ?= 0.75
 BLENDER_TRAIN := $(DATA)/blender/train/READY
 $(BLENDER_TRAIN):
 	$(MAKE) train-data-blender
@@ -172,8 +172,9 @@ clean:
 MLP_STEPS ?= 3000
 MLP_ABLATION_STEPS ?= 1000
 MLP_SCALES ?= 2 3
+MLP_MIX_STEPS ?= 2400
 .PHONY: train-mlp
-train-mlp: $(STAMP)
+train-mlp: $(STAMP) train-data $(BLENDER_TRAIN)
 	for s in $(MLP_SCALES); do \
 	  test -f $(DATA)/mlp-train-x$$s/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/mlp-train-x$$s \
 	    --sequences 32 --frames 12 --seed 0 --size 72x128 --scale $$s --quiet || exit 1; \
@@ -181,7 +182,13 @@ train-mlp: $(STAMP)
 	    --steps $(MLP_STEPS) --quiet || exit 1; \
 	  $(BIN)/python -m weights_tools train mlp --data $(DATA)/mlp-train-x$$s --out $(OUT)/train-mlp/nofeature-x$$s \
 	    --steps $(MLP_ABLATION_STEPS) --no-feature --quiet || exit 1; \
-	  cp $(OUT)/train-mlp/x$$s/mlp.safetensors clss/weights/mlp_generalist_x$$s.safetensors; \
+	  w=$(OUT)/train-mlp/x$$s/mlp.safetensors; \
+	  if [ $$s = 2 ]; then \
+	    $(BIN)/python -m weights_tools train mlp --data $(call mix,$(DATA)/train) --out $(OUT)/train-mlp/x2-mix \
+	      --steps $(MLP_MIX_STEPS) --lr 5e-4 --init $$w --quiet || exit 1; \
+	    w=$(OUT)/train-mlp/x2-mix/mlp.safetensors; \
+	  fi; \
+	  cp $$w clss/weights/mlp_generalist_x$$s.safetensors; \
 	  cp $(OUT)/train-mlp/nofeature-x$$s/mlp.safetensors clss/weights/mlp_nofeature_x$$s.safetensors; \
 	done
 
@@ -190,14 +197,16 @@ train-mlp: $(STAMP)
 # 75 in all), x4 on its own generated 68x120 -> 272x480 sequences, x2 on the CLSS training
 # set; then into the package.
 NSRR_STEPS ?= 1200
+NSRR_MIX_STEPS ?= 600
 .PHONY: train-nsrr
-train-nsrr: train-data $(TRAIN_STAMP)
+train-nsrr: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN)
 	test -f $(DATA)/train4/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train4 --sequences 24 --frames 12 --seed 100 --size 68x120 --scale 4
 	$(BIN)/python -m weights_tools train nsrr --data $(DATA)/train4 --out $(OUT)/train-nsrr/x4 --steps $(NSRR_STEPS) --threads 1
 	$(BIN)/python -m weights_tools train nsrr --data $(DATA)/train --out $(OUT)/train-nsrr/x2 --steps $(NSRR_STEPS) --threads 1
+	$(BIN)/python -m weights_tools train nsrr --data $(call mix,$(DATA)/train) --out $(OUT)/train-nsrr/x2-mix --steps $(NSRR_MIX_STEPS) --lr 2.5e-4 --warmup 20 --threads 1 --init $(OUT)/train-nsrr/x2/weights.safetensors
 	mkdir -p clss/weights
 	cp $(OUT)/train-nsrr/x4/weights.safetensors clss/weights/nsrr_x4.safetensors
-	cp $(OUT)/train-nsrr/x2/weights.safetensors clss/weights/nsrr_x2.safetensors
+	cp $(OUT)/train-nsrr/x2-mix/weights.safetensors clss/weights/nsrr_x2.safetensors
 
 # NSRD (issue 21; docs/methods/nsrd.md): one network per scale on one torch thread, x4 on
 # the 68x120 -> 272x480 sequences, x2 on the CLSS training set, both with G-buffers. Two
@@ -210,17 +219,19 @@ NSRD_STEPS ?= 500
 NSRD_STEPS2 ?= 450
 NSRD_FT_STEPS ?= 300
 NSRD_ABLATIONS ?= 0
+NSRD_MIX_STEPS ?= 900
 NSRD_TRAIN = $(BIN)/python -m weights_tools train nsrd --patch 32 --threads 1
 .PHONY: train-nsrd
-train-nsrd: train-data $(TRAIN_STAMP)
+train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN)
 	test -f $(DATA)/train4/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train4 --sequences 24 --frames 12 --seed 100 --size 68x120 --scale 4
 	$(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4 --steps $(NSRD_STEPS)
 	$(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-lw --steps $(NSRD_FT_STEPS) --lr 1e-3 --remod learned --warp-state --init $(OUT)/train-nsrd/x4/weights.safetensors
 	$(NSRD_TRAIN) --data $(DATA)/train --out $(OUT)/train-nsrd/x2 --steps $(NSRD_STEPS2)
 	$(NSRD_TRAIN) --data $(DATA)/train --out $(OUT)/train-nsrd/x2-lw --steps $(NSRD_FT_STEPS) --lr 1e-3 --remod learned --warp-state --init $(OUT)/train-nsrd/x2/weights.safetensors
+	$(NSRD_TRAIN) --data $(call mix,$(DATA)/train) --out $(OUT)/train-nsrd/x2-mix --steps $(NSRD_MIX_STEPS) --lr 5e-4 --remod learned --warp-state --init $(OUT)/train-nsrd/x2-lw/weights.safetensors
 	mkdir -p clss/weights
 	cp $(OUT)/train-nsrd/x4-lw/weights.safetensors clss/weights/nsrd_x4.safetensors
-	cp $(OUT)/train-nsrd/x2-lw/weights.safetensors clss/weights/nsrd_x2.safetensors
+	cp $(OUT)/train-nsrd/x2-mix/weights.safetensors clss/weights/nsrd_x2.safetensors
 	if [ "$(NSRD_ABLATIONS)" = 1 ]; then \
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod --steps $(NSRD_STEPS) --no-demod && \
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod-ws --steps $(NSRD_FT_STEPS) --lr 1e-3 --no-demod --warp-state --init $(OUT)/train-nsrd/x4-no-demod/weights.safetensors && \
