@@ -197,7 +197,7 @@ train-mlp: $(STAMP) train-data $(BLENDER_TRAIN)
 # 75 in all), x4 on its own generated 68x120 -> 272x480 sequences, x2 on the CLSS training
 # set; then into the package.
 NSRR_STEPS ?= 1200
-NSRR_MIX_STEPS ?= 600
+NSRR_MIX_STEPS ?= 1200
 .PHONY: train-nsrr
 train-nsrr: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN)
 	test -f $(DATA)/train4/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train4 --sequences 24 --frames 12 --seed 100 --size 68x120 --scale 4
