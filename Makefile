@@ -219,7 +219,7 @@ NSRD_STEPS ?= 500
 NSRD_STEPS2 ?= 450
 NSRD_FT_STEPS ?= 300
 NSRD_ABLATIONS ?= 0
-NSRD_MIX_STEPS ?= 900
+NSRD_MIX_STEPS ?= 1800
 NSRD_TRAIN = $(BIN)/python -m weights_tools train nsrd --patch 32 --threads 1
 .PHONY: train-nsrd
 train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN)
