@@ -92,7 +92,9 @@ train-data: $(STAMP)
 # (colour) and 32 spp (reference), two Ray tasks of one Cycles thread side by side. A killed
 # run resumes (finished shards are kept). Measured on this 2-core machine while other jobs
 # kept its load near 8 (2026-11-27): 13.1 s per frame for the training families, 21.7 s for
-# the test families, so about 31 + 17 minutes (weights_tools/DATA.md, Blender shards).
+# the test families, so about 31 + 17 minutes (weights_tools/DATA.md, Blender shards). Run end
+# to end the same day beside other jobs: train 96 frames in 15.6 minutes, validation 48 frames
+# in 16 minutes (while two trainings ran), test 48 frames in 17.4 minutes.
 BLENDER_SEQS ?= 2
 BLENDER_FRAMES ?= 8
 BLENDER_ARGS ?=
@@ -112,8 +114,11 @@ train-data-blender: $(DATA_STAMP)
 	$(BIN)/python -m weights_tools blender --out $(DATA)/blender --split test --sequences 2 --frames 12 $(BLENDER_ARGS)
 
 # The retrained methods (issue 31) fine-tune on a mix of the generator's set and these
-# Blender training shards: BLENDER_SHARE of the draws come from Blender (picked on the
-# validation split, docs/training.md); the training targets below need the [data] extra.
+# Blender training shards: BLENDER_SHARE of the draws come from Blender (0.75, picked on the
+# validation split: docs/training.md, "Retrained on Blender renders"). train-mlp, train-nsrr
+# and train-nsrd end with that stage at 2x, from the previous stage's weights (MLP 2400
+# steps: 8.5 minutes; NSRR 1200: 36; NSRD 1800: 49, on one torch thread each beside other
+# jobs), so they need the [data] extra and the Blender set.
 BLENDER_SHARE ?= 0.75
 BLENDER_TRAIN := $(DATA)/blender/train/READY
 $(BLENDER_TRAIN):
