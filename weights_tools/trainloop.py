@@ -108,21 +108,16 @@ def load_sequences(data, frames, required, prepare=None, optional=()):
     `frames` frames and every key of `required`, as dicts of arrays with "scale" (an
     integer: patches are cut at the same place at render and output resolution) and "name".
     `prepare(seq)` converts a sequence in place (e.g. the reference to the training
-    domain); the keys of `optional` are loaded where a sequence has them. The recipes draw a sequence uniformly from the list, so a mix repeats each
-    directory's sequences (the same arrays, not copies) in proportion to its share, to
-    within one sequence in MIX_SLOTS."""
+    domain); the keys of `optional` are loaded where a sequence has them. The recipes draw
+    a sequence uniformly from the list, so a mix repeats each directory's sequences (the
+    same arrays, not copies) in proportion to its share, to within one in MIX_SLOTS."""
     mix = parse_mix(data)
-    if len(mix) == 1:
-        return _load_dir(mix[0][0], frames, required, prepare, optional)
     loaded = [(_load_dir(d, frames, required, prepare, optional), v) for d, v in mix]
-    scales = {s["scale"] for seqs, _ in loaded for s in seqs}
+    out = loaded[0][0] if len(mix) == 1 else [
+        seqs[i % len(seqs)] for seqs, v in loaded for i in range(max(1, round(v * MIX_SLOTS)))]
+    scales = {s["scale"] for s in out}
     if len(scales) > 1:
-        raise TrainError(f"--data: the mix has sequences at several scales {sorted(scales)}; "
-                         "train one scale")
-    out = []
-    for seqs, v in loaded:
-        n = max(1, round(v * MIX_SLOTS))
-        out += [seqs[i % len(seqs)] for i in range(n)]
+        raise TrainError(f"--data: sequences at several scales {sorted(scales)}; train one scale")
     return out
 
 
@@ -163,9 +158,6 @@ def _load_dir(data_dir, frames, required, prepare, optional):
         seqs.append(s)
     if not seqs:
         raise TrainError(f"--data: no sequence in {data_dir} has {frames} frames (--frames)")
-    scales = {s["scale"] for s in seqs}
-    if len(scales) > 1:
-        raise TrainError(f"--data: sequences at several scales {sorted(scales)}; train one scale")
     if skipped:
         print(f"skipped {skipped} sequences shorter than {frames} frames")
     return seqs

@@ -102,8 +102,7 @@ def load_sequences(data_dir, frames, labels_needed=True):
             raise TrainError(f"--data: a sequence lacks {', '.join(missing)} (Blender shards "
                              "carry no labels): the classifier stage needs them; fine-tune "
                              "the composition only with --init W --cls-steps 0")
-        T, h, w = s["depth"].shape
-        shape = (T,) + s["reference"].shape[1:3]
+        shape = s["reference"].shape[:3]
         s.setdefault("label_ghost", np.full(shape, GHOST_NONE, np.uint8))
         s.setdefault("label_alias", np.full(shape, ALIAS_NONE, np.uint8))
     return _load_sequences(data_dir, frames, REQUIRED, prepare, optional=LABELS)
@@ -442,7 +441,8 @@ def train(args):
 
 def add_arguments(t):
     """The CLSS recipe's options (`train clss ...`)."""
-    t.add_argument("--data", required=True, help="a directory of DATA.md .npz sequences; or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
+    t.add_argument("--data", required=True, help="a directory of DATA.md .npz sequences"
+                   "; or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
     add_run_arguments(t, threads=2)
     # Defaults: the shipped recipe (issue 23), about 12 minutes of steps per seed on one
     # thread of this 2-core machine. 1200 composition steps instead of 400 gave, from the

@@ -27,7 +27,8 @@ from weights_tools.methods import Recipe  # noqa: E402
 
 
 def add_arguments(p):
-    p.add_argument("--data", default=None, help="a directory of DATA.md sequences (generalist); or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
+    p.add_argument("--data", default=None, help="a directory of DATA.md sequences (generalist)"
+                   "; or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
     p.add_argument("--scene", default=None, metavar="SEQ.npz",
                    help="per-scene weights: train on the first half of this sequence's frames")
     # imported here, not at the top: online.py imports this module and needs no torch

@@ -30,7 +30,8 @@ REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale",
 
 def add_arguments(t):
     t.add_argument("--data", required=True, help="a directory of DATA.md .npz sequences with "
-                                                "G-buffers (one integer scale); or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
+                                                "G-buffers (one integer scale)"
+                   "; or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
     add_run_arguments(t)
     t.add_argument("--steps", type=int, default=1200)
     t.add_argument("--batch", type=int, default=8)

@@ -26,7 +26,8 @@ REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
 
 
 def add_arguments(t):
-    t.add_argument("--data", required=True, help="a directory of DATA.md .npz sequences at 2x; or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
+    t.add_argument("--data", required=True, help="a directory of DATA.md .npz sequences at 2x"
+                   "; or a mix DIR[:SHARE],... (weights_tools/DATA.md)")
     add_run_arguments(t)
     t.add_argument("--steps", type=int, default=2000)
     t.add_argument("--batch", type=int, default=4)
