@@ -103,9 +103,10 @@ def _bench_parser() -> ArgParser:
     p.add_argument("--no-check", action="store_true", help="skip the one-time output check per case")
     p.add_argument("--host-waits", action="store_true",
                    help="instead of the cases: wall time per frame step against its summed OpenCL event "
-                        "time and the host's enqueue time, per method (clss, clss-rules, jbicubic, nsrr, nsrd, "
-                        "nss) at 270p -> 540p and 540p -> 1080p after warm-up frames (--tiny: the tiny tier's "
-                        "16x32 -> 32x64 after one); --runs: the timed frames (default 5, --tiny 2)")
+                        "time and the host's enqueue time, per method (clss, clss-rules, jbicubic, mlp, nsrr, "
+                        "nsrd, nss) at 270p -> 540p and 540p -> 1080p after warm-up frames, with --full also "
+                        "1080p -> 2160p (--tiny: the tiny tier's 16x32 -> 32x64 after one); --runs: the timed "
+                        "frames (default 5, --tiny 2)")
     p.add_argument("--methods", action="store_true",
                    help="only the methods' frame steps at the level's tiers (clss net and rule, bicubic, mlp; "
                         "with --full also nsrr, nsrd, nss), one row each: clss and onnxruntime time, their "
@@ -180,7 +181,9 @@ def _host_waits(a, dev, precs, level) -> int:
     t0 = time.perf_counter()
     from .cases import TIERS
     # --tiny: the frame steps of the tiny tier's cases, whose kernels a smoke run has built
-    sizes = (TIERS["tiny"],) if a.tiny else hostwait.SIZES
+    # --full: also the 2160p tier (1080p -> 2160p), the GPU figure issue 33 asks for
+    sizes = (TIERS["tiny"],) if a.tiny else \
+        hostwait.SIZES + ((TIERS["2160p"],) if level == "full" else ())
     kw = dict(warm=1, frames=a.runs or 2) if a.tiny else dict(frames=a.runs or 5)
     rows = [r for prec in precs for r in hostwait.run(dev, prec, sizes=sizes, log=lambda m: print(
         m, file=sys.stderr), **kw)]

@@ -265,11 +265,11 @@ def test_host_waits_table(tmp_path):
     assert bench_main(["--host-waits", "--tiny", "--runs", "1", "-p", "fp32", "--out", str(out)]) == 0
     doc = json.loads((out / "bench.json").read_text())
     rows = doc["host_waits"]
-    assert [r["method"] for r in rows] == ["clss", "clss-rules", "jbicubic", "nsrr", "nsrd",
-                                                 "nss"]
+    assert [r["method"] for r in rows] == ["clss", "clss-rules", "jbicubic", "mlp", "nsrr",
+                                                 "nsrd", "nss"]
     for r in rows:
         assert r["wall_ms"] > 0 and r["event_ms"] > 0
-        assert (r["enqueue_ms"] > 0) if r["method"] not in ("nsrr", "nsrd", "nss") \
+        assert (r["enqueue_ms"] > 0) if r["method"] not in ("mlp", "nsrr", "nsrd", "nss") \
             else r["enqueue_ms"] is None
         assert r["ratio"] == pytest.approx(r["wall_ms"] / r["event_ms"], rel=1e-2)
     assert "Host waits" in (out / "bench.md").read_text()

@@ -15,6 +15,10 @@ import numpy as np
 from ..cases import BenchCase, Setup
 from ..netcases import NET_TOL, frame_bench_case, median_ms, synthetic_frame
 
+# the host-wait bench's row (bench/hostwait.py): wall time against the network kernels'
+# event time (the input conversions are not timed)
+HOST_WAITS = ("mlp",)
+
 # (render size, scale) per tier, the tier named by the output (bench/cases.py TIERS)
 MLP_TIERS = {"1080p": (((540, 960), 2), ((360, 640), 3)),
              "tiny": (((16, 32), 2), ((16, 32), 3))}
@@ -41,6 +45,11 @@ def macs_per_render_pixel(scale) -> int:
 def _depth_hr(h, w, s):
     g = np.random.default_rng(h * 7 + w)
     return g.uniform(0.05, 1.0, (s * h, s * w)).astype(np.float32)
+
+
+def synthetic_gbuffers(h, w, scale) -> dict:
+    """The host-wait bench's G-buffer: the output-resolution depth the MLP reads."""
+    return {"depth_hr": _depth_hr(h, w, int(scale))}
 
 
 def mlp_frame_case(render_size, scale: int, tier: str) -> BenchCase:

@@ -41,11 +41,13 @@ FAST = "mlp_upscale.pixel_vectors"
 
 
 def blocks(dev: Device, prec: str, color, feat, weights, defines: dict, *,
-           inv_exposure=1.0, pq_scale=0.01, out=None, vec=None):
+           inv_exposure=1.0, pq_scale=0.01, out=None, vec=None, events=None):
     """color [h, w, 3] linear, feat [H, W] (any [H, W] array when FEATURE=0), weights from
     pack_weights -> blocks [3, B*B, h, w] (PQ domain). vec: None (the fast path where its
     self-check passed on this device, else the reference), 1 (the reference kernel) or 8/16
-    (the pixel-vector kernel, VEC pixels per work-item, after a PQ pass)."""
+    (the pixel-vector kernel, VEC pixels per work-item, after a PQ pass). events: a list
+    that gets each launch's event (a profiled frame step's timings)."""
+    ev = _recorder(events)
     check_storage("color", color, prec)
     check_storage("feat", feat, prec)
     if weights.dtype != np.float32 or weights.size != WEIGHT_COUNT:
@@ -63,25 +65,30 @@ def blocks(dev: Device, prec: str, color, feat, weights, defines: dict, *,
     if v > 1:
         opts = dict(defines, VEC=v)
         pq = dev.empty((3, h, w), "fp32")
-        dev.launch(dev.kernel(KERNEL, "mlp_upscale_pq", prec, **opts),
-                   (_round_up(w, LOCAL[0]), _round_up(h, LOCAL[1])),
-                   (color.data, pq.data, np.int32(h), np.int32(w), np.float32(inv_exposure),
-                    np.float32(pq_scale)), local_size=LOCAL)
-        dev.launch(dev.kernel(KERNEL, "mlp_upscale_blocks_v", prec, **opts),
-                   (_round_up(-(-w // v), VLOCAL[0]), _round_up(h, VLOCAL[1])),
-                   (pq.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
-                    np.int32(H), np.int32(W)), local_size=VLOCAL)
+        ev(dev.launch(dev.kernel(KERNEL, "mlp_upscale_pq", prec, **opts),
+                      (_round_up(w, LOCAL[0]), _round_up(h, LOCAL[1])),
+                      (color.data, pq.data, np.int32(h), np.int32(w), np.float32(inv_exposure),
+                       np.float32(pq_scale)), local_size=LOCAL))
+        ev(dev.launch(dev.kernel(KERNEL, "mlp_upscale_blocks_v", prec, **opts),
+                      (_round_up(-(-w // v), VLOCAL[0]), _round_up(h, VLOCAL[1])),
+                      (pq.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
+                       np.int32(H), np.int32(W)), local_size=VLOCAL))
         return out
     kern = dev.kernel(KERNEL, "mlp_upscale_blocks", prec, **defines)
-    dev.launch(kern, (_round_up(w, LOCAL[0]), _round_up(h, LOCAL[1])),
-               (color.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
-                np.int32(H), np.int32(W), np.float32(inv_exposure), np.float32(pq_scale)),
-               local_size=LOCAL)
+    ev(dev.launch(kern, (_round_up(w, LOCAL[0]), _round_up(h, LOCAL[1])),
+                  (color.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
+                   np.int32(H), np.int32(W), np.float32(inv_exposure), np.float32(pq_scale)),
+                  local_size=LOCAL))
     return out
 
 
+def _recorder(events):
+    """A function that appends a launch's event to `events` (None: drops it)."""
+    return (lambda e: None) if events is None else events.append
+
+
 def fold(dev: Device, prec: str, blk, defines: dict, *, exposure=1.0, inv_pq_scale=100.0,
-         out=None):
+         out=None, events=None):
     """blocks [3, B*B, h, w] -> [H, W, 3] linear: each output pixel the mean of the blocks
     covering it, PQ-decoded, times exposure."""
     check_storage("blocks", blk, prec)
@@ -93,9 +100,10 @@ def fold(dev: Device, prec: str, blk, defines: dict, *, exposure=1.0, inv_pq_sca
     if out is None:
         out = dev.empty((H, W, 3), prec)
     kern = dev.kernel(KERNEL, "mlp_upscale_fold", prec, **defines)
-    dev.launch(kern, (_round_up(W, LOCAL[0]), _round_up(H, LOCAL[1])),
-               (blk.data, out.data, np.int32(h), np.int32(w), np.int32(H), np.int32(W),
-                np.float32(exposure), np.float32(inv_pq_scale)), local_size=LOCAL)
+    _recorder(events)(dev.launch(kern, (_round_up(W, LOCAL[0]), _round_up(H, LOCAL[1])),
+                                 (blk.data, out.data, np.int32(h), np.int32(w), np.int32(H),
+                                  np.int32(W), np.float32(exposure), np.float32(inv_pq_scale)),
+                                 local_size=LOCAL))
     return out
 
 
@@ -105,12 +113,14 @@ FUSED_ROWS = 32       # block rows a work-item of the fused kernel walks down
 
 
 def frame(dev: Device, prec: str, color, feat, weights, defines: dict, *, exposure=1.0,
-          pq_scale=0.01, inv_pq_scale=100.0, out=None, blk=None, pq=None, fused=None, rows=None, vec=None):
+          pq_scale=0.01, inv_pq_scale=100.0, out=None, blk=None, pq=None, fused=None, rows=None, vec=None,
+          events=None):
     """The whole frame step: color [h, w, 3] linear, feat [H, W] -> [H, W, 3] linear.
     fused: None (the fused fast path where its self-check passed on this device, else the
     reference pair blocks + fold, which writes its blocks to `blk` when given), False (the
     reference pair) or True (mlp_upscale_pq_v + mlp_upscale_fused, `vec` lanes, `rows` block
-    rows per work-item; `pq` its [3, h, w] float32 scratch when given)."""
+    rows per work-item; `pq` its [3, h, w] float32 scratch when given). events: a list that
+    gets each launch's event."""
     check_storage("color", color, prec)
     check_storage("feat", feat, prec)
     h, w, _ = color.shape
@@ -122,9 +132,9 @@ def frame(dev: Device, prec: str, color, feat, weights, defines: dict, *, exposu
         fused = selfcheck.enabled(dev, prec, FUSED)
     if not fused:
         blk = blocks(dev, prec, color, feat, weights, defines, inv_exposure=1.0 / exposure,
-                     pq_scale=pq_scale, out=blk)
+                     pq_scale=pq_scale, out=blk, events=events)
         return fold(dev, prec, blk, defines, exposure=exposure, inv_pq_scale=inv_pq_scale,
-                    out=out)
+                    out=out, events=events)
     if weights.dtype != np.float32 or weights.size != WEIGHT_COUNT:
         raise ValueError("mlp_upscale.frame: weights must come from pack_weights")
     if feat.shape[:2] != (H, W):
@@ -134,15 +144,16 @@ def frame(dev: Device, prec: str, color, feat, weights, defines: dict, *, exposu
     rows = FUSED_ROWS if rows is None else int(rows)
     if pq is None:
         pq = dev.empty((3, h, w), "fp32")
-    dev.launch(dev.kernel(KERNEL, "mlp_upscale_pq_v", prec, **opts),
-               (_round_up(-(-w // v), VLOCAL[0]), _round_up(h, VLOCAL[1])),
-               (color.data, pq.data, np.int32(h), np.int32(w), np.float32(1.0 / exposure),
-                np.float32(pq_scale)), local_size=VLOCAL)
-    dev.launch(dev.kernel(KERNEL, "mlp_upscale_fused", prec, **opts),
-               (-(-(w + 1) // (v - 1)), -(-(h + 1) // rows)),
-               (pq.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
-                np.int32(H), np.int32(W), np.int32(rows), np.float32(exposure),
-                np.float32(inv_pq_scale)), local_size=(1, 1))
+    ev = _recorder(events)
+    ev(dev.launch(dev.kernel(KERNEL, "mlp_upscale_pq_v", prec, **opts),
+                  (_round_up(-(-w // v), VLOCAL[0]), _round_up(h, VLOCAL[1])),
+                  (color.data, pq.data, np.int32(h), np.int32(w), np.float32(1.0 / exposure),
+                   np.float32(pq_scale)), local_size=VLOCAL))
+    ev(dev.launch(dev.kernel(KERNEL, "mlp_upscale_fused", prec, **opts),
+                  (-(-(w + 1) // (v - 1)), -(-(h + 1) // rows)),
+                  (pq.data, feat.data, weights.data, out.data, np.int32(h), np.int32(w),
+                   np.int32(H), np.int32(W), np.int32(rows), np.float32(exposure),
+                   np.float32(inv_pq_scale)), local_size=(1, 1)))
     return out
 
 

@@ -29,7 +29,7 @@ import functools
 import numpy as np
 
 from ...pipeline.contract import PQ_NITS, output_size
-from ...pipeline.method import MethodSpec, MethodUpscaler, convert_storage
+from ...pipeline.method import MethodSpec, MethodUpscaler, convert_storage, summed_event_ms
 from . import transform as tf
 from . import fastpath  # noqa: F401 (registers the kernel's fast path)
 
@@ -54,10 +54,19 @@ class MlpFrame:
         self.out = e((self.H, self.W, 3), precision)
         # the caller's float32 output when the storage is half
         self.out32 = None if precision == "fp32" else e((self.H, self.W, 3), dtype=np.float32)
+        self.events = []        # (stage, event) of a profiled frame step
+
+    def stage_ms(self) -> dict:
+        return summed_event_ms(self.events, STAGES)
 
     def device_bytes(self) -> int:
         return sum(int(a.nbytes) for a in (self.in_color, self.in_depth_hr, self.blocks,
                                            self.pq, self.out, self.out32) if a is not None)
+
+
+# The stage a profiled frame step times (MethodUpscaler.stage_ms): the network's kernels
+# (the reference pair or the fused pair); the storage conversions are not timed.
+STAGES = ("mlp",)
 
 
 class MlpUpscaler(MethodUpscaler):
@@ -70,6 +79,8 @@ class MlpUpscaler(MethodUpscaler):
     reference=full_res)` trains on it first (train_step), then upscales with the updated
     weights; online_lr, online_batch (patches per step), online_steps (steps per training
     frame), online_seed."""
+
+    STAGES = STAGES     # the per-stage timings (MethodUpscaler.stage_ms)
 
     def __init__(self, scale=2.0, device=None, precision="fp32", *, weights=None,
                  feature=True, exposure=1.0, sanitize=False, profile=False, online=False,
@@ -161,12 +172,13 @@ class MlpUpscaler(MethodUpscaler):
         import pyopencl as cl
         from . import mlp_upscale as ops
         # the kernels read the precision's storage: the device path's float32 inputs
-        # are converted into the frame step's own buffers (the host path's are there)
+        # are converted into the frame step's own buffers (the host path's are there);
+        # inputs already in that storage are read in place
         color = arrays["color"]
-        if color is not fs.in_color:
+        if color.dtype != fs.in_color.dtype:
             color = convert_storage(color, fs.in_color.dtype, out=fs.in_color)
         feat = arrays.get("depth_hr") if self.feature else fs.in_depth_hr
-        if feat is not fs.in_depth_hr:
+        if feat.dtype != fs.in_depth_hr.dtype:
             feat = convert_storage(feat, fs.in_depth_hr.dtype, out=fs.in_depth_hr)
         from ... import selfcheck
         fused = selfcheck.enabled(self.dev, self.precision, ops.FUSED)
@@ -174,8 +186,10 @@ class MlpUpscaler(MethodUpscaler):
             fs.blocks = fs.dev.empty((3, fs.bb, fs.h, fs.w), fs.prec)
         if fused and fs.pq is None:
             fs.pq = fs.dev.empty((3, fs.h, fs.w), "fp32")
+        ev = [] if self.profile else None
         kw = dict(exposure=self.exposure, pq_scale=self.pq_scale,
-                  inv_pq_scale=self.inv_pq_scale, blk=fs.blocks, pq=fs.pq, fused=fused)
+                  inv_pq_scale=self.inv_pq_scale, blk=fs.blocks, pq=fs.pq, fused=fused,
+                  events=ev)
         if fs.out32 is None:
             res = ops.frame(self.dev, self.precision, color, feat, self._w, self.defines,
                             out=fs.out if out is None else out, **kw)
@@ -183,6 +197,8 @@ class MlpUpscaler(MethodUpscaler):
             ops.frame(self.dev, self.precision, color, feat, self._w, self.defines,
                       out=fs.out, **kw)
             res = convert_storage(fs.out, np.float32, out=fs.out32 if out is None else out)
+        if ev:
+            fs.events += [("mlp", e) for e in ev]
         return res, cl.enqueue_marker(self.dev.queue)
 
 
