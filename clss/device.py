@@ -250,6 +250,12 @@ class Device:
     def has_fp16(self) -> bool:
         return self.info.fp16
 
+    @property
+    def is_cpu(self) -> bool:
+        """A CPU device: the fast paths laid out for SIMD lanes (pixel vectors, the
+        channel-blocked convs) apply there (clss.selfcheck.FastPath.applies)."""
+        return bool(self.cl_device.type & cl.device_type.CPU)
+
     def require(self, precision: str) -> None:
         check_precision(precision)
         if precision == "fp16-native" and not self.has_fp16:

@@ -67,7 +67,10 @@ class FastPath:
     tolerance: Callable = field(compare=False)
     what: str = ""
     isolate: bool = True     # check in a child process (see _check_isolated)
-    applies: Callable = field(default=lambda dev: True, compare=False)   # does the op use it on dev?
+    # Does the op use the fast variant on dev at all? A speed choice measured per kind of
+    # device (a CPU layout that a GPU runs slower, a PoCL-only load form): where it does
+    # not apply, enabled() is False without a check and the reference variant runs.
+    applies: Callable = field(default=lambda dev: True, compare=False)
 
     @property
     def family(self) -> str:
@@ -169,6 +172,9 @@ def enabled(dev, prec: str, name: str) -> bool:
     if ok is not None:       # ops ask at every launch: no source hashing after the first
         return ok
     fp = REGISTRY[name]
+    if not fp.applies(dev):
+        _memo[memo] = False
+        return False
     key = _key(dev, prec, fp)
     with _lock:
         v = _verdicts.get(key)

@@ -73,7 +73,7 @@ def pixels_per_item(dev: Device, prec: str = "fp32", mode: str = "rule") -> int:
         if env not in ("1", "4", "8"):
             raise ValueError(f"CLSS_FRAME_VEC: expected 1, 4 or 8, got {env!r}")
         return int(env)
-    if not dev.cl_device.type & cl.device_type.CPU:
+    if not dev.is_cpu:
         return 1
     return selfcheck.defines(dev, prec, f"frame.pixel_vectors.{mode}")["VEC"]
 

@@ -7,7 +7,6 @@ clss.selfcheck_runner imports it so that a child process can run the check."""
 from __future__ import annotations
 
 import numpy as np
-import pyopencl as cl
 
 from ... import selfcheck
 from ...device import Device
@@ -42,7 +41,7 @@ def _tolerance(prec):
 selfcheck.register(selfcheck.FastPath(
     FAST, KERNEL, {"VEC": 8}, {"VEC": 1}, check=_selfcheck_run, tolerance=_tolerance,
     what="8 render pixels per work-item as vectors, the PQ encode hoisted",
-    applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU)))
+    applies=lambda dev: dev.is_cpu))
 
 
 def _fused_check_run(dev: Device, prec: str) -> list:
@@ -80,4 +79,4 @@ selfcheck.register(selfcheck.FastPath(
     check=_fused_check_run, tolerance=_fused_tolerance,
     what=f"the frame step as one GEMM kernel with the fold fused, {FUSED_VEC} render "
          "pixels per vector",
-    applies=lambda dev: bool(dev.cl_device.type & cl.device_type.CPU)))
+    applies=lambda dev: dev.is_cpu))
