@@ -36,6 +36,17 @@ class TrainError(ValueError):
     """A user's mistake (bad directory, bad data, bad option): one line, no traceback."""
 
 
+def load_init(path, nets, what) -> tuple[dict, dict]:
+    """(config, weights) of `--init PATH` through a method's network file (`nets.load`), or
+    a TrainError naming the flag: a path that is no file, a file that is not `what`."""
+    if not os.path.isfile(path):
+        raise TrainError(f"--init: {path} is not a file ({what}, .safetensors)")
+    try:
+        return nets.load(path)
+    except (ValueError, OSError) as e:
+        raise TrainError(f"--init: {path}: {e}") from None
+
+
 # ---- the PQ transfer (clss.pipeline.contract), differentiable, for every torch twin ------
 def pq_encode(x, nits=PQ_NITS):
     y = torch.clamp(x * (nits / PQ_PEAK_NITS), 0.0, 1.0)

@@ -393,6 +393,12 @@ def _gather(dev, prec, x, out, base: int, src_strides, what: str):
     """out[i] = x[base + sum_d i_d * src_strides[d]] over out's shape: the
     strided copy that slice, transpose and expand are."""
     dims, (src,) = coalesce(out.shape, [list(src_strides)])
+    if len(dims) == 1 and src == [1] and base + out.size < 2**31:
+        # One contiguous run (a channel slice of one image, NSRR's slot split): the
+        # vectorised row copy, 5x the gather kernel's speed on such a slice (PoCL; its
+        # buffer copy is a one-thread memcpy, slower still)
+        _copy_rows(dev, prec, x, out, out.size, 1, 0, base, 0, 0)
+        return
     dims, (src,) = _four(dims, [src], what)
     gs, dargs = _grid(dims)
     k = dev.kernel("elementwise", "gather", prec)

@@ -27,9 +27,11 @@ from pathlib import Path
 import numpy as np
 import pyopencl as cl
 
+from ... import selfcheck
 from ...device import Device
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from ...pipeline.method import input_buffers, summed_event_ms
+from ...tolerance import DEFAULT_TOL, EXACT
 from .networks import FEAT, build_features, build_reconstruct
 
 KERNEL = Path(__file__).with_name("nsrr.cl")   # the frame kernels, beside this file
@@ -90,19 +92,21 @@ class NsrrFrameStep:
         from ...model import Model
         self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
         self.reconstruct = Model(build_reconstruct(cfg, weights, Hp, Wp), device=dev, precision=prec)
-        k = {n: dev.kernel(KERNEL, n, prec) for n in ("nsrr_prepare", "nsrr_reproject", "nsrr_finish")}
+        k = {n: dev.kernel(KERNEL, n, prec) for n in ("nsrr_prepare", "nsrr_finish")}
+        vec = int(selfcheck.defines(dev, prec, REPROJECT_VECTORS)["VEC"])
+        k["nsrr_reproject"] = dev.kernel(KERNEL, "nsrr_reproject", prec, VEC=vec)
         i32, f = np.int32, np.float32
         self.L = {
             "prepare": dev.prepare(k["nsrr_prepare"], (w, h), [
                 self.in_color.data, self.in_depth.data, self.in_motion.data, self.rgbd.data,
                 self.mv.data, i32(w), i32(h), i32(1), f(1), f(1), f(1),
                 f(self.nits / PQ_PEAK_NITS)]),
-            "reproject": dev.prepare(k["nsrr_reproject"], (Wp, Hp), [
+            "reproject": dev.prepare(k["nsrr_reproject"], (-(-Wp // vec), Hp), [
                 self.feat.data, self.mv.data, self.stacks[1].data, self.stacks[0].data, self.base.data,
                 i32(h), i32(w), i32(self.H), i32(self.W), i32(Hp), i32(Wp), i32(self.nprev),
                 i32(self.history), i32(0), i32(0), i32(0), i32(0), f(self.sy), f(self.sx),
                 f(0), f(0), i32(1)]),
-            "finish": dev.prepare(k["nsrr_finish"], (self.W, self.H), [
+            "finish": dev.prepare(k["nsrr_finish"], (-(-self.W // 8), self.H), [
                 self.y.data, self.out.data, i32(self.H), i32(self.W), i32(Wp), i32(Hp),
                 f(PQ_PEAK_NITS / self.nits)]),
         }
@@ -167,3 +171,33 @@ class NsrrFrameStep:
             mem = m.memory()
             n += mem.get("weights_bytes", 0) + mem.get("intermediate_peak_bytes", 0)
         return int(n)
+
+
+# The reprojection with 8 output pixels of a row per work-item (nsrr.cl, VEC = 8): a CPU
+# layout (its planes written as float8), self-checked against VEC = 1 on two frames, the
+# second warping the first's history (bit-exact: the same operations lane by lane).
+REPROJECT_VECTORS = "nsrr.reproject_vectors"
+
+
+def _reproject_check(dev: Device, prec: str) -> list[np.ndarray]:
+    from ...ops.base import rng
+    from .networks import init_weights, make_config
+    g = rng("nsrr reproject selfcheck")
+    cfg = make_config("fast")
+    fs = NsrrFrameStep(dev, prec, (7, 13), 2.0, cfg, init_weights(cfg, 1))
+    outs = []
+    for t, jitter in enumerate(((0.25, -0.25), (-0.25, 0.25))):
+        arrays = [g.uniform(0, 4, (7, 13, 3)), g.uniform(0.1, 0.9, (7, 13)),
+                  g.uniform(-1.5, 1.5, (7, 13, 2))]
+        color, depth, motion = (dev.to_device(a.astype(np.float32)) for a in arrays)
+        out, ev = fs.run(color, depth, motion, jitter, t == 0)
+        ev.wait()
+        outs += [dev.to_host(out), dev.to_host(fs.stacks[fs.cur])]    # run() flipped cur
+    return outs
+
+
+selfcheck.register(selfcheck.FastPath(
+    REPROJECT_VECTORS, KERNEL, {"VEC": 8}, {"VEC": 1}, check=_reproject_check,
+    tolerance=lambda prec: EXACT if prec != "fp16-native" else DEFAULT_TOL[prec],
+    what="8 output pixels of a row per work-item, the planes written as vectors",
+    applies=lambda dev: dev.is_cpu))

@@ -95,6 +95,11 @@ __kernel void nsrr_prepare(__global const float *color, __global const float *de
  *  @param[in]  mode     0: warp the history; 1: reset, empty history (zeros); 2: reset,
  *                       every valid slot is the current frame's Z (duplicate)
  *  NDRange: (Wp, Hp). */
+#ifndef VEC
+#define VEC 1       /* 8: nsrr_reproject takes 8 output pixels of a row (the CPU fast path) */
+#endif
+
+#if VEC == 1
 __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
                              __global const T *hist, __global T *stack, __global T *base,
                              int h, int w, int H, int W, int Hp, int Wp, int nprev, int nvalid,
@@ -174,21 +179,161 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
         }
     }
 }
+#else
+/* The same per pixel, 8 pixels of a row per work-item (NDRange: (ceil(Wp / 8), Hp)): the
+ * 63 planes are written as float8 and the per-pixel index arithmetic is shared. The
+ * gathers (zero-upsampled samples, warp taps) stay per lane; the arithmetic is the same
+ * operations lane by lane, so the outputs equal the reference's. */
 
-/** @param[in]  y            [3,Hp,Wp] T: the network's output, PQ
+/* Store the first n (<= 8) lanes of v at element offset i of p. */
+#if defined(CLSS_FP16)     /* lane by lane: pip's PoCL 3.0 crashed on vstore_half8_rte here */
+#define PUT8_FULL(p, i, v) do { float t_[8]; vstore8((v), 0, t_);      \
+        for (int q_ = 0; q_ < 8; ++q_) ST(p, (i) + q_, t_[q_]); } while (0)
+#else
+#define PUT8_FULL(p, i, v) ST8(p, i, CONVERT_A8(v))
+#endif
+#define PUT8(p, i, v, n) do {                                       \
+        if ((n) == 8) { PUT8_FULL(p, i, v); }                        \
+        else { float t_[8]; vstore8((v), 0, t_);                     \
+               for (int q_ = 0; q_ < (n); ++q_) ST(p, (i) + q_, t_[q_]); } \
+    } while (0)
+
+__kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
+                             __global const T *hist, __global T *stack, __global T *base,
+                             int h, int w, int H, int W, int Hp, int Wp, int nprev, int nvalid,
+                             int siy, int six, int oy, int ox, float sy, float sx,
+                             float jy, float jx, int mode)
+{
+    const int X0 = get_global_id(0) * 8, Y = get_global_id(1);
+    if (X0 >= Wp || Y >= Hp) return;
+    const int n = min(8, Wp - X0);
+    const long oplane = (long)Hp * Wp, o = (long)Y * Wp + X0, plane = (long)h * w;
+    const int nch = FEAT * (nprev + 1);
+    const float8 zero = (float8)(0.0f);
+    if (Y >= H || X0 >= W) {
+        for (int c = 0; c < nch; ++c) PUT8(stack, c * oplane + o, zero, n);
+        for (int c = 0; c < 3; ++c) PUT8(base, c * oplane + o, zero, n);
+        return;
+    }
+    /* lanes at X >= W (the padding columns) are written 0; their loads use X = W - 1 */
+    const int8 in = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)(W);
+    int xl[8];
+    for (int q = 0; q < 8; ++q) xl[q] = min(X0 + q, W - 1);
+    {
+        const float bv = clamp(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
+        const int c0 = (int)floor(bv), c1 = min(c0 + 1, h - 1);
+        const float fc = bv - (float)c0;
+        float tb[8], bb[8];
+        for (int c = 0; c < 3; ++c) {
+            __global const T *q = feat + c * plane;
+            for (int l = 0; l < 8; ++l) {
+                const float bu = clamp(((float)xl[l] + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
+                const int b0 = (int)floor(bu), b1 = min(b0 + 1, w - 1);
+                const float fb = bu - (float)b0;
+                tb[l] = LD(q, (long)c0 * w + b0) * (1.0f - fb) + LD(q, (long)c0 * w + b1) * fb;
+                bb[l] = LD(q, (long)c1 * w + b0) * (1.0f - fb) + LD(q, (long)c1 * w + b1) * fb;
+            }
+            const float8 r = vload8(0, tb) * (float8)(1.0f - fc) + vload8(0, bb) * (float8)(fc);
+            PUT8(base, c * oplane + o, select(zero, r, in), n);
+        }
+    }
+    /* Z_i */
+    const int i = zu_source(Y, h, siy, oy, sy, jy);
+    long src[8];
+    for (int l = 0; l < 8; ++l) {
+        const int j = i < 0 ? -1 : zu_source(xl[l], w, six, ox, sx, jx);
+        src[l] = (j < 0 || X0 + l >= W) ? -1 : (long)i * w + j;
+    }
+    float8 z[FEAT];
+    for (int c = 0; c < FEAT; ++c) {
+        float t[8];
+        for (int l = 0; l < 8; ++l)
+            t[l] = src[l] < 0 ? 0.0f : LD(feat, c * plane + src[l]);
+        z[c] = vload8(0, t);
+        PUT8(stack, c * oplane + o, z[c], n);
+    }
+    if (mode != 0) {
+        for (int k = 0; k < nprev; ++k)
+            for (int c = 0; c < FEAT; ++c)
+                PUT8(stack, (FEAT * (k + 1) + c) * oplane + o,
+                     (mode == 2 && k < nvalid) ? z[c] : zero, n);
+        return;
+    }
+    /* the render motion at each lane's pixel, then its four warp taps */
+    const float v = clamp(((float)Y + 0.5f) / sy - 0.5f, 0.0f, (float)(h - 1));
+    const int v0 = (int)floor(v), v1 = min(v0 + 1, h - 1);
+    const float fv = v - (float)v0;
+    /* plane offsets (Hp * Wp < 2^31) and weights of the four taps, one lane each */
+    int a00[8], a10[8], a01[8], a11[8];
+    float w00[8], w10[8], w01[8], w11[8];
+    for (int l = 0; l < 8; ++l) {
+        const int X = xl[l];
+        const float u = clamp(((float)X + 0.5f) / sx - 0.5f, 0.0f, (float)(w - 1));
+        const int u0 = (int)floor(u), u1 = min(u0 + 1, w - 1);
+        const float fu = u - (float)u0;
+        float m[2];
+        for (int c = 0; c < 2; ++c) {
+            __global const float *q = mv + c * plane;
+            const float top = q[v0 * w + u0] * (1.0f - fu) + q[v0 * w + u1] * fu;
+            const float bot = q[v1 * w + u0] * (1.0f - fu) + q[v1 * w + u1] * fu;
+            m[c] = top * (1.0f - fv) + bot * fv;
+        }
+        const WarpTaps t = warp_taps((float)X + m[0] * sx, (float)Y + m[1] * sy, W, H);
+        w00[l] = t.w00; w10[l] = t.w10; w01[l] = t.w01; w11[l] = t.w11;
+        a00[l] = t.cy0 * Wp + t.cx0; a10[l] = t.cy0 * Wp + t.cx1;
+        a01[l] = t.cy1 * Wp + t.cx0; a11[l] = t.cy1 * Wp + t.cx1;
+    }
+    const int8 i00 = vload8(0, a00), i10 = vload8(0, a10), i01 = vload8(0, a01), i11 = vload8(0, a11);
+    const float8 v00 = vload8(0, w00), v10 = vload8(0, w10), v01 = vload8(0, w01), v11 = vload8(0, w11);
+    /* eight loads as one vector: LLVM may make it a gather */
+#define GATHER8(p, i) ((float8)(LD(p, (i).s0), LD(p, (i).s1), LD(p, (i).s2), LD(p, (i).s3), \
+                                LD(p, (i).s4), LD(p, (i).s5), LD(p, (i).s6), LD(p, (i).s7)))
+    for (int k = 0; k < nprev; ++k) {
+        if (k >= nvalid) {
+            for (int c = 0; c < FEAT; ++c) PUT8(stack, (FEAT * (k + 1) + c) * oplane + o, zero, n);
+            continue;
+        }
+        for (int c = 0; c < FEAT; ++c) {
+            __global const T *p = hist + (long)(FEAT * k + c) * oplane;
+            const float8 r = GATHER8(p, i00) * v00 + GATHER8(p, i10) * v10
+                             + GATHER8(p, i01) * v01 + GATHER8(p, i11) * v11;
+            PUT8(stack, (FEAT * (k + 1) + c) * oplane + o, select(zero, r, in), n);
+        }
+    }
+}
+#endif
+
+/** The output, 8 pixels of a row per work-item so that the PQ decode runs on float8
+ *  (pq_decode8: the scalar exp2/log2 are library calls on PoCL, 327 ms of a 1080p frame).
+ *  @param[in]  y            [3,Hp,Wp] T: the network's output, PQ
  *  @param[out] out          [H,W,3] float32 linear (times exposure)
  *  @param[in]  H            output height
  *  @param[in]  W            output width
  *  @param[in]  Wp           padded width (row stride of y)
  *  @param[in]  Hp           padded height
  *  @param[in]  inv_pq_scale 10000 / nits, times the exposure
- *  NDRange: (W, H). */
+ *  NDRange: (ceil(W / 8), H). */
 __kernel void nsrr_finish(__global const T *y, __global float *out, int H, int W, int Wp, int Hp,
                           float inv_pq_scale)
 {
-    const int X = get_global_id(0), Y = get_global_id(1);
-    if (X >= W || Y >= H) return;
-    const long plane = (long)Hp * Wp, p = (long)Y * Wp + X;
-    for (int c = 0; c < 3; ++c)
-        out[3 * ((long)Y * W + X) + c] = pq_decode(LD(y, c * plane + p), inv_pq_scale);
+    const int X0 = get_global_id(0) * 8, Y = get_global_id(1);
+    if (X0 >= W || Y >= H) return;
+    const int n = min(8, W - X0);
+    const long plane = (long)Hp * Wp, p = (long)Y * Wp + X0;
+    __global float *o = out + 3 * ((long)Y * W + X0);
+    for (int c = 0; c < 3; ++c) {
+        float8 e;
+        if (X0 + 8 <= Wp) {             /* the padding columns are read and not written */
+            e = convert_float8(LD8(y, c * plane + p));
+        } else {
+            float t[8];
+            for (int k = 0; k < 8; ++k)
+                t[k] = k < n ? (float)LD(y, c * plane + p + k) : 0.0f;
+            e = vload8(0, t);
+        }
+        float d[8];
+        vstore8(pq_decode8(e, inv_pq_scale), 0, d);
+        for (int k = 0; k < n; ++k)
+            o[3 * k + c] = d[k];
+    }
 }

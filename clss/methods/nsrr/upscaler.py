@@ -73,5 +73,6 @@ SPEC = MethodSpec(
     "accumulative warping of 4 previous frames, learned reweighting, a U-Net",
     NsrrUpscaler, scales=(2.0, 4.0), kernels=(KERNEL.name,), doc="docs/methods/nsrr.md",
     twin="clss.methods.nsrr.oracle:twin",
-    shipped=((2.0, "nsrr_x2.safetensors"), (4.0, "nsrr_x4.safetensors")), nearest_scale=True)
+    shipped=((2.0, "nsrr_x2.safetensors"), (4.0, "nsrr_x4.safetensors")), nearest_scale=True,
+    fast_paths="clss.methods.nsrr.frame")
 SPECS = {"nsrr": SPEC}

@@ -21,7 +21,7 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, nchw_sequences, fmt_s, load_sequences, ssim, temporal
+from weights_tools.trainloop import Run, TrainError, nchw_sequences, fmt_s, load_init, load_sequences, ssim, temporal
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale", "albedo",
@@ -138,7 +138,7 @@ def cmd_train(args):
         raise TrainError(str(e)) from None
     w0 = nets.init_weights(cfg, args.seed)
     if args.init:
-        c0, w1 = nets.load(args.init)
+        c0, w1 = load_init(args.init, nets, "NSRD weights")
         s0, s1 = nets.layer_shapes(c0), nets.layer_shapes(cfg)
         if any(s0[k] != s1[k] for k in s1 if k != "out") or s0["out"][1:] != s1["out"][1:]:
             raise TrainError(f"--init: {args.init} has other layer shapes than this config")

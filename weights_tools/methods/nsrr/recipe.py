@@ -28,7 +28,7 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, fmt_s, load_sequences, per_sequence, ssim
+from weights_tools.trainloop import Run, TrainError, fmt_s, load_init, load_sequences, per_sequence, ssim
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
@@ -234,12 +234,7 @@ def cmd_train(args):
         raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
                          f"{h}x{w} frames")
     if args.init:
-        if not os.path.isfile(args.init):
-            raise TrainError(f"--init: {args.init} is not a file (NSRR weights, .safetensors)")
-        try:
-            cfg, w0 = nets.load(args.init)
-        except (ValueError, OSError) as e:
-            raise TrainError(f"--init: {args.init}: {e}") from None
+        cfg, w0 = load_init(args.init, nets, "NSRR weights")
     else:
         cfg = nets.make_config(args.widths, args.n_prev, residual=not args.no_residual,
                                act=args.act)

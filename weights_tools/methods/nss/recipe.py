@@ -19,7 +19,7 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, nchw_sequences, fmt_s, load_sequences, ssim, temporal
+from weights_tools.trainloop import Run, TrainError, nchw_sequences, fmt_s, load_init, load_sequences, ssim, temporal
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
@@ -42,6 +42,8 @@ def add_arguments(t):
     t.add_argument("--ssim", type=float, default=0.2, help="weight of 1 - SSIM")
     t.add_argument("--filtered", type=float, default=0.2, help="weight of the filter's own L1")
     t.add_argument("--temporal", type=float, default=0.5, help="weight of the temporal loss")
+    t.add_argument("--init", default=None, help="start from these NSS weights (.safetensors; a "
+                   "fine-tune; their config replaces --quality)")
     t.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop (and write the weights) after this many minutes")
 
@@ -113,8 +115,12 @@ def cmd_train(args):
                          f"{h}x{w} frames")
     if not 0 <= args.warm < args.window:
         raise TrainError(f"--warm {args.warm}: expected 0 <= warm < --window {args.window}")
-    cfg = nets.make_config(2, args.quality)
-    net = NssNet(cfg, nets.init_weights(cfg, args.seed))
+    if args.init:
+        cfg, w0 = load_init(args.init, nets, "NSS weights")
+    else:
+        cfg = nets.make_config(2, args.quality)
+        w0 = nets.init_weights(cfg, args.seed)
+    net = NssNet(cfg, w0)
     step = TorchStep(net)
     run.track(net=net)
     rng = run.batch_rng("nss")
