@@ -256,6 +256,46 @@ __kernel void max_pool_row8(__global const T *in, __global T *out, int IH, int I
 #endif
 }
 
+/* 2x2 windows at stride 2, no padding, dilation 1, floor output (the U-Nets' down-sampling):
+ * 8 outputs of a row per work-item from two rows of 16 inputs, their even and odd lanes,
+ * taken in the reference's order (row by row, left to right, strict `>`).
+ * @param[in]  in   [NC, IH, IW] input
+ * @param[out] out  [NC, OH, OW] output (OH = IH / 2, OW = IW / 2)
+ * @param[in]  IH   input height
+ * @param[in]  IW   input width
+ * @param[in]  OH   output height
+ * @param[in]  OW   output width
+ * @param[in]  NC   N * C, the extent of NDRange dimension 2
+ * @note NDRange (ceil(OW / 8), OH, NC); -DCLSS_CLANG_VECTORS=0|1: builtin-free loads/stores */
+__kernel void max_pool_2x2(__global const T *in, __global T *out, int IH, int IW, int OH, int OW,
+                           int NC)
+{
+    const int ox0 = get_global_id(0) * 8, oy = get_global_id(1), nc = get_global_id(2);
+    if (ox0 >= OW || oy >= OH || nc >= NC) return;
+    const __global T *r0 = in + ((long)nc * IH + 2 * oy) * IW + 2 * ox0;
+    const __global T *r1 = r0 + IW;
+    A8 m = (A8)(-INFINITY);
+    if (2 * ox0 + 16 <= IW) {
+        const A8 a0 = FLD8(r0, 0), a1 = FLD8(r0, 8), b0 = FLD8(r1, 0), b1 = FLD8(r1, 8);
+        const A8 t00 = (A8)(a0.even, a1.even), t01 = (A8)(a0.odd, a1.odd);
+        const A8 t10 = (A8)(b0.even, b1.even), t11 = (A8)(b0.odd, b1.odd);
+        m = t00 > m ? t00 : m;
+        m = t01 > m ? t01 : m;
+        m = t10 > m ? t10 : m;
+        m = t11 > m ? t11 : m;
+    } else {
+        union { A8 v; A e[8]; } u;
+        u.v = m;
+        for (int e = 0; e < 8 && ox0 + e < OW; ++e) {
+            const A t[4] = {FLD(r0, 2 * e), FLD(r0, 2 * e + 1), FLD(r1, 2 * e), FLD(r1, 2 * e + 1)};
+            for (int q = 0; q < 4; ++q)
+                u.e[e] = t[q] > u.e[e] ? t[q] : u.e[e];
+        }
+        m = u.v;
+    }
+    store_row8(out + ((long)nc * OH + oy) * OW + ox0, OW - ox0, m);
+}
+
 /* Global pooling, pass 1: one work-item reduces CHUNK contiguous elements of
  * one row (NDRange (nchunks, NC)); eight lanes accumulate side by side, which
  * is both the vector load and a first level of pairwise summation. */

@@ -413,3 +413,38 @@ __kernel void resize_x8(__global const T *in, __global T *out,
     }
 }
 #endif
+
+
+/* Nearest (MODE 0, not tf_crop_and_resize): 8 outputs along x per work-item, each a copy
+ * of the input pixel axis_tables chose for its row and column; the 8 copies of a channel
+ * are stored as one vector of raw bits (bit-exact). Arguments and NDRange as resize_x8. */
+__kernel void resize_nearest_x8(__global const T *in, __global T *out,
+                                int C, int H, int W, int Ho, int Wo, int NCb,
+                                float sy, float sx, float extrap, float cubic_a,
+                                __global const float *coord, __global const int *idx,
+                                __global const float *wt)
+{
+    const int X0 = get_global_id(0) * 8, Y = get_global_id(1), ncb = get_global_id(2);
+    if (X0 >= Wo || Y >= Ho || ncb >= NCb) return;
+    const int CB = (C + CPT - 1) / CPT;
+    const int n = ncb / CB, c0 = (ncb % CB) * CPT;
+    const int nc = min(CPT, C - c0);
+    const int nx = min(8, Wo - X0);
+    const long plane = (long)H * W, oplane = (long)Ho * Wo;
+    __global const TB *src = (__global const TB *)in + ((long)n * C + c0) * plane + (long)idx[Y] * W;
+    __global TB *dst = (__global TB *)out + ((long)n * C + c0) * oplane + (long)Y * Wo + X0;
+    int ix[8];
+    for (int l = 0; l < 8; ++l)
+        ix[l] = idx[Ho + X0 + min(l, nx - 1)];
+    for (int c = 0; c < nc; ++c) {
+        __global const TB *r = src + c * plane;
+        if (nx == 8) {
+            const TB8 v = (TB8)(r[ix[0]], r[ix[1]], r[ix[2]], r[ix[3]],
+                                r[ix[4]], r[ix[5]], r[ix[6]], r[ix[7]]);
+            vstore8(v, 0, dst + c * oplane);
+        } else {
+            for (int l = 0; l < nx; ++l)
+                dst[c * oplane + l] = r[ix[l]];
+        }
+    }
+}

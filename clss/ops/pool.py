@@ -125,6 +125,14 @@ def _pool(dev, prec, x, mode, kernel, stride, pads, dilation, ceil_mode, auto_pa
                    (x.data, out.data, *(np.int32(v) for v in (IH, IW, OH, OW, K[1], S[1], P[1], P[2],
                                                                D[1], n * c))))
         return out
+    if (mode == 0 and not indices and len(sp) == 2 and K[1:] == [2, 2] and S[1:] == [2, 2]
+            and D[1:] == [1, 1] and not any(pb) and (OH, OW) == (IH // 2, IW // 2)
+            and selfcheck.enabled(dev, prec, "pool.max2x2")):
+        kern = dev.kernel("pool", "max_pool_2x2", prec,
+                          CLSS_CLANG_VECTORS=builtin_free(dev) if prec != "fp16" else 0)
+        dev.launch(kern, (-(-OW // 8), OH, n * c),
+                   (x.data, out.data, *(np.int32(v) for v in (IH, IW, OH, OW, n * c))))
+        return out
     kern = dev.kernel("pool", "pool", prec, **defines)
     extra = (idx.data, np.int32(column_major)) if indices else ()
     ints = [ID, IH, IW, OD, OH, OW, *K, *S, *P, *D, *E, n * c * OD]
@@ -203,6 +211,20 @@ def _selfcheck_row8(dev: Device, prec: str) -> list[np.ndarray]:
 selfcheck.register(selfcheck.FastPath(
     "pool.row8", "pool", {"POOL_ROW8": 1}, {"POOL_ROW8": 0}, check=_selfcheck_row8,
     tolerance=lambda prec: EXACT, what="3-wide max pool: 8 outputs per work-item (kernel max_pool_row8)"))
+
+
+def _selfcheck_max2x2(dev: Device, prec: str) -> list[np.ndarray]:
+    """2x2 / 2 max pools of odd-sized maps whose rows end in a partial vector, with ties
+    (+-0) and a NaN."""
+    x = rng("max_pool_2x2 selfcheck").standard_normal((1, 3, 9, 37)).astype(np.float32)
+    x[0, 0, 0, :4] = [0.0, -0.0, -0.0, 0.0]
+    x[0, 1, 2, 5] = np.nan
+    return [dev.to_host(max_pool(dev, prec, dev.to_device(x, prec), (2, 2), stride=(2, 2)))]
+
+
+selfcheck.register(selfcheck.FastPath(
+    "pool.max2x2", "pool", {"POOL_MAX2X2": 1}, {"POOL_MAX2X2": 0}, check=_selfcheck_max2x2,
+    tolerance=lambda prec: EXACT, what="2x2 / 2 max pool: 8 outputs per work-item (kernel max_pool_2x2)"))
 
 
 def global_avg_pool(dev: Device, prec: str, x, chunk: int | None = None, out=None):

@@ -30,7 +30,7 @@ import pyopencl.cltypes as clt
 
 from .. import selfcheck
 from ..device import Device
-from ..tolerance import DEFAULT_TOL
+from ..tolerance import DEFAULT_TOL, EXACT
 from .base import Unsupported, as_str, check_storage, onnx_op, rng
 from .conv import builtin_free, load_defines
 
@@ -181,10 +181,12 @@ def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "lin
     coord, idx, wt = _axis_tables(dev, prec, defines, mode, (ho, wo, h, w), (sy, sx), off, r, cubic_a)
     x8 = (bool(RESIZE_X8) and mode != "nearest" and not antialias and defines["COORD"] != 4
           and selfcheck.enabled(dev, prec, "resize.x8"))
-    k = dev.kernel("resize", "resize_x8" if x8 else "resize", prec, **defines,
-                   **load_defines(dev, prec, "resize"))
+    near8 = (bool(RESIZE_X8) and mode == "nearest" and defines["COORD"] != 4
+             and selfcheck.enabled(dev, prec, "resize.nearest_x8"))
+    k = dev.kernel("resize", "resize_x8" if x8 else "resize_nearest_x8" if near8 else "resize",
+                   prec, **defines, **load_defines(dev, prec, "resize"))
     cb = -(-c // CHANNELS_PER_ITEM)
-    dev.launch(k, (-(-wo // 8) if x8 else wo, ho, n * cb),
+    dev.launch(k, (-(-wo // 8) if x8 or near8 else wo, ho, n * cb),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(ho), np.int32(wo),
                 np.int32(n * cb), _f32(sy), _f32(sx), _f32(extrapolation_value), _f32(cubic_a),
                 coord.data, idx.data, wt.data))
@@ -314,6 +316,20 @@ def _selfcheck_resize(dev: Device, prec: str) -> list[np.ndarray]:
     return [dev.to_host(resize(dev, prec, x, hw, mode=m)) for m in ("linear", "cubic")
             for hw in ((14, 27), (5, 9))]
 
+
+def _selfcheck_nearest(dev: Device, prec: str) -> list[np.ndarray]:
+    """Nearest up- and down-sampling (the U-Nets' 2x, a fractional one) of rows off
+    multiples of 8."""
+    x = dev.to_device(rng("resize nearest selfcheck").standard_normal((1, 5, 7, 13)).astype(np.float32), prec)
+    return [dev.to_host(resize(dev, prec, x, hw, mode="nearest", coord="asymmetric",
+                               nearest_mode="floor")) for hw in ((14, 26), (5, 9), (11, 19))]
+
+
+selfcheck.register(selfcheck.FastPath(
+    "resize.nearest_x8", "resize", {"RESIZE_NEAREST_X8": 1}, {"RESIZE_NEAREST_X8": 0},
+    check=_selfcheck_nearest, tolerance=lambda prec: EXACT,
+    what="nearest resize: 8 outputs along x per work-item, copied as one vector (kernel "
+         "resize_nearest_x8)"))
 
 for _name, _fast, _ref, _what, _applies in (
         ("resize.x8", {"RESIZE_X8": 1}, {"RESIZE_X8": 0},
