@@ -246,10 +246,20 @@ train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN)
 
 # NSS (issue 32; docs/methods/nss.md): recurrent rollouts of 16 frames through the torch
 # twin, on one torch thread, from the 2x training set (sequences of 12 frames are too
-# short for 16-frame rollouts: a set of 16-frame sequences is generated beside it). The
-# weights are not copied into the package by this target: check them first (clss eval).
+# short for 16-frame rollouts: a set of 16-frame sequences is generated beside it). Then
+# the Blender mix (issue 31's BLENDER_SHARE): rollouts of 8 frames (the Blender shards have
+# 8), NSS_MIX_STEPS steps at lr 3e-4 cosine from NSS_INIT, then as many again on a warm
+# restart (--resume with twice the steps): about 13 + 13 minutes on one torch thread. The
+# shipped weights are that fine-tune from the previous shipped ones
+# (NSS_INIT=<the file of `git show 7033618:clss/weights/nss_x2.safetensors`>). The weights
+# are not copied into the package by this target: check them first (clss eval).
 NSS_STEPS ?= 2000
+NSS_MIX_STEPS ?= 1500
+NSS_INIT ?= $(OUT)/train-nss/x2/weights.safetensors
+NSS_MIX = $(BIN)/python -m weights_tools train nss --data $(call mix,$(DATA)/train) --init $(NSS_INIT) --out $(OUT)/train-nss/x2-mix --window 8 --batch 2 --lr 3e-4 --threads 1 --resume
 .PHONY: train-nss
-train-nss: $(STAMP) $(TRAIN_STAMP)
+train-nss: $(STAMP) $(TRAIN_STAMP) train-data $(BLENDER_TRAIN)
 	test -f $(DATA)/train-nss/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train-nss --sequences 48 --frames 16 --seed 0 --size 72x128
 	$(BIN)/python -m weights_tools train nss --data $(DATA)/train-nss --out $(OUT)/train-nss/x2 --steps $(NSS_STEPS) --threads 1 --resume
+	$(NSS_MIX) --steps $(NSS_MIX_STEPS)
+	$(NSS_MIX) --steps $$(( 2 * $(NSS_MIX_STEPS) ))

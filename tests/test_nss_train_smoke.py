@@ -29,3 +29,22 @@ def test_train_nss_smoke_and_resume(tmp_path, capsys, dev):
     assert main(["train", "nss", "--data", os.path.dirname(seq), "--out", str(tmp_path / "x"),
                  "--patch", "6", "--margin", "4", "--window", "3", "--steps", "1"]) == 1
     assert "multiple of 8" in capsys.readouterr().err
+
+
+def test_train_nss_init_fine_tunes_and_names_a_bad_file(tmp_path, capsys):
+    """--init starts from given weights (their config replaces --quality); a path that is
+    no NSS weights file is the one-line error naming the flag."""
+    flags = ["--batch", "1", "--patch", "8", "--margin", "4", "--window", "3", "--threads", "1"]
+    seq, out = train_smoke(tmp_path, capsys, "nss", flags, 4)
+    init = os.path.join(out, "weights.safetensors")
+    data = os.path.dirname(seq)
+    assert main(["train", "nss", "--data", data, "--out", str(tmp_path / "ft"), "--init", init,
+                 "--quality", "high", "--steps", "1", *flags]) == 0
+    cfg, _ = nets.load(str(tmp_path / "ft" / "weights.safetensors"))
+    assert cfg["quality"] == "mid"              # the init's config, not --quality
+    capsys.readouterr()
+    for bad in (str(tmp_path / "missing.safetensors"), seq):
+        assert main(["train", "nss", "--data", data, "--out", str(tmp_path / "x"), "--init", bad,
+                     "--steps", "1", *flags]) == 1
+        err = capsys.readouterr().err
+        assert "--init" in err and "Traceback" not in err

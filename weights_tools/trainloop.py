@@ -43,8 +43,8 @@ def load_init(path, nets, what) -> tuple[dict, dict]:
         raise TrainError(f"--init: {path} is not a file ({what}, .safetensors)")
     try:
         return nets.load(path)
-    except (ValueError, OSError) as e:
-        raise TrainError(f"--init: {path}: {e}") from None
+    except Exception as e:      # noqa: BLE001 - safetensors' own error for a file that is no safetensors too
+        raise TrainError(f"--init: {path}: not {what} ({e})") from None
 
 
 # ---- the PQ transfer (clss.pipeline.contract), differentiable, for every torch twin ------
