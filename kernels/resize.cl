@@ -338,8 +338,10 @@ __kernel void resize(__global const T *in, __global T *out,
  * output with the same operations in the same order). The row taps and weights
  * are read once per work-item instead of once per output, and a full block of
  * outputs is one 8-wide store per channel. Same arguments as `resize`;
- * NDRange (ceil(Wo / 8), Ho, N * ceil(C / CPT)). */
-#if MODE != 0 && !ANTIALIAS && COORD != 4
+ * NDRange (ceil(Wo / 8), Ho, N * ceil(C / CPT)). Nearest (MODE 0; the host's fast path
+ * resize.nearest_x8) copies the 8 input pixels axis_tables chose as one vector of raw
+ * bits (bit-exact). */
+#if !ANTIALIAS && COORD != 4
 /** @param[in]  in      [N, C, H, W] input
  *  @param[out] out     [N, C, Ho, Wo] output
  *  @param[in]  C       channels
@@ -373,6 +375,23 @@ __kernel void resize_x8(__global const T *in, __global T *out,
     const long plane = (long)H * W, oplane = (long)Ho * Wo;
     __global const T *src = in + ((long)n * C + c0) * plane;
     const long o = ((long)n * C + c0) * oplane + (long)Y * Wo + X0;
+#if MODE == 0
+    __global const TB *sb = (__global const TB *)src + (long)idx[Y] * W;
+    __global TB *ob = (__global TB *)out + o;
+    int ix[8];
+    for (int e = 0; e < 8; ++e)
+        ix[e] = idx[Ho + X0 + min(e, nx - 1)];
+    for (int c = 0; c < nc; ++c) {
+        __global const TB *r = sb + c * plane;
+        if (nx == 8) {
+            vstore8((TB8)(r[ix[0]], r[ix[1]], r[ix[2]], r[ix[3]], r[ix[4]], r[ix[5]], r[ix[6]], r[ix[7]]),
+                    0, ob + c * oplane);
+        } else {
+            for (int e = 0; e < nx; ++e)
+                ob[c * oplane + e] = r[ix[e]];
+        }
+    }
+#else
     A wy[TAPS], wx[8][TAPS];
     int iy[TAPS], ix[8][TAPS];
 #pragma unroll
@@ -411,40 +430,6 @@ __kernel void resize_x8(__global const T *in, __global T *out,
                 FST(out, o + c * oplane + e, acc.e[e]);
         }
     }
+#endif
 }
 #endif
-
-
-/* Nearest (MODE 0, not tf_crop_and_resize): 8 outputs along x per work-item, each a copy
- * of the input pixel axis_tables chose for its row and column; the 8 copies of a channel
- * are stored as one vector of raw bits (bit-exact). Arguments and NDRange as resize_x8. */
-__kernel void resize_nearest_x8(__global const T *in, __global T *out,
-                                int C, int H, int W, int Ho, int Wo, int NCb,
-                                float sy, float sx, float extrap, float cubic_a,
-                                __global const float *coord, __global const int *idx,
-                                __global const float *wt)
-{
-    const int X0 = get_global_id(0) * 8, Y = get_global_id(1), ncb = get_global_id(2);
-    if (X0 >= Wo || Y >= Ho || ncb >= NCb) return;
-    const int CB = (C + CPT - 1) / CPT;
-    const int n = ncb / CB, c0 = (ncb % CB) * CPT;
-    const int nc = min(CPT, C - c0);
-    const int nx = min(8, Wo - X0);
-    const long plane = (long)H * W, oplane = (long)Ho * Wo;
-    __global const TB *src = (__global const TB *)in + ((long)n * C + c0) * plane + (long)idx[Y] * W;
-    __global TB *dst = (__global TB *)out + ((long)n * C + c0) * oplane + (long)Y * Wo + X0;
-    int ix[8];
-    for (int l = 0; l < 8; ++l)
-        ix[l] = idx[Ho + X0 + min(l, nx - 1)];
-    for (int c = 0; c < nc; ++c) {
-        __global const TB *r = src + c * plane;
-        if (nx == 8) {
-            const TB8 v = (TB8)(r[ix[0]], r[ix[1]], r[ix[2]], r[ix[3]],
-                                r[ix[4]], r[ix[5]], r[ix[6]], r[ix[7]]);
-            vstore8(v, 0, dst + c * oplane);
-        } else {
-            for (int l = 0; l < nx; ++l)
-                dst[c * oplane + l] = r[ix[l]];
-        }
-    }
-}

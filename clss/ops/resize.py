@@ -183,8 +183,8 @@ def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "lin
           and selfcheck.enabled(dev, prec, "resize.x8"))
     near8 = (bool(RESIZE_X8) and mode == "nearest" and defines["COORD"] != 4
              and selfcheck.enabled(dev, prec, "resize.nearest_x8"))
-    k = dev.kernel("resize", "resize_x8" if x8 else "resize_nearest_x8" if near8 else "resize",
-                   prec, **defines, **load_defines(dev, prec, "resize"))
+    k = dev.kernel("resize", "resize_x8" if x8 or near8 else "resize", prec, **defines,
+                   **load_defines(dev, prec, "resize"))
     cb = -(-c // CHANNELS_PER_ITEM)
     dev.launch(k, (-(-wo // 8) if x8 or near8 else wo, ho, n * cb),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(ho), np.int32(wo),
@@ -329,7 +329,7 @@ selfcheck.register(selfcheck.FastPath(
     "resize.nearest_x8", "resize", {"RESIZE_NEAREST_X8": 1}, {"RESIZE_NEAREST_X8": 0},
     check=_selfcheck_nearest, tolerance=lambda prec: EXACT,
     what="nearest resize: 8 outputs along x per work-item, copied as one vector (kernel "
-         "resize_nearest_x8)"))
+         "resize_x8, MODE 0)"))
 
 for _name, _fast, _ref, _what, _applies in (
         ("resize.x8", {"RESIZE_X8": 1}, {"RESIZE_X8": 0},

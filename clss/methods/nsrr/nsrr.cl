@@ -69,6 +69,28 @@ __kernel void nsrr_prepare(__global const float *color, __global const float *de
 }
 
 
+/* The render motion at output pixel (X, Y): bilinear, half-pixel centres, clamped to the
+ * edge (ONNX Resize linear, half_pixel), in render pixels. */
+static float2 render_motion(__global const float *mv, int h, int w, int X, int Y, float sy,
+                            float sx)
+{
+    const long plane = (long)h * w;
+    float u = ((float)X + 0.5f) / sx - 0.5f, v = ((float)Y + 0.5f) / sy - 0.5f;
+    u = clamp(u, 0.0f, (float)(w - 1));
+    v = clamp(v, 0.0f, (float)(h - 1));
+    const int u0 = (int)floor(u), v0 = (int)floor(v);
+    const int u1 = min(u0 + 1, w - 1), v1 = min(v0 + 1, h - 1);
+    const float fu = u - (float)u0, fv = v - (float)v0;
+    float m[2];
+    for (int c = 0; c < 2; ++c) {
+        __global const float *q = mv + c * plane;
+        const float top = q[v0 * w + u0] * (1.0f - fu) + q[v0 * w + u1] * fu;
+        const float bot = q[v1 * w + u0] * (1.0f - fu) + q[v1 * w + u1] * fu;
+        m[c] = top * (1.0f - fv) + bot * fv;
+    }
+    return (float2)(m[0], m[1]);
+}
+
 /** @param[in]  feat     [12,h,w] T: the current frame's features
  *  @param[in]  mv       [2,h,w] float32 render-pixel motion (previous = p + mv)
  *  @param[in]  hist     [12*N,Hp,Wp] T: the history (see the file comment)
@@ -145,23 +167,9 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
                 ST(stack, (FEAT * (k + 1) + c) * oplane + o, (mode == 2 && k < nvalid) ? z[c] : 0.0f);
         return;
     }
-    /* The render motion at this output pixel: bilinear, half-pixel centres, clamped to
-     * the edge (ONNX Resize linear, half_pixel), then in output pixels. */
-    float u = ((float)X + 0.5f) / sx - 0.5f, v = ((float)Y + 0.5f) / sy - 0.5f;
-    u = clamp(u, 0.0f, (float)(w - 1));
-    v = clamp(v, 0.0f, (float)(h - 1));
-    const int u0 = (int)floor(u), v0 = (int)floor(v);
-    const int u1 = min(u0 + 1, w - 1), v1 = min(v0 + 1, h - 1);
-    const float fu = u - (float)u0, fv = v - (float)v0;
-    float m[2];
-    for (int c = 0; c < 2; ++c) {
-        __global const float *q = mv + c * plane;
-        const float top = q[v0 * w + u0] * (1.0f - fu) + q[v0 * w + u1] * fu;
-        const float bot = q[v1 * w + u0] * (1.0f - fu) + q[v1 * w + u1] * fu;
-        m[c] = top * (1.0f - fv) + bot * fv;
-    }
     /* Backward warp: this pixel was at (X + mx, Y + my) in the previous frame. */
-    const float xs = (float)X + m[0] * sx, ys = (float)Y + m[1] * sy;
+    const float2 m = render_motion(mv, h, w, X, Y, sy, sx);
+    const float xs = (float)X + m.x * sx, ys = (float)Y + m.y * sy;
     const WarpTaps t = warp_taps(xs, ys, W, H);
     const float w00 = t.w00, w10 = t.w10, w01 = t.w01, w11 = t.w11;
     const int cx0 = t.cx0, cx1 = t.cx1, cy0 = t.cy0, cy1 = t.cy1;
@@ -260,25 +268,13 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
         return;
     }
     /* the render motion at each lane's pixel, then its four warp taps */
-    const float v = clamp(((float)Y + 0.5f) / sy - 0.5f, 0.0f, (float)(h - 1));
-    const int v0 = (int)floor(v), v1 = min(v0 + 1, h - 1);
-    const float fv = v - (float)v0;
     /* plane offsets (Hp * Wp < 2^31) and weights of the four taps, one lane each */
     int a00[8], a10[8], a01[8], a11[8];
     float w00[8], w10[8], w01[8], w11[8];
     for (int l = 0; l < 8; ++l) {
         const int X = xl[l];
-        const float u = clamp(((float)X + 0.5f) / sx - 0.5f, 0.0f, (float)(w - 1));
-        const int u0 = (int)floor(u), u1 = min(u0 + 1, w - 1);
-        const float fu = u - (float)u0;
-        float m[2];
-        for (int c = 0; c < 2; ++c) {
-            __global const float *q = mv + c * plane;
-            const float top = q[v0 * w + u0] * (1.0f - fu) + q[v0 * w + u1] * fu;
-            const float bot = q[v1 * w + u0] * (1.0f - fu) + q[v1 * w + u1] * fu;
-            m[c] = top * (1.0f - fv) + bot * fv;
-        }
-        const WarpTaps t = warp_taps((float)X + m[0] * sx, (float)Y + m[1] * sy, W, H);
+        const float2 m = render_motion(mv, h, w, X, Y, sy, sx);
+        const WarpTaps t = warp_taps((float)X + m.x * sx, (float)Y + m.y * sy, W, H);
         w00[l] = t.w00; w10[l] = t.w10; w01[l] = t.w01; w11[l] = t.w11;
         a00[l] = t.cy0 * Wp + t.cx0; a10[l] = t.cy0 * Wp + t.cx1;
         a01[l] = t.cy1 * Wp + t.cx0; a11[l] = t.cy1 * Wp + t.cx1;
