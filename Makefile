@@ -134,6 +134,13 @@ eval-blender: $(STAMP)
 	@test -f $(DATA)/blender/test/READY || { echo "make eval-blender: no held-out Blender set in $(DATA)/blender/test (make train-data-blender)"; exit 2; }
 	$(BIN)/python -m weights_tools eval $(DATA)/blender/test/*.npz --methods $(BLENDER_METHODS) --out $(OUT)/eval-blender --flip-every 4 $(EVAL_ARGS)
 
+# The same held-out families at 4x (45x80 -> 180x320: the 2x set's output size, so about
+# its render time, 10 minutes on 2 cores), for issue 31's NSRD-against-NSRR 4x target.
+.PHONY: eval-blender-x4
+eval-blender-x4: $(STAMP)
+	test -f $(DATA)/blender4/test/READY || $(BIN)/python -m weights_tools blender --out $(DATA)/blender4 --split test --sequences 2 --frames 12 --size 45x80 --scale 4 $(BLENDER_ARGS)
+	$(BIN)/python -m weights_tools eval $(DATA)/blender4/test/*.npz --methods bicubic,jbicubic,clss-rules,clss,nsrr,nsrd --out $(OUT)/eval-blender-x4 --flip-every 4 $(EVAL_ARGS)
+
 # Blender validation sequences (sparingly: about 20 minutes on 2 cores; needs
 # `apt-get install blender`): renders EXRs, converts them to weights_tools/validation/
 # (float16, committed) and $(DATA)/validation (float32).
