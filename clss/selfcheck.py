@@ -162,19 +162,17 @@ def enabled(dev, prec: str, name: str) -> bool:
     forced = _forced()
     if name in forced:
         return forced[name]
-    m = mode()
-    if m == "skip":
-        return True
     # The real device: a model's dry run hands its ops a PlannedDevice whose launches do nothing.
     dev = getattr(dev, "base", dev)
+    m = mode()
     memo = (id(dev), prec, name, m, os.environ.get("CLSS_BUILD_OPTIONS", ""))
     ok = _memo.get(memo)
     if ok is not None:       # ops ask at every launch: no source hashing after the first
         return ok
     fp = REGISTRY[name]
-    if not fp.applies(dev):
-        _memo[memo] = False
-        return False
+    if not fp.applies(dev) or m == "skip":     # skip: used unchecked where it applies
+        _memo[memo] = fp.applies(dev)
+        return _memo[memo]
     key = _key(dev, prec, fp)
     with _lock:
         v = _verdicts.get(key)

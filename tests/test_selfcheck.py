@@ -101,3 +101,16 @@ def test_real_variant_checked_in_a_child_process(dev, fresh):
         assert selfcheck.enabled(dev, "fp32", S2D)
     (rec,) = json.loads((fresh / "selfcheck.json").read_text()).values()
     assert rec["ok"] is True and rec["name"] == S2D
+
+
+@pytest.mark.parametrize("mode", ["auto", "force", "skip"])
+def test_fast_path_that_does_not_apply_is_off_unchecked(dev, fresh, monkeypatch, mode):
+    """A fast path whose `applies(dev)` is False (a CPU layout on a GPU, say) is off on that
+    device in every mode, without running its check; CLSS_SELFCHECK_FORCED still wins."""
+    monkeypatch.setenv("CLSS_SELFCHECK", mode)
+    calls = []
+    fp = selfcheck.REGISTRY[S2D]
+    monkeypatch.setitem(selfcheck.REGISTRY, S2D, dataclasses.replace(
+        fp, applies=lambda d: False, check=lambda *a: calls.append(a) or [], isolate=False))
+    assert selfcheck.enabled(dev, "fp32", S2D) is False
+    assert selfcheck.defines(dev, "fp32", S2D) == fp.reference and calls == []
