@@ -51,15 +51,9 @@ def _network_case(name, h, w, scale, feature, graph, launch, post, tol) -> Case:
                 {"color": color, "feat": feat}, graph((h, w), s, t, feature), run, tol=dict(tol))
 
 
-# fp32 blocks: the PQ encode's two pow calls may each be 16 ulp off in OpenCL (the spec's
-# bound; PoCL's are closer), and the three layers carry that on: NVIDIA's driver (H200,
-# 580.159) gave 2.3e-5 on the 9x11 x3 case, 1.08x the default bound.
-_BLOCKS_TOL = dict(_TOL, fp32=Tolerance(atol=3e-5, rtol=3e-4))
-
-
 def blocks_case(h, w, scale, feature=True) -> Case:
     return _network_case("mlp_upscale_blocks", h, w, scale, feature, oracle.blocks_graph, blocks,
-                         lambda y: y, _BLOCKS_TOL)
+                         lambda y: y, _TOL)
 
 
 def fold_case(h, w, scale) -> Case:
