@@ -16,6 +16,7 @@ def load_registrations() -> None:
     import importlib
     import warnings as w
     from . import methods
+    from . import model  # noqa: F401 - registers model.blocked_layout
     from .ops import load_all
     with w.catch_warnings():
         w.simplefilter("ignore")

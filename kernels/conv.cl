@@ -437,7 +437,9 @@ __kernel void weights_to_float(__global const T *w, __global float *out, int n)
  * loads NV weight vectors (packed once, contiguous) and PX input scalars, each
  * broadcast into NV FMAs (on x86, vfmadd231ps with a {1to16} memory operand).
  * The output is written as NCHW (transposed out of the tile), with the epilogue
- * of conv2d above (bias, residual before/after the activation).
+ * of conv2d above (bias, residual before/after the activation), or, with
+ * -DOUT_BLOCKED=1, in the blocked layout itself (OCV = the consumer's block), so
+ * that a chain of blocked layers converts only at its edges (clss/model/layout.py).
  *
  * Build options: -DKH, -DKW, -DSX (compile time), -DOCV=4|8|16 (channels per
  * vector), -DNV=1..4 (vectors per work-item), -DPX=1..16 (pixels per work-item),
@@ -455,6 +457,9 @@ __kernel void weights_to_float(__global const T *w, __global float *out, int n)
 #endif
 #ifndef ICV
 #define ICV 16
+#endif
+#ifndef OUT_BLOCKED
+#define OUT_BLOCKED 0
 #endif
 #define OCB (OCV * NV)
 typedef A AV __attribute__((ext_vector_type(OCV)));
@@ -512,6 +517,58 @@ __kernel void to_blocked(__global const TB *x, __global TB *xb, int C, int H, in
     }
 }
 
+/* Part of a channel concat written straight into the blocked layout (clss/model/layout.py:
+ * a concat that feeds only blocked convs): `count` channels of x from channel c0 on (a
+ * concat input, or the channel range a Slice took) land at channels d0.. of the blocked
+ * output, whose channels past Ctot (the concat's total) are zeroed. One launch per concat
+ * input; each writes only its own lanes. Pure data movement (bits through TB).
+ * NDRange: (ceil(W / 16), H, N * nblk), nblk = the output blocks the range touches.
+ * @param[in]  x      [N, Cx, H, W] concat input (NCHW)
+ * @param[out] xb     [N, CBd, H, W, B] blocked output
+ * @param[in]  Cx     channels of x
+ * @param[in]  c0     first channel of x taken
+ * @param[in]  count  channels taken
+ * @param[in]  H      height
+ * @param[in]  W      width
+ * @param[in]  CBd    blocks of the output
+ * @param[in]  B      channels per block
+ * @param[in]  d0     the output channel of x's channel c0
+ * @param[in]  Ctot   the concat's channels (the rest of the last block is zero)
+ * @param[in]  nblk   output blocks the range [d0, d0 + count) touches
+ */
+__kernel void to_blocked_at(__global const TB *x, __global TB *xb, int Cx, int c0, int count, int H, int W,
+                            int CBd, int B, int d0, int Ctot, int nblk)
+{
+    const int ix0 = get_global_id(0) * 16, iy = get_global_id(1), z = get_global_id(2);
+    if (ix0 >= W || iy >= H)
+        return;
+    const int n = z / nblk, cb = d0 / B + z % nblk;
+    const int np = IMIN(16, W - ix0);
+    const long hw = (long)H * W;
+    __global TB *dst = xb + ((((long)n * CBd + cb) * H + iy) * W + ix0) * B;
+    for (int j = 0; j < B; ++j) {
+        const int dc = cb * B + j;
+        if (dc >= Ctot) {
+            for (int p = 0; p < np; ++p)
+                dst[p * B + j] = (TB)0;
+            continue;
+        }
+        if (dc < d0 || dc >= d0 + count)
+            continue;
+        const __global TB *s = x + ((long)n * Cx + c0 + dc - d0) * hw + (long)iy * W + ix0;
+        if (np == 16) {
+            TB16 v = vload16(0, s);
+            dst[0 * B + j] = v.s0; dst[1 * B + j] = v.s1; dst[2 * B + j] = v.s2; dst[3 * B + j] = v.s3;
+            dst[4 * B + j] = v.s4; dst[5 * B + j] = v.s5; dst[6 * B + j] = v.s6; dst[7 * B + j] = v.s7;
+            dst[8 * B + j] = v.s8; dst[9 * B + j] = v.s9; dst[10 * B + j] = v.sa; dst[11 * B + j] = v.sb;
+            dst[12 * B + j] = v.sc; dst[13 * B + j] = v.sd; dst[14 * B + j] = v.se; dst[15 * B + j] = v.sf;
+        } else {
+            for (int p = 0; p < np; ++p)
+                dst[p * B + j] = s[p];
+        }
+    }
+}
+
 /* Weights [Cout, Cin, kk] -> packed [ncb][Cb][kk][icv][ocb] in the arithmetic
  * type A, zero past Cout and Cin. NDRange: (ocb, icv, ncb * Cb * kk). */
 /** @param[in]  w     [Cout, Cin, KH, KW] weights (kk = KH * KW taps)
@@ -549,7 +606,8 @@ __kernel void pack_blocked_bias(__global const T *b, __global A *bp, int Cout, i
  *  @param[in]  wp     packed weights (pack_blocked_weights)
  *  @param[in]  bp     packed bias (pack_blocked_bias)
  *  @param[in]  res    [N, Cout, Ho, Wo] residual (read when flags has 2 or 4)
- *  @param[out] y      [N, Cout, Ho, Wo] output (NCHW)
+ *  @param[out] y      [N, Cout, Ho, Wo] output (NCHW), or with -DOUT_BLOCKED=1
+ *                     [N, ceil(Cout / OCV), Ho, Wo, OCV] (blocked, for a blocked consumer)
  *  @param[in]  Cb     input channel blocks
  *  @param[in]  H      input height
  *  @param[in]  W      input width
@@ -625,6 +683,31 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
     }
 
     const int np = IMIN(PX, Wo - ox0);
+#if OUT_BLOCKED
+    /* Blocked output [N][ceil(Cout / OCV)][Ho][Wo][OCV] for a blocked consumer
+     * (clss/model/layout.py): each accumulator vector is one pixel's channel block,
+     * stored whole and contiguous; channels past Cout hold act(0) (zero weights and
+     * bias), which the consumers' zero weights ignore. No residual here. */
+    const int cbo = (Cout + OCV - 1) / OCV;
+    for (int v = 0; v < NV; ++v) {
+        const int ob = cb * NV + v;
+        if (ob >= cbo)
+            break;
+        const AV b = *(__global const AVu *)(bp + co0 + v * OCV);
+        __global T *yo = y + ((((long)n * cbo + ob) * Ho + oy) * Wo + ox0) * OCV;
+        for (int p = 0; p < np; ++p) {
+            const AV t = APPLY_ACT(acc[v][p] + b, alpha);
+#if defined(CLSS_FP16)
+            A u[OCV];
+            VSTORE_AV(t, 0, u);
+            for (int j = 0; j < OCV; ++j)
+                FST(yo, p * OCV + j, u[j]);
+#else
+            *(__global AVu *)(yo + p * OCV) = t;
+#endif
+        }
+    }
+#else
     const long hwo = (long)Ho * Wo;
     const long o0 = ((long)n * Cout + co0) * hwo + (long)oy * Wo + ox0;
     for (int v = 0; v < NV; ++v) {
@@ -664,4 +747,5 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
             }
         }
     }
+#endif
 }

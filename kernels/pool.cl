@@ -296,6 +296,64 @@ __kernel void max_pool_2x2(__global const T *in, __global T *out, int IH, int IW
     store_row8(out + ((long)nc * OH + oy) * OW + ox0, OW - ox0, m);
 }
 
+/* max_pool_2x2 on the channel-blocked layout [N][Cb][H][W][BLK] (clss/model/layout.py):
+ * a work-item is one output pixel's block of BLK channels (-DBLK=8|16, the block), as one
+ * vector; the same four taps in the same order and the same strict `>` per lane as
+ * max_pool_2x2, so the two agree bit for bit. A block is BLK-aligned in the buffer.
+ * @param[in]  in   [NCb, IH, IW, BLK] input
+ * @param[out] out  [NCb, OH, OW, BLK] output (OH = IH / 2, OW = IW / 2)
+ * @param[in]  IH   input height
+ * @param[in]  IW   input width
+ * @param[in]  OH   output height
+ * @param[in]  OW   output width
+ * @param[in]  NCB  N * Cb, the extent of NDRange dimension 2
+ * @note NDRange (OW, OH, NCB); -DBLK=8|16 */
+#ifndef BLK
+#define BLK 16
+#endif
+#if BLK == 16
+typedef float16 FB;
+#define LDH_B vload_half16
+#define STH_B vstore_half16_rte
+#elif BLK == 8
+typedef float8 FB;
+#define LDH_B vload_half8
+#define STH_B vstore_half8_rte
+#else
+#error "BLK must be 8 or 16"
+#endif
+#if defined(CLSS_FP16)
+#define LD_B(p, k) LDH_B((k), (p))
+#define ST_B(p, k, v) STH_B((v), (k), (p))
+typedef FB AB;
+#else
+#define LD_B(p, k) (((__global const AB *)(p))[k])
+#define ST_B(p, k, v) (((__global AB *)(p))[k] = (v))
+#if defined(CLSS_FP16_NATIVE)
+#if BLK == 16
+typedef half16 AB;
+#else
+typedef half8 AB;
+#endif
+#else
+typedef FB AB;
+#endif
+#endif
+__kernel void max_pool_2x2_blocked(__global const T *in, __global T *out, int IH, int IW, int OH,
+                                   int OW, int NCB)
+{
+    const int ox = get_global_id(0), oy = get_global_id(1), z = get_global_id(2);
+    if (ox >= OW || oy >= OH || z >= NCB) return;
+    const long r0 = ((long)z * IH + 2 * oy) * IW + 2 * ox, r1 = r0 + IW;
+    const AB t00 = LD_B(in, r0), t01 = LD_B(in, r0 + 1), t10 = LD_B(in, r1), t11 = LD_B(in, r1 + 1);
+    AB m = (AB)(-INFINITY);
+    m = t00 > m ? t00 : m;
+    m = t01 > m ? t01 : m;
+    m = t10 > m ? t10 : m;
+    m = t11 > m ? t11 : m;
+    ST_B(out, ((long)z * OH + oy) * OW + ox, m);
+}
+
 /* Global pooling, pass 1: one work-item reduces CHUNK contiguous elements of
  * one row (NDRange (nchunks, NC)); eight lanes accumulate side by side, which
  * is both the vector load and a first level of pairwise summation. */

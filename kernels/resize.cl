@@ -433,3 +433,34 @@ __kernel void resize_x8(__global const T *in, __global T *out,
 #endif
 }
 #endif
+
+/* Nearest resize on the channel-blocked layout [N][Cb][H][W][BLK] (clss/model/layout.py):
+ * a work-item copies one output pixel's block of BLK channels (-DBLK=8|16) from the input
+ * pixel axis_tables chose, as one vector of raw bits (bit-exact, as resize_x8's MODE 0).
+ * Any nearest geometry but tf_crop_and_resize (COORD 4). A block is BLK-aligned.
+ * @param[in]  in    [NCb, H, W, BLK] input
+ * @param[out] out   [NCb, Ho, Wo, BLK] output
+ * @param[in]  H     input height
+ * @param[in]  W     input width
+ * @param[in]  Ho    output height
+ * @param[in]  Wo    output width
+ * @param[in]  NCb   N * Cb, the extent of NDRange dimension 2
+ * @param[in]  idx   axis_tables' tap indices (rows, then columns)
+ * @note NDRange (Wo, Ho, NCb); -DBLK=8|16 */
+#ifndef BLK
+#define BLK 16
+#endif
+#if BLK == 16
+typedef TB16 TBB;
+#elif BLK == 8
+typedef TB8 TBB;
+#else
+#error "BLK must be 8 or 16"
+#endif
+__kernel void resize_nearest_blocked(__global const TBB *in, __global TBB *out, int H, int W, int Ho,
+                                     int Wo, int NCb, __global const int *idx)
+{
+    const int X = get_global_id(0), Y = get_global_id(1), z = get_global_id(2);
+    if (X >= Wo || Y >= Ho || z >= NCb) return;
+    out[((long)z * Ho + Y) * Wo + X] = in[((long)z * H + idx[Y]) * W + idx[Ho + X]];
+}

@@ -23,6 +23,7 @@ import pyopencl.array as cla
 from ..device import Device, get_device, storage_dtype
 from .execute import Executor
 from .graph import FLOAT_TYPES, InputError, ModelError, UnsupportedModelError, build
+from . import layout
 from .passes import run_passes
 
 __all__ = ["Model", "ModelError", "InputError", "UnsupportedModelError"]
@@ -57,6 +58,11 @@ class Model:
         self._out_dtypes = {t: _host_dtype(graph.elem_types.get(t), graph.dtypes.get(t, np.dtype("f4")))
                             for t in graph.outputs}
         self.pass_log = run_passes(graph, conv_fusion=fuse, mlp_fusion=fuse)
+        if fuse and layout.enabled(self.device, precision):
+            from ..ops.conv import vector_width
+            n = layout.apply(graph, vector_width(self.device))
+            if n:
+                self.pass_log.append(f"blocked_layout: {n}")
         self.graph = graph
         self._exec = Executor(graph, self.device, precision)
         self._exec.trace()
@@ -267,3 +273,27 @@ def _label(n) -> str:
     if n.op == "clss.View":
         return "view (no kernel)"
     return n.op.replace("clss.", "")
+
+
+# --- the blocked layout's fast path (clss/model/layout.py) -------------------------------
+# Registered here, where Model is: its check runs a small graph through a Model.
+
+def _blocked_layout_check(dev, prec: str) -> list:
+    from ..ops.base import rng
+    m = Model(layout.check_graph(), device=dev, precision=prec)
+    x = rng("blocked layout selfcheck input").standard_normal((1, 9, 6, 22)).astype(np.float32)
+    return [m.run({"x": x})["y"]]
+
+
+def _register_blocked_layout():
+    from .. import selfcheck
+    from ..tolerance import DEFAULT_TOL
+    selfcheck.register(selfcheck.FastPath(
+        "model.blocked_layout", "conv", {"OUT_BLOCKED": 1}, {"OUT_BLOCKED": 0}, check=_blocked_layout_check,
+        tolerance=DEFAULT_TOL.__getitem__,
+        what="chains of blocked convs, 2x2 max pools, nearest resizes and channel concats keep the "
+             "channel-blocked layout between layers (clss/model/layout.py) / a layout transform per conv",
+        applies=lambda dev: dev.is_cpu))
+
+
+_register_blocked_layout()

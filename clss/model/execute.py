@@ -82,7 +82,16 @@ def _conv(dev, prec, attrs, inputs):
               group=attrs["group"], activation=attrs["activation"], alpha=attrs["alpha"], residual=r)
     if attrs.get("transpose"):
         return [conv.conv_transpose2d(dev, prec, x, w, b, output_padding=attrs["output_padding"], **kw)]
-    return [conv.conv2d(dev, prec, x, w, b, packed=attrs.setdefault("_packed", {}), **kw)]
+    return [conv.conv2d(dev, prec, x, w, b, packed=attrs.setdefault("_packed", {}),
+                        out_blocked=bool(attrs.get("blocked_out")), **kw)]
+
+
+@internal_op("clss.ConcatBlocked")
+def _concat_blocked(dev, prec, attrs, inputs):
+    """A channel concat of NCHW tensors (or channel ranges of them: absorbed Slices)
+    written in the blocked layout for the blocked convs it feeds (clss/model/layout.py)."""
+    conv = _family("conv")
+    return [conv.concat_to_blocked(dev, prec, list(inputs), attrs["block"], attrs["ranges"])]
 
 
 @internal_op("clss.BinaryRelu")
@@ -97,6 +106,8 @@ def _max_pool(dev, prec, attrs, inputs):
     """MaxPool whose Indices output nobody reads: the values alone."""
     pool = _family("pool")
     x = inputs[0]
+    if attrs.get("blocked"):   # a channel-blocked input (clss/model/layout.py)
+        return [pool.max_pool(dev, prec, x, **pool._pool_attrs(attrs, 2), blocked=True)]
     return [pool.max_pool(dev, prec, x, **pool._pool_attrs(attrs, x.ndim - 2))]
 
 
@@ -475,7 +486,7 @@ class Executor:
             if not t:
                 fixed.append(o)
                 continue
-            want = tuple(g.shapes[t])
+            want = tuple(g.blocked.get(t, g.shapes[t]))
             if tuple(o.shape) != want:
                 if int(np.prod(o.shape)) == int(np.prod(want)):
                     o = o.reshape(want)
@@ -581,7 +592,7 @@ class Executor:
             for k, (t, o) in enumerate(zip(step.outputs, outs)):
                 if not t:
                     continue
-                want = g.shapes[t]
+                want = g.blocked.get(t, g.shapes[t])
                 env[t] = o if tuple(o.shape) == tuple(want) else o.reshape(want)
                 p = step.expect.get(k)
                 if p is not None and storage_ptr(o) != p:

@@ -92,6 +92,8 @@ class Graph:
     consts: dict[str, np.ndarray]
     opset: int
     elem_types: dict[str, int] = field(default_factory=dict)  # graph inputs/outputs, ONNX types
+    # tensors kept in the channel-blocked layout, and their device shapes (clss/model/layout.py)
+    blocked: dict[str, tuple] = field(default_factory=dict)
     _counter: int = 0
 
     def fresh(self, stem: str) -> str:

@@ -143,12 +143,13 @@ def blocked_eligible(x, w, group: int) -> bool:
     return group == 1 and kh * kw > 1 and cin_g >= 8 and cout >= 8
 
 
-def blocked_tiling(dev: Device, prec: str, x, w, strides, explicit) -> dict:
+def blocked_tiling(dev: Device, prec: str, x, w, strides, explicit, blocked_in: bool = False) -> dict:
     """OCV, NV, PX, ICV and BLX for conv2d_blocked on this layer: defaults from the
     device's vector width and the layer's channels, laid under the tuning database's
     entry and the caller's `tuning=`. NV vectors cover the output channels with the
     least padding (at most 2, so NV*PX accumulators stay in registers); PX fills the
-    register file (about 28 accumulators on a 32-register AVX-512 core)."""
+    register file (about 28 accumulators on a 32-register AVX-512 core). x is the
+    logical NCHW shape; blocked_in: the input arrives blocked in blocks of OCV channels."""
     cout, cin = w.shape[0], w.shape[1]
     ocv = vector_width(dev)
     nvec = -(-cout // ocv)
@@ -160,9 +161,20 @@ def blocked_tiling(dev: Device, prec: str, x, w, strides, explicit) -> dict:
     t = tuning_db.lookup(dev, "conv2d_blocked", key, defaults,
                          explicit={k: v for k, v in (explicit or {}).items() if k in ("PX", "NV", "BLX")},
                          allowed=TUNABLES["conv2d_blocked"])
-    cb = -(-cin // 16)
-    t.update(OCV=ocv, ICV=-(-cin // cb), CB=cb)
+    if blocked_in:
+        # the input is already blocked (clss/model/layout.py): one block of the vector width
+        t.update(OCV=ocv, ICV=ocv, CB=-(-cin // ocv))
+    else:
+        cb = -(-cin // 16)
+        t.update(OCV=ocv, ICV=-(-cin // cb), CB=cb)
     return t
+
+
+class _Shape:
+    """A logical NCHW shape where a tensor is expected (the tuning key of a blocked input)."""
+
+    def __init__(self, shape):
+        self.shape = tuple(shape)
 
 
 class BlockedWeights:
@@ -206,10 +218,43 @@ def to_blocked(dev: Device, prec: str, x, icv: int, cb: int):
     return xb
 
 
+def blocked_shape(n: int, c: int, h: int, w: int, block: int) -> tuple:
+    """The channel-blocked layout of an NCHW shape: [N][ceil(C / block)][H][W][block]."""
+    return n, -(-c // block), h, w, block
+
+
+def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None):
+    """Concat over channels of NCHW tensors, written in the blocked layout
+    [N, ceil(C / block), H, W, block] (channels past the total zero): a concat that feeds
+    only blocked convs, with no NCHW copy in between (clss/model/layout.py). ranges:
+    per input (first channel, count) taken from it (a Slice absorbed), default all."""
+    ranges = ranges or [(0, x.shape[1]) for x in xs]
+    n, _, h, w = xs[0].shape
+    total = sum(c for _, c in ranges)
+    cbd = -(-total // block)
+    out = dev.empty((n, cbd, h, w, block), prec)
+    k = dev.kernel("conv", "to_blocked_at", prec)
+    d0 = 0
+    for x, (c0, count) in zip(xs, ranges):
+        check_storage("x", x, prec)
+        if x.ndim != 4 or x.shape[0] != n or tuple(x.shape[2:]) != (h, w) or c0 + count > x.shape[1]:
+            raise ValueError(f"concat_to_blocked: input {tuple(x.shape)} (channels {c0}..{c0 + count}) "
+                             f"does not fit [N={n}, H={h}, W={w}]")
+        if count <= 0:
+            continue
+        # the blocks [d0, d0 + count) touches; the last one's channels past the total are zeroed
+        nblk = (d0 + count - 1) // block - d0 // block + 1
+        dev.launch(k, (-(-w // 16), h, n * nblk),
+                   (x.data, out.data, *(np.int32(v) for v in (x.shape[1], c0, count, h, w, cbd, block, d0,
+                                                               total, nblk))))
+        d0 += count
+    return out
+
+
 def _conv2d_blocked(dev, prec, x, w, b, t, packed, strides, pads, dilations, activation, alpha,
-                    residual, residual_before_act, out, ho, wo):
-    n, cin, h, wd = x.shape
-    cout, _, kh, kw = w.shape
+                    residual, residual_before_act, out, ho, wo, out_blocked):
+    cout, cin, kh, kw = w.shape
+    n, h, wd = x.shape[0], x.shape[-3 if x.ndim == 5 else 2], x.shape[-2 if x.ndim == 5 else 3]
     sy, sx = strides
     dy, dx = dilations
     pt, pl = pads[0], pads[1]
@@ -218,11 +263,12 @@ def _conv2d_blocked(dev, prec, x, w, b, t, packed, strides, pads, dilations, act
         pw = pack_blocked(getattr(dev, "base", dev), prec, w, b, t)
         if packed is not None:
             packed[prec] = pw
-    xb = to_blocked(dev, prec, x, t["ICV"], t["CB"])
+    xb = x if x.ndim == 5 else to_blocked(dev, prec, x, t["ICV"], t["CB"])
     ocb = t["OCV"] * t["NV"]
     ncb = -(-cout // ocb)
     k = dev.kernel("conv", "conv2d_blocked", prec, KH=kh, KW=kw, SX=sx, OCV=t["OCV"], NV=t["NV"],
-                   PX=t["PX"], ICV=t["ICV"], ACT=_act(activation), **load_defines(dev, prec, "conv"))
+                   PX=t["PX"], ICV=t["ICV"], ACT=_act(activation), OUT_BLOCKED=int(out_blocked),
+                   **load_defines(dev, prec, "conv"))
     nz = n * ncb
     lx = t["BLX"]
     gs = (-(-(-(-wo // t["PX"])) // lx) * lx, ho, nz)
@@ -262,12 +308,31 @@ def conv_output_size(size: int, k: int, stride: int, pad_total: int, dilation: i
 
 def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 0, 0),
            dilations=(1, 1), group: int = 1, activation: str = "none", alpha: float = 0.01,
-           residual=None, residual_before_act: bool = True, out=None, tuning=None, packed=None):
+           residual=None, residual_before_act: bool = True, out=None, tuning=None, packed=None,
+           out_blocked: bool = False):
     """ONNX Conv on NCHW: x [N,Cin,H,W], w [Cout,Cin/group,kh,kw], b [Cout] or None;
     pads [top,left,bottom,right]. Fused epilogue: y = act(conv + b + residual)
     (residual_before_act, the ResNet pattern Conv -> Add -> Relu), or
-    y = act(conv + b) + residual. residual has the output's shape."""
-    n, cin, h, wd = x.shape
+    y = act(conv + b) + residual. residual has the output's shape.
+
+    The channel-blocked layout (a graph's blocked chains, clss/model/layout.py): x may be
+    [N, ceil(Cin / V), H, W, V] with V = vector_width(dev), channels past Cin ignored;
+    out_blocked=True returns y as [N, ceil(Cout / V), Ho, Wo, V] (no residual). Both need
+    the conv2d_blocked path (blocked_eligible, fast path conv.blocked)."""
+    blocked_in = x.ndim == 5
+    if blocked_in or out_blocked:
+        v = vector_width(dev)
+        if blocked_in and (x.shape[4] != v or x.shape[1] * v < w.shape[1]):
+            raise ValueError(f"conv2d: blocked input {tuple(x.shape)} does not hold {w.shape[1]} channels "
+                             f"in blocks of {v}")
+        if (residual is not None and out_blocked) or not blocked_eligible(None, w, group) \
+                or not selfcheck.enabled(dev, prec, "conv.blocked"):
+            raise ValueError("conv2d: the blocked layout needs a dense spatial conv without residual on "
+                             "the conv.blocked path")
+    if blocked_in:
+        n, h, wd, cin = x.shape[0], x.shape[2], x.shape[3], w.shape[1]
+    else:
+        n, cin, h, wd = x.shape
     cout, cin_g, kh, kw = w.shape
     sy, sx = _pair(strides, "strides")
     dy, dx = _pair(dilations, "dilations")
@@ -281,13 +346,14 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     if ho < 1 or wo < 1:
         raise ValueError(f"conv2d: output would be {ho}x{wo} for input {h}x{wd}")
     _check_common(x, w, b, residual, prec, (n, cout, ho, wo), cout)
-    out = out if out is not None else dev.empty((n, cout, ho, wo), prec)
+    if out is None:
+        out = dev.empty(blocked_shape(n, cout, ho, wo, v) if out_blocked else (n, cout, ho, wo), prec)
     cout_g = cout // group
-    if (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
-            and selfcheck.enabled(dev, prec, "conv.blocked")):
-        t = blocked_tiling(dev, prec, x, w, (sy, sx), tuning)
+    if blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
+                                     and selfcheck.enabled(dev, prec, "conv.blocked")):
+        t = blocked_tiling(dev, prec, _Shape((n, cin, h, wd)), w, (sy, sx), tuning, blocked_in)
         return _conv2d_blocked(dev, prec, x, w, b, t, packed, (sy, sx), (pt, pl), (dy, dx), activation,
-                               alpha, residual, residual_before_act, out, ho, wo)
+                               alpha, residual, residual_before_act, out, ho, wo, out_blocked)
     t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning, group)
     # A pointwise conv with unit stride and no padding is a GEMM over flattened
     # pixels: one row of H*W, so only the image's last block takes the edge path.

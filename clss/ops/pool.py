@@ -142,12 +142,39 @@ def _pool(dev, prec, x, mode, kernel, stride, pads, dilation, ceil_mode, auto_pa
 
 def max_pool(dev: Device, prec: str, x, kernel, stride=None, pads=None, dilation=None,
              ceil_mode: bool = False, auto_pad: str = "NOTSET", return_indices: bool = False,
-             storage_order: int = 0, out=None):
+             storage_order: int = 0, out=None, blocked: bool = False):
     """ONNX MaxPool. Padding never wins (it is -inf); ties keep the first maximum.
     With return_indices, also the flat index into x of each maximum (int64, as ONNX
-    Indices; storage_order=1 numbers a 2-D plane column-major)."""
+    Indices; storage_order=1 numbers a 2-D plane column-major). blocked: x is
+    channel-blocked [N, Cb, H, W, B] (clss/model/layout.py); the 2x2 / 2 window only."""
+    if blocked:
+        if x.ndim != 5 or not blocked_2x2(kernel, stride, pads, dilation, ceil_mode, auto_pad) or return_indices:
+            raise ValueError("max_pool: a channel-blocked input takes the 2x2 / 2 window without padding")
+        return max_pool_2x2_blocked(dev, prec, x, out)
     return _pool(dev, prec, x, 0, kernel, stride, pads, dilation, ceil_mode, auto_pad,
                  indices=return_indices, column_major=bool(storage_order), out=out)
+
+
+def blocked_2x2(kernel, stride=None, pads=None, dilation=None, ceil_mode=False, auto_pad="NOTSET") -> bool:
+    """The pool the channel-blocked layout covers: 2x2 windows at stride 2, no padding,
+    dilation 1, floor output (the U-Nets' down-sampling)."""
+    def ints(v, default):
+        return default if v is None else [int(a) for a in v]
+    return (ints(kernel, []) == [2, 2] and ints(stride, [1, 1]) == [2, 2] and not any(ints(pads, []))
+            and ints(dilation, [1, 1]) == [1, 1] and not ceil_mode and auto_pad in ("NOTSET", "VALID"))
+
+
+def max_pool_2x2_blocked(dev: Device, prec: str, x, out=None):
+    """2x2 / 2 max pool of a channel-blocked [N, Cb, H, W, B] tensor, bit-identical to
+    max_pool on the NCHW layout (kernels/pool.cl max_pool_2x2_blocked)."""
+    check_storage("x", x, prec)
+    n, cb, h, w, blk = x.shape
+    oh, ow = h // 2, w // 2
+    out = out if out is not None else dev.empty((n, cb, oh, ow, blk), prec)
+    if out.size:
+        dev.launch(dev.kernel("pool", "max_pool_2x2_blocked", prec, BLK=blk), (ow, oh, n * cb),
+                   (x.data, out.data, *(np.int32(v) for v in (h, w, oh, ow, n * cb))))
+    return out
 
 
 def avg_pool(dev: Device, prec: str, x, kernel, stride=None, pads=None, dilation=None,

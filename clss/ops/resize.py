@@ -126,16 +126,21 @@ def _axis_tables(dev: Device, prec: str, defines: dict, mode: str, sizes, scales
 def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "linear",
            coord: str = "half_pixel", nearest_mode="round_prefer_floor", cubic_a: float = -0.75,
            exclude_outside: bool = False, out=None, *, antialias: bool = False, roi=None,
-           extrapolation_value: float = 0.0, keep_aspect_ratio_policy: str = "stretch"):
+           extrapolation_value: float = 0.0, keep_aspect_ratio_policy: str = "stretch",
+           blocked: bool = False):
     """Resize [N,C,H,W] over H and W.
 
     out_hw / scales: (H, W) pairs or one value for both; see output_size(). mode: nearest,
     linear, cubic; coord: an ONNX coordinate_transformation_mode; nearest_mode: one mode or
     a (H, W) pair ("legacy": Resize-10/Upsample rounding). antialias: linear/cubic filter
     widened by 1/scale when down-scaling. roi: (h_start, w_start, h_end, w_end), used by
-    tf_crop_and_resize, whose out-of-range samples are extrapolation_value."""
+    tf_crop_and_resize, whose out-of-range samples are extrapolation_value. blocked: x is
+    channel-blocked [N, Cb, H, W, B] (clss/model/layout.py): nearest modes, output blocked."""
     check_storage("x", x, prec)
-    if len(x.shape) != 4:
+    if blocked and (len(x.shape) != 5 or mode != "nearest" or coord == "tf_crop_and_resize"):
+        raise ValueError("resize: blocked=True takes a channel-blocked [N, Cb, H, W, B] input and nearest "
+                         "resizes only (not tf_crop_and_resize)")
+    if len(x.shape) != 4 and not blocked:
         raise ValueError(f"resize: expected an NCHW tensor, got shape {x.shape}")
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -145,14 +150,17 @@ def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "lin
         raise ValueError("resize: antialias applies to linear and cubic only")
     if antialias and coord == "tf_crop_and_resize":
         raise ValueError("resize: antialias with tf_crop_and_resize is not supported")
-    n, c, h, w = x.shape
+    n, c, h, w = x.shape[:4]
+    if blocked:
+        n, cb, h, w, blk = x.shape
     (ho, wo), (sy, sx) = output_size((h, w), out_hw, scales, keep_aspect_ratio_policy)
+    want = (n, cb, ho, wo, blk) if blocked else (n, c, ho, wo)
     if out is None:
-        out = dev.empty((n, c, ho, wo), prec)
+        out = dev.empty(want, prec)
     else:
         check_storage("out", out, prec)
-        if tuple(out.shape) != (n, c, ho, wo):
-            raise ValueError(f"resize: out has shape {out.shape}, expected {(n, c, ho, wo)}")
+        if tuple(out.shape) != want:
+            raise ValueError(f"resize: out has shape {out.shape}, expected {want}")
     if out.size == 0:
         return out
     if h == 0 or w == 0:
@@ -179,6 +187,11 @@ def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "lin
         # edge pixel, which clamping gives too, so one build serves both.
         defines["EXCLUDE"] = int(bool(exclude_outside) and (mode == "cubic" or antialias))
     coord, idx, wt = _axis_tables(dev, prec, defines, mode, (ho, wo, h, w), (sy, sx), off, r, cubic_a)
+    if blocked:
+        # the pixels axis_tables chose, copied as whole channel blocks (clss/model/layout.py)
+        dev.launch(dev.kernel("resize", "resize_nearest_blocked", prec, **defines, BLK=blk), (wo, ho, n * cb),
+                   (x.data, out.data, *(np.int32(v) for v in (h, w, ho, wo, n * cb)), idx.data))
+        return out
     x8 = (bool(RESIZE_X8) and mode != "nearest" and not antialias and defines["COORD"] != 4
           and selfcheck.enabled(dev, prec, "resize.x8"))
     near8 = (bool(RESIZE_X8) and mode == "nearest" and defines["COORD"] != 4
@@ -219,8 +232,10 @@ def _onnx_plan(shape, scales, sizes, axes, policy):
 
 
 def _resize_onnx(dev, prec, x, scales, sizes, roi, axes, *, mode, coord, nearest_mode, cubic_a=-0.75,
-                 exclude_outside=False, antialias=False, extrapolation_value=0.0, policy="stretch"):
-    shape = tuple(x.shape)
+                 exclude_outside=False, antialias=False, extrapolation_value=0.0, policy="stretch",
+                 blocked=False):
+    # a channel-blocked tensor (clss/model/layout.py) resizes as its NCHW shape says
+    shape = (x.shape[0], x.shape[1] * x.shape[4], *x.shape[2:4]) if blocked else tuple(x.shape)
     rank = len(shape)
     if rank < 2:
         raise Unsupported(f"Resize of a rank-{rank} tensor (clss resizes the last two axes)")
@@ -241,6 +256,9 @@ def _resize_onnx(dev, prec, x, scales, sizes, roi, axes, *, mode, coord, nearest
         crop = coord == "tf_crop_and_resize" and (r[i] != 0 or r[rank + i] != 1)
         if out_shape[i] != shape[i] or sc[i] != 1 or crop:
             raise Unsupported(f"Resize over axis {i} of rank {rank} (clss resizes the last two axes)")
+    if blocked:
+        return resize(dev, prec, x, out_hw=tuple(out_shape[-2:]), scales=(sc[-2], sc[-1]), mode=mode,
+                      coord=coord, nearest_mode=nearest_mode, blocked=True)
     lead = int(np.prod(shape[:-2], dtype=np.int64))
     x4 = x.reshape(1, lead, shape[-2], shape[-1])
     y = resize(dev, prec, x4, out_hw=tuple(out_shape[-2:]), scales=(sc[-2], sc[-1]), mode=mode,
@@ -288,7 +306,8 @@ def _onnx_resize(dev, prec, attrs, inputs):
                          mode=mode, coord=coord, nearest_mode=nearest,
                          cubic_a=float(attrs.get("cubic_coeff_a", -0.75)),
                          exclude_outside=bool(attrs.get("exclude_outside", 0)), antialias=antialias,
-                         extrapolation_value=float(attrs.get("extrapolation_value", 0.0)), policy=policy)]
+                         extrapolation_value=float(attrs.get("extrapolation_value", 0.0)), policy=policy,
+                         blocked=bool(attrs.get("blocked")))]
 
 
 @onnx_op("Upsample", const_inputs=(1,))

@@ -1,0 +1,254 @@
+"""The channel-blocked layout between layers: which tensors of a graph stay blocked.
+
+conv2d_blocked (kernels/conv.cl) reads its input as [N][C/V][H][W][V] (V channels of a
+pixel contiguous, V = the device's float vector width). Converted per layer, every conv
+pays a layout transform on the way in (to_blocked) and a transposing NCHW store on the
+way out; on NSRR's reconstruction U-Net the transforms alone were 13 % of the network.
+oneDNN and onnxruntime's MLAS instead keep NCHWc between layers and convert at the
+chain's edges. This pass does that: a tensor stays blocked when its producer can write
+the blocked layout and every consumer reads it, so transforms remain only where a
+blocked chain meets an NCHW op (its first conv converts, as before; its last producer
+writes NCHW).
+
+Ops that take and give the blocked layout, with the same arithmetic as on NCHW:
+- clss.Conv on the conv2d_blocked path (dense, spatial, >= 8 channels): blocked in;
+  blocked out where it has no fused residual.
+- clss.MaxPool 2x2 / 2 (kernels/pool.cl max_pool_2x2_blocked; bit-identical).
+- Resize, nearest modes (kernels/resize.cl resize_nearest_blocked; bit-identical).
+- Concat over channels of tensors whose channel counts are whole blocks: the blocked
+  tensors are then concatenated along their block axis.
+
+A blocked tensor's channels past C (where C is not a whole number of blocks) hold
+finite values that no consumer reads (their weights are zero); a tensor with such
+padding is never concatenated. The graph records each blocked tensor's device shape in
+``Graph.blocked``; the executor accepts those shapes for them. It is a fast path
+(model.blocked_layout, clss/ops/conv.py) with the per-layer transforms as its reference.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .graph import Graph, Node
+
+
+def _ints(v):
+    return None if v is None else [int(a) for a in np.asarray(v).ravel()]
+
+
+def _conv_ok(g: Graph, n: Node, blocked_eligible) -> bool:
+    if n.op != "clss.Conv" or n.attrs.get("transpose") or len(n.inputs) < 2:
+        return False
+    w = g.consts.get(n.inputs[1])
+    return w is not None and w.ndim == 4 and blocked_eligible(None, w, int(n.attrs.get("group", 1)))
+
+
+def _pool_ok(g: Graph, n: Node, blocked_2x2) -> bool:
+    if n.op != "clss.MaxPool":
+        return False
+    a = n.attrs
+    return blocked_2x2(_ints(a.get("kernel_shape")), _ints(a.get("strides")), _ints(a.get("pads")),
+                       _ints(a.get("dilations")), bool(a.get("ceil_mode", 0)),
+                       a.get("auto_pad", "NOTSET") if isinstance(a.get("auto_pad", "NOTSET"), str)
+                       else a["auto_pad"].decode())
+
+
+def _resize_ok(g: Graph, n: Node) -> bool:
+    if n.op != "Resize" or len(n.inputs) < 3:
+        return False
+
+    def s(k, d):
+        v = n.attrs.get(k, d)
+        return v.decode() if isinstance(v, bytes) else v
+    if s("mode", "nearest") != "nearest" or s("coordinate_transformation_mode", "half_pixel") == \
+            "tf_crop_and_resize" or n.attrs.get("antialias", 0):
+        return False
+    if any(t and t not in g.consts for t in n.inputs[1:]):
+        return False
+    x, y = g.shapes.get(n.inputs[0]), g.shapes.get(n.outputs[0])
+    return x is not None and y is not None and len(x) == 4 and tuple(x[:2]) == tuple(y[:2])
+
+
+def _concat_ok(g: Graph, n: Node) -> bool:
+    if n.op != "Concat":
+        return False
+    shapes = [g.shapes.get(t) for t in n.inputs if t]
+    return all(s is not None and len(s) == 4 for s in shapes) and int(n.attrs.get("axis", 0)) % 4 == 1
+
+
+def blocked_tensors(g: Graph, block: int) -> dict[str, tuple]:
+    """{tensor: blocked device shape} for the tensors of g that can stay blocked in
+    blocks of `block` channels (the rules at the top of this file; a fixpoint)."""
+    from ..ops.conv import blocked_eligible, blocked_shape
+    from ..ops.pool import blocked_2x2
+
+    kind = {}
+    for i, n in enumerate(g.nodes):
+        if _conv_ok(g, n, blocked_eligible):
+            kind[i] = "conv"
+        elif _pool_ok(g, n, blocked_2x2):
+            kind[i] = "pool"
+        elif _resize_ok(g, n):
+            kind[i] = "resize"
+        elif _concat_ok(g, n):
+            kind[i] = "concat"
+    uses = g.consumers()
+    prod = g.producer()
+    outputs = set(g.outputs)
+
+    def candidate(t):
+        i = prod.get(t)
+        if i is None or t in outputs or i not in kind or g.nodes[i].outputs[0] != t:
+            return False
+        s = g.shapes.get(t)
+        if s is None or len(s) != 4 or g.dtypes.get(t, np.dtype("f4")).kind != "f":
+            return False
+        n = g.nodes[i]
+        return not (kind[i] == "conv" and len(n.inputs) > 3 and n.inputs[3])
+
+    blocked = {t for t in prod if candidate(t)}
+
+    def consumer_ok(t, j):
+        n = g.nodes[j]
+        k = kind.get(j)
+        if k == "conv":
+            return [q for q, u in enumerate(n.inputs) if u == t] == [0]
+        if k in ("pool", "resize"):
+            return n.inputs[0] == t and t not in n.inputs[1:] and n.outputs[0] in blocked
+        if k == "concat":
+            return g.shapes[t][1] % block == 0 and n.outputs[0] in blocked
+        return False
+
+    changed = True
+    while changed:
+        changed = False
+        for t in sorted(blocked):
+            i = prod[t]
+            ins_ok = kind[i] == "conv" or all(u in blocked for u in g.nodes[i].inputs[:1 if kind[i] != "concat"
+                                                                                     else None] if u)
+            if not ins_ok or not all(consumer_ok(t, j) for j in uses.get(t, ())) or not uses.get(t):
+                blocked.discard(t)
+                changed = True
+    return {t: blocked_shape(*g.shapes[t], block) for t in blocked}
+
+
+def _channel_range(g: Graph, n: Node):
+    """(source tensor, first channel, count) of a Slice that takes a contiguous channel
+    range of a 4-D tensor and nothing else, or None."""
+    if n.op != "Slice" or len(n.inputs) < 3 or any(t and t not in g.consts for t in n.inputs[1:]):
+        return None
+    shape = g.shapes.get(n.inputs[0])
+    if shape is None or len(shape) != 4:
+        return None
+    from ..ops.elementwise import slice_params
+    c = [None if not t else g.consts[t].ravel().tolist() for t in (list(n.inputs[1:]) + [""] * 4)[:4]]
+    try:
+        sel = slice_params(shape, c[0], c[1], c[2], c[3])
+    except ValueError:
+        return None
+    if any(sel[d] != (0, 1, int(shape[d])) for d in (0, 2, 3)) or sel[1][1] != 1 or sel[1][2] <= 0:
+        return None
+    return n.inputs[0], sel[1][0], sel[1][2]
+
+
+def _gathers(g: Graph, blocked: dict, block: int) -> list:
+    """Concats of NCHW tensors whose output only blocked convs read: (node index, output
+    blocked shape). They write the blocked layout directly (clss.ConcatBlocked)."""
+    from ..ops.conv import blocked_eligible, blocked_shape
+    uses = g.consumers()
+    out = []
+    for i, n in enumerate(g.nodes):
+        t = n.outputs[0] if n.outputs else None
+        if (not _concat_ok(g, n) or t in blocked or t in g.outputs or not uses.get(t)
+                or any(u in blocked for u in n.inputs)):
+            continue
+        if all(_conv_ok(g, g.nodes[j], blocked_eligible) and [q for q, u in enumerate(g.nodes[j].inputs) if u == t]
+               == [0] for j in uses[t]):
+            out.append((i, blocked_shape(*g.shapes[t], block)))
+    return out
+
+
+def apply(g: Graph, block: int) -> int:
+    """Mark g's blocked tensors (Graph.blocked) and tell their producers: convs write
+    the blocked layout (attrs blocked_out), concats join along the block axis, concats
+    of NCHW tensors that feed blocked convs become clss.ConcatBlocked (reading the
+    channel ranges of the Slices that only they read in place). Returns how many
+    tensors are blocked."""
+    g.blocked = blocked_tensors(g, block)
+    for n in g.nodes:
+        if n.outputs and n.outputs[0] in g.blocked:
+            if n.op == "clss.Conv":
+                n.attrs["blocked_out"] = True
+            elif n.op == "Concat":
+                n.attrs["axis"] = 1
+            else:   # MaxPool, Resize: a blocked input, a blocked output
+                n.attrs["blocked"] = True
+    uses = g.consumers()
+    prod = g.producer()
+    dropped = set()
+    for i, shape in _gathers(g, g.blocked, block):
+        n = g.nodes[i]
+        ins, ranges, sources = [], [], list(n.sources)
+        for t in n.inputs:
+            if not t:
+                continue
+            j = prod.get(t)
+            rng_ = _channel_range(g, g.nodes[j]) if j is not None else None
+            if rng_ is not None and len(uses.get(t, ())) == 1 and t not in g.outputs:
+                dropped.add(j)
+                sources += g.nodes[j].sources
+                ins.append(rng_[0])
+                ranges.append((rng_[1], rng_[2]))
+            else:
+                ins.append(t)
+                ranges.append((0, int(g.shapes[t][1])))
+        g.nodes[i] = Node("clss.ConcatBlocked", ins, list(n.outputs), {"block": block, "ranges": ranges},
+                          n.name, n.opset, sources=sources)
+        g.blocked[n.outputs[0]] = shape
+    g.nodes = [n for j, n in enumerate(g.nodes) if j not in dropped]
+    return len(g.blocked)
+
+
+# --- the fast path ----------------------------------------------------------------------
+
+def enabled(dev, prec: str) -> bool:
+    """Whether a model on dev in prec keeps blocked chains: the blocked conv itself
+    (conv.blocked, a CPU layout) and this pass (model.blocked_layout) both pass."""
+    from .. import selfcheck
+    return selfcheck.enabled(dev, prec, "conv.blocked") and selfcheck.enabled(dev, prec, "model.blocked_layout")
+
+
+def check_graph():
+    """A small U-Net-like graph (odd width, a padded 24-channel tensor, a pool, a nearest
+    resize, a channel concat, a blocked chain's NCHW edges) as ONNX."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    from ..ops.base import rng
+    g = rng("blocked layout selfcheck")
+
+    def w(name, co, ci):
+        return numpy_helper.from_array((g.standard_normal((co, ci, 3, 3)) * 0.2).astype(np.float32), name)
+
+    def b(name, co):
+        return numpy_helper.from_array(g.standard_normal(co).astype(np.float32) * 0.1, name)
+    inits = [w("w1", 16, 9), b("b1", 16), w("w2", 24, 16), b("b2", 24), w("w3", 32, 24), b("b3", 32),
+             w("w4", 9, 48), b("b4", 9),
+             numpy_helper.from_array(np.array([1, 1, 2, 2], np.float32), "sc")]
+    conv = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1])
+    nodes = [helper.make_node("Conv", ["x", "w1", "b1"], ["c1"], **conv),
+             helper.make_node("Relu", ["c1"], ["r1"]),
+             helper.make_node("Conv", ["r1", "w2", "b2"], ["c2"], **conv),
+             helper.make_node("Relu", ["c2"], ["r2"]),
+             helper.make_node("MaxPool", ["r2"], ["p2"], kernel_shape=[2, 2], strides=[2, 2]),
+             helper.make_node("Conv", ["p2", "w3", "b3"], ["c3"], **conv),
+             helper.make_node("Sigmoid", ["c3"], ["r3"]),
+             helper.make_node("Resize", ["r3", "", "sc"], ["u3"], mode="nearest",
+                              coordinate_transformation_mode="asymmetric", nearest_mode="floor"),
+             helper.make_node("Concat", ["u3", "r1"], ["cat"], axis=-3),
+             helper.make_node("Conv", ["cat", "w4", "b4"], ["y"], **conv)]
+    graph = helper.make_graph(nodes, "blocked_layout_check",
+                              [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 9, 6, 22])],
+                              [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 9, 6, 22])], inits)
+    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    return m

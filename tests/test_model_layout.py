@@ -1,0 +1,220 @@
+"""The channel-blocked layout between layers (clss/model/layout.py): which tensors stay
+blocked, the blocked ops against their NCHW forms, and whole graphs with the layout
+against the per-layer transforms (the fast path's reference) and onnxruntime.
+
+Tolerances: the blocked pool and nearest resize copy or compare values and are checked
+bit for bit; a blocked conv chain sums a padded tensor's channels in blocks of the
+vector width where the per-layer path sums them in blocks of ceil(C / ceil(C / 16)), so
+graphs are compared within the conv tolerance (clss/tolerance.py DEFAULT_TOL)."""
+from __future__ import annotations
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+from onnx import TensorProto, helper, numpy_helper
+
+import clss
+from clss import selfcheck
+from clss.model import layout
+from clss.model.graph import build
+from clss.model.passes import run_passes
+from clss.ops import conv, pool, resize
+from clss.tolerance import DEFAULT_TOL, compare
+
+
+def _needs_blocked(d, prec="fp32"):
+    if not d.is_cpu or not selfcheck.enabled(d, prec, "conv.blocked"):
+        pytest.skip(f"{d.info.name}: the channel-blocked conv does not apply here (a CPU layout)")
+
+
+def _w(g, co, ci, k=3):
+    return (g.standard_normal((co, ci, k, k)) * (0.6 / np.sqrt(ci * k * k))).astype(np.float32)
+
+
+def _unet(cin=9, h=10, w=26, c1=16, c2=24, c3=32, tail=7):
+    """conv -> conv -> pool -> conv -> resize -> concat(skip) -> conv -> conv (graph output):
+    odd widths, a padded channel count (c2), a Sigmoid-fused conv, a residual-free chain."""
+    g = np.random.default_rng(7)
+    inits = [numpy_helper.from_array(a, n) for n, a in (
+        ("w1", _w(g, c1, cin)), ("b1", g.standard_normal(c1).astype(np.float32) * 0.1),
+        ("w2", _w(g, c2, c1)), ("b2", g.standard_normal(c2).astype(np.float32) * 0.1),
+        ("w3", _w(g, c3, c2)), ("b3", g.standard_normal(c3).astype(np.float32) * 0.1),
+        ("w4", _w(g, 16, c3 + c1)), ("b4", g.standard_normal(16).astype(np.float32) * 0.1),
+        ("w5", _w(g, tail, 16)), ("sc", np.array([1, 1, 2, 2], np.float32)))]
+    cv = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1])
+    nodes = [helper.make_node("Conv", ["x", "w1", "b1"], ["c1"], **cv), helper.make_node("Relu", ["c1"], ["r1"]),
+             helper.make_node("Conv", ["r1", "w2", "b2"], ["c2"], **cv), helper.make_node("Relu", ["c2"], ["r2"]),
+             helper.make_node("MaxPool", ["r2"], ["p2"], kernel_shape=[2, 2], strides=[2, 2]),
+             helper.make_node("Conv", ["p2", "w3", "b3"], ["c3"], **cv), helper.make_node("Sigmoid", ["c3"], ["r3"]),
+             helper.make_node("Resize", ["r3", "", "sc"], ["u3"], mode="nearest",
+                              coordinate_transformation_mode="asymmetric", nearest_mode="floor"),
+             helper.make_node("Concat", ["u3", "r1"], ["cat"], axis=1),
+             helper.make_node("Conv", ["cat", "w4", "b4"], ["c4"], **cv),
+             helper.make_node("LeakyRelu", ["c4"], ["r4"], alpha=0.1),
+             helper.make_node("Conv", ["r4", "w5"], ["y"], **cv)]
+    graph = helper.make_graph(nodes, "unet", [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, cin, h, w])],
+                              [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, tail, h, w])], inits)
+    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    return m
+
+
+def _graph(model):
+    g, _, _ = build(model, None)
+    run_passes(g)
+    return g
+
+
+def test_which_tensors_stay_blocked():
+    g = _graph(_unet())
+    got = layout.blocked_tensors(g, 16)
+    names = {n.outputs[0]: n.op for n in g.nodes}
+    # every inner tensor of the chain; the graph output, and r4, read by a conv with
+    # fewer than 8 outputs (the NCHW kernel), stay NCHW
+    assert set(got) == set(names) - {"y", "r4"}, got
+    assert got["r2"] == (1, 2, 10, 26, 16)          # 24 channels padded to two blocks of 16
+    assert got["cat"] == (1, 3, 10, 26, 16)
+    # in blocks of 8, 24 channels are whole blocks too
+    assert layout.blocked_tensors(g, 8)["r2"] == (1, 3, 10, 26, 8)
+
+
+def test_edges_stay_nchw():
+    # a 5-channel input makes the first conv an NCHW one (< 8 input channels): its output
+    # r1, and so the concat it joins, the resize and the conv before it stay NCHW
+    g = _graph(_unet(cin=5))
+    got = layout.blocked_tensors(g, 16)
+    assert "r1" not in got and "cat" not in got and "u3" not in got and "r3" not in got
+    assert "r2" in got and "p2" in got
+    # a concat input whose channels are not whole blocks: no blocked concat
+    g = _graph(_unet(c1=24))
+    got = layout.blocked_tensors(g, 16)
+    assert "cat" not in got and "r1" not in got
+
+
+@pytest.mark.parametrize("prec, shape", [("fp32", (9, 10, 26)), ("fp16", (17, 12, 38))])
+def test_graph_against_reference_and_onnxruntime(any_dev, prec, shape):
+    _needs_blocked(any_dev, prec)
+    cin, h, w = shape
+    model = _unet(cin, h, w)
+    x = np.random.default_rng(3).standard_normal((1, cin, h, w)).astype(np.float32)
+    outs = {}
+    for fast in (True, False):
+        with selfcheck.forcing("model.blocked_layout", fast):
+            m = clss.Model(model, device=any_dev, precision=prec)
+            assert bool(m.graph.blocked) == fast
+            outs[fast] = m.run({"x": x})["y"]
+    tol = DEFAULT_TOL[prec]
+    c = compare(outs[True], outs[False], tol)
+    assert c.passed, f"blocked layout against per-layer transforms: {c}"
+    want = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, {"x": x})[0]
+    c = compare(outs[True], want, tol)
+    assert c.passed, f"blocked layout against onnxruntime: {c}"
+
+
+def _blocked(d, prec, a, blk):
+    x = d.to_device(a, prec)
+    return conv.to_blocked(d, prec, x, blk, -(-a.shape[1] // blk))
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+@pytest.mark.parametrize("blk", [8, 16])
+def test_pool_and_resize_blocked_bit_exact(any_dev, prec, blk):
+    g = np.random.default_rng(11)
+    a = g.standard_normal((2, 19, 9, 23)).astype(np.float32)
+    a[0, 3, 1, :4] = [0.0, -0.0, np.nan, 1.0]
+    xb = _blocked(any_dev, prec, a, blk)
+    x = any_dev.to_device(a, prec)
+    got = pool.max_pool(any_dev, prec, xb, (2, 2), stride=(2, 2), blocked=True)
+    want = _blocked(any_dev, prec, any_dev.to_host(pool.max_pool(any_dev, prec, x, (2, 2), stride=(2, 2))), blk)
+    np.testing.assert_array_equal(any_dev.to_host(got).view(np.uint8), any_dev.to_host(want).view(np.uint8))
+    for coord, nearest, out_hw in (("asymmetric", "floor", (18, 46)), ("half_pixel", "round_prefer_floor", (20, 37))):
+        got = resize.resize(any_dev, prec, xb, out_hw=out_hw, mode="nearest", coord=coord, nearest_mode=nearest,
+                            blocked=True)
+        ref = resize.resize(any_dev, prec, x, out_hw=out_hw, mode="nearest", coord=coord, nearest_mode=nearest)
+        want = _blocked(any_dev, prec, any_dev.to_host(ref), blk)
+        np.testing.assert_array_equal(any_dev.to_host(got).view(np.uint8), any_dev.to_host(want).view(np.uint8))
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+def test_conv_blocked_in_and_out(any_dev, prec):
+    """conv2d reading a blocked input and writing a blocked output equals the NCHW conv
+    on every real channel (a padded 24-channel output, a stride-2 layer)."""
+    _needs_blocked(any_dev, prec)
+    v = conv.vector_width(any_dev)
+    g = np.random.default_rng(5)
+    a = g.standard_normal((1, 20, 11, 29)).astype(np.float32)
+    w = any_dev.to_device(_w(g, 24, 20), prec)
+    b = any_dev.to_device(g.standard_normal(24).astype(np.float32), prec)
+    x = any_dev.to_device(a, prec)
+    for strides in ((1, 1), (2, 2)):
+        ref = any_dev.to_host(conv.conv2d(any_dev, prec, x, w, b, strides=strides, pads=(1, 1, 1, 1),
+                                          activation="relu"))
+        yb = conv.conv2d(any_dev, prec, _blocked(any_dev, prec, a, v), w, b, strides=strides, pads=(1, 1, 1, 1),
+                         activation="relu", out_blocked=True)
+        assert yb.shape == (1, -(-24 // v), *ref.shape[2:], v)
+        got = any_dev.to_host(yb).transpose(0, 1, 4, 2, 3).reshape(1, -1, *ref.shape[2:])[:, :24]
+        c = compare(got, ref, DEFAULT_TOL[prec])
+        assert c.passed, c
+
+
+def test_blocked_conv_refuses_what_it_cannot_do(dev):
+    _needs_blocked(dev)
+    g = np.random.default_rng(1)
+    x = dev.to_device(g.standard_normal((1, 16, 5, 9)).astype(np.float32))
+    w = dev.to_device(_w(g, 16, 16))
+    with pytest.raises(ValueError, match="blocked"):
+        conv.conv2d(dev, "fp32", x, w, residual=dev.to_device(np.zeros((1, 16, 5, 9), np.float32)),
+                    pads=(1, 1, 1, 1), out_blocked=True)
+    with pytest.raises(ValueError, match="blocked"):
+        conv.conv2d(dev, "fp32", x, dev.to_device(_w(g, 16, 16, 1)), out_blocked=True)
+
+
+def _gather_net(h=9, w=23):
+    """Slices of one input's channels and a second input, concatenated, read by two
+    blocked convs (NSRD's and NSRR's input stacks): the concat writes the blocked layout
+    (clss.ConcatBlocked) and reads the slices' channel ranges in place."""
+    g = np.random.default_rng(9)
+    inits = [numpy_helper.from_array(a, n) for n, a in (
+        ("wa", _w(g, 16, 19)), ("wb", _w(g, 12, 19)),
+        ("s0", np.array([2], np.int64)), ("e0", np.array([14], np.int64)), ("ax", np.array([1], np.int64)),
+        ("s1", np.array([20], np.int64)), ("e1", np.array([22], np.int64)))]
+    cv = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1])
+    nodes = [helper.make_node("Slice", ["x", "s0", "e0", "ax"], ["xs0"]),
+             helper.make_node("Slice", ["x", "s1", "e1", "ax"], ["xs1"]),
+             helper.make_node("Concat", ["xs0", "z", "xs1"], ["cat"], axis=1),
+             helper.make_node("Conv", ["cat", "wa"], ["ya"], **cv),
+             helper.make_node("Conv", ["cat", "wb"], ["yb"], **cv)]
+    ins = [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 30, h, w]),
+           helper.make_tensor_value_info("z", TensorProto.FLOAT, [1, 5, h, w])]
+    outs = [helper.make_tensor_value_info("ya", TensorProto.FLOAT, [1, 16, h, w]),
+            helper.make_tensor_value_info("yb", TensorProto.FLOAT, [1, 12, h, w])]
+    m = helper.make_model(helper.make_graph(nodes, "gather", ins, outs, inits),
+                          opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    return m
+
+
+def test_concat_into_blocked_reads_slices_in_place():
+    g = _graph(_gather_net())
+    layout.apply(g, 16)
+    ops = [n.op for n in g.nodes]
+    assert ops.count("Slice") == 0 and ops.count("clss.ConcatBlocked") == 1, ops
+    cat = next(n for n in g.nodes if n.op == "clss.ConcatBlocked")
+    assert cat.inputs == ["x", "z", "x"] and cat.attrs["ranges"] == [(2, 12), (0, 5), (20, 2)]
+    assert g.blocked["cat"] == (1, 2, 9, 23, 16)
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+def test_concat_into_blocked_against_onnxruntime(any_dev, prec):
+    _needs_blocked(any_dev, prec)
+    model = _gather_net()
+    g = np.random.default_rng(2)
+    feeds = {"x": g.standard_normal((1, 30, 9, 23)).astype(np.float32),
+             "z": g.standard_normal((1, 5, 9, 23)).astype(np.float32)}
+    m = clss.Model(model, device=any_dev, precision=prec)
+    assert "cat" in m.graph.blocked
+    got = m.run(feeds)
+    want = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, feeds)
+    for name, ref in zip(("ya", "yb"), want):
+        c = compare(got[name], ref, DEFAULT_TOL[prec])
+        assert c.passed, f"{name}: {c}"
