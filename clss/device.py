@@ -275,13 +275,22 @@ class Device:
             raise KernelBuildError(f"no kernel source {path}")
         src = path.read_text()
         dirs = dict.fromkeys((path.parent, kernels_dir()))
-        for name in dict.fromkeys(re.findall(r'#include "([\w.]+\.h)"', src)):
-            header = next((d / name for d in dirs if (d / name).is_file()), None)
-            if header is None:
-                raise KernelBuildError(f"{path.name}: no header {name} in "
-                                       + " or ".join(str(d) for d in dirs))
-            src = src.replace(f'#include "{name}"', header.read_text(), 1)
-        return src
+        done: set = set()
+        while True:     # a header's own includes too (warp_taps.h includes inline_math.h)
+            names = [n for n in dict.fromkeys(re.findall(r'#include "([\w.]+\.h)"', src))]
+            if not names:
+                return src
+            for name in names:
+                if name in done:    # once each: later includes of it are dropped
+                    src = src.replace(f'#include "{name}"', "")
+                    continue
+                header = next((d / name for d in dirs if (d / name).is_file()), None)
+                if header is None:
+                    raise KernelBuildError(f"{path.name}: no header {name} in "
+                                           + " or ".join(str(d) for d in dirs))
+                src = src.replace(f'#include "{name}"', header.read_text(), 1)
+                src = src.replace(f'#include "{name}"', "")
+                done.add(name)
 
     @staticmethod
     def build_options(precision: str = "fp32", **defines) -> str:

@@ -5,6 +5,8 @@
 #ifndef CLSS_WARP_TAPS_H
 #define CLSS_WARP_TAPS_H
 
+#include "inline_math.h"
+
 /* One tap's weight wx * wy, 0 where the tap lies outside the grid. */
 static float tap_w(int xi, int yi, int W, int H, float wx, float wy)
 {
@@ -19,16 +21,16 @@ typedef struct {
 static WarpTaps warp_taps(float xs, float ys, int W, int H)
 {
     WarpTaps t;
-    const int x0 = (int)floor(xs), y0 = (int)floor(ys);
+    const int x0 = clss_floori(xs), y0 = clss_floori(ys);
     const float ax = xs - (float)x0, ay = ys - (float)y0;
     t.w00 = tap_w(x0, y0, W, H, 1.0f - ax, 1.0f - ay);
     t.w10 = tap_w(x0 + 1, y0, W, H, ax, 1.0f - ay);
     t.w01 = tap_w(x0, y0 + 1, W, H, 1.0f - ax, ay);
     t.w11 = tap_w(x0 + 1, y0 + 1, W, H, ax, ay);
-    t.cx0 = clamp(x0, 0, W - 1);
-    t.cx1 = clamp(x0 + 1, 0, W - 1);
-    t.cy0 = clamp(y0, 0, H - 1);
-    t.cy1 = clamp(y0 + 1, 0, H - 1);
+    t.cx0 = clss_clampi(x0, 0, W - 1);
+    t.cx1 = clss_clampi(x0 + 1, 0, W - 1);
+    t.cy0 = clss_clampi(y0, 0, H - 1);
+    t.cy1 = clss_clampi(y0 + 1, 0, H - 1);
     return t;
 }
 

@@ -22,9 +22,11 @@ from pathlib import Path
 import numpy as np
 import pyopencl as cl
 
+from ... import selfcheck
 from ...device import Device
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS
 from ...pipeline.method import input_buffers, summed_event_ms
+from ...tolerance import DEFAULT_TOL, EXACT
 from . import networks as nets
 
 KERNEL = Path(__file__).with_name("nsrd.cl")   # the frame kernels, beside this file
@@ -72,7 +74,7 @@ class NsrdFrameStep:
             dev.zero(a)
         from ...model import Model
         self.network = Model(nets.build_network(cfg, weights, hp, wp), device=dev, precision=prec)
-        k = {n: dev.kernel(KERNEL, n, prec)
+        k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **selfcheck.defines(dev, prec, INLINE_MATH))
              for n in ("nsrd_prepare", "nsrd_prev", "nsrd_finish", "nsrd_decode")}
         i32, f = np.int32, np.float32
         demod, eps = i32(bool(cfg["demod"])), f(nets.DEMOD_EPS)
@@ -163,3 +165,43 @@ class NsrdFrameStep:
         mem = self.network.memory()
         n += mem.get("weights_bytes", 0) + mem.get("intermediate_peak_bytes", 0)
         return int(n)
+
+
+# The frame kernels without builtin calls in their per-pixel arithmetic (inline_math.h,
+# -DCLSS_INLINE_MATH=1): on pip's PoCL 3.0 each floor, clamp, min or isfinite was an
+# out-of-line call, which kept PoCL from vectorising the work-item loop. Self-checked
+# against the builtins on two frames (the second warping the first's state), bit-exact.
+INLINE_MATH = "nsrd.inline_math"
+
+
+def _inline_math_check(dev: Device, prec: str) -> list[np.ndarray]:
+    from ...ops.base import rng
+    g = rng("nsrd inline math selfcheck")
+    outs = []
+    for scale, remod in ((2, "learned"), (3, "blur")):
+        cfg = nets.make_config(scale, remod=remod)
+        fs = NsrdFrameStep(dev, prec, (7, 13), cfg, nets.init_weights(cfg, 1))
+        h, w, H, W = 7, 13, 7 * scale, 13 * scale
+        for t, jitter in enumerate(((0.25, -0.25), (-0.25, 0.25))):
+            arrays = [g.uniform(0, 4, (h, w, 3)), g.uniform(0.1, 0.9, (h, w)), g.uniform(-1.5, 1.5, (h, w, 2)),
+                      g.uniform(0, 1, (h, w, 3)), g.uniform(-1, 1, (h, w, 3)), g.uniform(0, 1, (H, W, 3))]
+            arrays[0][0, 0, 0] = np.nan
+            arrays[5][1, 2, 1] = np.inf
+            ins = [dev.to_device(a.astype(np.float32)) for a in arrays]
+            out, ev = fs.run(*ins, jitter, t == 0)
+            ev.wait()
+            outs += [dev.to_host(out), dev.to_host(fs.state), dev.to_host(fs.hist)]
+    return outs
+
+
+def _pocl(dev) -> bool:
+    from ...ops.conv import builtin_free
+    return bool(builtin_free(dev))
+
+
+selfcheck.register(selfcheck.FastPath(
+    INLINE_MATH, KERNEL, {"CLSS_INLINE_MATH": 1}, {"CLSS_INLINE_MATH": 0}, check=_inline_math_check,
+    tolerance=lambda prec: EXACT if prec != "fp16-native" else DEFAULT_TOL[prec],
+    what="floor, clamp, min, max and isfinite in the frame kernels as plain arithmetic / the builtins",
+    applies=_pocl))
+

@@ -31,8 +31,17 @@
 #define CUR 10
 #define WARP 8
 
+/* -DNSRD_SCALE=s: the scale as a constant (the host builds one program per scale), so the
+ * output kernels' X / s and X % s are shifts and multiplies, not integer divisions (a third
+ * of nsrd_prev's time at 4x on PoCL); without it, the kernel argument. */
+#ifdef NSRD_SCALE
+#define SCALE_OR(arg) NSRD_SCALE
+#else
+#define SCALE_OR(arg) (arg)
+#endif
+
 #include "pq.h"
-#include "warp_taps.h"
+#include "warp_taps.h"     /* includes inline_math.h: -DCLSS_INLINE_MATH, fast path nsrd.inline_math */
 
 /* The material of one channel: the albedo, or 1 where it is below eps (black, sky). */
 static float material(float a, int demod, float eps)
@@ -43,7 +52,7 @@ static float material(float a, int demod, float eps)
 
 static float fin(float v, float fill)
 {
-    return isfinite(v) ? v : fill;
+    return clss_isfinite(v) ? v : fill;
 }
 
 /** @param[in]  color, depth, motion  the caller's frame (image layout, float32)
@@ -107,8 +116,8 @@ __kernel void nsrd_prepare(__global const float *color, __global const float *de
     }
     float m = 1.0f;
     if (use_mask) {
-        const float rel = fabs(s[7] - d) / (tol * fmax(d, s[7]) + dfloor);
-        m = clamp(2.0f - rel, 0.0f, 1.0f);
+        const float rel = clss_fabsf(s[7] - d) / (tol * clss_fmaxf(d, s[7]) + dfloor);
+        m = clss_clampf(2.0f - rel, 0.0f, 1.0f);
     }
     m = m * keep;
     for (int c = 0; c < 3; ++c) {
@@ -142,18 +151,19 @@ __kernel void nsrd_prepare(__global const float *color, __global const float *de
  *  @param[out] prev  [3s^2,hp,wp] T: hist warped, pixel-unshuffled (channel c*s*s + i*s + j)
  *  NDRange: (W, H); H = h s, W = w s. */
 __kernel void nsrd_prev(__global const float *hist, __global const float *mv, __global T *prev,
-                        int h, int w, int H, int W, int hp, int wp, int s, float keep)
+                        int h, int w, int H, int W, int hp, int wp, int s_, float keep)
 {
+    const int s = SCALE_OR(s_);
     const int X = get_global_id(0), Y = get_global_id(1);
     if (X >= W || Y >= H) return;
     const float fs = (float)s;
     /* the render motion here: bilinear, half-pixel centres, edge-clamped (ONNX Resize
      * linear half_pixel, torch interpolate align_corners=False), in output pixels */
     float u = ((float)X + 0.5f) / fs - 0.5f, v = ((float)Y + 0.5f) / fs - 0.5f;
-    u = clamp(u, 0.0f, (float)(w - 1));
-    v = clamp(v, 0.0f, (float)(h - 1));
-    const int u0 = (int)floor(u), v0 = (int)floor(v);
-    const int u1 = min(u0 + 1, w - 1), v1 = min(v0 + 1, h - 1);
+    u = clss_clampf(u, 0.0f, (float)(w - 1));
+    v = clss_clampf(v, 0.0f, (float)(h - 1));
+    const int u0 = clss_floori(u), v0 = clss_floori(v);
+    const int u1 = clss_mini(u0 + 1, w - 1), v1 = clss_mini(v0 + 1, h - 1);
     const float fu = u - (float)u0, fv = v - (float)v0;
     const int plane = h * w;
     float m[2];
@@ -188,24 +198,26 @@ __kernel void nsrd_prev(__global const float *hist, __global const float *mv, __
  *  NDRange: (W, H). */
 __kernel void nsrd_finish(__global const T *y, __global const float *state,
                           __global const float *albedo_hr, __global float *hist,
-                          __global float *out, int h, int w, int H, int W, int hp, int wp, int s,
+                          __global float *out, int h, int w, int H, int W, int hp, int wp, int s_,
                           float jx, float jy, int demod, float eps,
                           int learned)
 {
+    const int s = SCALE_OR(s_);
     const int X = get_global_id(0), Y = get_global_id(1);
     if (X >= W || Y >= H) return;
     const float fs = (float)s;
-    const float bu = clamp(((float)X + 0.5f) / fs - 0.5f - jx, 0.0f, (float)(w - 1));
-    const float bv = clamp(((float)Y + 0.5f) / fs - 0.5f - jy, 0.0f, (float)(h - 1));
-    const int b0 = (int)floor(bu), c0 = (int)floor(bv);
-    const int b1 = min(b0 + 1, w - 1), c1 = min(c0 + 1, h - 1);
+    const float bu = clss_clampf(((float)X + 0.5f) / fs - 0.5f - jx, 0.0f, (float)(w - 1));
+    const float bv = clss_clampf(((float)Y + 0.5f) / fs - 0.5f - jy, 0.0f, (float)(h - 1));
+    const int b0 = clss_floori(bu), c0 = clss_floori(bv);
+    const int b1 = clss_mini(b0 + 1, w - 1), c1 = clss_mini(c0 + 1, h - 1);
     const float fb = bu - (float)b0, fc = bv - (float)c0;
     const long np_ = (long)hp * wp, o = (long)(Y / s) * wp + X / s, P = (long)H * W;
     const long Q = (long)Y * W + X;
     const int sub = (Y % s) * s + X % s;
     /* the material: albedo_hr filtered by the 3x3 binomial (networks.MATERIAL_FILTER),
      * edge-clamped, then the eps rule */
-    const int xm = max(X - 1, 0), xp = min(X + 1, W - 1), ym = max(Y - 1, 0), yp = min(Y + 1, H - 1);
+    const int xm = clss_maxi(X - 1, 0), xp = clss_mini(X + 1, W - 1);
+    const int ym = clss_maxi(Y - 1, 0), yp = clss_mini(Y + 1, H - 1);
     const long r0 = (long)ym * W, r1 = (long)Y * W, r2 = (long)yp * W;
     float alpha = 0.0f;
     if (learned) {
@@ -223,7 +235,7 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
         const float top = q[c0 * w + b0] * (1.0f - fb) + q[c0 * w + b1] * fb;
         const float bot = q[c1 * w + b0] * (1.0f - fb) + q[c1 * w + b1] * fb;
         const float base = top * (1.0f - fc) + bot * fc;
-        const float l = clamp(LD(y, (c * s * s + sub) * np_ + o) + base, 0.0f, 1.0f);
+        const float l = clss_clampf(LD(y, (c * s * s + sub) * np_ + o) + base, 0.0f, 1.0f);
         hist[c * P + Q] = l;
         float m = material(a, demod, eps);
         if (learned)

@@ -79,5 +79,6 @@ SPEC = MethodSpec(
     "sub-pixel upsampling, re-modulation",
     NsrdUpscaler, gbuffers=GBUFFERS, scales=(2.0, 4.0), kernels=(KERNEL.name,), doc="docs/methods/nsrd.md",
     twin="clss.methods.nsrd.oracle:twin",
-    shipped=tuple((float(s), f"nsrd_x{s}.safetensors") for s in (2, 3, 4)))
+    shipped=tuple((float(s), f"nsrd_x{s}.safetensors") for s in (2, 3, 4)),
+    fast_paths="clss.methods.nsrd.frame")
 SPECS = {"nsrd": SPEC}
