@@ -478,50 +478,15 @@ typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
 /* The layout kernels take the block sizes as arguments, not -D options: they are
  * memory-bound, and one build serves every layer (under oclgrind a build is slow). */
 
-/* NCHW -> blocked [N][Cb][H][W][icv], channels past C zero. Pure data movement
- * (bits copied through TB). A work-item moves 16 pixels of a row: per channel one
- * 64-byte run (channel planes H*W apart often alias to one L1 set, so each line is
- * read whole, once), written into one contiguous 16*icv run.
- * NDRange: (ceil(W / 16), H, N * Cb). */
-/** @param[in]  x    [N, C, H, W]
- *  @param[out] xb   [N, Cb, H, W, icv] with Cb = ceil(C / icv)
- *  @param[in]  C    channels
- *  @param[in]  H    height
- *  @param[in]  W    width
- *  @param[in]  Cb   channel blocks
- *  @param[in]  icv  channels per block
- */
-__kernel void to_blocked(__global const TB *x, __global TB *xb, int C, int H, int W, int Cb, int icv)
-{
-    const int ix0 = get_global_id(0) * 16, iy = get_global_id(1), z = get_global_id(2);
-    if (ix0 >= W || iy >= H)
-        return;
-    const int cb = z % Cb, n = z / Cb;
-    const int np = IMIN(16, W - ix0);
-    const long hw = (long)H * W;
-    const __global TB *src = x + ((long)n * C + cb * icv) * hw + (long)iy * W + ix0;
-    __global TB *dst = xb + (((long)z * H + iy) * W + ix0) * icv;
-    for (int c = 0; c < icv; ++c) {
-        const int real = cb * icv + c < C;
-        const __global TB *s = src + c * hw;
-        if (real && np == 16) {
-            TB16 v = vload16(0, s);
-            dst[0 * icv + c] = v.s0; dst[1 * icv + c] = v.s1; dst[2 * icv + c] = v.s2; dst[3 * icv + c] = v.s3;
-            dst[4 * icv + c] = v.s4; dst[5 * icv + c] = v.s5; dst[6 * icv + c] = v.s6; dst[7 * icv + c] = v.s7;
-            dst[8 * icv + c] = v.s8; dst[9 * icv + c] = v.s9; dst[10 * icv + c] = v.sa; dst[11 * icv + c] = v.sb;
-            dst[12 * icv + c] = v.sc; dst[13 * icv + c] = v.sd; dst[14 * icv + c] = v.se; dst[15 * icv + c] = v.sf;
-        } else {
-            for (int p = 0; p < np; ++p)
-                dst[p * icv + c] = real ? s[p] : (TB)0;
-        }
-    }
-}
-
-/* Part of a channel concat written straight into the blocked layout (clss/model/layout.py:
- * a concat that feeds only blocked convs): `count` channels of x from channel c0 on (a
- * concat input, or the channel range a Slice took) land at channels d0.. of the blocked
- * output, whose channels past Ctot (the concat's total) are zeroed. One launch per concat
- * input; each writes only its own lanes. Pure data movement (bits through TB).
+/* NCHW -> blocked [N][CBd][H][W][B]: `count` channels of x from channel c0 on land at
+ * channels d0.. of the blocked output, whose channels past Ctot are zeroed. The layout
+ * transform of a conv2d_blocked input (c0 = d0 = 0, count = Ctot = C), and one input of a
+ * channel concat written straight into the blocked layout (clss/model/layout.py: a concat
+ * that feeds only blocked convs; a concat input, or the channel range a Slice took; one
+ * launch per input, each writing only its own lanes). Pure data movement (bits through
+ * TB). A work-item moves 16 pixels of a row: per channel one 64-byte run (channel planes
+ * H*W apart often alias to one L1 set, so each line is read whole, once), written into
+ * its lane of a contiguous 16*B run.
  * NDRange: (ceil(W / 16), H, N * nblk), nblk = the output blocks the range touches.
  * @param[in]  x      [N, Cx, H, W] concat input (NCHW)
  * @param[out] xb     [N, CBd, H, W, B] blocked output

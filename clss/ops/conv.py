@@ -213,9 +213,18 @@ def to_blocked(dev: Device, prec: str, x, icv: int, cb: int):
     """NCHW -> [N][Cb][H][W][ICV] (zero channels past C): the conv2d_blocked input."""
     n, c, h, wd = x.shape
     xb = dev.empty((n, cb, h, wd, icv), prec)
-    dev.launch(dev.kernel("conv", "to_blocked", prec), (-(-wd // 16), h, n * cb),
-               (x.data, xb.data, np.int32(c), np.int32(h), np.int32(wd), np.int32(cb), np.int32(icv)))
+    _to_blocked_at(dev, prec, x, xb, 0, c, 0, c)
     return xb
+
+
+def _to_blocked_at(dev, prec, x, xb, c0: int, count: int, d0: int, total: int):
+    """Channels c0 .. c0 + count of NCHW x into channels d0.. of blocked xb, whose channels
+    past `total` are zeroed (kernels/conv.cl to_blocked_at)."""
+    n, cbd, h, w, block = xb.shape
+    nblk = (d0 + count - 1) // block - d0 // block + 1     # the blocks [d0, d0 + count) touches
+    dev.launch(dev.kernel("conv", "to_blocked_at", prec), (-(-w // 16), h, n * nblk),
+               (x.data, xb.data, *(np.int32(v) for v in (x.shape[1], c0, count, h, w, cbd, block, d0, total,
+                                                           nblk))))
 
 
 def blocked_shape(n: int, c: int, h: int, w: int, block: int) -> tuple:
@@ -233,20 +242,14 @@ def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None):
     total = sum(c for _, c in ranges)
     cbd = -(-total // block)
     out = dev.empty((n, cbd, h, w, block), prec)
-    k = dev.kernel("conv", "to_blocked_at", prec)
     d0 = 0
     for x, (c0, count) in zip(xs, ranges):
         check_storage("x", x, prec)
         if x.ndim != 4 or x.shape[0] != n or tuple(x.shape[2:]) != (h, w) or c0 + count > x.shape[1]:
             raise ValueError(f"concat_to_blocked: input {tuple(x.shape)} (channels {c0}..{c0 + count}) "
                              f"does not fit [N={n}, H={h}, W={w}]")
-        if count <= 0:
-            continue
-        # the blocks [d0, d0 + count) touches; the last one's channels past the total are zeroed
-        nblk = (d0 + count - 1) // block - d0 // block + 1
-        dev.launch(k, (-(-w // 16), h, n * nblk),
-                   (x.data, out.data, *(np.int32(v) for v in (x.shape[1], c0, count, h, w, cbd, block, d0,
-                                                               total, nblk))))
+        if count > 0:       # the last block's channels past the total are zeroed
+            _to_blocked_at(dev, prec, x, out, c0, count, d0, total)
         d0 += count
     return out
 
