@@ -277,7 +277,7 @@ class Device:
         dirs = dict.fromkeys((path.parent, kernels_dir()))
         done: set = set()
         while True:     # a header's own includes too (warp_taps.h includes inline_math.h)
-            names = [n for n in dict.fromkeys(re.findall(r'#include "([\w.]+\.h)"', src))]
+            names = list(dict.fromkeys(re.findall(r'#include "([\w.]+\.h)"', src)))
             if not names:
                 return src
             for name in names:

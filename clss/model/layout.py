@@ -31,10 +31,6 @@ import numpy as np
 from .graph import Graph, Node
 
 
-def _ints(v):
-    return None if v is None else [int(a) for a in np.asarray(v).ravel()]
-
-
 def _conv_ok(g: Graph, n: Node, blocked_eligible) -> bool:
     if n.op != "clss.Conv" or n.attrs.get("transpose") or len(n.inputs) < 2:
         return False
@@ -42,14 +38,10 @@ def _conv_ok(g: Graph, n: Node, blocked_eligible) -> bool:
     return w is not None and w.ndim == 4 and blocked_eligible(None, w, int(n.attrs.get("group", 1)))
 
 
-def _pool_ok(g: Graph, n: Node, blocked_2x2) -> bool:
-    if n.op != "clss.MaxPool":
-        return False
-    a = n.attrs
-    return blocked_2x2(_ints(a.get("kernel_shape")), _ints(a.get("strides")), _ints(a.get("pads")),
-                       _ints(a.get("dilations")), bool(a.get("ceil_mode", 0)),
-                       a.get("auto_pad", "NOTSET") if isinstance(a.get("auto_pad", "NOTSET"), str)
-                       else a["auto_pad"].decode())
+def _pool_ok(g: Graph, n: Node) -> bool:
+    from ..ops import pool
+    # the attributes read as the pool's own handler reads them (pool._pool_attrs)
+    return n.op == "clss.MaxPool" and "kernel_shape" in n.attrs and pool.blocked_2x2(**pool._pool_attrs(n.attrs, 2))
 
 
 def _resize_ok(g: Graph, n: Node) -> bool:
@@ -79,13 +71,12 @@ def blocked_tensors(g: Graph, block: int) -> dict[str, tuple]:
     """{tensor: blocked device shape} for the tensors of g that can stay blocked in
     blocks of `block` channels (the rules at the top of this file; a fixpoint)."""
     from ..ops.conv import blocked_eligible, blocked_shape
-    from ..ops.pool import blocked_2x2
 
     kind = {}
     for i, n in enumerate(g.nodes):
         if _conv_ok(g, n, blocked_eligible):
             kind[i] = "conv"
-        elif _pool_ok(g, n, blocked_2x2):
+        elif _pool_ok(g, n):
             kind[i] = "pool"
         elif _resize_ok(g, n):
             kind[i] = "resize"

@@ -143,13 +143,13 @@ def blocked_eligible(x, w, group: int) -> bool:
     return group == 1 and kh * kw > 1 and cin_g >= 8 and cout >= 8
 
 
-def blocked_tiling(dev: Device, prec: str, x, w, strides, explicit, blocked_in: bool = False) -> dict:
+def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocked_in: bool = False) -> dict:
     """OCV, NV, PX, ICV and BLX for conv2d_blocked on this layer: defaults from the
     device's vector width and the layer's channels, laid under the tuning database's
     entry and the caller's `tuning=`. NV vectors cover the output channels with the
     least padding (at most 2, so NV*PX accumulators stay in registers); PX fills the
-    register file (about 28 accumulators on a 32-register AVX-512 core). x is the
-    logical NCHW shape; blocked_in: the input arrives blocked in blocks of OCV channels."""
+    register file (about 28 accumulators on a 32-register AVX-512 core). x_shape: the
+    input's NCHW shape (the tuning key); blocked_in: it arrives blocked in blocks of OCV."""
     cout, cin = w.shape[0], w.shape[1]
     ocv = vector_width(dev)
     nvec = -(-cout // ocv)
@@ -157,7 +157,7 @@ def blocked_tiling(dev: Device, prec: str, x, w, strides, explicit, blocked_in: 
     px = 14 if nv == 1 else 6
     # TUNING's PX/NV/BLX, where a test sets them, replace the per-layer defaults
     defaults = {"PX": px, "NV": nv, "BLX": 16, **{k: TUNING[k] for k in ("PX", "NV", "BLX") if k in TUNING}}
-    key = tuning_db.shape_key(tuple(x.shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec)
+    key = tuning_db.shape_key(tuple(x_shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec)
     t = tuning_db.lookup(dev, "conv2d_blocked", key, defaults,
                          explicit={k: v for k, v in (explicit or {}).items() if k in ("PX", "NV", "BLX")},
                          allowed=TUNABLES["conv2d_blocked"])
@@ -168,13 +168,6 @@ def blocked_tiling(dev: Device, prec: str, x, w, strides, explicit, blocked_in: 
         cb = -(-cin // 16)
         t.update(OCV=ocv, ICV=-(-cin // cb), CB=cb)
     return t
-
-
-class _Shape:
-    """A logical NCHW shape where a tensor is expected (the tuning key of a blocked input)."""
-
-    def __init__(self, shape):
-        self.shape = tuple(shape)
 
 
 class BlockedWeights:
@@ -257,7 +250,7 @@ def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None):
 def _conv2d_blocked(dev, prec, x, w, b, t, packed, strides, pads, dilations, activation, alpha,
                     residual, residual_before_act, out, ho, wo, out_blocked):
     cout, cin, kh, kw = w.shape
-    n, h, wd = x.shape[0], x.shape[-3 if x.ndim == 5 else 2], x.shape[-2 if x.ndim == 5 else 3]
+    n, h, wd = x.shape[0], x.shape[2], x.shape[3]     # NCHW and blocked [N][Cb][H][W][V] alike
     sy, sx = strides
     dy, dx = dilations
     pt, pl = pads[0], pads[1]
@@ -354,7 +347,7 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     cout_g = cout // group
     if blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
                                      and selfcheck.enabled(dev, prec, "conv.blocked")):
-        t = blocked_tiling(dev, prec, _Shape((n, cin, h, wd)), w, (sy, sx), tuning, blocked_in)
+        t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, blocked_in)
         return _conv2d_blocked(dev, prec, x, w, b, t, packed, (sy, sx), (pt, pl), (dy, dx), activation,
                                alpha, residual, residual_before_act, out, ho, wo, out_blocked)
     t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning, group)
