@@ -80,29 +80,47 @@ __kernel void space_to_depth(__global const TB *in, __global TB *out,
     }
 }
 
-/* in: [N, C*B*B, H, W] -> out: [N, C, H*B, W*B] */
+/* in: [N, C*B*B, H, W] -> out: [N, C, H*B, W*B], the inverse of space_to_depth.
+ * NDRange: (ceil(W / 8), H, N * C * B). A work-item takes 8 input columns of the B
+ * input channels (c, by, bx = 0..B-1) and writes the 8*B contiguous outputs of output
+ * row y*B + by they interleave into, so both sides stream through memory (one output
+ * element per work-item, with B and the channel found by integer division, made it
+ * 10x slower than a copy). B = 2 (NSRD's sub-pixel upsampling) interleaves two
+ * vload8 into two vstore8; other B loop. */
 /** @param[in]  in   [N, C*B*B, H, W] input, moved as raw bits (TB)
  *  @param[out] out  [N, C, H*B, W*B] output
  *  @param[in]  C    output channels
  *  @param[in]  H    input height
  *  @param[in]  W    input width
  *  @param[in]  B    block size
- *  @param[in]  NC   N * C, the extent of NDRange dimension 2
+ *  @param[in]  NCB  N * C * B, the extent of NDRange dimension 2
  *  @note -DCRD=0|1: DCR or CRD channel order
+ *  @note -DS2D_VEC=1|0|2: B = 2 vector interleave (fast path) | scalar reference | deliberately wrong (self-check test only)
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
  */
 __kernel void depth_to_space(__global const TB *in, __global TB *out,
-                             int C, int H, int W, int B, int NC)
+                             int C, int H, int W, int B, int NCB)
 {
-    const int X = get_global_id(0), Y = get_global_id(1), nc = get_global_id(2);
-    if (X >= W * B || Y >= H * B || nc >= NC) return;
-    const int n = nc / C, c = nc % C;
-    const int x = X / B, bx = X % B, y = Y / B, by = Y % B;
-#if CRD
-    const int ci = c * B * B + by * B + bx;
-#else
-    const int ci = (by * B + bx) * C + c;
+    const int x0 = get_global_id(0) * 8, y = get_global_id(1), ncb = get_global_id(2);
+    if (x0 >= W || y >= H || ncb >= NCB) return;
+    const int by = ncb % B, nc = ncb / B, c = nc % C, n = nc / C;
+    const long Wo = (long)W * B, plane = (long)H * W;
+    __global const TB *src = in + (long)n * C * B * B * plane + (long)y * W + x0;
+    __global TB *o = out + ((long)nc * H * B + (long)y * B + by) * Wo + (long)x0 * B;
+#if S2D_VEC
+    if (B == 2 && x0 + 8 <= W) {
+        const int bx_even = S2D_VEC == 2;   /* 0 but in the deliberately wrong variant */
+        const TB8 a = vload8(0, src + s2d_channel(c, by, bx_even, C, 2) * plane);
+        const TB8 b = vload8(0, src + s2d_channel(c, by, 1 - bx_even, C, 2) * plane);
+        vstore8((TB8)(a.s0, b.s0, a.s1, b.s1, a.s2, b.s2, a.s3, b.s3), 0, o);
+        vstore8((TB8)(a.s4, b.s4, a.s5, b.s5, a.s6, b.s6, a.s7, b.s7), 1, o);
+        return;
+    }
 #endif
-    const long src = (((long)n * C * B * B + ci) * H + y) * (long)W + x;
-    out[((long)nc * (H * B) + Y) * (W * B) + X] = in[src];
+    const int nx = min(8, W - x0);
+    for (int bx = 0; bx < B; ++bx) {
+        __global const TB *ib = src + s2d_channel(c, by, bx, C, B) * plane;
+        for (int e = 0; e < nx; ++e)
+            o[e * B + bx] = ib[e];
+    }
 }

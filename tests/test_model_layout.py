@@ -201,7 +201,15 @@ def test_concat_into_blocked_reads_slices_in_place():
     assert ops.count("Slice") == 0 and ops.count("clss.ConcatBlocked") == 1, ops
     cat = next(n for n in g.nodes if n.op == "clss.ConcatBlocked")
     assert cat.inputs == ["x", "z", "x"] and cat.attrs["ranges"] == [(2, 12), (0, 5), (20, 2)]
-    assert g.blocked["cat"] == (1, 2, 9, 23, 16)
+    # 19 channels in the blocks a conv's NCHW input gets (conv.input_block): 2 x 10, not 2 x 16
+    assert g.blocked["cat"] == (1, 2, 9, 23, 10) and cat.attrs["block"] == 10
+
+
+@pytest.mark.parametrize("cin, block", [(60, 15), (18, 9), (19, 10), (64, 16), (16, 16), (10, 10), (33, 11),
+                                        (8, 8)])
+def test_input_block_splits_channels_evenly(cin, block):
+    from clss.ops import conv
+    assert conv.input_block(cin) == block
 
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])

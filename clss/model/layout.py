@@ -18,7 +18,9 @@ Ops that take and give the blocked layout, with the same arithmetic as on NCHW:
 - Concat over channels of tensors whose channel counts are whole blocks: the blocked
   tensors are then concatenated along their block axis.
 
-A blocked tensor's channels past C (where C is not a whole number of blocks) hold
+A conv's blocked output comes in blocks of V; a clss.ConcatBlocked (a concat of NCHW
+tensors that only blocked convs read) writes its own block size (conv.input_block), which
+only its convs read. A blocked tensor's channels past C (where C is not a whole number of blocks) hold
 finite values that no consumer reads (their weights are zero); a tensor with such
 padding is never concatenated. The graph records each blocked tensor's device shape in
 ``Graph.blocked``; the executor accepts those shapes for them. It is a fast path
@@ -143,8 +145,10 @@ def _channel_range(g: Graph, n: Node):
 
 def _gathers(g: Graph, blocked: dict, block: int) -> list:
     """Concats of NCHW tensors whose output only blocked convs read: (node index, output
-    blocked shape). They write the blocked layout directly (clss.ConcatBlocked)."""
-    from ..ops.conv import blocked_eligible, blocked_shape
+    blocked shape). They write the blocked layout directly (clss.ConcatBlocked), in the
+    blocks a conv's NCHW input is converted to (conv.input_block: 60 channels as 4 x 15,
+    not 4 x 16 with 4 zero channels that every tap would multiply)."""
+    from ..ops.conv import blocked_eligible, blocked_shape, input_block
     uses = g.consumers()
     out = []
     for i, n in enumerate(g.nodes):
@@ -154,7 +158,7 @@ def _gathers(g: Graph, blocked: dict, block: int) -> list:
             continue
         if all(_conv_ok(g, g.nodes[j], blocked_eligible) and [q for q, u in enumerate(g.nodes[j].inputs) if u == t]
                == [0] for j in uses[t]):
-            out.append((i, blocked_shape(*g.shapes[t], block)))
+            out.append((i, blocked_shape(*g.shapes[t], input_block(int(g.shapes[t][1])))))
     return out
 
 
@@ -192,7 +196,7 @@ def apply(g: Graph, block: int) -> int:
             else:
                 ins.append(t)
                 ranges.append((0, int(g.shapes[t][1])))
-        g.nodes[i] = Node("clss.ConcatBlocked", ins, list(n.outputs), {"block": block, "ranges": ranges},
+        g.nodes[i] = Node("clss.ConcatBlocked", ins, list(n.outputs), {"block": shape[4], "ranges": ranges},
                           n.name, n.opset, sources=sources)
         g.blocked[n.outputs[0]] = shape
     g.nodes = [n for j, n in enumerate(g.nodes) if j not in dropped]

@@ -143,13 +143,22 @@ def blocked_eligible(x, w, group: int) -> bool:
     return group == 1 and kh * kw > 1 and cin_g >= 8 and cout >= 8
 
 
-def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocked_in: bool = False) -> dict:
+def input_block(cin: int) -> int:
+    """Channels per block of a conv2d_blocked input converted from NCHW: the fewest
+    blocks of at most 16 channels, split evenly (60 -> 4 x 15, 18 -> 2 x 9), so that no
+    block carries more zero channels than it must (each one is a wasted FMA per tap)."""
+    return -(-cin // -(-cin // 16))
+
+
+def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocked_in: int = 0) -> dict:
     """OCV, NV, PX, ICV and BLX for conv2d_blocked on this layer: defaults from the
     device's vector width and the layer's channels, laid under the tuning database's
     entry and the caller's `tuning=`. NV vectors cover the output channels with the
     least padding (at most 2, so NV*PX accumulators stay in registers); PX fills the
     register file (about 28 accumulators on a 32-register AVX-512 core). x_shape: the
-    input's NCHW shape (the tuning key); blocked_in: it arrives blocked in blocks of OCV."""
+    input's NCHW shape (the tuning key); blocked_in: the channels per block of an input
+    that arrives blocked (a conv's output: OCV; a clss.ConcatBlocked's: input_block), 0
+    for an NCHW input."""
     cout, cin = w.shape[0], w.shape[1]
     ocv = vector_width(dev)
     nvec = -(-cout // ocv)
@@ -161,12 +170,9 @@ def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocke
     t = tuning_db.lookup(dev, "conv2d_blocked", key, defaults,
                          explicit={k: v for k, v in (explicit or {}).items() if k in ("PX", "NV", "BLX")},
                          allowed=TUNABLES["conv2d_blocked"])
-    if blocked_in:
-        # the input is already blocked (clss/model/layout.py): one block of the vector width
-        t.update(OCV=ocv, ICV=ocv, CB=-(-cin // ocv))
-    else:
-        cb = -(-cin // 16)
-        t.update(OCV=ocv, ICV=-(-cin // cb), CB=cb)
+    # the input's blocks: as it arrives (clss/model/layout.py), or as to_blocked makes them
+    icv = int(blocked_in) or input_block(cin)
+    t.update(OCV=ocv, ICV=icv, CB=-(-cin // icv))
     return t
 
 
@@ -318,9 +324,9 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     blocked_in = x.ndim == 5
     if blocked_in or out_blocked:
         v = vector_width(dev)
-        if blocked_in and (x.shape[4] != v or x.shape[1] * v < w.shape[1]):
+        if blocked_in and (not 1 <= x.shape[4] <= 16 or x.shape[1] != -(-w.shape[1] // x.shape[4])):
             raise ValueError(f"conv2d: blocked input {tuple(x.shape)} does not hold {w.shape[1]} channels "
-                             f"in blocks of {v}")
+                             f"in blocks of at most 16")
         if (residual is not None and out_blocked) or not blocked_eligible(None, w, group) \
                 or not selfcheck.enabled(dev, prec, "conv.blocked"):
             raise ValueError("conv2d: the blocked layout needs a dense spatial conv without residual on "
@@ -347,7 +353,7 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     cout_g = cout // group
     if blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
                                      and selfcheck.enabled(dev, prec, "conv.blocked")):
-        t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, blocked_in)
+        t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, x.shape[4] if blocked_in else 0)
         return _conv2d_blocked(dev, prec, x, w, b, t, packed, (sy, sx), (pt, pl), (dy, dx), activation,
                                alpha, residual, residual_before_act, out, ho, wo, out_blocked)
     t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning, group)

@@ -41,24 +41,30 @@ def depth_to_space(dev: Device, prec: str, x, block: int, mode: str = "DCR", out
         raise ValueError(f"depth_to_space: {cbb} channels not divisible by block^2 = {block * block}")
     c = cbb // (block * block)
     out = out if out is not None else dev.empty((n, c, h * block, w * block), prec)
-    k = dev.kernel("space_to_depth", "depth_to_space", prec, CRD=_mode(mode))
-    dev.launch(k, (w * block, h * block, n * c),
+    k = dev.kernel("space_to_depth", "depth_to_space", prec, CRD=_mode(mode),
+                   **selfcheck.defines(dev, prec, "space_to_depth.b2_vector_loads"))
+    dev.launch(k, (-(-w // 8), h, n * c * block),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(block),
-                np.int32(n * c)))
+                np.int32(n * c * block)))
     return out
 
 
 def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
-    """Both B = 2 paths (whole 8-column runs and the scalar tail) in both channel orders."""
+    """Both B = 2 paths (whole 8-column runs and the scalar tail) in both channel orders,
+    both directions."""
     x = rng("s2d selfcheck").standard_normal((1, 3, 4, 2 * 11)).astype(np.float32)
     xd = dev.to_device(x, prec)
-    return [dev.to_host(space_to_depth(dev, prec, xd, 2, m)) for m in MODES]
+    y = rng("d2s selfcheck").standard_normal((1, 3 * 4, 3, 11)).astype(np.float32)
+    yd = dev.to_device(y, prec)
+    return ([dev.to_host(space_to_depth(dev, prec, xd, 2, m)) for m in MODES]
+            + [dev.to_host(depth_to_space(dev, prec, yd, 2, m)) for m in MODES])
 
 
 selfcheck.register(selfcheck.FastPath(
     "space_to_depth.b2_vector_loads", "space_to_depth", fast={"S2D_VEC": 1}, reference={"S2D_VEC": 0},
     check=_selfcheck_run, tolerance=lambda prec: EXACT,
-    what="B = 2 de-interleave through two vload8 and .even/.odd"))
+    what="B = 2 de-interleave through two vload8 and .even/.odd (SpaceToDepth), interleave through two "
+         "vstore8 (DepthToSpace)"))
 
 
 # --- ONNX -----------------------------------------------------------------------
