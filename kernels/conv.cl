@@ -704,8 +704,17 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
                     FST(y, o + p, t);
                 }
             } else if (np == PX) {
+#if PX % 8 == 0 && !defined(NO_VST)
+                /* a channel's run of pixels as whole 8-wide stores: scattered scalar
+                 * stores to OCV * NV planes made the NCHW epilogue cost as much as a
+                 * third of the conv (NSRD's ConvLSTM gates) */
+                for (int p = 0; p < PX; p += 8)
+                    FST8(y, o + p, ((A8)(u[p][j], u[p + 1][j], u[p + 2][j], u[p + 3][j],
+                                         u[p + 4][j], u[p + 5][j], u[p + 6][j], u[p + 7][j])));
+#else
                 for (int p = 0; p < PX; ++p)
                     FST(y, o + p, u[p][j]);
+#endif
             } else {
                 for (int p = 0; p < np; ++p)
                     FST(y, o + p, u[p][j]);

@@ -23,8 +23,9 @@ import pyopencl.array as cla
 from ..device import Device, get_device, storage_dtype
 from .execute import Executor
 from .graph import FLOAT_TYPES, InputError, ModelError, UnsupportedModelError, build
+from .. import selfcheck
 from . import layout
-from .passes import run_passes
+from .passes import fuse_lstm_cell, lstm_cell_graph, run_passes
 
 __all__ = ["Model", "ModelError", "InputError", "UnsupportedModelError"]
 
@@ -58,6 +59,10 @@ class Model:
         self._out_dtypes = {t: _host_dtype(graph.elem_types.get(t), graph.dtypes.get(t, np.dtype("f4")))
                             for t in graph.outputs}
         self.pass_log = run_passes(graph, conv_fusion=fuse, mlp_fusion=fuse)
+        if fuse and selfcheck.enabled(self.device, precision, LSTM_CELL):
+            n = fuse_lstm_cell(graph)
+            if n:
+                self.pass_log.append(f"lstm_cell: {n}")
         if fuse and layout.enabled(self.device, precision):
             from ..ops.conv import vector_width
             n = layout.apply(graph, vector_width(self.device))
@@ -297,3 +302,29 @@ def _register_blocked_layout():
 
 
 _register_blocked_layout()
+
+
+# --- the fused ConvLSTM cell's fast path (passes.fuse_lstm_cell, kernels/lstm.cl) ----------
+
+LSTM_CELL = "model.lstm_cell"
+
+
+def _lstm_cell_check(dev, prec: str) -> list:
+    from ..ops.base import rng
+    g = rng("lstm cell selfcheck")
+    feeds = {"x": g.standard_normal((1, 8, 5, 13)).astype(np.float32),
+             "c": g.standard_normal((1, 16, 5, 13)).astype(np.float32)}
+    out = Model(lstm_cell_graph((1, 8, 5, 13), 16, conv=True), device=dev, precision=prec).run(feeds)
+    return [out["h"], out["c_out"]]
+
+
+def _register_lstm_cell():
+    from ..tolerance import DEFAULT_TOL
+    selfcheck.register(selfcheck.FastPath(
+        LSTM_CELL, "lstm", {"LSTM_CELL": 1}, {"LSTM_CELL": 0}, check=_lstm_cell_check,
+        tolerance=DEFAULT_TOL.__getitem__,
+        what="a ConvLSTM cell's Split, Sigmoid, Tanh, Mul and Add nodes as one kernel reading the gates "
+             "where their conv left them (blocked or NCHW) / the ten nodes"))
+
+
+_register_lstm_cell()

@@ -94,6 +94,14 @@ def _concat_blocked(dev, prec, attrs, inputs):
     return [conv.concat_to_blocked(dev, prec, list(inputs), attrs["block"], attrs["ranges"])]
 
 
+@internal_op("clss.LSTMCell")
+def _lstm_cell(dev, prec, attrs, inputs):
+    """A ConvLSTM cell's pointwise half (passes.fuse_lstm_cell): (h', c') from the gates,
+    NCHW or channel-blocked (clss/model/layout.py), and c."""
+    lstm = _family("lstm")
+    return list(lstm.lstm_cell(dev, prec, inputs[0], inputs[1], tuple(attrs["order"])))
+
+
 @internal_op("clss.BinaryRelu")
 def _binary_relu(dev, prec, attrs, inputs):
     """Relu(a op b) in one kernel (the binary_relu pass)."""

@@ -17,6 +17,8 @@ Ops that take and give the blocked layout, with the same arithmetic as on NCHW:
 - Resize, nearest modes (kernels/resize.cl resize_nearest_blocked; bit-identical).
 - Concat over channels of tensors whose channel counts are whole blocks: the blocked
   tensors are then concatenated along their block axis.
+- clss.LSTMCell (passes.fuse_lstm_cell) reads its gates blocked (kernels/lstm.cl
+  -DGATE_BLOCK) and writes NCHW: the gate convolution stores its tile whole.
 
 A conv's blocked output comes in blocks of V; a clss.ConcatBlocked (a concat of NCHW
 tensors that only blocked convs read) writes its own block size (conv.input_block), which
@@ -84,13 +86,15 @@ def blocked_tensors(g: Graph, block: int) -> dict[str, tuple]:
             kind[i] = "resize"
         elif _concat_ok(g, n):
             kind[i] = "concat"
+        elif n.op == "clss.LSTMCell":
+            kind[i] = "cell"        # reads its gates blocked, writes NCHW
     uses = g.consumers()
     prod = g.producer()
     outputs = set(g.outputs)
 
     def candidate(t):
         i = prod.get(t)
-        if i is None or t in outputs or i not in kind or g.nodes[i].outputs[0] != t:
+        if i is None or t in outputs or kind.get(i) in (None, "cell") or g.nodes[i].outputs[0] != t:
             return False
         s = g.shapes.get(t)
         if s is None or len(s) != 4 or g.dtypes.get(t, np.dtype("f4")).kind != "f":
@@ -109,6 +113,8 @@ def blocked_tensors(g: Graph, block: int) -> dict[str, tuple]:
             return n.inputs[0] == t and t not in n.inputs[1:] and n.outputs[0] in blocked
         if k == "concat":
             return g.shapes[t][1] % block == 0 and n.outputs[0] in blocked
+        if k == "cell":
+            return n.inputs[0] == t and t not in n.inputs[1:]
         return False
 
     changed = True

@@ -887,6 +887,142 @@ def _activations_before_views(g: Graph) -> int:
     return changed
 
 
+def _lstm_cell_at(g: Graph, split: Node, uses: dict, prod: dict):
+    """The nodes of a ConvLSTM cell's pointwise half hanging off `split`, or None:
+    Split(gates, 4 equal channel parts) -> Sigmoid x 3, Tanh; c' = Add(Mul(sf, c),
+    Mul(si, tanh(g))); h' = Mul(so, Tanh(c')). Returns (order, c, h', c', nodes): order
+    is which Split output is i, f, o, g; the gate roles are read off the graph, not
+    assumed from the Split's order."""
+    if split.op != "Split" or len(split.outputs) != 4 or not all(split.outputs):
+        return None
+    shape = g.shapes.get(split.inputs[0])
+    if shape is None or len(shape) != 4 or int(split.attrs.get("axis", 0)) % 4 != 1:
+        return None
+    part = (shape[0], shape[1] // 4, shape[2], shape[3])
+    if shape[1] % 4 or any(tuple(g.shapes.get(t, ())) != part or g.dtypes[t].kind != "f"
+                           for t in split.outputs):
+        return None
+
+    def only(t):
+        return g.nodes[uses[t][0]] if _single_use(g, t, uses) else None
+
+    acts = [only(t) for t in split.outputs]
+    if any(a is None for a in acts) or sorted(a.op for a in acts) != ["Sigmoid"] * 3 + ["Tanh"]:
+        return None
+    kg = next(k for k, a in enumerate(acts) if a.op == "Tanh")
+    m2 = only(acts[kg].outputs[0])
+    if m2 is None or m2.op != "Mul":
+        return None
+    role = {}       # Split output index -> (its Mul, the Mul's other input)
+    for k, a in enumerate(acts):
+        if k != kg:
+            m = only(a.outputs[0])
+            if m is None or m.op != "Mul" or len(m.inputs) != 2 or m.inputs[0] == m.inputs[1]:
+                return None
+            role[k] = (m, m.inputs[1] if m.inputs[0] == a.outputs[0] else m.inputs[0])
+    ki = next((k for k, (m, _) in role.items() if m is m2), None)
+    if ki is None:
+        return None
+    add = only(m2.outputs[0])
+    if add is None or add.op != "Add" or len(add.inputs) != 2:
+        return None
+    inner = set(split.outputs) | {a.outputs[0] for a in acts}
+    kf = next((k for k, (m, other) in role.items() if k != ki and m.outputs[0] in add.inputs
+               and other not in inner), None)
+    if kf is None or add.inputs[0] == add.inputs[1]:
+        return None
+    m1, c = role[kf]
+    c_new = add.outputs[0]
+    tanh_c = next((g.nodes[j] for j in uses.get(c_new, ()) if g.nodes[j].op == "Tanh"), None)
+    if tanh_c is None:
+        return None
+    ko = next(k for k in role if k not in (ki, kf))
+    m3, tc = role[ko]
+    if tc != tanh_c.outputs[0] or not _single_use(g, tc, uses):
+        return None
+    if tuple(g.shapes.get(c, ())) != part or g.dtypes[c].kind != "f" or c in split.outputs:
+        return None
+    # c must exist where the fused node runs (where c' was made): a graph input, a
+    # constant, or a tensor made before the Split
+    pc = prod.get(c)
+    if pc is not None and pc > g.nodes.index(split):
+        return None
+    nodes = [split, *acts, m1, m2, add, tanh_c, m3]
+    return (ki, kf, ko, kg), c, m3.outputs[0], c_new, nodes
+
+
+def fuse_lstm_cell(g: Graph) -> int:
+    """The pointwise half of a ConvLSTM cell (ten nodes: a Split of the gates, three
+    Sigmoid, two Tanh, three Mul, an Add) -> one clss.LSTMCell (kernels/lstm.cl), with
+    the same arithmetic. It runs where c' was made. Not in PASSES: clss.Model applies
+    it where its fast path (model.lstm_cell) holds."""
+    changed = 0
+    again = True
+    while again:
+        again = False
+        uses, prod = g.consumers(), g.producer()
+        for split in g.nodes:
+            m = _lstm_cell_at(g, split, uses, prod)
+            if m is None:
+                continue
+            order, c, h_new, c_new, nodes = m
+            fused = Node("clss.LSTMCell", [split.inputs[0], c], [h_new, c_new], {"order": order},
+                         split.name, split.opset, sources=[s for n in nodes for s in n.sources],
+                         unfused=list(nodes))
+            at = nodes[8]           # the Add that made c'
+            g.nodes[g.nodes.index(at)] = fused
+            drop = {id(n) for n in nodes if n is not at}
+            g.nodes = [n for n in g.nodes if id(n) not in drop]
+            changed += 1
+            again = True
+            break
+    return changed
+
+
+def lstm_cell_graph(x_shape, channels: int, *, conv: bool = False, order=(0, 1, 2, 3)):
+    """A ConvLSTM cell's pointwise half as the ONNX nodes fuse_lstm_cell fuses (the
+    fast path's self-check graph; the twin of clss/verify/cases/lstm.py): inputs x (the
+    gates [N, 4C, H, W], or with conv=True the input of a seeded 3x3 convolution that
+    makes them) and c [N, C, H, W]; outputs h and c_out. order: the Split output that
+    holds i, f, o and g."""
+    import onnx
+    from onnx import TensorProto, helper, numpy_helper
+
+    from ..ops.base import rng
+    n, cx, h, w = (int(v) for v in x_shape)
+    nodes, inits = [], []
+    gates = "x"
+    if conv:
+        g = rng("lstm cell graph weights", tuple(x_shape), channels)
+        inits = [numpy_helper.from_array((g.standard_normal((4 * channels, cx, 3, 3)) * 0.3).astype(np.float32),
+                                         "w"),
+                 numpy_helper.from_array((g.standard_normal(4 * channels) * 0.1).astype(np.float32), "b")]
+        nodes.append(helper.make_node("Conv", ["x", "w", "b"], ["gates"], kernel_shape=[3, 3], pads=[1, 1, 1, 1]))
+        gates = "gates"
+    inits.append(numpy_helper.from_array(np.full(4, channels, np.int64), "split"))
+    roles = "ifog"
+    parts = [f"gate_{roles[list(order).index(k)]}" for k in range(4)]
+    nodes += [helper.make_node("Split", [gates, "split"], parts, axis=1),
+              helper.make_node("Sigmoid", ["gate_i"], ["si"]),
+              helper.make_node("Sigmoid", ["gate_f"], ["sf"]),
+              helper.make_node("Sigmoid", ["gate_o"], ["so"]),
+              helper.make_node("Tanh", ["gate_g"], ["tg"]),
+              helper.make_node("Mul", ["sf", "c"], ["fc"]),
+              helper.make_node("Mul", ["tg", "si"], ["ig"]),
+              helper.make_node("Add", ["fc", "ig"], ["c_out"]),
+              helper.make_node("Tanh", ["c_out"], ["tc"]),
+              helper.make_node("Mul", ["so", "tc"], ["h"])]
+    vi = helper.make_tensor_value_info
+    graph = helper.make_graph(nodes, "lstm_cell", [vi("x", TensorProto.FLOAT, [n, cx, h, w]),
+                                                   vi("c", TensorProto.FLOAT, [n, channels, h, w])],
+                              [vi("h", TensorProto.FLOAT, [n, channels, h, w]),
+                               vi("c_out", TensorProto.FLOAT, [n, channels, h, w])], inits)
+    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    onnx.checker.check_model(m)
+    return m
+
+
 def _is_pointwise(g: Graph, n: Node) -> bool:
     if n.op != "clss.Conv" or n.inputs[3] or n.attrs["group"] != 1 or n.attrs.get("transpose"):
         return False

@@ -17,6 +17,7 @@ FAMILIES = (
     "mlp",
     "pool",
     "elementwise",
+    "lstm",
 )
 
 

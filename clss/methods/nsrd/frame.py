@@ -74,11 +74,19 @@ class NsrdFrameStep:
             dev.zero(a)
         from ...model import Model
         self.network = Model(nets.build_network(cfg, weights, hp, wp), device=dev, precision=prec)
-        k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **selfcheck.defines(dev, prec, INLINE_MATH))
-             for n in ("nsrd_prepare", "nsrd_prev", "nsrd_finish", "nsrd_decode")}
+        self.encode8 = selfcheck.enabled(dev, prec, ENCODE8)
+        defs = {**selfcheck.defines(dev, prec, INLINE_MATH), **selfcheck.defines(dev, prec, ENCODE8)}
+        k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **defs)
+             for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prev", "nsrd_finish", "nsrd_decode")}
+        self.learned = bool(nets.learned_remod(cfg))
+        na = s * s * hp * wp
+        self.alpha = e((na if self.learned else 1,), dtype=f32)      # nsrd_alpha's output
         i32, f = np.int32, np.float32
         demod, eps = i32(bool(cfg["demod"])), f(nets.DEMOD_EPS)
         self.L = {
+            "encode": dev.prepare(k["nsrd_encode"], (-(-w // 8), h), [
+                self.in_color.data, self.in_albedo.data, self.cur.data, self.states[0].data,
+                i32(w), i32(h), i32(wp), i32(hp), f(1), f(self.nits / PQ_PEAK_NITS), demod, eps]),
             "prepare": dev.prepare(k["nsrd_prepare"], (wp, hp), [
                 self.in_color.data, self.in_depth.data, self.in_motion.data,
                 self.in_albedo.data, self.in_normal.data, self.states[1].data,
@@ -93,7 +101,9 @@ class NsrdFrameStep:
             "finish": dev.prepare(k["nsrd_finish"], (W, H), [
                 self.y.data, self.states[0].data, self.in_albedo_hr.data, self.hist.data,
                 self.out.data, i32(h), i32(w), i32(H), i32(W), i32(hp), i32(wp), i32(s),
-                f(0), f(0), demod, eps, i32(nets.learned_remod(cfg))]),
+                f(0), f(0), demod, eps, i32(nets.learned_remod(cfg)), self.alpha.data]),
+            "alpha": dev.prepare(k["nsrd_alpha"], (-(-na // 8),), [
+                self.y.data, self.alpha.data, i32(3 * na), i32(na)]),
             "decode": dev.prepare(k["nsrd_decode"], (-(-H * W // 8),), [
                 self.hist.data, self.out.data, i32(H * W), f(PQ_PEAK_NITS / self.nits)]),
         }
@@ -128,6 +138,9 @@ class NsrdFrameStep:
         for idx, v in ((1, new.data), (2, albedo_hr.data), (4, out.data),
                        (12, f(float(jitter[0]))), (13, f(float(jitter[1])))):
             fin.bind(idx, v)
+        enc = L["encode"]
+        for idx, v in ((0, color.data), (1, albedo.data), (3, new.data), (8, f(1.0 / exposure))):
+            enc.bind(idx, v)
         dec = L["decode"]
         dec.bind(1, out.data)
         dec.bind(3, f(PQ_PEAK_NITS / self.nits * exposure))
@@ -136,6 +149,8 @@ class NsrdFrameStep:
         if reset:
             for a in (h_in, c_in):
                 ev.append(("prepare", self.dev.zero(a)))
+        if self.encode8:
+            ev.append(("prepare", enc()))
         ev.append(("prepare", p()))
         ev.append(("prev", L["prev"]()))
         ne = [] if self.profile else None
@@ -146,6 +161,8 @@ class NsrdFrameStep:
         q = self.dev.queue
         ev += [("network", cl.enqueue_copy(q, dst.data, src.data, byte_count=src.nbytes))
                for src, dst in ((h_out, h_in), (c_out, c_in))]
+        if self.encode8 and self.learned:
+            ev.append(("finish", L["alpha"]()))
         ev.append(("finish", fin()))
         last = dec()
         ev.append(("finish", last))
@@ -160,7 +177,7 @@ class NsrdFrameStep:
     def device_bytes(self) -> int:
         arrays = [*(self.hcw if self.warp_state else ()), self.in_color, self.in_depth, self.in_motion, self.in_albedo, self.in_normal,
                   self.in_albedo_hr, *self.states, self.hist, self.mv, self.cur, self.warp,
-                  self.prev, *self.hc[0], *self.hc[1], self.y, self.out]
+                  self.prev, *self.hc[0], *self.hc[1], self.y, self.out, self.alpha]
         n = sum(a.nbytes for a in arrays)
         mem = self.network.memory()
         n += mem.get("weights_bytes", 0) + mem.get("intermediate_peak_bytes", 0)
@@ -194,6 +211,14 @@ def _inline_math_check(dev: Device, prec: str) -> list[np.ndarray]:
     return outs
 
 
+# The lighting's PQ encode on float8 in a kernel of its own (nsrd_encode, -DNSRD_ENCODE8=1),
+# not per pixel in nsrd_prepare, and the learned re-modulation's sigmoid likewise (nsrd_alpha),
+# not per output pixel in nsrd_finish: PoCL calls its scalar exp, exp2 and log2 out of line. Checked
+# against the per-pixel encode on the same two frames, within the frame step's tolerance
+# (the float8 and scalar exp2 / log2 need not round alike).
+ENCODE8 = "nsrd.encode8"
+
+
 def _pocl(dev) -> bool:
     from ...ops.conv import builtin_free
     return bool(builtin_free(dev))
@@ -205,3 +230,9 @@ selfcheck.register(selfcheck.FastPath(
     what="floor, clamp, min, max and isfinite in the frame kernels as plain arithmetic / the builtins",
     applies=_pocl))
 
+selfcheck.register(selfcheck.FastPath(
+    ENCODE8, KERNEL, {"NSRD_ENCODE8": 1}, {"NSRD_ENCODE8": 0}, check=_inline_math_check,
+    tolerance=DEFAULT_TOL.__getitem__,
+    what="the lighting's PQ encode and the re-modulation's sigmoid on float8, 8 pixels a work-item "
+         "(nsrd_encode, nsrd_alpha) / per pixel in nsrd_prepare and nsrd_finish",
+    applies=_pocl))

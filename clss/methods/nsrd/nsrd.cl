@@ -2,6 +2,10 @@
  * clss/methods/nsrd/, whose ONNX twin oracle.py states the same formulas as graph nodes
  * and whose torch twin is weights_tools/nsrd_torch.py).
  *
+ *   nsrd_encode   render resolution, 8 pixels a work-item (fast path nsrd.encode8): the
+ *                 lighting's PQ encode on float8, which nsrd_prepare then leaves out
+ *   nsrd_alpha    the learned re-modulation's sigmoid on float8 (the same fast path),
+ *                 which nsrd_finish then reads
  *   nsrd_prepare  render resolution: demodulation (lighting = colour / material, PQ),
  *                 the previous state warped by the motion (bilinear, zero outside), the
  *                 occlusion mask from the reprojected-depth test, the network's inputs
@@ -88,12 +92,16 @@ __kernel void nsrd_prepare(__global const float *color, __global const float *de
         return;
     }
     const int p = y * w + x, plane = w * h;
-    float L[3];
     for (int c = 0; c < 3; ++c) {
         const float a = fin(albedo[3 * p + c], 0.0f);
+#if NSRD_ENCODE8
+        /* the lighting: nsrd_encode wrote it (cur and state_new), 8 pixels at a time */
+#else
         const float v = fin(color[3 * p + c], 0.0f) * inv_exposure;
-        L[c] = pq_encode(v / material(a, demod, eps), pq_scale);
-        ST(cur, c * np_ + q, L[c]);
+        const float L = pq_encode(v / material(a, demod, eps), pq_scale);
+        ST(cur, c * np_ + q, L);
+        state_new[c * plane + p] = L;
+#endif
         ST(cur, (3 + c) * np_ + q, a);
         ST(cur, (6 + c) * np_ + q, fin(normal[3 * p + c], 0.0f));
     }
@@ -124,7 +132,6 @@ __kernel void nsrd_prepare(__global const float *color, __global const float *de
         const float w1 = s[c] * keep, w2 = s[4 + c] * keep;
         ST(warp, c * np_ + q, w1);
         ST(warp, (4 + c) * np_ + q, w2);
-        state_new[c * plane + p] = L[c];
         state_new[(4 + c) * plane + p] = w1;
     }
     ST(warp, 3 * np_ + q, m);
@@ -144,6 +151,77 @@ __kernel void nsrd_prepare(__global const float *color, __global const float *de
         ST(h_w, b + q, hv * keep);
         ST(c_w, b + q, cv * keep);
     }
+}
+
+/* -DNSRD_ENCODE8=1 (fast path nsrd.encode8): the lighting's PQ encode runs in
+ * nsrd_encode on float8, 8 pixels a work-item, before nsrd_prepare (which then leaves it
+ * out). Per pixel, scalar exp2 and log2 are library calls on PoCL: the encode's six of them
+ * were half of nsrd_prepare's time. */
+#ifndef NSRD_ENCODE8
+#define NSRD_ENCODE8 0
+#endif
+
+static float8 fin8(float8 v, float fill)
+{
+    return select((float8)(fill), v, (v - v) == (float8)(0.0f));     /* as clss_isfinite */
+}
+
+static PQ_ENCODE(float8, pq_encode8, powp8)
+
+/** The lighting L = PQ(colour / material) of 8 pixels of a row (NSRD_ENCODE8), into cur's
+ *  channels 0-2 and state_new's.
+ *  @param[in]  color, albedo  [h,w,3] float32
+ *  @param[out] cur            [10,hp,wp] T: channels 0-2
+ *  @param[out] state_new      [8,h,w] float32: channels 0-2
+ *  NDRange: (ceil(w / 8), h). */
+__kernel void nsrd_encode(__global const float *color, __global const float *albedo, __global T *cur,
+                          __global float *state_new, int w, int h, int wp, int hp,
+                          float inv_exposure, float pq_scale, int demod, float eps)
+{
+    const int x0 = get_global_id(0) * 8, y = get_global_id(1);
+    if (x0 >= w || y >= h) return;
+    const int n = min(8, w - x0), p0 = y * w + x0;
+    const long np_ = (long)hp * wp, q0 = (long)y * wp + x0;
+    float cs[24], as[24];
+    for (int k = 0; k < 24; ++k) {
+        cs[k] = k < 3 * n ? color[3 * p0 + k] : 0.0f;
+        as[k] = k < 3 * n ? albedo[3 * p0 + k] : 0.0f;
+    }
+    for (int c = 0; c < 3; ++c) {
+        const float8 col = (float8)(cs[c], cs[3 + c], cs[6 + c], cs[9 + c], cs[12 + c], cs[15 + c],
+                                    cs[18 + c], cs[21 + c]);
+        const float8 alb = (float8)(as[c], as[3 + c], as[6 + c], as[9 + c], as[12 + c], as[15 + c],
+                                    as[18 + c], as[21 + c]);
+        const float8 a = fin8(alb, 0.0f);
+        const float8 m = demod ? select((float8)(1.0f), a, a >= eps) : (float8)(1.0f);
+        float L[8];
+        vstore8(pq_encode8(fin8(col, 0.0f) * inv_exposure / m, pq_scale), 0, L);
+        for (int k = 0; k < n; ++k) {
+            ST(cur, c * np_ + q0 + k, L[k]);
+            state_new[c * h * w + p0 + k] = L[k];
+        }
+    }
+}
+
+/** alpha = sigmoid(the learned re-modulation's logits) on float8 (NSRD_ENCODE8), for
+ *  nsrd_finish: per output pixel, the scalar exp was a library call.
+ *  @param[in]  y      [3s^2 + s^2, hp, wp] T: the network's output
+ *  @param[out] alpha  [s^2, hp, wp] float32
+ *  @param[in]  off    3 s^2 hp wp, the first logit
+ *  @param[in]  n      s^2 hp wp
+ *  NDRange: (ceil(n / 8)). */
+__kernel void nsrd_alpha(__global const T *y, __global float *alpha, int off, int n)
+{
+    const int i0 = get_global_id(0) * 8;
+    if (i0 >= n) return;
+    const int m = min(8, n - i0);
+    float z[8];
+    for (int k = 0; k < 8; ++k)
+        z[k] = LD(y, off + i0 + min(k, m - 1));
+    float a[8];
+    vstore8(1.0f / (1.0f + exp(-vload8(0, z))), 0, a);
+    for (int k = 0; k < m; ++k)
+        alpha[i0 + k] = a[k];
 }
 
 /** @param[in]  hist  [3,H,W] float32 the previous output's lighting (PQ)
@@ -195,12 +273,13 @@ __kernel void nsrd_prev(__global const float *hist, __global const float *mv, __
  *  @param[out] out        [H,W,3] float32 the material (nsrd_decode multiplies in the lighting)
  *  learned: 1 = y has s^2 more channels, the logits of alpha: the material is then
  *  alpha * point + (1 - alpha) * filtered (networks.REMODS)
+ *  @param[in]  alpha8     [s^2,hp,wp] float32: alpha (nsrd_alpha), read with NSRD_ENCODE8
  *  NDRange: (W, H). */
 __kernel void nsrd_finish(__global const T *y, __global const float *state,
                           __global const float *albedo_hr, __global float *hist,
                           __global float *out, int h, int w, int H, int W, int hp, int wp, int s_,
                           float jx, float jy, int demod, float eps,
-                          int learned)
+                          int learned, __global const float *alpha8)
 {
     const int s = SCALE_OR(s_);
     const int X = get_global_id(0), Y = get_global_id(1);
@@ -221,8 +300,12 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
     const long r0 = (long)ym * W, r1 = (long)Y * W, r2 = (long)yp * W;
     float alpha = 0.0f;
     if (learned) {
+#if NSRD_ENCODE8
+        alpha = alpha8[(long)sub * np_ + o];        /* nsrd_alpha's sigmoid */
+#else
         const float z = LD(y, (3 * s * s + sub) * np_ + o);
         alpha = 1.0f / (1.0f + exp(-z));
+#endif
     }
     for (int c = 0; c < 3; ++c) {
 #define AHR(r, x) fin(albedo_hr[3 * ((r) + (x)) + c], 0.0f)
