@@ -34,4 +34,57 @@ static WarpTaps warp_taps(float xs, float ys, int W, int H)
     return t;
 }
 
+/* The same taps for 8 samples at once (float8 lanes; the frame kernels' 8-pixel work-items):
+ * the same operations lane by lane, so each lane equals warp_taps of its sample. */
+typedef struct {
+    float8 w00, w10, w01, w11;
+    int8 cx0, cx1, cy0, cy1;
+} WarpTaps8;
+
+/* Conversions and selects as clang's vector operations where it is the compiler (builtin
+ * calls are out of line on pip's PoCL, inline_math.h), else the OpenCL builtins. */
+#if defined(__clang__)
+#define CLSS_CVT8(x, T) __builtin_convertvector((x), T)
+#else
+#define CLSS_CVT8(x, T) convert_##T(x)
+#endif
+
+/* floor of |x| < 2^31 as an int: truncate, then step down where that rounded up (a vector
+ * comparison is -1 where true) */
+static int8 clss_floori8(float8 x)
+{
+    const int8 i = CLSS_CVT8(x, int8);
+    return i + (CLSS_CVT8(i, float8) > x);
+}
+
+static float8 tap_w8(int8 xi, int8 yi, int W, int H, float8 wx, float8 wy)
+{
+    return ((xi >= 0) & (xi < W) & (yi >= 0) & (yi < H)) ? wx * wy : (float8)(0.0f);
+}
+
+static int8 clss_clampi8(int8 v, int lo, int hi)
+{
+    return v < lo ? (int8)(lo) : (v > hi ? (int8)(hi) : v);
+}
+
+static WarpTaps8 warp_taps8(float8 xs, float8 ys, int W, int H)
+{
+    WarpTaps8 t;
+    const int8 x0 = clss_floori8(xs), y0 = clss_floori8(ys);
+    const float8 ax = xs - CLSS_CVT8(x0, float8), ay = ys - CLSS_CVT8(y0, float8);
+    t.w00 = tap_w8(x0, y0, W, H, 1.0f - ax, 1.0f - ay);
+    t.w10 = tap_w8(x0 + 1, y0, W, H, ax, 1.0f - ay);
+    t.w01 = tap_w8(x0, y0 + 1, W, H, 1.0f - ax, ay);
+    t.w11 = tap_w8(x0 + 1, y0 + 1, W, H, ax, ay);
+    t.cx0 = clss_clampi8(x0, 0, W - 1);
+    t.cx1 = clss_clampi8(x0 + 1, 0, W - 1);
+    t.cy0 = clss_clampi8(y0, 0, H - 1);
+    t.cy1 = clss_clampi8(y0 + 1, 0, H - 1);
+    return t;
+}
+
+/* 8 loads of p at the lanes of a long index vector */
+#define CLSS_GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
+                                     (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
+
 #endif

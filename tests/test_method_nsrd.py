@@ -200,3 +200,66 @@ def test_300_frames_hold_memory_flat(dev):
     assert len(sizes) == 1
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0 < 20 * 1024
     assert np.isfinite(out.get()).all()
+
+
+# --- the float8 output-resolution kernels (fast path nsrd.encode8) --------------------------
+
+def _frame_kernel(any_dev, prec, name, scale):
+    from clss import selfcheck
+    from clss.methods.nsrd import frame as fr
+    return any_dev.kernel(fr.KERNEL, name, prec, NSRD_SCALE=scale, NSRD_ENCODE8=1,
+                          **selfcheck.defines(any_dev, prec, fr.INLINE_MATH))
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+@pytest.mark.parametrize("scale", [2, 3, 4])
+def test_prev8_is_nsrd_prev_bit_for_bit(any_dev, prec, scale):
+    # 8 output pixels a work-item on float8 lanes: the same operations as per pixel, with
+    # motions large enough that taps fall outside the frame, and a row width (13 s) that
+    # leaves a partial work-item
+    h, w = 7, 13
+    H, W = h * scale, w * scale
+    g = np.random.default_rng(scale)
+    hist = any_dev.to_device(g.uniform(0, 1, (3, H, W)).astype(np.float32))
+    mv = any_dev.to_device(g.uniform(-9, 9, (2, h, w)).astype(np.float32))
+    hp, wp = nets.pad2(h), nets.pad2(w)
+    i32 = np.int32
+    outs = []
+    for name, gs in (("nsrd_prev8", (-(-W // 8), H)), ("nsrd_prev", (W, H))):
+        prev = any_dev.empty((3 * scale * scale, hp, wp), prec)
+        any_dev.zero(prev)
+        any_dev.launch(_frame_kernel(any_dev, prec, name, scale), gs,
+                       (hist.data, mv.data, prev.data, i32(h), i32(w), i32(H), i32(W), i32(hp), i32(wp),
+                        i32(scale), np.float32(1)))
+        outs.append(prev.get())
+    assert np.array_equal(outs[0].view(np.uint8), outs[1].view(np.uint8))
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+@pytest.mark.parametrize("scale, learned", [(2, 1), (3, 0), (4, 1)])
+def test_finish8_is_finish_then_decode_bit_for_bit(any_dev, prec, scale, learned):
+    h, w = 7, 13
+    H, W = h * scale, w * scale
+    hp, wp = nets.pad2(h), nets.pad2(w)
+    g = np.random.default_rng(10 + scale)
+    y = any_dev.to_device(g.uniform(-1, 1, ((3 + learned) * scale * scale, hp, wp)).astype(np.float32), prec)
+    state = any_dev.to_device(g.uniform(0, 1, (8, h, w)).astype(np.float32))
+    ahr = g.uniform(-0.2, 1, (H, W, 3)).astype(np.float32)
+    ahr[1, 2, 0], ahr[3, 4, 1] = np.nan, np.inf     # fin() per tap, as the scalar kernel
+    ahr = any_dev.to_device(ahr)
+    alpha = any_dev.to_device(g.uniform(0, 1, (scale * scale * hp * wp,)).astype(np.float32))
+    i32, f = np.int32, np.float32
+    res = []
+    for fused in (True, False):
+        hist, out = any_dev.empty((3, H, W), dtype=np.float32), any_dev.empty((H, W, 3), dtype=np.float32)
+        args = [y.data, state.data, ahr.data, hist.data, out.data, i32(h), i32(w), i32(H), i32(W), i32(hp),
+                i32(wp), i32(scale), f(0.25), f(-0.25), i32(1), f(0.01), i32(learned), alpha.data]
+        if fused:
+            any_dev.launch(_frame_kernel(any_dev, prec, "nsrd_finish8", scale), (-(-W // 8), H), args + [f(3.0)])
+        else:
+            any_dev.launch(_frame_kernel(any_dev, prec, "nsrd_finish", scale), (W, H), args)
+            any_dev.launch(_frame_kernel(any_dev, prec, "nsrd_decode", scale), (-(-H * W // 8),),
+                           [hist.data, out.data, i32(H * W), f(3.0)])
+        res.append((hist.get(), out.get()))
+    for a, b in zip(*res):
+        assert np.array_equal(a.view(np.uint8), b.view(np.uint8))

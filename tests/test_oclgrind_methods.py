@@ -49,7 +49,9 @@ def _run(case, tmp):
     # reads as uninitialised there); NSRR's reprojection in its vector form, which CPUs
     # run (its self-check would run two more frame steps under oclgrind; the reference
     # form ran clean here before the vector form existed)
-    env["CLSS_SELFCHECK_FORCED"] = "conv.blocked=0,nsrr.reproject_vectors=1"
+    # NSRD's float8 kernels (nsrd.encode8) in the fp32 runs, its per-pixel ones in fp16
+    env["CLSS_SELFCHECK_FORCED"] = ("conv.blocked=0,nsrr.reproject_vectors=1,nsrd.encode8="
+                                    + ("1" if prec == "fp32" else "0"))
     env["PYTHONPATH"] = os.pathsep.join([os.getcwd(), env.get("PYTHONPATH", "")])
     return subprocess.run([sys.executable, "-W", "ignore", "-c",
                            SCRIPT.format(method=method, scale=scale, prec=prec, extra=extra)],

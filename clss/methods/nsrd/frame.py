@@ -77,7 +77,8 @@ class NsrdFrameStep:
         self.encode8 = selfcheck.enabled(dev, prec, ENCODE8)
         defs = {**selfcheck.defines(dev, prec, INLINE_MATH), **selfcheck.defines(dev, prec, ENCODE8)}
         k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **defs)
-             for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prev", "nsrd_finish", "nsrd_decode")}
+             for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prev", "nsrd_prev8", "nsrd_finish",
+                       "nsrd_finish8", "nsrd_decode")}
         self.learned = bool(nets.learned_remod(cfg))
         na = s * s * hp * wp
         self.alpha = e((na if self.learned else 1,), dtype=f32)      # nsrd_alpha's output
@@ -95,13 +96,17 @@ class NsrdFrameStep:
                 f(self.nits / PQ_PEAK_NITS), f(1), demod, i32(bool(cfg["mask"])), eps,
                 f(nets.DEPTH_TOL), f(nets.DEPTH_FLOOR), self.hc[0][0].data, self.hc[0][1].data,
                 self.hcw[0].data, self.hcw[1].data, i32(hid), i32(self.warp_state)]),
-            "prev": dev.prepare(k["nsrd_prev"], (W, H), [
+            "prev": dev.prepare(k["nsrd_prev8"] if self.encode8 else k["nsrd_prev"],
+                                (-(-W // 8), H) if self.encode8 else (W, H), [
                 self.hist.data, self.mv.data, self.prev.data, i32(h), i32(w), i32(H), i32(W),
                 i32(hp), i32(wp), i32(s), f(1)]),
-            "finish": dev.prepare(k["nsrd_finish"], (W, H), [
+            # with encode8, nsrd_finish8 decodes the lighting into out too (no nsrd_decode)
+            "finish": dev.prepare(k["nsrd_finish8"] if self.encode8 else k["nsrd_finish"],
+                                  (-(-W // 8), H) if self.encode8 else (W, H), [
                 self.y.data, self.states[0].data, self.in_albedo_hr.data, self.hist.data,
                 self.out.data, i32(h), i32(w), i32(H), i32(W), i32(hp), i32(wp), i32(s),
-                f(0), f(0), demod, eps, i32(nets.learned_remod(cfg)), self.alpha.data]),
+                f(0), f(0), demod, eps, i32(nets.learned_remod(cfg)), self.alpha.data,
+                *((f(PQ_PEAK_NITS / self.nits),) if self.encode8 else ())]),
             "alpha": dev.prepare(k["nsrd_alpha"], (-(-na // 8),), [
                 self.y.data, self.alpha.data, i32(3 * na), i32(na)]),
             "decode": dev.prepare(k["nsrd_decode"], (-(-H * W // 8),), [
@@ -138,6 +143,8 @@ class NsrdFrameStep:
         for idx, v in ((1, new.data), (2, albedo_hr.data), (4, out.data),
                        (12, f(float(jitter[0]))), (13, f(float(jitter[1])))):
             fin.bind(idx, v)
+        if self.encode8:
+            fin.bind(18, f(PQ_PEAK_NITS / self.nits * exposure))
         enc = L["encode"]
         for idx, v in ((0, color.data), (1, albedo.data), (3, new.data), (8, f(1.0 / exposure))):
             enc.bind(idx, v)
@@ -163,9 +170,11 @@ class NsrdFrameStep:
                for src, dst in ((h_out, h_in), (c_out, c_in))]
         if self.encode8 and self.learned:
             ev.append(("finish", L["alpha"]()))
-        ev.append(("finish", fin()))
-        last = dec()
+        last = fin()
         ev.append(("finish", last))
+        if not self.encode8:
+            last = dec()
+            ev.append(("finish", last))
         if self.profile:
             self.events.extend(ev)
         self.cur_i = 1 - self.cur_i
@@ -213,7 +222,9 @@ def _inline_math_check(dev: Device, prec: str) -> list[np.ndarray]:
 
 # The lighting's PQ encode on float8 in a kernel of its own (nsrd_encode, -DNSRD_ENCODE8=1),
 # not per pixel in nsrd_prepare, and the learned re-modulation's sigmoid likewise (nsrd_alpha),
-# not per output pixel in nsrd_finish: PoCL calls its scalar exp, exp2 and log2 out of line. Checked
+# not per output pixel in nsrd_finish: PoCL calls its scalar exp, exp2 and log2 out of line.
+# With it, the output-resolution kernels take 8 pixels a work-item on float8 too
+# (nsrd_prev8, and nsrd_finish8 with nsrd_decode folded in), bit-identical to theirs. Checked
 # against the per-pixel encode on the same two frames, within the frame step's tolerance
 # (the float8 and scalar exp2 / log2 need not round alike).
 ENCODE8 = "nsrd.encode8"
@@ -233,6 +244,6 @@ selfcheck.register(selfcheck.FastPath(
 selfcheck.register(selfcheck.FastPath(
     ENCODE8, KERNEL, {"NSRD_ENCODE8": 1}, {"NSRD_ENCODE8": 0}, check=_inline_math_check,
     tolerance=DEFAULT_TOL.__getitem__,
-    what="the lighting's PQ encode and the re-modulation's sigmoid on float8, 8 pixels a work-item "
-         "(nsrd_encode, nsrd_alpha) / per pixel in nsrd_prepare and nsrd_finish",
+    what="the lighting's PQ encode, the re-modulation's sigmoid and the output-resolution kernels on "
+         "float8, 8 pixels a work-item (nsrd_encode, nsrd_alpha, nsrd_prev8, nsrd_finish8) / per pixel",
     applies=_pocl))

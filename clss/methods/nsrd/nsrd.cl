@@ -266,6 +266,60 @@ __kernel void nsrd_prev(__global const float *hist, __global const float *mv, __
     }
 }
 
+/** nsrd_prev for 8 output pixels of a row (NSRD_ENCODE8): the same operations on float8
+ *  lanes (warp_taps8), bit-identical to nsrd_prev. Arguments as nsrd_prev.
+ *  NDRange: (ceil(W / 8), H). */
+__kernel void nsrd_prev8(__global const float *hist, __global const float *mv, __global T *prev,
+                         int h, int w, int H, int W, int hp, int wp, int s_, float keep)
+{
+    const int s = SCALE_OR(s_);
+    const int X0 = get_global_id(0) * 8, Y = get_global_id(1);
+    if (X0 >= W || Y >= H) return;
+    const int n = min(8, W - X0);
+    const float fs = (float)s;
+    const float8 Xf = (float8)((float)X0) + (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+    float8 u = (Xf + 0.5f) / fs - 0.5f;
+    float v = ((float)Y + 0.5f) / fs - 0.5f;
+    u = u > 0.0f ? (u < (float)(w - 1) ? u : (float8)((float)(w - 1))) : (float8)(0.0f);
+    v = clss_clampf(v, 0.0f, (float)(h - 1));
+    const int8 u0 = clss_floori8(u);
+    const int v0 = clss_floori(v);
+    const int8 u1 = u0 + 1 < w - 1 ? u0 + 1 : (int8)(w - 1);
+    const int v1 = clss_mini(v0 + 1, h - 1);
+    const float8 fu = u - CLSS_CVT8(u0, float8);
+    const float fv = v - (float)v0;
+    const int plane = h * w;
+    float8 m[2];
+    for (int c = 0; c < 2; ++c) {
+        __global const float *q = mv + c * plane;
+        const long8 r0 = (long8)((long)v0 * w) + CLSS_CVT8(u0, long8);
+        const long8 r0b = (long8)((long)v0 * w) + CLSS_CVT8(u1, long8);
+        const long8 r1 = (long8)((long)v1 * w) + CLSS_CVT8(u0, long8);
+        const long8 r1b = (long8)((long)v1 * w) + CLSS_CVT8(u1, long8);
+        const float8 top = CLSS_GATHER8(q, r0) * (1.0f - fu) + CLSS_GATHER8(q, r0b) * fu;
+        const float8 bot = CLSS_GATHER8(q, r1) * (1.0f - fu) + CLSS_GATHER8(q, r1b) * fu;
+        m[c] = (top * (1.0f - fv) + bot * fv) * fs;
+    }
+    const float8 xs = Xf + m[0], ys = (float8)((float)Y) + m[1];
+    const WarpTaps8 t = warp_taps8(xs, ys, W, H);
+    const long P = (long)H * W, np_ = (long)hp * wp;
+    const long8 a00 = CLSS_CVT8(t.cy0, long8) * W + CLSS_CVT8(t.cx0, long8);
+    const long8 a10 = CLSS_CVT8(t.cy0, long8) * W + CLSS_CVT8(t.cx1, long8);
+    const long8 a01 = CLSS_CVT8(t.cy1, long8) * W + CLSS_CVT8(t.cx0, long8);
+    const long8 a11 = CLSS_CVT8(t.cy1, long8) * W + CLSS_CVT8(t.cx1, long8);
+    for (int c = 0; c < 3; ++c) {
+        __global const float *q = hist + c * P;
+        const float8 r = CLSS_GATHER8(q, a00) * t.w00 + CLSS_GATHER8(q, a10) * t.w10
+                       + CLSS_GATHER8(q, a01) * t.w01 + CLSS_GATHER8(q, a11) * t.w11;
+        float rs[8];
+        vstore8(r * keep, 0, rs);
+        for (int k = 0; k < n; ++k) {
+            const int X = X0 + k;
+            ST(prev, (c * s * s + (Y % s) * s + X % s) * np_ + (long)(Y / s) * wp + X / s, rs[k]);
+        }
+    }
+}
+
 /** @param[in]  y          [3s^2,hp,wp] T: the network's output
  *  @param[in]  state      [8,h,w] float32: this frame's state (channels 0-2: the lighting)
  *  @param[in]  albedo_hr  [H,W,3] float32
@@ -324,6 +378,84 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
         if (learned)
             m = alpha * material(fin(albedo_hr[3 * Q + c], 0.0f), demod, eps) + (1.0f - alpha) * m;
         out[3 * Q + c] = m;     /* nsrd_decode multiplies in the decoded lighting */
+    }
+}
+
+/** nsrd_finish and nsrd_decode for 8 output pixels of a row (NSRD_ENCODE8): the same
+ *  operations on float8 lanes, bit-identical to the two kernels; out gets the material times
+ *  the decoded lighting at once. Arguments as nsrd_finish, and nsrd_decode's inv_pq_scale.
+ *  NDRange: (ceil(W / 8), H). */
+__kernel void nsrd_finish8(__global const T *y, __global const float *state,
+                           __global const float *albedo_hr, __global float *hist,
+                           __global float *out, int h, int w, int H, int W, int hp, int wp, int s_,
+                           float jx, float jy, int demod, float eps,
+                           int learned, __global const float *alpha8, float inv_pq_scale)
+{
+    const int s = SCALE_OR(s_);
+    const int X0 = get_global_id(0) * 8, Y = get_global_id(1);
+    if (X0 >= W || Y >= H) return;
+    const int n = min(8, W - X0);
+    const float fs = (float)s;
+    const int8 Xi = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    const float8 Xf = CLSS_CVT8(Xi, float8);
+    float8 bu = (Xf + 0.5f) / fs - 0.5f - jx;
+    bu = bu > 0.0f ? (bu < (float)(w - 1) ? bu : (float8)((float)(w - 1))) : (float8)(0.0f);
+    const float bv = clss_clampf(((float)Y + 0.5f) / fs - 0.5f - jy, 0.0f, (float)(h - 1));
+    const int8 b0 = clss_floori8(bu);
+    const int c0 = clss_floori(bv);
+    const int8 b1 = b0 + 1 < w - 1 ? b0 + 1 : (int8)(w - 1);
+    const int c1 = clss_mini(c0 + 1, h - 1);
+    const float8 fb = bu - CLSS_CVT8(b0, float8);
+    const float fc = bv - (float)c0;
+    const long np_ = (long)hp * wp, P = (long)H * W;
+    /* lanes past the row's end repeat its last pixel (computed, not stored) */
+    const int8 Xc = Xi < W - 1 ? Xi : (int8)(W - 1);
+    const long8 o = (long8)((long)(Y / s) * wp) + CLSS_CVT8(Xc / s, long8);
+    const long8 sub = (long8)((Y % s) * s) + CLSS_CVT8(Xc % s, long8);
+    const int8 xm = Xc - 1 > 0 ? Xc - 1 : (int8)(0), xp = Xc + 1 < W - 1 ? Xc + 1 : (int8)(W - 1);
+    const int ym = clss_maxi(Y - 1, 0), yp = clss_mini(Y + 1, H - 1);
+    const long r0 = (long)ym * W, r1 = (long)Y * W, r2 = (long)yp * W;
+    const long8 lxm = CLSS_CVT8(xm, long8), lxc = CLSS_CVT8(Xc, long8), lxp = CLSS_CVT8(xp, long8);
+    float8 alpha = (float8)(0.0f);
+    if (learned)
+        alpha = CLSS_GATHER8(alpha8, sub * np_ + o);
+    const long8 s00 = (long8)((long)c0 * w) + CLSS_CVT8(b0, long8);
+    const long8 s01 = (long8)((long)c0 * w) + CLSS_CVT8(b1, long8);
+    const long8 s10 = (long8)((long)c1 * w) + CLSS_CVT8(b0, long8);
+    const long8 s11 = (long8)((long)c1 * w) + CLSS_CVT8(b1, long8);
+    float ls[3][8], ms[3][8];
+    for (int c = 0; c < 3; ++c) {
+        __global const float *ac = albedo_hr + c;
+#define AHR8(r, x) fin8(CLSS_GATHER8(ac, 3 * ((long8)(r) + (x))), 0.0f)
+        const float8 a0 = 0.25f * AHR8(r0, lxm) + 0.5f * AHR8(r0, lxc) + 0.25f * AHR8(r0, lxp);
+        const float8 a1 = 0.25f * AHR8(r1, lxm) + 0.5f * AHR8(r1, lxc) + 0.25f * AHR8(r1, lxp);
+        const float8 a2 = 0.25f * AHR8(r2, lxm) + 0.5f * AHR8(r2, lxc) + 0.25f * AHR8(r2, lxp);
+        const float8 a = 0.25f * a0 + 0.5f * a1 + 0.25f * a2;
+        __global const float *q = state + c * h * w;
+        const float8 top = CLSS_GATHER8(q, s00) * (1.0f - fb) + CLSS_GATHER8(q, s01) * fb;
+        const float8 bot = CLSS_GATHER8(q, s10) * (1.0f - fb) + CLSS_GATHER8(q, s11) * fb;
+        const float8 base = top * (1.0f - fc) + bot * fc;
+        const long8 yi = ((long8)(c * s * s) + sub) * np_ + o;
+        const float8 yv = (float8)(LD(y, yi.s0), LD(y, yi.s1), LD(y, yi.s2), LD(y, yi.s3),
+                                   LD(y, yi.s4), LD(y, yi.s5), LD(y, yi.s6), LD(y, yi.s7));
+        float8 l = yv + base;
+        l = l > 0.0f ? (l < 1.0f ? l : (float8)(1.0f)) : (float8)(0.0f);
+        float8 m = demod ? (a >= eps ? a : (float8)(1.0f)) : (float8)(1.0f);
+        if (learned) {
+            const float8 pa = AHR8(r1, lxc);
+            const float8 mp = demod ? (pa >= eps ? pa : (float8)(1.0f)) : (float8)(1.0f);
+            m = alpha * mp + (1.0f - alpha) * m;
+        }
+#undef AHR8
+        vstore8(l, 0, ls[c]);
+        vstore8(m * pq_decode8(l, inv_pq_scale), 0, ms[c]);
+    }
+    for (int k = 0; k < n; ++k) {
+        const long Q = (long)Y * W + X0 + k;
+        for (int c = 0; c < 3; ++c) {
+            hist[c * P + Q] = ls[c][k];
+            out[3 * Q + c] = ms[c][k];
+        }
     }
 }
 
