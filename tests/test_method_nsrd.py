@@ -263,3 +263,36 @@ def test_finish8_is_finish_then_decode_bit_for_bit(any_dev, prec, scale, learned
         res.append((hist.get(), out.get()))
     for a, b in zip(*res):
         assert np.array_equal(a.view(np.uint8), b.view(np.uint8))
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+@pytest.mark.parametrize("w, warp_state, inverted", [(13, 1, 1), (16, 0, 0), (9, 1, 0)])
+def test_prepare8_and_warp_state8_are_nsrd_prepare_bit_for_bit(any_dev, prec, w, warp_state, inverted):
+    # render widths with and without padding (pad2) and a partial last work-item; NaN and
+    # infinite inputs; motions reaching outside the frame; the warped ConvLSTM state
+    h, hid = 7, 4
+    hp, wp = nets.pad2(h), nets.pad2(w)
+    g = np.random.default_rng(w)
+    ins = [g.uniform(0, 4, (h, w, 3)), g.uniform(0.1, 0.9, (h, w)), g.uniform(-6, 6, (h, w, 2)),
+           g.uniform(-0.1, 1, (h, w, 3)), g.uniform(-1, 1, (h, w, 3)), g.uniform(0, 1, (8, h, w))]
+    ins[1][2, 3], ins[2][1, 1, 0], ins[3][0, 2, 1], ins[4][3, 3, 2] = np.nan, np.inf, np.nan, -np.inf
+    ins = [any_dev.to_device(a.astype(np.float32)) for a in ins]
+    hc = [any_dev.to_device(g.uniform(-1, 1, (hid, hp, wp)).astype(np.float32), prec) for _ in range(2)]
+    i32, f = np.int32, np.float32
+    outs = []
+    for name, gs in (("nsrd_prepare8", (-(-wp // 8), hp)), ("nsrd_prepare", (wp, hp))):
+        # every output starts from the same bits, so what neither kernel writes agrees too
+        bufs = [any_dev.to_device(np.full(shape, 7.0, np.float32), p) for shape, p in
+                (((8, h, w), "fp32"), ((10, hp, wp), prec), ((8, hp, wp), prec), ((2, h, w), "fp32"),
+                 ((hid, hp, wp), prec), ((hid, hp, wp), prec))]
+        sn, cur, warp, mv, hw, cw = bufs
+        any_dev.launch(_frame_kernel(any_dev, prec, name, 2), gs, [
+            *(a.data for a in ins), sn.data, cur.data, warp.data, mv.data, i32(w), i32(h), i32(wp), i32(hp),
+            i32(inverted), f(1.0), f(-1.0), f(0.5), f(0.3), f(1.0), i32(1), i32(1), f(0.01), f(0.1), f(0.05),
+            hc[0].data, hc[1].data, hw.data, cw.data, i32(hid), i32(warp_state)])
+        if name == "nsrd_prepare8" and warp_state:       # its h and c warp, a kernel of its own
+            any_dev.launch(_frame_kernel(any_dev, prec, "nsrd_warp_state8", 2), (-(-wp // 8), hp, hid), [
+                mv.data, hc[0].data, hc[1].data, hw.data, cw.data, i32(w), i32(h), i32(wp), i32(hp), f(1.0)])
+        outs.append([b.get() for b in bufs])
+    for a, b in zip(*outs):
+        assert np.array_equal(a.view(np.uint8), b.view(np.uint8))

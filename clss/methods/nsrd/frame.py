@@ -77,7 +77,9 @@ class NsrdFrameStep:
         self.encode8 = selfcheck.enabled(dev, prec, ENCODE8)
         defs = {**selfcheck.defines(dev, prec, INLINE_MATH), **selfcheck.defines(dev, prec, ENCODE8)}
         k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **defs)
-             for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prev", "nsrd_prev8", "nsrd_finish",
+             for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prepare8", "nsrd_warp_state8",
+                       "nsrd_prev", "nsrd_prev8",
+                       "nsrd_finish",
                        "nsrd_finish8", "nsrd_decode")}
         self.learned = bool(nets.learned_remod(cfg))
         na = s * s * hp * wp
@@ -88,7 +90,8 @@ class NsrdFrameStep:
             "encode": dev.prepare(k["nsrd_encode"], (-(-w // 8), h), [
                 self.in_color.data, self.in_albedo.data, self.cur.data, self.states[0].data,
                 i32(w), i32(h), i32(wp), i32(hp), f(1), f(self.nits / PQ_PEAK_NITS), demod, eps]),
-            "prepare": dev.prepare(k["nsrd_prepare"], (wp, hp), [
+            "prepare": dev.prepare(k["nsrd_prepare8"] if self.encode8 else k["nsrd_prepare"],
+                                   (-(-wp // 8), hp) if self.encode8 else (wp, hp), [
                 self.in_color.data, self.in_depth.data, self.in_motion.data,
                 self.in_albedo.data, self.in_normal.data, self.states[1].data,
                 self.states[0].data, self.cur.data, self.warp.data, self.mv.data,
@@ -107,6 +110,9 @@ class NsrdFrameStep:
                 self.out.data, i32(h), i32(w), i32(H), i32(W), i32(hp), i32(wp), i32(s),
                 f(0), f(0), demod, eps, i32(nets.learned_remod(cfg)), self.alpha.data,
                 *((f(PQ_PEAK_NITS / self.nits),) if self.encode8 else ())]),
+            "warp_state": dev.prepare(k["nsrd_warp_state8"], (-(-wp // 8), hp, hid), [
+                self.mv.data, self.hc[0][0].data, self.hc[0][1].data, self.hcw[0].data, self.hcw[1].data,
+                i32(w), i32(h), i32(wp), i32(hp), f(1)]),
             "alpha": dev.prepare(k["nsrd_alpha"], (-(-na // 8),), [
                 self.y.data, self.alpha.data, i32(3 * na), i32(na)]),
             "decode": dev.prepare(k["nsrd_decode"], (-(-H * W // 8),), [
@@ -159,6 +165,10 @@ class NsrdFrameStep:
         if self.encode8:
             ev.append(("prepare", enc()))
         ev.append(("prepare", p()))
+        if self.encode8 and self.warp_state:
+            ws = L["warp_state"]
+            ws.bind(9, keep)
+            ev.append(("prepare", ws()))
         ev.append(("prev", L["prev"]()))
         ne = [] if self.profile else None
         self.network.run_device({"cur": self.cur, "warp": self.warp, "prev": self.prev,

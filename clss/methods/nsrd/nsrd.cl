@@ -168,6 +168,150 @@ static float8 fin8(float8 v, float fill)
 
 static PQ_ENCODE(float8, pq_encode8, powp8)
 
+/** nsrd_prepare for 8 pixels of a row (NSRD_ENCODE8; nsrd_encode wrote the lighting): the
+ *  same operations on float8 lanes (warp_taps8), bit-identical to nsrd_prepare. Lanes past
+ *  the render width compute on its last pixel and store the padding's zeros. Arguments as
+ *  nsrd_prepare. NDRange: (ceil(wp / 8), hp). */
+__kernel void nsrd_prepare8(__global const float *color, __global const float *depth,
+                            __global const float *motion, __global const float *albedo,
+                            __global const float *normal, __global const float *state_old,
+                            __global float *state_new, __global T *cur, __global T *warp,
+                            __global float *mv, int w, int h, int wp, int hp, int depth_inverted,
+                            float msx, float msy, float inv_exposure, float pq_scale, float keep,
+                            int demod, int use_mask, float eps, float tol, float dfloor,
+                            __global const T *h_in, __global const T *c_in, __global T *h_w,
+                            __global T *c_w, int hid, int warp_state)
+{
+    const int x0 = get_global_id(0) * 8, y = get_global_id(1);
+    if (x0 >= wp || y >= hp) return;
+    const long np_ = (long)hp * wp, q0 = (long)y * wp + x0;
+    const int nq = min(8, wp - x0);             /* lanes inside the padded row */
+    if (y >= h || x0 >= w) {
+        for (int k = 0; k < nq; ++k) {
+            for (int c = 0; c < CUR; ++c) ST(cur, c * np_ + q0 + k, 0.0f);
+            for (int c = 0; c < WARP; ++c) ST(warp, c * np_ + q0 + k, 0.0f);
+        }
+        return;
+    }
+    const int n = min(8, w - x0);               /* lanes inside the render width */
+    const int plane = w * h;
+    const int8 xi = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    const int8 xc = xi < w - 1 ? xi : (int8)(w - 1);
+    const long8 p = (long8)((long)y * w) + CLSS_CVT8(xc, long8);
+    float vals[CUR + WARP][8];      /* cur then warp, per lane, stored at the end */
+    for (int c = 0; c < 3; ++c) {
+        const float8 a = fin8(CLSS_GATHER8(albedo + c, 3 * p), 0.0f);
+        vstore8(a, 0, vals[3 + c]);
+        vstore8(fin8(CLSS_GATHER8(normal + c, 3 * p), 0.0f), 0, vals[6 + c]);
+    }
+    float8 d = fin8(CLSS_GATHER8(depth, p), depth_inverted ? 0.0f : 1.0f);
+    d = depth_inverted ? d : 1.0f - d;
+    vstore8(d, 0, vals[9]);
+    const float8 mx = fin8(CLSS_GATHER8(motion, 2 * p), 0.0f) * msx;
+    const float8 my = fin8(CLSS_GATHER8(motion + 1, 2 * p), 0.0f) * msy;
+    const float8 xs = CLSS_CVT8(xi, float8) + mx, ys = (float8)((float)y) + my;
+    const WarpTaps8 t = warp_taps8(xs, ys, w, h);
+    const long8 a00 = CLSS_CVT8(t.cy0, long8) * w + CLSS_CVT8(t.cx0, long8);
+    const long8 a10 = CLSS_CVT8(t.cy0, long8) * w + CLSS_CVT8(t.cx1, long8);
+    const long8 a01 = CLSS_CVT8(t.cy1, long8) * w + CLSS_CVT8(t.cx0, long8);
+    const long8 a11 = CLSS_CVT8(t.cy1, long8) * w + CLSS_CVT8(t.cx1, long8);
+    float8 sv[STATE];
+    for (int c = 0; c < STATE; ++c) {
+        __global const float *o = state_old + c * plane;
+        sv[c] = CLSS_GATHER8(o, a00) * t.w00 + CLSS_GATHER8(o, a10) * t.w10 + CLSS_GATHER8(o, a01) * t.w01
+              + CLSS_GATHER8(o, a11) * t.w11;
+    }
+    float8 m = (float8)(1.0f);
+    if (use_mask) {
+        const float8 diff = sv[7] - d;
+        const float8 ad = as_float8(as_uint8(diff) & (uint8)(0x7fffffffu));
+        const float8 rel = ad / (tol * (d > sv[7] ? d : sv[7]) + dfloor);
+        const float8 r = 2.0f - rel;
+        m = r > 0.0f ? (r < 1.0f ? r : (float8)(1.0f)) : (float8)(0.0f);
+    }
+    m = m * keep;
+    float sn[5][8];                 /* state_new channels 3-7 */
+    for (int c = 0; c < 3; ++c) {
+        const float8 w1 = sv[c] * keep, w2 = sv[4 + c] * keep;
+        vstore8(w1, 0, vals[CUR + c]);
+        vstore8(w2, 0, vals[CUR + 4 + c]);
+        vstore8(w1, 0, sn[1 + c]);
+    }
+    vstore8(m, 0, vals[CUR + 3]);
+    vstore8(m * sv[3], 0, vals[CUR + 7]);
+    vstore8(m, 0, sn[0]);
+    vstore8(d, 0, sn[4]);
+    for (int k = 0; k < nq; ++k) {
+        const int in = k < n;
+        for (int c = 3; c < CUR; ++c) ST(cur, c * np_ + q0 + k, in ? vals[c][k] : 0.0f);
+        if (!in) {
+            for (int c = 0; c < 3; ++c) ST(cur, c * np_ + q0 + k, 0.0f);
+        }
+        for (int c = 0; c < WARP; ++c) ST(warp, c * np_ + q0 + k, in ? vals[CUR + c][k] : 0.0f);
+    }
+    const int p0 = y * w + x0;
+    float mxs[8], mys[8];
+    vstore8(mx, 0, mxs);
+    vstore8(my, 0, mys);
+    for (int k = 0; k < n; ++k) {
+        mv[p0 + k] = mxs[k];
+        mv[plane + p0 + k] = mys[k];
+        for (int c = 0; c < 5; ++c)
+            state_new[(3 + c) * plane + p0 + k] = sn[c][k];
+    }
+    /* warp_state: nsrd_warp_state8 warps h and c, a channel a work-item */
+}
+
+/** NSRD_ENCODE8's warp of the ConvLSTM's h and c (warp_state), for nsrd_prepare8: channel
+ *  by channel (one per work-item along NDRange dimension 2), so each work-group streams two
+ *  planes in and two out instead of all of them at once; the taps again from mv, which
+ *  nsrd_prepare8 wrote (the same values nsrd_prepare warps with). Zero outside the render
+ *  region, as nsrd_prepare.
+ *  @param[in]  mv    [2,h,w] float32 (nsrd_prepare8)
+ *  @param[in]  h_in, c_in  [hid,hp,wp] T
+ *  @param[out] h_w, c_w    [hid,hp,wp] T
+ *  NDRange: (ceil(wp / 8), hp, hid). */
+__kernel void nsrd_warp_state8(__global const float *mv, __global const T *h_in, __global const T *c_in,
+                               __global T *h_w, __global T *c_w, int w, int h, int wp, int hp, float keep)
+{
+    const int x0 = get_global_id(0) * 8, y = get_global_id(1), c = get_global_id(2);
+    if (x0 >= wp || y >= hp) return;
+    const long np_ = (long)hp * wp, b = c * np_, q0 = (long)y * wp + x0;
+    const int nq = min(8, wp - x0);
+    if (y >= h || x0 >= w) {
+        for (int k = 0; k < nq; ++k) {
+            ST(h_w, b + q0 + k, 0.0f);
+            ST(c_w, b + q0 + k, 0.0f);
+        }
+        return;
+    }
+    const int n = min(8, w - x0), plane = w * h;
+    const int8 xi = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    const int8 xc = xi < w - 1 ? xi : (int8)(w - 1);
+    const long8 p = (long8)((long)y * w) + CLSS_CVT8(xc, long8);
+    const float8 xs = CLSS_CVT8(xi, float8) + CLSS_GATHER8(mv, p);
+    const float8 ys = (float8)((float)y) + CLSS_GATHER8(mv + plane, p);
+    const WarpTaps8 t = warp_taps8(xs, ys, w, h);
+    const long8 b00 = CLSS_CVT8(t.cy0, long8) * wp + CLSS_CVT8(t.cx0, long8);
+    const long8 b10 = CLSS_CVT8(t.cy0, long8) * wp + CLSS_CVT8(t.cx1, long8);
+    const long8 b01 = CLSS_CVT8(t.cy1, long8) * wp + CLSS_CVT8(t.cx0, long8);
+    const long8 b11 = CLSS_CVT8(t.cy1, long8) * wp + CLSS_CVT8(t.cx1, long8);
+#define LD8AT(p_, i) ((float8)(LD(p_, b + (i).s0), LD(p_, b + (i).s1), LD(p_, b + (i).s2), LD(p_, b + (i).s3), \
+                               LD(p_, b + (i).s4), LD(p_, b + (i).s5), LD(p_, b + (i).s6), LD(p_, b + (i).s7)))
+    const float8 hv = LD8AT(h_in, b00) * t.w00 + LD8AT(h_in, b10) * t.w10
+                    + LD8AT(h_in, b01) * t.w01 + LD8AT(h_in, b11) * t.w11;
+    const float8 cv = LD8AT(c_in, b00) * t.w00 + LD8AT(c_in, b10) * t.w10
+                    + LD8AT(c_in, b01) * t.w01 + LD8AT(c_in, b11) * t.w11;
+#undef LD8AT
+    float hs[8], cs[8];
+    vstore8(hv * keep, 0, hs);
+    vstore8(cv * keep, 0, cs);
+    for (int k = 0; k < nq; ++k) {
+        ST(h_w, b + q0 + k, k < n ? hs[k] : 0.0f);
+        ST(c_w, b + q0 + k, k < n ? cs[k] : 0.0f);
+    }
+}
+
 /** The lighting L = PQ(colour / material) of 8 pixels of a row (NSRD_ENCODE8), into cur's
  *  channels 0-2 and state_new's.
  *  @param[in]  color, albedo  [h,w,3] float32
