@@ -18,21 +18,27 @@ typedef struct {
     int cx0, cx1, cy0, cy1;     /* their clamped addresses: a tap of weight 0 reads a valid pixel */
 } WarpTaps;
 
-static WarpTaps warp_taps(float xs, float ys, int W, int H)
-{
-    WarpTaps t;
-    const int x0 = clss_floori(xs), y0 = clss_floori(ys);
-    const float ax = xs - (float)x0, ay = ys - (float)y0;
-    t.w00 = tap_w(x0, y0, W, H, 1.0f - ax, 1.0f - ay);
-    t.w10 = tap_w(x0 + 1, y0, W, H, ax, 1.0f - ay);
-    t.w01 = tap_w(x0, y0 + 1, W, H, 1.0f - ax, ay);
-    t.w11 = tap_w(x0 + 1, y0 + 1, W, H, ax, ay);
-    t.cx0 = clss_clampi(x0, 0, W - 1);
-    t.cx1 = clss_clampi(x0 + 1, 0, W - 1);
-    t.cy0 = clss_clampi(y0, 0, H - 1);
-    t.cy1 = clss_clampi(y0 + 1, 0, H - 1);
-    return t;
-}
+/* One body for the scalar taps and the float8 ones below: F the coordinate type, I its
+ * integer type, TAPS the result, with their floor, int-to-float, tap weight and clamp. */
+#define WARP_TAPS_FN(NAME, TAPS, F, I, FLOORI, TOF, TAPW, CLAMPI)                 \
+    static TAPS NAME(F xs, F ys, int W, int H)                                    \
+    {                                                                             \
+        TAPS t;                                                                   \
+        const I x0 = FLOORI(xs), y0 = FLOORI(ys);                                 \
+        const F ax = xs - TOF(x0), ay = ys - TOF(y0);                             \
+        t.w00 = TAPW(x0, y0, W, H, 1.0f - ax, 1.0f - ay);                         \
+        t.w10 = TAPW(x0 + 1, y0, W, H, ax, 1.0f - ay);                            \
+        t.w01 = TAPW(x0, y0 + 1, W, H, 1.0f - ax, ay);                            \
+        t.w11 = TAPW(x0 + 1, y0 + 1, W, H, ax, ay);                               \
+        t.cx0 = CLAMPI(x0, 0, W - 1);                                             \
+        t.cx1 = CLAMPI(x0 + 1, 0, W - 1);                                         \
+        t.cy0 = CLAMPI(y0, 0, H - 1);                                             \
+        t.cy1 = CLAMPI(y0 + 1, 0, H - 1);                                         \
+        return t;                                                                 \
+    }
+
+#define CLSS_TOF1(x) ((float)(x))
+WARP_TAPS_FN(warp_taps, WarpTaps, float, int, clss_floori, CLSS_TOF1, tap_w, clss_clampi)
 
 /* The same taps for 8 samples at once (float8 lanes; the frame kernels' 8-pixel work-items):
  * the same operations lane by lane, so each lane equals warp_taps of its sample. */
@@ -67,21 +73,8 @@ static int8 clss_clampi8(int8 v, int lo, int hi)
     return v < lo ? (int8)(lo) : (v > hi ? (int8)(hi) : v);
 }
 
-static WarpTaps8 warp_taps8(float8 xs, float8 ys, int W, int H)
-{
-    WarpTaps8 t;
-    const int8 x0 = clss_floori8(xs), y0 = clss_floori8(ys);
-    const float8 ax = xs - CLSS_CVT8(x0, float8), ay = ys - CLSS_CVT8(y0, float8);
-    t.w00 = tap_w8(x0, y0, W, H, 1.0f - ax, 1.0f - ay);
-    t.w10 = tap_w8(x0 + 1, y0, W, H, ax, 1.0f - ay);
-    t.w01 = tap_w8(x0, y0 + 1, W, H, 1.0f - ax, ay);
-    t.w11 = tap_w8(x0 + 1, y0 + 1, W, H, ax, ay);
-    t.cx0 = clss_clampi8(x0, 0, W - 1);
-    t.cx1 = clss_clampi8(x0 + 1, 0, W - 1);
-    t.cy0 = clss_clampi8(y0, 0, H - 1);
-    t.cy1 = clss_clampi8(y0 + 1, 0, H - 1);
-    return t;
-}
+#define CLSS_TOF8(x) CLSS_CVT8(x, float8)
+WARP_TAPS_FN(warp_taps8, WarpTaps8, float8, int8, clss_floori8, CLSS_TOF8, tap_w8, clss_clampi8)
 
 /* 8 loads of p at the lanes of a long index vector */
 #define CLSS_GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \

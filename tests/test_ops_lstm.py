@@ -34,22 +34,22 @@ def test_the_ten_nodes_fuse_whatever_the_gate_order(order):
     assert tuple(cell.attrs["order"]) == order and len(cell.unfused) == 10
 
 
-def test_a_gate_read_twice_does_not_fuse():
-    x = np.zeros((1, 8, 3, 5), np.float32)
-    m = cell_model(x, 2)
-    # another consumer of sigmoid(f): the Split's outputs are not the cell's alone
-    m.graph.node.append(onnx.helper.make_node("Neg", ["sf"], ["extra"]))
+def _cell_with_reader(tensor):
+    """The cell's graph, with one more reader of `tensor` (a Neg, a graph output)."""
+    m = cell_model(np.zeros((1, 8, 3, 5), np.float32), 2)
+    m.graph.node.append(onnx.helper.make_node("Neg", [tensor], ["extra"]))
     m.graph.output.append(onnx.helper.make_tensor_value_info("extra", onnx.TensorProto.FLOAT, None))
-    g = _graph(m)
+    return _graph(m)
+
+
+def test_a_gate_read_twice_does_not_fuse():
+    # another reader of sigmoid(f): the gates are not the cell's alone
+    g = _cell_with_reader("sf")
     assert fuse_lstm_cell(g) == 0 and "clss.LSTMCell" not in [n.op for n in g.nodes]
 
 
 def test_c_out_may_have_other_readers():
-    x = np.zeros((1, 8, 3, 5), np.float32)
-    m = cell_model(x, 2)
-    m.graph.node.append(onnx.helper.make_node("Neg", ["c_out"], ["extra"]))
-    m.graph.output.append(onnx.helper.make_tensor_value_info("extra", onnx.TensorProto.FLOAT, None))
-    g = _graph(m)
+    g = _cell_with_reader("c_out")
     assert fuse_lstm_cell(g) == 1
     assert [n.op for n in g.nodes] == ["clss.LSTMCell", "Neg"]
 

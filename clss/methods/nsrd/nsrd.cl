@@ -59,6 +59,16 @@ static float fin(float v, float fill)
     return clss_isfinite(v) ? v : fill;
 }
 
+/* nsrd_prepare's arguments (and nsrd_prepare8's: the host binds them alike) */
+#define NSRD_PREPARE_ARGS                                                                     \
+    __global const float *color, __global const float *depth, __global const float *motion,   \
+    __global const float *albedo, __global const float *normal, __global const float *state_old, \
+    __global float *state_new, __global T *cur, __global T *warp, __global float *mv, int w,   \
+    int h, int wp, int hp, int depth_inverted, float msx, float msy, float inv_exposure,       \
+    float pq_scale, float keep, int demod, int use_mask, float eps, float tol, float dfloor,   \
+    __global const T *h_in, __global const T *c_in, __global T *h_w, __global T *c_w, int hid, \
+    int warp_state
+
 /** @param[in]  color, depth, motion  the caller's frame (image layout, float32)
  *  @param[in]  albedo, normal        [h,w,3] float32 G-buffers
  *  @param[in]  state_old             [8,h,w] float32 the previous frame's state
@@ -69,15 +79,7 @@ static float fin(float v, float fill)
  *  keep: 0 on a reset, else 1; demod / use_mask: the config's (ablations); tol, floor
  *  and eps the constants of networks.py.
  *  NDRange: (wp, hp). */
-__kernel void nsrd_prepare(__global const float *color, __global const float *depth,
-                           __global const float *motion, __global const float *albedo,
-                           __global const float *normal, __global const float *state_old,
-                           __global float *state_new, __global T *cur, __global T *warp,
-                           __global float *mv, int w, int h, int wp, int hp, int depth_inverted,
-                           float msx, float msy, float inv_exposure, float pq_scale, float keep,
-                           int demod, int use_mask, float eps, float tol, float dfloor,
-                           __global const T *h_in, __global const T *c_in, __global T *h_w,
-                           __global T *c_w, int hid, int warp_state)
+__kernel void nsrd_prepare(NSRD_PREPARE_ARGS)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= wp || y >= hp) return;
@@ -172,15 +174,7 @@ static PQ_ENCODE(float8, pq_encode8, powp8)
  *  same operations on float8 lanes (warp_taps8), bit-identical to nsrd_prepare. Lanes past
  *  the render width compute on its last pixel and store the padding's zeros. Arguments as
  *  nsrd_prepare. NDRange: (ceil(wp / 8), hp). */
-__kernel void nsrd_prepare8(__global const float *color, __global const float *depth,
-                            __global const float *motion, __global const float *albedo,
-                            __global const float *normal, __global const float *state_old,
-                            __global float *state_new, __global T *cur, __global T *warp,
-                            __global float *mv, int w, int h, int wp, int hp, int depth_inverted,
-                            float msx, float msy, float inv_exposure, float pq_scale, float keep,
-                            int demod, int use_mask, float eps, float tol, float dfloor,
-                            __global const T *h_in, __global const T *c_in, __global T *h_w,
-                            __global T *c_w, int hid, int warp_state)
+__kernel void nsrd_prepare8(NSRD_PREPARE_ARGS)
 {
     const int x0 = get_global_id(0) * 8, y = get_global_id(1);
     if (x0 >= wp || y >= hp) return;
@@ -410,6 +404,25 @@ __kernel void nsrd_prev(__global const float *hist, __global const float *mv, __
     }
 }
 
+/* The two render-resolution taps along x of 8 output pixels and the weight of the second:
+ * the position u (render pixels) clamped to [0, n - 1], its floor, the next index (clamped)
+ * and the fraction, as the per-pixel kernels compute them (clss_clampf, clss_floori,
+ * clss_mini) */
+typedef struct {
+    int8 i0, i1;
+    float8 f;
+} RenderAxis8;
+
+static RenderAxis8 render_axis8(float8 u, int n)
+{
+    RenderAxis8 a;
+    u = u > 0.0f ? (u < (float)(n - 1) ? u : (float8)((float)(n - 1))) : (float8)(0.0f);
+    a.i0 = clss_floori8(u);
+    a.i1 = a.i0 + 1 < n - 1 ? a.i0 + 1 : (int8)(n - 1);
+    a.f = u - CLSS_CVT8(a.i0, float8);
+    return a;
+}
+
 /** nsrd_prev for 8 output pixels of a row (NSRD_ENCODE8): the same operations on float8
  *  lanes (warp_taps8), bit-identical to nsrd_prev. Arguments as nsrd_prev.
  *  NDRange: (ceil(W / 8), H). */
@@ -422,15 +435,13 @@ __kernel void nsrd_prev8(__global const float *hist, __global const float *mv, _
     const int n = min(8, W - X0);
     const float fs = (float)s;
     const float8 Xf = (float8)((float)X0) + (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
-    float8 u = (Xf + 0.5f) / fs - 0.5f;
+    const RenderAxis8 ax = render_axis8((Xf + 0.5f) / fs - 0.5f, w);
+    const int8 u0 = ax.i0, u1 = ax.i1;
+    const float8 fu = ax.f;
     float v = ((float)Y + 0.5f) / fs - 0.5f;
-    u = u > 0.0f ? (u < (float)(w - 1) ? u : (float8)((float)(w - 1))) : (float8)(0.0f);
     v = clss_clampf(v, 0.0f, (float)(h - 1));
-    const int8 u0 = clss_floori8(u);
     const int v0 = clss_floori(v);
-    const int8 u1 = u0 + 1 < w - 1 ? u0 + 1 : (int8)(w - 1);
     const int v1 = clss_mini(v0 + 1, h - 1);
-    const float8 fu = u - CLSS_CVT8(u0, float8);
     const float fv = v - (float)v0;
     const int plane = h * w;
     float8 m[2];
@@ -542,14 +553,12 @@ __kernel void nsrd_finish8(__global const T *y, __global const float *state,
     const float fs = (float)s;
     const int8 Xi = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
     const float8 Xf = CLSS_CVT8(Xi, float8);
-    float8 bu = (Xf + 0.5f) / fs - 0.5f - jx;
-    bu = bu > 0.0f ? (bu < (float)(w - 1) ? bu : (float8)((float)(w - 1))) : (float8)(0.0f);
+    const RenderAxis8 ax = render_axis8((Xf + 0.5f) / fs - 0.5f - jx, w);
+    const int8 b0 = ax.i0, b1 = ax.i1;
+    const float8 fb = ax.f;
     const float bv = clss_clampf(((float)Y + 0.5f) / fs - 0.5f - jy, 0.0f, (float)(h - 1));
-    const int8 b0 = clss_floori8(bu);
     const int c0 = clss_floori(bv);
-    const int8 b1 = b0 + 1 < w - 1 ? b0 + 1 : (int8)(w - 1);
     const int c1 = clss_mini(c0 + 1, h - 1);
-    const float8 fb = bu - CLSS_CVT8(b0, float8);
     const float fc = bv - (float)c0;
     const long np_ = (long)hp * wp, P = (long)H * W;
     /* lanes past the row's end repeat its last pixel (computed, not stored) */
