@@ -46,6 +46,22 @@ static A8 as_stored8(A8 v)
 }
 #endif
 
+/* Element offsets of gate channel k*C + ch at pixel p0 (GATE_AT) and between pixels
+ * (GATE_STEP): one lane of consecutive pixel blocks when blocked, a plane row if not. */
+#if GATE_BLOCK
+#define GATE_AT(k) ((((long)n * CB + ((k) * C + ch) / GATE_BLOCK) * HW + p0) * GATE_BLOCK \
+                    + ((k) * C + ch) % GATE_BLOCK)
+#define GATE_STEP GATE_BLOCK
+#define GATE8(a) ((A8)(FLD(gates, (a)), FLD(gates, (a) + GATE_STEP), FLD(gates, (a) + 2 * GATE_STEP), \
+                       FLD(gates, (a) + 3 * GATE_STEP), FLD(gates, (a) + 4 * GATE_STEP),             \
+                       FLD(gates, (a) + 5 * GATE_STEP), FLD(gates, (a) + 6 * GATE_STEP),             \
+                       FLD(gates, (a) + 7 * GATE_STEP)))
+#else
+#define GATE_AT(k) (((long)n * 4 * C + (k) * C + ch) * HW + p0)
+#define GATE_STEP 1
+#define GATE8(a) FLD8(gates, (a))
+#endif
+
 /* NDRange: (ceil(H * W / CELL_PX), N). A work-item takes every channel of CELL_PX pixels. */
 /** @param[in]  gates  [N, 4C, H, W] gate pre-activations, or blocked [N, CB, H, W, GATE_BLOCK]
  *  @param[in]  c      [N, C, H, W] the previous cell state
@@ -59,6 +75,7 @@ static A8 as_stored8(A8 v)
  *  @param[in]  kg     ... g
  *  @param[in]  CB     blocks of the gates (blocked layout; unused for NCHW)
  *  @note -DGATE_BLOCK=0|V: NCHW gates | channel-blocked gates in blocks of V
+ *  @note -DCELL_PX: pixels per work-item (a multiple of 8)
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h)
  */
 __kernel void lstm_cell(__global const T *gates, __global const T *c, __global T *h_out,
@@ -69,71 +86,55 @@ __kernel void lstm_cell(__global const T *gates, __global const T *c, __global T
     /* every channel of CELL_PX pixels in one work-item, channel by channel: each channel
      * streams through its planes of c, h' and c' (8 pixels a step), and the blocked gates
      * of these pixels (CELL_PX * 4 * 64 bytes) stay in L1 from one channel to the next */
-    for (int ch = 0; ch < C; ++ch)
-    for (int p0 = q0; p0 < min(q0 + CELL_PX, HW); p0 += 8) {
-    const int np = min(8, HW - p0);
-    A8 vi, vf, vo, vg;
-#if GATE_BLOCK
-    /* gate channel k*C + ch of pixels p0.. : one lane of 8 consecutive pixel blocks */
-#define GATE_AT(k) ((((long)n * CB + ((k) * C + ch) / GATE_BLOCK) * HW + p0) * GATE_BLOCK \
-                    + ((k) * C + ch) % GATE_BLOCK)
-#define GATE_STEP GATE_BLOCK
-#else
-#define GATE_AT(k) (((long)n * 4 * C + (k) * C + ch) * HW + p0)
-#define GATE_STEP 1
-#endif
-    const long ai = GATE_AT(ki), af = GATE_AT(kf), ao = GATE_AT(ko), ag = GATE_AT(kg);
-    if (np == 8) {
-#if GATE_BLOCK
-#define GATHER8(a) ((A8)(FLD(gates, (a)), FLD(gates, (a) + GATE_STEP), FLD(gates, (a) + 2 * GATE_STEP), \
-                         FLD(gates, (a) + 3 * GATE_STEP), FLD(gates, (a) + 4 * GATE_STEP),             \
-                         FLD(gates, (a) + 5 * GATE_STEP), FLD(gates, (a) + 6 * GATE_STEP),             \
-                         FLD(gates, (a) + 7 * GATE_STEP)))
-        vi = GATHER8(ai); vf = GATHER8(af); vo = GATHER8(ao); vg = GATHER8(ag);
-#else
-        vi = FLD8(gates, ai); vf = FLD8(gates, af); vo = FLD8(gates, ao); vg = FLD8(gates, ag);
-#endif
-    } else {
-        A t[4][8];
-        for (int j = 0; j < 8; ++j) {
-            const long d = (long)min(j, np - 1) * GATE_STEP;   /* lanes past the end repeat the last */
-            t[0][j] = FLD(gates, ai + d);
-            t[1][j] = FLD(gates, af + d);
-            t[2][j] = FLD(gates, ao + d);
-            t[3][j] = FLD(gates, ag + d);
+    for (int ch = 0; ch < C; ++ch) {
+        for (int p0 = q0; p0 < min(q0 + CELL_PX, HW); p0 += 8) {
+            const int np = min(8, HW - p0);
+            const long ai = GATE_AT(ki), af = GATE_AT(kf), ao = GATE_AT(ko), ag = GATE_AT(kg);
+            const long o = ((long)n * C + ch) * HW + p0;
+            A8 vi, vf, vo, vg, cv;
+            if (np == 8) {
+                vi = GATE8(ai);
+                vf = GATE8(af);
+                vo = GATE8(ao);
+                vg = GATE8(ag);
+                cv = FLD8(c, o);
+            } else {
+                A t[5][8];      /* lanes past the end repeat the last pixel (not stored) */
+                for (int j = 0; j < 8; ++j) {
+                    const int e = min(j, np - 1);
+                    t[0][j] = FLD(gates, ai + (long)e * GATE_STEP);
+                    t[1][j] = FLD(gates, af + (long)e * GATE_STEP);
+                    t[2][j] = FLD(gates, ao + (long)e * GATE_STEP);
+                    t[3][j] = FLD(gates, ag + (long)e * GATE_STEP);
+                    t[4][j] = FLD(c, o + e);
+                }
+                vi = vload8(0, t[0]);
+                vf = vload8(0, t[1]);
+                vo = vload8(0, t[2]);
+                vg = vload8(0, t[3]);
+                cv = vload8(0, t[4]);
+            }
+            const A8 si = as_stored8(SIGMOID8(vi));
+            const A8 sf = as_stored8(SIGMOID8(vf));
+            const A8 so = as_stored8(SIGMOID8(vo));
+            const A8 tg = as_stored8(tanh(vg));
+            const A8 m1 = as_stored8(sf * cv);
+            const A8 m2 = as_stored8(si * tg);
+            const A8 cn = as_stored8(m1 + m2);
+            const A8 tc = as_stored8(tanh(cn));
+            const A8 hn = so * tc;
+            if (np == 8) {
+                FST8(c_out, o, cn);
+                FST8(h_out, o, hn);
+            } else {
+                A cs[8], hs[8];
+                vstore8(cn, 0, cs);
+                vstore8(hn, 0, hs);
+                for (int j = 0; j < np; ++j) {
+                    FST(c_out, o + j, cs[j]);
+                    FST(h_out, o + j, hs[j]);
+                }
+            }
         }
-        vi = vload8(0, t[0]); vf = vload8(0, t[1]); vo = vload8(0, t[2]); vg = vload8(0, t[3]);
-    }
-    const long o = ((long)n * C + ch) * HW + p0;
-    A8 cv;
-    if (np == 8) {
-        cv = FLD8(c, o);
-    } else {
-        A t[8];
-        for (int j = 0; j < 8; ++j)
-            t[j] = FLD(c, o + min(j, np - 1));
-        cv = vload8(0, t);
-    }
-    const A8 si = as_stored8(SIGMOID8(vi));
-    const A8 sf = as_stored8(SIGMOID8(vf));
-    const A8 so = as_stored8(SIGMOID8(vo));
-    const A8 tg = as_stored8(tanh(vg));
-    const A8 m1 = as_stored8(sf * cv);
-    const A8 m2 = as_stored8(si * tg);
-    const A8 cn = as_stored8(m1 + m2);
-    const A8 tc = as_stored8(tanh(cn));
-    const A8 hn = so * tc;
-    if (np == 8) {
-        FST8(c_out, o, cn);
-        FST8(h_out, o, hn);
-    } else {
-        A cs[8], hs[8];
-        vstore8(cn, 0, cs);
-        vstore8(hn, 0, hs);
-        for (int j = 0; j < np; ++j) {
-            FST(c_out, o + j, cs[j]);
-            FST(h_out, o + j, hs[j]);
-        }
-    }
     }
 }
