@@ -78,9 +78,7 @@ class NsrdFrameStep:
         defs = {**selfcheck.defines(dev, prec, INLINE_MATH), **selfcheck.defines(dev, prec, ENCODE8)}
         k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **defs)
              for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prepare8", "nsrd_warp_state8",
-                       "nsrd_prev", "nsrd_prev8",
-                       "nsrd_finish",
-                       "nsrd_finish8", "nsrd_decode")}
+                       "nsrd_prev", "nsrd_prev8", "nsrd_finish", "nsrd_finish8", "nsrd_decode")}
         self.learned = bool(nets.learned_remod(cfg))
         na = s * s * hp * wp
         self.alpha = e((na if self.learned else 1,), dtype=f32)      # nsrd_alpha's output
@@ -210,7 +208,10 @@ class NsrdFrameStep:
 INLINE_MATH = "nsrd.inline_math"
 
 
-def _inline_math_check(dev: Device, prec: str) -> list[np.ndarray]:
+def _two_frames_check(dev: Device, prec: str) -> list[np.ndarray]:
+    """The frame kernels' fast paths' check: two frames (the second warping the first's
+    state) at 2x with the learned re-modulation and 3x with the blur, a NaN and an infinity
+    in the inputs; the output, the state and the history of each."""
     from ...ops.base import rng
     g = rng("nsrd inline math selfcheck")
     outs = []
@@ -233,8 +234,9 @@ def _inline_math_check(dev: Device, prec: str) -> list[np.ndarray]:
 # The lighting's PQ encode on float8 in a kernel of its own (nsrd_encode, -DNSRD_ENCODE8=1),
 # not per pixel in nsrd_prepare, and the learned re-modulation's sigmoid likewise (nsrd_alpha),
 # not per output pixel in nsrd_finish: PoCL calls its scalar exp, exp2 and log2 out of line.
-# With it, the output-resolution kernels take 8 pixels a work-item on float8 too
-# (nsrd_prev8, and nsrd_finish8 with nsrd_decode folded in), bit-identical to theirs. Checked
+# With it, the other frame kernels take 8 pixels a work-item on float8 too (nsrd_prepare8
+# with nsrd_warp_state8, nsrd_prev8, and nsrd_finish8 with nsrd_decode folded in),
+# bit-identical to the per-pixel ones (tests/test_method_nsrd.py). Checked
 # against the per-pixel encode on the same two frames, within the frame step's tolerance
 # (the float8 and scalar exp2 / log2 need not round alike).
 ENCODE8 = "nsrd.encode8"
@@ -246,14 +248,15 @@ def _pocl(dev) -> bool:
 
 
 selfcheck.register(selfcheck.FastPath(
-    INLINE_MATH, KERNEL, {"CLSS_INLINE_MATH": 1}, {"CLSS_INLINE_MATH": 0}, check=_inline_math_check,
+    INLINE_MATH, KERNEL, {"CLSS_INLINE_MATH": 1}, {"CLSS_INLINE_MATH": 0}, check=_two_frames_check,
     tolerance=lambda prec: EXACT if prec != "fp16-native" else DEFAULT_TOL[prec],
     what="floor, clamp, min, max and isfinite in the frame kernels as plain arithmetic / the builtins",
     applies=_pocl))
 
 selfcheck.register(selfcheck.FastPath(
-    ENCODE8, KERNEL, {"NSRD_ENCODE8": 1}, {"NSRD_ENCODE8": 0}, check=_inline_math_check,
+    ENCODE8, KERNEL, {"NSRD_ENCODE8": 1}, {"NSRD_ENCODE8": 0}, check=_two_frames_check,
     tolerance=DEFAULT_TOL.__getitem__,
-    what="the lighting's PQ encode, the re-modulation's sigmoid and the output-resolution kernels on "
-         "float8, 8 pixels a work-item (nsrd_encode, nsrd_alpha, nsrd_prev8, nsrd_finish8) / per pixel",
+    what="the lighting's PQ encode, the re-modulation's sigmoid and the other frame kernels on float8, "
+         "8 pixels a work-item (nsrd_encode, nsrd_alpha, nsrd_prepare8, nsrd_warp_state8, nsrd_prev8, "
+         "nsrd_finish8) / per pixel",
     applies=_pocl))
