@@ -116,6 +116,10 @@ class NsrdFrameStep:
             "decode": dev.prepare(k["nsrd_decode"], (-(-H * W // 8),), [
                 self.hist.data, self.out.data, i32(H * W), f(PQ_PEAK_NITS / self.nits)]),
         }
+        # only the launches this frame step runs: the float8 path's, or the per-pixel one's
+        # (whose PQ decode the float8 finish folds in)
+        for name in (("decode",) if self.encode8 else ("encode", "alpha", "warp_state")):
+            del self.L[name]
         self.events: list[tuple[str, cl.Event]] = []
 
     @property
@@ -149,12 +153,14 @@ class NsrdFrameStep:
             fin.bind(idx, v)
         if self.encode8:
             fin.bind(18, f(PQ_PEAK_NITS / self.nits * exposure))
-        enc = L["encode"]
-        for idx, v in ((0, color.data), (1, albedo.data), (3, new.data), (8, f(1.0 / exposure))):
-            enc.bind(idx, v)
-        dec = L["decode"]
-        dec.bind(1, out.data)
-        dec.bind(3, f(PQ_PEAK_NITS / self.nits * exposure))
+        if self.encode8:
+            enc = L["encode"]
+            for idx, v in ((0, color.data), (1, albedo.data), (3, new.data), (8, f(1.0 / exposure))):
+                enc.bind(idx, v)
+        else:
+            dec = L["decode"]
+            dec.bind(1, out.data)
+            dec.bind(3, f(PQ_PEAK_NITS / self.nits * exposure))
         (h_in, c_in), (h_out, c_out) = self.hc
         ev = []
         if reset:
