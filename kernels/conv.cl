@@ -534,6 +534,48 @@ __kernel void to_blocked_at(__global const TB *x, __global TB *xb, int Cx, int c
     }
 }
 
+/* to_blocked_at of x's channels times one channel of s, a per-pixel scale map:
+ * Mul(x[c0:c0+count], s[sc]) written straight into the blocked concat (clss/model/layout.py
+ * folds such a Mul, broadcast over channels, into clss.ConcatBlocked; NSRR's reweighted
+ * history). The product is the elementwise Mul's: a * b in the arithmetic type, stored
+ * with round-to-nearest-even, so the result is the unfused nodes' bit for bit.
+ * NDRange: (ceil(W / 16), H, N * nblk).
+ * @param[in]  x      [N, Cx, H, W] concat input (NCHW)
+ * @param[in]  s      [N, Cs, H, W] the scale maps (NCHW)
+ * @param[out] xb     [N, CBd, H, W, B] blocked output
+ * @param[in]  Cs     channels of s
+ * @param[in]  sc     the channel of s that scales every channel taken from x
+ * (the others as to_blocked_at's) */
+__kernel void to_blocked_scaled_at(__global const T *x, __global const T *s, __global T *xb, int Cx, int c0,
+                                   int count, int H, int W, int CBd, int B, int d0, int Ctot, int nblk,
+                                   int Cs, int sc)
+{
+    const int ix0 = get_global_id(0) * 16, iy = get_global_id(1), z = get_global_id(2);
+    if (ix0 >= W || iy >= H)
+        return;
+    const int n = z / nblk, cb = d0 / B + z % nblk;
+    const int np = IMIN(16, W - ix0);
+    const long hw = (long)H * W;
+    __global T *dst = xb + ((((long)n * CBd + cb) * H + iy) * W + ix0) * B;
+    const __global T *m = s + ((long)n * Cs + sc) * hw + (long)iy * W + ix0;
+    A mv[16];
+    for (int p = 0; p < np; ++p)
+        mv[p] = LD(m, p);
+    for (int j = 0; j < B; ++j) {
+        const int dc = cb * B + j;
+        if (dc >= Ctot) {
+            for (int p = 0; p < np; ++p)
+                ST(dst, p * B + j, A_ZERO);
+            continue;
+        }
+        if (dc < d0 || dc >= d0 + count)
+            continue;
+        const __global T *v = x + ((long)n * Cx + c0 + dc - d0) * hw + (long)iy * W + ix0;
+        for (int p = 0; p < np; ++p)
+            ST(dst, p * B + j, LD(v, p) * mv[p]);
+    }
+}
+
 /* Weights [Cout, Cin, kk] -> packed [ncb][Cb][kk][icv][ocb] in the arithmetic
  * type A, zero past Cout and Cin. NDRange: (ocb, icv, ncb * Cb * kk). */
 /** @param[in]  w     [Cout, Cin, KH, KW] weights (kk = KH * KW taps)

@@ -131,3 +131,37 @@ def test_paper_output_without_residual_matches_its_twin(dev):
         a = up.step(f.color, f.depth, f.motion, f.jitter)
         b = twin.step(f.color, f.depth, f.motion, f.jitter)
         assert np.abs(a - b).max() <= 1e-4 * np.abs(b).max() + 1e-4
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+@pytest.mark.parametrize("scale, kw", [(2.0, {}), (4.0, {"history": 2}), (1.5, {"reset_fill": "duplicate"})])
+def test_fast_reprojection_is_the_reference_bit_for_bit(any_dev, prec, scale, kw, monkeypatch):
+    """nsrr_reproject on 8-pixel runs in plane groups (with nsrr_warp_coords; the fast path
+    nsrr.reproject_vectors) against one pixel per work-item: every stack plane and the
+    base, over a reset (both fills), a shortened history, noisy motion (gathered taps), a
+    uniform pan (window loads) and a pan off the edge, at an odd width that leaves a
+    partial run and padding columns."""
+    from clss import selfcheck
+    from clss.methods.nsrr import frame as fr
+    cfg = nets.make_config("fast")
+    w = nets.init_weights(cfg, 2)
+    g = np.random.default_rng(int(scale * 10))
+    h, wd = RENDER
+    inputs = [[any_dev.to_device(np.ascontiguousarray(a, np.float32)) for a in
+               (g.uniform(0, 4, (h, wd, 3)), g.uniform(0.1, 0.9, (h, wd)), mv)]
+              for mv in fr.reproject_motions(g, (h, wd, 2))]
+    defines = selfcheck.defines
+    results = []
+    for variant in (fr.REPROJECT_FAST, {"VEC": 1}):
+        monkeypatch.setattr(selfcheck, "defines", lambda d, p, n, v=variant: dict(v) if n == fr.REPROJECT_VECTORS
+                            else defines(d, p, n))
+        fs = fr.NsrrFrameStep(any_dev, prec, RENDER, scale, cfg, w, **kw)
+        assert ("coords" in fs.L) == (variant["VEC"] == 8)
+        outs = []
+        for t, f in enumerate(inputs + inputs[:1]):
+            out, ev = fs.run(*f, ((0.25, -0.375), (-0.125, 0.25))[t % 2], t in (0, 4))
+            ev.wait()
+            outs += [any_dev.to_host(fs.stacks[fs.cur]), any_dev.to_host(fs.base), any_dev.to_host(out)]
+        results.append(outs)
+    for i, (a, b) in enumerate(zip(*results)):
+        assert np.array_equal(a.view(np.uint8), b.view(np.uint8)), f"array {i}"

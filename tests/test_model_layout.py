@@ -226,3 +226,82 @@ def test_concat_into_blocked_against_onnxruntime(any_dev, prec):
     for name, ref in zip(("ya", "yb"), want):
         c = compare(got[name], ref, DEFAULT_TOL[prec])
         assert c.passed, f"{name}: {c}"
+
+
+def _scaled_gather_net(h=9, w=23):
+    """NSRR's reweighted input stack in small: slices of x, each times a one-channel map
+    (a Slice of r, or a whole [1,1,H,W] input, on either side of the Mul), concatenated
+    and read by a blocked conv. One Mul's output is also a graph output: it stays a node."""
+    g = np.random.default_rng(11)
+    c = lambda *v: np.array(v, np.int64)
+    inits = [numpy_helper.from_array(a, n) for n, a in (
+        ("wa", _w(g, 16, 25)), ("ax", c(1)), ("s0", c(0)), ("e0", c(4)), ("s1", c(4)), ("e1", c(16)),
+        ("s2", c(16)), ("e2", c(21)), ("r0", c(1)), ("r1", c(2)))]
+    cv = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1])
+    nodes = [helper.make_node("Slice", ["x", "s0", "e0", "ax"], ["x0"]),
+             helper.make_node("Slice", ["x", "s1", "e1", "ax"], ["x1"]),
+             helper.make_node("Slice", ["x", "s2", "e2", "ax"], ["x2"]),
+             helper.make_node("Slice", ["r", "r0", "r1", "ax"], ["rs"]),
+             helper.make_node("Mul", ["x1", "rs"], ["m1"]),
+             helper.make_node("Mul", ["m", "x2"], ["m2"]),
+             helper.make_node("Mul", ["x0", "m"], ["m0"]),
+             helper.make_node("Concat", ["x0", "m1", "m2", "m0"], ["cat"], axis=1),
+             helper.make_node("Conv", ["cat", "wa"], ["ya"], **cv)]
+    vi = lambda n, ch: helper.make_tensor_value_info(n, TensorProto.FLOAT, [1, ch, h, w])
+    m = helper.make_model(helper.make_graph(nodes, "scaled", [vi("x", 30), vi("r", 3), vi("m", 1)],
+                                            [vi("ya", 16), vi("m0", 4)], inits),
+                          opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    return m
+
+
+def test_concat_into_blocked_computes_channel_broadcast_muls():
+    g = _graph(_scaled_gather_net())
+    layout.apply(g, 16)
+    ops = [n.op for n in g.nodes]
+    # x0 is read twice (the concat and m0's Mul): its Slice stays; m0 is a graph output
+    assert ops.count("Mul") == 1 and ops.count("Slice") == 1 and ops.count("clss.ConcatBlocked") == 1, ops
+    cat = next(n for n in g.nodes if n.op == "clss.ConcatBlocked")
+    assert cat.inputs == ["x0", "x", "x", "m0", "r", "m"]
+    assert cat.attrs["ranges"] == [(0, 4), (4, 12), (16, 5), (0, 4)]
+    assert cat.attrs["scales"] == [None, (0, 1), (1, 0), None]
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+def test_scaled_concat_is_the_mul_bit_for_bit(any_dev, prec):
+    """to_blocked_scaled_at against Mul then the blocked layout in numpy: the product
+    rounded once to the storage type, odd width (a partial 16-pixel run), a block (7) that
+    splits the inputs, N = 2, and the last block's padding channels zero."""
+    g = np.random.default_rng(3)
+    n, h, w = 2, 5, 19
+    x = g.standard_normal((n, 9, h, w)).astype(np.float32)
+    s = g.uniform(0, 10, (n, 3, h, w)).astype(np.float32)
+    st = np.float16 if prec == "fp16" else np.float32
+    xs, ss = x.astype(st), s.astype(st)
+    xd, sd = any_dev.to_device(x, prec), any_dev.to_device(s, prec)
+    got = any_dev.to_host(conv.concat_to_blocked(any_dev, prec, [xd, xd], 7, [(1, 5), (6, 3)],
+                                                 [(sd, 2), None]))
+    cat = np.concatenate([(xs[:, 1:6].astype(np.float32) * ss[:, 2:3].astype(np.float32)).astype(st),
+                          xs[:, 6:9]], axis=1)
+    want = np.zeros((n, 2 * 7, h, w), st)
+    want[:, :8] = cat
+    want = np.ascontiguousarray(want.reshape(n, 2, 7, h, w).transpose(0, 1, 3, 4, 2))
+    assert got.shape == want.shape
+    assert np.array_equal(got.astype(st).view(np.uint8), want.view(np.uint8))
+
+
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+def test_scaled_concat_against_onnxruntime(any_dev, prec):
+    _needs_blocked(any_dev, prec)
+    model = _scaled_gather_net()
+    g = np.random.default_rng(4)
+    feeds = {"x": g.standard_normal((1, 30, 9, 23)).astype(np.float32),
+             "r": g.uniform(0, 10, (1, 3, 9, 23)).astype(np.float32),
+             "m": g.uniform(0, 10, (1, 1, 9, 23)).astype(np.float32)}
+    m = clss.Model(model, device=any_dev, precision=prec)
+    assert "cat" in m.graph.blocked and any(n.op == "clss.ConcatBlocked" for n in m.graph.nodes)
+    got = m.run(feeds)
+    want = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, feeds)
+    for name, ref in zip(("ya", "m0"), want):
+        c = compare(got[name], ref, DEFAULT_TOL[prec])
+        assert c.passed, f"{name}: {c}"

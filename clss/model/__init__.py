@@ -287,7 +287,8 @@ def _blocked_layout_check(dev, prec: str) -> list:
     from ..ops.base import rng
     m = Model(layout.check_graph(), device=dev, precision=prec)
     x = rng("blocked layout selfcheck input").standard_normal((1, 9, 6, 22)).astype(np.float32)
-    return [m.run({"x": x})["y"]]
+    out = m.run({"x": x})
+    return [out["y"], out["y2"]]
 
 
 def _register_blocked_layout():
@@ -297,7 +298,8 @@ def _register_blocked_layout():
         "model.blocked_layout", "conv", {"OUT_BLOCKED": 1}, {"OUT_BLOCKED": 0}, check=_blocked_layout_check,
         tolerance=DEFAULT_TOL.__getitem__,
         what="chains of blocked convs, 2x2 max pools, nearest resizes and channel concats keep the "
-             "channel-blocked layout between layers (clss/model/layout.py) / a layout transform per conv",
+             "channel-blocked layout between layers, and concats of NCHW channel ranges (times a "
+             "one-channel map) write it directly (clss/model/layout.py) / a layout transform per conv",
         applies=lambda dev: dev.is_cpu))
 
 

@@ -88,10 +88,16 @@ def _conv(dev, prec, attrs, inputs):
 
 @internal_op("clss.ConcatBlocked")
 def _concat_blocked(dev, prec, attrs, inputs):
-    """A channel concat of NCHW tensors (or channel ranges of them: absorbed Slices)
-    written in the blocked layout for the blocked convs it feeds (clss/model/layout.py)."""
+    """A channel concat of NCHW tensors (or channel ranges of them: absorbed Slices; or
+    such a tensor times a one-channel map: an absorbed Mul) written in the blocked layout
+    for the blocked convs it feeds (clss/model/layout.py). Its inputs: one per range,
+    then the scale maps that attrs["scales"] index."""
     conv = _family("conv")
-    return [conv.concat_to_blocked(dev, prec, list(inputs), attrs["block"], attrs["ranges"])]
+    ranges = attrs["ranges"]
+    xs, extra = list(inputs[:len(ranges)]), list(inputs[len(ranges):])
+    # absorbed Muls: (index into the inputs after the data ones, channel) per data input
+    scales = [None if sc is None else (extra[sc[0]], sc[1]) for sc in attrs.get("scales", [None] * len(xs))]
+    return [conv.concat_to_blocked(dev, prec, xs, attrs["block"], ranges, scales)]
 
 
 @internal_op("clss.LSTMCell")

@@ -149,6 +149,25 @@ def _channel_range(g: Graph, n: Node):
     return n.inputs[0], sel[1][0], sel[1][2]
 
 
+def _scaled(g: Graph, j, out_shape) -> tuple | None:
+    """(x, m) where node j is Mul(x, m) (either order) of a 4-D float x by a one-channel
+    map m of x's N, H and W, broadcast over x's channels (NSRR's reweighted history), so
+    that a clss.ConcatBlocked can write x * m itself (to_blocked_scaled_at); else None."""
+    if j is None or g.nodes[j].op != "Mul" or len(g.nodes[j].inputs) != 2:
+        return None
+    a, b = g.nodes[j].inputs
+    sa, sb = g.shapes.get(a), g.shapes.get(b)
+    if sa is None or sb is None or len(sa) != 4 or len(sb) != 4 or a in g.consts or b in g.consts:
+        return None
+    if any(g.dtypes.get(t, np.dtype("f4")) != g.dtypes.get(g.nodes[j].outputs[0], np.dtype("f4")) for t in (a, b)):
+        return None
+    for x, m, sx, sm in ((a, b, sa, sb), (b, a, sb, sa)):
+        if sm[1] == 1 and sm[0] == sx[0] and tuple(sm[2:]) == tuple(sx[2:]) and \
+                tuple(sx[2:]) == tuple(out_shape[2:4]) and sx[0] == out_shape[0]:
+            return x, m
+    return None
+
+
 def _gathers(g: Graph, blocked: dict, block: int) -> list:
     """Concats of NCHW tensors whose output only blocked convs read: (node index, output
     blocked shape). They write the blocked layout directly (clss.ConcatBlocked), in the
@@ -172,8 +191,9 @@ def apply(g: Graph, block: int) -> int:
     """Mark g's blocked tensors (Graph.blocked) and tell their producers: convs write
     the blocked layout (attrs blocked_out), concats join along the block axis, concats
     of NCHW tensors that feed blocked convs become clss.ConcatBlocked (reading the
-    channel ranges of the Slices that only they read in place). Returns how many
-    tensors are blocked."""
+    channel ranges of the Slices that only they read in place, and computing the Muls
+    by a one-channel map that only they read: _scaled). Returns how many tensors are
+    blocked."""
     g.blocked = blocked_tensors(g, block)
     for n in g.nodes:
         if n.outputs and n.outputs[0] in g.blocked:
@@ -186,24 +206,51 @@ def apply(g: Graph, block: int) -> int:
     uses = g.consumers()
     prod = g.producer()
     dropped = set()
+
+    def only_here(t):       # a tensor that one node reads and the graph does not return
+        return len(uses.get(t, ())) == 1 and t not in g.outputs
+
+    def source(t):
+        """(tensor, first channel, count, absorbed node or None) that t reads: a Slice's
+        channel range read in place where only the consumer at hand reads the Slice."""
+        j = prod.get(t)
+        r = _channel_range(g, g.nodes[j]) if j is not None else None
+        if r is not None and only_here(t):
+            return r[0], r[1], r[2], j
+        return t, 0, int(g.shapes[t][1]), None
+
     for i, shape in _gathers(g, g.blocked, block):
         n = g.nodes[i]
-        ins, ranges, sources = [], [], list(n.sources)
+        ins, ranges, scales, extra, sources = [], [], [], [], list(n.sources)
+
+        def absorb(j):
+            dropped.add(j)
+            sources.extend(g.nodes[j].sources)
         for t in n.inputs:
             if not t:
                 continue
-            j = prod.get(t)
-            rng_ = _channel_range(g, g.nodes[j]) if j is not None else None
-            if rng_ is not None and len(uses.get(t, ())) == 1 and t not in g.outputs:
-                dropped.add(j)
-                sources += g.nodes[j].sources
-                ins.append(rng_[0])
-                ranges.append((rng_[1], rng_[2]))
+            mul = _scaled(g, prod.get(t), shape) if only_here(t) else None
+            if mul is not None:         # x * a one-channel map: the scaled transform
+                absorb(prod[t])
+                x, c0, count, jx = source(mul[0])
+                m, ch, _, jm = source(mul[1])
+                for j in (jx, jm):
+                    if j is not None:
+                        absorb(j)
+                scales.append((len(extra), ch))
+                extra.append(m)
             else:
-                ins.append(t)
-                ranges.append((0, int(g.shapes[t][1])))
-        g.nodes[i] = Node("clss.ConcatBlocked", ins, list(n.outputs), {"block": shape[4], "ranges": ranges},
-                          n.name, n.opset, sources=sources)
+                x, c0, count, jx = source(t)
+                if jx is not None:
+                    absorb(jx)
+                scales.append(None)
+            ins.append(x)
+            ranges.append((c0, count))
+        attrs = {"block": shape[4], "ranges": ranges}
+        if extra:
+            attrs["scales"] = scales
+        g.nodes[i] = Node("clss.ConcatBlocked", ins + extra, list(n.outputs), attrs, n.name, n.opset,
+                          sources=sources)
         g.blocked[n.outputs[0]] = shape
     g.nodes = [n for j, n in enumerate(g.nodes) if j not in dropped]
     return len(g.blocked)
@@ -220,7 +267,9 @@ def enabled(dev, prec: str) -> bool:
 
 def check_graph():
     """A small U-Net-like graph (odd width, a padded 24-channel tensor, a pool, a nearest
-    resize, a channel concat, a blocked chain's NCHW edges) as ONNX."""
+    resize, a channel concat, a blocked chain's NCHW edges) as ONNX, beside a concat of
+    NCHW channel ranges, one of them times a one-channel map (clss.ConcatBlocked with a
+    Mul absorbed), read by a conv."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
@@ -233,8 +282,10 @@ def check_graph():
     def b(name, co):
         return numpy_helper.from_array(g.standard_normal(co).astype(np.float32) * 0.1, name)
     inits = [w("w1", 16, 9), b("b1", 16), w("w2", 24, 16), b("b2", 24), w("w3", 32, 24), b("b3", 32),
-             w("w4", 9, 48), b("b4", 9),
+             w("w4", 9, 48), b("b4", 9), w("w6", 8, 9),
              numpy_helper.from_array(np.array([1, 1, 2, 2], np.float32), "sc")]
+    inits += [numpy_helper.from_array(np.array(v, np.int64), n) for n, v in
+              (("ax", [1]), ("k0", [0]), ("k1", [1]), ("k3", [3]), ("k9", [9]))]
     conv = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1])
     nodes = [helper.make_node("Conv", ["x", "w1", "b1"], ["c1"], **conv),
              helper.make_node("Relu", ["c1"], ["r1"]),
@@ -246,10 +297,17 @@ def check_graph():
              helper.make_node("Resize", ["r3", "", "sc"], ["u3"], mode="nearest",
                               coordinate_transformation_mode="asymmetric", nearest_mode="floor"),
              helper.make_node("Concat", ["u3", "r1"], ["cat"], axis=-3),
-             helper.make_node("Conv", ["cat", "w4", "b4"], ["y"], **conv)]
+             helper.make_node("Conv", ["cat", "w4", "b4"], ["y"], **conv),
+             helper.make_node("Slice", ["x", "k0", "k3", "ax"], ["xa"]),
+             helper.make_node("Slice", ["x", "k3", "k9", "ax"], ["xb"]),
+             helper.make_node("Slice", ["x", "k0", "k1", "ax"], ["xm"]),
+             helper.make_node("Mul", ["xb", "xm"], ["xbm"]),
+             helper.make_node("Concat", ["xa", "xbm"], ["cat2"], axis=1),
+             helper.make_node("Conv", ["cat2", "w6"], ["y2"], **conv)]
     graph = helper.make_graph(nodes, "blocked_layout_check",
                               [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 9, 6, 22])],
-                              [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 9, 6, 22])], inits)
+                              [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 9, 6, 22]),
+                               helper.make_tensor_value_info("y2", TensorProto.FLOAT, [1, 8, 6, 22])], inits)
     m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     m.ir_version = 8
     return m

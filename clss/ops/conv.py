@@ -216,14 +216,20 @@ def to_blocked(dev: Device, prec: str, x, icv: int, cb: int):
     return xb
 
 
-def _to_blocked_at(dev, prec, x, xb, c0: int, count: int, d0: int, total: int):
+def _to_blocked_at(dev, prec, x, xb, c0: int, count: int, d0: int, total: int, scale=None):
     """Channels c0 .. c0 + count of NCHW x into channels d0.. of blocked xb, whose channels
-    past `total` are zeroed (kernels/conv.cl to_blocked_at)."""
+    past `total` are zeroed (kernels/conv.cl to_blocked_at); with scale = (s, channel),
+    times that channel of s (to_blocked_scaled_at)."""
     n, cbd, h, w, block = xb.shape
     nblk = (d0 + count - 1) // block - d0 // block + 1     # the blocks [d0, d0 + count) touches
-    dev.launch(dev.kernel("conv", "to_blocked_at", prec), (-(-w // 16), h, n * nblk),
-               (x.data, xb.data, *(np.int32(v) for v in (x.shape[1], c0, count, h, w, cbd, block, d0, total,
-                                                           nblk))))
+    grid = (-(-w // 16), h, n * nblk)
+    sizes = (np.int32(v) for v in (x.shape[1], c0, count, h, w, cbd, block, d0, total, nblk))
+    if scale is None:
+        dev.launch(dev.kernel("conv", "to_blocked_at", prec), grid, (x.data, xb.data, *sizes))
+    else:
+        m, ch = scale
+        dev.launch(dev.kernel("conv", "to_blocked_scaled_at", prec), grid,
+                   (x.data, m.data, xb.data, *sizes, np.int32(m.shape[1]), np.int32(ch)))
 
 
 def blocked_shape(n: int, c: int, h: int, w: int, block: int) -> tuple:
@@ -231,24 +237,33 @@ def blocked_shape(n: int, c: int, h: int, w: int, block: int) -> tuple:
     return n, -(-c // block), h, w, block
 
 
-def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None):
+def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None, scales=None):
     """Concat over channels of NCHW tensors, written in the blocked layout
     [N, ceil(C / block), H, W, block] (channels past the total zero): a concat that feeds
     only blocked convs, with no NCHW copy in between (clss/model/layout.py). ranges:
-    per input (first channel, count) taken from it (a Slice absorbed), default all."""
+    per input (first channel, count) taken from it (a Slice absorbed), default all.
+    scales: per input None, or (s, channel): the input times channel `channel` of the NCHW
+    tensor s, broadcast over its channels (a Mul absorbed: to_blocked_scaled_at)."""
     ranges = ranges or [(0, x.shape[1]) for x in xs]
+    scales = scales or [None] * len(xs)
     n, _, h, w = xs[0].shape
     total = sum(c for _, c in ranges)
     cbd = -(-total // block)
     out = dev.empty((n, cbd, h, w, block), prec)
     d0 = 0
-    for x, (c0, count) in zip(xs, ranges):
+    for x, (c0, count), sc in zip(xs, ranges, scales):
         check_storage("x", x, prec)
         if x.ndim != 4 or x.shape[0] != n or tuple(x.shape[2:]) != (h, w) or c0 + count > x.shape[1]:
             raise ValueError(f"concat_to_blocked: input {tuple(x.shape)} (channels {c0}..{c0 + count}) "
                              f"does not fit [N={n}, H={h}, W={w}]")
+        if sc is not None:
+            m, ch = sc
+            check_storage("scale", m, prec)
+            if m.ndim != 4 or m.shape[0] != n or tuple(m.shape[2:]) != (h, w) or not 0 <= ch < m.shape[1]:
+                raise ValueError(f"concat_to_blocked: scale {tuple(m.shape)} (channel {ch}) "
+                                 f"does not fit [N={n}, H={h}, W={w}]")
         if count > 0:       # the last block's channels past the total are zeroed
-            _to_blocked_at(dev, prec, x, out, c0, count, d0, total)
+            _to_blocked_at(dev, prec, x, out, c0, count, d0, total, sc)
         d0 += count
     return out
 

@@ -93,23 +93,36 @@ class NsrrFrameStep:
         self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
         self.reconstruct = Model(build_reconstruct(cfg, weights, Hp, Wp), device=dev, precision=prec)
         k = {n: dev.kernel(KERNEL, n, prec) for n in ("nsrr_prepare", "nsrr_finish")}
-        vec = int(selfcheck.defines(dev, prec, REPROJECT_VECTORS)["VEC"])
-        k["nsrr_reproject"] = dev.kernel(KERNEL, "nsrr_reproject", prec, VEC=vec)
+        rd = selfcheck.defines(dev, prec, REPROJECT_VECTORS)
         i32, f = np.int32, np.float32
         self.L = {
             "prepare": dev.prepare(k["nsrr_prepare"], (w, h), [
                 self.in_color.data, self.in_depth.data, self.in_motion.data, self.rgbd.data,
                 self.mv.data, i32(w), i32(h), i32(1), f(1), f(1), f(1),
-                f(self.nits / PQ_PEAK_NITS)]),
-            "reproject": dev.prepare(k["nsrr_reproject"], (-(-Wp // vec), Hp), [
-                self.feat.data, self.mv.data, self.stacks[1].data, self.stacks[0].data, self.base.data,
+                f(self.nits / PQ_PEAK_NITS)])}
+        k["nsrr_reproject"] = dev.kernel(KERNEL, "nsrr_reproject", prec, **rd)
+        if int(rd["VEC"]) == 1:
+            grid, coords = (Wp, Hp), self.mv
+        else:
+            # runs of 8 pixels, in plane groups; the warp's sample positions computed once
+            w8 = -(-Wp // 8) * 8
+            self.xy = e((2, self.H, w8), dtype=f32)
+            dev.zero(self.xy)
+            grid = (-(-Wp // (8 * int(rd["RUNS"]))), Hp, 1 + FEAT * self.nprev // int(rd["G"]))
+            coords = self.xy
+            self.L["coords"] = dev.prepare(dev.kernel(KERNEL, "nsrr_warp_coords", prec, **rd), (w8 // 8, self.H), [
+                self.mv.data, self.xy.data, i32(h), i32(w), i32(self.H), i32(self.W), i32(Wp),
+                f(self.sy), f(self.sx)])
+        self.L.update({
+            "reproject": dev.prepare(k["nsrr_reproject"], grid, [
+                self.feat.data, coords.data, self.stacks[1].data, self.stacks[0].data, self.base.data,
                 i32(h), i32(w), i32(self.H), i32(self.W), i32(Hp), i32(Wp), i32(self.nprev),
                 i32(self.history), i32(0), i32(0), i32(0), i32(0), f(self.sy), f(self.sx),
                 f(0), f(0), i32(1)]),
             "finish": dev.prepare(k["nsrr_finish"], (-(-self.W // 8), self.H), [
                 self.y.data, self.out.data, i32(self.H), i32(self.W), i32(Wp), i32(Hp),
                 f(PQ_PEAK_NITS / self.nits)]),
-        }
+        })
         self.events: list[tuple[str, cl.Event]] = []
         self.accepted = False
 
@@ -141,6 +154,8 @@ class NsrrFrameStep:
         fe = [] if self.profile else None
         self.features.run_device({"rgbd": self.rgbd}, out={"feat": self.feat}, events=fe)
         ev += [("features", e) for e in fe or ()]
+        if "coords" in L:
+            ev.append(("reproject", L["coords"]()))
         ev.append(("reproject", r()))
         re = [] if self.profile else None
         # (one launch plan per stack buffer: clss.Model keeps both and replays them)
@@ -165,7 +180,7 @@ class NsrrFrameStep:
 
     def device_bytes(self) -> int:
         arrays = [self.in_color, self.in_depth, self.in_motion, self.rgbd, self.mv, self.feat,
-                  *self.stacks, self.y, self.base, self.out]
+                  *self.stacks, self.y, self.base, self.out] + ([self.xy] if hasattr(self, "xy") else [])
         n = sum(a.nbytes for a in arrays)
         for m in (self.features, self.reconstruct):
             mem = m.memory()
@@ -173,10 +188,22 @@ class NsrrFrameStep:
         return int(n)
 
 
-# The reprojection with 8 output pixels of a row per work-item (nsrr.cl, VEC = 8): a CPU
-# layout (its planes written as float8), self-checked against VEC = 1 on two frames, the
-# second warping the first's history (bit-exact: the same operations lane by lane).
+# The reprojection on runs of 8 output pixels of a row, in plane groups (nsrr.cl, VEC = 8):
+# a CPU layout (planes written as float8, a few store streams per work-item), self-checked
+# against VEC = 1 on four frames: two of noisy motion (the taps gathered lane by lane),
+# one of a uniform pan (the taps as window loads) and one of a pan off the frame's edge,
+# each warping the previous one's history (bit-exact: the same operations lane by lane).
 REPROJECT_VECTORS = "nsrr.reproject_vectors"
+# the fast variant's -D options: 8-pixel runs, RUNS of them per work-item, history planes in
+# groups of G (a divisor of 12); RUNS 1 and G 6 were fastest on pip's PoCL (Cascade Lake)
+REPROJECT_FAST = {"VEC": 8, "RUNS": 1, "G": 6}
+
+
+def reproject_motions(g, shape):
+    """Motions that reach both of the fast reprojection's branches: noisy (gathers), a
+    uniform sub-pixel pan (window loads), and a pan that leaves the frame (edge taps)."""
+    return [g.uniform(-1.5, 1.5, shape), g.uniform(-1.5, 1.5, shape),
+            np.broadcast_to(np.float32([0.3, -0.2]), shape), np.broadcast_to(np.float32([-2.6, 1.4]), shape)]
 
 
 def _reproject_check(dev: Device, prec: str) -> list[np.ndarray]:
@@ -186,18 +213,19 @@ def _reproject_check(dev: Device, prec: str) -> list[np.ndarray]:
     cfg = make_config("fast")
     fs = NsrrFrameStep(dev, prec, (7, 13), 2.0, cfg, init_weights(cfg, 1))
     outs = []
-    for t, jitter in enumerate(((0.25, -0.25), (-0.25, 0.25))):
-        arrays = [g.uniform(0, 4, (7, 13, 3)), g.uniform(0.1, 0.9, (7, 13)),
-                  g.uniform(-1.5, 1.5, (7, 13, 2))]
-        color, depth, motion = (dev.to_device(a.astype(np.float32)) for a in arrays)
-        out, ev = fs.run(color, depth, motion, jitter, t == 0)
+    for t, mv in enumerate(reproject_motions(g, (7, 13, 2))):
+        arrays = [g.uniform(0, 4, (7, 13, 3)), g.uniform(0.1, 0.9, (7, 13)), mv]
+        color, depth, motion = (dev.to_device(np.ascontiguousarray(a, np.float32)) for a in arrays)
+        out, ev = fs.run(color, depth, motion, ((0.25, -0.25), (-0.25, 0.25))[t % 2], t == 0)
         ev.wait()
         outs += [dev.to_host(out), dev.to_host(fs.stacks[fs.cur])]    # run() flipped cur
     return outs
 
 
 selfcheck.register(selfcheck.FastPath(
-    REPROJECT_VECTORS, KERNEL, {"VEC": 8}, {"VEC": 1}, check=_reproject_check,
+    REPROJECT_VECTORS, KERNEL, REPROJECT_FAST, {"VEC": 1}, check=_reproject_check,
     tolerance=lambda prec: EXACT if prec != "fp16-native" else DEFAULT_TOL[prec],
-    what="8 output pixels of a row per work-item, the planes written as vectors",
+    what="runs of 8 output pixels of a row per work-item, the planes in groups (a few store "
+         "streams each), the warp's sample positions computed once (nsrr_warp_coords), the taps "
+         "as window loads where a run's taps are contiguous",
     applies=lambda dev: dev.is_cpu))

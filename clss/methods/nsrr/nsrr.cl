@@ -118,7 +118,10 @@ static float2 render_motion(__global const float *mv, int h, int w, int X, int Y
  *                       every valid slot is the current frame's Z (duplicate)
  *  NDRange: (Wp, Hp). */
 #ifndef VEC
-#define VEC 1       /* 8: nsrr_reproject takes 8 output pixels of a row (the CPU fast path) */
+#define VEC 1       /* 8: nsrr_reproject takes runs of 8 output pixels of a row (the CPU fast path) */
+#endif
+#ifndef RUNS
+#define RUNS 1      /* with VEC 8: runs of 8 pixels per work-item */
 #endif
 
 #if VEC == 1
@@ -188,10 +191,19 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
     }
 }
 #else
-/* The same per pixel, 8 pixels of a row per work-item (NDRange: (ceil(Wp / 8), Hp)): the
- * 63 planes are written as float8 and the per-pixel index arithmetic is shared. The
- * gathers (zero-upsampled samples, warp taps) stay per lane; the arithmetic is the same
- * operations lane by lane, so the outputs equal the reference's. */
+/* The same per pixel, on runs of 8 output pixels of a row (the CPU fast path), and
+ * split by planes: work-item (x, Y, g) writes RUNS runs of the planes of group g, where
+ * group 0 is the base and Z_i (15 planes) and group g >= 1 the G history channels from
+ * 12 + (g - 1) * G. One work-item writing all 63 planes kept 63 store streams and 96
+ * gather rows open at once, which defeats the hardware prefetchers: 545 ms at 1080p,
+ * where a plane group of G = 4 runs in a fraction of that. The warp's sample
+ * positions come from nsrr_warp_coords, computed once per pixel, not once per group.
+ * Every lane runs the reference's operations on the same values (warp_taps8 is
+ * warp_taps lane by lane), so the outputs equal VEC 1's. NDRange:
+ * (ceil(Wp / (8 * RUNS)), Hp, 1 + 12 * N / G). */
+#ifndef G
+#define G 4         /* history channels per plane group (divides 12) */
+#endif
 
 /* Store the first n (<= 8) lanes of v at element offset i of p. */
 #if defined(CLSS_FP16)     /* lane by lane: pip's PoCL 3.0 crashed on vstore_half8_rte here */
@@ -206,94 +218,141 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
                for (int q_ = 0; q_ < (n); ++q_) ST(p, (i) + q_, t_[q_]); } \
     } while (0)
 
-__kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
+/** The warp's sample position of every output pixel: (X + m.x * sx, Y + m.y * sy), m
+ *  the render motion at the pixel (render_motion), as the reference computes them.
+ *  @param[in]  mv   [2,h,w] float32 render-pixel motion
+ *  @param[out] xy   [2,H,W8] float32, W8 = Wp rounded up to a multiple of 8 (whole
+ *                   float8 loads): xs, then ys (columns X >= W: those of X = W - 1)
+ *  (the other arguments as nsrr_reproject's)
+ *  NDRange: (W8 / 8, H). */
+__kernel void nsrr_warp_coords(__global const float *mv, __global float *xy, int h, int w,
+                               int H, int W, int Wp, float sy, float sx)
+{
+    const int X0 = get_global_id(0) * 8, Y = get_global_id(1), W8 = (Wp + 7) & ~7;
+    if (X0 >= W8 || Y >= H) return;
+    const long plane = (long)H * W8, o = (long)Y * W8 + X0;
+    for (int l = 0; l < 8; ++l) {
+        const int X = min(X0 + l, W - 1);
+        const float2 m = render_motion(mv, h, w, X, Y, sy, sx);
+        xy[o + l] = (float)X + m.x * sx;
+        xy[plane + o + l] = (float)Y + m.y * sy;
+    }
+}
+
+/* eight loads as one vector: LLVM may make it a gather */
+#define GATHER8(p, i) ((float8)(LD(p, (i).s0), LD(p, (i).s1), LD(p, (i).s2), LD(p, (i).s3), \
+                                LD(p, (i).s4), LD(p, (i).s5), LD(p, (i).s6), LD(p, (i).s7)))
+/* eight consecutive elements as float8 */
+#if defined(CLSS_FP16_NATIVE)
+#define LDF8(p, i) CLSS_CVT8(LD8(p, i), float8)
+#else
+#define LDF8(p, i) LD8(p, i)
+#endif
+
+__kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
                              __global const T *hist, __global T *stack, __global T *base,
                              int h, int w, int H, int W, int Hp, int Wp, int nprev, int nvalid,
                              int siy, int six, int oy, int ox, float sy, float sx,
                              float jy, float jx, int mode)
 {
-    const int X0 = get_global_id(0) * 8, Y = get_global_id(1);
-    if (X0 >= Wp || Y >= Hp) return;
-    const int n = min(8, Wp - X0);
-    const long oplane = (long)Hp * Wp, o = (long)Y * Wp + X0, plane = (long)h * w;
-    const int nch = FEAT * (nprev + 1);
+    const int Xw = get_global_id(0) * 8 * RUNS, Y = get_global_id(1), g = get_global_id(2);
+    if (Xw >= Wp || Y >= Hp) return;
+    const long oplane = (long)Hp * Wp, plane = (long)h * w;
+    /* this group's planes of the stack: [c0, c0 + nc) (group 0 also writes base) */
+    const int c0 = g == 0 ? 0 : FEAT + (g - 1) * G, nc = g == 0 ? FEAT : G;
+    const int k = g == 0 ? -1 : (c0 - FEAT) / FEAT;        /* the history slot, -1 for Z_i */
     const float8 zero = (float8)(0.0f);
-    if (Y >= H || X0 >= W) {
-        for (int c = 0; c < nch; ++c) PUT8(stack, c * oplane + o, zero, n);
-        for (int c = 0; c < 3; ++c) PUT8(base, c * oplane + o, zero, n);
-        return;
-    }
-    /* lanes at X >= W (the padding columns) are written 0; their loads use X = W - 1 */
-    const int8 in = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)(W);
-    int xl[8];
-    for (int q = 0; q < 8; ++q) xl[q] = min(X0 + q, W - 1);
-    {
-        const float bv = clamp(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
-        const int c0 = (int)floor(bv), c1 = min(c0 + 1, h - 1);
-        const float fc = bv - (float)c0;
-        float tb[8], bb[8];
-        for (int c = 0; c < 3; ++c) {
-            __global const T *q = feat + c * plane;
-            for (int l = 0; l < 8; ++l) {
-                const float bu = clamp(((float)xl[l] + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
-                const int b0 = (int)floor(bu), b1 = min(b0 + 1, w - 1);
-                const float fb = bu - (float)b0;
-                tb[l] = LD(q, (long)c0 * w + b0) * (1.0f - fb) + LD(q, (long)c0 * w + b1) * fb;
-                bb[l] = LD(q, (long)c1 * w + b0) * (1.0f - fb) + LD(q, (long)c1 * w + b1) * fb;
-            }
-            const float8 r = vload8(0, tb) * (float8)(1.0f - fc) + vload8(0, bb) * (float8)(fc);
-            PUT8(base, c * oplane + o, select(zero, r, in), n);
-        }
-    }
-    /* Z_i */
     const int i = zu_source(Y, h, siy, oy, sy, jy);
-    long src[8];
-    for (int l = 0; l < 8; ++l) {
-        const int j = i < 0 ? -1 : zu_source(xl[l], w, six, ox, sx, jx);
-        src[l] = (j < 0 || X0 + l >= W) ? -1 : (long)i * w + j;
-    }
-    float8 z[FEAT];
-    for (int c = 0; c < FEAT; ++c) {
-        float t[8];
-        for (int l = 0; l < 8; ++l)
-            t[l] = src[l] < 0 ? 0.0f : LD(feat, c * plane + src[l]);
-        z[c] = vload8(0, t);
-        PUT8(stack, c * oplane + o, z[c], n);
-    }
-    if (mode != 0) {
-        for (int k = 0; k < nprev; ++k)
-            for (int c = 0; c < FEAT; ++c)
-                PUT8(stack, (FEAT * (k + 1) + c) * oplane + o,
-                     (mode == 2 && k < nvalid) ? z[c] : zero, n);
+    if (g > 0 && mode == 0 && Y < H) {
+        /* the history slots' warp: the frame's hot path, kept apart from the rest */
+        for (int r = 0; r < RUNS; ++r) {
+            const int X0 = Xw + 8 * r;
+            if (X0 >= Wp) break;
+            const int n = min(8, Wp - X0);
+            const long o = (long)Y * Wp + X0;
+            if (X0 >= W || k >= nvalid) {
+                for (int c = 0; c < nc; ++c) PUT8(stack, (c0 + c) * oplane + o, zero, n);
+                continue;
+            }
+            const int8 in = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)(W);
+            /* backward warp: this pixel was at (xs, ys) in the previous frame */
+            const int W8 = (Wp + 7) & ~7;                   /* xy's row stride */
+            const long xo = (long)Y * W8 + X0;
+            const WarpTaps8 t = warp_taps8(vload8(0, xy + xo), vload8(0, xy + (long)H * W8 + xo), W, H);
+            const int8 i00 = t.cy0 * Wp + t.cx0, i10 = t.cy0 * Wp + t.cx1;
+            const int8 i01 = t.cy1 * Wp + t.cx0, i11 = t.cy1 * Wp + t.cx1;
+            /* Where the run's taps are one 9 x 2 window (the usual case: motion varies
+             * slowly along a row), its four taps are four vector loads at offsets 0, 1, Wp
+             * and Wp + 1 of the window, the same elements the gathers read. */
+            const int8 io = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+            if (all(i00 == (int8)(i00.s0) + io) && all(i10 == i00 + 1) && all(i01 == i00 + Wp) &&
+                all(i11 == i01 + 1)) {
+                for (int c = 0; c < nc; ++c) {
+                    __global const T *p = hist + (long)(c0 - FEAT + c) * oplane + i00.s0;
+                    const float8 v = LDF8(p, 0) * t.w00 + LDF8(p, 1) * t.w10
+                                     + LDF8(p, Wp) * t.w01 + LDF8(p, Wp + 1) * t.w11;
+                    PUT8(stack, (c0 + c) * oplane + o, select(zero, v, in), n);
+                }
+                continue;
+            }
+            for (int c = 0; c < nc; ++c) {
+                __global const T *p = hist + (long)(c0 - FEAT + c) * oplane;
+                const float8 v = GATHER8(p, i00) * t.w00 + GATHER8(p, i10) * t.w10
+                                 + GATHER8(p, i01) * t.w01 + GATHER8(p, i11) * t.w11;
+                PUT8(stack, (c0 + c) * oplane + o, select(zero, v, in), n);
+            }
+        }
         return;
     }
-    /* the render motion at each lane's pixel, then its four warp taps */
-    /* plane offsets (Hp * Wp < 2^31) and weights of the four taps, one lane each */
-    int a00[8], a10[8], a01[8], a11[8];
-    float w00[8], w10[8], w01[8], w11[8];
-    for (int l = 0; l < 8; ++l) {
-        const int X = xl[l];
-        const float2 m = render_motion(mv, h, w, X, Y, sy, sx);
-        const WarpTaps t = warp_taps((float)X + m.x * sx, (float)Y + m.y * sy, W, H);
-        w00[l] = t.w00; w10[l] = t.w10; w01[l] = t.w01; w11[l] = t.w11;
-        a00[l] = t.cy0 * Wp + t.cx0; a10[l] = t.cy0 * Wp + t.cx1;
-        a01[l] = t.cy1 * Wp + t.cx0; a11[l] = t.cy1 * Wp + t.cx1;
-    }
-    const int8 i00 = vload8(0, a00), i10 = vload8(0, a10), i01 = vload8(0, a01), i11 = vload8(0, a11);
-    const float8 v00 = vload8(0, w00), v10 = vload8(0, w10), v01 = vload8(0, w01), v11 = vload8(0, w11);
-    /* eight loads as one vector: LLVM may make it a gather */
-#define GATHER8(p, i) ((float8)(LD(p, (i).s0), LD(p, (i).s1), LD(p, (i).s2), LD(p, (i).s3), \
-                                LD(p, (i).s4), LD(p, (i).s5), LD(p, (i).s6), LD(p, (i).s7)))
-    for (int k = 0; k < nprev; ++k) {
-        if (k >= nvalid) {
-            for (int c = 0; c < FEAT; ++c) PUT8(stack, (FEAT * (k + 1) + c) * oplane + o, zero, n);
+    for (int r = 0; r < RUNS; ++r) {
+        const int X0 = Xw + 8 * r;
+        if (X0 >= Wp) break;
+        const int n = min(8, Wp - X0);
+        const long o = (long)Y * Wp + X0;
+        if (Y >= H || X0 >= W) {
+            for (int c = 0; c < nc; ++c) PUT8(stack, (c0 + c) * oplane + o, zero, n);
+            if (g == 0)
+                for (int c = 0; c < 3; ++c) PUT8(base, c * oplane + o, zero, n);
             continue;
         }
-        for (int c = 0; c < FEAT; ++c) {
-            __global const T *p = hist + (long)(FEAT * k + c) * oplane;
-            const float8 r = GATHER8(p, i00) * v00 + GATHER8(p, i10) * v10
-                             + GATHER8(p, i01) * v01 + GATHER8(p, i11) * v11;
-            PUT8(stack, (FEAT * (k + 1) + c) * oplane + o, select(zero, r, in), n);
+        /* lanes at X >= W (the padding columns) are written 0; their loads use X = W - 1 */
+        const int8 in = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)(W);
+        int xl[8];
+        for (int q = 0; q < 8; ++q) xl[q] = min(X0 + q, W - 1);
+        if (g == 0) {
+            const float bv = clamp(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
+            const int r0 = (int)floor(bv), r1 = min(r0 + 1, h - 1);
+            const float fc = bv - (float)r0;
+            float tb[8], bb[8];
+            for (int c = 0; c < 3; ++c) {
+                __global const T *q = feat + c * plane;
+                for (int l = 0; l < 8; ++l) {
+                    const float bu = clamp(((float)xl[l] + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
+                    const int b0 = (int)floor(bu), b1 = min(b0 + 1, w - 1);
+                    const float fb = bu - (float)b0;
+                    tb[l] = LD(q, (long)r0 * w + b0) * (1.0f - fb) + LD(q, (long)r0 * w + b1) * fb;
+                    bb[l] = LD(q, (long)r1 * w + b0) * (1.0f - fb) + LD(q, (long)r1 * w + b1) * fb;
+                }
+                const float8 v = vload8(0, tb) * (float8)(1.0f - fc) + vload8(0, bb) * (float8)(fc);
+                PUT8(base, c * oplane + o, select(zero, v, in), n);
+            }
+        }
+        if (g == 0 || mode != 0) {
+            /* Z_i (group 0), or a reset's slot: zeros, or Z_i again (mode 2, k < nvalid) */
+            const bool z = g == 0 || (mode == 2 && k < nvalid);
+            long src[8];
+            for (int l = 0; l < 8; ++l) {
+                const int j = (i < 0 || !z) ? -1 : zu_source(xl[l], w, six, ox, sx, jx);
+                src[l] = (j < 0 || X0 + l >= W) ? -1 : (long)i * w + j;
+            }
+            for (int c = 0; c < nc; ++c) {
+                const int fc = g == 0 ? c : (c0 + c) % FEAT;     /* the feature channel */
+                float t[8];
+                for (int l = 0; l < 8; ++l)
+                    t[l] = src[l] < 0 ? 0.0f : LD(feat, fc * plane + src[l]);
+                PUT8(stack, (c0 + c) * oplane + o, vload8(0, t), n);
+            }
+            continue;
         }
     }
 }
