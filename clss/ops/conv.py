@@ -150,7 +150,8 @@ def input_block(cin: int) -> int:
     return -(-cin // -(-cin // 16))
 
 
-def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocked_in: int = 0) -> dict:
+def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocked_in: int = 0,
+                   out_blocked: bool = False) -> dict:
     """OCV, NV, PX, ICV and BLX for conv2d_blocked on this layer: defaults from the
     device's vector width and the layer's channels, laid under the tuning database's
     entry and the caller's `tuning=`. NV vectors cover the output channels with the
@@ -158,12 +159,14 @@ def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocke
     register file (about 28 accumulators on a 32-register AVX-512 core). x_shape: the
     input's NCHW shape (the tuning key); blocked_in: the channels per block of an input
     that arrives blocked (a conv's output: OCV; a clss.ConcatBlocked's: input_block), 0
-    for an NCHW input."""
+    for an NCHW input. An NCHW output takes PX = 8: its epilogue stores whole 8-pixel
+    runs per channel (10-30 % faster than PX 14 or 6 on the NSRR and NSRD layers,
+    docs/benchmarks.md)."""
     cout, cin = w.shape[0], w.shape[1]
     ocv = vector_width(dev)
     nvec = -(-cout // ocv)
     nv = 2 if nvec >= 2 and nvec % 2 == 0 else 1
-    px = 14 if nv == 1 else 6
+    px = (14 if nv == 1 else 6) if out_blocked else 8
     # TUNING's PX/NV/BLX, where a test sets them, replace the per-layer defaults
     defaults = {"PX": px, "NV": nv, "BLX": 16, **{k: TUNING[k] for k in ("PX", "NV", "BLX") if k in TUNING}}
     key = tuning_db.shape_key(tuple(x_shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec)
@@ -368,7 +371,8 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     cout_g = cout // group
     if blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
                                      and selfcheck.enabled(dev, prec, "conv.blocked")):
-        t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, x.shape[4] if blocked_in else 0)
+        t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, x.shape[4] if blocked_in else 0,
+                           out_blocked)
         return _conv2d_blocked(dev, prec, x, w, b, t, packed, (sy, sx), (pt, pl), (dy, dx), activation,
                                alpha, residual, residual_before_act, out, ho, wo, out_blocked)
     t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning, group)
