@@ -478,6 +478,18 @@ typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
 /* The layout kernels take the block sizes as arguments, not -D options: they are
  * memory-bound, and one build serves every layer (under oclgrind a build is slow). */
 
+/* The work-item of to_blocked_at and to_blocked_scaled_at: 16 pixels (ix0.., np of them
+ * inside the row) of row iy of output block cb of image n; dst: the first pixel's block,
+ * of element type E. */
+#define TO_BLOCKED_ITEM(E)                                                       \
+    const int ix0 = get_global_id(0) * 16, iy = get_global_id(1), z = get_global_id(2); \
+    if (ix0 >= W || iy >= H)                                                     \
+        return;                                                                  \
+    const int n = z / nblk, cb = d0 / B + z % nblk;                              \
+    const int np = IMIN(16, W - ix0);                                            \
+    const long hw = (long)H * W;                                                 \
+    __global E *dst = xb + ((((long)n * CBd + cb) * H + iy) * W + ix0) * B
+
 /* NCHW -> blocked [N][CBd][H][W][B]: `count` channels of x from channel c0 on land at
  * channels d0.. of the blocked output, whose channels past Ctot are zeroed. The layout
  * transform of a conv2d_blocked input (c0 = d0 = 0, count = Ctot = C), and one input of a
@@ -504,13 +516,7 @@ typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
 __kernel void to_blocked_at(__global const TB *x, __global TB *xb, int Cx, int c0, int count, int H, int W,
                             int CBd, int B, int d0, int Ctot, int nblk)
 {
-    const int ix0 = get_global_id(0) * 16, iy = get_global_id(1), z = get_global_id(2);
-    if (ix0 >= W || iy >= H)
-        return;
-    const int n = z / nblk, cb = d0 / B + z % nblk;
-    const int np = IMIN(16, W - ix0);
-    const long hw = (long)H * W;
-    __global TB *dst = xb + ((((long)n * CBd + cb) * H + iy) * W + ix0) * B;
+    TO_BLOCKED_ITEM(TB);
     for (int j = 0; j < B; ++j) {
         const int dc = cb * B + j;
         if (dc >= Ctot) {
@@ -550,13 +556,7 @@ __kernel void to_blocked_scaled_at(__global const T *x, __global const T *s, __g
                                    int count, int H, int W, int CBd, int B, int d0, int Ctot, int nblk,
                                    int Cs, int sc)
 {
-    const int ix0 = get_global_id(0) * 16, iy = get_global_id(1), z = get_global_id(2);
-    if (ix0 >= W || iy >= H)
-        return;
-    const int n = z / nblk, cb = d0 / B + z % nblk;
-    const int np = IMIN(16, W - ix0);
-    const long hw = (long)H * W;
-    __global T *dst = xb + ((((long)n * CBd + cb) * H + iy) * W + ix0) * B;
+    TO_BLOCKED_ITEM(T);
     const __global T *m = s + ((long)n * Cs + sc) * hw + (long)iy * W + ix0;
     A mv[16];
     for (int p = 0; p < np; ++p)
