@@ -576,6 +576,53 @@ __kernel void to_blocked_scaled_at(__global const T *x, __global const T *s, __g
     }
 }
 
+/* A whole channel concat of one NCHW tensor's channels, some times a channel of a second
+ * one (a scale map), into the blocked layout in one launch: NSRR's input stacks, whose
+ * concat inputs are all channel ranges of `stack` (times a channel of `r`). Each
+ * work-item writes every lane of its block for 16 pixels, so each output line is written
+ * by one work-item, not once per concat input (to_blocked_at and to_blocked_scaled_at,
+ * one launch per input). Output channel dc is channel tab[2 dc] of x, times channel
+ * tab[2 dc + 1] of s where that is >= 0; channels past Ctot are zero. The product is the
+ * elementwise Mul's (a * b in the arithmetic type, stored rounded to nearest even).
+ * NDRange: (ceil(W / 16), H, N * CBd).
+ * @param[in]  x      [N, Cx, H, W] (NCHW)
+ * @param[in]  s      [N, Cs, H, W] scale maps (NCHW; x where no channel is scaled)
+ * @param[out] xb     [N, CBd, H, W, B] blocked output
+ * @param[in]  tab    [Ctot, 2] int: (channel of x, channel of s or -1) per output channel
+ * @param[in]  Cx     channels of x
+ * @param[in]  Cs     channels of s
+ * @param[in]  H      height
+ * @param[in]  W      width
+ * @param[in]  CBd    blocks of the output
+ * @param[in]  B      channels per block
+ * @param[in]  Ctot   the concat's channels */
+__kernel void to_blocked_table(__global const T *x, __global const T *s, __global T *xb,
+                               __global const int *tab, int Cx, int Cs, int H, int W, int CBd, int B,
+                               int Ctot)
+{
+    const int nblk = CBd, d0 = 0;
+    TO_BLOCKED_ITEM(T);
+    const long pix = (long)iy * W + ix0;
+    for (int j = 0; j < B; ++j) {
+        const int dc = cb * B + j;
+        if (dc >= Ctot) {
+            for (int p = 0; p < np; ++p)
+                ST(dst, p * B + j, A_ZERO);
+            continue;
+        }
+        const int cx = tab[2 * dc], cs = tab[2 * dc + 1];
+        const __global T *v = x + ((long)n * Cx + cx) * hw + pix;
+        if (cs < 0) {       /* data movement: the bits */
+            for (int p = 0; p < np; ++p)
+                ((__global TB *)dst)[p * B + j] = ((__global const TB *)v)[p];
+        } else {
+            const __global T *m = s + ((long)n * Cs + cs) * hw + pix;
+            for (int p = 0; p < np; ++p)
+                ST(dst, p * B + j, LD(v, p) * LD(m, p));
+        }
+    }
+}
+
 /* Weights [Cout, Cin, kk] -> packed [ncb][Cb][kk][icv][ocb] in the arithmetic
  * type A, zero past Cout and Cin. NDRange: (ocb, icv, ncb * Cb * kk). */
 /** @param[in]  w     [Cout, Cin, KH, KW] weights (kk = KH * KW taps)

@@ -270,11 +270,14 @@ def test_concat_into_blocked_computes_channel_broadcast_muls():
     assert cat.attrs["scales"] == [None, (0, 1), (1, 0), None]
 
 
+@pytest.mark.parametrize("one_source", [True, False])
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
-def test_scaled_concat_is_the_mul_bit_for_bit(any_dev, prec):
-    """to_blocked_scaled_at against Mul then the blocked layout in numpy: the product
-    rounded once to the storage type, odd width (a partial 16-pixel run), a block (7) that
-    splits the inputs, N = 2, and the last block's padding channels zero."""
+def test_scaled_concat_is_the_mul_bit_for_bit(any_dev, prec, one_source):
+    """concat_to_blocked with a scaled input against Mul then the blocked layout in numpy:
+    the product rounded once to the storage type, odd width (a partial 16-pixel run), a
+    block (7) that splits the inputs, N = 2, and the last block's padding channels zero.
+    Inputs from one tensor take one to_blocked_table launch; from two, a launch per input
+    (to_blocked_scaled_at, to_blocked_at)."""
     g = np.random.default_rng(3)
     n, h, w = 2, 5, 19
     x = g.standard_normal((n, 9, h, w)).astype(np.float32)
@@ -282,7 +285,8 @@ def test_scaled_concat_is_the_mul_bit_for_bit(any_dev, prec):
     st = np.float16 if prec == "fp16" else np.float32
     xs, ss = x.astype(st), s.astype(st)
     xd, sd = any_dev.to_device(x, prec), any_dev.to_device(s, prec)
-    got = any_dev.to_host(conv.concat_to_blocked(any_dev, prec, [xd, xd], 7, [(1, 5), (6, 3)],
+    second = xd if one_source else any_dev.to_device(x, prec)
+    got = any_dev.to_host(conv.concat_to_blocked(any_dev, prec, [xd, second], 7, [(1, 5), (6, 3)],
                                                  [(sd, 2), None]))
     cat = np.concatenate([(xs[:, 1:6].astype(np.float32) * ss[:, 2:3].astype(np.float32)).astype(st),
                           xs[:, 6:9]], axis=1)

@@ -74,3 +74,34 @@ def test_mlp_fused_frame_step_under_oclgrind(tmp_path):
                           "not yet understood", strict=False)
 def test_conv_blocked_under_oclgrind(tmp_path):
     test_family_clean_under_oclgrind("conv", tmp_path, forced="conv.blocked=1")
+
+
+# The blocked concats' layout kernels (to_blocked_at, to_blocked_scaled_at, to_blocked_table)
+# on a tiny odd shape, each path once in both storage precisions.
+CONCATS = """
+import numpy as np
+from clss.device import get_device
+from clss.ops import conv
+dev = get_device(None)
+g = np.random.default_rng(0)
+for prec in ("fp32", "fp16"):
+    x = dev.to_device(g.standard_normal((1, 9, 3, 19)).astype(np.float32), prec)
+    y = dev.to_device(g.standard_normal((1, 9, 3, 19)).astype(np.float32), prec)
+    s = dev.to_device(g.uniform(0, 2, (1, 3, 3, 19)).astype(np.float32), prec)
+    for second in (x, y):
+        out = conv.concat_to_blocked(dev, prec, [x, second], 7, [(1, 5), (6, 3)], [(s, 2), None])
+        assert np.isfinite(out.get()).all()
+print("concats ok")
+"""
+
+
+@pytest.mark.oclgrind
+@pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
+def test_blocked_concats_clean_under_oclgrind(tmp_path):
+    env = oclgrind_env(tmp_path)
+    env["PYTHONPATH"] = os.pathsep.join([os.getcwd(), env.get("PYTHONPATH", "")])
+    p = subprocess.run([sys.executable, "-W", "ignore", "-c", CONCATS], env=env, capture_output=True, text=True,
+                       timeout=600)
+    diags = [line for line in p.stderr.splitlines() if DIAGNOSTIC.search(line)]
+    assert not diags, "oclgrind reported:\n" + "\n".join(p.stderr.splitlines()[:60])
+    assert p.returncode == 0 and "concats ok" in p.stdout, p.stdout[-3000:] + p.stderr[-3000:]

@@ -253,6 +253,11 @@ def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None, scale
     total = sum(c for _, c in ranges)
     cbd = -(-total // block)
     out = dev.empty((n, cbd, h, w, block), prec)
+    maps = {id(sc[0]): sc[0] for sc in scales if sc is not None}
+    if len(xs) > 1 and all(x is xs[0] for x in xs) and len(maps) <= 1:
+        # one source tensor (and one of scale maps): the whole concat in one launch
+        _concat_table(dev, prec, xs[0], next(iter(maps.values()), xs[0]), out, ranges, scales, total)
+        return out
     d0 = 0
     for x, (c0, count), sc in zip(xs, ranges, scales):
         check_storage("x", x, prec)
@@ -269,6 +274,33 @@ def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None, scale
             _to_blocked_at(dev, prec, x, out, c0, count, d0, total, sc)
         d0 += count
     return out
+
+
+_TABLES: dict = {}      # (context, table) -> its device copy: to_blocked_table's argument
+
+
+def _concat_table(dev, prec, x, m, out, ranges, scales, total: int):
+    """concat_to_blocked of channel ranges of one tensor x, some times a channel of m, as
+    one to_blocked_table launch (its table of source channels kept on the device)."""
+    check_storage("x", x, prec)
+    check_storage("scale", m, prec)
+    tab = []
+    for (c0, count), sc in zip(ranges, scales):
+        if c0 + count > x.shape[1] or (sc is not None and not 0 <= sc[1] < m.shape[1]):
+            raise ValueError(f"concat_to_blocked: channels {c0}..{c0 + count} of {tuple(x.shape)} "
+                             f"or scale channel {sc and sc[1]} of {tuple(m.shape)} out of range")
+        tab += [(c0 + k, -1 if sc is None else sc[1]) for k in range(count)]
+    if tuple(m.shape[:1] + m.shape[2:]) != tuple(x.shape[:1] + x.shape[2:]):
+        raise ValueError(f"concat_to_blocked: scale {tuple(m.shape)} does not fit {tuple(x.shape)}")
+    base = getattr(dev, "base", dev)    # a model's planning device: the table outlives the plan
+    key = (base.context, tuple(tab))
+    t = _TABLES.get(key)
+    if t is None:
+        t = _TABLES[key] = base.to_device(np.asarray(tab, np.int32).reshape(-1))
+    n, cbd, h, w, block = out.shape
+    dev.launch(dev.kernel("conv", "to_blocked_table", prec), (-(-w // 16), h, n * cbd),
+               (x.data, m.data, out.data, t.data,
+                *(np.int32(v) for v in (x.shape[1], m.shape[1], h, w, cbd, block, total))))
 
 
 def _conv2d_blocked(dev, prec, x, w, b, t, packed, strides, pads, dilations, activation, alpha,
