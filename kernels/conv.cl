@@ -478,7 +478,7 @@ typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
 /* The layout kernels take the block sizes as arguments, not -D options: they are
  * memory-bound, and one build serves every layer (under oclgrind a build is slow). */
 
-/* The work-item of to_blocked_at and to_blocked_scaled_at: 16 pixels (ix0.., np of them
+/* The work-item of to_blocked_at and to_blocked_table: 16 pixels (ix0.., np of them
  * inside the row) of row iy of output block cb of image n; dst: the first pixel's block,
  * of element type E. */
 #define TO_BLOCKED_ITEM(E)                                                       \
@@ -540,55 +540,21 @@ __kernel void to_blocked_at(__global const TB *x, __global TB *xb, int Cx, int c
     }
 }
 
-/* to_blocked_at of x's channels times one channel of s, a per-pixel scale map:
- * Mul(x[c0:c0+count], s[sc]) written straight into the blocked concat (clss/model/layout.py
- * folds such a Mul, broadcast over channels, into clss.ConcatBlocked; NSRR's reweighted
- * history). The product is the elementwise Mul's: a * b in the arithmetic type, stored
- * with round-to-nearest-even, so the result is the unfused nodes' bit for bit.
- * NDRange: (ceil(W / 16), H, N * nblk).
- * @param[in]  x      [N, Cx, H, W] concat input (NCHW)
- * @param[in]  s      [N, Cs, H, W] the scale maps (NCHW)
- * @param[out] xb     [N, CBd, H, W, B] blocked output
- * @param[in]  Cs     channels of s
- * @param[in]  sc     the channel of s that scales every channel taken from x
- * (the others as to_blocked_at's) */
-__kernel void to_blocked_scaled_at(__global const T *x, __global const T *s, __global T *xb, int Cx, int c0,
-                                   int count, int H, int W, int CBd, int B, int d0, int Ctot, int nblk,
-                                   int Cs, int sc)
-{
-    TO_BLOCKED_ITEM(T);
-    const __global T *m = s + ((long)n * Cs + sc) * hw + (long)iy * W + ix0;
-    A mv[16];
-    for (int p = 0; p < np; ++p)
-        mv[p] = LD(m, p);
-    for (int j = 0; j < B; ++j) {
-        const int dc = cb * B + j;
-        if (dc >= Ctot) {
-            for (int p = 0; p < np; ++p)
-                ST(dst, p * B + j, A_ZERO);
-            continue;
-        }
-        if (dc < d0 || dc >= d0 + count)
-            continue;
-        const __global T *v = x + ((long)n * Cx + c0 + dc - d0) * hw + (long)iy * W + ix0;
-        for (int p = 0; p < np; ++p)
-            ST(dst, p * B + j, LD(v, p) * mv[p]);
-    }
-}
-
-/* A whole channel concat of one NCHW tensor's channels, some times a channel of a second
- * one (a scale map), into the blocked layout in one launch: NSRR's input stacks, whose
- * concat inputs are all channel ranges of `stack` (times a channel of `r`). Each
- * work-item writes every lane of its block for 16 pixels, so each output line is written
- * by one work-item, not once per concat input (to_blocked_at and to_blocked_scaled_at,
- * one launch per input). Output channel dc is channel tab[2 dc] of x, times channel
- * tab[2 dc + 1] of s where that is >= 0; channels past Ctot are zero. The product is the
- * elementwise Mul's (a * b in the arithmetic type, stored rounded to nearest even).
+/* A channel concat of one NCHW tensor's channels, some times a channel of a second one
+ * (a scale map), into the blocked layout: NSRR's input stacks, whose concat inputs are all
+ * channel ranges of `stack` (times a channel of `r`), in one launch. Each work-item writes
+ * every lane of its block for 16 pixels, so each output line is written by one
+ * work-item, not once per concat input (to_blocked_at: a launch per input). Output
+ * channel dc is channel tab[2 dc] of x, times channel tab[2 dc + 1] of s where that is
+ * >= 0; tab[2 dc] = -1 leaves the lane to another launch (a concat of several tensors: a
+ * launch per scaled input); channels past Ctot are zero. The product is the elementwise
+ * Mul's (a * b in the arithmetic type, stored rounded to nearest even); an unscaled
+ * channel moves bits.
  * NDRange: (ceil(W / 16), H, N * CBd).
  * @param[in]  x      [N, Cx, H, W] (NCHW)
  * @param[in]  s      [N, Cs, H, W] scale maps (NCHW; x where no channel is scaled)
  * @param[out] xb     [N, CBd, H, W, B] blocked output
- * @param[in]  tab    [Ctot, 2] int: (channel of x, channel of s or -1) per output channel
+ * @param[in]  tab    [Ctot, 2] int: (channel of x or -1, channel of s or -1) per output channel
  * @param[in]  Cx     channels of x
  * @param[in]  Cs     channels of s
  * @param[in]  H      height
@@ -611,6 +577,8 @@ __kernel void to_blocked_table(__global const T *x, __global const T *s, __globa
             continue;
         }
         const int cx = tab[2 * dc], cs = tab[2 * dc + 1];
+        if (cx < 0)
+            continue;
         const __global T *v = x + ((long)n * Cx + cx) * hw + pix;
         if (cs < 0) {       /* data movement: the bits */
             for (int p = 0; p < np; ++p)

@@ -277,7 +277,7 @@ def test_scaled_concat_is_the_mul_bit_for_bit(any_dev, prec, one_source):
     the product rounded once to the storage type, odd width (a partial 16-pixel run), a
     block (7) that splits the inputs, N = 2, and the last block's padding channels zero.
     Inputs from one tensor take one to_blocked_table launch; from two, a launch per input
-    (to_blocked_scaled_at, to_blocked_at)."""
+    (to_blocked_table for the scaled one, to_blocked_at)."""
     g = np.random.default_rng(3)
     n, h, w = 2, 5, 19
     x = g.standard_normal((n, 9, h, w)).astype(np.float32)

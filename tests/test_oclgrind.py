@@ -76,8 +76,8 @@ def test_conv_blocked_under_oclgrind(tmp_path):
     test_family_clean_under_oclgrind("conv", tmp_path, forced="conv.blocked=1")
 
 
-# The blocked concats' layout kernels (to_blocked_at, to_blocked_scaled_at, to_blocked_table)
-# on a tiny odd shape, each path once in both storage precisions.
+# The blocked concats' layout kernels (to_blocked_at, to_blocked_table: one launch
+# for the whole concat, or one for a scaled input) on a tiny odd shape, each path once in both storage precisions.
 CONCATS = """
 import numpy as np
 from clss.device import get_device

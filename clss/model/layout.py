@@ -152,7 +152,7 @@ def _channel_range(g: Graph, n: Node):
 def _scaled(g: Graph, j, out_shape) -> tuple | None:
     """(x, m) where node j is Mul(x, m) (either order) of a 4-D float x by a one-channel
     map m of x's N, H and W, broadcast over x's channels (NSRR's reweighted history), so
-    that a clss.ConcatBlocked can write x * m itself (to_blocked_scaled_at); else None."""
+    that a clss.ConcatBlocked can write x * m itself (kernels/conv.cl to_blocked_table); else None."""
     if j is None or g.nodes[j].op != "Mul" or len(g.nodes[j].inputs) != 2:
         return None
     a, b = g.nodes[j].inputs

@@ -219,20 +219,14 @@ def to_blocked(dev: Device, prec: str, x, icv: int, cb: int):
     return xb
 
 
-def _to_blocked_at(dev, prec, x, xb, c0: int, count: int, d0: int, total: int, scale=None):
+def _to_blocked_at(dev, prec, x, xb, c0: int, count: int, d0: int, total: int):
     """Channels c0 .. c0 + count of NCHW x into channels d0.. of blocked xb, whose channels
-    past `total` are zeroed (kernels/conv.cl to_blocked_at); with scale = (s, channel),
-    times that channel of s (to_blocked_scaled_at)."""
+    past `total` are zeroed (kernels/conv.cl to_blocked_at)."""
     n, cbd, h, w, block = xb.shape
     nblk = (d0 + count - 1) // block - d0 // block + 1     # the blocks [d0, d0 + count) touches
-    grid = (-(-w // 16), h, n * nblk)
-    sizes = (np.int32(v) for v in (x.shape[1], c0, count, h, w, cbd, block, d0, total, nblk))
-    if scale is None:
-        dev.launch(dev.kernel("conv", "to_blocked_at", prec), grid, (x.data, xb.data, *sizes))
-    else:
-        m, ch = scale
-        dev.launch(dev.kernel("conv", "to_blocked_scaled_at", prec), grid,
-                   (x.data, m.data, xb.data, *sizes, np.int32(m.shape[1]), np.int32(ch)))
+    dev.launch(dev.kernel("conv", "to_blocked_at", prec), (-(-w // 16), h, n * nblk),
+               (x.data, xb.data, *(np.int32(v) for v in (x.shape[1], c0, count, h, w, cbd, block, d0, total,
+                                                           nblk))))
 
 
 def blocked_shape(n: int, c: int, h: int, w: int, block: int) -> tuple:
@@ -246,7 +240,7 @@ def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None, scale
     only blocked convs, with no NCHW copy in between (clss/model/layout.py). ranges:
     per input (first channel, count) taken from it (a Slice absorbed), default all.
     scales: per input None, or (s, channel): the input times channel `channel` of the NCHW
-    tensor s, broadcast over its channels (a Mul absorbed: to_blocked_scaled_at)."""
+    tensor s, broadcast over its channels (a Mul absorbed: to_blocked_table)."""
     ranges = ranges or [(0, x.shape[1]) for x in xs]
     scales = scales or [None] * len(xs)
     n, _, h, w = xs[0].shape
@@ -264,14 +258,10 @@ def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None, scale
         if x.ndim != 4 or x.shape[0] != n or tuple(x.shape[2:]) != (h, w) or c0 + count > x.shape[1]:
             raise ValueError(f"concat_to_blocked: input {tuple(x.shape)} (channels {c0}..{c0 + count}) "
                              f"does not fit [N={n}, H={h}, W={w}]")
-        if sc is not None:
-            m, ch = sc
-            check_storage("scale", m, prec)
-            if m.ndim != 4 or m.shape[0] != n or tuple(m.shape[2:]) != (h, w) or not 0 <= ch < m.shape[1]:
-                raise ValueError(f"concat_to_blocked: scale {tuple(m.shape)} (channel {ch}) "
-                                 f"does not fit [N={n}, H={h}, W={w}]")
-        if count > 0:       # the last block's channels past the total are zeroed
-            _to_blocked_at(dev, prec, x, out, c0, count, d0, total, sc)
+        if count > 0 and sc is None:       # the last block's channels past the total are zeroed
+            _to_blocked_at(dev, prec, x, out, c0, count, d0, total)
+        elif count > 0:     # a scaled input: its lanes only (the table's other entries skip)
+            _concat_table(dev, prec, x, sc[0], out, [(c0, count)], [sc], total, d0)
         d0 += count
     return out
 
@@ -279,18 +269,20 @@ def concat_to_blocked(dev: Device, prec: str, xs, block: int, ranges=None, scale
 _TABLES: dict = {}      # (context, table) -> its device copy: to_blocked_table's argument
 
 
-def _concat_table(dev, prec, x, m, out, ranges, scales, total: int):
-    """concat_to_blocked of channel ranges of one tensor x, some times a channel of m, as
-    one to_blocked_table launch (its table of source channels kept on the device)."""
+def _concat_table(dev, prec, x, m, out, ranges, scales, total: int, d0: int = 0):
+    """concat_to_blocked of channel ranges of one tensor x, some times a channel of m, from
+    output channel d0 on, as one to_blocked_table launch (its table of source channels kept
+    on the device); the output's other channels below `total` are left as they are."""
     check_storage("x", x, prec)
     check_storage("scale", m, prec)
-    tab = []
+    tab = [(-1, -1)] * d0
     for (c0, count), sc in zip(ranges, scales):
         if c0 + count > x.shape[1] or (sc is not None and not 0 <= sc[1] < m.shape[1]):
             raise ValueError(f"concat_to_blocked: channels {c0}..{c0 + count} of {tuple(x.shape)} "
                              f"or scale channel {sc and sc[1]} of {tuple(m.shape)} out of range")
         tab += [(c0 + k, -1 if sc is None else sc[1]) for k in range(count)]
-    if tuple(m.shape[:1] + m.shape[2:]) != tuple(x.shape[:1] + x.shape[2:]):
+    tab += [(-1, -1)] * (total - len(tab))
+    if m.ndim != 4 or tuple(m.shape[:1] + m.shape[2:]) != tuple(x.shape[:1] + x.shape[2:]):
         raise ValueError(f"concat_to_blocked: scale {tuple(m.shape)} does not fit {tuple(x.shape)}")
     base = getattr(dev, "base", dev)    # a model's planning device: the table outlives the plan
     key = (base.context, tuple(tab))
