@@ -101,6 +101,7 @@ class NsrrFrameStep:
                 self.mv.data, i32(w), i32(h), i32(1), f(1), f(1), f(1),
                 f(self.nits / PQ_PEAK_NITS)])}
         k["nsrr_reproject"] = dev.kernel(KERNEL, "nsrr_reproject", prec, **rd)
+        self.xy = None          # the warp's sample positions (the fast path's nsrr_warp_coords)
         if int(rd["VEC"]) == 1:
             grid, coords = (Wp, Hp), self.mv
         else:
@@ -180,7 +181,7 @@ class NsrrFrameStep:
 
     def device_bytes(self) -> int:
         arrays = [self.in_color, self.in_depth, self.in_motion, self.rgbd, self.mv, self.feat,
-                  *self.stacks, self.y, self.base, self.out] + ([self.xy] if hasattr(self, "xy") else [])
+                  *self.stacks, self.y, self.base, self.out] + ([self.xy] if self.xy is not None else [])
         n = sum(a.nbytes for a in arrays)
         for m in (self.features, self.reconstruct):
             mem = m.memory()

@@ -263,18 +263,21 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
     const int k = g == 0 ? -1 : (c0 - FEAT) / FEAT;        /* the history slot, -1 for Z_i */
     const float8 zero = (float8)(0.0f);
     const int i = zu_source(Y, h, siy, oy, sy, jy);
-    if (g > 0 && mode == 0 && Y < H) {
-        /* the history slots' warp: the frame's hot path, kept apart from the rest */
-        for (int r = 0; r < RUNS; ++r) {
-            const int X0 = Xw + 8 * r;
-            if (X0 >= Wp) break;
-            const int n = min(8, Wp - X0);
-            const long o = (long)Y * Wp + X0;
-            if (X0 >= W || k >= nvalid) {
-                for (int c = 0; c < nc; ++c) PUT8(stack, (c0 + c) * oplane + o, zero, n);
-                continue;
-            }
-            const int8 in = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)(W);
+    for (int r = 0; r < RUNS; ++r) {
+        const int X0 = Xw + 8 * r;
+        if (X0 >= Wp) break;
+        const int n = min(8, Wp - X0);
+        const long o = (long)Y * Wp + X0;
+        /* a history slot beyond the frames in use is empty too */
+        if (Y >= H || X0 >= W || (g > 0 && mode == 0 && k >= nvalid)) {
+            for (int c = 0; c < nc; ++c) PUT8(stack, (c0 + c) * oplane + o, zero, n);
+            if (g == 0)
+                for (int c = 0; c < 3; ++c) PUT8(base, c * oplane + o, zero, n);
+            continue;
+        }
+        /* lanes at X >= W (the padding columns) are written 0; their loads use X = W - 1 */
+        const int8 in = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)(W);
+        if (g > 0 && mode == 0) {      /* the history's warp: the frame's hot path */
             /* backward warp: this pixel was at (xs, ys) in the previous frame */
             const int W8 = (Wp + 7) & ~7;                   /* xy's row stride */
             const long xo = (long)Y * W8 + X0;
@@ -301,22 +304,8 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
                                  + GATHER8(p, i01) * t.w01 + GATHER8(p, i11) * t.w11;
                 PUT8(stack, (c0 + c) * oplane + o, select(zero, v, in), n);
             }
-        }
-        return;
-    }
-    for (int r = 0; r < RUNS; ++r) {
-        const int X0 = Xw + 8 * r;
-        if (X0 >= Wp) break;
-        const int n = min(8, Wp - X0);
-        const long o = (long)Y * Wp + X0;
-        if (Y >= H || X0 >= W) {
-            for (int c = 0; c < nc; ++c) PUT8(stack, (c0 + c) * oplane + o, zero, n);
-            if (g == 0)
-                for (int c = 0; c < 3; ++c) PUT8(base, c * oplane + o, zero, n);
             continue;
         }
-        /* lanes at X >= W (the padding columns) are written 0; their loads use X = W - 1 */
-        const int8 in = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)(W);
         int xl[8];
         for (int q = 0; q < 8; ++q) xl[q] = min(X0 + q, W - 1);
         if (g == 0) {
@@ -337,22 +326,19 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
                 PUT8(base, c * oplane + o, select(zero, v, in), n);
             }
         }
-        if (g == 0 || mode != 0) {
-            /* Z_i (group 0), or a reset's slot: zeros, or Z_i again (mode 2, k < nvalid) */
-            const bool z = g == 0 || (mode == 2 && k < nvalid);
-            long src[8];
-            for (int l = 0; l < 8; ++l) {
-                const int j = (i < 0 || !z) ? -1 : zu_source(xl[l], w, six, ox, sx, jx);
-                src[l] = (j < 0 || X0 + l >= W) ? -1 : (long)i * w + j;
-            }
-            for (int c = 0; c < nc; ++c) {
-                const int fc = g == 0 ? c : (c0 + c) % FEAT;     /* the feature channel */
-                float t[8];
-                for (int l = 0; l < 8; ++l)
-                    t[l] = src[l] < 0 ? 0.0f : LD(feat, fc * plane + src[l]);
-                PUT8(stack, (c0 + c) * oplane + o, vload8(0, t), n);
-            }
-            continue;
+        /* Z_i (group 0), or a reset's slot: zeros, or Z_i again (mode 2, k < nvalid) */
+        const bool z = g == 0 || (mode == 2 && k < nvalid);
+        long src[8];
+        for (int l = 0; l < 8; ++l) {
+            const int j = (i < 0 || !z) ? -1 : zu_source(xl[l], w, six, ox, sx, jx);
+            src[l] = (j < 0 || X0 + l >= W) ? -1 : (long)i * w + j;
+        }
+        for (int c = 0; c < nc; ++c) {
+            const int fc = g == 0 ? c : (c0 + c) % FEAT;     /* the feature channel */
+            float t[8];
+            for (int l = 0; l < 8; ++l)
+                t[l] = src[l] < 0 ? 0.0f : LD(feat, fc * plane + src[l]);
+            PUT8(stack, (c0 + c) * oplane + o, vload8(0, t), n);
         }
     }
 }
