@@ -66,8 +66,28 @@ def test_stored_mlp_block_and_work_group_size(dev, db, monkeypatch):
     xs = np.arange(2 * 3 * 4 * 16, dtype=np.float32).reshape(2, 3, 4, 16)
     before = s2d.space_to_depth(dev, "fp32", dev.to_device(xs), 2).get()
     (_, gs, ls), = seen
-    assert ls is None
+    assert ls == (tuning.balanced_local_size(gs, dev.info.compute_units) if dev.is_cpu else None)
     tuning.store(dev, "local_size:space_to_depth", tuning.shape_key(gs), {"local": [1, 2, 1]})
     after = s2d.space_to_depth(dev, "fp32", dev.to_device(xs), 2).get()
     assert seen[-1][2] == (1, 2, 1)
     assert np.array_equal(before, after)
+
+
+@pytest.mark.parametrize("gs", [(8100, 1), (1036800,), (60, 540, 2), (960, 540), (7,), (32,), (2025, 1),
+                                (97, 13, 3), (1, 1, 1), (4096,), (254, 16)])
+@pytest.mark.parametrize("units", [1, 2, 16])
+def test_balanced_local_size(gs, units):
+    """The CPU work-group size divides the global size, stays within 4096 work-items, and
+    leaves at least 8 groups per compute unit wherever the global size has a divisor for
+    it; dimension 0 is split last."""
+    loc = tuning.balanced_local_size(gs, units)
+    assert len(loc) == len(gs) and all(g % l == 0 for g, l in zip(gs, loc))
+    assert np.prod(loc) <= 4096
+    groups = int(np.prod([g // l for g, l in zip(gs, loc)]))
+    if groups < 8 * units:
+        # only where dimension 0 is down to its vector's worth (or to its last divisor)
+        # and every outer dimension is split to single rows
+        assert all(l == 1 for l in loc[1:])
+        assert loc[0] <= 16 or gs[0] // loc[0] >= 2 or loc[0] == 1
+    if gs == (8100, 1):       # NSRD's LSTM cell: 3 groups of 2700 left to PoCL
+        assert groups >= 8 * units and loc[0] >= 16
