@@ -780,3 +780,166 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
     }
 #endif
 }
+
+/* ---------------------------------------------------------------------------
+ * conv2d_thin: a convolution with few output channels (fewer than 8: an RGB or
+ * weight head, NSRR's last layers) on a channel-blocked input [N][Cb][H][W][ICV]
+ * (ICV = 8 or 16: a blocked conv's output), NCHW out.
+ *
+ * conv2d_blocked vectorises over output channels, so a 3-channel head fills 3 of
+ * 16 lanes; the NCHW conv2d leaves its input's producer to store NCHW (a transposing
+ * store, the slow epilogue of a blocked conv). Here the lanes are the input block's
+ * channels: per tap, one vector load of a pixel's ICV channels and one FMA per output
+ * channel, summed across the lanes once at the end. A work-item holds OC output
+ * channels x PX pixels of one row. Stride 1, dilation 1. The epilogue is conv2d's
+ * (bias, a residual before or after the activation). The lane sum is a tree, not
+ * conv2d's channel order, so the result matches the reference within the default
+ * tolerance (fast path conv.thin).
+ *
+ * Build options: -DKH, -DKW, -DICV=8|16, -DOC=1..4, -DPX=1..8, -DACT.
+ * NDRange: (ceil(Wo / PX), Ho, N * ng), ng = ceil(Cout / OC).
+ * @param[in]  x      [N, Cb, H, W, ICV] input (blocked; channels past Cin have zero weights)
+ * @param[in]  wp     [ng, Cb, KH, KW, OC, ICV] packed weights (A), zero past Cout and Cin
+ * @param[in]  bp     [ng * OC] bias (A), zero where none
+ * @param[in]  res    [N, Cout, Ho, Wo] residual (flags), or unused
+ * @param[out] y      [N, Cout, Ho, Wo] output (NCHW)
+ * @param[in]  Cb     input channel blocks
+ * @param[in]  H      input height
+ * @param[in]  W      input width
+ * @param[in]  Cout   output channels
+ * @param[in]  Ho     output height
+ * @param[in]  Wo     output width
+ * @param[in]  pt     top padding
+ * @param[in]  pl     left padding
+ * @param[in]  flags  F_RES_BEFORE / F_RES_AFTER
+ * @param[in]  alpha  leaky ReLU slope
+ * @param[in]  ng     output channel groups of OC
+ * --------------------------------------------------------------------------- */
+#if defined(ICV) && (ICV == 8 || ICV == 16) && defined(OC)
+/* A pixel's ICV channels as one ICV-wide vector (-DTHIN_WIDE=1, PoCL) or as NH 8-lane
+ * halves (oclgrind crashed on arrays of 16-wide vectors); the sums are the same. */
+#ifndef THIN_WIDE
+#define THIN_WIDE 0
+#endif
+typedef A A8u __attribute__((ext_vector_type(8), aligned(sizeof(A))));
+#if THIN_WIDE
+#define NH 1
+#define HL ICV
+typedef A AH __attribute__((ext_vector_type(ICV)));
+typedef A AHu __attribute__((ext_vector_type(ICV), aligned(sizeof(A))));
+#if ICV == 16
+#define THIN_LD(p, i) ((AH)(FLD8(p, i), FLD8(p, (i) + 8)))
+#define THIN_FOLD(a) ((a)[0].lo + (a)[0].hi)
+#else
+#define THIN_LD(p, i) FLD8(p, i)
+#define THIN_FOLD(a) ((a)[0])
+#endif
+#else
+#define NH (ICV / 8)
+#define HL 8
+typedef A8 AH;
+typedef A8u AHu;
+#define THIN_LD(p, i) FLD8(p, i)
+#if ICV == 16
+#define THIN_FOLD(a) ((a)[0] + (a)[1])
+#else
+#define THIN_FOLD(a) ((a)[0])
+#endif
+#endif
+
+/* the lanes' sum, as a tree (the halves first) */
+static inline A thin_sum(A8 s8)
+{
+    const A4 s4 = s8.lo + s8.hi;
+    return (s4.s0 + s4.s2) + (s4.s1 + s4.s3);
+}
+
+__kernel void conv2d_thin(__global const T *x, __global const A *wp, __global const A *bp,
+                          __global const T *res, __global T *y,
+                          int Cb, int H, int W, int Cout, int Ho, int Wo, int pt, int pl,
+                          int flags, float alpha, int ng)
+{
+    const int xb = get_global_id(0), oy = get_global_id(1), z = get_global_id(2);
+    if (xb * PX >= Wo || oy >= Ho)
+        return;
+    const int g = z % ng, n = z / ng;
+    const int ox0 = xb * PX, ix0 = ox0 - pl, iy0 = oy - pt;
+    const int inside = ix0 >= 0 && ix0 + (PX - 1) + (KW - 1) < W;
+
+    AH acc[OC][PX][NH];
+    for (int o = 0; o < OC; ++o)
+        for (int p = 0; p < PX; ++p)
+            for (int h = 0; h < NH; ++h)
+                acc[o][p][h] = (AH)A_ZERO;
+
+    const __global T *xg = x + (long)n * Cb * H * W * ICV;
+    const __global A *wg = wp + (long)g * Cb * KH * KW * OC * ICV;
+    const int ky0 = IMAX(0, -iy0), ky1 = IMIN(KH, H - iy0);
+#define THIN_LOOP(INSIDE)                                                        \
+    for (int c = 0; c < Cb; ++c) {                                               \
+        for (int ky = ky0; ky < ky1; ++ky) {                                     \
+            const __global T *row = xg + ((long)c * H + iy0 + ky) * W * ICV;     \
+            const __global A *wr = wg + (c * KH + ky) * KW * OC * ICV;           \
+            _Pragma("nounroll") for (int kx = 0; kx < KW; ++kx) {                \
+                AH wv[OC][NH];                                                   \
+                _Pragma("unroll") for (int o = 0; o < OC; ++o)                   \
+                    _Pragma("unroll") for (int h = 0; h < NH; ++h)               \
+                        wv[o][h] = *(__global const AHu *)(wr + (kx * OC + o) * ICV + h * HL); \
+                _Pragma("unroll") for (int p = 0; p < PX; ++p) {                 \
+                    const int q = ix0 + kx + p;                                  \
+                    const int in = INSIDE || (q >= 0 && q < W);                  \
+                    _Pragma("unroll") for (int h = 0; h < NH; ++h) {             \
+                        const AH s = in ? THIN_LD(row, (long)q * ICV + h * HL) : (AH)A_ZERO; \
+                        _Pragma("unroll") for (int o = 0; o < OC; ++o)           \
+                            acc[o][p][h] += wv[o][h] * s;                        \
+                    }                                                            \
+                }                                                                \
+            }                                                                    \
+        }                                                                        \
+    }
+    if (inside) {
+        THIN_LOOP(1)
+    } else {
+        THIN_LOOP(0)
+    }
+
+    /* the epilogue on 8-lane vectors of the tile's OC x PX outputs: a scalar tanh or exp
+     * is a library call per output on PoCL, and a 4-wide one little better */
+#if OC * PX > 16
+#error "conv2d_thin: OC * PX must be at most 16"
+#endif
+    const int np = IMIN(PX, Wo - ox0);
+    const long o0 = (((long)n * Cout + g * OC) * Ho + oy) * Wo + ox0, hwo = (long)Ho * Wo;
+    A sv[16], rv[16], u[16];
+    for (int e = 0; e < 16; ++e) {
+        sv[e] = A_ZERO;
+        rv[e] = A_ZERO;
+    }
+    for (int o = 0; o < OC; ++o) {
+        if (g * OC + o >= Cout)
+            break;
+        const A b = bp[g * OC + o];
+        for (int p = 0; p < PX; ++p)
+            sv[o * PX + p] = thin_sum(THIN_FOLD(acc[o][p])) + b;
+        if (flags & (F_RES_BEFORE | F_RES_AFTER))
+            for (int p = 0; p < np; ++p)
+                rv[o * PX + p] = FLD(res, o0 + o * hwo + p);
+    }
+    for (int e = 0; e < OC * PX; e += 8) {
+        A8 t = *(const A8u *)(sv + e);
+        const A8 r = *(const A8u *)(rv + e);
+        if (flags & F_RES_BEFORE)
+            t += r;
+        t = APPLY_ACT(t, alpha);
+        if (flags & F_RES_AFTER)
+            t += r;
+        *(A8u *)(u + e) = t;
+    }
+    for (int o = 0; o < OC; ++o) {
+        if (g * OC + o >= Cout)
+            break;
+        for (int p = 0; p < np; ++p)
+            FST(y, o0 + o * hwo + p, u[o * PX + p]);
+    }
+}
+#endif

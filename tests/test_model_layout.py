@@ -76,6 +76,9 @@ def test_which_tensors_stay_blocked():
     assert got["cat"] == (1, 3, 10, 26, 16)
     # in blocks of 8, 24 channels are whole blocks too
     assert layout.blocked_tensors(g, 8)["r2"] == (1, 3, 10, 26, 8)
+    # with conv2d_thin (fast path conv.thin), the 7-output head reads r4 blocked
+    assert set(layout.blocked_tensors(g, 16, thin=True)) == set(names) - {"y"}
+    assert "r4" in layout.blocked_tensors(g, 8, thin=True)
 
 
 def test_edges_stay_nchw():
@@ -157,6 +160,34 @@ def test_conv_blocked_in_and_out(any_dev, prec):
         assert c.passed, c
 
 
+@pytest.mark.parametrize("prec", ["fp32", "fp16"])
+@pytest.mark.parametrize("cin, cout, k, blk, act, res", [
+    (16, 4, 3, 16, "tanh", None), (16, 3, 3, 16, "none", "before"), (20, 7, 3, 16, "relu", "after"),
+    (24, 5, 3, 8, "sigmoid", None), (8, 1, 1, 8, "leaky_relu", "before"), (37, 2, 3, 16, "none", None)])
+def test_thin_conv_reads_blocked_input(any_dev, prec, cin, cout, k, blk, act, res):
+    """conv2d_thin (a conv with < 8 outputs on a blocked input, fast path conv.thin)
+    equals the NCHW conv within the conv tolerance: its lanes sum a block's channels as a
+    tree. Odd widths and heights (edge and inside work-items, a ragged last tile), a
+    padded last block, 1 to 7 outputs (a partial second group of 4), every epilogue."""
+    _needs_blocked(any_dev, prec)
+    if not selfcheck.enabled(any_dev, prec, "conv.thin"):
+        pytest.skip("conv.thin does not pass its self-check here")
+    g = np.random.default_rng(cin * 31 + cout)
+    h, wd = 7, 41
+    a = g.standard_normal((2, cin, h, wd)).astype(np.float32)
+    w = any_dev.to_device(_w(g, cout, cin, k), prec)
+    b = any_dev.to_device(g.standard_normal(cout).astype(np.float32), prec)
+    r = any_dev.to_device(g.standard_normal((2, cout, h, wd)).astype(np.float32), prec) if res else None
+    kw = dict(pads=(k // 2,) * 4, activation=act, alpha=0.1, residual=r, residual_before_act=res == "before")
+    ref = any_dev.to_host(conv.conv2d(any_dev, prec, any_dev.to_device(a, prec), w, b, **kw))
+    packed = {}
+    for _ in range(2):      # packed once, reused
+        got = any_dev.to_host(conv.conv2d(any_dev, prec, _blocked(any_dev, prec, a, blk), w, b, packed=packed, **kw))
+        c = compare(got, ref, DEFAULT_TOL[prec])
+        assert c.passed, c
+    assert packed[prec].key[0] == "thin"
+
+
 def test_blocked_conv_refuses_what_it_cannot_do(dev):
     _needs_blocked(dev)
     g = np.random.default_rng(1)
@@ -167,6 +198,10 @@ def test_blocked_conv_refuses_what_it_cannot_do(dev):
                     pads=(1, 1, 1, 1), out_blocked=True)
     with pytest.raises(ValueError, match="blocked"):
         conv.conv2d(dev, "fp32", x, dev.to_device(_w(g, 16, 16, 1)), out_blocked=True)
+    # a thin conv reads blocks of 8 or 16 only
+    xb = conv.to_blocked(dev, "fp32", x, 12, 2)
+    with pytest.raises(ValueError, match="blocks of 8 or 16"):
+        conv.conv2d(dev, "fp32", xb, dev.to_device(_w(g, 3, 16)), pads=(1, 1, 1, 1))
 
 
 def _gather_net(h=9, w=23):

@@ -65,7 +65,8 @@ class Model:
                 self.pass_log.append(f"lstm_cell: {n}")
         if fuse and layout.enabled(self.device, precision):
             from ..ops.conv import vector_width
-            n = layout.apply(graph, vector_width(self.device))
+            n = layout.apply(graph, vector_width(self.device),
+                             thin=selfcheck.enabled(self.device, precision, "conv.thin"))
             if n:
                 self.pass_log.append(f"blocked_layout: {n}")
         self.graph = graph

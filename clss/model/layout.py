@@ -19,6 +19,9 @@ Ops that take and give the blocked layout, with the same arithmetic as on NCHW:
   tensors are then concatenated along their block axis.
 - clss.LSTMCell (passes.fuse_lstm_cell) reads its gates blocked (kernels/lstm.cl
   -DGATE_BLOCK) and writes NCHW: the gate convolution stores its tile whole.
+- clss.Conv with fewer than 8 outputs (a network's RGB or weight head; conv2d_thin, fast
+  path conv.thin) reads a blocked input in blocks of 8 or 16 and writes NCHW: the conv
+  before it stores its tile whole instead of transposing it into NCHW planes.
 
 A conv's blocked output comes in blocks of V; a clss.ConcatBlocked (a concat of NCHW
 tensors that only blocked convs read) writes its own block size (conv.input_block), which
@@ -40,6 +43,17 @@ def _conv_ok(g: Graph, n: Node, blocked_eligible) -> bool:
         return False
     w = g.consts.get(n.inputs[1])
     return w is not None and w.ndim == 4 and blocked_eligible(None, w, int(n.attrs.get("group", 1)))
+
+
+def _thin_ok(g: Graph, n: Node) -> bool:
+    """A conv that conv2d_thin runs on a blocked input (few outputs: clss/ops/conv.py
+    thin_eligible)."""
+    from ..ops.conv import thin_eligible
+    if n.op != "clss.Conv" or n.attrs.get("transpose") or len(n.inputs) < 2:
+        return False
+    w = g.consts.get(n.inputs[1])
+    return w is not None and w.ndim == 4 and thin_eligible(
+        w, int(n.attrs.get("group", 1)), tuple(n.attrs.get("strides", (1, 1))), tuple(n.attrs.get("dilations", (1, 1))))
 
 
 def _pool_ok(g: Graph, n: Node) -> bool:
@@ -71,15 +85,18 @@ def _concat_ok(g: Graph, n: Node) -> bool:
     return all(s is not None and len(s) == 4 for s in shapes) and int(n.attrs.get("axis", 0)) % 4 == 1
 
 
-def blocked_tensors(g: Graph, block: int) -> dict[str, tuple]:
+def blocked_tensors(g: Graph, block: int, thin: bool = False) -> dict[str, tuple]:
     """{tensor: blocked device shape} for the tensors of g that can stay blocked in
-    blocks of `block` channels (the rules at the top of this file; a fixpoint)."""
+    blocks of `block` channels (the rules at the top of this file; a fixpoint). thin:
+    convs with few outputs read blocked inputs (conv2d_thin, fast path conv.thin)."""
     from ..ops.conv import blocked_eligible, blocked_shape
 
     kind = {}
     for i, n in enumerate(g.nodes):
         if _conv_ok(g, n, blocked_eligible):
             kind[i] = "conv"
+        elif thin and block in (8, 16) and _thin_ok(g, n):
+            kind[i] = "thin"        # reads its input blocked, writes NCHW
         elif _pool_ok(g, n):
             kind[i] = "pool"
         elif _resize_ok(g, n):
@@ -94,7 +111,7 @@ def blocked_tensors(g: Graph, block: int) -> dict[str, tuple]:
 
     def candidate(t):
         i = prod.get(t)
-        if i is None or t in outputs or kind.get(i) in (None, "cell") or g.nodes[i].outputs[0] != t:
+        if i is None or t in outputs or kind.get(i) in (None, "cell", "thin") or g.nodes[i].outputs[0] != t:
             return False
         s = g.shapes.get(t)
         if s is None or len(s) != 4 or g.dtypes.get(t, np.dtype("f4")).kind != "f":
@@ -113,7 +130,7 @@ def blocked_tensors(g: Graph, block: int) -> dict[str, tuple]:
             return n.inputs[0] == t and t not in n.inputs[1:] and n.outputs[0] in blocked
         if k == "concat":
             return g.shapes[t][1] % block == 0 and n.outputs[0] in blocked
-        if k == "cell":
+        if k in ("cell", "thin"):
             return n.inputs[0] == t and t not in n.inputs[1:]
         return False
 
@@ -187,14 +204,14 @@ def _gathers(g: Graph, blocked: dict, block: int) -> list:
     return out
 
 
-def apply(g: Graph, block: int) -> int:
+def apply(g: Graph, block: int, thin: bool = False) -> int:
     """Mark g's blocked tensors (Graph.blocked) and tell their producers: convs write
     the blocked layout (attrs blocked_out), concats join along the block axis, concats
     of NCHW tensors that feed blocked convs become clss.ConcatBlocked (reading the
     channel ranges of the Slices that only they read in place, and computing the Muls
     by a one-channel map that only they read: _scaled). Returns how many tensors are
     blocked."""
-    g.blocked = blocked_tensors(g, block)
+    g.blocked = blocked_tensors(g, block, thin)
     for n in g.nodes:
         if n.outputs and n.outputs[0] in g.blocked:
             if n.op == "clss.Conv":

@@ -143,6 +143,55 @@ def blocked_eligible(x, w, group: int) -> bool:
     return group == 1 and kh * kw > 1 and cin_g >= 8 and cout >= 8
 
 
+def thin_eligible(w, group: int, strides=(1, 1), dilations=(1, 1)) -> bool:
+    """Layers conv2d_thin covers on a blocked input: dense, unit stride and dilation,
+    fewer than 8 output channels (heads that conv2d_blocked's output-channel vectors would
+    mostly leave empty) and at least 8 input channels."""
+    cout, cin_g = w.shape[0], w.shape[1]
+    return group == 1 and cout < 8 and cin_g >= 8 and tuple(strides) == (1, 1) and tuple(dilations) == (1, 1)
+
+
+# conv2d_thin's register tile: OC output channels x PX pixels of ICV-lane accumulators
+THIN_OC, THIN_PX, THIN_LX = 4, 4, 16   # THIN_LX: work-items per group along x
+
+
+def _conv2d_thin(dev, prec, x, w, b, packed, pads, activation, alpha, residual, residual_before_act,
+                 out, ho, wo):
+    """conv2d_thin (kernels/conv.cl): x blocked [N, Cb, H, W, ICV] (ICV 8 or 16), NCHW out."""
+    cout, cin, kh, kw = w.shape
+    n, cb, h, wd, icv = x.shape
+    oc = min(cout, THIN_OC)
+    ng = -(-cout // oc)
+    key = ("thin", oc, icv, cb)
+    pw = None if packed is None else packed.get(prec)
+    if pw is None or pw.key != key:
+        # [ng, Cb, KH, KW, OC, ICV], zero past Cout and Cin: packed once, on the host
+        wh = dev.to_host(w).astype(np.float32)
+        wpad = np.zeros((ng * oc, cb * icv, kh, kw), np.float32)
+        wpad[:cout, :cin] = wh
+        wpk = wpad.reshape(ng, oc, cb, icv, kh, kw).transpose(0, 2, 4, 5, 1, 3)
+        bpad = np.zeros(ng * oc, np.float32)
+        if b is not None:
+            bpad[:cout] = dev.to_host(b)
+        apre = "fp16" if prec == "fp16-native" else "fp32"
+        pw = BlockedWeights(dev.to_device(np.ascontiguousarray(wpk), apre), dev.to_device(bpad, apre), key)
+        if packed is not None:
+            packed[prec] = pw
+    px = THIN_PX
+    k = dev.kernel("conv", "conv2d_thin", prec, KH=kh, KW=kw, ICV=icv, OC=oc, PX=px, ACT=_act(activation),
+                   THIN_WIDE=builtin_free(dev), **load_defines(dev, prec, "conv"))
+    flags = _flags(b, residual, residual_before_act) & ~_F_BIAS
+    # 16 work-items a group along x, as conv2d_blocked: PoCL, left to choose, made
+    # groups of thousands, whose private tiles overflowed a worker thread's stack
+    lx = THIN_LX
+    dev.launch(k, (-(-(-(-wo // px)) // lx) * lx, ho, n * ng),
+               (x.data, pw.wp.data, pw.bp.data, None if residual is None else residual.data, out.data,
+                np.int32(cb), np.int32(h), np.int32(wd), np.int32(cout), np.int32(ho), np.int32(wo),
+                np.int32(pads[0]), np.int32(pads[1]), np.int32(flags), np.float32(alpha), np.int32(ng)),
+               local_size=(lx, 1, 1))
+    return out
+
+
 def input_block(cin: int) -> int:
     """Channels per block of a conv2d_blocked input converted from NCHW: the fewest
     blocks of at most 16 channels, split evenly (60 -> 4 x 15, 18 -> 2 x 9), so that no
@@ -364,12 +413,18 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     out_blocked=True returns y as [N, ceil(Cout / V), Ho, Wo, V] (no residual). Both need
     the conv2d_blocked path (blocked_eligible, fast path conv.blocked)."""
     blocked_in = x.ndim == 5
+    thin = blocked_in and not out_blocked and thin_eligible(w, group, _pair(strides, "strides"),
+                                                            _pair(dilations, "dilations"))
     if blocked_in or out_blocked:
         v = vector_width(dev)
         if blocked_in and (not 1 <= x.shape[4] <= 16 or x.shape[1] != -(-w.shape[1] // x.shape[4])):
             raise ValueError(f"conv2d: blocked input {tuple(x.shape)} does not hold {w.shape[1]} channels "
                              f"in blocks of at most 16")
-        if (residual is not None and out_blocked) or not blocked_eligible(None, w, group) \
+        if thin:
+            if x.shape[4] not in (8, 16) or not selfcheck.enabled(dev, prec, "conv.thin"):
+                raise ValueError("conv2d: a thin conv reads the blocked layout in blocks of 8 or 16 on the "
+                                 "conv.thin path")
+        elif (residual is not None and out_blocked) or not blocked_eligible(None, w, group) \
                 or not selfcheck.enabled(dev, prec, "conv.blocked"):
             raise ValueError("conv2d: the blocked layout needs a dense spatial conv without residual on "
                              "the conv.blocked path")
@@ -393,6 +448,9 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     if out is None:
         out = dev.empty(blocked_shape(n, cout, ho, wo, v) if out_blocked else (n, cout, ho, wo), prec)
     cout_g = cout // group
+    if thin:
+        return _conv2d_thin(dev, prec, x, w, b, packed, (pt, pl), activation, alpha, residual,
+                            residual_before_act, out, ho, wo)
     if blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
                                      and selfcheck.enabled(dev, prec, "conv.blocked")):
         t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, x.shape[4] if blocked_in else 0,
@@ -535,6 +593,35 @@ for _name, _fast, _ref, _what, _applies in (
     selfcheck.register(selfcheck.FastPath(
         _name, "conv", _fast, _ref, check=_selfcheck_blocked if _name == "conv.blocked" else _selfcheck_run,
         tolerance=DEFAULT_TOL.__getitem__, what=_what, applies=_applies))
+
+
+def _selfcheck_thin(dev: Device, prec: str) -> list[np.ndarray]:
+    """conv2d_thin on a blocked input against conv2d on the same NCHW input: 1, 3 and 7
+    outputs (a partial second group), 20 input channels in blocks of 16 (a padded block)
+    and 8 in one block of 8, a residual before and after the activation, a 1x1 head; odd
+    width, edge and inside work-items. Small: it runs under oclgrind too."""
+    g = rng("conv thin selfcheck")
+    outs = []
+    for cin, cout, k, act, res in ((20, 3, 3, "tanh", None), (20, 7, 3, "relu", "after"),
+                                   (8, 1, 1, "none", "before")):
+        x = dev.to_device(g.standard_normal((1, cin, 5, 29)).astype(np.float32), prec)
+        w = dev.to_device(g.standard_normal((cout, cin, k, k)).astype(np.float32) * 0.2, prec)
+        b = dev.to_device(g.standard_normal(cout).astype(np.float32), prec)
+        r = dev.to_device(g.standard_normal((1, cout, 5, 29)).astype(np.float32), prec) if res else None
+        if selfcheck.enabled(dev, prec, "conv.thin"):
+            block = 16 if cin > 8 else 8
+            x = to_blocked(dev, prec, x, block, -(-cin // block))
+        p = k // 2
+        outs.append(dev.to_host(conv2d(dev, prec, x, w, b, pads=(p, p, p, p), activation=act, residual=r,
+                                       residual_before_act=res == "before")))
+    return outs
+
+
+selfcheck.register(selfcheck.FastPath(
+    "conv.thin", "conv", {"THIN": 1}, {"THIN": 0}, check=_selfcheck_thin, tolerance=DEFAULT_TOL.__getitem__,
+    what="convs with fewer than 8 outputs read a blocked input, its channels as the vector lanes "
+         "(conv2d_thin) / the input stored NCHW for the NCHW kernel (conv2d)",
+    applies=lambda dev: dev.is_cpu))
 
 
 # --- ONNX -----------------------------------------------------------------------
