@@ -474,6 +474,29 @@ typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
 #else
 #error "OCV must be 4, 8 or 16"
 #endif
+#ifndef GATED
+#define GATED 0
+#endif
+#if GATED && defined(CLSS_FP16)
+/* a vector as the unfused graph keeps it: stored in half, read back as float */
+static AV stored_av(AV v)
+{
+    ushort t[OCV];              /* half arrays need cl_khr_fp16; a half pointer does not */
+#if OCV == 16
+    vstore_half16_rte(v, 0, (__private half *)t);
+    return vload_half16(0, (__private const half *)t);
+#elif OCV == 8
+    vstore_half8_rte(v, 0, (__private half *)t);
+    return vload_half8(0, (__private const half *)t);
+#else
+    vstore_half4_rte(v, 0, (__private half *)t);
+    return vload_half4(0, (__private const half *)t);
+#endif
+}
+#define STORED_AV(v) stored_av(v)
+#else
+#define STORED_AV(v) (v)
+#endif
 
 /* The layout kernels take the block sizes as arguments, not -D options: they are
  * memory-bound, and one build serves every layer (under oclgrind a build is slow). */
@@ -658,7 +681,7 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
     if (xb * PX >= Wo || oy >= Ho || z >= nz)
         return;
     const int cb = z % ncb, n = z / ncb;
-    const int co0 = cb * OCB, nco = IMIN(OCB, Cout - co0);
+    const int co0 = cb * OCB;
     const int ox0 = xb * PX, ix0 = ox0 * SX - pl, iy0 = oy * sy - pt;
     const int inside = ix0 >= 0 && ix0 + (PX - 1) * SX + (KW - 1) * dx < W;
 
@@ -705,20 +728,47 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
     }
 
     const int np = IMIN(PX, Wo - ox0);
+#if GATED
+    /* A gated conv (clss/model/passes.py fuse_gated_conv): the weights interleave the
+     * feature conv's and the gate conv's output blocks, so vectors 2v and 2v + 1 are a
+     * block of features and its gates; out = act(f + bf) * sigmoid(g + bg), each factor
+     * rounded to the storage precision as the unfused graph stores it, the product the
+     * Mul's. Cout counts the output (feature) channels; NV is even. */
+#if NV % 2
+#error "GATED needs an even NV"
+#endif
+#define ENV (NV / 2)
+    const int eco0 = cb * ENV * OCV;
+    for (int v = 0; v < ENV; ++v) {
+        const AV bf = *(__global const AVu *)(bp + co0 + 2 * v * OCV);
+        const AV bg = *(__global const AVu *)(bp + co0 + (2 * v + 1) * OCV);
+        for (int p = 0; p < PX; ++p)
+            acc[v][p] = STORED_AV(APPLY_ACT(acc[2 * v][p] + bf, alpha))
+                        * STORED_AV((A)1 / ((A)1 + exp(-(acc[2 * v + 1][p] + bg))));
+    }
+#define EPI_BIAS(v) ((AV)A_ZERO)
+#else
+#define ENV NV
+    const int eco0 = co0;
+#define EPI_BIAS(v) (*(__global const AVu *)(bp + co0 + (v) * OCV))
+#endif
 #if OUT_BLOCKED
     /* Blocked output [N][ceil(Cout / OCV)][Ho][Wo][OCV] for a blocked consumer
      * (clss/model/layout.py): each accumulator vector is one pixel's channel block,
      * stored whole and contiguous; channels past Cout hold act(0) (zero weights and
      * bias), which the consumers' zero weights ignore. No residual here. */
     const int cbo = (Cout + OCV - 1) / OCV;
-    for (int v = 0; v < NV; ++v) {
-        const int ob = cb * NV + v;
+    for (int v = 0; v < ENV; ++v) {
+        const int ob = cb * ENV + v;
         if (ob >= cbo)
             break;
-        const AV b = *(__global const AVu *)(bp + co0 + v * OCV);
         __global T *yo = y + ((((long)n * cbo + ob) * Ho + oy) * Wo + ox0) * OCV;
         for (int p = 0; p < np; ++p) {
-            const AV t = APPLY_ACT(acc[v][p] + b, alpha);
+#if GATED
+            const AV t = acc[v][p];
+#else
+            const AV t = APPLY_ACT(acc[v][p] + EPI_BIAS(v), alpha);
+#endif
 #if defined(CLSS_FP16)
             A u[OCV];
             VSTORE_AV(t, 0, u);
@@ -731,22 +781,26 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
     }
 #else
     const long hwo = (long)Ho * Wo;
-    const long o0 = ((long)n * Cout + co0) * hwo + (long)oy * Wo + ox0;
-    for (int v = 0; v < NV; ++v) {
-        const AV b = *(__global const AVu *)(bp + co0 + v * OCV);
+    const long o0 = ((long)n * Cout + eco0) * hwo + (long)oy * Wo + ox0;
+    const int enco = IMIN(ENV * OCV, Cout - eco0);
+    for (int v = 0; v < ENV; ++v) {
         /* The tile goes through a private array by vstore: lanes read back by a
          * variable index (a union, or a subscript) confuse oclgrind's
          * uninitialised-value tracking on the kernel's second launch. */
         A u[PX][OCV];
         for (int p = 0; p < PX; ++p) {
-            AV t = acc[v][p] + b;
+#if GATED
+            AV t = acc[v][p];
+#else
+            AV t = acc[v][p] + EPI_BIAS(v);
             if (!(flags & (F_RES_BEFORE | F_RES_AFTER)))
                 t = APPLY_ACT(t, alpha);
+#endif
             VSTORE_AV(t, 0, u[p]);
         }
         for (int j = 0; j < OCV; ++j) {
             const int c = v * OCV + j;
-            if (c >= nco)
+            if (c >= enco)
                 break;
             const long o = o0 + (long)c * hwo;
             if (flags & (F_RES_BEFORE | F_RES_AFTER)) {

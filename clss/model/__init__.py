@@ -25,7 +25,7 @@ from .execute import Executor
 from .graph import FLOAT_TYPES, InputError, ModelError, UnsupportedModelError, build
 from .. import selfcheck
 from . import layout
-from .passes import fuse_lstm_cell, lstm_cell_graph, run_passes
+from .passes import fuse_gated_conv, fuse_lstm_cell, lstm_cell_graph, run_passes
 
 __all__ = ["Model", "ModelError", "InputError", "UnsupportedModelError"]
 
@@ -65,6 +65,10 @@ class Model:
                 self.pass_log.append(f"lstm_cell: {n}")
         if fuse and layout.enabled(self.device, precision):
             from ..ops.conv import vector_width
+            if selfcheck.enabled(self.device, precision, GATED_CONV):
+                n = fuse_gated_conv(graph, vector_width(self.device))
+                if n:
+                    self.pass_log.append(f"gated_conv: {n}")
             n = layout.apply(graph, vector_width(self.device),
                              thin=selfcheck.enabled(self.device, precision, "conv.thin"))
             if n:
@@ -331,3 +335,58 @@ def _register_lstm_cell():
 
 
 _register_lstm_cell()
+
+
+# --- gated convolutions (passes.fuse_gated_conv, kernels/conv.cl -DGATED) ----------------
+
+GATED_CONV = "model.gated_conv"
+
+
+def gated_conv_graph(cin: int = 18, h: int = 5, w: int = 29):
+    """NSRD's gated conv twice (16 and 32 channels: one and two vector pairs per work-item
+    group) as ONNX: LeakyRelu(Conv_f(x)) * Sigmoid(Conv_g(x)), the second without bias
+    and with the Mul's inputs swapped. The fast path's self-check graph."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    from ..ops.base import rng
+    g = rng("gated conv graph", cin, h, w)
+    inits, nodes = [], []
+    cv = dict(kernel_shape=[3, 3], pads=[1, 1, 1, 1])
+    for k, (c, bias, swap) in enumerate(((16, True, False), (32, False, True))):
+        for role in "fg":
+            inits.append(numpy_helper.from_array((g.standard_normal((c, cin, 3, 3)) * 0.2).astype(np.float32),
+                                                 f"w{role}{k}"))
+            if bias:
+                inits.append(numpy_helper.from_array((g.standard_normal(c) * 0.1).astype(np.float32), f"b{role}{k}"))
+        nodes += [helper.make_node("Conv", ["x", f"wf{k}"] + ([f"bf{k}"] if bias else []), [f"cf{k}"], **cv),
+                  helper.make_node("LeakyRelu", [f"cf{k}"], [f"af{k}"], alpha=0.1),
+                  helper.make_node("Conv", ["x", f"wg{k}"] + ([f"bg{k}"] if bias else []), [f"cg{k}"], **cv),
+                  helper.make_node("Sigmoid", [f"cg{k}"], [f"ag{k}"]),
+                  helper.make_node("Mul", [f"ag{k}", f"af{k}"] if swap else [f"af{k}", f"ag{k}"], [f"y{k}"])]
+    vi = helper.make_tensor_value_info
+    graph = helper.make_graph(nodes, "gated_conv", [vi("x", TensorProto.FLOAT, [1, cin, h, w])],
+                              [vi("y0", TensorProto.FLOAT, [1, 16, h, w]), vi("y1", TensorProto.FLOAT, [1, 32, h, w])],
+                              inits)
+    m = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    m.ir_version = 8
+    return m
+
+
+def _gated_conv_check(dev, prec: str) -> list:
+    from ..ops.base import rng
+    x = rng("gated conv selfcheck").standard_normal((1, 18, 5, 29)).astype(np.float32)
+    out = Model(gated_conv_graph(), device=dev, precision=prec).run({"x": x})
+    return [out["y0"], out["y1"]]
+
+
+def _register_gated_conv():
+    from ..tolerance import DEFAULT_TOL
+    selfcheck.register(selfcheck.FastPath(
+        GATED_CONV, "conv", {"GATED": 1}, {"GATED": 0}, check=_gated_conv_check,
+        tolerance=DEFAULT_TOL.__getitem__,
+        what="act(conv_f(x)) * sigmoid(conv_g(x)) as one blocked conv whose work-items hold a block of "
+             "features and its gates and write their product / two convs and a Mul",
+        applies=lambda dev: dev.is_cpu))
+
+
+_register_gated_conv()

@@ -83,7 +83,7 @@ def _conv(dev, prec, attrs, inputs):
     if attrs.get("transpose"):
         return [conv.conv_transpose2d(dev, prec, x, w, b, output_padding=attrs["output_padding"], **kw)]
     return [conv.conv2d(dev, prec, x, w, b, packed=attrs.setdefault("_packed", {}),
-                        out_blocked=bool(attrs.get("blocked_out")), **kw)]
+                        out_blocked=bool(attrs.get("blocked_out")), gated=bool(attrs.get("gated")), **kw)]
 
 
 @internal_op("clss.ConcatBlocked")

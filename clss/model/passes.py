@@ -1129,3 +1129,68 @@ PASSES = [
     ("maxpool", maxpool_values_only),
     ("dead", remove_dead),
 ]
+
+
+# --- gated convolutions (NSRD's gated conv: act(conv_f(x)) * sigmoid(conv_g(x))) ----------
+
+def _gated_at(g: Graph, m: Node, uses: dict, prod: dict, block: int):
+    """(feature conv, gate conv) where Mul m multiplies two clss.Conv outputs of one input
+    x with the same geometry, the gate's activation a sigmoid, both read only by m, C
+    (each conv's outputs) a whole number of blocks; else None."""
+    if m.op != "Mul" or len(m.inputs) != 2 or m.inputs[0] == m.inputs[1] or g.dtypes[m.outputs[0]].kind != "f":
+        return None
+    convs = [g.nodes[prod[t]] if t in prod else None for t in m.inputs]
+    if any(c is None or c.op != "clss.Conv" or c.attrs.get("transpose") or c.inputs[3] or c.attrs["group"] != 1
+           or c.inputs[1] not in g.consts or (c.inputs[2] and c.inputs[2] not in g.consts)
+           or not _single_use(g, c.outputs[0], uses) for c in convs):
+        return None
+    a, b = convs
+    if b.attrs["activation"] != "sigmoid":
+        a, b = b, a
+    if b.attrs["activation"] != "sigmoid" or a.inputs[0] != b.inputs[0] or bool(a.inputs[2]) != bool(b.inputs[2]):
+        return None
+    if any(tuple(a.attrs[k]) != tuple(b.attrs[k]) for k in ("strides", "pads", "dilations")):
+        return None
+    wa, wb = g.consts[a.inputs[1]], g.consts[b.inputs[1]]
+    if wa.shape != wb.shape or wa.ndim != 4 or wa.shape[0] % block or wa.shape[2] * wa.shape[3] < 2 \
+            or wa.shape[1] < 8:
+        return None
+    return a, b
+
+
+def fuse_gated_conv(g: Graph, block: int) -> int:
+    """Mul(act(conv_f(x)), sigmoid(conv_g(x))) -> one clss.Conv with attrs gated: its
+    weights are conv_f's and conv_g's output channels interleaved in blocks of `block`
+    (the blocked conv's output vector), so a work-item holds a feature vector and its
+    gate and writes their product (kernels/conv.cl -DGATED): one pass over x instead of
+    two, and no Mul kernel. Not in PASSES: clss.Model applies it where its fast path
+    (model.gated_conv) and the blocked conv hold."""
+    changed = 0
+    again = True
+    while again:
+        again = False
+        uses, prod = g.consumers(), g.producer()
+        for m in g.nodes:
+            pair = _gated_at(g, m, uses, prod, block)
+            if pair is None:
+                continue
+            a, b = pair
+            c = g.consts[a.inputs[1]].shape[0]
+            order = np.concatenate([np.r_[j:j + block, c + j:c + j + block] for j in range(0, c, block)])
+            w = np.concatenate([g.consts[a.inputs[1]], g.consts[b.inputs[1]]])[order]
+            wn = g.fresh(f"{a.name}_gated_w")
+            g.consts[wn], g.shapes[wn], g.dtypes[wn] = w, w.shape, w.dtype
+            bn = ""
+            if a.inputs[2]:
+                bias = np.concatenate([g.consts[a.inputs[2]], g.consts[b.inputs[2]]])[order]
+                bn = g.fresh(f"{a.name}_gated_b")
+                g.consts[bn], g.shapes[bn], g.dtypes[bn] = bias, bias.shape, bias.dtype
+            attrs = dict(a.attrs, gated=True)
+            fused = Node("clss.Conv", [a.inputs[0], wn, bn, ""], list(m.outputs), attrs, a.name, a.opset,
+                         sources=a.sources + b.sources + m.sources, unfused=[a, b, m])
+            g.nodes[g.nodes.index(m)] = fused
+            g.nodes = [n for n in g.nodes if n is not a and n is not b]
+            changed += 1
+            again = True
+            break
+    return changed

@@ -345,7 +345,7 @@ def _concat_table(dev, prec, x, m, out, ranges, scales, total: int, d0: int = 0)
 
 
 def _conv2d_blocked(dev, prec, x, w, b, t, packed, strides, pads, dilations, activation, alpha,
-                    residual, residual_before_act, out, ho, wo, out_blocked):
+                    residual, residual_before_act, out, ho, wo, out_blocked, gated=False):
     cout, cin, kh, kw = w.shape
     n, h, wd = x.shape[0], x.shape[2], x.shape[3]     # NCHW and blocked [N][Cb][H][W][V] alike
     sy, sx = strides
@@ -361,13 +361,14 @@ def _conv2d_blocked(dev, prec, x, w, b, t, packed, strides, pads, dilations, act
     ncb = -(-cout // ocb)
     k = dev.kernel("conv", "conv2d_blocked", prec, KH=kh, KW=kw, SX=sx, OCV=t["OCV"], NV=t["NV"],
                    PX=t["PX"], ICV=t["ICV"], ACT=_act(activation), OUT_BLOCKED=int(out_blocked),
-                   **load_defines(dev, prec, "conv"))
+                   **({"GATED": 1} if gated else {}), **load_defines(dev, prec, "conv"))
     nz = n * ncb
     lx = t["BLX"]
     gs = (-(-(-(-wo // t["PX"])) // lx) * lx, ho, nz)
     flags = _flags(b, residual, residual_before_act) & ~_F_BIAS
     dev.launch(k, gs, (xb.data, pw.wp.data, pw.bp.data, None if residual is None else residual.data, out.data,
-                       np.int32(t["CB"]), np.int32(h), np.int32(wd), np.int32(cout), np.int32(ho),
+                       np.int32(t["CB"]), np.int32(h), np.int32(wd), np.int32(cout // 2 if gated else cout),
+                       np.int32(ho),
                        np.int32(wo),
                        np.int32(ncb), np.int32(sy), np.int32(pt), np.int32(pl), np.int32(dy), np.int32(dx),
                        np.int32(flags), np.float32(alpha), np.int32(nz)),
@@ -402,7 +403,7 @@ def conv_output_size(size: int, k: int, stride: int, pad_total: int, dilation: i
 def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 0, 0),
            dilations=(1, 1), group: int = 1, activation: str = "none", alpha: float = 0.01,
            residual=None, residual_before_act: bool = True, out=None, tuning=None, packed=None,
-           out_blocked: bool = False):
+           out_blocked: bool = False, gated: bool = False):
     """ONNX Conv on NCHW: x [N,Cin,H,W], w [Cout,Cin/group,kh,kw], b [Cout] or None;
     pads [top,left,bottom,right]. Fused epilogue: y = act(conv + b + residual)
     (residual_before_act, the ResNet pattern Conv -> Add -> Relu), or
@@ -411,7 +412,11 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     The channel-blocked layout (a graph's blocked chains, clss/model/layout.py): x may be
     [N, ceil(Cin / V), H, W, V] with V = vector_width(dev), channels past Cin ignored;
     out_blocked=True returns y as [N, ceil(Cout / V), Ho, Wo, V] (no residual). Both need
-    the conv2d_blocked path (blocked_eligible, fast path conv.blocked)."""
+    the conv2d_blocked path (blocked_eligible, fast path conv.blocked).
+
+    gated=True (clss/model/passes.py fuse_gated_conv): w's 2C output channels interleave a
+    feature conv's and a gate conv's in blocks of vector_width(dev); y [N, C, Ho, Wo] =
+    act(features + b) * sigmoid(gates + b), on the conv2d_blocked path, no residual."""
     blocked_in = x.ndim == 5
     thin = blocked_in and not out_blocked and thin_eligible(w, group, _pair(strides, "strides"),
                                                             _pair(dilations, "dilations"))
@@ -444,19 +449,26 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     wo = conv_output_size(wd, kw, sx, pl + pr, dx)
     if ho < 1 or wo < 1:
         raise ValueError(f"conv2d: output would be {ho}x{wo} for input {h}x{wd}")
-    _check_common(x, w, b, residual, prec, (n, cout, ho, wo), cout)
+    _check_common(x, w, b, residual, prec, (n, cout // 2 if gated else cout, ho, wo), cout)
+    if gated and (residual is not None or group != 1 or not blocked_eligible(None, w, group)
+                  or cout % (2 * vector_width(dev)) or not selfcheck.enabled(dev, prec, "conv.blocked")):
+        raise ValueError("conv2d: a gated conv needs a dense spatial conv without residual whose outputs are "
+                         "whole vector pairs, on the conv.blocked path")
+    yc = cout // 2 if gated else cout
     if out is None:
-        out = dev.empty(blocked_shape(n, cout, ho, wo, v) if out_blocked else (n, cout, ho, wo), prec)
+        out = dev.empty(blocked_shape(n, yc, ho, wo, vector_width(dev)) if out_blocked else (n, yc, ho, wo), prec)
     cout_g = cout // group
     if thin:
         return _conv2d_thin(dev, prec, x, w, b, packed, (pt, pl), activation, alpha, residual,
                             residual_before_act, out, ho, wo)
-    if blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
-                                     and selfcheck.enabled(dev, prec, "conv.blocked")):
+    if gated or blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
+                                              and selfcheck.enabled(dev, prec, "conv.blocked")):
         t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, x.shape[4] if blocked_in else 0,
                            out_blocked)
+        if gated and t["NV"] % 2:
+            t["NV"] = 2
         return _conv2d_blocked(dev, prec, x, w, b, t, packed, (sy, sx), (pt, pl), (dy, dx), activation,
-                               alpha, residual, residual_before_act, out, ho, wo, out_blocked)
+                               alpha, residual, residual_before_act, out, ho, wo, out_blocked, gated)
     t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning, group)
     # A pointwise conv with unit stride and no padding is a GEMM over flattened
     # pixels: one row of H*W, so only the image's last block takes the edge path.
