@@ -118,7 +118,13 @@ def local_size(dev, kernel_name: str, global_size) -> tuple | None:
         loc = tuple(int(v) for v in p)
         if len(loc) == len(gs) and not any(g % l for g, l in zip(gs, loc)):
             return loc
-    return balanced_local_size(gs, dev.info.compute_units) if getattr(dev, "is_cpu", False) and BALANCE else None
+    if not (BALANCE and getattr(dev, "is_cpu", False)):
+        return None
+    limits = getattr(dev, "_wg_limits", None)
+    if limits is None:      # the device's work-group limits (oclgrind's are 1024 work-items)
+        d = dev.cl_device
+        limits = dev._wg_limits = (int(d.max_work_group_size), tuple(int(v) for v in d.max_work_item_sizes))
+    return balanced_local_size(gs, dev.info.compute_units, *limits)
 
 
 BALANCE = True
@@ -133,17 +139,18 @@ def _divisor_at_most(g: int, cap: int) -> int:
     return 1
 
 
-def balanced_local_size(gs: tuple, units: int, max_items: int = 4096) -> tuple:
+def balanced_local_size(gs: tuple, units: int, max_items: int = 4096, max_sizes: tuple = ()) -> tuple:
     """A work-group size for a CPU device that leaves every thread work: at least 8 groups
     per compute unit where the global size allows. A CPU driver runs a work-group on one
     thread, and left to itself PoCL makes the groups as large as it can (up to 4096
     work-items): NSRD's LSTM cell (8100 work-items) ran as 3 groups of 2700 on 2 threads,
     one thread doing two thirds of the work. Dimension 0 keeps the longest run it can (PoCL
     vectorises a work-group's loop along it); the outer dimensions are split first. Only
-    divisors of the global size (OpenCL 1.2 has no partial groups)."""
+    divisors of the global size (OpenCL 1.2 has no partial groups), within the device's
+    max_items work-items a group and max_sizes per dimension."""
     loc, room = [], max_items
-    for g in gs:
-        loc.append(_divisor_at_most(g, room))
+    for d, g in enumerate(gs):
+        loc.append(_divisor_at_most(g, min(room, max_sizes[d]) if d < len(max_sizes) else room))
         room = max(1, room // loc[-1])
     want = 8 * max(1, units)
 

@@ -91,3 +91,11 @@ def test_balanced_local_size(gs, units):
         assert loc[0] <= 16 or gs[0] // loc[0] >= 2 or loc[0] == 1
     if gs == (8100, 1):       # NSRD's LSTM cell: 3 groups of 2700 left to PoCL
         assert groups >= 8 * units and loc[0] >= 16
+
+
+def test_balanced_local_size_keeps_the_device_limits():
+    # oclgrind: 1024 work-items a group, 1024 along each dimension
+    loc = tuning.balanced_local_size((4096, 3), 2, 1024, (1024, 1024, 1024))
+    assert np.prod(loc) <= 1024 and loc[0] <= 1024 and 4096 % loc[0] == 0
+    loc = tuning.balanced_local_size((7, 2048), 1, 4096, (4096, 64, 64))
+    assert loc[1] <= 64
