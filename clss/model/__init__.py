@@ -325,16 +325,18 @@ def _lstm_cell_check(dev, prec: str) -> list:
     return [out["h"], out["c_out"]]
 
 
-def _register_lstm_cell():
+def _register_graph_path(name: str, family: str, option: str, check, what: str, **kw):
+    """A fast path of clss.Model's graph rewriting: on (-D<option>=1) / off, checked by
+    running a small graph through a Model, at the default tolerance."""
     from ..tolerance import DEFAULT_TOL
-    selfcheck.register(selfcheck.FastPath(
-        LSTM_CELL, "lstm", {"LSTM_CELL": 1}, {"LSTM_CELL": 0}, check=_lstm_cell_check,
-        tolerance=DEFAULT_TOL.__getitem__,
-        what="a ConvLSTM cell's Split, Sigmoid, Tanh, Mul and Add nodes as one kernel reading the gates "
-             "where their conv left them (blocked or NCHW) / the ten nodes"))
+    selfcheck.register(selfcheck.FastPath(name, family, {option: 1}, {option: 0}, check=check,
+                                          tolerance=DEFAULT_TOL.__getitem__, what=what, **kw))
 
 
-_register_lstm_cell()
+_register_graph_path(
+    LSTM_CELL, "lstm", "LSTM_CELL", _lstm_cell_check,
+    "a ConvLSTM cell's Split, Sigmoid, Tanh, Mul and Add nodes as one kernel reading the gates "
+    "where their conv left them (blocked or NCHW) / the ten nodes")
 
 
 # --- gated convolutions (passes.fuse_gated_conv, kernels/conv.cl -DGATED) ----------------
@@ -379,14 +381,7 @@ def _gated_conv_check(dev, prec: str) -> list:
     return [out["y0"], out["y1"]]
 
 
-def _register_gated_conv():
-    from ..tolerance import DEFAULT_TOL
-    selfcheck.register(selfcheck.FastPath(
-        GATED_CONV, "conv", {"GATED": 1}, {"GATED": 0}, check=_gated_conv_check,
-        tolerance=DEFAULT_TOL.__getitem__,
-        what="act(conv_f(x)) * sigmoid(conv_g(x)) as one blocked conv whose work-items hold a block of "
-             "features and its gates and write their product / two convs and a Mul",
-        applies=lambda dev: dev.is_cpu))
-
-
-_register_gated_conv()
+_register_graph_path(
+    GATED_CONV, "conv", "GATED", _gated_conv_check,
+    "act(conv_f(x)) * sigmoid(conv_g(x)) as one blocked conv whose work-items hold a block of "
+    "features and its gates and write their product / two convs and a Mul", applies=lambda dev: dev.is_cpu)

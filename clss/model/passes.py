@@ -956,27 +956,29 @@ def fuse_lstm_cell(g: Graph) -> int:
     Sigmoid, two Tanh, three Mul, an Add) -> one clss.LSTMCell (kernels/lstm.cl), with
     the same arithmetic. It runs where c' was made. Not in PASSES: clss.Model applies
     it where its fast path (model.lstm_cell) holds."""
+    def rewrite(split, m):
+        order, c, h_new, c_new, nodes = m
+        fused = Node("clss.LSTMCell", [split.inputs[0], c], [h_new, c_new], {"order": order},
+                     split.name, split.opset, sources=[s for n in nodes for s in n.sources],
+                     unfused=list(nodes))
+        at = nodes[8]           # the Add that made c'
+        g.nodes[g.nodes.index(at)] = fused
+        drop = {id(n) for n in nodes if n is not at}
+        g.nodes = [n for n in g.nodes if id(n) not in drop]
+    return _rewrite_until_fixed(g, lambda n, uses, prod: _lstm_cell_at(g, n, uses, prod), rewrite)
+
+
+def _rewrite_until_fixed(g: Graph, match, rewrite) -> int:
+    """rewrite(node, m) at the first node where m = match(node, consumers, producers) is not
+    None, again on the changed graph, until nothing matches; returns the rewrites."""
     changed = 0
-    again = True
-    while again:
-        again = False
+    while True:
         uses, prod = g.consumers(), g.producer()
-        for split in g.nodes:
-            m = _lstm_cell_at(g, split, uses, prod)
-            if m is None:
-                continue
-            order, c, h_new, c_new, nodes = m
-            fused = Node("clss.LSTMCell", [split.inputs[0], c], [h_new, c_new], {"order": order},
-                         split.name, split.opset, sources=[s for n in nodes for s in n.sources],
-                         unfused=list(nodes))
-            at = nodes[8]           # the Add that made c'
-            g.nodes[g.nodes.index(at)] = fused
-            drop = {id(n) for n in nodes if n is not at}
-            g.nodes = [n for n in g.nodes if id(n) not in drop]
-            changed += 1
-            again = True
-            break
-    return changed
+        hit = next(((n, m) for n in g.nodes for m in (match(n, uses, prod),) if m is not None), None)
+        if hit is None:
+            return changed
+        rewrite(*hit)
+        changed += 1
 
 
 def lstm_cell_graph(x_shape, channels: int, *, conv: bool = False, order=(0, 1, 2, 3)):
@@ -1165,32 +1167,20 @@ def fuse_gated_conv(g: Graph, block: int) -> int:
     gate and writes their product (kernels/conv.cl -DGATED): one pass over x instead of
     two, and no Mul kernel. Not in PASSES: clss.Model applies it where its fast path
     (model.gated_conv) and the blocked conv hold."""
-    changed = 0
-    again = True
-    while again:
-        again = False
-        uses, prod = g.consumers(), g.producer()
-        for m in g.nodes:
-            pair = _gated_at(g, m, uses, prod, block)
-            if pair is None:
-                continue
-            a, b = pair
-            c = g.consts[a.inputs[1]].shape[0]
-            order = np.concatenate([np.r_[j:j + block, c + j:c + j + block] for j in range(0, c, block)])
-            w = np.concatenate([g.consts[a.inputs[1]], g.consts[b.inputs[1]]])[order]
-            wn = g.fresh(f"{a.name}_gated_w")
-            g.consts[wn], g.shapes[wn], g.dtypes[wn] = w, w.shape, w.dtype
-            bn = ""
-            if a.inputs[2]:
-                bias = np.concatenate([g.consts[a.inputs[2]], g.consts[b.inputs[2]]])[order]
-                bn = g.fresh(f"{a.name}_gated_b")
-                g.consts[bn], g.shapes[bn], g.dtypes[bn] = bias, bias.shape, bias.dtype
-            attrs = dict(a.attrs, gated=True)
-            fused = Node("clss.Conv", [a.inputs[0], wn, bn, ""], list(m.outputs), attrs, a.name, a.opset,
-                         sources=a.sources + b.sources + m.sources, unfused=[a, b, m])
-            g.nodes[g.nodes.index(m)] = fused
-            g.nodes = [n for n in g.nodes if n is not a and n is not b]
-            changed += 1
-            again = True
-            break
-    return changed
+    def rewrite(m, pair):
+        a, b = pair
+        c = g.consts[a.inputs[1]].shape[0]
+        order = np.concatenate([np.r_[j:j + block, c + j:c + j + block] for j in range(0, c, block)])
+        w = np.concatenate([g.consts[a.inputs[1]], g.consts[b.inputs[1]]])[order]
+        wn = g.fresh(f"{a.name}_gated_w")
+        g.consts[wn], g.shapes[wn], g.dtypes[wn] = w, w.shape, w.dtype
+        bn = ""
+        if a.inputs[2]:
+            bias = np.concatenate([g.consts[a.inputs[2]], g.consts[b.inputs[2]]])[order]
+            bn = g.fresh(f"{a.name}_gated_b")
+            g.consts[bn], g.shapes[bn], g.dtypes[bn] = bias, bias.shape, bias.dtype
+        fused = Node("clss.Conv", [a.inputs[0], wn, bn, ""], list(m.outputs), dict(a.attrs, gated=True), a.name,
+                     a.opset, sources=a.sources + b.sources + m.sources, unfused=[a, b, m])
+        g.nodes[g.nodes.index(m)] = fused
+        g.nodes = [n for n in g.nodes if n is not a and n is not b]
+    return _rewrite_until_fixed(g, lambda m, uses, prod: _gated_at(g, m, uses, prod, block), rewrite)
