@@ -88,6 +88,11 @@ typedef float8 A8;
 #define ACT ACT_NONE
 #endif
 
+/* The logistic sigmoid, in the one form every kernel uses (the conv epilogue, the gated
+ * conv's gates, the LSTM cell), so that fused and unfused paths round alike. Generic in
+ * the vector width. */
+#define SIGMOID(x) ((A)1 / ((A)1 + exp(-(x))))
+
 /* Generic in the vector width: works for A, A4 and A8 alike. */
 /* relu/leaky_relu: NaN passes through, as in onnxruntime (fmax(NaN, 0) is 0). */
 #if ACT == ACT_RELU
@@ -95,7 +100,7 @@ typedef float8 A8;
 #elif ACT == ACT_LEAKY_RELU
 #define APPLY_ACT(x, alpha) (((x) < (A)0) ? (x) * (A)(alpha) : (x))
 #elif ACT == ACT_SIGMOID
-#define APPLY_ACT(x, alpha) ((A)1 / ((A)1 + exp(-(x))))
+#define APPLY_ACT(x, alpha) SIGMOID(x)
 #elif ACT == ACT_TANH
 #define APPLY_ACT(x, alpha) tanh(x)
 #else

@@ -744,9 +744,8 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
         const AV bg = *(__global const AVu *)(bp + co0 + (2 * v + 1) * OCV);
         for (int p = 0; p < PX; ++p)
             acc[v][p] = STORED_AV(APPLY_ACT(acc[2 * v][p] + bf, alpha))
-                        * STORED_AV((A)1 / ((A)1 + exp(-(acc[2 * v + 1][p] + bg))));
+                        * STORED_AV(SIGMOID(acc[2 * v + 1][p] + bg));
     }
-#define EPI_BIAS(v) ((AV)A_ZERO)
 #else
 #define ENV NV
     const int eco0 = co0;

@@ -254,7 +254,7 @@ __kernel void where_bcast(__global const uchar *c, __global const TB *a, __globa
 #elif UOP == UOP_LEAKY_RELU
 #define UNOP(x) (((x) < (A)0) ? (x) * (A)p0 : (x))
 #elif UOP == UOP_SIGMOID
-#define UNOP(x) ((A)1 / ((A)1 + exp(-(x))))
+#define UNOP(x) SIGMOID(x)
 #elif UOP == UOP_TANH
 #define UNOP(x) tanh(x)
 #elif UOP == UOP_ELU

@@ -29,7 +29,6 @@
 #define CELL_PX 64
 #endif
 
-#define SIGMOID8(x) ((A)1 / ((A)1 + exp(-(x))))
 
 /* An intermediate as the unfused graph keeps it: stored in T, read back as A. */
 #if defined(CLSS_FP16)
@@ -114,9 +113,9 @@ __kernel void lstm_cell(__global const T *gates, __global const T *c, __global T
                 vg = vload8(0, t[3]);
                 cv = vload8(0, t[4]);
             }
-            const A8 si = as_stored8(SIGMOID8(vi));
-            const A8 sf = as_stored8(SIGMOID8(vf));
-            const A8 so = as_stored8(SIGMOID8(vo));
+            const A8 si = as_stored8(SIGMOID(vi));
+            const A8 sf = as_stored8(SIGMOID(vf));
+            const A8 so = as_stored8(SIGMOID(vo));
             const A8 tg = as_stored8(tanh(vg));
             const A8 m1 = as_stored8(sf * cv);
             const A8 m2 = as_stored8(si * tg);

@@ -52,7 +52,7 @@ inline A8 act8(A8 v, int kind, float alpha)
     if (kind == ACT_LEAKY_RELU)
         return v < (A8)A_ZERO ? v * (A)alpha : v;
     if (kind == ACT_SIGMOID)
-        return (A)1 / ((A)1 + exp(-v));
+        return SIGMOID(v);
     if (kind == ACT_TANH)
         return tanh(v);
     return v;
