@@ -216,6 +216,16 @@ def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocke
     nvec = -(-cout // ocv)
     nv = 2 if nvec >= 2 and nvec % 2 == 0 else 1
     px = (14 if nv == 1 else 6) if out_blocked else 8
+    if ocv == 8:
+        # Sixteen 8-wide registers (AVX2; NEON's 32 128-bit ones as pairs): NV 2 x PX 8
+        # accumulators plus the weights spill, so an NCHW output takes PX 6 too (its stores
+        # scalar), and an output of three vectors NV 3 x PX 4 (three FMAs per broadcast,
+        # not one at NV 1). On a 2-core Zen 3 (docs/benchmarks.md): NSRD's 32->64 layer
+        # 67 -> 45 ms, NSRR's 60->24 742 -> 476 ms.
+        if nv == 1 and nvec % 3 == 0:
+            nv, px = 3, 4
+        elif nv == 2:
+            px = 6
     # TUNING's PX/NV/BLX, where a test sets them, replace the per-layer defaults
     defaults = {"PX": px, "NV": nv, "BLX": 16, **{k: TUNING[k] for k in ("PX", "NV", "BLX") if k in TUNING}}
     key = tuning_db.shape_key(tuple(x_shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec)
