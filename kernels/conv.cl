@@ -835,6 +835,183 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
 }
 
 /* ---------------------------------------------------------------------------
+ * conv2d_wino: a 3x3, stride-1, dilation-1 convolution by Winograd's F(2x2, 3x3)
+ * (Lavin & Gray 2016) on the channel-blocked layout, blocked output. Each 4x4 input
+ * tile d gives a 2x2 output tile Y = A^T [sum over input channels (U . V)] A, with
+ * V = B^T d B (the input transform, 16 values per channel) and U = G g G^T (the weights,
+ * transformed once on the host, clss/ops/conv.py pack_wino): 16 FMAs per input channel
+ * for 4 outputs where the direct conv spends 36, so 2.25x fewer, for the transforms'
+ * adds and a rounding that differs from the direct sum (within the default tolerance;
+ * fast path conv.winograd, checked against conv2d_blocked).
+ *
+ * A work-item takes TT tiles along x (2 output rows, 2*TT columns) and OBI blocks of
+ * NV*OCV output channels. Per input channel block it transforms its tiles' inputs once
+ * into a private array (its ICV channels 8 lanes at a time where ICV is a multiple of 8),
+ * then, per transform position q (16), runs the register tile of TT x NV accumulator
+ * vectors over the block's channels: one weight vector per NV, a broadcast per tile,
+ * as conv2d_blocked does per pixel. The 16 positions' sums live in a private array
+ * between channel blocks (loaded and stored once per block and position: ICV * TT * NV
+ * FMAs each). Covering every output channel in one work-item (OBI) does the input
+ * transform once per tile, not once per output block.
+ *
+ * Build options: -DOCV=8|16, -DNV, -DTT, -DOBI, -DICV (1..16), -DACT, -DWINO_WIDE. No residual.
+ * NDRange: (ceil(Wo / (2 * TT)), ceil(Ho / 2), N * ncb / OBI).
+ * @param[in]  x      [N, Cb, H, W, ICV] blocked input
+ * @param[in]  u      [ncb, Cb, 16, ICV, OCB] transformed weights (A), zero past Cout and Cin
+ * @param[in]  bp     [ncb * OCB] bias (A), zero where none
+ * @param[out] y      [N, ceil(Cout / OCV), Ho, Wo, OCV] blocked output
+ * @param[in]  Cb     input channel blocks
+ * @param[in]  H      input height
+ * @param[in]  W      input width
+ * @param[in]  Cout   output channels
+ * @param[in]  Ho     output height
+ * @param[in]  Wo     output width
+ * @param[in]  ncb    output channel blocks of OCB (a multiple of OBI)
+ * @param[in]  pt     top pad
+ * @param[in]  pl     left pad
+ * @param[in]  alpha  the activation's parameter (leaky_relu slope)
+ * @param[in]  nz     the extent of NDRange dimension 2 that is real work (N * ncb / OBI)
+ * --------------------------------------------------------------------------- */
+#if defined(TT) && defined(OBI)
+#ifndef WINO_WIDE
+#define WINO_WIDE 0
+#endif
+/* lanes per step of the input transform: a whole block of 16 at once with -DWINO_WIDE=1
+ * (PoCL), 8 otherwise (oclgrind crashed on the 16-wide form, as on conv2d_thin's) */
+#if ICV == 16 && WINO_WIDE
+#define WL 16
+typedef A WV __attribute__((ext_vector_type(16)));
+typedef A WVu __attribute__((ext_vector_type(16), aligned(sizeof(A))));
+#if defined(CLSS_FP16) || defined(CLSS_FP16_NATIVE)
+#define WLD(p, i) ((WV)(FLD8(p, i), FLD8(p, (i) + 8)))
+#else
+#define WLD(p, i) (*(__global const WVu *)((p) + (i)))
+#endif
+#elif ICV % 8 == 0
+#define WL 8
+typedef A8 WV;
+typedef A WVu __attribute__((ext_vector_type(8), aligned(sizeof(A))));
+#define WLD(p, i) FLD8(p, i)
+#else
+#define WL 1
+typedef A WV;
+typedef A WVu;
+#define WLD(p, i) FLD(p, i)
+#endif
+/* a private store as a clang vector: vstore8/16 are out-of-line calls on PoCL's CPUs */
+#define WPUT(a, v) (*(__private WVu *)(a) = (v))
+#define WNC (2 * TT + 2)        /* input columns of TT tiles */
+
+__kernel void conv2d_wino(__global const T *x, __global const A *u, __global const A *bp,
+                          __global T *y, int Cb, int H, int W, int Cout, int Ho, int Wo,
+                          int ncb, int pt, int pl, float alpha, int nz)
+{
+    const int xb = get_global_id(0), ty = get_global_id(1), z = get_global_id(2);
+    const int oy0 = 2 * ty, ox0 = xb * 2 * TT;
+    if (ox0 >= Wo || oy0 >= Ho || z >= nz)
+        return;
+    const int nzb = ncb / OBI, cb = z % nzb, n = z / nzb;
+    const int iy0 = oy0 - pt, ix0 = ox0 - pl;
+    const int inside = ix0 >= 0 && ix0 + WNC <= W && iy0 >= 0 && iy0 + 4 <= H;
+    AV acc[OBI][16][TT][NV];
+    for (int o = 0; o < OBI; ++o)
+        for (int q = 0; q < 16; ++q)
+            for (int t = 0; t < TT; ++t)
+                for (int v = 0; v < NV; ++v)
+                    acc[o][q][t][v] = (AV)A_ZERO;
+    const __global T *xg = x + (long)n * Cb * H * W * ICV;
+    for (int c = 0; c < Cb; ++c) {
+        A V[TT][16][ICV];       /* V = B^T d B of each tile, per channel */
+        _Pragma("unroll") for (int l = 0; l < ICV; l += WL) {
+            WV e[4][WNC];       /* B^T d: the tiles' columns transformed along y */
+            _Pragma("unroll") for (int j = 0; j < WNC; ++j) {
+                WV d[4];
+                _Pragma("unroll") for (int r = 0; r < 4; ++r) {
+                    const int iy = iy0 + r, ix = ix0 + j;
+                    d[r] = (inside || (iy >= 0 && iy < H && ix >= 0 && ix < W))
+                        ? WLD(xg, (((long)c * H + iy) * W + ix) * ICV + l) : (WV)A_ZERO;
+                }
+                e[0][j] = d[0] - d[2];
+                e[1][j] = d[1] + d[2];
+                e[2][j] = d[2] - d[1];
+                e[3][j] = d[1] - d[3];
+            }
+            _Pragma("unroll") for (int t = 0; t < TT; ++t)      /* then along x */
+                _Pragma("unroll") for (int i = 0; i < 4; ++i) {
+                    const WV a0 = e[i][2 * t], a1 = e[i][2 * t + 1];
+                    const WV a2 = e[i][2 * t + 2], a3 = e[i][2 * t + 3];
+                    WPUT(&V[t][4 * i + 0][l], a0 - a2);
+                    WPUT(&V[t][4 * i + 1][l], a1 + a2);
+                    WPUT(&V[t][4 * i + 2][l], a2 - a1);
+                    WPUT(&V[t][4 * i + 3][l], a1 - a3);
+                }
+        }
+        _Pragma("nounroll") for (int o = 0; o < OBI; ++o) {
+            const __global A *wb = u + ((long)((cb * OBI + o) * Cb + c) * 16) * ICV * OCB;
+            _Pragma("nounroll") for (int q = 0; q < 16; ++q) {
+                AV a[TT][NV];
+                _Pragma("unroll") for (int t = 0; t < TT; ++t)
+                    _Pragma("unroll") for (int v = 0; v < NV; ++v)
+                        a[t][v] = acc[o][q][t][v];
+                const __global A *wq = wb + q * ICV * OCB;
+                _Pragma("unroll") for (int cc = 0; cc < ICV; ++cc) {
+                    AV wv[NV];
+                    _Pragma("unroll") for (int v = 0; v < NV; ++v)
+                        wv[v] = *(__global const AVu *)(wq + cc * OCB + v * OCV);
+                    _Pragma("unroll") for (int t = 0; t < TT; ++t) {
+                        const A s = V[t][q][cc];
+                        _Pragma("unroll") for (int v = 0; v < NV; ++v)
+                            a[t][v] += wv[v] * s;
+                    }
+                }
+                _Pragma("unroll") for (int t = 0; t < TT; ++t)
+                    _Pragma("unroll") for (int v = 0; v < NV; ++v)
+                        acc[o][q][t][v] = a[t][v];
+            }
+        }
+    }
+    /* Y = A^T M A, then bias and activation, stored whole per pixel (as conv2d_blocked's
+     * blocked epilogue: channels past Cout hold act(0)) */
+    const int cbo = (Cout + OCV - 1) / OCV;
+    for (int o = 0; o < OBI; ++o)
+        for (int v = 0; v < NV; ++v) {
+            const int blk = (cb * OBI + o) * NV + v;
+            if (blk >= cbo)
+                break;
+            const AV b = *(__global const AVu *)(bp + (long)blk * OCV);
+            for (int t = 0; t < TT; ++t) {
+                AV r0[4], r1[4];
+                for (int j = 0; j < 4; ++j) {
+                    r0[j] = acc[o][j][t][v] + acc[o][4 + j][t][v] + acc[o][8 + j][t][v];
+                    r1[j] = acc[o][4 + j][t][v] - acc[o][8 + j][t][v] - acc[o][12 + j][t][v];
+                }
+                AV ot[2][2];
+                ot[0][0] = r0[0] + r0[1] + r0[2];
+                ot[0][1] = r0[1] - r0[2] - r0[3];
+                ot[1][0] = r1[0] + r1[1] + r1[2];
+                ot[1][1] = r1[1] - r1[2] - r1[3];
+                for (int dy = 0; dy < 2; ++dy)
+                    for (int dx = 0; dx < 2; ++dx) {
+                        const int oy = oy0 + dy, ox = ox0 + 2 * t + dx;
+                        if (oy >= Ho || ox >= Wo)
+                            continue;
+                        const AV r = APPLY_ACT(ot[dy][dx] + b, alpha);
+                        __global T *yo = y + ((((long)n * cbo + blk) * Ho + oy) * Wo + ox) * OCV;
+#if defined(CLSS_FP16)
+                        A uu[OCV];
+                        VSTORE_AV(r, 0, uu);
+                        for (int k = 0; k < OCV; ++k)
+                            FST(yo, k, uu[k]);
+#else
+                        *(__global AVu *)yo = r;
+#endif
+                    }
+            }
+        }
+}
+#endif
+
+/* ---------------------------------------------------------------------------
  * conv2d_thin: a convolution with few output channels (fewer than 8: an RGB or
  * weight head, NSRR's last layers) on a channel-blocked input [N][Cb][H][W][ICV]
  * (ICV = 8 or 16: a blocked conv's output), NCHW out.

@@ -156,3 +156,45 @@ UNINIT = ("Uninitialized value", "Controlflow depends on uninitialized value")
 @pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
 def test_thin_conv_clean_under_oclgrind(tmp_path):
     _script_clean(tmp_path, THIN, "thin ok", UNINIT)
+
+
+# conv2d_wino (Winograd F(2x2, 3x3) on a blocked input) on tiny odd shapes: blocks of 16
+# (one 16-lane transform) and 8 (three, a padded last one), a partial tile row and column,
+# edge and inside work-items, asymmetric padding; each output against numpy.
+WINO = """
+import numpy as np
+from clss.device import get_device
+from clss.ops import conv
+dev = get_device(None)
+g = np.random.default_rng(0)
+for prec in ("fp32", "fp16"):
+    for cin, cout, blk, hw, pads in ((16, 32, 16, (5, 13), (1, 1, 1, 1)), (20, 40, 8, (4, 11), (0, 2, 2, 0))):
+        h, w = hw
+        xh = g.standard_normal((1, cin, h, w)).astype(np.float32)
+        wh = (g.standard_normal((cout, cin, 3, 3)) * 0.2).astype(np.float32)
+        bh = g.standard_normal(cout).astype(np.float32)
+        x = dev.to_device(xh, prec)
+        xb = conv.to_blocked(dev, prec, x, blk, -(-cin // blk))
+        wd, bd = dev.to_device(wh, prec), dev.to_device(bh, prec)
+        ho, wo = h + pads[0] + pads[2] - 2, w + pads[1] + pads[3] - 2
+        v = conv.vector_width(dev)
+        out = dev.empty(conv.blocked_shape(1, cout, ho, wo, v), prec)
+        conv._conv2d_wino(dev, prec, xb, wd, bd, {}, pads[:2], "relu", 0.0, out, ho, wo)
+        f = lambda a: a.astype(np.float16).astype(np.float32) if prec == "fp16" else a
+        xp = np.pad(f(xh), ((0, 0), (0, 0), (pads[0], pads[2]), (pads[1], pads[3])))
+        ref = np.zeros((1, cout, ho, wo), np.float64) + f(bh)[None, :, None, None]
+        for ky in range(3):
+            for kx in range(3):
+                ref += np.einsum("oc,nchw->nohw", f(wh)[:, :, ky, kx], xp[:, :, ky:ky + ho, kx:kx + wo])
+        ref = np.maximum(ref, 0)
+        y = out.get().astype(np.float64)                    # [1, ceil(cout / v), ho, wo, v]
+        y = y.transpose(0, 1, 4, 2, 3).reshape(1, -1, ho, wo)[:, :cout]
+        assert np.abs(y - ref).max() < (2e-2 if prec == "fp16" else 1e-4), np.abs(y - ref).max()
+print("wino ok")
+"""
+
+
+@pytest.mark.oclgrind
+@pytest.mark.skipif(not os.path.exists(ICD), reason="oclgrind not installed (apt-get install oclgrind)")
+def test_winograd_conv_clean_under_oclgrind(tmp_path):
+    _script_clean(tmp_path, WINO, "wino ok", UNINIT)

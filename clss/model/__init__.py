@@ -275,6 +275,8 @@ def _label(n) -> str:
             s += "+Add"
         if n.attrs["activation"] != "none":
             s += "+" + n.attrs["activation"]
+        if n.attrs.get("gated"):        # passes.fuse_gated_conv: times a gate conv's sigmoid
+            s += "*sigmoid"
         return s
     if n.op == "clss.MLP":
         return f"MLP({len(n.attrs['layers'])} layers)"

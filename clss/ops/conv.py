@@ -199,6 +199,79 @@ def input_block(cin: int) -> int:
     return -(-cin // -(-cin // 16))
 
 
+# conv2d_wino (Winograd F(2x2, 3x3)): TT tiles of 2x2 outputs along x per work-item; its
+# transform sums stay in a private array, capped at WINO_ACC output channels x tiles
+WINO_TT, WINO_ACC = 4, 256
+# The 3x3 layers it takes: at least WINO_MIN_IN input and WINO_MIN_OUT output channels, the
+# input in blocks of a multiple of 8 (its transform on 8-lane vectors). Below, the transforms
+# and the private sums outweigh the 2.25x fewer multiplies: on a 2-core Zen 3, NSRR's
+# 48->16 layer took 280 ms against the direct conv's 207, its 60->24 (blocks of 15, a
+# scalar transform) 677 against 372, where 64->64 took 212 against 263 and 96->32 174
+# against 230 (docs/benchmarks.md).
+WINO_MIN_IN, WINO_MIN_OUT = 16, 32
+
+
+def wino_eligible(w, group: int, strides, dilations, out_blocked: bool, residual=None,
+                  gated: bool = False, block: int = 0) -> bool:
+    """Layers conv2d_wino covers: dense 3x3 convolutions with unit stride and dilation, at
+    least WINO_MIN_IN channels in (in blocks of a multiple of 8: `block`, or input_block's
+    for an NCHW input) and WINO_MIN_OUT out, writing the blocked layout, with no residual."""
+    cout, cin_g, kh, kw = w.shape
+    return (group == 1 and (kh, kw) == (3, 3) and tuple(strides) == (1, 1) and tuple(dilations) == (1, 1)
+            and cin_g >= WINO_MIN_IN and cout >= WINO_MIN_OUT and (block or input_block(cin_g)) % 8 == 0
+            and out_blocked and residual is None and not gated)
+
+
+def wino_tiling(dev: Device, cout: int) -> dict:
+    """conv2d_wino's tile: NV vectors of OCV output channels (as blocked_tiling's), TT tiles,
+    and OBI blocks of them per work-item, as many as fit WINO_ACC (every output channel in
+    one work-item where they fit: the input transform is then done once per tile)."""
+    ocv = vector_width(dev)
+    nvec = -(-cout // ocv)
+    nv = 2 if nvec % 2 == 0 else (3 if nvec % 3 == 0 else 1)
+    ncb = -(-nvec // nv)
+    obi = max(d for d in range(1, ncb + 1) if ncb % d == 0 and d * nv * ocv * WINO_TT <= WINO_ACC)
+    return {"OCV": ocv, "NV": nv, "TT": WINO_TT, "OBI": obi, "ncb": ncb}
+
+
+# F(2x2, 3x3)'s weight transform U = G g G^T
+_WINO_G = np.array([[1, 0, 0], [.5, .5, .5], [.5, -.5, .5], [0, 0, 1]], np.float64)
+
+
+def _conv2d_wino(dev, prec, x, w, b, packed, pads, activation, alpha, out, ho, wo):
+    """conv2d_wino (kernels/conv.cl): x blocked [N, Cb, H, W, ICV], y blocked."""
+    cout, cin = w.shape[0], w.shape[1]
+    n, cb, h, wd, icv = x.shape
+    t = wino_tiling(dev, cout)
+    ocb, ncb = t["OCV"] * t["NV"], t["ncb"]
+    key = ("wino", t["OCV"], t["NV"], icv, cb)
+    pw = None if packed is None else packed.get(prec)
+    if pw is None or pw.key != key:
+        # U [Cout, Cin, 16] -> [ncb, Cb, 16, ICV, OCB], zero past Cout and Cin: once, on the host
+        g = dev.to_host(w).astype(np.float64)
+        u = np.einsum("ak,oikl,bl->oiab", _WINO_G, g, _WINO_G).reshape(cout, cin, 16)
+        up = np.zeros((ncb * ocb, cb * icv, 16), np.float32)
+        up[:cout, :cin] = u
+        up = up.reshape(ncb, ocb, cb, icv, 16).transpose(0, 2, 4, 3, 1)
+        bpad = np.zeros(ncb * ocb, np.float32)
+        if b is not None:
+            bpad[:cout] = dev.to_host(b)
+        apre = "fp16" if prec == "fp16-native" else "fp32"
+        pw = BlockedWeights(dev.to_device(np.ascontiguousarray(up), apre), dev.to_device(bpad, apre), key)
+        if packed is not None:
+            packed[prec] = pw
+    k = dev.kernel("conv", "conv2d_wino", prec, OCV=t["OCV"], NV=t["NV"], TT=t["TT"], OBI=t["OBI"], ICV=icv,
+                   ACT=_act(activation), WINO_WIDE=builtin_free(dev), **load_defines(dev, prec, "conv"))
+    nz = n * ncb // t["OBI"]
+    lx = 16     # as conv2d_blocked: PoCL, left to choose, makes groups whose private arrays overflow
+    dev.launch(k, (-(-(-(-wo // (2 * t["TT"]))) // lx) * lx, -(-ho // 2), nz),
+               (x.data, pw.wp.data, pw.bp.data, out.data, np.int32(cb), np.int32(h), np.int32(wd),
+                np.int32(cout), np.int32(ho), np.int32(wo), np.int32(ncb), np.int32(pads[0]), np.int32(pads[1]),
+                np.float32(alpha), np.int32(nz)),
+               local_size=(lx, 1, 1))
+    return out
+
+
 def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocked_in: int = 0,
                    out_blocked: bool = False) -> dict:
     """OCV, NV, PX, ICV and BLX for conv2d_blocked on this layer: defaults from the
@@ -471,6 +544,11 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     if thin:
         return _conv2d_thin(dev, prec, x, w, b, packed, (pt, pl), activation, alpha, residual,
                             residual_before_act, out, ho, wo)
+    if (blocked_in or out_blocked) and wino_eligible(w, group, (sy, sx), (dy, dx), out_blocked, residual, gated,
+                                                x.shape[4] if blocked_in else 0) \
+            and (tuning or {}).get("WINO", 1) and selfcheck.enabled(dev, prec, "conv.winograd"):
+        xb = x if blocked_in else to_blocked(dev, prec, x, input_block(cin), -(-cin // input_block(cin)))
+        return _conv2d_wino(dev, prec, xb, w, b, packed, (pt, pl), activation, alpha, out, ho, wo)
     if gated or blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
                                               and selfcheck.enabled(dev, prec, "conv.blocked")):
         t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, x.shape[4] if blocked_in else 0,
@@ -643,6 +721,32 @@ selfcheck.register(selfcheck.FastPath(
     "conv.thin", "conv", {"THIN": 1}, {"THIN": 0}, check=_selfcheck_thin, tolerance=DEFAULT_TOL.__getitem__,
     what="convs with fewer than 8 outputs read a blocked input, its channels as the vector lanes "
          "(conv2d_thin) / the input stored NCHW for the NCHW kernel (conv2d)",
+    applies=lambda dev: dev.is_cpu))
+
+
+def _selfcheck_wino(dev: Device, prec: str) -> list[np.ndarray]:
+    """conv2d_wino against conv2d_blocked on the same blocked input, blocked out: 20 input
+    channels in blocks of 8 (a padded block), 16 in one block of 16 (two 8-lane halves), 24
+    in three; 32, 48 and 40 outputs (NV 2, 2 and 1 on 8-wide devices; several blocks per
+    work-item); odd sizes (a partial tile row and column), edge and inside work-items,
+    asymmetric padding, three activations. Small: it runs under oclgrind too."""
+    g = rng("conv wino selfcheck")
+    outs = []
+    for cin, block, cout, hw, pads, act in ((20, 8, 32, (7, 37), (1, 1, 1, 1), "relu"),
+                                            (16, 16, 48, (6, 19), (0, 2, 2, 0), "leaky_relu"),
+                                            (24, 8, 40, (5, 11), (1, 1, 1, 1), "none")):
+        x = dev.to_device(g.standard_normal((1, cin) + hw).astype(np.float32), prec)
+        w = dev.to_device(g.standard_normal((cout, cin, 3, 3)).astype(np.float32) * 0.2, prec)
+        b = dev.to_device(g.standard_normal(cout).astype(np.float32), prec)
+        xb = to_blocked(dev, prec, x, block, -(-cin // block))
+        outs.append(dev.to_host(conv2d(dev, prec, xb, w, b, pads=pads, activation=act, out_blocked=True)))
+    return outs
+
+
+selfcheck.register(selfcheck.FastPath(
+    "conv.winograd", "conv", {"WINO": 1}, {"WINO": 0}, check=_selfcheck_wino, tolerance=DEFAULT_TOL.__getitem__,
+    what="3x3 stride-1 convs with >= 16 channels in and out on the blocked layout by Winograd F(2x2, 3x3) "
+         "(conv2d_wino) / the direct register tile (conv2d_blocked)",
     applies=lambda dev: dev.is_cpu))
 
 
