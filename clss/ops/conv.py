@@ -151,6 +151,23 @@ def thin_eligible(w, group: int, strides=(1, 1), dilations=(1, 1)) -> bool:
     return group == 1 and cout < 8 and cin_g >= 8 and tuple(strides) == (1, 1) and tuple(dilations) == (1, 1)
 
 
+def _host_packed(dev: Device, prec: str, w, b, packed, key, nout: int, pack) -> "BlockedWeights":
+    """A layer's weights packed once, on the host, for a kernel that reads them in its own
+    order: pack(w as float64 numpy) -> the packed array; the bias zero-padded to nout. Kept in
+    `packed` (the model node's) per precision, under `key`, in the kernels' arithmetic type."""
+    pw = None if packed is None else packed.get(prec)
+    if pw is None or pw.key != key:
+        bpad = np.zeros(nout, np.float32)
+        if b is not None:
+            bpad[:w.shape[0]] = dev.to_host(b)
+        apre = "fp16" if prec == "fp16-native" else "fp32"
+        wp = np.ascontiguousarray(pack(dev.to_host(w).astype(np.float64)), np.float32)
+        pw = BlockedWeights(dev.to_device(wp, apre), dev.to_device(bpad, apre), key)
+        if packed is not None:
+            packed[prec] = pw
+    return pw
+
+
 # conv2d_thin's register tile: OC output channels x PX pixels of ICV-lane accumulators
 THIN_OC, THIN_PX, THIN_LX = 4, 4, 16   # THIN_LX: work-items per group along x
 
@@ -163,20 +180,11 @@ def _conv2d_thin(dev, prec, x, w, b, packed, pads, activation, alpha, residual, 
     oc = min(cout, THIN_OC)
     ng = -(-cout // oc)
     key = ("thin", oc, icv, cb)
-    pw = None if packed is None else packed.get(prec)
-    if pw is None or pw.key != key:
-        # [ng, Cb, KH, KW, OC, ICV], zero past Cout and Cin: packed once, on the host
-        wh = dev.to_host(w).astype(np.float32)
-        wpad = np.zeros((ng * oc, cb * icv, kh, kw), np.float32)
+    def pack(wh):       # [ng, Cb, KH, KW, OC, ICV], zero past Cout and Cin
+        wpad = np.zeros((ng * oc, cb * icv, kh, kw))
         wpad[:cout, :cin] = wh
-        wpk = wpad.reshape(ng, oc, cb, icv, kh, kw).transpose(0, 2, 4, 5, 1, 3)
-        bpad = np.zeros(ng * oc, np.float32)
-        if b is not None:
-            bpad[:cout] = dev.to_host(b)
-        apre = "fp16" if prec == "fp16-native" else "fp32"
-        pw = BlockedWeights(dev.to_device(np.ascontiguousarray(wpk), apre), dev.to_device(bpad, apre), key)
-        if packed is not None:
-            packed[prec] = pw
+        return wpad.reshape(ng, oc, cb, icv, kh, kw).transpose(0, 2, 4, 5, 1, 3)
+    pw = _host_packed(dev, prec, w, b, packed, key, ng * oc, pack)
     px = THIN_PX
     k = dev.kernel("conv", "conv2d_thin", prec, KH=kh, KW=kw, ICV=icv, OC=oc, PX=px, ACT=_act(activation),
                    THIN_WIDE=builtin_free(dev), **load_defines(dev, prec, "conv"))
@@ -245,21 +253,11 @@ def _conv2d_wino(dev, prec, x, w, b, packed, pads, activation, alpha, out, ho, w
     t = wino_tiling(dev, cout)
     ocb, ncb = t["OCV"] * t["NV"], t["ncb"]
     key = ("wino", t["OCV"], t["NV"], icv, cb)
-    pw = None if packed is None else packed.get(prec)
-    if pw is None or pw.key != key:
-        # U [Cout, Cin, 16] -> [ncb, Cb, 16, ICV, OCB], zero past Cout and Cin: once, on the host
-        g = dev.to_host(w).astype(np.float64)
-        u = np.einsum("ak,oikl,bl->oiab", _WINO_G, g, _WINO_G).reshape(cout, cin, 16)
-        up = np.zeros((ncb * ocb, cb * icv, 16), np.float32)
-        up[:cout, :cin] = u
-        up = up.reshape(ncb, ocb, cb, icv, 16).transpose(0, 2, 4, 3, 1)
-        bpad = np.zeros(ncb * ocb, np.float32)
-        if b is not None:
-            bpad[:cout] = dev.to_host(b)
-        apre = "fp16" if prec == "fp16-native" else "fp32"
-        pw = BlockedWeights(dev.to_device(np.ascontiguousarray(up), apre), dev.to_device(bpad, apre), key)
-        if packed is not None:
-            packed[prec] = pw
+    def pack(g):        # U [Cout, Cin, 16] -> [ncb, Cb, 16, ICV, OCB], zero past Cout and Cin
+        up = np.zeros((ncb * ocb, cb * icv, 16))
+        up[:cout, :cin] = np.einsum("ak,oikl,bl->oiab", _WINO_G, g, _WINO_G).reshape(cout, cin, 16)
+        return up.reshape(ncb, ocb, cb, icv, 16).transpose(0, 2, 4, 3, 1)
+    pw = _host_packed(dev, prec, w, b, packed, key, ncb * ocb, pack)
     k = dev.kernel("conv", "conv2d_wino", prec, OCV=t["OCV"], NV=t["NV"], TT=t["TT"], OBI=t["OBI"], ICV=icv,
                    ACT=_act(activation), WINO_WIDE=builtin_free(dev), **load_defines(dev, prec, "conv"))
     nz = n * ncb // t["OBI"]
@@ -717,11 +715,17 @@ def _selfcheck_thin(dev: Device, prec: str) -> list[np.ndarray]:
     return outs
 
 
-selfcheck.register(selfcheck.FastPath(
-    "conv.thin", "conv", {"THIN": 1}, {"THIN": 0}, check=_selfcheck_thin, tolerance=DEFAULT_TOL.__getitem__,
-    what="convs with fewer than 8 outputs read a blocked input, its channels as the vector lanes "
-         "(conv2d_thin) / the input stored NCHW for the NCHW kernel (conv2d)",
-    applies=lambda dev: dev.is_cpu))
+def _register_cpu_path(name: str, option: str, check, what: str) -> None:
+    """A conv fast path the host chooses on CPU devices (-D`option`=1 / 0 in the registry),
+    checked within the default tolerance."""
+    selfcheck.register(selfcheck.FastPath(name, "conv", {option: 1}, {option: 0}, check=check,
+                                          tolerance=DEFAULT_TOL.__getitem__, what=what,
+                                          applies=lambda dev: dev.is_cpu))
+
+
+_register_cpu_path("conv.thin", "THIN", _selfcheck_thin,
+                   "convs with fewer than 8 outputs read a blocked input, its channels as the vector lanes "
+                   "(conv2d_thin) / the input stored NCHW for the NCHW kernel (conv2d)")
 
 
 def _selfcheck_wino(dev: Device, prec: str) -> list[np.ndarray]:
@@ -743,11 +747,9 @@ def _selfcheck_wino(dev: Device, prec: str) -> list[np.ndarray]:
     return outs
 
 
-selfcheck.register(selfcheck.FastPath(
-    "conv.winograd", "conv", {"WINO": 1}, {"WINO": 0}, check=_selfcheck_wino, tolerance=DEFAULT_TOL.__getitem__,
-    what="3x3 stride-1 convs with >= 16 channels in and out on the blocked layout by Winograd F(2x2, 3x3) "
-         "(conv2d_wino) / the direct register tile (conv2d_blocked)",
-    applies=lambda dev: dev.is_cpu))
+_register_cpu_path("conv.winograd", "WINO", _selfcheck_wino,
+                   "3x3 stride-1 convs with >= 16 inputs and >= 32 outputs on the blocked layout by Winograd "
+                   "F(2x2, 3x3) (conv2d_wino) / the direct register tile (conv2d_blocked)")
 
 
 # --- ONNX -----------------------------------------------------------------------
