@@ -292,7 +292,7 @@ def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocke
         # accumulators plus the weights spill, so an NCHW output takes PX 6 too (its stores
         # scalar), and an output of three vectors NV 3 x PX 4 (three FMAs per broadcast,
         # not one at NV 1). On a 2-core Zen 3 (docs/benchmarks.md): NSRD's 32->64 layer
-        # 67 -> 45 ms, NSRR's 60->24 742 -> 476 ms.
+        # 67 -> 45 ms, NSRR's 60->24 659 -> 476 ms.
         if nv == 1 and nvec % 3 == 0:
             nv, px = 3, 4
         elif nv == 2:
@@ -730,7 +730,8 @@ _register_cpu_path("conv.thin", "THIN", _selfcheck_thin,
 
 def _selfcheck_wino(dev: Device, prec: str) -> list[np.ndarray]:
     """conv2d_wino against conv2d_blocked on the same blocked input, blocked out: 20 input
-    channels in blocks of 8 (a padded block), 16 in one block of 16 (two 8-lane halves), 24
+    channels in blocks of 8 (a padded block), 16 in one block of 16 (one 16-lane transform on
+    PoCL, two 8-lane halves elsewhere), 24
     in three; 32, 48 and 40 outputs (NV 2, 2 and 1 on 8-wide devices; several blocks per
     work-item); odd sizes (a partial tile row and column), edge and inside work-items,
     asymmetric padding, three activations. Small: it runs under oclgrind too."""
