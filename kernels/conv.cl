@@ -836,7 +836,7 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
 
 /* ---------------------------------------------------------------------------
  * conv2d_wino: a 3x3, stride-1, dilation-1 convolution by Winograd's F(2x2, 3x3)
- * (Lavin & Gray 2016) on the channel-blocked layout, blocked output. Each 4x4 input
+ * (Lavin & Gray 2016) on a channel-blocked input, blocked or NCHW output. Each 4x4 input
  * tile d gives a 2x2 output tile Y = A^T [sum over input channels (U . V)] A, with
  * V = B^T d B (the input transform, 16 values per channel) and U = G g G^T (the weights,
  * transformed once on the host, clss/ops/conv.py pack_wino): 16 FMAs per input channel
@@ -854,12 +854,14 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
  * FMAs each). Covering every output channel in one work-item (OBI) does the input
  * transform once per tile, not once per output block.
  *
- * Build options: -DOCV=8|16, -DNV, -DTT, -DOBI, -DICV (1..16), -DACT, -DWINO_WIDE. No residual.
+ * Build options: -DOCV=8|16, -DNV, -DTT, -DOBI, -DICV (1..16), -DACT, -DWINO_WIDE,
+ * -DOUT_BLOCKED=1 (blocked output) or 0 (NCHW). No residual.
  * NDRange: (ceil(Wo / (2 * TT)), ceil(Ho / 2), N * ncb / OBI).
  * @param[in]  x      [N, Cb, H, W, ICV] blocked input
  * @param[in]  u      [ncb, Cb, 16, ICV, OCB] transformed weights (A), zero past Cout and Cin
  * @param[in]  bp     [ncb * OCB] bias (A), zero where none
- * @param[out] y      [N, ceil(Cout / OCV), Ho, Wo, OCV] blocked output
+ * @param[out] y      [N, ceil(Cout / OCV), Ho, Wo, OCV] blocked output (-DOUT_BLOCKED=1), or
+ *                    [N, Cout, Ho, Wo] (NCHW)
  * @param[in]  Cb     input channel blocks
  * @param[in]  H      input height
  * @param[in]  W      input width
@@ -970,8 +972,9 @@ __kernel void conv2d_wino(__global const T *x, __global const A *u, __global con
             }
         }
     }
-    /* Y = A^T M A, then bias and activation, stored whole per pixel (as conv2d_blocked's
-     * blocked epilogue: channels past Cout hold act(0)) */
+    /* Y = A^T M A, then bias and activation; blocked out: stored whole per pixel (as
+     * conv2d_blocked's blocked epilogue: channels past Cout hold act(0)); NCHW out: through a
+     * private tile, each channel's run of 2 * TT pixels of a row stored 8 at a time */
     const int cbo = (Cout + OCV - 1) / OCV;
     for (int o = 0; o < OBI; ++o)
         for (int v = 0; v < NV; ++v) {
@@ -979,6 +982,9 @@ __kernel void conv2d_wino(__global const T *x, __global const A *u, __global con
             if (blk >= cbo)
                 break;
             const AV b = *(__global const AVu *)(bp + (long)blk * OCV);
+#if !OUT_BLOCKED
+            A u[2][2 * TT][OCV];
+#endif
             for (int t = 0; t < TT; ++t) {
                 AV r0[4], r1[4];
                 for (int j = 0; j < 4; ++j) {
@@ -992,10 +998,11 @@ __kernel void conv2d_wino(__global const T *x, __global const A *u, __global con
                 ot[1][1] = r1[1] - r1[2] - r1[3];
                 for (int dy = 0; dy < 2; ++dy)
                     for (int dx = 0; dx < 2; ++dx) {
+                        const AV r = APPLY_ACT(ot[dy][dx] + b, alpha);
+#if OUT_BLOCKED
                         const int oy = oy0 + dy, ox = ox0 + 2 * t + dx;
                         if (oy >= Ho || ox >= Wo)
                             continue;
-                        const AV r = APPLY_ACT(ot[dy][dx] + b, alpha);
                         __global T *yo = y + ((((long)n * cbo + blk) * Ho + oy) * Wo + ox) * OCV;
 #if defined(CLSS_FP16)
                         A uu[OCV];
@@ -1005,8 +1012,33 @@ __kernel void conv2d_wino(__global const T *x, __global const A *u, __global con
 #else
                         *(__global AVu *)yo = r;
 #endif
+#else
+                        VSTORE_AV(r, 0, u[dy][2 * t + dx]);
+#endif
                     }
             }
+#if !OUT_BLOCKED
+            const int np = IMIN(2 * TT, Wo - ox0);
+            for (int j = 0; j < OCV; ++j) {
+                const int c = blk * OCV + j;
+                if (c >= Cout)
+                    break;
+                for (int dy = 0; dy < 2 && oy0 + dy < Ho; ++dy) {
+                    const long oo = (((long)n * Cout + c) * Ho + oy0 + dy) * Wo + ox0;
+#if (2 * TT) % 8 == 0
+                    if (np == 2 * TT) {
+                        for (int p = 0; p < 2 * TT; p += 8)
+                            FST8(y, oo + p, ((A8)(u[dy][p][j], u[dy][p + 1][j], u[dy][p + 2][j],
+                                                  u[dy][p + 3][j], u[dy][p + 4][j], u[dy][p + 5][j],
+                                                  u[dy][p + 6][j], u[dy][p + 7][j])));
+                        continue;
+                    }
+#endif
+                    for (int p = 0; p < np; ++p)
+                        FST(y, oo + p, u[dy][p][j]);
+                }
+            }
+#endif
         }
 }
 #endif

@@ -159,8 +159,8 @@ def test_thin_conv_clean_under_oclgrind(tmp_path):
 
 
 # conv2d_wino (Winograd F(2x2, 3x3) on a blocked input) on tiny odd shapes: blocks of 16
-# (one 16-lane transform) and 8 (three, a padded last one), a partial tile row and column,
-# edge and inside work-items, asymmetric padding; each output against numpy.
+# and 8 (three, a padded last one), a partial tile row and column, edge and inside
+# work-items, asymmetric padding, blocked and NCHW outputs; each output against numpy.
 WINO = """
 import numpy as np
 from clss.device import get_device
@@ -177,9 +177,6 @@ for prec in ("fp32", "fp16"):
         xb = conv.to_blocked(dev, prec, x, blk, -(-cin // blk))
         wd, bd = dev.to_device(wh, prec), dev.to_device(bh, prec)
         ho, wo = h + pads[0] + pads[2] - 2, w + pads[1] + pads[3] - 2
-        v = conv.vector_width(dev)
-        out = dev.empty(conv.blocked_shape(1, cout, ho, wo, v), prec)
-        conv._conv2d_wino(dev, prec, xb, wd, bd, {}, pads[:2], "relu", 0.0, out, ho, wo)
         f = lambda a: a.astype(np.float16).astype(np.float32) if prec == "fp16" else a
         xp = np.pad(f(xh), ((0, 0), (0, 0), (pads[0], pads[2]), (pads[1], pads[3])))
         ref = np.zeros((1, cout, ho, wo), np.float64) + f(bh)[None, :, None, None]
@@ -187,9 +184,14 @@ for prec in ("fp32", "fp16"):
             for kx in range(3):
                 ref += np.einsum("oc,nchw->nohw", f(wh)[:, :, ky, kx], xp[:, :, ky:ky + ho, kx:kx + wo])
         ref = np.maximum(ref, 0)
-        y = out.get().astype(np.float64)                    # [1, ceil(cout / v), ho, wo, v]
-        y = y.transpose(0, 1, 4, 2, 3).reshape(1, -1, ho, wo)[:, :cout]
-        assert np.abs(y - ref).max() < (2e-2 if prec == "fp16" else 1e-4), np.abs(y - ref).max()
+        v = conv.vector_width(dev)
+        for blocked_out in (True, False):
+            out = dev.empty(conv.blocked_shape(1, cout, ho, wo, v) if blocked_out else (1, cout, ho, wo), prec)
+            conv._conv2d_wino(dev, prec, xb, wd, bd, {}, pads[:2], "relu", 0.0, out, ho, wo, blocked_out)
+            y = out.get().astype(np.float64)                # blocked: [1, ceil(cout / v), ho, wo, v]
+            if blocked_out:
+                y = y.transpose(0, 1, 4, 2, 3).reshape(1, -1, ho, wo)[:, :cout]
+            assert np.abs(y - ref).max() < (2e-2 if prec == "fp16" else 1e-4), np.abs(y - ref).max()
 print("wino ok")
 """
 

@@ -219,15 +219,15 @@ WINO_TT, WINO_ACC = 4, 256
 WINO_MIN_IN, WINO_MIN_OUT = 16, 32
 
 
-def wino_eligible(w, group: int, strides, dilations, out_blocked: bool, residual=None,
-                  gated: bool = False, block: int = 0) -> bool:
+def wino_eligible(w, group: int, strides, dilations, residual=None, gated: bool = False,
+                  block: int = 0) -> bool:
     """Layers conv2d_wino covers: dense 3x3 convolutions with unit stride and dilation, at
     least WINO_MIN_IN channels in (in blocks of a multiple of 8: `block`, or input_block's
-    for an NCHW input) and WINO_MIN_OUT out, writing the blocked layout, with no residual."""
+    for an NCHW input) and WINO_MIN_OUT out, with no residual."""
     cout, cin_g, kh, kw = w.shape
     return (group == 1 and (kh, kw) == (3, 3) and tuple(strides) == (1, 1) and tuple(dilations) == (1, 1)
             and cin_g >= WINO_MIN_IN and cout >= WINO_MIN_OUT and (block or input_block(cin_g)) % 8 == 0
-            and out_blocked and residual is None and not gated)
+            and residual is None and not gated)
 
 
 def wino_tiling(dev: Device, cout: int) -> dict:
@@ -246,8 +246,8 @@ def wino_tiling(dev: Device, cout: int) -> dict:
 _WINO_G = np.array([[1, 0, 0], [.5, .5, .5], [.5, -.5, .5], [0, 0, 1]], np.float64)
 
 
-def _conv2d_wino(dev, prec, x, w, b, packed, pads, activation, alpha, out, ho, wo):
-    """conv2d_wino (kernels/conv.cl): x blocked [N, Cb, H, W, ICV], y blocked."""
+def _conv2d_wino(dev, prec, x, w, b, packed, pads, activation, alpha, out, ho, wo, out_blocked=True):
+    """conv2d_wino (kernels/conv.cl): x blocked [N, Cb, H, W, ICV]; y blocked, or NCHW."""
     cout, cin = w.shape[0], w.shape[1]
     n, cb, h, wd, icv = x.shape
     t = wino_tiling(dev, cout)
@@ -259,7 +259,8 @@ def _conv2d_wino(dev, prec, x, w, b, packed, pads, activation, alpha, out, ho, w
         return up.reshape(ncb, ocb, cb, icv, 16).transpose(0, 2, 4, 3, 1)
     pw = _host_packed(dev, prec, w, b, packed, key, ncb * ocb, pack)
     k = dev.kernel("conv", "conv2d_wino", prec, OCV=t["OCV"], NV=t["NV"], TT=t["TT"], OBI=t["OBI"], ICV=icv,
-                   ACT=_act(activation), WINO_WIDE=builtin_free(dev), **load_defines(dev, prec, "conv"))
+                   ACT=_act(activation), WINO_WIDE=builtin_free(dev), OUT_BLOCKED=int(out_blocked),
+                   **load_defines(dev, prec, "conv"))
     nz = n * ncb // t["OBI"]
     lx = 16     # as conv2d_blocked: PoCL, left to choose, makes groups whose private arrays overflow
     dev.launch(k, (-(-(-(-wo // (2 * t["TT"]))) // lx) * lx, -(-ho // 2), nz),
@@ -542,11 +543,11 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     if thin:
         return _conv2d_thin(dev, prec, x, w, b, packed, (pt, pl), activation, alpha, residual,
                             residual_before_act, out, ho, wo)
-    if (blocked_in or out_blocked) and wino_eligible(w, group, (sy, sx), (dy, dx), out_blocked, residual, gated,
-                                                x.shape[4] if blocked_in else 0) \
-            and (tuning or {}).get("WINO", 1) and selfcheck.enabled(dev, prec, "conv.winograd"):
+    if wino_eligible(w, group, (sy, sx), (dy, dx), residual, gated, x.shape[4] if blocked_in else 0) \
+            and (tuning or {}).get("WINO", 1) and selfcheck.enabled(dev, prec, "conv.blocked") \
+            and selfcheck.enabled(dev, prec, "conv.winograd"):
         xb = x if blocked_in else to_blocked(dev, prec, x, input_block(cin), -(-cin // input_block(cin)))
-        return _conv2d_wino(dev, prec, xb, w, b, packed, (pt, pl), activation, alpha, out, ho, wo)
+        return _conv2d_wino(dev, prec, xb, w, b, packed, (pt, pl), activation, alpha, out, ho, wo, out_blocked)
     if gated or blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
                                               and selfcheck.enabled(dev, prec, "conv.blocked")):
         t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, x.shape[4] if blocked_in else 0,
@@ -733,8 +734,8 @@ def _selfcheck_wino(dev: Device, prec: str) -> list[np.ndarray]:
     channels in blocks of 8 (a padded block), 16 in one block of 16 (one 16-lane transform
     on PoCL, two 8-lane halves elsewhere), 24 in three; 32, 48 and 40 outputs (NV 2, 2 and 1
     on 8-wide devices; several blocks per work-item); odd sizes (a partial tile row and
-    column), edge and inside work-items, asymmetric padding, three activations. Small: it
-    runs under oclgrind too."""
+    column), edge and inside work-items, asymmetric padding, four activations; and an NCHW
+    input and output. Small: it runs under oclgrind too."""
     g = rng("conv wino selfcheck")
     outs = []
     for cin, block, cout, hw, pads, act in ((20, 8, 32, (7, 37), (1, 1, 1, 1), "relu"),
@@ -745,11 +746,17 @@ def _selfcheck_wino(dev: Device, prec: str) -> list[np.ndarray]:
         b = dev.to_device(g.standard_normal(cout).astype(np.float32), prec)
         xb = to_blocked(dev, prec, x, block, -(-cin // block))
         outs.append(dev.to_host(conv2d(dev, prec, xb, w, b, pads=pads, activation=act, out_blocked=True)))
+    # NCHW in and out: the input blocked by the host (2 x 16), the output stored NCHW (runs of
+    # 8 pixels and a ragged end)
+    x = dev.to_device(g.standard_normal((1, 32, 5, 21)).astype(np.float32), prec)
+    w = dev.to_device(g.standard_normal((40, 32, 3, 3)).astype(np.float32) * 0.2, prec)
+    b = dev.to_device(g.standard_normal(40).astype(np.float32), prec)
+    outs.append(dev.to_host(conv2d(dev, prec, x, w, b, pads=(1, 1, 1, 1), activation="tanh")))
     return outs
 
 
 _register_cpu_path("conv.winograd", "WINO", _selfcheck_wino,
-                   "3x3 stride-1 convs with >= 16 inputs and >= 32 outputs on the blocked layout by Winograd "
+                   "3x3 stride-1 convs with >= 16 inputs and >= 32 outputs, on a blocked input, by Winograd "
                    "F(2x2, 3x3) (conv2d_wino) / the direct register tile (conv2d_blocked)")
 
 
