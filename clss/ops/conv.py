@@ -730,7 +730,7 @@ _register_cpu_path("conv.thin", "THIN", _selfcheck_thin,
 
 
 def _selfcheck_wino(dev: Device, prec: str) -> list[np.ndarray]:
-    """conv2d_wino against conv2d_blocked on the same blocked input, blocked out: 20 input
+    """conv2d_wino against conv2d_blocked on the same input, blocked out: 20 input
     channels in blocks of 8 (a padded block), 16 in one block of 16 (one 16-lane transform
     on PoCL, two 8-lane halves elsewhere), 24 in three; 32, 48 and 40 outputs (NV 2, 2 and 1
     on 8-wide devices; several blocks per work-item); odd sizes (a partial tile row and
