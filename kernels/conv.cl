@@ -498,6 +498,19 @@ static AV stored_av(AV v)
 #define STORED_AV(v) (v)
 #endif
 
+/* One pixel's vector of OCV output channels stored whole at p (the blocked layout's
+ * epilogue, conv2d_blocked's and conv2d_wino's): element by element in half storage. */
+#if defined(CLSS_FP16)
+#define STORE_BLOCK_AV(p, v) do { A u_[OCV]; VSTORE_AV((v), 0, u_);            \
+        for (int k_ = 0; k_ < OCV; ++k_) FST((p), k_, u_[k_]); } while (0)
+#else
+#define STORE_BLOCK_AV(p, v) (*(__global AVu *)(p) = (v))
+#endif
+/* Lane j of 8 consecutive pixels p.. of a private tile u[pixel][OCV], as one vector: an
+ * NCHW epilogue's run of a channel, stored with one FST8 */
+#define TILE_RUN8(u, p, j) ((A8)((u)[p][j], (u)[(p) + 1][j], (u)[(p) + 2][j], (u)[(p) + 3][j], \
+                                 (u)[(p) + 4][j], (u)[(p) + 5][j], (u)[(p) + 6][j], (u)[(p) + 7][j]))
+
 /* The layout kernels take the block sizes as arguments, not -D options: they are
  * memory-bound, and one build serves every layer (under oclgrind a build is slow). */
 
@@ -768,14 +781,7 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
 #else
             const AV t = APPLY_ACT(acc[v][p] + EPI_BIAS(v), alpha);
 #endif
-#if defined(CLSS_FP16)
-            A u[OCV];
-            VSTORE_AV(t, 0, u);
-            for (int j = 0; j < OCV; ++j)
-                FST(yo, p * OCV + j, u[j]);
-#else
-            *(__global AVu *)(yo + p * OCV) = t;
-#endif
+            STORE_BLOCK_AV(yo + p * OCV, t);
         }
     }
 #else
@@ -819,8 +825,7 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
                  * stores to OCV * NV planes made the NCHW epilogue cost as much as a
                  * third of the conv (NSRD's ConvLSTM gates) */
                 for (int p = 0; p < PX; p += 8)
-                    FST8(y, o + p, ((A8)(u[p][j], u[p + 1][j], u[p + 2][j], u[p + 3][j],
-                                         u[p + 4][j], u[p + 5][j], u[p + 6][j], u[p + 7][j])));
+                    FST8(y, o + p, TILE_RUN8(u, p, j));
 #else
                 for (int p = 0; p < PX; ++p)
                     FST(y, o + p, u[p][j]);
@@ -839,7 +844,7 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
  * (Lavin & Gray 2016) on a channel-blocked input, blocked or NCHW output. Each 4x4 input
  * tile d gives a 2x2 output tile Y = A^T [sum over input channels (U . V)] A, with
  * V = B^T d B (the input transform, 16 values per channel) and U = G g G^T (the weights,
- * transformed once on the host, clss/ops/conv.py pack_wino): 16 FMAs per input channel
+ * transformed once on the host, clss/ops/conv.py _conv2d_wino): 16 FMAs per input channel
  * for 4 outputs where the direct conv spends 36, so 2.25x fewer, for the transforms'
  * adds and a rounding that differs from the direct sum (within the default tolerance;
  * fast path conv.winograd, checked against conv2d_blocked).
@@ -1003,15 +1008,7 @@ __kernel void conv2d_wino(__global const T *x, __global const A *u, __global con
                         const int oy = oy0 + dy, ox = ox0 + 2 * t + dx;
                         if (oy >= Ho || ox >= Wo)
                             continue;
-                        __global T *yo = y + ((((long)n * cbo + blk) * Ho + oy) * Wo + ox) * OCV;
-#if defined(CLSS_FP16)
-                        A uu[OCV];
-                        VSTORE_AV(r, 0, uu);
-                        for (int k = 0; k < OCV; ++k)
-                            FST(yo, k, uu[k]);
-#else
-                        *(__global AVu *)yo = r;
-#endif
+                        STORE_BLOCK_AV(y + ((((long)n * cbo + blk) * Ho + oy) * Wo + ox) * OCV, r);
 #else
                         VSTORE_AV(r, 0, u[dy][2 * t + dx]);
 #endif
@@ -1028,9 +1025,7 @@ __kernel void conv2d_wino(__global const T *x, __global const A *u, __global con
 #if (2 * TT) % 8 == 0
                     if (np == 2 * TT) {
                         for (int p = 0; p < 2 * TT; p += 8)
-                            FST8(y, oo + p, ((A8)(u[dy][p][j], u[dy][p + 1][j], u[dy][p + 2][j],
-                                                  u[dy][p + 3][j], u[dy][p + 4][j], u[dy][p + 5][j],
-                                                  u[dy][p + 6][j], u[dy][p + 7][j])));
+                            FST8(y, oo + p, TILE_RUN8(u[dy], p, j));
                         continue;
                     }
 #endif
