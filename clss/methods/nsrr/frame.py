@@ -29,6 +29,7 @@ import pyopencl as cl
 
 from ... import selfcheck
 from ...device import Device
+from ...ops.conv import builtin_free, vector_width
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from ...pipeline.method import input_buffers, summed_event_ms
 from ...tolerance import DEFAULT_TOL, EXACT
@@ -93,7 +94,10 @@ class NsrrFrameStep:
         self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
         self.reconstruct = Model(build_reconstruct(cfg, weights, Hp, Wp), device=dev, precision=prec)
         k = {n: dev.kernel(KERNEL, n, prec) for n in ("nsrr_prepare", "nsrr_finish")}
-        rd = selfcheck.defines(dev, prec, REPROJECT_VECTORS)
+        # the fast variant's float8 loads and stores as clang vector accesses on PoCL
+        # (builtin calls are out of line there: common.h, CLSS_CLANG_VECTORS)
+        rd = {**selfcheck.defines(dev, prec, REPROJECT_VECTORS), "CLSS_CLANG_VECTORS": builtin_free(dev)}
+        rd.setdefault("G", reproject_group(dev))
         i32, f = np.int32, np.float32
         self.L = {
             "prepare": dev.prepare(k["nsrr_prepare"], (w, h), [
@@ -195,9 +199,18 @@ class NsrrFrameStep:
 # one of a uniform pan (the taps as window loads) and one of a pan off the frame's edge,
 # each warping the previous one's history (bit-exact: the same operations lane by lane).
 REPROJECT_VECTORS = "nsrr.reproject_vectors"
-# the fast variant's -D options: 8-pixel runs, RUNS of them per work-item, history planes in
-# groups of G (a divisor of 12); RUNS 1 and G 6 were fastest on pip's PoCL (Cascade Lake)
-REPROJECT_FAST = {"VEC": 8, "RUNS": 1, "G": 6}
+# the fast variant's -D options: 8-pixel runs, RUNS of them per work-item (1 was fastest),
+# floor, clamp and min without builtin calls (kernels/inline_math.h, bit-exact); the history
+# planes in groups of reproject_group(dev)
+REPROJECT_FAST = {"VEC": 8, "RUNS": 1, "CLSS_INLINE_MATH": 1}
+
+
+def reproject_group(dev: Device) -> int:
+    """History planes per work-item of the fast reprojection (G, a divisor of 12): 6 on
+    16-wide CPUs (AVX-512: fastest on a Cascade Lake, 3, 4 and 12 the same or slower), 4 on
+    8-wide ones (AVX2: on a Zen 3, 1080p fp32, x2 151 ms against G 6's 189, x4 183 against
+    243; 2, 3 and 12 slower)."""
+    return 6 if vector_width(dev) >= 16 else 4
 
 
 def reproject_motions(g, shape):

@@ -76,10 +76,10 @@ static float2 render_motion(__global const float *mv, int h, int w, int X, int Y
 {
     const long plane = (long)h * w;
     float u = ((float)X + 0.5f) / sx - 0.5f, v = ((float)Y + 0.5f) / sy - 0.5f;
-    u = clamp(u, 0.0f, (float)(w - 1));
-    v = clamp(v, 0.0f, (float)(h - 1));
-    const int u0 = (int)floor(u), v0 = (int)floor(v);
-    const int u1 = min(u0 + 1, w - 1), v1 = min(v0 + 1, h - 1);
+    u = clss_clampf(u, 0.0f, (float)(w - 1));
+    v = clss_clampf(v, 0.0f, (float)(h - 1));
+    const int u0 = clss_floori(u), v0 = clss_floori(v);
+    const int u1 = clss_mini(u0 + 1, w - 1), v1 = clss_mini(v0 + 1, h - 1);
     const float fu = u - (float)u0, fv = v - (float)v0;
     float m[2];
     for (int c = 0; c < 2; ++c) {
@@ -205,17 +205,40 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
 #define G 4         /* history channels per plane group (divides 12) */
 #endif
 
+/* Loads and stores of float8 without builtin calls where the host asks for them
+ * (-DCLSS_CLANG_VECTORS=1 on PoCL, common.h: its vload8/vstore8/select/all are out-of-line
+ * calls there, each spilling every live vector): clang vector accesses, element-aligned as
+ * vload8's. XLD8 reads a float buffer, PLD8/PST8 a private array. */
+#if CLSS_CLANG_VECTORS && defined(__clang__)
+typedef float Fv8u __attribute__((ext_vector_type(8), aligned(4)));
+#define XLD8(p) ((float8)(*(__global const Fv8u *)(p)))
+#define PLD8(a) ((float8)(*(__private const Fv8u *)(a)))
+#define PST8(a, v) (*(__private Fv8u *)(a) = (v))
+#else
+#define XLD8(p) vload8(0, (p))
+#define PLD8(a) vload8(0, (a))
+#define PST8(a, v) vstore8((v), 0, (a))
+#endif
+/* all(m) of an int8 comparison, as plain vector ANDs (every lane -1) */
+static inline int all8(int8 m)
+{
+    const int4 a = m.lo & m.hi;
+    const int2 b = a.lo & a.hi;
+    return (b.x & b.y) < 0;
+}
+
 /* Store the first n (<= 8) lanes of v at element offset i of p. */
-#if defined(CLSS_FP16)     /* lane by lane: pip's PoCL 3.0 crashed on vstore_half8_rte here */
-#define PUT8_FULL(p, i, v) do { float t_[8]; vstore8((v), 0, t_);      \
+#if defined(CLSS_FP16) && !(CLSS_CLANG_VECTORS && defined(__clang__))
+/* lane by lane: pip's PoCL 3.0 crashed on vstore_half8_rte here (it takes the clang form) */
+#define PUT8_FULL(p, i, v) do { float t_[8]; PST8(t_, (v));      \
         for (int q_ = 0; q_ < 8; ++q_) ST(p, (i) + q_, t_[q_]); } while (0)
 #else
-#define PUT8_FULL(p, i, v) ST8(p, i, CONVERT_A8(v))
+#define PUT8_FULL(p, i, v) FST8(p, i, CLSS_CVT8((v), A8))
 #endif
 #define PUT8(p, i, v, n) do {                                       \
         if ((n) == 8) { PUT8_FULL(p, i, v); }                        \
-        else { float t_[8]; vstore8((v), 0, t_);                     \
-               for (int q_ = 0; q_ < (n); ++q_) ST(p, (i) + q_, t_[q_]); } \
+        else { float t_[8]; PST8(t_, (v));                           \
+               for (int q_ = 0; q_ < (n); ++q_) FST(p, (i) + q_, t_[q_]); } \
     } while (0)
 
 /** The warp's sample position of every output pixel: (X + m.x * sx, Y + m.y * sy), m
@@ -232,7 +255,7 @@ __kernel void nsrr_warp_coords(__global const float *mv, __global float *xy, int
     if (X0 >= W8 || Y >= H) return;
     const long plane = (long)H * W8, o = (long)Y * W8 + X0;
     for (int l = 0; l < 8; ++l) {
-        const int X = min(X0 + l, W - 1);
+        const int X = clss_mini(X0 + l, W - 1);
         const float2 m = render_motion(mv, h, w, X, Y, sy, sx);
         xy[o + l] = (float)X + m.x * sx;
         xy[plane + o + l] = (float)Y + m.y * sy;
@@ -240,13 +263,24 @@ __kernel void nsrr_warp_coords(__global const float *mv, __global float *xy, int
 }
 
 /* eight loads as one vector: LLVM may make it a gather */
-#define GATHER8(p, i) ((float8)(LD(p, (i).s0), LD(p, (i).s1), LD(p, (i).s2), LD(p, (i).s3), \
-                                LD(p, (i).s4), LD(p, (i).s5), LD(p, (i).s6), LD(p, (i).s7)))
+#define GATHER8(p, i) ((float8)(FLD(p, (i).s0), FLD(p, (i).s1), FLD(p, (i).s2), FLD(p, (i).s3), \
+                                FLD(p, (i).s4), FLD(p, (i).s5), FLD(p, (i).s6), FLD(p, (i).s7)))
+/* the pairs (p[i], p[i + 1]) of 8 lanes as float, lane k's at .s(2k) and .s(2k+1) (clang
+ * vectors: one 2-element load each; fp32 and fp16 storage) */
+#if CLSS_CLANG_VECTORS && defined(__clang__) && !defined(CLSS_FP16_NATIVE)
+#define PAIR_LOADS 1
+typedef T Tv2u __attribute__((ext_vector_type(2), aligned(sizeof(T))));
+#define PAIR(p, k) __builtin_convertvector(*(__global const Tv2u *)((p) + (k)), float2)
+#define PAIRS8(p, i) ((float16)(PAIR(p, (i).s0), PAIR(p, (i).s1), PAIR(p, (i).s2), PAIR(p, (i).s3), \
+                                PAIR(p, (i).s4), PAIR(p, (i).s5), PAIR(p, (i).s6), PAIR(p, (i).s7)))
+#else
+#define PAIR_LOADS 0
+#endif
 /* eight consecutive elements as float8 */
 #if defined(CLSS_FP16_NATIVE)
-#define LDF8(p, i) CLSS_CVT8(LD8(p, i), float8)
+#define LDF8(p, i) CLSS_CVT8(FLD8(p, i), float8)
 #else
-#define LDF8(p, i) LD8(p, i)
+#define LDF8(p, i) FLD8(p, i)
 #endif
 
 __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
@@ -266,7 +300,7 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
     for (int r = 0; r < RUNS; ++r) {
         const int X0 = Xw + 8 * r;
         if (X0 >= Wp) break;
-        const int n = min(8, Wp - X0);
+        const int n = clss_mini(8, Wp - X0);
         const long o = (long)Y * Wp + X0;
         /* a history slot beyond the frames in use is empty too */
         if (Y >= H || X0 >= W || (g > 0 && mode == 0 && k >= nvalid)) {
@@ -281,49 +315,62 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
             /* backward warp: this pixel was at (xs, ys) in the previous frame */
             const int W8 = (Wp + 7) & ~7;                   /* xy's row stride */
             const long xo = (long)Y * W8 + X0;
-            const WarpTaps8 t = warp_taps8(vload8(0, xy + xo), vload8(0, xy + (long)H * W8 + xo), W, H);
+            const WarpTaps8 t = warp_taps8(XLD8(xy + xo), XLD8(xy + (long)H * W8 + xo), W, H);
             const int8 i00 = t.cy0 * Wp + t.cx0, i10 = t.cy0 * Wp + t.cx1;
             const int8 i01 = t.cy1 * Wp + t.cx0, i11 = t.cy1 * Wp + t.cx1;
             /* Where the run's taps are one 9 x 2 window (the usual case: motion varies
              * slowly along a row), its four taps are four vector loads at offsets 0, 1, Wp
              * and Wp + 1 of the window, the same elements the gathers read. */
             const int8 io = (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-            if (all(i00 == (int8)(i00.s0) + io) && all(i10 == i00 + 1) && all(i01 == i00 + Wp) &&
-                all(i11 == i01 + 1)) {
+            if (all8((i00 == (int8)(i00.s0) + io) & (i10 == i00 + 1) & (i01 == i00 + Wp) &
+                     (i11 == i01 + 1))) {
                 for (int c = 0; c < nc; ++c) {
                     __global const T *p = hist + (long)(c0 - FEAT + c) * oplane + i00.s0;
                     const float8 v = LDF8(p, 0) * t.w00 + LDF8(p, 1) * t.w10
                                      + LDF8(p, Wp) * t.w01 + LDF8(p, Wp + 1) * t.w11;
-                    PUT8(stack, (c0 + c) * oplane + o, select(zero, v, in), n);
+                    PUT8(stack, (c0 + c) * oplane + o, in ? v : zero, n);
                 }
                 continue;
             }
+#if PAIR_LOADS
+            /* each lane's two taps of a row are adjacent (away from the right edge's clamp):
+             * one 2-element load per lane and row, half the loads of the gathers */
+            if (all8((i10 == i00 + 1) & (i11 == i01 + 1))) {
+                for (int c = 0; c < nc; ++c) {
+                    __global const T *p = hist + (long)(c0 - FEAT + c) * oplane;
+                    const float16 tp = PAIRS8(p, i00), bt = PAIRS8(p, i01);
+                    const float8 v = tp.even * t.w00 + tp.odd * t.w10 + bt.even * t.w01 + bt.odd * t.w11;
+                    PUT8(stack, (c0 + c) * oplane + o, in ? v : zero, n);
+                }
+                continue;
+            }
+#endif
             for (int c = 0; c < nc; ++c) {
                 __global const T *p = hist + (long)(c0 - FEAT + c) * oplane;
                 const float8 v = GATHER8(p, i00) * t.w00 + GATHER8(p, i10) * t.w10
                                  + GATHER8(p, i01) * t.w01 + GATHER8(p, i11) * t.w11;
-                PUT8(stack, (c0 + c) * oplane + o, select(zero, v, in), n);
+                PUT8(stack, (c0 + c) * oplane + o, in ? v : zero, n);
             }
             continue;
         }
         int xl[8];
-        for (int q = 0; q < 8; ++q) xl[q] = min(X0 + q, W - 1);
+        for (int q = 0; q < 8; ++q) xl[q] = clss_mini(X0 + q, W - 1);
         if (g == 0) {
-            const float bv = clamp(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
-            const int r0 = (int)floor(bv), r1 = min(r0 + 1, h - 1);
+            const float bv = clss_clampf(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
+            const int r0 = clss_floori(bv), r1 = clss_mini(r0 + 1, h - 1);
             const float fc = bv - (float)r0;
             float tb[8], bb[8];
             for (int c = 0; c < 3; ++c) {
                 __global const T *q = feat + c * plane;
                 for (int l = 0; l < 8; ++l) {
-                    const float bu = clamp(((float)xl[l] + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
-                    const int b0 = (int)floor(bu), b1 = min(b0 + 1, w - 1);
+                    const float bu = clss_clampf(((float)xl[l] + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
+                    const int b0 = clss_floori(bu), b1 = clss_mini(b0 + 1, w - 1);
                     const float fb = bu - (float)b0;
-                    tb[l] = LD(q, (long)r0 * w + b0) * (1.0f - fb) + LD(q, (long)r0 * w + b1) * fb;
-                    bb[l] = LD(q, (long)r1 * w + b0) * (1.0f - fb) + LD(q, (long)r1 * w + b1) * fb;
+                    tb[l] = FLD(q, (long)r0 * w + b0) * (1.0f - fb) + FLD(q, (long)r0 * w + b1) * fb;
+                    bb[l] = FLD(q, (long)r1 * w + b0) * (1.0f - fb) + FLD(q, (long)r1 * w + b1) * fb;
                 }
-                const float8 v = vload8(0, tb) * (float8)(1.0f - fc) + vload8(0, bb) * (float8)(fc);
-                PUT8(base, c * oplane + o, select(zero, v, in), n);
+                const float8 v = PLD8(tb) * (float8)(1.0f - fc) + PLD8(bb) * (float8)(fc);
+                PUT8(base, c * oplane + o, in ? v : zero, n);
             }
         }
         /* Z_i (group 0), or a reset's slot: zeros, or Z_i again (mode 2, k < nvalid) */
@@ -337,8 +384,8 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
             const int fc = g == 0 ? c : (c0 + c) % FEAT;     /* the feature channel */
             float t[8];
             for (int l = 0; l < 8; ++l)
-                t[l] = src[l] < 0 ? 0.0f : LD(feat, fc * plane + src[l]);
-            PUT8(stack, (c0 + c) * oplane + o, vload8(0, t), n);
+                t[l] = src[l] < 0 ? 0.0f : FLD(feat, fc * plane + src[l]);
+            PUT8(stack, (c0 + c) * oplane + o, PLD8(t), n);
         }
     }
 }
