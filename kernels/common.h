@@ -151,6 +151,20 @@ typedef T Tv8 __attribute__((ext_vector_type(8), aligned(sizeof(T))));
 #define FST ST
 #endif
 
+/* float8 of a float buffer (XLD8) or of a private float array (PLD8, PST8) without the
+ * vload8/vstore8 calls that PoCL makes out of line (-DCLSS_CLANG_VECTORS=1, as above):
+ * clang vector accesses, element-aligned as vload8's. */
+#if defined(__clang__) && CLSS_CLANG_VECTORS
+typedef float Fv8u __attribute__((ext_vector_type(8), aligned(4)));
+#define XLD8(p) ((float8)(*(__global const Fv8u *)(p)))
+#define PLD8(a) ((float8)(*(__private const Fv8u *)(a)))
+#define PST8(a, v) (*(__private Fv8u *)(a) = (v))
+#else
+#define XLD8(p) vload8(0, (p))
+#define PLD8(a) vload8(0, (a))
+#define PST8(a, v) vstore8((v), 0, (a))
+#endif
+
 /* Weights (conv, mlp): in fp16 storage mode the host hands them over as float,
  * rounded to half (conv.cl's weights_to_float once per call, mlp's packing once
  * per network), so hot loops broadcast them with one load instead of a load, a

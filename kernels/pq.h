@@ -2,11 +2,11 @@
  * step whose colour lives in PQ: linear * pq_scale (nits / 10000) in, [0, 1] out, and back
  * (inv_pq_scale = 10000 / nits).
  *
- * PQ_ENCODE(T, NAME, POW) and PQ_DECODE(T, NAME, POW, MAX) define the two functions over a
- * float type T (float, float8, a kernel's own pixel vector) with a power function POW(x, y)
- * for x >= 0 and the max of the decode's clamp: every kernel then computes the same
+ * PQ_ENCODE(T, NAME, POW) and PQ_DECODE(T, NAME, POW, MAX, CLAMP) define the two functions
+ * over a float type T (float, float8, a kernel's own pixel vector) with a power function
+ * POW(x, y) for x >= 0, and the decode's max and clamp: every kernel then computes the same
  * operations in the same order, and differs only where it chose to (the exp2/log2 form or
- * the library pow; max or NaN-aware fmax). The including kernel writes the qualifier
+ * the library pow; max or NaN-aware fmax; builtin or inline clamp). The including kernel writes the qualifier
  * (`static`, `inline`) in front, and its FP_CONTRACT state holds in the expansion.
  * Below: pq_encode, pq_decode and pq_decode8 with powp (exp2/log2, 0 at 0); a kernel with
  * pixel vectors of its own, or the library pow, instantiates its own pair.
@@ -32,10 +32,10 @@
     }
 
 /* the encoded value is clamped to [0, 1] first */
-#define PQ_DECODE(T, NAME, POW, MAX)                                                  \
+#define PQ_DECODE(T, NAME, POW, MAX, CLAMP)                                           \
     T NAME(T e, float inv_pq_scale)                                                   \
     {                                                                                 \
-        const T ep = POW(clamp(e, 0.0f, 1.0f), 1.0f / (float)PQ_M2);                  \
+        const T ep = POW(CLAMP(e, 0.0f, 1.0f), 1.0f / (float)PQ_M2);                  \
         return POW(MAX(ep - PQ_C1, 0.0f) / (PQ_C2 - PQ_C3 * ep), 1.0f / (float)PQ_M1) \
                * inv_pq_scale;                                                        \
     }
@@ -48,16 +48,29 @@ static float powp(float x, float y)
 }
 
 static PQ_ENCODE(float, pq_encode, powp)
-static PQ_DECODE(float, pq_decode, powp, max)
+static PQ_DECODE(float, pq_decode, powp, max, clamp)
 
 /* pq_decode on 8 values at once: the same operations lane by lane. Scalar exp2/log2 are
  * library calls on PoCL (about 0.2 us a decode: 1.3 s of a 1080p frame); on float8 they
  * vectorise. */
 static float8 powp8(float8 x, float y)
 {
-    return select((float8)(0.0f), exp2(y * log2(x)), x > 0.0f);
+    return x > 0.0f ? exp2(y * log2(x)) : (float8)(0.0f);
 }
 
-static PQ_DECODE(float8, pq_decode8, powp8, max)
+/* clamp and max of the decode as vector ?: (select, clamp and max are out-of-line calls on
+ * pip's PoCL): equal to the builtins for every finite argument, and -0 cannot reach them
+ * here (ep - C1 is +0 where ep == C1) */
+static inline float8 pq_clamp8(float8 x, float lo, float hi)
+{
+    return x > lo ? (x < hi ? x : (float8)(hi)) : (float8)(lo);
+}
+
+static inline float8 pq_max8(float8 x, float z)
+{
+    return x > z ? x : (float8)(z);
+}
+
+static PQ_DECODE(float8, pq_decode8, powp8, pq_max8, pq_clamp8)
 
 #endif

@@ -205,7 +205,7 @@ typedef int iv;
 /* The transfer on VEC pixels: pq.h's PQ (inv_pq_scale = 10000 / nits), or a clamp. */
 #if HDR
 inline PQ_ENCODE(fv, encode, POWP)
-inline PQ_DECODE(fv, decode, POWP, fmax)
+inline PQ_DECODE(fv, decode, POWP, fmax, clamp)
 #else
 inline fv encode(fv x, float pq_scale)
 {

@@ -34,7 +34,7 @@
 #include "pq.h"
 
 inline PQ_ENCODE(float, mu_pq_encode, pow)
-inline PQ_DECODE(float, mu_pq_decode, pow, fmax)
+inline PQ_DECODE(float, mu_pq_decode, pow, fmax, clamp)
 
 /* IN [CI] -> OUT [CO] = act(W IN + b); leaky when LEAKY. */
 #define DENSE(IN, OUT, CI, CO, WOFF, LEAKY)                                  \

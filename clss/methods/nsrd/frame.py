@@ -24,6 +24,7 @@ import pyopencl as cl
 
 from ... import selfcheck
 from ...device import Device
+from ...ops.conv import builtin_free
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS
 from ...pipeline.method import input_buffers, summed_event_ms
 from ...tolerance import DEFAULT_TOL, EXACT
@@ -75,7 +76,10 @@ class NsrdFrameStep:
         from ...model import Model
         self.network = Model(nets.build_network(cfg, weights, hp, wp), device=dev, precision=prec)
         self.encode8 = selfcheck.enabled(dev, prec, ENCODE8)
-        defs = {**selfcheck.defines(dev, prec, INLINE_MATH), **selfcheck.defines(dev, prec, ENCODE8)}
+        # CLSS_CLANG_VECTORS: the float8 kernels' private vector stores as clang vector accesses
+        # on PoCL (common.h: its vstore8/vload8 are out-of-line calls there)
+        defs = {**selfcheck.defines(dev, prec, INLINE_MATH), **selfcheck.defines(dev, prec, ENCODE8),
+                "CLSS_CLANG_VECTORS": builtin_free(dev)}
         k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **defs)
              for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prepare8", "nsrd_warp_state8",
                        "nsrd_prev", "nsrd_prev8", "nsrd_finish", "nsrd_finish8", "nsrd_decode")}

@@ -165,7 +165,7 @@ __kernel void nsrd_prepare(NSRD_PREPARE_ARGS)
 
 static float8 fin8(float8 v, float fill)
 {
-    return select((float8)(fill), v, (v - v) == (float8)(0.0f));     /* as clss_isfinite */
+    return (v - v) == (float8)(0.0f) ? v : (float8)(fill);     /* as clss_isfinite */
 }
 
 static PQ_ENCODE(float8, pq_encode8, powp8)
@@ -195,12 +195,12 @@ __kernel void nsrd_prepare8(NSRD_PREPARE_ARGS)
     float vals[CUR + WARP][8];      /* cur then warp, per lane, stored at the end */
     for (int c = 0; c < 3; ++c) {
         const float8 a = fin8(CLSS_GATHER8(albedo + c, 3 * p), 0.0f);
-        vstore8(a, 0, vals[3 + c]);
-        vstore8(fin8(CLSS_GATHER8(normal + c, 3 * p), 0.0f), 0, vals[6 + c]);
+        PST8(vals[3 + c], a);
+        PST8(vals[6 + c], fin8(CLSS_GATHER8(normal + c, 3 * p), 0.0f));
     }
     float8 d = fin8(CLSS_GATHER8(depth, p), depth_inverted ? 0.0f : 1.0f);
     d = depth_inverted ? d : 1.0f - d;
-    vstore8(d, 0, vals[9]);
+    PST8(vals[9], d);
     const float8 mx = fin8(CLSS_GATHER8(motion, 2 * p), 0.0f) * msx;
     const float8 my = fin8(CLSS_GATHER8(motion + 1, 2 * p), 0.0f) * msy;
     const float8 xs = CLSS_CVT8(xi, float8) + mx, ys = (float8)((float)y) + my;
@@ -227,14 +227,14 @@ __kernel void nsrd_prepare8(NSRD_PREPARE_ARGS)
     float sn[5][8];                 /* state_new channels 3-7 */
     for (int c = 0; c < 3; ++c) {
         const float8 w1 = sv[c] * keep, w2 = sv[4 + c] * keep;
-        vstore8(w1, 0, vals[CUR + c]);
-        vstore8(w2, 0, vals[CUR + 4 + c]);
-        vstore8(w1, 0, sn[1 + c]);
+        PST8(vals[CUR + c], w1);
+        PST8(vals[CUR + 4 + c], w2);
+        PST8(sn[1 + c], w1);
     }
-    vstore8(m, 0, vals[CUR + 3]);
-    vstore8(m * sv[3], 0, vals[CUR + 7]);
-    vstore8(m, 0, sn[0]);
-    vstore8(d, 0, sn[4]);
+    PST8(vals[CUR + 3], m);
+    PST8(vals[CUR + 7], m * sv[3]);
+    PST8(sn[0], m);
+    PST8(sn[4], d);
     for (int k = 0; k < nq; ++k) {
         const int in = k < n;
         for (int c = 3; c < CUR; ++c) ST(cur, c * np_ + q0 + k, in ? vals[c][k] : 0.0f);
@@ -245,8 +245,8 @@ __kernel void nsrd_prepare8(NSRD_PREPARE_ARGS)
     }
     const int p0 = y * w + x0;
     float mxs[8], mys[8];
-    vstore8(mx, 0, mxs);
-    vstore8(my, 0, mys);
+    PST8(mxs, mx);
+    PST8(mys, my);
     for (int k = 0; k < n; ++k) {
         mv[p0 + k] = mxs[k];
         mv[plane + p0 + k] = mys[k];
@@ -298,8 +298,8 @@ __kernel void nsrd_warp_state8(__global const float *mv, __global const T *h_in,
                     + LD8AT(c_in, b01) * t.w01 + LD8AT(c_in, b11) * t.w11;
 #undef LD8AT
     float hs[8], cs[8];
-    vstore8(hv * keep, 0, hs);
-    vstore8(cv * keep, 0, cs);
+    PST8(hs, hv * keep);
+    PST8(cs, cv * keep);
     for (int k = 0; k < nq; ++k) {
         ST(h_w, b + q0 + k, k < n ? hs[k] : 0.0f);
         ST(c_w, b + q0 + k, k < n ? cs[k] : 0.0f);
@@ -331,9 +331,9 @@ __kernel void nsrd_encode(__global const float *color, __global const float *alb
         const float8 alb = (float8)(as[c], as[3 + c], as[6 + c], as[9 + c], as[12 + c], as[15 + c],
                                     as[18 + c], as[21 + c]);
         const float8 a = fin8(alb, 0.0f);
-        const float8 m = demod ? select((float8)(1.0f), a, a >= eps) : (float8)(1.0f);
+        const float8 m = demod ? (a >= eps ? a : (float8)(1.0f)) : (float8)(1.0f);
         float L[8];
-        vstore8(pq_encode8(fin8(col, 0.0f) * inv_exposure / m, pq_scale), 0, L);
+        PST8(L, pq_encode8(fin8(col, 0.0f) * inv_exposure / m, pq_scale));
         for (int k = 0; k < n; ++k) {
             ST(cur, c * np_ + q0 + k, L[k]);
             state_new[c * h * w + p0 + k] = L[k];
@@ -357,7 +357,7 @@ __kernel void nsrd_alpha(__global const T *y, __global float *alpha, int off, in
     for (int k = 0; k < 8; ++k)
         z[k] = LD(y, off + i0 + min(k, m - 1));
     float a[8];
-    vstore8(1.0f / (1.0f + exp(-vload8(0, z))), 0, a);
+    PST8(a, 1.0f / (1.0f + exp(-PLD8(z))));
     for (int k = 0; k < m; ++k)
         alpha[i0 + k] = a[k];
 }
@@ -467,7 +467,7 @@ __kernel void nsrd_prev8(__global const float *hist, __global const float *mv, _
         const float8 r = CLSS_GATHER8(q, a00) * t.w00 + CLSS_GATHER8(q, a10) * t.w10
                        + CLSS_GATHER8(q, a01) * t.w01 + CLSS_GATHER8(q, a11) * t.w11;
         float rs[8];
-        vstore8(r * keep, 0, rs);
+        PST8(rs, r * keep);
         for (int k = 0; k < n; ++k) {
             const int X = X0 + k;
             ST(prev, (c * s * s + (Y % s) * s + X % s) * np_ + (long)(Y / s) * wp + X / s, rs[k]);
@@ -600,8 +600,8 @@ __kernel void nsrd_finish8(__global const T *y, __global const float *state,
             m = alpha * mp + (1.0f - alpha) * m;
         }
 #undef AHR8
-        vstore8(l, 0, ls[c]);
-        vstore8(m * pq_decode8(l, inv_pq_scale), 0, ms[c]);
+        PST8(ls[c], l);
+        PST8(ms[c], m * pq_decode8(l, inv_pq_scale));
     }
     for (int k = 0; k < n; ++k) {
         const long Q = (long)Y * W + X0 + k;
@@ -629,15 +629,15 @@ __kernel void nsrd_decode(__global const float *hist, __global float *out, int P
         __global const float *q = hist + (long)c * P + Q0;
         float8 l;
         if (n == 8) {
-            l = vload8(0, q);
+            l = XLD8(q);
         } else {
             float t[8];
             for (int k = 0; k < 8; ++k)
                 t[k] = k < n ? q[k] : 0.0f;
-            l = vload8(0, t);
+            l = PLD8(t);
         }
         float d[8];
-        vstore8(pq_decode8(l, inv_pq_scale), 0, d);
+        PST8(d, pq_decode8(l, inv_pq_scale));
         for (int k = 0; k < n; ++k)
             out[3 * (long)(Q0 + k) + c] *= d[k];
     }

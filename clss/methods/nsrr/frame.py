@@ -93,7 +93,8 @@ class NsrrFrameStep:
         from ...model import Model
         self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
         self.reconstruct = Model(build_reconstruct(cfg, weights, Hp, Wp), device=dev, precision=prec)
-        k = {n: dev.kernel(KERNEL, n, prec) for n in ("nsrr_prepare", "nsrr_finish")}
+        k = {n: dev.kernel(KERNEL, n, prec, CLSS_CLANG_VECTORS=builtin_free(dev))
+             for n in ("nsrr_prepare", "nsrr_finish")}
         # the fast variant's float8 loads and stores as clang vector accesses on PoCL
         # (builtin calls are out of line there: common.h, CLSS_CLANG_VECTORS)
         rd = {**selfcheck.defines(dev, prec, REPROJECT_VECTORS), "CLSS_CLANG_VECTORS": builtin_free(dev)}

@@ -205,20 +205,6 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
 #define G 4         /* history channels per plane group (divides 12) */
 #endif
 
-/* Loads and stores of float8 without builtin calls where the host asks for them
- * (-DCLSS_CLANG_VECTORS=1 on PoCL, common.h: its vload8/vstore8/select/all are out-of-line
- * calls there, each spilling every live vector): clang vector accesses, element-aligned as
- * vload8's. XLD8 reads a float buffer, PLD8/PST8 a private array. */
-#if CLSS_CLANG_VECTORS && defined(__clang__)
-typedef float Fv8u __attribute__((ext_vector_type(8), aligned(4)));
-#define XLD8(p) ((float8)(*(__global const Fv8u *)(p)))
-#define PLD8(a) ((float8)(*(__private const Fv8u *)(a)))
-#define PST8(a, v) (*(__private Fv8u *)(a) = (v))
-#else
-#define XLD8(p) vload8(0, (p))
-#define PLD8(a) vload8(0, (a))
-#define PST8(a, v) vstore8((v), 0, (a))
-#endif
 /* all(m) of an int8 comparison, as plain vector ANDs (every lane -1) */
 static inline int all8(int8 m)
 {
@@ -412,15 +398,15 @@ __kernel void nsrr_finish(__global const T *y, __global float *out, int H, int W
     for (int c = 0; c < 3; ++c) {
         float8 e;
         if (X0 + 8 <= Wp) {             /* the padding columns are read and not written */
-            e = convert_float8(LD8(y, c * plane + p));
+            e = CLSS_CVT8(FLD8(y, c * plane + p), float8);
         } else {
             float t[8];
             for (int k = 0; k < 8; ++k)
                 t[k] = k < n ? (float)LD(y, c * plane + p + k) : 0.0f;
-            e = vload8(0, t);
+            e = PLD8(t);
         }
         float d[8];
-        vstore8(pq_decode8(e, inv_pq_scale), 0, d);
+        PST8(d, pq_decode8(e, inv_pq_scale));
         for (int k = 0; k < n; ++k)
             o[3 * k + c] = d[k];
     }
