@@ -93,11 +93,11 @@ class NsrrFrameStep:
         from ...model import Model
         self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
         self.reconstruct = Model(build_reconstruct(cfg, weights, Hp, Wp), device=dev, precision=prec)
-        k = {n: dev.kernel(KERNEL, n, prec, CLSS_CLANG_VECTORS=builtin_free(dev))
-             for n in ("nsrr_prepare", "nsrr_finish")}
-        # the fast variant's float8 loads and stores as clang vector accesses on PoCL
-        # (builtin calls are out of line there: common.h, CLSS_CLANG_VECTORS)
-        rd = {**selfcheck.defines(dev, prec, REPROJECT_VECTORS), "CLSS_CLANG_VECTORS": builtin_free(dev)}
+        # float8 loads and stores as clang vector accesses on PoCL (builtin calls are out of
+        # line there: common.h, CLSS_CLANG_VECTORS)
+        cv = builtin_free(dev)
+        k = {n: dev.kernel(KERNEL, n, prec, CLSS_CLANG_VECTORS=cv) for n in ("nsrr_prepare", "nsrr_finish")}
+        rd = {**selfcheck.defines(dev, prec, REPROJECT_VECTORS), "CLSS_CLANG_VECTORS": cv}
         rd.setdefault("G", reproject_group(dev))
         i32, f = np.int32, np.float32
         self.L = {
