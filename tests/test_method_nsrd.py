@@ -75,7 +75,10 @@ def test_frame_step_matches_its_onnx_twin(scale, precision, dev):
                                           ({"remod": "learned"}, "fp32"),
                                           ({"remod": "learned"}, "fp16"),
                                           ({"warp_state": True}, "fp32"),
-                                          ({"warp_state": True}, "fp16")])
+                                          ({"warp_state": True}, "fp16"),
+                                          ({"base": "guided", "remod": "learned"}, "fp32"),
+                                          ({"base": "guided", "remod": "learned"}, "fp16"),
+                                          ({"base": "guided", "demod": False}, "fp32")])
 def test_ablations_and_learned_remod_match_the_twin(kw, precision, dev):
     ours, _ = _run(dev, 2.0, precision, n=6, **kw)
     st = ours._fs.dev.to_host(ours._fs.state)
@@ -236,8 +239,8 @@ def test_prev8_is_nsrd_prev_bit_for_bit(any_dev, prec, scale):
 
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
-@pytest.mark.parametrize("scale, learned", [(2, 1), (3, 0), (4, 1)])
-def test_finish8_is_finish_then_decode_bit_for_bit(any_dev, prec, scale, learned):
+@pytest.mark.parametrize("scale, learned, guided", [(2, 1, 0), (3, 0, 0), (4, 1, 0), (2, 1, 1), (3, 0, 1)])
+def test_finish8_is_finish_then_decode_bit_for_bit(any_dev, prec, scale, learned, guided):
     h, w = 7, 13
     H, W = h * scale, w * scale
     hp, wp = nets.pad2(h), nets.pad2(w)
@@ -248,6 +251,9 @@ def test_finish8_is_finish_then_decode_bit_for_bit(any_dev, prec, scale, learned
     ahr[1, 2, 0], ahr[3, 4, 1] = np.nan, np.inf     # fin() per tap, as the scalar kernel
     ahr = any_dev.to_device(ahr)
     alpha = any_dev.to_device(g.uniform(0, 1, (scale * scale * hp * wp,)).astype(np.float32))
+    alb = g.uniform(-0.2, 1, (h, w, 3)).astype(np.float32)     # the guided base's guide
+    alb[2, 3, 2] = np.nan
+    alb = any_dev.to_device(alb)
     i32, f = np.int32, np.float32
     res = []
     for fused in (True, False):
@@ -255,9 +261,11 @@ def test_finish8_is_finish_then_decode_bit_for_bit(any_dev, prec, scale, learned
         args = [y.data, state.data, ahr.data, hist.data, out.data, i32(h), i32(w), i32(H), i32(W), i32(hp),
                 i32(wp), i32(scale), f(0.25), f(-0.25), i32(1), f(0.01), i32(learned), alpha.data]
         if fused:
-            any_dev.launch(_frame_kernel(any_dev, prec, "nsrd_finish8", scale), (-(-W // 8), H), args + [f(3.0)])
+            any_dev.launch(_frame_kernel(any_dev, prec, "nsrd_finish8", scale), (-(-W // 8), H),
+                           args + [f(3.0), alb.data, i32(guided)])
         else:
-            any_dev.launch(_frame_kernel(any_dev, prec, "nsrd_finish", scale), (W, H), args)
+            any_dev.launch(_frame_kernel(any_dev, prec, "nsrd_finish", scale), (W, H),
+                           args + [alb.data, i32(guided)])
             any_dev.launch(_frame_kernel(any_dev, prec, "nsrd_decode", scale), (-(-H * W // 8),),
                            [hist.data, out.data, i32(H * W), f(3.0)])
         res.append((hist.get(), out.get()))

@@ -23,7 +23,8 @@ def _t(a):
 
 
 @pytest.mark.parametrize("scale,kw", [(4.0, {}), (2.0, {"mask": False}),
-                                      (4.0, {"remod": "learned"}), (2.0, {"warp_state": True})])
+                                      (4.0, {"remod": "learned"}), (2.0, {"warp_state": True}),
+                                      (3.0, {"base": "guided", "remod": "learned", "warp_state": True})])
 def test_torch_twin_matches_the_opencl_step(scale, kw, dev):
     torch.set_num_threads(1)
     cfg = nets.make_config(scale, **kw)

@@ -80,6 +80,8 @@ class NsrdFrameStep:
         # on PoCL (common.h: its vstore8/vload8 are out-of-line calls there)
         defs = {**selfcheck.defines(dev, prec, INLINE_MATH), **selfcheck.defines(dev, prec, ENCODE8),
                 "CLSS_CLANG_VECTORS": builtin_free(dev)}
+        defs.update(NSRD_GUIDE_INV_SIG2=f"{1.0 / nets.GUIDE_SIGMA ** 2!r}f",
+                    NSRD_GUIDE_FLOOR=f"{nets.GUIDE_FLOOR!r}f")
         k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **defs)
              for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prepare8", "nsrd_warp_state8",
                        "nsrd_prev", "nsrd_prev8", "nsrd_finish", "nsrd_finish8", "nsrd_decode")}
@@ -111,7 +113,8 @@ class NsrdFrameStep:
                 self.y.data, self.states[0].data, self.in_albedo_hr.data, self.hist.data,
                 self.out.data, i32(h), i32(w), i32(H), i32(W), i32(hp), i32(wp), i32(s),
                 f(0), f(0), demod, eps, i32(nets.learned_remod(cfg)), self.alpha.data,
-                *((f(PQ_PEAK_NITS / self.nits),) if self.encode8 else ())]),
+                *((f(PQ_PEAK_NITS / self.nits),) if self.encode8 else ()),
+                self.in_albedo.data, i32(nets.guided(cfg))]),
             "warp_state": dev.prepare(k["nsrd_warp_state8"], (-(-wp // 8), hp, hid), [
                 self.mv.data, self.hc[0][0].data, self.hc[0][1].data, self.hcw[0].data, self.hcw[1].data,
                 i32(w), i32(h), i32(wp), i32(hp), f(1)]),
@@ -157,6 +160,7 @@ class NsrdFrameStep:
             fin.bind(idx, v)
         if self.encode8:
             fin.bind(18, f(PQ_PEAK_NITS / self.nits * exposure))
+        fin.bind(19 if self.encode8 else 18, albedo.data)    # the guided base's guide
         if self.encode8:
             enc = L["encode"]
             for idx, v in ((0, color.data), (1, albedo.data), (3, new.data), (8, f(1.0 / exposure))):

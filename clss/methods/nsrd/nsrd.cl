@@ -475,6 +475,51 @@ __kernel void nsrd_prev8(__global const float *hist, __global const float *mv, _
     }
 }
 
+/* The guided base (networks.BASES "guided", GUIDE_*): the lighting at output pixel Q,
+ * whose centre lies at (bu, bv) in the render frame (clamped to it), as the mean of the
+ * 4 x 4 render samples around it weighted by a tent of radius 2 times
+ * exp(-|m_q - m_p|^2 / GUIDE_SIGMA^2) + GUIDE_FLOOR, m_p the point material at Q:
+ * bilinear lighting mixes both sides of a material edge, which re-modulation turns
+ * into halos. Tap order and arithmetic as networks.guide_taps. */
+#ifndef NSRD_GUIDE_INV_SIG2
+#define NSRD_GUIDE_INV_SIG2 (1.0f / (0.3f * 0.3f))
+#endif
+#ifndef NSRD_GUIDE_FLOOR
+#define NSRD_GUIDE_FLOOR 1e-4f
+#endif
+static void guided_base(__global const float *state, __global const float *albedo,
+                        __global const float *albedo_hr, int h, int w, long Q,
+                        float bu, float bv, int demod, float eps, float *out)
+{
+    const int b0 = clss_floori(bu), c0 = clss_floori(bv);
+    float mp[3], acc[3] = {0.0f, 0.0f, 0.0f}, ws = 0.0f;
+    for (int c = 0; c < 3; ++c)
+        mp[c] = material(fin(albedo_hr[3 * Q + c], 0.0f), demod, eps);
+    for (int dy = -1; dy <= 2; ++dy) {
+        const int ty = c0 + dy;
+        const float dv = bv - (float)ty;
+        const float ty_ = 1.0f - (dv < 0.0f ? -dv : dv) * 0.5f, wy = ty_ > 0.0f ? ty_ : 0.0f;
+        const long row = (long)clss_clampi(ty, 0, h - 1) * w;
+        for (int dx = -1; dx <= 2; ++dx) {
+            const int tx = b0 + dx;
+            const float du = bu - (float)tx;
+            const float tx_ = 1.0f - (du < 0.0f ? -du : du) * 0.5f, wx = tx_ > 0.0f ? tx_ : 0.0f;
+            const long q = row + clss_clampi(tx, 0, w - 1);
+            float d2 = 0.0f;
+            for (int c = 0; c < 3; ++c) {
+                const float d = material(fin(albedo[3 * q + c], 0.0f), demod, eps) - mp[c];
+                d2 += d * d;
+            }
+            const float wt = wy * wx * (exp(-d2 * NSRD_GUIDE_INV_SIG2) + NSRD_GUIDE_FLOOR);
+            for (int c = 0; c < 3; ++c)
+                acc[c] += wt * state[(long)c * h * w + q];
+            ws += wt;
+        }
+    }
+    for (int c = 0; c < 3; ++c)
+        out[c] = acc[c] / ws;
+}
+
 /** @param[in]  y          [3s^2,hp,wp] T: the network's output
  *  @param[in]  state      [8,h,w] float32: this frame's state (channels 0-2: the lighting)
  *  @param[in]  albedo_hr  [H,W,3] float32
@@ -488,7 +533,8 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
                           __global const float *albedo_hr, __global float *hist,
                           __global float *out, int h, int w, int H, int W, int hp, int wp, int s_,
                           float jx, float jy, int demod, float eps,
-                          int learned, __global const float *alpha8)
+                          int learned, __global const float *alpha8,
+                          __global const float *albedo, int guided)
 {
     const int s = SCALE_OR(s_);
     const int X = get_global_id(0), Y = get_global_id(1);
@@ -516,6 +562,9 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
         alpha = 1.0f / (1.0f + exp(-z));
 #endif
     }
+    float gb[3] = {0.0f, 0.0f, 0.0f};
+    if (guided)
+        guided_base(state, albedo, albedo_hr, h, w, Q, bu, bv, demod, eps, gb);
     for (int c = 0; c < 3; ++c) {
 #define AHR(r, x) fin(albedo_hr[3 * ((r) + (x)) + c], 0.0f)
         const float a0 = 0.25f * AHR(r0, xm) + 0.5f * AHR(r0, X) + 0.25f * AHR(r0, xp);
@@ -526,7 +575,7 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
         __global const float *q = state + c * h * w;
         const float top = q[c0 * w + b0] * (1.0f - fb) + q[c0 * w + b1] * fb;
         const float bot = q[c1 * w + b0] * (1.0f - fb) + q[c1 * w + b1] * fb;
-        const float base = top * (1.0f - fc) + bot * fc;
+        const float base = guided ? gb[c] : top * (1.0f - fc) + bot * fc;
         const float l = clss_clampf(LD(y, (c * s * s + sub) * np_ + o) + base, 0.0f, 1.0f);
         hist[c * P + Q] = l;
         float m = material(a, demod, eps);
@@ -544,7 +593,8 @@ __kernel void nsrd_finish8(__global const T *y, __global const float *state,
                            __global const float *albedo_hr, __global float *hist,
                            __global float *out, int h, int w, int H, int W, int hp, int wp, int s_,
                            float jx, float jy, int demod, float eps,
-                           int learned, __global const float *alpha8, float inv_pq_scale)
+                           int learned, __global const float *alpha8, float inv_pq_scale,
+                           __global const float *albedo, int guided)
 {
     const int s = SCALE_OR(s_);
     const int X0 = get_global_id(0) * 8, Y = get_global_id(1);
@@ -576,7 +626,18 @@ __kernel void nsrd_finish8(__global const T *y, __global const float *state,
     const long8 s01 = (long8)((long)c0 * w) + CLSS_CVT8(b1, long8);
     const long8 s10 = (long8)((long)c1 * w) + CLSS_CVT8(b0, long8);
     const long8 s11 = (long8)((long)c1 * w) + CLSS_CVT8(b1, long8);
-    float ls[3][8], ms[3][8];
+    float ls[3][8], ms[3][8], gb[3][8];
+    if (guided) {
+        /* lane by lane, the scalar kernel's function: bit-identical to it */
+        for (int k = 0; k < 8; ++k) {
+            const int Xk = clss_mini(X0 + k, W - 1);
+            const float bu = clss_clampf(((float)Xk + 0.5f) / fs - 0.5f - jx, 0.0f, (float)(w - 1));
+            float g3[3];
+            guided_base(state, albedo, albedo_hr, h, w, (long)Y * W + Xk, bu, bv, demod, eps, g3);
+            for (int c = 0; c < 3; ++c)
+                gb[c][k] = g3[c];
+        }
+    }
     for (int c = 0; c < 3; ++c) {
         __global const float *ac = albedo_hr + c;
 #define AHR8(r, x) fin8(CLSS_GATHER8(ac, 3 * ((long8)(r) + (x))), 0.0f)
@@ -587,7 +648,7 @@ __kernel void nsrd_finish8(__global const T *y, __global const float *state,
         __global const float *q = state + c * h * w;
         const float8 top = CLSS_GATHER8(q, s00) * (1.0f - fb) + CLSS_GATHER8(q, s01) * fb;
         const float8 bot = CLSS_GATHER8(q, s10) * (1.0f - fb) + CLSS_GATHER8(q, s11) * fb;
-        const float8 base = top * (1.0f - fc) + bot * fc;
+        const float8 base = guided ? PLD8(gb[c]) : top * (1.0f - fc) + bot * fc;
         const long8 yi = ((long8)(c * s * s) + sub) * np_ + o;
         const float8 yv = (float8)(LD(y, yi.s0), LD(y, yi.s1), LD(y, yi.s2), LD(y, yi.s3),
                                    LD(y, yi.s4), LD(y, yi.s5), LD(y, yi.s6), LD(y, yi.s7));

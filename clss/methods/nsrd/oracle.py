@@ -10,6 +10,8 @@ Graph inputs (internal conventions, contract.to_internal; G-buffers NCHW):
     h, c [1,hid,hp,wp] the ConvLSTM state
     keep [1]: 0 on a reset          base_grid [1,H,W,2]: where each output pixel centre
                                     lies in the render frame (networks.base_grid)
+    guide_idx [16HW], guide_w [1,1,16,H,W]: the guided base's taps (networks.guide_taps;
+                                    only with the config's base "guided")
 Outputs: output [1,3,H,W] linear (/ exposure), state_out, hist_out, h_out, c_out.
 On a reset the runner feeds zero h and c (the OpenCL step zeroes its buffers).
 """
@@ -44,6 +46,27 @@ def _warp_grid(g, motion, h, w, scale=1.0):
     gx = g.normalised(g.add(xs, mx), w)
     gy = g.normalised(g.add(ys, my), h)
     return g.op("Transpose", g.concat([gx, gy], axis=1), perm=[0, 2, 3, 1])
+
+
+def _guided_base(g, L, demod, h, w, H, W):
+    """networks.BASES "guided": Gathers of the 16 taps, their material distance to the
+    output pixel's point material, the weighted mean."""
+    K = nets.GUIDE_TAPS ** 2
+
+    def gather(x, c):           # [1,c,h,w] -> [1,c,K,H,W]
+        return g.reshape(g.op("Gather", g.reshape(x, [1, c, h * w]), "guide_idx", axis=2),
+                         [1, c, K, H, W])
+    wt = "guide_w"
+    if demod:
+        d = g.sub(gather(_material(g, "albedo", True), 3),
+                  g.reshape(_material(g, "albedo_hr", True), [1, 3, 1, H, W]))
+        d2 = g.op("ReduceSum", g.mul(d, d), g.i64([1]), keepdims=1)
+        sim = g.op("Exp", g.mul(d2, g.const(np.float32(-1.0 / nets.GUIDE_SIGMA ** 2))))
+        wt = g.mul(wt, g.add(sim, g.const(np.float32(nets.GUIDE_FLOOR))))
+    else:                       # every material 1: the tent alone
+        wt = g.mul(wt, g.const(np.float32(1.0 + nets.GUIDE_FLOOR)))
+    num = g.op("ReduceSum", g.mul(wt, gather(L, 3)), g.i64([2]), keepdims=0)
+    return g.div(num, g.op("ReduceSum", wt, g.i64([2]), keepdims=0))
 
 
 def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
@@ -96,8 +119,11 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
              {"y": "y", "h_out": "h_out", "c_out": "c_out"})
     yc = g.slice(g.slice("y", 2, 0, h), 3, 0, w)
     y = g.op("DepthToSpace", g.slice(yc, 1, 0, 3 * s * s), blocksize=s, mode="CRD")
-    base = g.op("GridSample", L, "base_grid", mode="bilinear", padding_mode="border",
-                align_corners=0)
+    if nets.guided(cfg):
+        base = _guided_base(g, L, cfg["demod"], h, w, H, W)
+    else:
+        base = g.op("GridSample", L, "base_grid", mode="bilinear", padding_mode="border",
+                    align_corners=0)
     lhr = g.op("Clip", g.add(y, base), g.const(np.float32(0.0)), g.const(np.float32(1.0)),
                name="hist_out")
     lin = pq_decode(g, lhr, nits, name="lin")
@@ -119,7 +145,10 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
               vi("albedo", [1, 3, h, w]), vi("normal", [1, 3, h, w]),
               vi("albedo_hr", [1, 3, H, W]), vi("state", [1, nets.STATE, h, w]),
               vi("hist", [1, 3, H, W]), vi("h", [1, hid, hp, wp]), vi("c", [1, hid, hp, wp]),
-              vi("keep", [1]), vi("base_grid", [1, H, W, 2])]
+              vi("keep", [1])]
+    K = nets.GUIDE_TAPS ** 2
+    inputs += ([vi("guide_idx", [K * H * W], onnx.TensorProto.INT64), vi("guide_w", [1, 1, K, H, W])]
+               if nets.guided(cfg) else [vi("base_grid", [1, H, W, 2])])
     outputs = [vi("output", [1, 3, H, W]), vi("state_out", [1, nets.STATE, h, w]),
                vi("hist_out", [1, 3, H, W]), vi("h_out", [1, hid, hp, wp]),
                vi("c_out", [1, hid, hp, wp])]
@@ -138,8 +167,12 @@ def frame_feeds(cfg, x, gb, st, reset) -> dict:
     feeds = {"color": x["color"], "depth": x["depth"], "motion": x["motion"],
              "albedo": _nchw(gb["albedo"]), "normal": _nchw(gb["normal"]),
              "albedo_hr": _nchw(gb["albedo_hr"]),
-             "keep": np.array([0.0 if reset else 1.0], np.float32),
-             "base_grid": nets.base_grid((h, w), (h * s, w * s), x["jitter"])}
+             "keep": np.array([0.0 if reset else 1.0], np.float32)}
+    if nets.guided(cfg):
+        idx, wgt = nets.guide_taps((h, w), (h * s, w * s), x["jitter"])
+        feeds.update(guide_idx=idx.reshape(-1), guide_w=wgt[None, None])
+    else:
+        feeds["base_grid"] = nets.base_grid((h, w), (h * s, w * s), x["jitter"])
     feeds.update(st)
     if reset:
         feeds["h"] = np.zeros_like(st["h"])

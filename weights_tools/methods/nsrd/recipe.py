@@ -45,6 +45,9 @@ def add_arguments(t):
     t.add_argument("--remod", choices=("blur", "learned"), default="blur",
                    help="re-modulation: the filtered material, or a learned per-pixel blend "
                         "of point and filtered (networks.REMODS)")
+    t.add_argument("--base", choices=("bilinear", "guided"), default="bilinear",
+                   help="what the network's lighting correction is added to: the bilinear "
+                        "lighting, or the material-guided upsampling (networks.BASES)")
     t.add_argument("--ssim", type=float, default=0.2, help="weight of 1 - SSIM")
     t.add_argument("--temporal", type=float, default=0.5, help="weight of the temporal loss")
     t.add_argument("--beta", type=float, default=0.02, help="smooth-L1 transition")
@@ -133,7 +136,7 @@ def cmd_train(args):
                          f"{h}x{w} frames")
     try:
         cfg = nets.make_config(sc, args.widths, demod=not args.no_demod, mask=not args.no_mask,
-                               remod=args.remod, warp_state=args.warp_state)
+                               remod=args.remod, warp_state=args.warp_state, base=args.base)
     except ValueError as e:
         raise TrainError(str(e)) from None
     w0 = nets.init_weights(cfg, args.seed)
@@ -155,7 +158,7 @@ def cmd_train(args):
     print(f"nsrd x{sc}: {len(seqs)} sequences, windows of {args.window} frames, patches "
           f"{args.patch}+2x{args.margin} render px, widths {cfg['name']} "
           f"({nets.macs_per_pixel(cfg) / 1e3:.0f} kMAC per render pixel), demod {cfg['demod']}, "
-          f"mask {cfg['mask']}, remod {cfg['remod']}, {args.steps} steps of {args.batch}; loss smooth L1 + "
+          f"mask {cfg['mask']}, remod {cfg['remod']}, base {args.base}, {args.steps} steps of {args.batch}; loss smooth L1 + "
           f"{args.ssim:g} (1-SSIM) + {args.temporal:g} temporal on display values", flush=True)
     m = args.margin * sc
     run.fit("nsrd", net.parameters(), lr=args.lr, steps=args.steps, clip=1.0,

@@ -105,6 +105,25 @@ def material_hr(albedo_hr, demod=True):
     return material(a, demod)
 
 
+def guided_base(L, albedo, albedo_hr, jitters, demod=True):
+    """The guided base (networks.BASES): each output pixel's lighting as the tent- and
+    material-weighted mean of the 4 x 4 render samples around it (networks.guide_taps)."""
+    N, C, h, w = L.shape
+    H, W = albedo_hr.shape[2:]
+    taps = [nets.guide_taps((h, w), (H, W), j) for j in jitters]
+    idx = torch.from_numpy(np.stack([t[0] for t in taps])).to(L.device).view(N, 1, -1)
+    tent = torch.from_numpy(np.stack([t[1] for t in taps])).to(L).unsqueeze(1)
+    K = tent.shape[2]
+
+    def gather(x):              # [N,C,h,w] -> [N,C,K,H,W]
+        return torch.gather(x.flatten(2), 2, idx.expand(-1, x.shape[1], -1)).view(
+            N, x.shape[1], K, H, W)
+    d2 = ((gather(material(albedo, demod)) - material(albedo_hr, demod).unsqueeze(2)) ** 2
+          ).sum(1, keepdim=True)
+    wt = tent * (torch.exp(-d2 * (1.0 / nets.GUIDE_SIGMA ** 2)) + nets.GUIDE_FLOOR)
+    return (wt * gather(L)).sum(2) / wt.sum(2)
+
+
 def depth_mask(d, dw):
     rel = (dw - d).abs() / (nets.DEPTH_TOL * torch.maximum(d, dw) + nets.DEPTH_FLOOR)
     return (2.0 - rel).clamp(0.0, 1.0)
@@ -140,13 +159,17 @@ class TorchStep:
         m = F.interpolate(motion, size=(H, W), mode="bilinear", align_corners=False) * self.s
         return F.pixel_unshuffle(warp(hist, m) * keep, self.s)
 
-    def finish(self, y, L, jitters, albedo_hr, lo=0.0):
-        """y [N,3s^2,h,w] (cropped) -> (lighting PQ [N,3,H,W], output linear)."""
+    def finish(self, y, L, jitters, albedo_hr, lo=0.0, albedo=None):
+        """y [N,3s^2,h,w] (cropped) -> (lighting PQ [N,3,H,W], output linear). `albedo`
+        (render resolution): the guided base's guide."""
         N, _, h, w = L.shape
         H, W = h * self.s, w * self.s
-        grid = torch.cat([torch.from_numpy(nets.base_grid((h, w), (H, W), j)) for j in jitters])
-        base = F.grid_sample(L, grid.to(L), mode="bilinear", padding_mode="border",
-                             align_corners=False)
+        if nets.guided(self.cfg):
+            base = guided_base(L, albedo, albedo_hr, jitters, self.cfg["demod"])
+        else:
+            grid = torch.cat([torch.from_numpy(nets.base_grid((h, w), (H, W), j)) for j in jitters])
+            base = F.grid_sample(L, grid.to(L), mode="bilinear", padding_mode="border",
+                                 align_corners=False)
         s2 = 3 * self.s ** 2
         lhr = (F.pixel_shuffle(y[:, :s2], self.s) + base).clamp(lo, 1.0)
         m = material_hr(albedo_hr, self.cfg["demod"])
@@ -175,5 +198,5 @@ class TorchStep:
         else:
             hs, cs = hs * keep, st["c"] * keep
         y, hs, cs = self.net(F.pad(cur, pad), F.pad(wp, pad), F.pad(prev, pad), hs, cs)
-        lhr, out = self.finish(y[:, :, :h, :w], state[:, 0:3], jitters, albedo_hr, lo)
+        lhr, out = self.finish(y[:, :, :h, :w], state[:, 0:3], jitters, albedo_hr, lo, albedo)
         return out, {"state": state, "hist": lhr, "h": hs, "c": cs}
