@@ -242,6 +242,11 @@ NSRD_MIX_STEPS ?= 1800
 # x4 on the 4x mix: 900 steps (29 minutes on one torch thread beside NSRR's run), a count
 # fixed before any evaluation (no 4x Blender validation split was rendered)
 NSRD4_MIX_STEPS ?= 900
+# then the material-guided base (networks.BASES, 2026-11-28): a fine-tune on the same mixes
+# from the mix stage's weights with `--base guided` (x2 1200 steps, x4 900; step counts fixed
+# before any evaluation, the base's sigma picked on the Blender validation split)
+NSRD_GUIDED_STEPS ?= 1200
+NSRD4_GUIDED_STEPS ?= 900
 NSRD_TRAIN = $(BIN)/python -m weights_tools train nsrd --patch 32 --threads 1
 .PHONY: train-nsrd
 train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN) $(BLENDER4_TRAIN)
@@ -252,9 +257,11 @@ train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN) $(BLENDER4_TRAIN)
 	$(NSRD_TRAIN) --data $(DATA)/train --out $(OUT)/train-nsrd/x2 --steps $(NSRD_STEPS2)
 	$(NSRD_TRAIN) --data $(DATA)/train --out $(OUT)/train-nsrd/x2-lw --steps $(NSRD_FT_STEPS) --lr 1e-3 --remod learned --warp-state --init $(OUT)/train-nsrd/x2/weights.safetensors
 	$(NSRD_TRAIN) --data $(call mix,$(DATA)/train) --out $(OUT)/train-nsrd/x2-mix --steps $(NSRD_MIX_STEPS) --lr 5e-4 --remod learned --warp-state --init $(OUT)/train-nsrd/x2-lw/weights.safetensors
+	$(NSRD_TRAIN) --data $(call mix4,$(DATA)/train4) --out $(OUT)/train-nsrd/x4-guided --steps $(NSRD4_GUIDED_STEPS) --lr 5e-4 --remod learned --warp-state --base guided --init $(OUT)/train-nsrd/x4-mix/weights.safetensors
+	$(NSRD_TRAIN) --data $(call mix,$(DATA)/train) --out $(OUT)/train-nsrd/x2-guided --steps $(NSRD_GUIDED_STEPS) --lr 5e-4 --remod learned --warp-state --base guided --init $(OUT)/train-nsrd/x2-mix/weights.safetensors
 	mkdir -p clss/weights
-	cp $(OUT)/train-nsrd/x4-mix/weights.safetensors clss/weights/nsrd_x4.safetensors
-	cp $(OUT)/train-nsrd/x2-mix/weights.safetensors clss/weights/nsrd_x2.safetensors
+	cp $(OUT)/train-nsrd/x4-guided/weights.safetensors clss/weights/nsrd_x4.safetensors
+	cp $(OUT)/train-nsrd/x2-guided/weights.safetensors clss/weights/nsrd_x2.safetensors
 	if [ "$(NSRD_ABLATIONS)" = 1 ]; then \
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod --steps $(NSRD_STEPS) --no-demod && \
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod-ws --steps $(NSRD_FT_STEPS) --lr 1e-3 --no-demod --warp-state --init $(OUT)/train-nsrd/x4-no-demod/weights.safetensors && \
