@@ -37,3 +37,15 @@ def test_train_nsrd_smoke_and_resume(tmp_path, capsys, dev):
                  "--steps", "1", "--no-demod", "--no-mask"]) == 0
     cfg, _ = nets.load(os.path.join(out2, "weights.safetensors"))
     assert not cfg["demod"] and not cfg["mask"]
+    # the guided base (networks.BASES), fine-tuned from the run above as make train-nsrd does
+    out3 = str(tmp_path / "guided")
+    assert main(["train", "nsrd", "--data", os.path.dirname(seq), "--out", out3, *flags,
+                 "--steps", "1", "--base", "guided", "--remod", "learned",
+                 "--init", os.path.join(out, "weights.safetensors")]) == 0
+    cfg, _ = nets.load(os.path.join(out3, "weights.safetensors"))
+    assert cfg["base"] == "guided" and cfg["remod"] == "learned"
+    up = clss.Upscaler(method="nsrd", scale=2, device=dev,
+                       weights=os.path.join(out3, "weights.safetensors"))
+    y = up.step(z["color"][0], z["depth"][0], z["motion"][0], tuple(z["jitter"][0]),
+                **{k: z[k][0] for k in GB})
+    assert y.shape == (32, 48, 3) and np.isfinite(y).all()
