@@ -113,6 +113,7 @@ train-data-blender: $(DATA_STAMP)
 	$(BIN)/python -m weights_tools blender --out $(DATA)/blender --split validation --sequences 1 --frames $(BLENDER_FRAMES) $(BLENDER_ARGS)
 	$(BIN)/python -m weights_tools blender --out $(DATA)/blender --split test --sequences 2 --frames 12 $(BLENDER_ARGS)
 	$(BIN)/python -m weights_tools blender --out $(DATA)/blender4 --split train --sequences $(BLENDER_SEQS) --frames $(BLENDER_FRAMES) --size 45x80 --scale 4 $(BLENDER_ARGS)
+	$(BIN)/python -m weights_tools blender --out $(DATA)/blender3 --split train --sequences $(BLENDER_SEQS) --frames $(BLENDER_FRAMES) --size 60x108 --scale 3 $(BLENDER_ARGS)
 
 # The retrained methods (issue 31) fine-tune on a mix of the generator's set and these
 # Blender training shards: BLENDER_SHARE of the draws come from Blender (0.75, picked on the
@@ -131,6 +132,12 @@ mix4 = $(1),$(DATA)/blender4/train:$(BLENDER_SHARE)
 BLENDER4_TRAIN := $(DATA)/blender4/train/READY
 $(BLENDER4_TRAIN): $(DATA_STAMP)
 	$(BIN)/python -m weights_tools blender --out $(DATA)/blender4 --split train --sequences $(BLENDER_SEQS) --frames $(BLENDER_FRAMES) --size 45x80 --scale 4 $(BLENDER_ARGS)
+# the 3x training split (60x108 -> 180x324, the same families; 629 s on Ray beside a
+# generator run, 2026-11-28): the shader MLP x3's fine-tune
+mix3 = $(1),$(DATA)/blender3/train:$(BLENDER_SHARE)
+BLENDER3_TRAIN := $(DATA)/blender3/train/READY
+$(BLENDER3_TRAIN): $(DATA_STAMP)
+	$(BIN)/python -m weights_tools blender --out $(DATA)/blender3 --split train --sequences $(BLENDER_SEQS) --frames $(BLENDER_FRAMES) --size 60x108 --scale 3 $(BLENDER_ARGS)
 
 # Every method on the held-out Blender families (the test split of train-data-blender):
 # README's "held-out Blender families" column. A method that needs a G-buffer a sequence
@@ -147,6 +154,12 @@ eval-blender: $(STAMP)
 eval-blender-x4: $(STAMP)
 	test -f $(DATA)/blender4/test/READY || $(BIN)/python -m weights_tools blender --out $(DATA)/blender4 --split test --sequences 2 --frames 12 --size 45x80 --scale 4 $(BLENDER_ARGS)
 	$(BIN)/python -m weights_tools eval $(DATA)/blender4/test/*.npz --methods bicubic,jbicubic,clss-rules,clss,nsrr,nsrd --out $(OUT)/eval-blender-x4 --flip-every 4 $(EVAL_ARGS)
+
+# The same held-out families at 3x (60x108 -> 180x324) for the shader MLP's x3 weights.
+.PHONY: eval-blender-x3
+eval-blender-x3: $(STAMP)
+	test -f $(DATA)/blender3/test/READY || $(BIN)/python -m weights_tools blender --out $(DATA)/blender3 --split test --sequences 2 --frames 12 --size 60x108 --scale 3 $(BLENDER_ARGS)
+	$(BIN)/python -m weights_tools eval $(DATA)/blender3/test/*.npz --methods bicubic,jbicubic,clss-rules,mlp,mlp-nofeature --out $(OUT)/eval-blender-x3 --flip-every 4 $(EVAL_ARGS)
 
 # Blender validation sequences (sparingly: about 20 minutes on 2 cores; needs
 # `apt-get install blender`): renders EXRs, converts them to weights_tools/validation/
@@ -193,7 +206,7 @@ MLP_ABLATION_STEPS ?= 1000
 MLP_SCALES ?= 2 3
 MLP_MIX_STEPS ?= 2400
 .PHONY: train-mlp
-train-mlp: $(STAMP) train-data $(BLENDER_TRAIN)
+train-mlp: $(STAMP) train-data $(BLENDER_TRAIN) $(BLENDER3_TRAIN)
 	for s in $(MLP_SCALES); do \
 	  test -f $(DATA)/mlp-train-x$$s/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/mlp-train-x$$s \
 	    --sequences 32 --frames 12 --seed 0 --size 72x128 --scale $$s --quiet || exit 1; \
@@ -206,6 +219,10 @@ train-mlp: $(STAMP) train-data $(BLENDER_TRAIN)
 	    $(BIN)/python -m weights_tools train mlp --data $(call mix,$(DATA)/train) --out $(OUT)/train-mlp/x2-mix \
 	      --steps $(MLP_MIX_STEPS) --lr 5e-4 --init $$w --quiet || exit 1; \
 	    w=$(OUT)/train-mlp/x2-mix/mlp.safetensors; \
+	  else \
+	    $(BIN)/python -m weights_tools train mlp --data $(call mix3,$(DATA)/mlp-train-x$$s) --out $(OUT)/train-mlp/x$$s-mix \
+	      --steps $(MLP_MIX_STEPS) --lr 5e-4 --init $$w --quiet || exit 1; \
+	    w=$(OUT)/train-mlp/x$$s-mix/mlp.safetensors; \
 	  fi; \
 	  cp $$w clss/weights/mlp_generalist_x$$s.safetensors; \
 	  cp $(OUT)/train-mlp/nofeature-x$$s/mlp.safetensors clss/weights/mlp_nofeature_x$$s.safetensors; \
