@@ -6,7 +6,7 @@ Per frame (render h x w, padded hp x wp = even; output H x W = h s x w s):
               cur [10,hp,wp], warp [8,hp,wp]; the next state [8,h,w]   (nsrd.cl)
     prev      the previous output's lighting warped at H x W, unshuffled to [3s^2,hp,wp]
     network   cur, warp, prev, h, c -> y [3s^2,hp,wp], h', c'        (clss.Model)
-    finish    y shuffled to H x W + the bilinear lighting, clipped (the next history),
+    finish    y shuffled to H x W + the current lighting (bilinear, or the guided base: networks.BASES), clipped (the next history),
               times the output-resolution material, then (nsrd_decode, 8 pixels a
               work-item: float8 PQ decode) the decoded lighting -> out [H,W,3]
 

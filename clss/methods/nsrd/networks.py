@@ -13,7 +13,7 @@ down/up level), in the PQ domain of the lighting:
     h, c  [1,hid,hp,wp]   the ConvLSTM state
  -> y     [1,3s^2,hp,wp]  the output lighting's correction, sub-pixel (pixel shuffle CRD
                           = DepthToSpace CRD makes it H x W; the finish kernel adds the
-                          bilinear current lighting to it)
+                          current lighting to it: bilinear, or guided, BASES)
     h_out, c_out          the next state
 
 Layers (weight names = the torch twin's state_dict keys, weights_tools/methods/nsrd/twin.py):

@@ -13,7 +13,7 @@
  *   nsrd_prev     output resolution: the previous output's lighting warped by the
  *                 bilinearly upsampled motion, pixel-unshuffled to prev [3s^2,hp,wp]
  *   nsrd_finish   output resolution: the network's sub-pixel output shuffled to H x W,
- *                 plus the current lighting bilinear at the output pixel centres
+ *                 plus the current lighting at the output pixel centres (bilinear, or guided_base)
  *                 (jitter-aware), clipped to [0, 1] (the next frame's history), and the
  *                 output-resolution material (albedo_hr filtered 3x3 binomial, see
  *                 networks.MATERIAL_FILTER) into out
