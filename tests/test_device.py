@@ -118,15 +118,18 @@ def room_sources():
 
 def test_every_kernel_builds_in_both_precisions(dev):
     # A porter's first question: does each source compile on my compiler? (Default -D options,
-    # and for CLSS's frame.cl the buffer widths it takes from the host.) The operator
+    # and the constants CLSS's frame.cl and NSRD's nsrd.cl take from the host.) The operator
     # families of kernels/ by stem, the rooms' sources by path (their headers beside them,
     # the shared ones in kernels/).
     from clss.methods.clss.frame import KERNEL as FRAME, LR_NET_CHANNELS, WIDTH_DEFINES
+    from clss.methods.nsrd.frame import KERNEL as NSRD, guide_defines
     sources = [p.stem for p in sorted(D.kernels_dir().glob("*.cl"))] + room_sources()
-    assert FRAME in sources
+    assert FRAME in sources and NSRD in sources
+    # (NSRD's guided-base constants come from the host too)
+    host = {FRAME: WIDTH_DEFINES, NSRD: guide_defines()}
     for src in sources:
         for prec in ("fp32", "fp16"):
-            dev.program(src, prec, **(WIDTH_DEFINES if src == FRAME else {}))
+            dev.program(src, prec, **host.get(src, {}))
             if src == FRAME:     # and its net-mode variant (other kernel signatures)
                 dev.program(src, prec, **{**WIDTH_DEFINES, "NET": 1,
                                           "L_CHANNELS": LR_NET_CHANNELS})

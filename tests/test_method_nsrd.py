@@ -211,7 +211,7 @@ def _frame_kernel(any_dev, prec, name, scale):
     from clss import selfcheck
     from clss.methods.nsrd import frame as fr
     return any_dev.kernel(fr.KERNEL, name, prec, NSRD_SCALE=scale, NSRD_ENCODE8=1,
-                          **selfcheck.defines(any_dev, prec, fr.INLINE_MATH))
+                          **selfcheck.defines(any_dev, prec, fr.INLINE_MATH), **fr.guide_defines())
 
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])

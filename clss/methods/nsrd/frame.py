@@ -35,6 +35,12 @@ KERNEL = Path(__file__).with_name("nsrd.cl")   # the frame kernels, beside this 
 STAGES = ("prepare", "prev", "network", "finish")
 
 
+def guide_defines() -> dict:
+    """The guided base's constants (networks.GUIDE_*) as nsrd.cl's -D options."""
+    return {"NSRD_GUIDE_INV_SIG2": f"{1.0 / nets.GUIDE_SIGMA ** 2!r}f",
+            "NSRD_GUIDE_FLOOR": f"{nets.GUIDE_FLOOR!r}f"}
+
+
 class NsrdFrameStep:
     """Device buffers and launches of one frame step at a fixed render size."""
 
@@ -80,8 +86,7 @@ class NsrdFrameStep:
         # on PoCL (common.h: its vstore8/vload8 are out-of-line calls there)
         defs = {**selfcheck.defines(dev, prec, INLINE_MATH), **selfcheck.defines(dev, prec, ENCODE8),
                 "CLSS_CLANG_VECTORS": builtin_free(dev)}
-        defs.update(NSRD_GUIDE_INV_SIG2=f"{1.0 / nets.GUIDE_SIGMA ** 2!r}f",
-                    NSRD_GUIDE_FLOOR=f"{nets.GUIDE_FLOOR!r}f")
+        defs.update(guide_defines())
         k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **defs)
              for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prepare8", "nsrd_warp_state8",
                        "nsrd_prev", "nsrd_prev8", "nsrd_finish", "nsrd_finish8", "nsrd_decode")}

@@ -481,12 +481,7 @@ __kernel void nsrd_prev8(__global const float *hist, __global const float *mv, _
  * exp(-|m_q - m_p|^2 / GUIDE_SIGMA^2) + GUIDE_FLOOR, m_p the point material at Q:
  * bilinear lighting mixes both sides of a material edge, which re-modulation turns
  * into halos. Tap order and arithmetic as networks.guide_taps. */
-#ifndef NSRD_GUIDE_INV_SIG2
-#define NSRD_GUIDE_INV_SIG2 (1.0f / (0.3f * 0.3f))
-#endif
-#ifndef NSRD_GUIDE_FLOOR
-#define NSRD_GUIDE_FLOOR 1e-4f
-#endif
+/* -DNSRD_GUIDE_INV_SIG2, -DNSRD_GUIDE_FLOOR: networks.GUIDE_* (frame.guide_defines) */
 static void guided_base(__global const float *state, __global const float *albedo,
                         __global const float *albedo_hr, int h, int w, long Q,
                         float bu, float bv, int demod, float eps, float *out)
@@ -572,10 +567,13 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
         const float a2 = 0.25f * AHR(r2, xm) + 0.5f * AHR(r2, X) + 0.25f * AHR(r2, xp);
 #undef AHR
         const float a = 0.25f * a0 + 0.5f * a1 + 0.25f * a2;
-        __global const float *q = state + c * h * w;
-        const float top = q[c0 * w + b0] * (1.0f - fb) + q[c0 * w + b1] * fb;
-        const float bot = q[c1 * w + b0] * (1.0f - fb) + q[c1 * w + b1] * fb;
-        const float base = guided ? gb[c] : top * (1.0f - fc) + bot * fc;
+        float base = gb[c];
+        if (!guided) {      /* the bilinear base: its taps are read only when used */
+            __global const float *q = state + c * h * w;
+            const float top = q[c0 * w + b0] * (1.0f - fb) + q[c0 * w + b1] * fb;
+            const float bot = q[c1 * w + b0] * (1.0f - fb) + q[c1 * w + b1] * fb;
+            base = top * (1.0f - fc) + bot * fc;
+        }
         const float l = clss_clampf(LD(y, (c * s * s + sub) * np_ + o) + base, 0.0f, 1.0f);
         hist[c * P + Q] = l;
         float m = material(a, demod, eps);
@@ -645,10 +643,15 @@ __kernel void nsrd_finish8(__global const T *y, __global const float *state,
         const float8 a1 = 0.25f * AHR8(r1, lxm) + 0.5f * AHR8(r1, lxc) + 0.25f * AHR8(r1, lxp);
         const float8 a2 = 0.25f * AHR8(r2, lxm) + 0.5f * AHR8(r2, lxc) + 0.25f * AHR8(r2, lxp);
         const float8 a = 0.25f * a0 + 0.5f * a1 + 0.25f * a2;
-        __global const float *q = state + c * h * w;
-        const float8 top = CLSS_GATHER8(q, s00) * (1.0f - fb) + CLSS_GATHER8(q, s01) * fb;
-        const float8 bot = CLSS_GATHER8(q, s10) * (1.0f - fb) + CLSS_GATHER8(q, s11) * fb;
-        const float8 base = guided ? PLD8(gb[c]) : top * (1.0f - fc) + bot * fc;
+        float8 base;
+        if (guided) {
+            base = PLD8(gb[c]);
+        } else {
+            __global const float *q = state + c * h * w;
+            const float8 top = CLSS_GATHER8(q, s00) * (1.0f - fb) + CLSS_GATHER8(q, s01) * fb;
+            const float8 bot = CLSS_GATHER8(q, s10) * (1.0f - fb) + CLSS_GATHER8(q, s11) * fb;
+            base = top * (1.0f - fc) + bot * fc;
+        }
         const long8 yi = ((long8)(c * s * s) + sub) * np_ + o;
         const float8 yv = (float8)(LD(y, yi.s0), LD(y, yi.s1), LD(y, yi.s2), LD(y, yi.s3),
                                    LD(y, yi.s4), LD(y, yi.s5), LD(y, yi.s6), LD(y, yi.s7));
