@@ -11,7 +11,7 @@ from hypothesis import HealthCheck
 from onnx import helper
 
 import clss
-from clss.scene import render_sequence
+from clss.scene import Frame, render_sequence
 from clss.tolerance import Tolerance, compare
 from clss.verify.conformance import check
 from clss.verify.twin import make_model, run_ort
@@ -124,6 +124,25 @@ def frames(render=RENDER, n=FRAMES, scale=2.0):
     if key not in _seq:
         _seq[key] = render_sequence(n, render, scale, spp_ref=0)
     return _seq[key]
+
+
+def mover(size, n=7, speed=3):
+    """Frames of a near square (reversed-Z 0.5) moving right by `speed` render pixels a
+    frame over a far, still background (0.05): the square's trail is a disocclusion."""
+    g = np.random.default_rng(3)
+    h, w = size
+    bg = g.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    out = []
+    for t in range(n):
+        x0 = 1 + speed * t % (w - 5)
+        color, depth = bg.copy(), np.full((h, w), 0.05, np.float32)
+        motion = np.zeros((h, w, 2), np.float32)
+        color[3:9, x0:x0 + 4] = (0.9, 0.2, 0.1)
+        depth[3:9, x0:x0 + 4] = 0.5
+        motion[3:9, x0:x0 + 4, 0] = -speed
+        jit = (((t * 5) % 8 + 0.5) / 8 - 0.5, ((t * 3) % 8 + 0.5) / 8 - 0.5)
+        out.append(Frame(t, color, depth, motion, jit))
+    return out
 
 
 def tiny_sequence_npz(path, n, gbuffers=()):

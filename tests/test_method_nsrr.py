@@ -14,7 +14,7 @@ import pytest
 import clss
 from clss import methods
 from clss.methods.nsrr import networks as nets
-from helpers import RESET_AT, frames
+from helpers import RESET_AT, frames, mover
 
 RENDER = (13, 17)          # odd: the output is padded to a multiple of 4 inside
 
@@ -25,8 +25,8 @@ def _hist(up):
     return h[:, :fs.H, :fs.W]
 
 
-def _run(dev, scale, precision, n=7, weights="untrained", **kw):
-    seq = frames(RENDER, n, scale=scale)
+def _run(dev, scale, precision, n=7, weights="untrained", seq=None, **kw):
+    seq = frames(RENDER, n, scale=scale) if seq is None else seq
     ours = clss.Upscaler(method="nsrr", scale=scale, device=dev, precision=precision,
                          weights=weights, **kw)
     twin = methods.twin("nsrr", RENDER, scale, weights=weights, **kw)
@@ -61,6 +61,25 @@ def test_leaky_activation_matches_its_onnx_twin(precision, dev):
     w["un.9.weight"] = w["un.9.weight"] * 10        # the U-Net's output matters
     ours, twin = _run(dev, 4.0, precision, weights=(cfg, w))
     assert any(n.op_type == "LeakyRelu" for n in twin.model.graph.node)
+    assert np.abs(_hist(ours)[12:24]).max() > 0
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("scale", [2.0, 4.0])
+def test_depth_rejection_matches_its_onnx_twin(scale, precision, dev):
+    """reject "depth" (networks.REJECTS) on a moving square: its trail's history emptied
+    in the OpenCL step as in the twin, and only there."""
+    cfg = nets.make_config("default", act="leaky", reject="depth")
+    w = nets.init_weights(cfg, seed=5)
+    w["un.9.weight"] = w["un.9.weight"] * 10
+    seq = mover(RENDER)
+    ours, twin = _run(dev, scale, precision, weights=(cfg, w), seq=seq)
+    plain = methods.twin("nsrr", RENDER, scale, weights=({k: v for k, v in cfg.items() if k != "reject"}, w))
+    for i, f in enumerate(seq):
+        plain.step(f.color, f.depth, f.motion, f.jitter, reset=i == RESET_AT)
+    a, b = twin.hist[0, 12:], plain.hist[0, 12:]
+    emptied = (a == 0).all(0) & (b != 0).any(0)
+    assert 0 < emptied.mean() < 0.2, emptied.mean()
     assert np.abs(_hist(ours)[12:24]).max() > 0
 
 

@@ -12,30 +12,35 @@ torch = pytest.importorskip("torch")
 import clss
 from clss.methods.nsrr import networks as nets
 from clss.pipeline.contract import to_internal, validate_frame
-from helpers import frames
+from helpers import frames, mover
 from weights_tools.methods.nsrr.twin import NsrrNet, TorchStep, pq_decode, rgbd_of
 
 RENDER = (13, 17)
 
 
-@pytest.mark.parametrize("fill,scale,act", [("zero", 4.0, "leaky"), ("duplicate", 2.0, "relu")])
-def test_torch_twin_matches_the_opencl_step(fill, scale, act, dev):
+@pytest.mark.parametrize("fill,scale,act,reject", [("zero", 4.0, "leaky", "none"),
+                                                   ("duplicate", 2.0, "relu", "none"),
+                                                   ("zero", 2.0, "leaky", "depth")])
+def test_torch_twin_matches_the_opencl_step(fill, scale, act, reject, dev):
+    """reject "depth" runs on a moving square (helpers.mover), whose trail it empties."""
     torch.set_num_threads(1)
-    cfg = nets.make_config("default", act=act)
+    cfg = nets.make_config("default", act=act, reject=reject)
     w = nets.init_weights(cfg, seed=5)
     # make the reweighting and the history matter: a non-trivial last layer
     w["un.9.weight"] = w["un.9.weight"] * 10
     up = clss.Upscaler(method="nsrr", scale=scale, device=dev, weights=(cfg, w), reset_fill=fill)
     ts = TorchStep(NsrrNet(cfg, w), scale, reset_fill=fill)
-    hist = None
-    for i, f in enumerate(frames(RENDER, 9, scale=scale)):
+    hist, pdepth = None, None
+    seq = frames(RENDER, 9, scale=scale) if reject == "none" else mover(RENDER, 9)
+    for i, f in enumerate(seq):
         reset = i in (0, 4)
         a = up.step(f.color, f.depth, f.motion, f.jitter, reset=reset)
         x = to_internal(validate_frame(f.color, f.depth, f.motion, f.jitter))
         with torch.no_grad():
             y, hist = ts.step(rgbd_of(torch.from_numpy(x["color"]), torch.from_numpy(x["depth"])),
                               torch.from_numpy(x["motion"]), [x["jitter"]], hist,
-                              torch.tensor([reset]))
+                              torch.tensor([reset]), pdepth)
+        pdepth = torch.from_numpy(x["depth"])
         b = pq_decode(y.clamp(0, 1))[0].permute(1, 2, 0).numpy()
         # the PQ decode near its peak is ill-conditioned in float32 (x 6.3 exponent after a
         # cancellation): two float32 evaluations differ by up to 1.5e-4 relative there

@@ -36,11 +36,15 @@ print("method kernels ok")
 
 
 # NSRR's untrained U-Net at the "fast" widths: the frame kernels are the same, and the
-# default widths' network made this the slowest test of the suite (5 minutes)
+# default widths' network made this the slowest test of the suite (5 minutes); with the
+# depth rejection (networks.REJECTS, the shipped weights'), whose reads the random depths
+# and motions send everywhere
 # NSRD x2 with the shipped weights: their guided base (networks.BASES) in the float8
 # finish (fp32) and the per-pixel one (fp16); x3 untrained: the bilinear base
 U = ', weights="untrained"'
-CASES = [("nsrr", 2, "fp32", U + ', widths="fast"'), ("nsrd", 2, "fp32", ""), ("nsrd", 2, "fp16", ""),
+NSRR_FAST_REJECT = (', weights=(lambda n: (lambda c: (c, n.init_weights(c, 1)))(n.make_config("fast", '
+                    'reject="depth")))(__import__("clss.methods.nsrr.networks", fromlist=["n"]))')
+CASES = [("nsrr", 2, "fp32", NSRR_FAST_REJECT), ("nsrd", 2, "fp32", ""), ("nsrd", 2, "fp16", ""),
          ("nsrd", 3, "fp16", U), ("nss", 2, "fp32", U), ("nss", 2, "fp16", U + ', depth_scatter="gather"')]
 
 

@@ -33,7 +33,7 @@ from ...ops.conv import builtin_free, vector_width
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from ...pipeline.method import input_buffers, summed_event_ms
 from ...tolerance import DEFAULT_TOL, EXACT
-from .networks import FEAT, build_features, build_reconstruct
+from .networks import FEAT, build_features, build_reconstruct, reject_tau
 
 KERNEL = Path(__file__).with_name("nsrr.cl")   # the frame kernels, beside this file
 
@@ -80,6 +80,10 @@ class NsrrFrameStep:
             dev, ("color", "depth", "motion"), (h, w))
         self.rgbd = e((1, 4, h, w), prec)
         self.mv = e((2, h, w), dtype=f32)
+        # the render depth in float32, this frame's and the previous one's (the depth
+        # rejection's; deps[1 - cur] is written this frame, as the stacks)
+        self.deps = [e((h, w), dtype=f32) for _ in range(2)]
+        self.tau = reject_tau(cfg)
         self.feat = e((1, FEAT, h, w), prec)
         self.stacks = [e((1, FEAT * (self.nprev + 1), Hp, Wp), prec) for _ in range(2)]
         self.cur = 0            # stacks[cur] was written last: its first 12N channels are the history
@@ -88,7 +92,7 @@ class NsrrFrameStep:
         self.base = e((1, 3, Hp, Wp), prec)
         self.out = e((self.H, self.W, 3), dtype=f32)
         # zeroed once: no kernel reads uninitialised memory (tests/test_oclgrind_methods.py)
-        for a in self.stacks:
+        for a in (*self.stacks, *self.deps):
             dev.zero(a)
         from ...model import Model
         self.features = Model(build_features(cfg, weights, h, w), device=dev, precision=prec)
@@ -104,7 +108,7 @@ class NsrrFrameStep:
             "prepare": dev.prepare(k["nsrr_prepare"], (w, h), [
                 self.in_color.data, self.in_depth.data, self.in_motion.data, self.rgbd.data,
                 self.mv.data, i32(w), i32(h), i32(1), f(1), f(1), f(1),
-                f(self.nits / PQ_PEAK_NITS)])}
+                f(self.nits / PQ_PEAK_NITS), self.deps[0].data])}
         k["nsrr_reproject"] = dev.kernel(KERNEL, "nsrr_reproject", prec, **rd)
         self.xy = None          # the warp's sample positions (the fast path's nsrr_warp_coords)
         if int(rd["VEC"]) == 1:
@@ -112,19 +116,20 @@ class NsrrFrameStep:
         else:
             # runs of 8 pixels, in plane groups; the warp's sample positions computed once
             w8 = -(-Wp // 8) * 8
-            self.xy = e((2, self.H, w8), dtype=f32)
+            self.xy = e((3, self.H, w8), dtype=f32)
             dev.zero(self.xy)
             grid = (-(-Wp // (8 * int(rd["RUNS"]))), Hp, 1 + FEAT * self.nprev // int(rd["G"]))
             coords = self.xy
             self.L["coords"] = dev.prepare(dev.kernel(KERNEL, "nsrr_warp_coords", prec, **rd), (w8 // 8, self.H), [
                 self.mv.data, self.xy.data, i32(h), i32(w), i32(self.H), i32(self.W), i32(Wp),
-                f(self.sy), f(self.sx)])
+                f(self.sy), f(self.sx), self.deps[0].data, self.deps[1].data, f(0), f(0),
+                f(self.tau)])
         self.L.update({
             "reproject": dev.prepare(k["nsrr_reproject"], grid, [
                 self.feat.data, coords.data, self.stacks[1].data, self.stacks[0].data, self.base.data,
                 i32(h), i32(w), i32(self.H), i32(self.W), i32(Hp), i32(Wp), i32(self.nprev),
                 i32(self.history), i32(0), i32(0), i32(0), i32(0), f(self.sy), f(self.sx),
-                f(0), f(0), i32(1)]),
+                f(0), f(0), i32(1), self.deps[0].data, self.deps[1].data, f(self.tau)]),
             "finish": dev.prepare(k["nsrr_finish"], (-(-self.W // 8), self.H), [
                 self.y.data, self.out.data, i32(self.H), i32(self.W), i32(Wp), i32(Hp),
                 f(PQ_PEAK_NITS / self.nits)]),
@@ -153,6 +158,14 @@ class NsrrFrameStep:
         prev, stack = self.stacks[self.cur], self.stacks[1 - self.cur]
         r.bind(2, prev.data)
         r.bind(3, stack.data)
+        dcur, dprev = self.deps[1 - self.cur].data, self.deps[self.cur].data
+        p.bind(12, dcur)
+        r.bind(22, dcur)
+        r.bind(23, dprev)
+        if "coords" in L:
+            c = L["coords"]
+            for idx, v in ((9, dcur), (10, dprev), (11, f(jy)), (12, f(jx))):
+                c.bind(idx, v)
         fin = L["finish"]
         fin.bind(1, out.data)
         fin.bind(6, f(PQ_PEAK_NITS / self.nits * exposure))
@@ -185,7 +198,7 @@ class NsrrFrameStep:
         return summed_event_ms(self.events, STAGES)
 
     def device_bytes(self) -> int:
-        arrays = [self.in_color, self.in_depth, self.in_motion, self.rgbd, self.mv, self.feat,
+        arrays = [self.in_color, self.in_depth, self.in_motion, self.rgbd, self.mv, *self.deps, self.feat,
                   *self.stacks, self.y, self.base, self.out] + ([self.xy] if self.xy is not None else [])
         n = sum(a.nbytes for a in arrays)
         for m in (self.features, self.reconstruct):
@@ -225,7 +238,7 @@ def _reproject_check(dev: Device, prec: str) -> list[np.ndarray]:
     from ...ops.base import rng
     from .networks import init_weights, make_config
     g = rng("nsrr reproject selfcheck")
-    cfg = make_config("fast")
+    cfg = make_config("fast", reject="depth")       # (the rejection's lanes too)
     fs = NsrrFrameStep(dev, prec, (7, 13), 2.0, cfg, init_weights(cfg, 1))
     outs = []
     for t, mv in enumerate(reproject_motions(g, (7, 13, 2))):

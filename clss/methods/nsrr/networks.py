@@ -42,6 +42,13 @@ FEAT = 4 + FEAT_LEARNED            # RGB-D + learned
 MAX_PREV = 4
 WEIGHT_SCALE = 10.0                # tanh (-1, 1) -> (0, 10)
 ACTS = ("relu", "leaky")
+# History rejection (config "reject"): "none" (the paper; files without the key) or "depth":
+# every warped slot is emptied at an output pixel whose previous depth (the 2x2 render
+# samples of the previous frame around where the pixel was) and current depth (the 2x2
+# around its centre) are apart by more than REJECT_TAU of the nearer: a disocclusion, where
+# the warp brings back what the moved object covered (the ghost beside make demo's sphere).
+REJECTS = ("none", "depth")
+REJECT_TAU = 0.1
 LEAKY_ALPHA = 0.1
 OPSET = 18
 
@@ -54,7 +61,8 @@ WIDTHS = {
 }
 
 
-def make_config(widths="default", n_prev=MAX_PREV, residual=True, act="relu") -> dict:
+def make_config(widths="default", n_prev=MAX_PREV, residual=True, act="relu",
+                reject="none") -> dict:
     w = preset_widths(widths, WIDTHS)
     n_prev = int(n_prev)
     if not 1 <= n_prev <= MAX_PREV:
@@ -65,7 +73,16 @@ def make_config(widths="default", n_prev=MAX_PREV, residual=True, act="relu") ->
         raise ValueError(f"act: expected one of {', '.join(ACTS)}, got {act!r}")
     if act != "relu":           # configs without the key (older weights) are ReLU
         w["act"] = act
+    if reject not in REJECTS:
+        raise ValueError(f"reject: expected one of {', '.join(REJECTS)}, got {reject!r}")
+    if reject != "none":        # configs without the key keep every warped sample
+        w["reject"] = reject
     return w
+
+
+def reject_tau(cfg) -> float:
+    """The depth rejection's relative threshold, or -1 (off) without "reject": "depth"."""
+    return REJECT_TAU if cfg.get("reject", "none") == "depth" else -1.0
 
 
 def act_of(cfg) -> tuple[str, float]:

@@ -44,13 +44,15 @@
  *  @param[in]  msy            motion scale y
  *  @param[in]  inv_exposure   1 / exposure
  *  @param[in]  pq_scale       nits / 10000
+ *  @param[out] dep            [h,w] float32 reversed-Z depth (the depth rejection's, kept
+ *                             in float32 in every precision so that its decisions match)
  *  Non-finite values become 0 colour, far depth and 0 motion (the host path refuses
  *  them before, unless the caller asked to sanitize).
  *  NDRange: (w, h). */
 __kernel void nsrr_prepare(__global const float *color, __global const float *depth,
                            __global const float *motion, __global T *rgbd, __global float *mv,
                            int w, int h, int depth_inverted, float msx, float msy,
-                           float inv_exposure, float pq_scale)
+                           float inv_exposure, float pq_scale, __global float *dep)
 {
     const int x = get_global_id(0), y = get_global_id(1);
     if (x >= w || y >= h) return;
@@ -63,6 +65,7 @@ __kernel void nsrr_prepare(__global const float *color, __global const float *de
     float d = depth[p];
     d = isfinite(d) ? (depth_inverted ? d : 1.0f - d) : 0.0f;
     ST(rgbd, 3 * plane + p, d);
+    dep[p] = d;
     const float mx = motion[2 * p], my = motion[2 * p + 1];
     mv[p] = isfinite(mx) ? mx * msx : 0.0f;
     mv[plane + p] = isfinite(my) ? my * msy : 0.0f;
@@ -91,6 +94,35 @@ static float2 render_motion(__global const float *mv, int h, int w, int X, int Y
     return (float2)(m[0], m[1]);
 }
 
+/* The depth rejection (networks.REJECTS, "depth"): 1 keeps the warped history at output
+ * pixel (X, Y), which was at (xs, ys) in the previous frame; 0 empties it. The current
+ * depth range is the 2x2 render samples around the pixel centre (jitter-aware, as the
+ * base), the previous one the 2x2 of the previous frame around (xs + 0.5) / sx - 0.5
+ * (clamped); a disocclusion is where the two lie apart by more than tau x the larger
+ * (reversed-Z: the nearer). The twins compute the same (oracle.py, twin.py depth_keep). */
+#define DMIN(a, b) ((a) < (b) ? (a) : (b))  /* fmin / fmax of finite values, inline */
+#define DMAX(a, b) ((a) > (b) ? (a) : (b))
+static int depth_keep(__global const float *dcur, __global const float *dprev, int h, int w,
+                      int X, int Y, float xs, float ys, float sy, float sx, float jy, float jx,
+                      float tau)
+{
+    const float bu = clss_clampf(((float)X + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
+    const float bv = clss_clampf(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
+    const int b0 = clss_floori(bu), b1 = clss_mini(b0 + 1, w - 1);
+    const int c0 = clss_floori(bv), c1 = clss_mini(c0 + 1, h - 1);
+    const float t0 = dcur[c0 * w + b0], t1 = dcur[c0 * w + b1];
+    const float t2 = dcur[c1 * w + b0], t3 = dcur[c1 * w + b1];
+    const float cmin = DMIN(DMIN(t0, t1), DMIN(t2, t3)), cmax = DMAX(DMAX(t0, t1), DMAX(t2, t3));
+    const float u = clss_clampf((xs + 0.5f) / sx - 0.5f, 0.0f, (float)(w - 1));
+    const float v = clss_clampf((ys + 0.5f) / sy - 0.5f, 0.0f, (float)(h - 1));
+    const int u0 = clss_floori(u), u1 = clss_mini(u0 + 1, w - 1);
+    const int v0 = clss_floori(v), v1 = clss_mini(v0 + 1, h - 1);
+    const float p0 = dprev[v0 * w + u0], p1 = dprev[v0 * w + u1];
+    const float p2 = dprev[v1 * w + u0], p3 = dprev[v1 * w + u1];
+    const float pmin = DMIN(DMIN(p0, p1), DMIN(p2, p3)), pmax = DMAX(DMAX(p0, p1), DMAX(p2, p3));
+    return DMAX(cmin, pmin) - DMIN(cmax, pmax) <= DMAX(cmax, pmax) * tau;
+}
+
 /** @param[in]  feat     [12,h,w] T: the current frame's features
  *  @param[in]  mv       [2,h,w] float32 render-pixel motion (previous = p + mv)
  *  @param[in]  hist     [12*N,Hp,Wp] T: the history (see the file comment)
@@ -116,6 +148,9 @@ static float2 render_motion(__global const float *mv, int h, int w, int X, int Y
  *  @param[in]  jx       jitter x, render pixels
  *  @param[in]  mode     0: warp the history; 1: reset, empty history (zeros); 2: reset,
  *                       every valid slot is the current frame's Z (duplicate)
+ *  @param[in]  dcur     [h,w] float32 the current reversed-Z depth (nsrr_prepare's dep)
+ *  @param[in]  dprev    [h,w] float32 the previous frame's
+ *  @param[in]  tau      the depth rejection's threshold (depth_keep), < 0: off
  *  NDRange: (Wp, Hp). */
 #ifndef VEC
 #define VEC 1       /* 8: nsrr_reproject takes runs of 8 output pixels of a row (the CPU fast path) */
@@ -129,7 +164,8 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
                              __global const T *hist, __global T *stack, __global T *base,
                              int h, int w, int H, int W, int Hp, int Wp, int nprev, int nvalid,
                              int siy, int six, int oy, int ox, float sy, float sx,
-                             float jy, float jx, int mode)
+                             float jy, float jx, int mode, __global const float *dcur,
+                             __global const float *dprev, float tau)
 {
     const int X = get_global_id(0), Y = get_global_id(1);
     if (X >= Wp || Y >= Hp) return;
@@ -178,8 +214,9 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
     const int cx0 = t.cx0, cx1 = t.cx1, cy0 = t.cy0, cy1 = t.cy1;
     const long a00 = (long)cy0 * Wp + cx0, a10 = (long)cy0 * Wp + cx1;
     const long a01 = (long)cy1 * Wp + cx0, a11 = (long)cy1 * Wp + cx1;
+    const bool kept = tau < 0.0f || depth_keep(dcur, dprev, h, w, X, Y, xs, ys, sy, sx, jy, jx, tau);
     for (int k = 0; k < nprev; ++k) {
-        const bool on = k < nvalid;
+        const bool on = k < nvalid && kept;
         for (int c = 0; c < FEAT; ++c) {
             float r = 0.0f;
             if (on) {
@@ -228,14 +265,18 @@ static inline int all8(int8 m)
     } while (0)
 
 /** The warp's sample position of every output pixel: (X + m.x * sx, Y + m.y * sy), m
- *  the render motion at the pixel (render_motion), as the reference computes them.
+ *  the render motion at the pixel (render_motion), as the reference computes them, and
+ *  with the depth rejection on (tau >= 0) whether the pixel keeps its history.
  *  @param[in]  mv   [2,h,w] float32 render-pixel motion
- *  @param[out] xy   [2,H,W8] float32, W8 = Wp rounded up to a multiple of 8 (whole
- *                   float8 loads): xs, then ys (columns X >= W: those of X = W - 1)
+ *  @param[out] xy   [3,H,W8] float32, W8 = Wp rounded up to a multiple of 8 (whole
+ *                   float8 loads): xs, then ys, then 1 / 0 (depth_keep; written only
+ *                   with tau >= 0) (columns X >= W: those of X = W - 1)
  *  (the other arguments as nsrr_reproject's)
  *  NDRange: (W8 / 8, H). */
 __kernel void nsrr_warp_coords(__global const float *mv, __global float *xy, int h, int w,
-                               int H, int W, int Wp, float sy, float sx)
+                               int H, int W, int Wp, float sy, float sx,
+                               __global const float *dcur, __global const float *dprev,
+                               float jy, float jx, float tau)
 {
     const int X0 = get_global_id(0) * 8, Y = get_global_id(1), W8 = (Wp + 7) & ~7;
     if (X0 >= W8 || Y >= H) return;
@@ -243,8 +284,12 @@ __kernel void nsrr_warp_coords(__global const float *mv, __global float *xy, int
     for (int l = 0; l < 8; ++l) {
         const int X = clss_mini(X0 + l, W - 1);
         const float2 m = render_motion(mv, h, w, X, Y, sy, sx);
-        xy[o + l] = (float)X + m.x * sx;
-        xy[plane + o + l] = (float)Y + m.y * sy;
+        const float xs = (float)X + m.x * sx, ys = (float)Y + m.y * sy;
+        xy[o + l] = xs;
+        xy[plane + o + l] = ys;
+        if (tau >= 0.0f)
+            xy[2 * plane + o + l] = depth_keep(dcur, dprev, h, w, X, Y, xs, ys, sy, sx, jy, jx, tau)
+                                    ? 1.0f : 0.0f;
     }
 }
 
@@ -273,7 +318,8 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
                              __global const T *hist, __global T *stack, __global T *base,
                              int h, int w, int H, int W, int Hp, int Wp, int nprev, int nvalid,
                              int siy, int six, int oy, int ox, float sy, float sx,
-                             float jy, float jx, int mode)
+                             float jy, float jx, int mode, __global const float *dcur,
+                             __global const float *dprev, float tau)
 {
     const int Xw = get_global_id(0) * 8 * RUNS, Y = get_global_id(1), g = get_global_id(2);
     if (Xw >= Wp || Y >= Hp) return;
@@ -296,11 +342,13 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
             continue;
         }
         /* lanes at X >= W (the padding columns) are written 0; their loads use X = W - 1 */
-        const int8 in = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)(W);
+        int8 in = (int8)(X0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7) < (int8)(W);
         if (g > 0 && mode == 0) {      /* the history's warp: the frame's hot path */
             /* backward warp: this pixel was at (xs, ys) in the previous frame */
             const int W8 = (Wp + 7) & ~7;                   /* xy's row stride */
             const long xo = (long)Y * W8 + X0;
+            if (tau >= 0.0f)            /* the depth rejection's lanes are written 0 too */
+                in = in & (XLD8(xy + 2 * (long)H * W8 + xo) > (float8)(0.5f));
             const WarpTaps8 t = warp_taps8(XLD8(xy + xo), XLD8(xy + (long)H * W8 + xo), W, H);
             const int8 i00 = t.cy0 * Wp + t.cx0, i10 = t.cy0 * Wp + t.cx1;
             const int8 i01 = t.cy1 * Wp + t.cx0, i11 = t.cy1 * Wp + t.cx1;

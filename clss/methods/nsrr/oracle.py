@@ -42,6 +42,16 @@ def zu_index(n: int, scale: float, jit: float, size: int) -> np.ndarray:
     return idx
 
 
+def depth_taps(n: int, scale: float, jit: float, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """([size], [size]) int64: the two render samples either side of each output pixel
+    centre along one axis, jitter-aware and edge-clamped, float32 operation for operation
+    as nsrr.cl's base (the current depth the rejection compares)."""
+    f = np.float32
+    u = (np.arange(size).astype(f) + f(0.5)) / f(scale) - f(0.5) - f(jit)
+    i0 = np.floor(np.clip(u, f(0), f(n - 1))).astype(np.int64)
+    return i0, np.minimum(i0 + 1, n - 1)
+
+
 def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) -> onnx.ModelProto:
     h, w = render_size
     H, W = output_size(h, w, scale)
@@ -68,11 +78,15 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
     my = g.mul(g.chan(m, slice(1, 2)), g.const(np.float32(sy)))
     xs = g.const(np.arange(W, dtype=np.float32).reshape(1, 1, 1, W), np.float32, "xs")
     ys = g.const(np.arange(H, dtype=np.float32).reshape(1, 1, H, 1), np.float32, "ys")
-    gx = g.normalised(g.add(xs, mx), W)
-    gy = g.normalised(g.add(ys, my), H)
+    px, py = g.add(xs, mx), g.add(ys, my)
+    gx = g.normalised(px, W)
+    gy = g.normalised(py, H)
     grid = g.op("Transpose", g.concat([gx, gy], axis=1), perm=[0, 2, 3, 1])
     warped = g.op("GridSample", "hist", grid, mode="bilinear", padding_mode="zeros",
                   align_corners=0)
+    tau = nets.reject_tau(cfg)
+    if tau >= 0:
+        warped = g.mul(warped, _depth_keep(g, h, w, sy, sx, px, py, tau))
     # reset: keep * warped + dup * Z in every slot; slots beyond `history` are zero
     tiled = g.op("Tile", z, g.i64([1, n, 1, 1]))
     prev = g.add(g.mul(warped, "keep"), g.mul(tiled, "dup"))
@@ -98,10 +112,42 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
     inputs = ([vi("color", [1, 3, h, w]), vi("depth", [1, 1, h, w]), vi("motion", [1, 2, h, w]),
                vi("hist", [1, C * n, H, W]), vi("zu_y", [H], i64), vi("zu_x", [W], i64),
                vi("keep", [1]), vi("dup", [1])]
-              + ([vi("base_grid", [1, H, W, 2])] if cfg.get("residual", False) else []))
+              + ([vi("base_grid", [1, H, W, 2])] if cfg.get("residual", False) else [])
+              + ([vi("depth_prev", [1, 1, h, w]), vi("dtap_y0", [H], i64), vi("dtap_y1", [H], i64),
+                  vi("dtap_x0", [W], i64), vi("dtap_x1", [W], i64)] if tau >= 0 else []))
     return make_model(g.nodes, g.inits, "nsrr_frame", inputs,
                       [vi("output", [1, 3, H, W]), vi("hist_out", [1, C * n, H, W])],
                       __name__, OPSET)
+
+
+def _depth_keep(g, h, w, sy, sx, px, py, tau):
+    """[1,1,H,W] 1 / 0: nsrr.cl's depth_keep. The current range from the Gathers of the
+    2x2 render samples around each pixel centre (dtap_*: depth_taps), the previous one from
+    the 2x2 of depth_prev around (px + 0.5) / sx - 0.5, computed in the graph (px, py: where
+    each pixel was, output pixels)."""
+    f = np.float32
+
+    def rng(taps):
+        lo = g.op("Min", *taps)
+        return lo, g.op("Max", *taps)
+
+    cur = [g.op("Gather", g.op("Gather", "depth", r, axis=2), c, axis=3)
+           for r in ("dtap_y0", "dtap_y1") for c in ("dtap_x0", "dtap_x1")]
+    cmin, cmax = rng(cur)
+
+    def taps(p, s, n):
+        u = g.sub(g.div(g.add(p, g.const(f(0.5))), g.const(f(s))), g.const(f(0.5)))
+        i0 = g.op("Floor", g.clip(u, 0.0, float(n - 1)))
+        return i0, g.op("Min", g.add(i0, g.const(f(1.0))), g.const(f(n - 1)))
+
+    (u0, u1), (v0, v1) = taps(px, sx, w), taps(py, sy, h)
+    flat = g.reshape("depth_prev", [h * w])
+    prev = [g.op("Gather", flat, g.op("Cast", g.add(g.mul(r, g.const(f(w))), c), to=TensorProto.INT64))
+            for r in (v0, v1) for c in (u0, u1)]
+    pmin, pmax = rng(prev)
+    gap = g.sub(g.op("Max", cmin, pmin), g.op("Min", cmax, pmax))
+    ok = g.op("LessOrEqual", gap, g.mul(g.op("Max", cmax, pmax), g.const(f(tau))))
+    return g.op("Cast", ok, to=TensorProto.FLOAT)
 
 
 class OracleNsrr(TwinRunner):
@@ -119,17 +165,20 @@ class OracleNsrr(TwinRunner):
         h, w = self.render_size
         self.H, self.W = output_size(h, w, self.scale)
         self.hist = np.zeros((1, nets.FEAT * self.cfg["n_prev"], self.H, self.W), np.float32)
+        self.depth_prev = np.zeros((1, 1, h, w), np.float32)
 
     def step(self, color, depth, motion, jitter, reset=False, **unused):
         x, reset = self._frame(color, depth, motion, jitter, reset)
-        feeds = frame_feeds(self.cfg, x, self.hist, reset, self.reset_fill)
+        feeds = frame_feeds(self.cfg, x, self.hist, reset, self.reset_fill, self.depth_prev)
         y, self.hist = self.session.run(["output", "hist_out"], feeds)
+        self.depth_prev = x["depth"]
         return self._image(y)
 
 
-def frame_feeds(cfg, x, hist, reset, reset_fill="zero") -> dict:
+def frame_feeds(cfg, x, hist, reset, reset_fill="zero", depth_prev=None) -> dict:
     """The graph's feeds for one frame: `x` the contract's internal arrays (to_internal:
-    color, depth, motion NCHW, jitter), `hist` the previous hist_out (zeros on a reset)."""
+    color, depth, motion NCHW, jitter), `hist` the previous hist_out (zeros on a reset),
+    `depth_prev` the previous frame's x["depth"] (the depth rejection's)."""
     h, w = x["depth"].shape[2:]
     H, W = hist.shape[2:]
     jx, jy = (float(v) for v in x["jitter"])
@@ -139,6 +188,11 @@ def frame_feeds(cfg, x, hist, reset, reset_fill="zero") -> dict:
              "dup": np.array([1.0 if reset and reset_fill == "duplicate" else 0.0], np.float32)}
     if cfg.get("residual", False):
         feeds["base_grid"] = base_grid((h, w), (H, W), (jx, jy))
+    if nets.reject_tau(cfg) >= 0:
+        feeds["depth_prev"] = (np.zeros_like(x["depth"]) if depth_prev is None
+                               else np.asarray(depth_prev, np.float32))
+        feeds["dtap_y0"], feeds["dtap_y1"] = depth_taps(h, H / h, jy, H)
+        feeds["dtap_x0"], feeds["dtap_x1"] = depth_taps(w, W / w, jx, W)
     return feeds
 
 

@@ -57,6 +57,10 @@ def add_arguments(t):
                    help="the paper's output (the U-Net's image) instead of a correction added "
                         "to the jitter-aware bilinear colour (networks.py)")
     t.add_argument("--reset-fill", choices=("zero", "duplicate"), default="zero")
+    t.add_argument("--reject", choices=("none", "depth"), default=None,
+                   help="history rejection (networks.REJECTS): depth empties the warped "
+                        "history where the depth says disocclusion (default none, or the "
+                        "--init file's)")
     t.add_argument("--p-short", type=float, default=0.2,
                    help="fraction of windows with fewer previous frames than available")
     t.add_argument("--l1", type=float, default=1.0,
@@ -211,11 +215,11 @@ def make_batch(seqs, picks, batch, pr, margin, n_prev, p_short, rng, torch):
 def forward(step, rgbd, mot, jit, rst):
     """The window through the step: features and warps of every frame, the output of the
     last (PQ, [B,3,H,W] of the whole crop)."""
-    hist = None
+    hist, pdepth = None, None
     for j in range(len(rgbd) - 1):
-        stack = step.reproject(step.net.features(rgbd[j]), mot[j], jit[j], hist, rst[j])
-        hist = stack[:, :step.net.n_prev * 12]
-    stack = step.reproject(step.net.features(rgbd[-1]), mot[-1], jit[-1], hist, rst[-1])
+        stack = step.reproject(step.net.features(rgbd[j]), mot[j], jit[j], hist, rst[j], pdepth)
+        hist, pdepth = stack[:, :step.net.n_prev * 12], rgbd[j][:, 3:4]
+    stack = step.reproject(step.net.features(rgbd[-1]), mot[-1], jit[-1], hist, rst[-1], pdepth)
     return step.output(stack, step.base(rgbd[-1], jit[-1]))
 
 
@@ -239,6 +243,10 @@ def cmd_train(args):
         cfg = nets.make_config(args.widths, args.n_prev, residual=not args.no_residual,
                                act=args.act)
         w0 = nets.init_weights(cfg, args.seed)
+    if args.reject is not None:        # a network fine-tuned to a rejection carries it
+        cfg = {k: v for k, v in cfg.items() if k != "reject"}
+        if args.reject != "none":
+            cfg["reject"] = args.reject
         if args.last_init == "zero" and cfg["residual"]:
             w0["un.9.weight"][:] = 0.0
     net = NsrrNet(cfg, w0)
@@ -250,7 +258,7 @@ def cmd_train(args):
     picks = choose_patches(seqs, args.candidates, args.keep, pr, args.margin,
                            np.random.default_rng(args.seed))
     print(f"nsrr x{sc}: {len(seqs)} sequences, {len(picks)} patches of {args.patch} px kept, "
-          f"widths {cfg['name']}, {args.steps} steps of {args.batch}, loss 1-SSIM"
+          f"widths {cfg['name']}, reject {cfg.get('reject', 'none')}, {args.steps} steps of {args.batch}, loss 1-SSIM"
           + (f" + {args.l1:g} L1" if args.l1 else "") + f", YCbCr (chroma x{args.chroma:g})"
           + (f" + {args.perceptual_weight} random-feature perceptual" if perc else ""), flush=True)
     m = args.margin * sc

@@ -16,7 +16,7 @@ import torch.nn.functional as F
 
 from clss.methods.nsrr import networks as nets
 from clss.methods.nsrr.frame import pad4
-from clss.methods.nsrr.oracle import zu_index
+from clss.methods.nsrr.oracle import depth_taps, zu_index
 from clss.pipeline.twin import base_grid
 from clss.pipeline.contract import PQ_NITS, output_size
 
@@ -108,6 +108,40 @@ def warp(x, m):
     return F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
 
 
+def depth_keep(depth, pdepth, m, jitters, tau):
+    """[N,1,H,W] 1 where the history is kept, 0 where the depth rejection empties it
+    (networks.REJECTS): depth, pdepth [N,1,h,w] the current and previous reversed-Z depth,
+    m [N,2,H,W] the output-pixel motion (upsample_motion), tau networks.REJECT_TAU. The
+    current range is the 2x2 render samples around each output pixel centre (jitter-aware,
+    as the base), the previous one the 2x2 around where the pixel was (xs + 0.5) / sx - 0.5,
+    clamped; the ranges may not lie apart by more than tau x the larger depth (nsrr.cl)."""
+    N, _, h, w = depth.shape
+    H, W = m.shape[2:]
+    sx, sy = W / w, H / h
+    flat, pflat = depth.reshape(N, h * w), pdepth.reshape(N, h * w)
+    out = []
+    for i in range(N):
+        jx, jy = (float(v) for v in jitters[i])
+        bx0, bx1 = (torch.from_numpy(a) for a in depth_taps(w, sx, jx, W))
+        by0, by1 = (torch.from_numpy(a) for a in depth_taps(h, sy, jy, H))
+        taps = [flat[i][(r.view(H, 1) * w + c.view(1, W)).reshape(-1)].view(H, W)
+                for r in (by0, by1) for c in (bx0, bx1)]
+        cmin = torch.minimum(torch.minimum(taps[0], taps[1]), torch.minimum(taps[2], taps[3]))
+        cmax = torch.maximum(torch.maximum(taps[0], taps[1]), torch.maximum(taps[2], taps[3]))
+        xs = torch.arange(W, dtype=m.dtype, device=m.device).view(1, W) + m[i, 0]
+        ys = torch.arange(H, dtype=m.dtype, device=m.device).view(H, 1) + m[i, 1]
+        u = ((xs + 0.5) / sx - 0.5).clamp(0, w - 1)
+        v = ((ys + 0.5) / sy - 0.5).clamp(0, h - 1)
+        u0, v0 = u.floor().long(), v.floor().long()
+        u1, v1 = (u0 + 1).clamp(max=w - 1), (v0 + 1).clamp(max=h - 1)
+        pt = [pflat[i][r * w + c] for r in (v0, v1) for c in (u0, u1)]
+        pmin = torch.minimum(torch.minimum(pt[0], pt[1]), torch.minimum(pt[2], pt[3]))
+        pmax = torch.maximum(torch.maximum(pt[0], pt[1]), torch.maximum(pt[2], pt[3]))
+        gap = torch.maximum(cmin, pmin) - torch.minimum(cmax, pmax)
+        out.append((gap <= torch.maximum(cmax, pmax) * tau).to(m.dtype))
+    return torch.stack(out)[:, None]
+
+
 def rgbd_of(color, depth, nits=PQ_NITS):
     """color [N,3,h,w] linear, depth [N,1,h,w] reversed-Z -> rgbd [N,4,h,w]."""
     return torch.cat([pq_encode(color, nits), depth], 1)
@@ -122,13 +156,19 @@ class TorchStep:
         self.n = net.n_prev
         self.history = self.n if history is None else int(history)
 
-    def reproject(self, feat, motion, jitters, hist, reset):
+    def reproject(self, feat, motion, jitters, hist, reset, pdepth=None):
+        """pdepth [N,1,h,w]: the previous frame's reversed-Z depth (the depth rejection's;
+        None: no rejection, as on a reset)."""
         N, _, h, w = feat.shape
         H, W = output_size(h, w, self.scale)
         z = zero_upsample(feat, H, W, jitters)
         if hist is None:
             hist = z.new_zeros(N, FEAT * self.n, H, W)
-        warped = warp(hist, upsample_motion(motion, H, W))
+        m = upsample_motion(motion, H, W)
+        warped = warp(hist, m)
+        tau = nets.reject_tau(self.net.cfg)
+        if tau >= 0 and pdepth is not None:
+            warped = warped * depth_keep(feat[:, 3:4], pdepth, m, jitters, tau)
         keep = (~reset).to(z.dtype).view(N, 1, 1, 1)
         prev = warped * keep
         if self.reset_fill == "duplicate":
@@ -155,6 +195,7 @@ class TorchStep:
         return F.grid_sample(rgbd[:, :3], torch.cat(grids).to(rgbd), mode="bilinear",
                              padding_mode="border", align_corners=False)
 
-    def step(self, rgbd, motion, jitters, hist, reset):
-        stack = self.reproject(self.net.features(rgbd), motion, jitters, hist, reset)
+    def step(self, rgbd, motion, jitters, hist, reset, pdepth=None):
+        """pdepth: the previous frame's rgbd[:, 3:4] (the depth rejection's)."""
+        stack = self.reproject(self.net.features(rgbd), motion, jitters, hist, reset, pdepth)
         return self.output(stack, self.base(rgbd, jitters)), stack[:, :FEAT * self.n]
