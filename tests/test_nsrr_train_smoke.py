@@ -47,3 +47,12 @@ def test_train_nsrr_fine_tunes_from_init(tmp_path, capsys):
     assert main(args + ["--init", str(tmp_path / "none.safetensors")]) != 0
     err = capsys.readouterr().err
     assert "--init:" in err and "Traceback" not in err
+    # --reject on a fine-tune: the file's tensors as they are (0 steps), the config gains
+    # the rejection (the shipped x2's last stage); its output conv is not re-initialised
+    out3 = str(tmp_path / "reject")
+    args[args.index("--out") + 1] = out3
+    args[args.index("--steps") + 1] = "0"
+    assert main(args + ["--init", first, "--reject", "depth"]) == 0
+    c3, w3 = nets.load(os.path.join(out3, "weights.safetensors"))
+    assert c3 == {**c0, "reject": "depth"}
+    assert all(np.array_equal(w3[k], w0[k]) for k in w0)

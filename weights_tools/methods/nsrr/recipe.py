@@ -243,12 +243,12 @@ def cmd_train(args):
         cfg = nets.make_config(args.widths, args.n_prev, residual=not args.no_residual,
                                act=args.act)
         w0 = nets.init_weights(cfg, args.seed)
+        if args.last_init == "zero" and cfg["residual"]:
+            w0["un.9.weight"][:] = 0.0
     if args.reject is not None:        # a network fine-tuned to a rejection carries it
         cfg = {k: v for k, v in cfg.items() if k != "reject"}
         if args.reject != "none":
             cfg["reject"] = args.reject
-        if args.last_init == "zero" and cfg["residual"]:
-            w0["un.9.weight"][:] = 0.0
     net = NsrrNet(cfg, w0)
     probe = AliveProbe(net)
     step = TorchStep(net, sc, reset_fill=args.reset_fill)
