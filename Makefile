@@ -232,17 +232,23 @@ train-mlp: $(STAMP) train-data $(BLENDER_TRAIN) $(BLENDER3_TRAIN)
 # torch thread (34-39 minutes per scale on this 2-core machine while other jobs ran, about
 # 75 in all), x4 on its own generated 68x120 -> 272x480 sequences, x2 on the CLSS training
 # set; then into the package.
+# Then each scale fine-tuned with the depth rejection (networks.REJECTS; the ghost of
+# make demo's sphere, issue 31): NSRR_REJECT_STEPS steps, x2 on the Blender mix, x4 on its
+# generated set (docs/methods/nsrr.md, "The depth rejection").
 NSRR_STEPS ?= 1200
 NSRR_MIX_STEPS ?= 1200
+NSRR_REJECT_STEPS ?= 600
 .PHONY: train-nsrr
 train-nsrr: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN)
 	test -f $(DATA)/train4/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train4 --sequences 24 --frames 12 --seed 100 --size 68x120 --scale 4
 	$(BIN)/python -m weights_tools train nsrr --data $(DATA)/train4 --out $(OUT)/train-nsrr/x4 --steps $(NSRR_STEPS) --threads 1
 	$(BIN)/python -m weights_tools train nsrr --data $(DATA)/train --out $(OUT)/train-nsrr/x2 --steps $(NSRR_STEPS) --threads 1
 	$(BIN)/python -m weights_tools train nsrr --data $(call mix,$(DATA)/train) --out $(OUT)/train-nsrr/x2-mix --steps $(NSRR_MIX_STEPS) --lr 2.5e-4 --warmup 20 --threads 1 --init $(OUT)/train-nsrr/x2/weights.safetensors
+	$(BIN)/python -m weights_tools train nsrr --data $(call mix,$(DATA)/train) --out $(OUT)/train-nsrr/x2-reject --steps $(NSRR_REJECT_STEPS) --lr 2.5e-4 --warmup 20 --threads 2 --reject depth --init $(OUT)/train-nsrr/x2-mix/weights.safetensors
+	$(BIN)/python -m weights_tools train nsrr --data $(DATA)/train4 --out $(OUT)/train-nsrr/x4-reject --steps $(NSRR_REJECT_STEPS) --lr 2.5e-4 --warmup 20 --threads 2 --reject depth --init $(OUT)/train-nsrr/x4/weights.safetensors
 	mkdir -p clss/weights
-	cp $(OUT)/train-nsrr/x4/weights.safetensors clss/weights/nsrr_x4.safetensors
-	cp $(OUT)/train-nsrr/x2-mix/weights.safetensors clss/weights/nsrr_x2.safetensors
+	cp $(OUT)/train-nsrr/x4-reject/weights.safetensors clss/weights/nsrr_x4.safetensors
+	cp $(OUT)/train-nsrr/x2-reject/weights.safetensors clss/weights/nsrr_x2.safetensors
 
 # NSRD (issue 21; docs/methods/nsrd.md): one network per scale on one torch thread, x4 on
 # the 68x120 -> 272x480 sequences, x2 on the CLSS training set, both with G-buffers. Two
