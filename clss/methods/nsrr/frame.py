@@ -116,7 +116,8 @@ class NsrrFrameStep:
         else:
             # runs of 8 pixels, in plane groups; the warp's sample positions computed once
             w8 = -(-Wp // 8) * 8
-            self.xy = e((3, self.H, w8), dtype=f32)
+            # xs, ys, and the depth rejection's decisions when it is on
+            self.xy = e((3 if self.tau >= 0 else 2, self.H, w8), dtype=f32)
             dev.zero(self.xy)
             grid = (-(-Wp // (8 * int(rd["RUNS"]))), Hp, 1 + FEAT * self.nprev // int(rd["G"]))
             coords = self.xy

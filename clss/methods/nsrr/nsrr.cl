@@ -72,18 +72,30 @@ __kernel void nsrr_prepare(__global const float *color, __global const float *de
 }
 
 
+/* The two samples either side of index coordinate u on an axis of n samples, u clamped
+ * to [0, n - 1] (edge-clamped), and u's fraction between them: every edge-clamped bilinear
+ * read of this file (render_motion, the base, depth_keep). */
+typedef struct { int i0, i1; float f; } AxisTaps;
+static AxisTaps axis_taps(float u, int n)
+{
+    AxisTaps a;
+    u = clss_clampf(u, 0.0f, (float)(n - 1));
+    a.i0 = clss_floori(u);
+    a.i1 = clss_mini(a.i0 + 1, n - 1);
+    a.f = u - (float)a.i0;
+    return a;
+}
+
 /* The render motion at output pixel (X, Y): bilinear, half-pixel centres, clamped to the
  * edge (ONNX Resize linear, half_pixel), in render pixels. */
 static float2 render_motion(__global const float *mv, int h, int w, int X, int Y, float sy,
                             float sx)
 {
     const long plane = (long)h * w;
-    float u = ((float)X + 0.5f) / sx - 0.5f, v = ((float)Y + 0.5f) / sy - 0.5f;
-    u = clss_clampf(u, 0.0f, (float)(w - 1));
-    v = clss_clampf(v, 0.0f, (float)(h - 1));
-    const int u0 = clss_floori(u), v0 = clss_floori(v);
-    const int u1 = clss_mini(u0 + 1, w - 1), v1 = clss_mini(v0 + 1, h - 1);
-    const float fu = u - (float)u0, fv = v - (float)v0;
+    const AxisTaps a = axis_taps(((float)X + 0.5f) / sx - 0.5f, w);
+    const AxisTaps b = axis_taps(((float)Y + 0.5f) / sy - 0.5f, h);
+    const int u0 = a.i0, u1 = a.i1, v0 = b.i0, v1 = b.i1;
+    const float fu = a.f, fv = b.f;
     float m[2];
     for (int c = 0; c < 2; ++c) {
         __global const float *q = mv + c * plane;
@@ -106,19 +118,15 @@ static int depth_keep(__global const float *dcur, __global const float *dprev, i
                       int X, int Y, float xs, float ys, float sy, float sx, float jy, float jx,
                       float tau)
 {
-    const float bu = clss_clampf(((float)X + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
-    const float bv = clss_clampf(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
-    const int b0 = clss_floori(bu), b1 = clss_mini(b0 + 1, w - 1);
-    const int c0 = clss_floori(bv), c1 = clss_mini(c0 + 1, h - 1);
-    const float t0 = dcur[c0 * w + b0], t1 = dcur[c0 * w + b1];
-    const float t2 = dcur[c1 * w + b0], t3 = dcur[c1 * w + b1];
+    const AxisTaps b = axis_taps(((float)X + 0.5f) / sx - 0.5f - jx, w);
+    const AxisTaps c = axis_taps(((float)Y + 0.5f) / sy - 0.5f - jy, h);
+    const float t0 = dcur[c.i0 * w + b.i0], t1 = dcur[c.i0 * w + b.i1];
+    const float t2 = dcur[c.i1 * w + b.i0], t3 = dcur[c.i1 * w + b.i1];
     const float cmin = DMIN(DMIN(t0, t1), DMIN(t2, t3)), cmax = DMAX(DMAX(t0, t1), DMAX(t2, t3));
-    const float u = clss_clampf((xs + 0.5f) / sx - 0.5f, 0.0f, (float)(w - 1));
-    const float v = clss_clampf((ys + 0.5f) / sy - 0.5f, 0.0f, (float)(h - 1));
-    const int u0 = clss_floori(u), u1 = clss_mini(u0 + 1, w - 1);
-    const int v0 = clss_floori(v), v1 = clss_mini(v0 + 1, h - 1);
-    const float p0 = dprev[v0 * w + u0], p1 = dprev[v0 * w + u1];
-    const float p2 = dprev[v1 * w + u0], p3 = dprev[v1 * w + u1];
+    const AxisTaps u = axis_taps((xs + 0.5f) / sx - 0.5f, w);
+    const AxisTaps v = axis_taps((ys + 0.5f) / sy - 0.5f, h);
+    const float p0 = dprev[v.i0 * w + u.i0], p1 = dprev[v.i0 * w + u.i1];
+    const float p2 = dprev[v.i1 * w + u.i0], p3 = dprev[v.i1 * w + u.i1];
     const float pmin = DMIN(DMIN(p0, p1), DMIN(p2, p3)), pmax = DMAX(DMAX(p0, p1), DMAX(p2, p3));
     return DMAX(cmin, pmin) - DMIN(cmax, pmax) <= DMAX(cmax, pmax) * tau;
 }
@@ -178,11 +186,10 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *mv,
     }
     {
         /* render sample j was taken at j + 0.5 + jitter: this pixel's centre at index bu */
-        const float bu = clamp(((float)X + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
-        const float bv = clamp(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
-        const int b0 = (int)floor(bu), c0 = (int)floor(bv);
-        const int b1 = min(b0 + 1, w - 1), c1 = min(c0 + 1, h - 1);
-        const float fb = bu - (float)b0, fc = bv - (float)c0;
+        const AxisTaps bu = axis_taps(((float)X + 0.5f) / sx - 0.5f - jx, w);
+        const AxisTaps bv = axis_taps(((float)Y + 0.5f) / sy - 0.5f - jy, h);
+        const int b0 = bu.i0, b1 = bu.i1, c0 = bv.i0, c1 = bv.i1;
+        const float fb = bu.f, fc = bv.f;
         const long pl = (long)h * w;
         for (int c = 0; c < 3; ++c) {
             __global const T *q = feat + c * pl;
@@ -268,7 +275,7 @@ static inline int all8(int8 m)
  *  the render motion at the pixel (render_motion), as the reference computes them, and
  *  with the depth rejection on (tau >= 0) whether the pixel keeps its history.
  *  @param[in]  mv   [2,h,w] float32 render-pixel motion
- *  @param[out] xy   [3,H,W8] float32, W8 = Wp rounded up to a multiple of 8 (whole
+ *  @param[out] xy   [2 or 3,H,W8] float32, W8 = Wp rounded up to a multiple of 8 (whole
  *                   float8 loads): xs, then ys, then 1 / 0 (depth_keep; written only
  *                   with tau >= 0) (columns X >= W: those of X = W - 1)
  *  (the other arguments as nsrr_reproject's)
@@ -390,16 +397,16 @@ __kernel void nsrr_reproject(__global const T *feat, __global const float *xy,
         int xl[8];
         for (int q = 0; q < 8; ++q) xl[q] = clss_mini(X0 + q, W - 1);
         if (g == 0) {
-            const float bv = clss_clampf(((float)Y + 0.5f) / sy - 0.5f - jy, 0.0f, (float)(h - 1));
-            const int r0 = clss_floori(bv), r1 = clss_mini(r0 + 1, h - 1);
-            const float fc = bv - (float)r0;
+            const AxisTaps bv = axis_taps(((float)Y + 0.5f) / sy - 0.5f - jy, h);
+            const int r0 = bv.i0, r1 = bv.i1;
+            const float fc = bv.f;
             float tb[8], bb[8];
             for (int c = 0; c < 3; ++c) {
                 __global const T *q = feat + c * plane;
                 for (int l = 0; l < 8; ++l) {
-                    const float bu = clss_clampf(((float)xl[l] + 0.5f) / sx - 0.5f - jx, 0.0f, (float)(w - 1));
-                    const int b0 = clss_floori(bu), b1 = clss_mini(b0 + 1, w - 1);
-                    const float fb = bu - (float)b0;
+                    const AxisTaps bu = axis_taps(((float)xl[l] + 0.5f) / sx - 0.5f - jx, w);
+                    const int b0 = bu.i0, b1 = bu.i1;
+                    const float fb = bu.f;
                     tb[l] = FLD(q, (long)r0 * w + b0) * (1.0f - fb) + FLD(q, (long)r0 * w + b1) * fb;
                     bb[l] = FLD(q, (long)r1 * w + b0) * (1.0f - fb) + FLD(q, (long)r1 * w + b1) * fb;
                 }
