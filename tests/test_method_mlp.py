@@ -1,8 +1,9 @@
 """The shader MLP upscaler (clss/methods/mlp/, docs/methods/mlp.md): the OpenCL frame step
 against its whole-frame ONNX twin in fp32 and fp16 at 2x and 3x, with trained-like
 (random, non-zero) weights; its kernels' conformance cases; the method's interface
-(registry, scales, weights files, the named error without depth_hr); the torch twin's
-parity with the OpenCL step; a smoke training run of the recipe.
+(registry, scales, weights files, the named error without depth_hr); the jitter input
+(fc1's bias per frame) against the twin; the torch twin's parity with the OpenCL step; a
+smoke training run of the recipe.
 
 Tolerances on the frame (PQ code values, so that HDR highlights count as displayed):
 fp32 1e-4 absolute (measured about 1e-5: the kernel's pow against onnxruntime's), fp16
@@ -49,6 +50,40 @@ def test_frame_step_matches_onnx_twin(name, scale, precision, dev):
     assert d.max() <= TOL[precision], f"max PQ difference {d.max():.3g}"
 
 
+def _jitter_weights(seed=13):
+    """mlp_weights with the jitter input (transform.JITTER_KEY), strong enough to move
+    the output."""
+    wts = mlp_weights(seed)
+    wts[tf.JITTER_KEY] = (np.random.default_rng(seed).standard_normal((50, 2)) * 0.5) \
+        .astype(np.float32)
+    return wts
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("scale", [2, 3])
+def test_jitter_input_matches_onnx_twin(scale, precision, dev):
+    # the jitter term goes into fc1's bias per frame: a new jitter, the same one again,
+    # and back, each against the twin that feeds the jitter to a MatMul
+    wts = _jitter_weights()
+    color, dhr = _frame(scale, seed=3)
+    up = clss.Upscaler(method="mlp", scale=scale, device=dev, precision=precision, weights=wts)
+    twin = methods.twin("mlp", RENDER, scale, weights=wts, precision=precision)
+    outs = []
+    for j in [(0.25, -0.3), (-0.4, 0.1), (-0.4, 0.1), (0.25, -0.3)]:
+        a = up.step(color, None, None, j, depth_hr=dhr)
+        d = np.abs(pq_encode(a) - pq_encode(twin.step(color, jitter=j, depth_hr=dhr)))
+        assert d.max() <= TOL[precision], f"jitter {j}: max PQ difference {d.max():.3g}"
+        outs.append(a)
+    assert np.array_equal(outs[0], outs[3]) and np.abs(outs[0] - outs[1]).max() > 1e-2
+    y = up.step_device(dev.to_device(color), jitter=(-0.4, 0.1), depth_hr=dev.to_device(dhr))
+    assert np.array_equal(dev.to_host(y), outs[1])
+    # a file without the input ignores the jitter, as before
+    plain = clss.Upscaler(method="mlp", scale=scale, device=dev, precision=precision,
+                          weights=mlp_weights())
+    assert np.array_equal(plain.step(color, None, None, (0.25, -0.3), depth_hr=dhr),
+                          plain.step(color, None, None, (0.0, 0.0), depth_hr=dhr))
+
+
 def test_exposure_and_step_device(dev):
     wts = mlp_weights(5)
     color, dhr = _frame(2, seed=2)
@@ -89,6 +124,10 @@ def test_interface(dev, tmp_path):
     a = clss.Upscaler(method="mlp", device=dev, weights=str(p)).step(f.color, **f.gbuffers)
     b = clss.Upscaler(method="mlp", device=dev, weights=wts).step(f.color, **f.gbuffers)
     assert np.array_equal(a, b)
+    bad = _jitter_weights()
+    bad[tf.JITTER_KEY] = bad[tf.JITTER_KEY][:, :1]
+    with pytest.raises(ValueError, match="fcj.weight has shape"):
+        tf.check_weights(bad, "x.safetensors")
     bad = dict(wts)
     bad["fc2.weight"] = bad["fc2.weight"][:, :49]
     with pytest.raises(ValueError, match="fc2.weight has shape"):
@@ -121,13 +160,33 @@ def test_torch_twin_matches_opencl(scale, feature, dev):
     assert d.max() <= 1e-4, f"max PQ difference {d.max():.3g}"
 
 
+@pytest.mark.parametrize("scale", [2, 3])
+def test_torch_twin_jitter_input_matches_opencl(scale, dev):
+    pytest.importorskip("torch")
+    from weights_tools.methods.mlp.twin import MlpNet, upscale
+    wts = _jitter_weights(17)
+    color, dhr = _frame(scale, seed=6)
+    net = MlpNet(scale, True, wts)
+    assert tf.JITTER_KEY in net.tensors()
+    up = clss.Upscaler(method="mlp", scale=scale, device=dev, weights=wts)
+    for j in [(0.3, -0.2), (-0.45, 0.35)]:
+        d = np.abs(pq_encode(up.step(color, None, None, j, depth_hr=dhr))
+                   - pq_encode(upscale(net, color, dhr, j)))
+        assert d.max() <= 1e-4, f"jitter {j}: max PQ difference {d.max():.3g}"
+    # --jitter from a file without the input starts as that file's network
+    plain = mlp_weights(11)
+    a = upscale(MlpNet(scale, True, plain, jitter=True), color, dhr, (0.3, -0.2))
+    assert np.array_equal(a, upscale(MlpNet(scale, True, plain), color, dhr))
+
+
 def _tiny_sequence(path, scale=2, T=4, h=24, w=26, seed=0):
     g = np.random.default_rng(seed)
     ref = (g.random((T, scale * h, scale * w, 3)) ** 2).astype(np.float32)
     color = ref[:, ::scale, ::scale].copy()
     dhr = g.random((T, scale * h, scale * w)).astype(np.float32)
+    jitter = (g.random((T, 2)) - 0.5).astype(np.float32)
     np.savez(path, color=color, depth=dhr[:, ::scale, ::scale].copy(), reference=ref,
-             depth_hr=dhr, scale=np.float32(scale))
+             depth_hr=dhr, scale=np.float32(scale), jitter=jitter)
 
 
 def test_smoke_training_offline(tmp_path, dev, capsys):
@@ -149,6 +208,14 @@ def test_smoke_training_offline(tmp_path, dev, capsys):
     y = clss.Upscaler(method="mlp", device=dev, weights=str(tmp_path / "s" / "mlp.safetensors")) \
         .step(f["color"][0], depth_hr=f["depth_hr"][0])
     assert y.shape == (48, 52, 3) and np.isfinite(y).all()
+    # --jitter: the file gains the jitter input, which the engine reads
+    assert main(["train", "mlp", "--data", str(data), "--out", str(tmp_path / "j"), "--steps", "2",
+                 "--batch", "2", "--quiet", "--init", str(w), "--jitter"]) == 0
+    tj, _ = tf.load_weights(str(tmp_path / "j" / "mlp.safetensors"))
+    assert tf.has_jitter(tj) and np.abs(tj[tf.JITTER_KEY]).max() > 0
+    up = clss.Upscaler(method="mlp", device=dev, weights=str(tmp_path / "j" / "mlp.safetensors"))
+    assert not np.array_equal(up.step(f["color"][0], None, None, (0.3, 0.1), depth_hr=f["depth_hr"][0]),
+                              up.step(f["color"][0], None, None, (-0.3, 0.1), depth_hr=f["depth_hr"][0]))
     assert main(["train", "mlp", "--out", str(out)]) == 2
     assert "give --data DIR" in capsys.readouterr().err
 

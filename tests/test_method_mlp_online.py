@@ -29,9 +29,10 @@ def _frame(s, h=30, w=34, seed=1):
     return color, ref, dhr
 
 
-def _torch_grads(net, col, feat, ref, s, feature):
+def _torch_grads(net, col, feat, ref, s, feature, jitter=None):
     m = pt.MARGIN
-    out = net(torch.from_numpy(col), torch.from_numpy(feat[:, None]) if feature else None)
+    j = None if jitter is None else torch.tensor(np.float32(jitter)).expand(col.shape[0], 2)
+    out = net(torch.from_numpy(col), torch.from_numpy(feat[:, None]) if feature else None, j)
     out = out[..., s * m:s * (m + pt.PATCH), s * m:s * (m + pt.PATCH)]
     loss = (out - torch.from_numpy(ref)).abs().mean()
     net.zero_grad()
@@ -93,6 +94,43 @@ def test_adam_steps_match_torch(dev):
         d = np.abs(w.get() - tf.packed(net.tensors()))
         assert d.max() <= 1e-6, f"step {step + 1}: weights differ by {d.max():.3g}"
     assert np.abs(w.get() - tf.packed(wts)).max() > 1e-3
+
+
+def test_jitter_input_trains_with_the_frames_jitter(dev, tmp_path):
+    # a network with the jitter input: the gradients are those of the frame's jitter (the
+    # term in fc1's bias), Adam moves the bias itself, the jitter weights stay
+    from weights_tools.methods.mlp.twin import MlpNet
+    torch.set_num_threads(1)
+    wts = mlp_weights(7)
+    wts[tf.JITTER_KEY] = (np.random.default_rng(2).standard_normal((50, 2)) * 0.5).astype(np.float32)
+    color, ref, dhr = _frame(2, seed=5)
+    jit = (0.3, -0.4)
+    w = dev.to_device(tf.packed(wts))
+    tr = OnlineTrainer(dev, 2, True, w, batch=2, lr=1e-3, seed=1, jitter_weight=wts[tf.JITTER_KEY])
+    net = MlpNet(2, True, wts)
+    opt = torch.optim.Adam([p for n, p in net.named_parameters() if not n.startswith("fcj")], lr=1e-3)
+    defs = tf.kernel_defines(2, True)
+    frame = tr.prepare(color, dhr, ref)
+    for step in range(2):
+        col, feat, rf = tr.cut(frame)
+        tr.load(col, feat, rf, defs)
+        tr.step(defs, jit)
+        _torch_grads(net, col, feat, rf, 2, True, jit)
+        opt.step()
+        d = np.abs(w.get() - tf.packed(net.tensors()))
+        assert d.max() <= 1e-6, f"step {step + 1}: weights differ by {d.max():.3g}"
+    # through the upscaler: fcj kept, saved, and the frame step runs the learnt bias
+    for precision in ("fp32", "fp16"):
+        up = clss.Upscaler(method="mlp", scale=2, device=dev, precision=precision, online=True,
+                           online_batch=2, weights=wts)
+        y0 = up.step(color, None, None, jit, depth_hr=dhr, reference=ref)
+        learnt = up.learnt_tensors()
+        assert np.array_equal(learnt[tf.JITTER_KEY], wts[tf.JITTER_KEY])
+        assert np.abs(learnt["fc1.bias"] - wts["fc1.bias"]).max() > 1e-5
+        p = tmp_path / f"{precision}.safetensors"
+        up.save_weights(str(p))
+        fresh = clss.Upscaler(method="mlp", scale=2, device=dev, precision=precision, weights=str(p))
+        assert np.array_equal(fresh.step(color, None, None, jit, depth_hr=dhr), y0)
 
 
 def test_patches_are_accepted_by_gradient():

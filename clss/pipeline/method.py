@@ -421,7 +421,8 @@ class MethodUpscaler:
         sequence's. A method that reads the colour alone gets placeholders for the rest."""
         reset = reset or self._pending_reset
         if "depth" not in self.spec.inputs:
-            return self._color_frame(color, reset)
+            return self._color_frame(color, jitter if "jitter" in self.spec.inputs
+                                     else (0.0, 0.0), reset)
         if isinstance(color, np.ndarray) and color.ndim == 3:
             # before validate_frame, whose shape error would not say that a reset is missing
             self._check_render_size(color.shape[:2], reset)
@@ -431,16 +432,17 @@ class MethodUpscaler:
                               sanitize=self.sanitize, depth_inverted=self.depth_inverted,
                               values=not self.VALUES_ON_DEVICE)
 
-    def _color_frame(self, color, reset):
-        """For a method that reads the colour alone: validate_frame's dict, the colour
-        checked as the contract says and the render size held to the sequence's."""
+    def _color_frame(self, color, jitter, reset):
+        """For a method that reads the colour (and perhaps the jitter) alone:
+        validate_frame's dict, the colour and jitter checked as the contract says and the
+        render size held to the sequence's."""
         color = np.asarray(color)
         if color.ndim == 3:
             self._check_render_size(color.shape[:2], reset)
         h, w = color.shape[:2] if color.ndim >= 2 else (0, 0)
         # placeholders for the inputs such a method does not read
         return validate_frame(color, np.zeros((h, w), np.float32),
-                              np.zeros((h, w, 2), np.float32), (0.0, 0.0),
+                              np.zeros((h, w, 2), np.float32), jitter,
                               sanitize=self.sanitize)
 
     def _host_frame_hook(self, frame, gbuffers, extra):

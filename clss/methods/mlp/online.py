@@ -12,6 +12,11 @@ learning rate `lr`, no decay (a stream has no end to decay towards).
 
 Training runs in fp32 whatever the frame step's precision: in fp16 storage mode the frame
 step reads a half-rounded copy of the weights, refreshed after each step.
+
+A network with the jitter input (transform.JITTER_KEY) trains with each frame's jitter
+term in fc1's bias (a copy of the weights that the forward and backward read); Adam then
+updates the bias itself. The jitter weights are not trained online: the stream's jitter
+is a short cycle of the same few offsets, which the bias already learns per frame.
 """
 from __future__ import annotations
 
@@ -41,7 +46,7 @@ class OnlineTrainer:
     updated in place."""
 
     def __init__(self, dev, scale, feature, weights, *, lr=DEFAULT_LR, batch=DEFAULT_BATCH,
-                 steps=DEFAULT_STEPS, seed=0, nits=None):
+                 steps=DEFAULT_STEPS, seed=0, nits=None, jitter_weight=None):
         from .mlp_upscale import WEIGHT_COUNT
         from ...pipeline.contract import PQ_NITS
         self.dev, self.s, self.feature = dev, tf.check_scale(scale), bool(feature)
@@ -50,6 +55,8 @@ class OnlineTrainer:
             raise ValueError("online training: batch and steps must be at least 1")
         self.nits = PQ_NITS if nits is None else nits
         self.weights = weights
+        self.jitter_weight = jitter_weight      # [50, 2] of a jitter-input network, or None
+        self.jittered = None                    # the weights with a frame's jitter term
         self.m = dev.to_device(np.zeros(WEIGHT_COUNT, np.float32))
         self.v = dev.to_device(np.zeros(WEIGHT_COUNT, np.float32))
         self.t = 0
@@ -105,29 +112,46 @@ class OnlineTrainer:
         tb.ref.set(np.ascontiguousarray(ref, np.float32))
         return tb
 
-    def gradients(self, defines):
+    def _forward_weights(self, jitter):
+        """The weights the forward and backward read: the master, or with the jitter
+        input a copy whose fc1 bias holds the frame's jitter term."""
+        if self.jitter_weight is None:
+            return self.weights
+        import pyopencl as cl
+        if self.jittered is None:
+            self.jittered = self.weights.copy()
+        else:
+            cl.enqueue_copy(self.dev.queue, self.jittered.data, self.weights.data)
+        off, n = tf.bias_offset(), tf.WIDTHS[1]
+        b = self.weights[off:off + n].get()
+        self.jittered[off:off + n].set(tf.jitter_bias(
+            {"fc1.bias": b, tf.JITTER_KEY: self.jitter_weight}, jitter))
+        return self.jittered
+
+    def gradients(self, defines, jitter=(0.0, 0.0)):
         """Forward, loss and backward on the loaded batch: (gradient buffer, L1 loss)."""
         from .mlp_train import forward_backward
         tb = self._buffers(defines)
-        g = forward_backward(self.dev, tb, self.weights, self.defines)
+        g = forward_backward(self.dev, tb, self._forward_weights(jitter), self.defines)
         loss = float(np.abs(tb.diff.get()).mean())
         return g, loss
 
-    def step(self, defines):
+    def step(self, defines, jitter=(0.0, 0.0)):
         """One optimiser step on the loaded batch; returns its loss (before the step)."""
         from .mlp_train import adam
-        g, loss = self.gradients(defines)
+        g, loss = self.gradients(defines, jitter)
         self.t += 1
         adam(self.dev, self.weights, g, self.m, self.v, self.t, self.lr)
         return loss
 
-    def train_frame(self, color, depth_hr, reference, defines, exposure=1.0, frame=None):
+    def train_frame(self, color, depth_hr, reference, defines, exposure=1.0, frame=None,
+                    jitter=(0.0, 0.0)):
         """`steps` steps, each on a fresh batch of this frame's patches; the mean loss."""
         losses = []
         prepared = self.prepare(color, depth_hr, reference, exposure)
         for _ in range(self.steps):
             self.load(*self.cut(prepared), defines)
-            losses.append(self.step(defines))
+            losses.append(self.step(defines, jitter))
         loss = float(np.mean(losses))
         self.history.append((frame, loss))
         return loss

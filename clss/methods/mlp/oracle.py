@@ -6,7 +6,8 @@ as mlp_upscale.cl, written with ONNX nodes from transform.py's constants.
     depth_hr [H, W] -> edge pad (1, 1, 4-s, 4-s) -> Conv (one-hot, stride s) -> the 5x5
     output-res neighbourhoods [1, 25, h, w] -> minus their mean -> ramp (zeros in the
     ablation);
-    concat [3, 50, h, w] -> Conv 1x1 + LeakyRelu, Conv 1x1 + LeakyRelu, Conv 1x1 (the
+    concat [3, 50, h, w] -> Conv 1x1 (its bias plus fcj.weight @ jitter with the jitter
+    input) + LeakyRelu, Conv 1x1 + LeakyRelu, Conv 1x1 (the
     first B*B units) -> inverse ramp + mean = blocks [3, B*B, h, w];
     ConvTranspose (one-hot B x B, stride s) of the blocks / of ones = sums / counts ->
     crop the one-pixel ring -> mean -> PQ decode -> [H, W, 3].
@@ -51,8 +52,10 @@ def _dc_ramp(g, taps):
     return m, _ramp(g, g.sub(taps, m))
 
 
-def add_blocks(g, color, feat, tensors, render_size, scale, feature=True, nits=PQ_NITS):
-    """Nodes from color [h, w, 3] linear (and feat [H, W]) to blocks [3, B*B, h, w]."""
+def add_blocks(g, color, feat, tensors, render_size, scale, feature=True, nits=PQ_NITS,
+               jitter=None):
+    """Nodes from color [h, w, 3] linear (and feat [H, W]) to blocks [3, B*B, h, w];
+    `jitter` ([2]) feeds the jitter input of a network that has one."""
     h, w = render_size
     s, b = tf.check_scale(scale), tf.block(scale)
     t = tf.check_weights(tensors)
@@ -74,7 +77,13 @@ def add_blocks(g, color, feat, tensors, render_size, scale, feature=True, nits=P
         wt, bias = t[f"{name}.weight"], t[f"{name}.bias"]
         if k == len(tf.LAYER_NAMES) - 1:
             wt, bias = wt[:b * b], bias[:b * b]        # the units the block uses
-        y = g.op("Conv", y, g.const(wt[:, :, None, None]), g.const(bias))
+        if k == 0 and tf.has_jitter(t):
+            # fc1 also sees the frame's jitter: its bias plus JITTER_KEY @ jitter
+            bias = g.add(g.const(bias), g.op("MatMul", g.const(t[tf.JITTER_KEY]), jitter))
+            y = g.add(g.op("Conv", y, g.const(wt[:, :, None, None])),
+                      g.reshape(bias, [1, tf.WIDTHS[1], 1, 1]))
+        else:
+            y = g.op("Conv", y, g.const(wt[:, :, None, None]), g.const(bias))
         if tf.ACTS[k] == "leaky_relu":
             y = g.op("LeakyRelu", y, alpha=tf.LEAKY_ALPHA)
     return g.add(m, _ramp_inv(g, y))
@@ -107,13 +116,17 @@ _vi = value_info
 
 
 def build_graph(render_size, scale, tensors, feature=True, nits=PQ_NITS) -> onnx.ModelProto:
-    """color [h, w, 3] (+ depth_hr [H, W] with the feature pass) -> output [H, W, 3]."""
+    """color [h, w, 3] (+ depth_hr [H, W] with the feature pass, + jitter [2] with the
+    jitter input) -> output [H, W, 3]."""
     h, w = render_size
     s = tf.check_scale(scale)
     g = GraphBuilder(OPSET)
-    blk = add_blocks(g, "color", "depth_hr", tensors, render_size, s, feature, nits)
+    jit = tf.has_jitter(tensors)
+    blk = add_blocks(g, "color", "depth_hr", tensors, render_size, s, feature, nits,
+                     jitter="jitter" if jit else None)
     add_fold(g, blk, render_size, s, nits)
-    inputs = [_vi("color", (h, w, 3))] + ([_vi("depth_hr", (s * h, s * w))] if feature else [])
+    inputs = [_vi("color", (h, w, 3))] + ([_vi("depth_hr", (s * h, s * w))] if feature else []) \
+        + ([_vi("jitter", (2,))] if jit else [])
     return _model(g, inputs, [_vi("output", (s * h, s * w, 3))], "mlp_frame")
 
 
@@ -172,6 +185,7 @@ class OracleMlp:
         tensors, _ = tf.load_weights(weights, feature=self.feature, scale=self.scale)
         if precision != "fp32":
             tensors = {k: v.astype(np.float16).astype(np.float32) for k, v in tensors.items()}
+        self.jitter = tf.has_jitter(tensors)
         self.model = build_graph(self.render_size, self.scale, tensors, self.feature)
         self.session = ort.InferenceSession(self.model.SerializeToString(),
                                             providers=["CPUExecutionProvider"])
@@ -180,8 +194,10 @@ class OracleMlp:
              depth_hr=None, **unused):
         h, w = self.render_size
         f = validate_frame(color, np.zeros((h, w), np.float32), np.zeros((h, w, 2), np.float32),
-                           (0.0, 0.0), render_size=self.render_size)
+                           jitter, render_size=self.render_size)
         feeds = {"color": f["color"] * np.float32(1.0 / self.exposure)}
+        if self.jitter:
+            feeds["jitter"] = np.asarray(f["jitter"], np.float32).reshape(2)
         if self.feature:
             feeds["depth_hr"] = np.ascontiguousarray(np.asarray(depth_hr, np.float32).reshape(
                 self.scale * h, self.scale * w))

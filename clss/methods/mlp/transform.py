@@ -49,6 +49,12 @@ GAMMA = 2.0
 EPS = 1e-3
 EPS_ROOT = EPS ** (1.0 / GAMMA)
 LAYER_NAMES = ("fc1", "fc2", "fc3")
+# The optional jitter input (issue 31): fc1 also sees the frame's jitter (jx, jy), render
+# pixels, through JITTER_KEY [50, 2] (no bias). The jitter is one pair per frame, so its
+# term is a per-frame constant of fc1's pre-activation: the engine adds JITTER_KEY @ jitter
+# to fc1's bias on the host (jitter_bias) and the kernels' layout stays as it is. Files
+# without the key ignore the jitter, as the seed does.
+JITTER_KEY = "fcj.weight"
 
 
 def check_scale(scale) -> int:
@@ -124,22 +130,47 @@ def init_weights(seed=0) -> dict:
 
 
 def check_weights(tensors: dict, where="weights") -> dict:
-    """{fc1.weight [50,50], fc1.bias [50], ..., fc3.weight [25,50], fc3.bias [25]} as
-    float32, or a ValueError naming the file and tensor."""
-    out = {}
+    """{fc1.weight [50,50], fc1.bias [50], ..., fc3.weight [25,50], fc3.bias [25]} (and,
+    optionally, the jitter input JITTER_KEY [50, 2]) as float32, or a ValueError naming the
+    file and tensor."""
+    want = {}
     for k, name in enumerate(LAYER_NAMES):
-        want = {f"{name}.weight": (WIDTHS[k + 1], WIDTHS[k]), f"{name}.bias": (WIDTHS[k + 1],)}
-        for key, shape in want.items():
-            if key not in tensors:
-                raise ValueError(f"{where}: no tensor {key!r} (the mlp method's weights are "
-                                 f"{', '.join(f'{n}.weight/bias' for n in LAYER_NAMES)})")
-            a = np.asarray(tensors[key], np.float32)
-            if a.shape != shape:
-                raise ValueError(f"{where}: {key} has shape {a.shape}, expected {shape}")
-            if not np.all(np.isfinite(a)):
-                raise ValueError(f"{where}: {key} holds non-finite values")
-            out[key] = np.ascontiguousarray(a)
+        want[f"{name}.weight"] = (WIDTHS[k + 1], WIDTHS[k])
+        want[f"{name}.bias"] = (WIDTHS[k + 1],)
+    if JITTER_KEY in tensors:
+        want[JITTER_KEY] = (WIDTHS[1], 2)
+    out = {}
+    for key, shape in want.items():
+        if key not in tensors:
+            raise ValueError(f"{where}: no tensor {key!r} (the mlp method's weights are "
+                             f"{', '.join(f'{n}.weight/bias' for n in LAYER_NAMES)})")
+        a = np.asarray(tensors[key], np.float32)
+        if a.shape != shape:
+            raise ValueError(f"{where}: {key} has shape {a.shape}, expected {shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{where}: {key} holds non-finite values")
+        out[key] = np.ascontiguousarray(a)
     return out
+
+
+def has_jitter(tensors: dict) -> bool:
+    """Whether the network takes the frame's jitter (JITTER_KEY)."""
+    return JITTER_KEY in tensors
+
+
+def jitter_bias(tensors: dict, jitter) -> np.ndarray:
+    """fc1's bias for a frame with `jitter` (jx, jy): fc1.bias + JITTER_KEY @ jitter, float32
+    (fc1.bias itself for a network without the jitter input)."""
+    b = np.asarray(tensors["fc1.bias"], np.float32)
+    if JITTER_KEY not in tensors:
+        return b
+    j = np.asarray(jitter, np.float32).reshape(2)
+    return (b + np.asarray(tensors[JITTER_KEY], np.float32) @ j).astype(np.float32)
+
+
+def bias_offset() -> int:
+    """Where fc1's bias starts in packed()."""
+    return WIDTHS[1] * WIDTHS[0]
 
 
 def load_weights(weights=None, feature=True, scale=2):
@@ -174,7 +205,8 @@ def save_weights(tensors: dict, path, metadata=None):
 
 
 def packed(tensors: dict) -> np.ndarray:
-    """The kernel's weight buffer: per layer W [out][in] row-major, then b [out]."""
+    """The kernel's weight buffer: per layer W [out][in] row-major, then b [out] (the
+    jitter input is not in it: jitter_bias goes into fc1's b per frame)."""
     t = check_weights(tensors)
     return np.concatenate([t[f"{n}.{p}"].reshape(-1) for n in LAYER_NAMES
                            for p in ("weight", "bias")]).astype(np.float32)

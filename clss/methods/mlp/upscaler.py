@@ -13,8 +13,9 @@ methods "mlp" (beauty + the depth feature pass at output resolution) and "mlp-no
     loss = up.train_step(color, full_res, depth_hr=depth_hr)       # trains only
     up.save_weights("learnt.safetensors")
 
-Not temporal: each frame is upscaled on its own (depth, motion and jitter are accepted,
-as the contract's step, and not used). The frame step
+Not temporal: each frame is upscaled on its own (depth and motion are accepted, as the
+contract's step, and not used; the jitter is used by a network with the jitter input,
+transform.JITTER_KEY, the shipped "mlp" generalists). The frame step
 (mlp_upscale.cl in this room, launched by its mlp_upscale.frame): a PQ pass and one kernel
 that runs the MLP as a GEMM over render pixels and writes each output pixel once, the
 overlapping blocks averaged in registers (the fast path, self-checked); its reference is
@@ -99,36 +100,69 @@ class MlpUpscaler(MethodUpscaler):
             self.tensors, self.trained = tf.load_weights(weights)
         self.defines = tf.kernel_defines(self.s, self.feature)
         self.pq_scale, self.inv_pq_scale = tf.pq_scales(PQ_NITS)
-        from .mlp_upscale import pack_weights
-        self._w = pack_weights(self.dev, self.precision, tf.packed(self.tensors))
         self.online = None
         self.last_loss = None
+        self._pack()
         if online:
             from . import online as ol
-            # the fp32 master weights; in fp32 the frame step reads them in place
-            master = self._w if self.precision == "fp32" else \
+            # the fp32 master weights; in fp32 the frame step reads them in place, unless
+            # the network takes the jitter (the frame step's fc1 bias then holds the
+            # frame's jitter term, the master the bias itself)
+            master = self._w if self._w_is_master() else \
                 self.dev.to_device(tf.packed(self.tensors), "fp32")
             self.online = ol.OnlineTrainer(
                 self.dev, self.s, self.feature, master,
                 lr=ol.DEFAULT_LR if online_lr is None else online_lr,
                 batch=ol.DEFAULT_BATCH if online_batch is None else online_batch,
                 steps=ol.DEFAULT_STEPS if online_steps is None else online_steps,
-                seed=online_seed)
+                seed=online_seed, jitter_weight=self.tensors.get(tf.JITTER_KEY))
+
+    def _w_is_master(self):
+        return self.precision == "fp32" and not tf.has_jitter(self.tensors)
+
+    def _pack(self):
+        """The frame step's weights buffer from self.tensors (half-rounded in fp16 storage
+        mode); with the jitter input, the tensors it was packed from, the jitter term
+        added to fc1's bias per frame (_frame_weights)."""
+        from .mlp_upscale import pack_weights
+        self._w = pack_weights(self.dev, self.precision, tf.packed(self.tensors))
+        self._w_tensors = {k: (v if self.precision == "fp32" else
+                               v.astype(np.float16).astype(np.float32))
+                           for k, v in self.tensors.items()}
+        self._w_jitter = None          # the jitter whose term fc1's bias holds now
+
+    def _frame_weights(self, jitter):
+        """The weights buffer for a frame with `jitter`: with the jitter input, fc1's bias
+        rewritten as transform.jitter_bias (50 floats, where the jitter changed)."""
+        if tf.has_jitter(self.tensors):
+            j = tuple(float(v) for v in jitter)
+            if j != self._w_jitter:
+                import pyopencl as cl
+                b = tf.jitter_bias(self._w_tensors, j)
+                # in queue order: after the frames that read the previous bias (the
+                # event holds `b` until the copy is done)
+                cl.enqueue_copy(self.dev.queue, self._w.base_data, b, is_blocking=False,
+                                dst_offset=self._w.offset + 4 * tf.bias_offset())
+                self._w_jitter = j
+        return self._w
 
     def set_weights(self, tensors):
         """Swap the network (a dict of arrays); the next frame uses it."""
-        from .mlp_upscale import pack_weights
         self.tensors = tf.check_weights(tensors)
         if self.online is not None:
             self.online.weights.set(tf.packed(self.tensors))
-            if self.precision == "fp32":
+            self.online.jitter_weight = self.tensors.get(tf.JITTER_KEY)
+            if self._w_is_master():
+                self._w = self.online.weights
                 return
-        self._w = pack_weights(self.dev, self.precision, tf.packed(self.tensors))
+        self._pack()
 
     # ---- online training (online.py) ------------------------------------------------------
-    def train_step(self, color, reference, depth_hr=None, **unused) -> float:
+    def train_step(self, color, reference, depth_hr=None, jitter=(0.0, 0.0), **unused) -> float:
         """Train on one frame with its full-resolution reference (online=True): `steps`
-        forward/backward/Adam steps on the device; returns the mean L1 loss (PQ)."""
+        forward/backward/Adam steps on the device; returns the mean L1 loss (PQ). The
+        jitter matters to a network with the jitter input (its jitter weights stay as
+        they are; fc1's bias learns)."""
         if self.online is None:
             raise ValueError("train_step: this upscaler was made without online=True")
         color = np.asarray(color, np.float32)
@@ -136,16 +170,22 @@ class MlpUpscaler(MethodUpscaler):
             h, w = color.shape[:2]
             self._gbuffers({}, (h, w), output_size(h, w, self.s))   # the named error
         loss = self.online.train_frame(color, depth_hr, reference, self.defines,
-                                       exposure=self.exposure, frame=self.frame_index)
-        if self.precision != "fp32":       # the frame step's half-rounded copy
-            from .mlp_upscale import pack_weights
-            self._w = pack_weights(self.dev, self.precision, self.online.weights.get())
+                                       exposure=self.exposure, frame=self.frame_index,
+                                       jitter=jitter)
+        if not self._w_is_master():       # the frame step's own copy
+            self.tensors = self.learnt_tensors()
+            self._pack()
         self.trained = True
         return loss
 
     def learnt_tensors(self) -> dict:
         """The weights the frame step runs now (online: as learnt so far)."""
-        return self.online.tensors() if self.online is not None else dict(self.tensors)
+        if self.online is None:
+            return dict(self.tensors)
+        t = self.online.tensors()
+        if tf.has_jitter(self.tensors):
+            t[tf.JITTER_KEY] = self.tensors[tf.JITTER_KEY]
+        return t
 
     def save_weights(self, path, metadata=None):
         """The current weights as an mlp .safetensors (the format --weights reads)."""
@@ -166,7 +206,8 @@ class MlpUpscaler(MethodUpscaler):
         reference = extra.get("reference")
         if self.online is not None and reference is not None:
             self.last_loss = self.train_step(frame["color"], reference,
-                                             gbuffers.get("depth_hr") if self.feature else None)
+                                             gbuffers.get("depth_hr") if self.feature else None,
+                                             jitter=frame["jitter"])
 
     def _enqueue(self, fs, arrays, jitter, out):
         import pyopencl as cl
@@ -187,14 +228,15 @@ class MlpUpscaler(MethodUpscaler):
         if fused and fs.pq is None:
             fs.pq = fs.dev.empty((3, fs.h, fs.w), "fp32")
         ev = [] if self.profile else None
+        wts = self._frame_weights(jitter)
         kw = dict(exposure=self.exposure, pq_scale=self.pq_scale,
                   inv_pq_scale=self.inv_pq_scale, blk=fs.blocks, pq=fs.pq, fused=fused,
                   events=ev)
         if fs.out32 is None:
-            res = ops.frame(self.dev, self.precision, color, feat, self._w, self.defines,
+            res = ops.frame(self.dev, self.precision, color, feat, wts, self.defines,
                             out=fs.out if out is None else out, **kw)
         else:
-            ops.frame(self.dev, self.precision, color, feat, self._w, self.defines,
+            ops.frame(self.dev, self.precision, color, feat, wts, self.defines,
                       out=fs.out, **kw)
             res = convert_storage(fs.out, np.float32, out=fs.out32 if out is None else out)
         if ev:
@@ -209,7 +251,7 @@ SPECS = {
         "mlp", "shader MLP",
         "per-pixel 50-50-50-25 MLP on the 5x5 beauty and 5x5 output-res depth "
         "neighbourhoods (Spencer 2022)",
-        functools.partial(MlpUpscaler, feature=True), inputs=("color",),
+        functools.partial(MlpUpscaler, feature=True), inputs=("color", "jitter"),
         gbuffers=("depth_hr",), scales=(2.0, 3.0), precisions=("fp32", "fp16"),
         temporal=False, doc="docs/methods/mlp.md", twin="clss.methods.mlp.oracle:twin",
         shipped=tuple((float(s), tf.shipped_name(True, s)) for s in tf.SCALES),

@@ -40,6 +40,9 @@ def add_arguments(p):
     p.add_argument("--no-feature", action="store_true",
                    help="the ablation: feature inputs zeroed (method mlp-nofeature)")
     p.add_argument("--init", default=None, help="start from these weights (.safetensors)")
+    p.add_argument("--jitter", action="store_true",
+                   help="give fc1 the frame's jitter as two more inputs (zero-initialised "
+                   "from an --init file without them; kept from one with them)")
     p.add_argument("--score", action="store_true",
                    help="with --scene: score the second half (PSNR) against bicubic")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -58,7 +61,9 @@ def _prepare(seqs, feature):
         f = torch.from_numpy(np.asarray(s["depth_hr"], np.float32)[:, None].copy()) \
             if feature else None
         integ = gradient_integral(r.numpy().transpose(0, 2, 3, 1))
-        return {"color": c, "ref": r, "feat": f, "integ": integ, "name": s["name"]}
+        j = torch.from_numpy(np.asarray(s["jitter"], np.float32).reshape(-1, 2)) \
+            if "jitter" in s else torch.zeros(c.shape[0], 2)
+        return {"color": c, "ref": r, "feat": f, "integ": integ, "name": s["name"], "jitter": j}
     return per_sequence(seqs, one)
 
 
@@ -82,7 +87,7 @@ class Sampler:
 
     def batch(self, n):
         import torch
-        cs, fs, rs = [], [], []
+        cs, fs, rs, js = [], [], [], []
         s, size = self.s, PATCH + 2 * MARGIN
         while len(cs) < n:
             k, t, i0, j0 = self.rule.draw()
@@ -92,18 +97,21 @@ class Sampler:
                 fs.append(d["feat"][t, :, s * i0:s * (i0 + size), s * j0:s * (j0 + size)])
             y0, x0 = s * (i0 + MARGIN), s * (j0 + MARGIN)
             rs.append(d["ref"][t, :, y0:y0 + s * PATCH, x0:x0 + s * PATCH])
-        return torch.stack(cs), (torch.stack(fs) if fs else None), torch.stack(rs)
+            js.append(d["jitter"][t])
+        return torch.stack(cs), (torch.stack(fs) if fs else None), torch.stack(rs), \
+            torch.stack(js)
 
 
 def train(run, data_seqs, frames, scale, *, feature=True, steps=3000, batch=32, lr=2e-3,
-          seed=0, init=None):
+          seed=0, init=None, jitter=False):
     """The recipe on `run` (a trainloop.Run): the network, the patches and the L1 loss.
-    Returns the trained tensors. `frames[k]` = (first, end) frame range of sequence k."""
+    Returns the trained tensors. `frames[k]` = (first, end) frame range of sequence k;
+    jitter: the network takes each frame's jitter (transform.JITTER_KEY)."""
     from clss.methods.mlp import transform as tf
     from weights_tools.trainloop import l1
     from .twin import MlpNet
     data = _prepare(data_seqs, feature)
-    net = MlpNet(scale, feature, tf.load_weights(init)[0] if init else None)
+    net = MlpNet(scale, feature, tf.load_weights(init)[0] if init else None, jitter=jitter)
     if init is None:       # trainable from the start: small random output layer
         g = np.random.default_rng(seed)
         t = tf.init_weights(seed)
@@ -114,8 +122,8 @@ def train(run, data_seqs, frames, scale, *, feature=True, steps=3000, batch=32, 
     s, m = scale, MARGIN
 
     def loss(it):
-        c, f, r = sampler.batch(batch)
-        out = net(c, f)[..., s * m:s * (m + PATCH), s * m:s * (m + PATCH)]
+        c, f, r, j = sampler.batch(batch)
+        out = net(c, f, j)[..., s * m:s * (m + PATCH), s * m:s * (m + PATCH)]
         return l1(out, r), {}
 
     run.fit("mlp", net.parameters(), lr=lr, steps=steps, loss=loss,
@@ -148,7 +156,9 @@ def cmd_train(a):
     from clss.methods.mlp import transform as tf
     from weights_tools.trainloop import Run, TrainError, fmt_s, load_sequences
     feature = not a.no_feature
-    need = ["color", "reference", "depth", "scale"] + (["depth_hr"] if feature else [])
+    need = ["color", "reference", "depth", "scale"] + (["depth_hr"] if feature else []) \
+        + (["jitter"] if a.jitter else [])
+    opt = () if a.jitter else ("jitter",)      # zeros where a sequence has none
     try:
         if (a.data is None) == (a.scene is None):
             raise TrainError("give --data DIR (generalist) or --scene SEQ.npz (per scene)")
@@ -159,12 +169,12 @@ def cmd_train(a):
             import tempfile
             tmp = tempfile.mkdtemp()
             shutil.copy(a.scene, tmp)
-            seqs = load_sequences(tmp, 2, need)
+            seqs = load_sequences(tmp, 2, need, optional=opt)
             shutil.rmtree(tmp)
             T = seqs[0]["color"].shape[0]
             frames = [(0, T // 2)]
         else:
-            seqs = load_sequences(a.data, 1, need)
+            seqs = load_sequences(a.data, 1, need, optional=opt)
             frames = [(0, s["color"].shape[0]) for s in seqs]
         scale = seqs[0]["scale"]
         if scale not in tf.SCALES:
@@ -178,9 +188,10 @@ def cmd_train(a):
         return 2
     run = Run(a, ("mlp",), quiet=a.quiet)
     tensors = train(run, seqs, frames, scale, feature=feature, steps=a.steps, batch=a.batch,
-                    lr=a.lr, seed=a.seed, init=a.init)
+                    lr=a.lr, seed=a.seed, init=a.init, jitter=a.jitter)
     path = os.path.join(a.out, "mlp.safetensors")
     meta = {"recipe": "weights_tools/methods/mlp/recipe.py", "scale": scale, "feature": feature,
+            "jitter": tf.has_jitter(tensors),
             "steps": a.steps, "batch": a.batch, "lr": a.lr, "seed": a.seed,
             "data": (os.path.basename(os.path.normpath(a.scene or a.data)) if "," not in
                      str(a.data) else a.data),     # a mix: its directories and shares

@@ -6,6 +6,8 @@ to the OpenCL step.
 
     net = MlpNet(scale=2)                    # parameters fc1/fc2/fc3 = the safetensors keys
     out_pq = net(color_pq, depth_hr)         # [N,3,h,w] PQ, [N,1,H,W] -> [N,3,H,W] PQ
+    net = MlpNet(scale=2, jitter=True)       # + fcj: the jitter input (transform.JITTER_KEY)
+    out_pq = net(color_pq, depth_hr, jitter) # jitter [N, 2], render pixels
     net.tensors()                            # {name: numpy} for transform.save_weights
 """
 from __future__ import annotations
@@ -20,18 +22,26 @@ from clss.pipeline.contract import PQ_NITS, pq_decode, pq_encode
 
 
 class MlpNet(nn.Module):
-    def __init__(self, scale=2, feature=True, tensors=None):
+    def __init__(self, scale=2, feature=True, tensors=None, jitter=False):
+        """jitter: add the jitter input (zero-initialised where `tensors` lack it, so that
+        the network starts as the one it was loaded from); on by itself where they have it."""
         super().__init__()
         self.s, self.b = tf.check_scale(scale), tf.block(scale)
         self.feature = bool(feature)
         self.fc1 = nn.Linear(tf.WIDTHS[0], tf.WIDTHS[1])
         self.fc2 = nn.Linear(tf.WIDTHS[1], tf.WIDTHS[2])
         self.fc3 = nn.Linear(tf.WIDTHS[2], tf.WIDTHS[3])
+        self.fcj = None
+        if jitter or (tensors is not None and tf.has_jitter(tensors)):
+            self.fcj = nn.Linear(2, tf.WIDTHS[1], bias=False)
+            nn.init.zeros_(self.fcj.weight)
         self.load_tensors(tf.init_weights() if tensors is None else tensors)
 
     def load_tensors(self, tensors):
         t = tf.check_weights(tensors)
         with torch.no_grad():
+            if self.fcj is not None and tf.has_jitter(t):
+                self.fcj.weight.copy_(torch.from_numpy(t[tf.JITTER_KEY]))
             for name in tf.LAYER_NAMES:
                 getattr(self, name).weight.copy_(torch.from_numpy(t[f"{name}.weight"]))
                 getattr(self, name).bias.copy_(torch.from_numpy(t[f"{name}.bias"]))
@@ -58,10 +68,15 @@ class MlpNet(nn.Module):
             xf = torch.zeros_like(xb)
         return torch.cat([xb, xf], -1), m
 
-    def blocks(self, color_pq, feat):
-        """[N, 3, h, w, B*B]: each render pixel's output block, PQ domain."""
+    def blocks(self, color_pq, feat, jitter=None):
+        """[N, 3, h, w, B*B]: each render pixel's output block, PQ domain (jitter [N, 2]:
+        each frame's, for the jitter input)."""
         x, m = self.inputs(color_pq, feat)
-        y = F.leaky_relu(self.fc1(x), tf.LEAKY_ALPHA)
+        y = self.fc1(x)
+        if self.fcj is not None:
+            j = torch.zeros(x.shape[0], 2, dtype=x.dtype) if jitter is None else jitter
+            y = y + self.fcj(j.to(x.dtype))[:, None, None, None, :]
+        y = F.leaky_relu(y, tf.LEAKY_ALPHA)
         y = F.leaky_relu(self.fc2(y), tf.LEAKY_ALPHA)
         y = self.fc3(y)[..., :self.b * self.b]
         return m + tf.ramp_inv(y)
@@ -77,17 +92,18 @@ class MlpNet(nn.Module):
         counts = F.fold(ones, (H + 2, W + 2), b, stride=s)[..., 1:H + 1, 1:W + 1]
         return (sums / counts).reshape(n, c, H, W)
 
-    def forward(self, color_pq, feat=None):
-        return self.fold(self.blocks(color_pq, feat))
+    def forward(self, color_pq, feat=None, jitter=None):
+        return self.fold(self.blocks(color_pq, feat, jitter))
 
 
-def upscale(net: MlpNet, color, depth_hr=None, nits=PQ_NITS) -> np.ndarray:
-    """One frame as the engine's step: color [h, w, 3] linear (+ depth_hr [H, W]) ->
-    [H, W, 3] linear."""
+def upscale(net: MlpNet, color, depth_hr=None, jitter=(0.0, 0.0), nits=PQ_NITS) -> np.ndarray:
+    """One frame as the engine's step: color [h, w, 3] linear (+ depth_hr [H, W], the
+    frame's jitter) -> [H, W, 3] linear."""
     x = torch.from_numpy(pq_encode(color, nits).transpose(2, 0, 1)[None].copy())
     f = None
     if net.feature:
         f = torch.from_numpy(np.asarray(depth_hr, np.float32)[None, None].copy())
     with torch.no_grad():
-        y = net(x, f)[0].clamp(0, 1).numpy().transpose(1, 2, 0)
+        j = torch.tensor(np.asarray(jitter, np.float32).reshape(1, 2))
+        y = net(x, f, j)[0].clamp(0, 1).numpy().transpose(1, 2, 0)
     return pq_decode(y, nits)
