@@ -26,12 +26,17 @@ MLP_TIERS = {"1080p": (((540, 960), 2), ((360, 640), 3)),
 
 def bench_weights(seed=0) -> dict:
     """Trained-like weights: the seeded init with a non-zero output layer (the zero one
-    would make the inverse ramp's input exactly 0)."""
+    would make the inverse ramp's input exactly 0), and the jitter input the shipped
+    generalists have (transform.JITTER_KEY: fc1's bias per frame)."""
     from clss.methods.mlp import transform as tf
     g = np.random.default_rng(seed)
     t = tf.init_weights(seed)
     t["fc3.weight"] = (g.standard_normal((25, 50)) * 0.1).astype(np.float32)
+    t[tf.JITTER_KEY] = (g.standard_normal((50, 2)) * 0.1).astype(np.float32)
     return t
+
+
+JITTER = (0.25, -0.125)     # the bench frame's jitter
 
 
 def macs_per_render_pixel(scale) -> int:
@@ -67,10 +72,10 @@ def mlp_frame_case(render_size, scale: int, tier: str) -> BenchCase:
         # float32 in and out, as every method's step_device (fp16: converted on the device)
         c_d, f_d = dev.to_device(color), dev.to_device(dhr)
         out = dev.empty((H, W, 3))
-        up.step_device(c_d, depth_hr=f_d, out=out)      # builds outside the timed runs
+        up.step_device(c_d, depth_hr=f_d, jitter=JITTER, out=out)   # builds outside the timed runs
 
         def run():
-            up.step_device(c_d, depth_hr=f_d, out=out)
+            up.step_device(c_d, depth_hr=f_d, jitter=JITTER, out=out)
             return [out]
         twin = build_graph((h, w), scale, {k: (v.astype(np.float16).astype(np.float32)
                                               if prec != "fp32" else v) for k, v in wts.items()})
@@ -79,7 +84,8 @@ def mlp_frame_case(render_size, scale: int, tier: str) -> BenchCase:
         blocks = 3 * (scale + 2) ** 2 * h * w
         # the fused step moves the frame and the PQ planes once; the blocks go through
         # memory only on the reference pair (and onnxruntime)
-        return Setup(run, twin, {"color": color, "depth_hr": dhr}, NET_TOL[prec],
+        return Setup(run, twin, {"color": color, "depth_hr": dhr,
+                                 "jitter": np.asarray(JITTER, np.float32)}, NET_TOL[prec],
                      io + 2 * 3 * h * w * 4,
                      io * 4 // st + 2 * blocks * 4, out_index=0)
     return frame_bench_case("mlp", scale, tier, flops, build, (h, w), (H, W))
@@ -111,7 +117,7 @@ def measure(render_size=(540, 960), scale=2, prec="fp32", frames=3, ort=True, on
     from clss import selfcheck
     fast = int(selfcheck.defines(dev, prec, ops.FAST)["VEC"])
     def frame():
-        up.step_device(c_d, depth_hr=f_d, out=out)
+        up.step_device(c_d, depth_hr=f_d, jitter=JITTER, out=out)
         dev.queue.finish()
     frame()
     ms = median_ms(frame, frames)
@@ -121,7 +127,7 @@ def measure(render_size=(540, 960), scale=2, prec="fp32", frames=3, ort=True, on
         g = np.random.default_rng(1)
         ref = (g.random((H, W, 3)) ** 2 * 4).astype(np.float32)
         def train():
-            up.train_step(color, ref, depth_hr=dhr)
+            up.train_step(color, ref, depth_hr=dhr, jitter=JITTER)
             dev.queue.finish()
         train()                                           # builds
         res["online_step_ms"] = median_ms(train, frames)
@@ -130,8 +136,8 @@ def measure(render_size=(540, 960), scale=2, prec="fp32", frames=3, ort=True, on
     if ort:
         from clss.methods.mlp.oracle import OracleMlp
         o = OracleMlp((h, w), scale, weights=wts, precision=prec)
-        o.step(color, depth_hr=dhr)
-        res["ort_ms"] = median_ms(lambda: o.step(color, depth_hr=dhr), frames)
+        o.step(color, jitter=JITTER, depth_hr=dhr)
+        res["ort_ms"] = median_ms(lambda: o.step(color, jitter=JITTER, depth_hr=dhr), frames)
         res["speedup"] = res["ort_ms"] / res["ms"]
     return res
 
