@@ -231,17 +231,10 @@ train-mlp: $(STAMP) train-data $(BLENDER_TRAIN) $(BLENDER3_TRAIN)
 	    --steps $(MLP_STEPS) --quiet || exit 1; \
 	  $(BIN)/python -m weights_tools train mlp --data $(DATA)/mlp-train-x$$s --out $(OUT)/train-mlp/nofeature-x$$s \
 	    --steps $(MLP_ABLATION_STEPS) --no-feature --quiet || exit 1; \
-	  w=$(OUT)/train-mlp/x$$s/mlp.safetensors; \
-	  if [ $$s = 2 ]; then \
-	    $(BIN)/python -m weights_tools train mlp --data $(call mix,$(DATA)/train) --out $(OUT)/train-mlp/x2-mix \
-	      --steps $(MLP_MIX_STEPS) --lr 5e-4 --init $$w --quiet || exit 1; \
-	    w=$(OUT)/train-mlp/x2-mix/mlp.safetensors; \
-	  else \
-	    $(BIN)/python -m weights_tools train mlp --data $(call mix3,$(DATA)/mlp-train-x$$s) --out $(OUT)/train-mlp/x$$s-mix \
-	      --steps $(MLP_MIX_STEPS) --lr 5e-4 --init $$w --quiet || exit 1; \
-	    w=$(OUT)/train-mlp/x$$s-mix/mlp.safetensors; \
-	  fi; \
 	  if [ $$s = 2 ]; then mx="$(call mix,$(DATA)/train)"; else mx="$(call mix3,$(DATA)/mlp-train-x$$s)"; fi; \
+	  $(BIN)/python -m weights_tools train mlp --data $$mx --out $(OUT)/train-mlp/x$$s-mix \
+	    --steps $(MLP_MIX_STEPS) --lr 5e-4 --init $(OUT)/train-mlp/x$$s/mlp.safetensors --quiet || exit 1; \
+	  w=$(OUT)/train-mlp/x$$s-mix/mlp.safetensors; \
 	  $(BIN)/python -m weights_tools train mlp --data $$mx --out $(OUT)/train-mlp/x$$s-jitter \
 	    --steps $(MLP_JITTER_STEPS) --lr 5e-4 --init $$w --jitter --quiet || exit 1; \
 	  w=$(OUT)/train-mlp/x$$s-jitter/mlp.safetensors; \

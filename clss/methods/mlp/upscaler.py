@@ -122,13 +122,13 @@ class MlpUpscaler(MethodUpscaler):
 
     def _pack(self):
         """The frame step's weights buffer from self.tensors (half-rounded in fp16 storage
-        mode); with the jitter input, the tensors it was packed from, the jitter term
-        added to fc1's bias per frame (_frame_weights)."""
+        mode); with the jitter input, fc1's bias and the jitter weights as packed (the
+        same rounding), from which _frame_weights writes the frame's bias."""
         from .mlp_upscale import pack_weights
         self._w = pack_weights(self.dev, self.precision, tf.packed(self.tensors))
-        self._w_tensors = {k: (v if self.precision == "fp32" else
-                               v.astype(np.float16).astype(np.float32))
-                           for k, v in self.tensors.items()}
+        keys = ("fc1.bias", tf.JITTER_KEY) if tf.has_jitter(self.tensors) else ()
+        self._w_bias = {k: (self.tensors[k] if self.precision == "fp32" else
+                            self.tensors[k].astype(np.float16).astype(np.float32)) for k in keys}
         self._w_jitter = None          # the jitter whose term fc1's bias holds now
 
     def _frame_weights(self, jitter):
@@ -138,7 +138,7 @@ class MlpUpscaler(MethodUpscaler):
             j = tuple(float(v) for v in jitter)
             if j != self._w_jitter:
                 import pyopencl as cl
-                b = tf.jitter_bias(self._w_tensors, j)
+                b = tf.jitter_bias(self._w_bias, j)
                 # in queue order: after the frames that read the previous bias (the
                 # event holds `b` until the copy is done)
                 cl.enqueue_copy(self.dev.queue, self._w.base_data, b, is_blocking=False,
