@@ -45,6 +45,12 @@ demo: $(STAMP)
 # ($(DATA)/validation, else the float16 copies in weights_tools/validation);
 # EVAL_ARGS passes options (e.g. EVAL_ARGS="--methods jbicubic,rules --precision fp16").
 DATA ?= $(OUT)/data
+# The training targets write the weights they ship into WEIGHTS (the package's own, unless
+# told otherwise: make train-smoke points it elsewhere). GEN_ARGS and TRAIN_ARGS append
+# options to every generator run and to every CLSS seed's training.
+WEIGHTS ?= clss/weights
+GEN_ARGS ?=
+TRAIN_ARGS ?=
 EVAL_SEQS ?= $(wildcard $(DATA)/heldout/*.npz) \
 	$(or $(wildcard $(DATA)/validation/*.npz),$(wildcard weights_tools/validation/*.npz))
 eval: $(STAMP)
@@ -81,9 +87,13 @@ oclgrind: $(STAMP)
 # that `make train` picks its seed on, and a held-out set (never trained or picked on), each
 # with its own seed. A few minutes on 2 cores; a finished set (READY) is kept.
 train-data: $(STAMP)
-	test -f $(DATA)/train/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train --sequences 96 --frames 12 --seed 0 --size 72x128
-	test -f $(DATA)/val/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/val --sequences 8 --frames 12 --seed 2000 --size 90x160
-	test -f $(DATA)/heldout/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/heldout --sequences 16 --frames 12 --seed 1000 --size 90x160
+	test -f $(DATA)/train/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train --sequences 96 --frames 12 --seed 0 --size 72x128 $(GEN_ARGS)
+	test -f $(DATA)/val/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/val --sequences 8 --frames 12 --seed 2000 --size 90x160 $(GEN_ARGS)
+	test -f $(DATA)/heldout/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/heldout --sequences 16 --frames 12 --seed 1000 --size 90x160 $(GEN_ARGS)
+# the 4x generated training set (NSRR and NSRD x4)
+TRAIN4 := $(DATA)/train4/READY
+$(TRAIN4): | $(STAMP)
+	$(BIN)/python -m weights_tools gen --out $(DATA)/train4 --sequences 24 --frames 12 --seed 100 --size 68x120 --scale 4 $(GEN_ARGS)
 
 # Blender training data (issue 31; weights_tools/blender/shards.py, the [data] extra: bpy and
 # ray): the six training families (BLENDER_SEQS sequences of BLENDER_FRAMES frames each),
@@ -200,12 +210,12 @@ $(TRAIN_STAMP): $(STAMP)
 
 train: train-data $(TRAIN_STAMP)
 	$(BIN)/python -m weights_tools seeds clss --data $(DATA)/train --out $(TRAIN_RUN) --seeds $(TRAIN_SEEDS) \
-		--jobs 2 --train "--threads 1" \
+		--jobs 2 --train "--threads 1 $(TRAIN_ARGS)" \
 		--score 'val=$(DATA)/val/*.npz' --score 'heldout=$(DATA)/heldout/*.npz' \
 		--score foliage=weights_tools/validation/foliage.npz \
 		--score interior=weights_tools/validation/interior.npz --pick val
-	mkdir -p clss/weights
-	cp $(TRAIN_RUN)/weights.safetensors clss/weights/clss_trained.safetensors
+	mkdir -p $(WEIGHTS)
+	cp $(TRAIN_RUN)/weights.safetensors $(WEIGHTS)/clss_trained.safetensors
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info .pytest_cache .hypothesis
@@ -223,24 +233,24 @@ MLP_MIX_STEPS ?= 2400
 # validation split, 28.47 dB after 2400 steps, 28.56 after 4800; about 10 minutes a scale).
 MLP_JITTER_STEPS ?= 4800
 .PHONY: train-mlp
-train-mlp: $(STAMP) train-data $(BLENDER_TRAIN) $(BLENDER3_TRAIN)
-	for s in $(MLP_SCALES); do \
-	  test -f $(DATA)/mlp-train-x$$s/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/mlp-train-x$$s \
-	    --sequences 32 --frames 12 --seed 0 --size 72x128 --scale $$s --quiet || exit 1; \
-	  $(BIN)/python -m weights_tools train mlp --data $(DATA)/mlp-train-x$$s --out $(OUT)/train-mlp/x$$s \
-	    --steps $(MLP_STEPS) --quiet || exit 1; \
-	  $(BIN)/python -m weights_tools train mlp --data $(DATA)/mlp-train-x$$s --out $(OUT)/train-mlp/nofeature-x$$s \
-	    --steps $(MLP_ABLATION_STEPS) --no-feature --quiet || exit 1; \
-	  if [ $$s = 2 ]; then mx="$(call mix,$(DATA)/train)"; else mx="$(call mix3,$(DATA)/mlp-train-x$$s)"; fi; \
-	  $(BIN)/python -m weights_tools train mlp --data $$mx --out $(OUT)/train-mlp/x$$s-mix \
-	    --steps $(MLP_MIX_STEPS) --lr 5e-4 --init $(OUT)/train-mlp/x$$s/mlp.safetensors --quiet || exit 1; \
-	  w=$(OUT)/train-mlp/x$$s-mix/mlp.safetensors; \
-	  $(BIN)/python -m weights_tools train mlp --data $$mx --out $(OUT)/train-mlp/x$$s-jitter \
-	    --steps $(MLP_JITTER_STEPS) --lr 5e-4 --init $$w --jitter --quiet || exit 1; \
-	  w=$(OUT)/train-mlp/x$$s-jitter/mlp.safetensors; \
-	  cp $$w clss/weights/mlp_generalist_x$$s.safetensors; \
-	  cp $(OUT)/train-mlp/nofeature-x$$s/mlp.safetensors clss/weights/mlp_nofeature_x$$s.safetensors; \
-	done
+train-mlp: $(addprefix train-mlp-x,$(MLP_SCALES))
+# each scale's mix: 2x on the generator's training set and the 2x Blender split, the
+# others on their own generated set and the 3x Blender split
+mlp_mix = $(if $(filter 2,$(1)),$(call mix,$(DATA)/train),$(call mix3,$(DATA)/mlp-train-x$(1)))
+train-mlp-x%: $(STAMP) train-data $(BLENDER_TRAIN) $(BLENDER3_TRAIN)
+	test -f $(DATA)/mlp-train-x$*/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/mlp-train-x$* \
+	  --sequences 32 --frames 12 --seed 0 --size 72x128 --scale $* --quiet $(GEN_ARGS)
+	$(BIN)/python -m weights_tools train mlp --data $(DATA)/mlp-train-x$* --out $(OUT)/train-mlp/x$* \
+	  --steps $(MLP_STEPS) --quiet
+	$(BIN)/python -m weights_tools train mlp --data $(DATA)/mlp-train-x$* --out $(OUT)/train-mlp/nofeature-x$* \
+	  --steps $(MLP_ABLATION_STEPS) --no-feature --quiet
+	$(BIN)/python -m weights_tools train mlp --data $(call mlp_mix,$*) --out $(OUT)/train-mlp/x$*-mix \
+	  --steps $(MLP_MIX_STEPS) --lr 5e-4 --init $(OUT)/train-mlp/x$*/mlp.safetensors --quiet
+	$(BIN)/python -m weights_tools train mlp --data $(call mlp_mix,$*) --out $(OUT)/train-mlp/x$*-jitter \
+	  --steps $(MLP_JITTER_STEPS) --lr 5e-4 --init $(OUT)/train-mlp/x$*-mix/mlp.safetensors --jitter --quiet
+	mkdir -p $(WEIGHTS)
+	cp $(OUT)/train-mlp/x$*-jitter/mlp.safetensors $(WEIGHTS)/mlp_generalist_x$*.safetensors
+	cp $(OUT)/train-mlp/nofeature-x$*/mlp.safetensors $(WEIGHTS)/mlp_nofeature_x$*.safetensors
 
 # NSRR (issue 20; docs/methods/nsrr.md): one network per scale, 1200 steps each on one
 # torch thread (34-39 minutes per scale on this 2-core machine while other jobs ran, about
@@ -253,16 +263,15 @@ NSRR_STEPS ?= 1200
 NSRR_MIX_STEPS ?= 1200
 NSRR_REJECT_STEPS ?= 600
 .PHONY: train-nsrr
-train-nsrr: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN)
-	test -f $(DATA)/train4/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train4 --sequences 24 --frames 12 --seed 100 --size 68x120 --scale 4
+train-nsrr: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN) $(TRAIN4)
 	$(BIN)/python -m weights_tools train nsrr --data $(DATA)/train4 --out $(OUT)/train-nsrr/x4 --steps $(NSRR_STEPS) --threads 1
 	$(BIN)/python -m weights_tools train nsrr --data $(DATA)/train --out $(OUT)/train-nsrr/x2 --steps $(NSRR_STEPS) --threads 1
 	$(BIN)/python -m weights_tools train nsrr --data $(call mix,$(DATA)/train) --out $(OUT)/train-nsrr/x2-mix --steps $(NSRR_MIX_STEPS) --lr 2.5e-4 --warmup 20 --threads 1 --init $(OUT)/train-nsrr/x2/weights.safetensors
 	$(BIN)/python -m weights_tools train nsrr --data $(call mix,$(DATA)/train) --out $(OUT)/train-nsrr/x2-reject --steps $(NSRR_REJECT_STEPS) --lr 2.5e-4 --warmup 20 --threads 2 --reject depth --init $(OUT)/train-nsrr/x2-mix/weights.safetensors
 	$(BIN)/python -m weights_tools train nsrr --data $(DATA)/train4 --out $(OUT)/train-nsrr/x4-reject --steps $(NSRR_REJECT_STEPS) --lr 2.5e-4 --warmup 20 --threads 2 --reject depth --init $(OUT)/train-nsrr/x4/weights.safetensors
-	mkdir -p clss/weights
-	cp $(OUT)/train-nsrr/x4-reject/weights.safetensors clss/weights/nsrr_x4.safetensors
-	cp $(OUT)/train-nsrr/x2-reject/weights.safetensors clss/weights/nsrr_x2.safetensors
+	mkdir -p $(WEIGHTS)
+	cp $(OUT)/train-nsrr/x4-reject/weights.safetensors $(WEIGHTS)/nsrr_x4.safetensors
+	cp $(OUT)/train-nsrr/x2-reject/weights.safetensors $(WEIGHTS)/nsrr_x2.safetensors
 
 # NSRD (issue 21; docs/methods/nsrd.md): one network per scale on one torch thread, x4 on
 # the 68x120 -> 272x480 sequences, x2 on the CLSS training set, both with G-buffers. Two
@@ -290,8 +299,7 @@ NSRD4_GUIDED_STEPS ?= 900
 NSRD_WIDE_STEPS ?= 1200
 NSRD_TRAIN = $(BIN)/python -m weights_tools train nsrd --patch 32 --threads 1
 .PHONY: train-nsrd
-train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN) $(BLENDER4_TRAIN) $(BLENDER6_TRAIN)
-	test -f $(DATA)/train4/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train4 --sequences 24 --frames 12 --seed 100 --size 68x120 --scale 4
+train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN) $(BLENDER4_TRAIN) $(BLENDER6_TRAIN) $(TRAIN4)
 	$(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4 --steps $(NSRD_STEPS)
 	$(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-lw --steps $(NSRD_FT_STEPS) --lr 1e-3 --remod learned --warp-state --init $(OUT)/train-nsrd/x4/weights.safetensors
 	$(NSRD_TRAIN) --data $(call mix4,$(DATA)/train4) --out $(OUT)/train-nsrd/x4-mix --steps $(NSRD4_MIX_STEPS) --lr 5e-4 --remod learned --warp-state --init $(OUT)/train-nsrd/x4-lw/weights.safetensors
@@ -301,9 +309,9 @@ train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN) $(BLENDER4_TRAIN) $(BLEND
 	$(NSRD_TRAIN) --data $(call mix4,$(DATA)/train4) --out $(OUT)/train-nsrd/x4-guided --steps $(NSRD4_GUIDED_STEPS) --lr 5e-4 --remod learned --warp-state --base guided --init $(OUT)/train-nsrd/x4-mix/weights.safetensors
 	$(NSRD_TRAIN) --data $(call mix,$(DATA)/train) --out $(OUT)/train-nsrd/x2-guided --steps $(NSRD_GUIDED_STEPS) --lr 5e-4 --remod learned --warp-state --base guided --init $(OUT)/train-nsrd/x2-mix/weights.safetensors
 	$(NSRD_TRAIN) --data $(call mix6,$(DATA)/train) --out $(OUT)/train-nsrd/x2-wide --steps $(NSRD_WIDE_STEPS) --lr 2.5e-4 --remod learned --warp-state --base guided --init $(OUT)/train-nsrd/x2-guided/weights.safetensors
-	mkdir -p clss/weights
-	cp $(OUT)/train-nsrd/x4-guided/weights.safetensors clss/weights/nsrd_x4.safetensors
-	cp $(OUT)/train-nsrd/x2-wide/weights.safetensors clss/weights/nsrd_x2.safetensors
+	mkdir -p $(WEIGHTS)
+	cp $(OUT)/train-nsrd/x4-guided/weights.safetensors $(WEIGHTS)/nsrd_x4.safetensors
+	cp $(OUT)/train-nsrd/x2-wide/weights.safetensors $(WEIGHTS)/nsrd_x2.safetensors
 	if [ "$(NSRD_ABLATIONS)" = 1 ]; then \
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod --steps $(NSRD_STEPS) --no-demod && \
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod-ws --steps $(NSRD_FT_STEPS) --lr 1e-3 --no-demod --warp-state --init $(OUT)/train-nsrd/x4-no-demod/weights.safetensors && \
@@ -326,7 +334,28 @@ NSS_INIT ?= $(OUT)/train-nss/x2/weights.safetensors
 NSS_MIX = $(BIN)/python -m weights_tools train nss --data $(call mix,$(DATA)/train) --init $(NSS_INIT) --out $(OUT)/train-nss/x2-mix --window 8 --batch 2 --lr 3e-4 --threads 1 --resume
 .PHONY: train-nss
 train-nss: $(STAMP) $(TRAIN_STAMP) train-data $(BLENDER_TRAIN)
-	test -f $(DATA)/train-nss/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train-nss --sequences 48 --frames 16 --seed 0 --size 72x128
+	test -f $(DATA)/train-nss/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train-nss --sequences 48 --frames 16 --seed 0 --size 72x128 $(GEN_ARGS)
 	$(BIN)/python -m weights_tools train nss --data $(DATA)/train-nss --out $(OUT)/train-nss/x2 --steps $(NSS_STEPS) --threads 1 --resume
 	$(NSS_MIX) --steps $(NSS_MIX_STEPS)
-	$(NSS_MIX) --steps $$(( 2 * $(NSS_MIX_STEPS) ))
+	$(NSS_MIX) --steps $(shell expr 2 \* $(NSS_MIX_STEPS))
+
+# Every training target end to end in minutes (issue 31: the make train* targets run from a
+# fresh clone, the [data] extra installed on the way): tiny data (GEN_ARGS, BLENDER_*), a
+# few steps a stage, NSRD's ablations included, all under $(OUT)/smoke; the package's
+# weights are not touched. It checks that the recipes run and hand their files on, not what
+# they train. tests/test_make_recipes.py checks the same command lines against the parsers
+# in CI, where bpy is absent. About 15 minutes on 2 cores.
+SMOKE_STEPS ?= 2
+SMOKE_STEP_VARS = MLP_STEPS MLP_ABLATION_STEPS MLP_MIX_STEPS MLP_JITTER_STEPS \
+	NSRR_STEPS NSRR_MIX_STEPS NSRR_REJECT_STEPS \
+	NSRD_STEPS NSRD_STEPS2 NSRD_FT_STEPS NSRD_MIX_STEPS NSRD4_MIX_STEPS NSRD_GUIDED_STEPS \
+	NSRD4_GUIDED_STEPS NSRD_WIDE_STEPS NSS_STEPS NSS_MIX_STEPS
+SMOKE_VARS = OUT=$(OUT)/smoke DATA=$(OUT)/smoke/data WEIGHTS=$(OUT)/smoke/weights \
+	GEN_ARGS="--sequences 2" TRAIN_SEEDS=0-1 \
+	TRAIN_ARGS="--cls-steps $(SMOKE_STEPS) --comp-steps $(SMOKE_STEPS)" \
+	BLENDER_SEQS=1 BLENDER6_SEQS=2 BLENDER_ARGS="--size 48x80 --spp 1 --ref-spp 1 --hr-spp 1" \
+	NSRD_ABLATIONS=1 $(foreach v,$(SMOKE_STEP_VARS),$(v)=$(SMOKE_STEPS))
+TRAIN_TARGETS = train-data-blender train train-mlp train-nsrr train-nsrd train-nss
+.PHONY: train-smoke
+train-smoke:
+	$(MAKE) --no-print-directory $(TRAIN_TARGETS) $(SMOKE_VARS)

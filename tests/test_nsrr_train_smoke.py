@@ -56,3 +56,24 @@ def test_train_nsrr_fine_tunes_from_init(tmp_path, capsys):
     c3, w3 = nets.load(os.path.join(out3, "weights.safetensors"))
     assert c3 == {**c0, "reject": "depth"}
     assert all(np.array_equal(w3[k], w0[k]) for k in w0)
+
+
+def test_train_nsrr_names_a_mix_sequence_too_small_for_the_patch(tmp_path, capsys):
+    """Every sequence of a mix must hold a patch, not only the first: a smaller one is named
+    in one line (make train-smoke's small Blender shards once crashed torch.stack)."""
+    from weights_tools.__main__ import main
+    from helpers import tiny_sequence_npz
+    big, small = tmp_path / "big", tmp_path / "small"
+    big.mkdir(), small.mkdir()
+    tiny_sequence_npz(str(big / "a.npz"), 4)
+    z = dict(np.load(big / "a.npz"))
+    for k in ("color", "depth", "motion"):          # 16x24 -> 10x24 render, 20x48 output
+        z[k] = z[k][:, :10]
+    z["reference"] = z["reference"][:, :20]
+    np.savez(small / "b.npz", **z)
+    rc = main(["train", "nsrr", "--data", f"{big},{small}:0.5", "--out", str(tmp_path / "run"),
+               "--batch", "2", "--patch", "16", "--margin", "2", "--candidates", "8",
+               "--widths", "fast", "--steps", "1"])
+    err = capsys.readouterr().err
+    assert rc != 0 and "Traceback" not in err
+    assert "does not fit the 10x24 frames of b" in err, err

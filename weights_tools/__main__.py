@@ -170,7 +170,8 @@ def _add_train(sub):
         importlib.import_module(module).add_parser(sub)
 
 
-def main(argv=None):
+def parser():
+    """Every sub-command's parser (the training ones need torch: without it each says so)."""
     p = argparse.ArgumentParser(prog="python -m weights_tools", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
     b = sub.add_parser("build", help="write classifier.onnx, composition.onnx, weights.safetensors")
@@ -205,10 +206,17 @@ def main(argv=None):
     from .blender import shards
     shards.add_parser(sub, _size)
     _add_train(sub)
+    return p
+
+
+def spelled_out(argv):
+    """The command line with the default methods of `train` and `seeds` written in."""
     from .recipes import with_default_method
-    argv = with_default_method(sys.argv[1:] if argv is None else argv, "train")
-    argv = with_default_method(argv, "seeds")
-    args = p.parse_args(argv)
+    return with_default_method(with_default_method(argv, "train"), "seeds")
+
+
+def main(argv=None):
+    args = parser().parse_args(spelled_out(sys.argv[1:] if argv is None else argv))
     try:
         return args.fn(args)
     except (ValueError, OSError) as e:

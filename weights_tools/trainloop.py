@@ -78,6 +78,17 @@ def nchw_sequences(seqs, torch, images: dict) -> list[dict]:
     return per_sequence(seqs, one)
 
 
+def check_patch_fits(seqs, key, size, args):
+    """A TrainError naming the first sequence (of a whole mix, not only its first directory)
+    whose `key` frames [T, C, H, W] are smaller than `size` render pixels, the patch
+    --patch / --margin asks for."""
+    for s in seqs:
+        h, w = s[key].shape[2:]
+        if size > min(h, w):
+            raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit "
+                             f"the {h}x{w} frames of {s['name']}")
+
+
 def per_sequence(seqs, fn):
     """[fn(s) for s in seqs], with fn run once per distinct sequence: a mix (load_sequences)
     lists a sequence several times, and its conversions share one copy too."""

@@ -21,7 +21,7 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, nchw_sequences, fmt_s, load_init, load_sequences, ssim, temporal
+from weights_tools.trainloop import Run, TrainError, check_patch_fits, nchw_sequences, fmt_s, load_init, load_sequences, ssim, temporal
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale", "albedo",
@@ -130,10 +130,7 @@ def cmd_train(args):
     if R % 2:
         raise TrainError(f"--patch {args.patch} + 2 x --margin {args.margin} must be even "
                          "(the network's down/up level)")
-    h, w = seqs[0]["color"].shape[2:]
-    if R > min(h, w):
-        raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
-                         f"{h}x{w} frames")
+    check_patch_fits(seqs, "color", R, args)
     try:
         cfg = nets.make_config(sc, args.widths, demod=not args.no_demod, mask=not args.no_mask,
                                remod=args.remod, warp_state=args.warp_state, base=args.base)

@@ -28,7 +28,7 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, fmt_s, load_init, load_sequences, per_sequence, ssim
+from weights_tools.trainloop import Run, TrainError, check_patch_fits, fmt_s, load_init, load_sequences, per_sequence, ssim
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
@@ -233,10 +233,7 @@ def cmd_train(args):
     if args.patch % sc:
         raise TrainError(f"--patch {args.patch} is not a multiple of the scale {sc}")
     pr = args.patch // sc
-    h, w = seqs[0]["rgbd"].shape[2:]
-    if pr + 2 * args.margin > min(h, w):
-        raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
-                         f"{h}x{w} frames")
+    check_patch_fits(seqs, "rgbd", pr + 2 * args.margin, args)
     if args.init:
         cfg, w0 = load_init(args.init, nets, "NSRR weights")
     else:

@@ -19,7 +19,7 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, nchw_sequences, fmt_s, load_init, load_sequences, ssim, temporal
+from weights_tools.trainloop import Run, TrainError, check_patch_fits, nchw_sequences, fmt_s, load_init, load_sequences, ssim, temporal
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
@@ -109,10 +109,7 @@ def cmd_train(args):
     if R % nets.MULTIPLE:
         raise TrainError(f"--patch {args.patch} + 2 x --margin {args.margin} must be a multiple "
                          f"of {nets.MULTIPLE} (the network's three stride-2 levels)")
-    h, w = seqs[0]["color"].shape[2:]
-    if R > min(h, w):
-        raise TrainError(f"--patch {args.patch} with --margin {args.margin} does not fit the "
-                         f"{h}x{w} frames")
+    check_patch_fits(seqs, "color", R, args)
     if not 0 <= args.warm < args.window:
         raise TrainError(f"--warm {args.warm}: expected 0 <= warm < --window {args.window}")
     if args.init:
