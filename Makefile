@@ -344,7 +344,7 @@ train-nss: $(STAMP) $(TRAIN_STAMP) train-data $(BLENDER_TRAIN)
 # few steps a stage, NSRD's ablations included, all under $(OUT)/smoke; the package's
 # weights are not touched. It checks that the recipes run and hand their files on, not what
 # they train. tests/test_make_recipes.py checks the same command lines against the parsers
-# in CI, where bpy is absent. About 15 minutes on 2 cores.
+# in CI, where bpy is absent. 9 minutes on 2 cores, 12.5 from a fresh clone (installs included).
 SMOKE_STEPS ?= 2
 SMOKE_STEP_VARS = MLP_STEPS MLP_ABLATION_STEPS MLP_MIX_STEPS MLP_JITTER_STEPS \
 	NSRR_STEPS NSRR_MIX_STEPS NSRR_REJECT_STEPS \
