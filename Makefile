@@ -346,10 +346,8 @@ train-nss: $(STAMP) $(TRAIN_STAMP) train-data $(BLENDER_TRAIN)
 # they train. tests/test_make_recipes.py checks the same command lines against the parsers
 # in CI, where bpy is absent. 9 minutes on 2 cores, 12.5 from a fresh clone (installs included).
 SMOKE_STEPS ?= 2
-SMOKE_STEP_VARS = MLP_STEPS MLP_ABLATION_STEPS MLP_MIX_STEPS MLP_JITTER_STEPS \
-	NSRR_STEPS NSRR_MIX_STEPS NSRR_REJECT_STEPS \
-	NSRD_STEPS NSRD_STEPS2 NSRD_FT_STEPS NSRD_MIX_STEPS NSRD4_MIX_STEPS NSRD_GUIDED_STEPS \
-	NSRD4_GUIDED_STEPS NSRD_WIDE_STEPS NSS_STEPS NSS_MIX_STEPS
+# every stage's step count (each *_STEPS / *_STEPS2 variable: a new stage is included)
+SMOKE_STEP_VARS = $(filter-out SMOKE_STEPS,$(filter %_STEPS %_STEPS2,$(.VARIABLES)))
 SMOKE_VARS = OUT=$(OUT)/smoke DATA=$(OUT)/smoke/data WEIGHTS=$(OUT)/smoke/weights \
 	GEN_ARGS="--sequences 2" TRAIN_SEEDS=0-1 \
 	TRAIN_ARGS="--cls-steps $(SMOKE_STEPS) --comp-steps $(SMOKE_STEPS)" \

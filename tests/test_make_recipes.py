@@ -111,6 +111,18 @@ def test_every_stage_reads_what_an_earlier_stage_wrote(which, shipped_lines, smo
                 f"{line}: no earlier command of the run writes {src}"
 
 
+def test_smoke_runs_every_stage_for_a_few_steps(smoke_lines):
+    """Every step count of the smoke is the smoke's (2, NSS's warm restart twice that): a
+    stage whose steps the smoke does not set would run at full length there."""
+    for argv in commands(smoke_lines):
+        for i, a in enumerate(argv[:-1]):
+            if a in ("--steps", "--cls-steps", "--comp-steps"):
+                assert int(argv[i + 1]) <= 4, shlex.join(argv)
+        if argv[0] == "seeds":
+            opts = shlex.split(argv[argv.index("--train") + 1])
+            assert opts[opts.index("--cls-steps") + 1] == "2", opts
+
+
 def test_smoke_writes_no_shipped_weights(smoke_lines):
     """make train-smoke must leave the package's weights alone."""
     copies = [shlex.split(line) for line in smoke_lines if line.startswith("cp ")]
