@@ -36,6 +36,9 @@
 #define OP_EQUAL 9
 #define OP_GREATER_EQUAL 10
 #define OP_LESS_EQUAL 11
+#define OP_POW 12
+/* comparisons write a uchar mask (OP_GREATER .. OP_LESS_EQUAL) */
+#define IS_COMPARISON (OP >= OP_GREATER && OP <= OP_LESS_EQUAL)
 
 #ifndef OP
 #define OP OP_ADD
@@ -64,6 +67,8 @@
 #define BINOP(x, y) ((((x) > (y)) | isnan(x)) ? (x) : (y))
 #elif OP == OP_PRELU
 #define BINOP(x, y) (((x) < (A)0) ? (x) * (y) : (x))
+#elif OP == OP_POW
+#define BINOP(x, y) pow((x), (y))
 #elif OP == OP_GREATER
 #define BINOP(x, y) ((x) > (y))
 #elif OP == OP_LESS
@@ -82,7 +87,7 @@
 #ifndef RELU
 #define RELU 0
 #endif
-#if RELU && OP >= OP_GREATER
+#if RELU && IS_COMPARISON
 #error "elementwise.cl: -DRELU=1 is for the arithmetic operators"
 #endif
 #if RELU
@@ -94,7 +99,7 @@
 
 /* Comparisons store bool as uchar 0/1: a scalar comparison yields 1, a vector
  * one -1 per true component. */
-#if OP >= OP_GREATER
+#if IS_COMPARISON
 typedef uchar O;
 #define STO(p, i, v) ((p)[(i)] = (uchar)(v))
 #define STO8(p, i, v) vstore8(convert_uchar8(-(v)), 0, (p) + (i))
@@ -241,6 +246,24 @@ __kernel void where_bcast(__global const uchar *c, __global const TB *a, __globa
 #define UOP_EXP 8
 #define UOP_SQRT 9
 #define UOP_CLIP 10
+#define UOP_HARD_SWISH 11
+#define UOP_GELU 12
+#define UOP_GELU_TANH 13
+#define UOP_ERF 14
+#define UOP_LOG 15
+#define UOP_RECIPROCAL 16
+#define UOP_SOFTPLUS 17
+#define UOP_SOFTSIGN 18
+#define UOP_SELU 19
+#define UOP_CELU 20
+#define UOP_THRESHOLDED_RELU 21
+#define UOP_MISH 22
+#define UOP_FLOOR 23
+#define UOP_CEIL 24
+#define UOP_ROUND 25
+#define UOP_SIGN 26
+#define UOP_SIN 27
+#define UOP_COS 28
 
 #ifndef UOP
 #define UOP UOP_RELU
@@ -274,6 +297,51 @@ __kernel void where_bcast(__global const uchar *c, __global const TB *a, __globa
 #elif UOP == UOP_CLIP
 #define CLIP_LO(x) (((x) < (A)p0) ? (A)p0 : (x))
 #define UNOP(x) ((CLIP_LO(x) > (A)p1) ? (A)p1 : CLIP_LO(x))
+#elif UOP == UOP_HARD_SWISH
+/* x * HardSigmoid(x) with ONNX's fixed alpha = 1/6, beta = 0.5 */
+#define HSW_LIN(x) ((x) * (A)(1.0f / 6.0f) + (A)0.5f)
+#define HSW_LO(x) ((HSW_LIN(x) < (A)0) ? (A)0 : HSW_LIN(x))
+#define UNOP(x) ((x) * ((HSW_LO(x) > (A)1) ? (A)1 : HSW_LO(x)))
+#elif UOP == UOP_GELU
+#define UNOP(x) ((A)0.5f * (x) * ((A)1 + erf((x) * (A)M_SQRT1_2_F)))
+#elif UOP == UOP_GELU_TANH
+#define UNOP(x) ((A)0.5f * (x) * ((A)1 + tanh((A)0.7978845608028654f * ((x) + (A)0.044715f * (x) * (x) * (x)))))
+#elif UOP == UOP_ERF
+#define UNOP(x) erf(x)
+#elif UOP == UOP_LOG
+#define UNOP(x) log(x)
+#elif UOP == UOP_RECIPROCAL
+#define UNOP(x) ((A)1 / (x))
+#elif UOP == UOP_SOFTPLUS
+/* log(1 + exp(x)) without overflow: max(x, 0) + log1p(exp(-|x|)) */
+#define SOFTPLUS(x) (fmax((x), (A)0) + log1p(exp(-fabs(x))))
+#define UNOP(x) SOFTPLUS(x)
+#elif UOP == UOP_SOFTSIGN
+#define UNOP(x) ((x) / ((A)1 + fabs(x)))
+#elif UOP == UOP_SELU
+/* p0: alpha, p1: gamma */
+#define UNOP(x) (((x) > (A)0) ? (A)p1 * (x) : (A)p1 * ((A)p0 * exp(x) - (A)p0))
+#elif UOP == UOP_CELU
+/* p0: alpha */
+#define UNOP(x) (fmax((x), (A)0) + fmin((A)0, (A)p0 * (exp((x) / (A)p0) - (A)1)))
+#elif UOP == UOP_THRESHOLDED_RELU
+#define UNOP(x) (((x) > (A)p0) ? (x) : (A)0)
+#elif UOP == UOP_MISH
+#define UNOP(x) ((x) * tanh(fmax((x), (A)0) + log1p(exp(-fabs(x)))))
+#elif UOP == UOP_FLOOR
+#define UNOP(x) floor(x)
+#elif UOP == UOP_CEIL
+#define UNOP(x) ceil(x)
+#elif UOP == UOP_ROUND
+/* ties to even, as ONNX Round */
+#define UNOP(x) rint(x)
+#elif UOP == UOP_SIGN
+/* NaN stays NaN (OpenCL's sign gives 0 there) */
+#define UNOP(x) (isnan(x) ? (x) : sign(x))
+#elif UOP == UOP_SIN
+#define UNOP(x) sin(x)
+#elif UOP == UOP_COS
+#define UNOP(x) cos(x)
 #endif
 
 /* NDRange ceil(n / 8): eight elements per work-item, then a scalar tail. */
@@ -297,6 +365,46 @@ __kernel void unary(__global const T *in, __global T *out, int n, float p0, floa
     for (int j = i; j < n; ++j) {
         const A x = FLD(in, j);
         FST(out, j, UNOP(x));
+    }
+}
+
+/* Clip with its bounds as tensors (ONNX Clip-11+, min/max given as inputs computed at run
+ * time): the bounds are read from one-element buffers, so a new value needs no new launch
+ * setup. Same selects as UOP_CLIP: NaN passes through, min above max gives max. */
+#ifndef CLIP_LO_BUF
+#define CLIP_LO_BUF 0
+#endif
+#ifndef CLIP_HI_BUF
+#define CLIP_HI_BUF 0
+#endif
+/** @param[in]  in   [n] input
+ *  @param[out] out  [n] min(max(in, lo), hi)
+ *  @param[in]  n    elements
+ *  @param[in]  lo   [1] the low bound (read with -DCLIP_LO_BUF=1, else unbounded)
+ *  @param[in]  hi   [1] the high bound (read with -DCLIP_HI_BUF=1, else unbounded)
+ *  @note -DCLIP_LO_BUF=0|1, -DCLIP_HI_BUF=0|1: which bounds are given
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
+__kernel void clip_buf(__global const T *in, __global T *out, int n, __global const T *lo,
+                       __global const T *hi)
+{
+    const int i = get_global_id(0) * 8;
+    if (i >= n) return;
+#if CLIP_LO_BUF
+    const A l = LD(lo, 0);
+#endif
+#if CLIP_HI_BUF
+    const A h = LD(hi, 0);
+#endif
+    for (int j = i; j < min(i + 8, n); ++j) {
+        A x = LD(in, j);
+#if CLIP_LO_BUF
+        x = (x < l) ? l : x;
+#endif
+#if CLIP_HI_BUF
+        x = (x > h) ? h : x;
+#endif
+        ST(out, j, x);
     }
 }
 
@@ -347,6 +455,54 @@ __kernel void gather(__global const TB *src, __global TB *dst, int D1, int D2, i
     const int i0 = z / D1, i1 = z % D1;
     dst[((long)z * D2 + i2) * D3 + i3] =
         src[base + (long)i0 * s0 + (long)i1 * s1 + (long)i2 * s2 + (long)i3 * s3];
+}
+
+/* gather for strided copies that stay above four dimensions after coalescing (a 5-D or
+ * 6-D transpose: attention heads, window partitions): one output element per work-item,
+ * its index split over up to eight dimensions. NDRange (n). */
+/** @param[in]  src     source (raw bits)
+ *  @param[out] dst     [D0, ..., D7] output, contiguous
+ *  @param[in]  n       output elements
+ *  @param[in]  base    source element of output (0, ..., 0)
+ *  @param[in]  D1..D7  the output's shape (D0 is implied by n), 1 for unused leading dims
+ *  @param[in]  s0..s7  source element strides per output dimension
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
+__kernel void gather8(__global const TB *src, __global TB *dst, long n, long base,
+                      int D1, int D2, int D3, int D4, int D5, int D6, int D7,
+                      int s0, int s1, int s2, int s3, int s4, int s5, int s6, int s7)
+{
+    const long i = get_global_id(0);
+    if (i >= n) return;
+    long r = i, off = base;
+    off += (long)(r % D7) * s7; r /= D7;
+    off += (long)(r % D6) * s6; r /= D6;
+    off += (long)(r % D5) * s5; r /= D5;
+    off += (long)(r % D4) * s4; r /= D4;
+    off += (long)(r % D3) * s3; r /= D3;
+    off += (long)(r % D2) * s2; r /= D2;
+    off += (long)(r % D1) * s1; r /= D1;
+    off += r * s0;
+    dst[i] = src[off];
+}
+
+/* ONNX Gather with indices known at load: out[o, i, j] = src[o, idx[i], j] over a
+ * [outer, L, inner] view of the data; NDRange (inner, n_idx, outer). */
+/** @param[in]  src    [outer, L, inner] data (raw bits)
+ *  @param[in]  idx    [n_idx] indices, already in [0, L)
+ *  @param[out] dst    [outer, n_idx, inner]
+ *  @param[in]  L      length of the gathered axis
+ *  @param[in]  inner  elements after the axis
+ *  @param[in]  n_idx  indices
+ *  @param[in]  outer  elements before the axis
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
+__kernel void gather_axis(__global const TB *src, __global const int *idx, __global TB *dst,
+                          int L, int inner, int n_idx, int outer)
+{
+    const int j = get_global_id(0), k = get_global_id(1), o = get_global_id(2);
+    if (j >= inner || k >= n_idx || o >= outer) return;
+    dst[((long)o * n_idx + k) * inner + j] = src[((long)o * L + idx[k]) * inner + j];
 }
 
 #ifndef PAD_MODE
@@ -463,12 +619,17 @@ __kernel void pad8(__global const TB *src, __global TB *dst, int D1, int D2, int
  * work-items read neighbouring elements when the axis is not the last one
  * (channel softmax over NCHW). */
 
+#ifndef LOG_SOFTMAX
+#define LOG_SOFTMAX 0
+#endif
+
 /* Numerically stable: exp(x - max) / sum exp(x - max). */
 /** @param[in]  in     [outer, L, inner] input
  *  @param[out] out    the same shape
  *  @param[in]  L      length of the softmax axis
  *  @param[in]  inner  elements after the axis (NDRange dimension 0)
  *  @param[in]  outer  elements before the axis (NDRange dimension 1)
+ *  @note -DLOG_SOFTMAX=1: LogSoftmax, x - max - log(sum exp(x - max))
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
  */
 __kernel void softmax(__global const T *in, __global T *out, int L, int inner, int outer)
@@ -482,10 +643,18 @@ __kernel void softmax(__global const T *in, __global T *out, int L, int inner, i
     A s = A_ZERO;
     for (int k = 0; k < L; ++k)
         s += exp(LD(in, base + (long)k * inner) - m);
+#if LOG_SOFTMAX
+    const A ls = m + log(s);
+    for (int k = 0; k < L; ++k) {
+        const long i = base + (long)k * inner;
+        ST(out, i, LD(in, i) - ls);
+    }
+#else
     for (int k = 0; k < L; ++k) {
         const long i = base + (long)k * inner;
         ST(out, i, exp(LD(in, i) - m) / s);
     }
+#endif
 }
 
 #ifndef LAST

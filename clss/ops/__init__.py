@@ -18,6 +18,9 @@ FAMILIES = (
     "pool",
     "elementwise",
     "lstm",
+    "reduce",
+    "norm",
+    "matmul",
 )
 
 

@@ -21,17 +21,21 @@ from .base import Unsupported, as_str, check_storage, onnx_op, rng
 from .conv import builtin_free
 
 BINARY = {"add": 0, "sub": 1, "mul": 2, "div": 3, "min": 4, "max": 5, "prelu": 6,
-          "greater": 7, "less": 8, "equal": 9, "greater_equal": 10, "less_equal": 11}
+          "greater": 7, "less": 8, "equal": 9, "greater_equal": 10, "less_equal": 11, "pow": 12}
 COMPARISONS = ("greater", "less", "equal", "greater_equal", "less_equal")
 UNARY = {"relu": 0, "leaky_relu": 1, "sigmoid": 2, "tanh": 3, "elu": 4, "hard_sigmoid": 5,
-         "abs": 6, "neg": 7, "exp": 8, "sqrt": 9, "clip": 10}
+         "abs": 6, "neg": 7, "exp": 8, "sqrt": 9, "clip": 10, "hard_swish": 11, "gelu": 12,
+         "gelu_tanh": 13, "erf": 14, "log": 15, "reciprocal": 16, "softplus": 17, "softsign": 18,
+         "selu": 19, "celu": 20, "thresholded_relu": 21, "mish": 22, "floor": 23, "ceil": 24,
+         "round": 25, "sign": 26, "sin": 27, "cos": 28}
 PAD_MODES = {"constant": 0, "edge": 1, "reflect": 2, "wrap": 3}
 _VEC = 8  # elements per work-item in the flat kernels
 # Every -D combination the launches use, for build checks (fp16-native included,
 # which PoCL cannot compile): (defines) of kernels/elementwise.cl.
 BUILD_VARIANTS = ([dict(OP=o, A_SCALAR=a, B_SCALAR=b) for o in BINARY.values() for a, b in ((0, 0), (1, 0), (0, 1))]
                   + [dict(UOP=u) for u in UNARY.values()] + [dict(PAD_MODE=m) for m in PAD_MODES.values()]
-                  + [dict(LAST=1)])
+                  + [dict(LAST=1), dict(LOG_SOFTMAX=1)]
+                  + [dict(CLIP_LO_BUF=lo, CLIP_HI_BUF=hi) for lo in (0, 1) for hi in (0, 1)])
 
 
 # --- shapes ----------------------------------------------------------------------
@@ -399,6 +403,16 @@ def _gather(dev, prec, x, out, base: int, src_strides, what: str):
         # buffer copy is a one-thread memcpy, slower still)
         _copy_rows(dev, prec, x, out, out.size, 1, 0, base, 0, 0)
         return
+    if len(dims) > 4:
+        # more than four runs of axes (a 5-D/6-D transpose: attention heads, window partitions)
+        if len(dims) > 8:
+            raise ValueError(f"{what}: needs {len(dims)} dimensions after coalescing; the kernels take 8")
+        pad = 8 - len(dims)
+        d8, s8 = [1] * pad + list(dims), [0] * pad + list(src)
+        k = dev.kernel("elementwise", "gather8", prec)
+        dev.launch(k, (out.size,), (x.data, out.data, np.int64(out.size), np.int64(base),
+                                    *_i32(*d8[1:]), *_i32(*s8)))
+        return
     dims, (src,) = _four(dims, [src], what)
     gs, dargs = _grid(dims)
     k = dev.kernel("elementwise", "gather", prec)
@@ -465,6 +479,72 @@ def pad(dev: Device, prec: str, x, pads, mode: str = "constant", value: float = 
     return out
 
 
+def gather(dev: Device, prec: str, x, indices, axis: int = 0):
+    """ONNX Gather with indices known at load (negative ones count from the end). Bit-exact."""
+    check_storage("x", x, prec)
+    axis = _axis(axis, x.ndim)
+    idx = np.asarray(indices).astype(np.int64)
+    n = int(x.shape[axis])
+    if idx.size and (idx.min() < -n or idx.max() >= n):
+        raise ValueError(f"gather: an index of {idx.ravel().tolist()[:8]} is out of range for axis {axis} "
+                         f"of length {n}")
+    idx = np.where(idx < 0, idx + n, idx).astype(np.int32)
+    shape = tuple(x.shape[:axis]) + idx.shape + tuple(x.shape[axis + 1:])
+    out = dev.empty(shape, prec)
+    if out.size == 0:
+        return out
+    if idx.size == 1:   # a scalar index (q, k, v = qkv[0], qkv[1], qkv[2]): a strided copy
+        sel = [(0, 1, int(m)) for m in x.shape]
+        sel[axis] = (int(idx.ravel()[0]), 1, 1)
+        st = _contiguous_strides(x.shape)
+        _gather(dev, prec, x, out, sel[axis][0] * st[axis],
+                [t for k, t in enumerate(st) if k != axis] if idx.ndim == 0 else st, "gather")
+        return out
+    _, outer, length, inner = _rows(x, axis)
+    d_idx = dev.to_device(idx.ravel())
+    k = dev.kernel("elementwise", "gather_axis", prec)
+    dev.launch(k, (inner, idx.size, outer), (x.data, d_idx.data, out.data,
+                                             *_i32(length, inner, idx.size, outer)))
+    return out
+
+
+def tile(dev: Device, prec: str, x, repeats):
+    """ONNX Tile: an Expand of x viewed with a size-1 axis before each tiled one, one axis
+    at a time (each a broadcast gather of at most three runs). Bit-exact."""
+    check_storage("x", x, prec)
+    reps = [int(r) for r in repeats]
+    if len(reps) != x.ndim or min(reps, default=1) < 0:
+        raise ValueError(f"tile: repeats {reps} for a tensor of rank {x.ndim}")
+    y = x
+    for ax, r in enumerate(reps):
+        if r == 1:
+            continue
+        shape = list(y.shape)
+        view = reshape(y, shape[:ax] + [1] + shape[ax:])
+        y = reshape(expand(dev, prec, view, shape[:ax] + [r] + shape[ax:]),
+                    shape[:ax] + [r * shape[ax]] + shape[ax + 1:])
+    return y if y is not x else copy(dev, prec, x)
+
+
+def clip_tensors(dev: Device, prec: str, x, lo=None, hi=None, out=None):
+    """min(max(x, lo), hi) with the bounds as one-element device tensors (ONNX Clip whose
+    min/max are computed or fed at run time); None leaves that side open."""
+    check_storage("x", x, prec)
+    for what, t in (("min", lo), ("max", hi)):
+        if t is not None:
+            check_storage(f"Clip {what}", t, prec)
+            if t.size != 1:
+                raise ValueError(f"Clip {what} must be a scalar, got shape {tuple(t.shape)}")
+    out = out if out is not None else dev.empty(x.shape, prec)
+    n = x.size
+    if n == 0:
+        return out
+    k = dev.kernel("elementwise", "clip_buf", prec, CLIP_LO_BUF=int(lo is not None), CLIP_HI_BUF=int(hi is not None))
+    dev.launch(k, (-(-n // _VEC),), (x.data, out.data, np.int32(n), (lo if lo is not None else x).data,
+                                     (hi if hi is not None else x).data))
+    return out
+
+
 def reshape(x, shape):
     """A view of x with another shape (no copy, no kernel)."""
     return x.reshape(tuple(int(s) for s in shape))
@@ -479,14 +559,14 @@ def _rows(x, axis):
     return axis, outer, int(x.shape[axis]), inner
 
 
-def softmax(dev: Device, prec: str, x, axis: int = -1, out=None):
-    """ONNX Softmax-13 along one axis, with max subtraction."""
+def softmax(dev: Device, prec: str, x, axis: int = -1, out=None, log: bool = False):
+    """ONNX Softmax-13 along one axis, with max subtraction; log=True: LogSoftmax."""
     check_storage("x", x, prec)
     axis, outer, length, inner = _rows(x, axis)
     out = out if out is not None else dev.empty(x.shape, prec)
     if out.size == 0:
         return out
-    k = dev.kernel("elementwise", "softmax", prec)
+    k = dev.kernel("elementwise", "softmax", prec, LOG_SOFTMAX=int(log))
     dev.launch(k, (inner, outer), (x.data, out.data, *_i32(length, inner, outer)))
     return out
 
@@ -529,7 +609,7 @@ def _unsupported(fn, *args, **kw):
 
 
 for _op_type, _name in (("Add", "add"), ("Sub", "sub"), ("Mul", "mul"), ("Div", "div"),
-                        ("PRelu", "prelu"), ("Greater", "greater"), ("Less", "less"),
+                        ("PRelu", "prelu"), ("Pow", "pow"), ("Greater", "greater"), ("Less", "less"),
                         ("Equal", "equal"), ("GreaterOrEqual", "greater_equal"),
                         ("LessOrEqual", "less_equal")):
     onnx_op(_op_type)(lambda dev, prec, attrs, inputs, _n=_name:
@@ -543,13 +623,21 @@ for _op_type, _name in (("Min", "min"), ("Max", "max"), ("Sum", "add")):
 _UNARY_ONNX = {"Relu": ("relu", {}), "LeakyRelu": ("leaky_relu", {"alpha": 0.01}),
                "Sigmoid": ("sigmoid", {}), "Tanh": ("tanh", {}), "Elu": ("elu", {"alpha": 1.0}),
                "HardSigmoid": ("hard_sigmoid", {"alpha": 0.2, "beta": 0.5}),
-               "Abs": ("abs", {}), "Neg": ("neg", {}), "Exp": ("exp", {}), "Sqrt": ("sqrt", {})}
+               "Abs": ("abs", {}), "Neg": ("neg", {}), "Exp": ("exp", {}), "Sqrt": ("sqrt", {}),
+               "HardSwish": ("hard_swish", {}), "Erf": ("erf", {}), "Log": ("log", {}),
+               "Reciprocal": ("reciprocal", {}), "Softplus": ("softplus", {}), "Softsign": ("softsign", {}),
+               "Selu": ("selu", {"alpha": 1.67326319217681884765625, "gamma": 1.05070102214813232421875}),
+               "Celu": ("celu", {"alpha": 1.0}), "ThresholdedRelu": ("thresholded_relu", {"alpha": 1.0}),
+               "Mish": ("mish", {}), "Floor": ("floor", {}), "Ceil": ("ceil", {}), "Round": ("round", {}),
+               "Sign": ("sign", {}), "Sin": ("sin", {}), "Cos": ("cos", {})}
 
 
 def _onnx_unary(name, defaults):
     def handler(dev, prec, attrs, inputs):
         p = {**defaults, **{k: v for k, v in attrs.items() if k in defaults}}
-        return [unary(dev, prec, name, inputs[0], float(p.get("alpha", 0.0)), float(p.get("beta", 0.0)))]
+        # Selu's second parameter is gamma
+        beta = p.get("gamma", p.get("beta", 0.0))
+        return [unary(dev, prec, name, inputs[0], float(p.get("alpha", 0.0)), float(beta))]
     return handler
 
 
@@ -564,13 +652,39 @@ def _scalar(v, what):
     return float(v.reshape(()))
 
 
-@onnx_op("Clip", const_inputs=(1, 2))
+@onnx_op("Clip")
 def _onnx_clip(dev, prec, attrs, inputs):
+    # Clip-11+: min/max are tensors (constants arrive as device tensors too: one kernel reads
+    # them from memory, so a bound fed or computed at run time needs no new launch setup);
+    # Clip-6: attributes.
     lo = inputs[1] if len(inputs) > 1 else None
     hi = inputs[2] if len(inputs) > 2 else None
-    lo = _scalar(lo, "Clip min") if lo is not None else attrs.get("min")
-    hi = _scalar(hi, "Clip max") if hi is not None else attrs.get("max")
-    return [clip(dev, prec, inputs[0], lo, hi)]
+    if lo is None and hi is None and ("min" in attrs or "max" in attrs):
+        return [clip(dev, prec, inputs[0], attrs.get("min"), attrs.get("max"))]
+    return [_unsupported(clip_tensors, dev, prec, inputs[0], lo, hi)]
+
+
+@onnx_op("Gelu")
+def _onnx_gelu(dev, prec, attrs, inputs):
+    approx = as_str(attrs.get("approximate", "none"))
+    if approx not in ("none", "tanh"):
+        raise Unsupported(f"Gelu approximate={approx!r}")
+    return [unary(dev, prec, "gelu" if approx == "none" else "gelu_tanh", inputs[0])]
+
+
+@onnx_op("LogSoftmax")
+def _onnx_log_softmax(dev, prec, attrs, inputs):
+    return [_unsupported(softmax, dev, prec, inputs[0], int(attrs.get("axis", -1)), log=True)]
+
+
+@onnx_op("Gather", const_inputs=(1,))
+def _onnx_gather(dev, prec, attrs, inputs):
+    return [_unsupported(gather, dev, prec, inputs[0], inputs[1], int(attrs.get("axis", 0)))]
+
+
+@onnx_op("Tile", const_inputs=(1,))
+def _onnx_tile(dev, prec, attrs, inputs):
+    return [_unsupported(tile, dev, prec, inputs[0], _ints(inputs[1]))]
 
 
 @onnx_op("Where")

@@ -7,8 +7,8 @@ import numpy as np
 
 from ...ops.base import rng
 from ...ops.elementwise import (COMPARISONS, PAD_MODES, UNARY, _UNARY_ONNX, _onnx_flatten, argmax,
-                                binary, clip, concat, copy, expand, pad, softmax, split, transpose,
-                                unary, variadic, where)
+                                binary, clip, clip_tensors, concat, copy, expand, gather, pad, softmax,
+                                split, tile, transpose, unary, variadic, where)
 from ...ops.elementwise import slice as slice_  # (ONNX's name; not the builtin)
 from ...tolerance import Tolerance
 from ..case import Case, host_call
@@ -17,10 +17,13 @@ from ..twin import node_model
 
 _ONNX_BINARY = {"add": "Add", "sub": "Sub", "mul": "Mul", "div": "Div", "min": "Min", "max": "Max",
                 "prelu": "PRelu", "greater": "Greater", "less": "Less", "equal": "Equal",
-                "greater_equal": "GreaterOrEqual", "less_equal": "LessOrEqual"}
+                "greater_equal": "GreaterOrEqual", "less_equal": "LessOrEqual", "pow": "Pow"}
 _ONNX_UNARY = {name: (op, defaults) for op, (name, defaults) in _UNARY_ONNX.items()}
-# Selections and sign flips: the output is one of the (rounded) inputs.
-_EXACT_UNARY = ("relu", "abs", "neg", "clip")
+# Gelu (opset 20) has a handler of its own: its two forms are one unary op each.
+_ONNX_UNARY.update({"gelu": ("Gelu", {}), "gelu_tanh": ("Gelu", {})})
+_OPSET = {"Gelu": 20, "Mish": 18}
+# Selections, sign flips and roundings: the output is one of the (rounded) inputs, or an integer.
+_EXACT_UNARY = ("relu", "abs", "neg", "clip", "floor", "ceil", "round", "sign")
 # Each pairwise fold of a variadic Sum rounds to half storage once more.
 _SUM_FP16_TOL = {"fp16": Tolerance(2e-3, 2e-3)}
 
@@ -38,8 +41,14 @@ def _draw(g, shape, op):
         return g.integers(-3, 4, shape).astype(np.float32)  # ties and equalities
     if op == "div_den":
         return (g.uniform(0.5, 2.0, shape) * g.choice([-1, 1], shape)).astype(np.float32)
-    if op == "sqrt":
+    if op in ("sqrt", "pow_base"):
         return g.uniform(0.0, 4.0, shape).astype(np.float32)
+    if op == "log":
+        return g.uniform(0.05, 8.0, shape).astype(np.float32)
+    if op == "reciprocal":
+        return (g.uniform(0.25, 4.0, shape) * g.choice([-1, 1], shape)).astype(np.float32)
+    if op == "pow_exp":
+        return g.uniform(-2.0, 3.0, shape).astype(np.float32)
     if op == "exp":
         return g.uniform(-8.0, 8.0, shape).astype(np.float32)
     return (g.standard_normal(shape) * 2).astype(np.float32)
@@ -47,8 +56,8 @@ def _draw(g, shape, op):
 
 def binary_case(op, sa, sb):
     g = rng("binary", op, sa, sb)
-    a = _data(g, sa, op)
-    b = _data(g, sb, "div_den" if op == "div" else op)
+    a = _data(g, sa, "pow_base" if op == "pow" else op)
+    b = _data(g, sb, {"div": "div_den", "pow": "pow_exp"}.get(op, op))
     twin = node_model(_ONNX_BINARY[op], {"a": a, "b": b},
                       out_dtypes=[np.bool_] if op in COMPARISONS else None)
     return Case(op, _shape_str(sa, sb), {"a": a, "b": b}, twin,
@@ -88,7 +97,11 @@ def unary_case(op, shape, alpha=None, beta=None):
             attrs["beta"] = float(beta)
         op_type, defaults = _ONNX_UNARY[op]
         a = float(alpha if alpha is not None else defaults.get("alpha", 0.0))
-        b = float(beta if beta is not None else defaults.get("beta", 0.0))
+        b = float(beta if beta is not None else defaults.get("gamma", defaults.get("beta", 0.0)))
+        if op == "gelu_tanh":
+            attrs["approximate"] = "tanh"
+        if op_type in _OPSET:
+            attrs["opset"] = _OPSET[op_type]
         twin = node_model(op_type, {"x": x}, **attrs)
         fn = host_call(lambda dev, p, x: unary(dev, p, op, x, a, b))
     variant = _shape_str(shape) + "".join(f" {k}={v}" for k, v in (("alpha", alpha), ("beta", beta))
@@ -188,6 +201,44 @@ def flatten_case(shape, axis):
                 host_call(lambda dev, p, x: _onnx_flatten(dev, p, {"axis": axis}, [x])), exact=True)
 
 
+def clip_tensors_case(shape, lo, hi):
+    """Clip with its bounds as graph inputs (run-time tensors), either side open."""
+    g = rng("clip tensors", shape, lo, hi)
+    ins = {"x": _data(g, shape)}
+    if lo is not None:
+        ins["lo"] = np.array(lo, np.float32)
+    if hi is not None:
+        ins["hi"] = np.array(hi, np.float32)
+    node_ins = {"x": ins["x"], "lo": ins.get("lo"), "hi": ins.get("hi")}
+    if hi is None:
+        del node_ins["hi"]
+    return Case("clip_tensors", f"{_shape_str(shape)} [{lo}, {hi}]", ins, node_model("Clip", node_ins),
+                host_call(lambda dev, p, x, lo=None, hi=None: clip_tensors(dev, p, x, lo, hi)), exact=True)
+
+
+def log_softmax_case(shape, axis):
+    x = _data(rng("log_softmax", shape, axis), shape) * 4
+    return Case("log_softmax", f"{_shape_str(shape)} axis={axis}", {"x": x},
+                node_model("LogSoftmax", {"x": x}, axis=axis),
+                host_call(lambda dev, p, x: softmax(dev, p, x, axis, log=True)))
+
+
+def gather_case(shape, indices, axis):
+    x = _data(rng("gather", shape, axis), shape)
+    idx = np.array(indices, np.int64)
+    return Case("gather", f"{_shape_str(shape)} {idx.tolist()} axis={axis}", {"x": x},
+                node_model("Gather", {"x": x, "i": idx}, initializers={"i": idx}, axis=axis),
+                host_call(lambda dev, p, x: gather(dev, p, x, idx, axis)), exact=True)
+
+
+def tile_case(shape, reps):
+    x = _data(rng("tile", shape, reps), shape)
+    r = np.array(reps, np.int64)
+    return Case("tile", f"{_shape_str(shape)} x{list(reps)}", {"x": x},
+                node_model("Tile", {"x": x, "r": r}, initializers={"r": r}),
+                host_call(lambda dev, p, x: tile(dev, p, x, reps)), exact=True)
+
+
 def cases(level: str = "quick") -> list[Case]:
     if level == "tiny":
         return [
@@ -216,6 +267,12 @@ def cases(level: str = "quick") -> list[Case]:
             softmax_case((2, 5, 3, 7), 1),
             argmax_case((2, 5, 3, 7), 1),
             argmax_case((2, 5, 3, 7), -1, keepdims=False, last=True),
+            binary_case("pow", (1, 3, 5, 7), (1, 3, 1, 7)),
+            clip_tensors_case((1, 3, 5, 7), -0.5, 0.75),
+            log_softmax_case((2, 5, 3, 7), 1),
+            gather_case((2, 5, 3, 7), [3, 0, -1], 1),
+            tile_case((1, 3, 2, 5), (2, 1, 3, 1)),
+            transpose_case((2, 3, 2, 5, 3), (2, 0, 3, 1, 4)),   # five runs: gather8
         ]
     out = [
         binary_case("add", (2, 5, 16, 20), (2, 5, 16, 20)),
@@ -243,6 +300,12 @@ def cases(level: str = "quick") -> list[Case]:
         transpose_case((2, 5, 16, 20), (0, 2, 3, 1)),
         softmax_case((2, 17, 16, 20), 1),
         argmax_case((2, 17, 16, 20), 1),
+        binary_case("pow", (2, 5, 16, 20), ()),
+        clip_tensors_case((2, 5, 16, 20), -0.5, 1.0),
+        log_softmax_case((2, 17, 16, 20), -1),
+        gather_case((2, 17, 16, 20), 4, 1),
+        tile_case((1, 5, 16, 20), (1, 2, 1, 2)),
+        transpose_case((2, 5, 3, 4, 6), (2, 0, 3, 1, 4)),
     ]
     if level != "full":
         return out
@@ -315,5 +378,19 @@ def cases(level: str = "quick") -> list[Case]:
         expand_case((1, 23, 1, 13), (2, 1, 7, 13)),
         expand_case((5,), ()),
         flatten_case((2, 3, 7, 13), 2),
+        binary_case("pow", (1, 23, 7, 13), (1, 23, 7, 13)),
+        binary_case("pow", (2, 3, 7, 13), (13,)),
+        clip_tensors_case((1, 3, 7, 13), None, 0.5),
+        clip_tensors_case((1, 3, 7, 13), -0.25, None),
+        clip_tensors_case((1, 3, 7, 13), 1.0, -1.0),   # min > max: all max
+        log_softmax_case((2, 3, 7, 13), 0),
+        log_softmax_case((5, 1000), 1),
+        gather_case((2, 3, 7, 13), -1, 0),
+        gather_case((2, 3, 7, 13), [[1, -1], [0, 5]], 3),
+        gather_case((7, 13), [6, 0, 6], 0),
+        tile_case((2, 3, 7, 13), (2, 3, 1, 2)),
+        tile_case((5,), (3,)),
+        transpose_case((2, 3, 4, 5, 6, 7), (0, 1, 3, 2, 4, 5)),
+        transpose_case((2, 3, 5, 7, 3, 2), (5, 3, 1, 4, 2, 0)),   # six runs
     ]
     return out

@@ -1,0 +1,106 @@
+/* Normalisations over contiguous rows: ONNX LayerNormalization, InstanceNormalization and
+ * GroupNormalization, one kernel.
+ *
+ * The host views the input as [rows, L], each row one normalisation group (LayerNorm: the
+ * axes from `axis` on; InstanceNorm: one (n, c) image; GroupNorm: one (n, group) stack of
+ * channels), all contiguous. One work-item per row, NDRange (rows): it takes the mean,
+ * then the variance around it (two passes: no E[x^2] - E[x]^2 cancellation), then writes
+ *   y = (x - mean) / sqrt(var + eps) * scale[s] + bias[s],
+ * where s, the scale/bias element of row r's element j, is
+ *   s = (r % SR) * SA + (j / SD) % SM
+ * LayerNorm: SR=1, SA=0, SD=1, SM=L (s = j); InstanceNorm: SR=C, SA=1, SD=L, SM=1 (s = c);
+ * GroupNorm: SR=G, SA=C/G, SD=H*W, SM=C/G (s = the channel). Sums are in float per row of
+ * eight lanes.
+ *
+ * Build options:
+ *   -DHAS_BIAS=0|1   add bias
+ *   -DSCALE_MODE=0|1|2  0: the formula above; 1: s = j (LayerNorm); 2: s is the same for
+ *                    the whole row (InstanceNorm; GroupNorm with a scale per group), folded
+ *                    into one multiply-add per element
+ *   -DSTATS=0|1      also write the row's mean and 1/sqrt(var + eps) (LayerNorm's optional
+ *                    outputs Mean and InvStdDev)
+ */
+#include "common.h"
+
+#ifndef HAS_BIAS
+#define HAS_BIAS 1
+#endif
+#ifndef STATS
+#define STATS 0
+#endif
+#ifndef SCALE_MODE
+#define SCALE_MODE 0
+#endif
+
+/** @param[in]  in     [rows, L] input
+ *  @param[in]  scale  scale, indexed as above
+ *  @param[in]  bias   bias, indexed as scale (read with -DHAS_BIAS=1)
+ *  @param[out] out    [rows, L] output
+ *  @param[out] mean   [rows] row means (written with -DSTATS=1)
+ *  @param[out] istd   [rows] 1 / sqrt(var + eps) (written with -DSTATS=1)
+ *  @param[in]  L      elements per row
+ *  @param[in]  rows   rows
+ *  @param[in]  SR, SA, SD, SM  how a row and element index the scale (above)
+ *  @param[in]  eps    epsilon
+ *  @note -DHAS_BIAS=0|1; -DSTATS=0|1; -DSCALE_MODE=0|1|2
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
+__kernel void norm_rows(__global const T *in, __global const T *scale, __global const T *bias,
+                        __global T *out, __global T *mean, __global T *istd, int L, int rows,
+                        int SR, int SA, int SD, int SM, float eps)
+{
+    const int r = get_global_id(0);
+    if (r >= rows) return;
+    __global const T *x = in + (long)r * L;
+    __global T *y = out + (long)r * L;
+    int j = 0;
+    float8 s8 = (float8)(0.0f);
+    for (; j + 8 <= L; j += 8)
+        s8 += convert_float8(LD8(x, j));
+    float s = s8.s0 + s8.s1 + s8.s2 + s8.s3 + s8.s4 + s8.s5 + s8.s6 + s8.s7;
+    for (; j < L; ++j)
+        s += (float)LD(x, j);
+    const float mu = s / (float)L;
+    s8 = (float8)(0.0f);
+    for (j = 0; j + 8 <= L; j += 8) {
+        const float8 d = convert_float8(LD8(x, j)) - mu;
+        s8 += d * d;
+    }
+    s = s8.s0 + s8.s1 + s8.s2 + s8.s3 + s8.s4 + s8.s5 + s8.s6 + s8.s7;
+    for (; j < L; ++j) {
+        const float d = (float)LD(x, j) - mu;
+        s += d * d;
+    }
+    const float inv = 1.0f / sqrt(s / (float)L + eps);
+#if STATS
+    ST(mean, r, mu);
+    ST(istd, r, inv);
+#endif
+    const long s0 = (long)(r % SR) * SA;
+#if SCALE_MODE == 2
+    /* one scale and bias for the whole row (InstanceNorm, GroupNorm's per-group form) */
+    const float a = inv * (float)LD(scale, s0);
+#if HAS_BIAS
+    const float b = (float)LD(bias, s0) - mu * a;
+#else
+    const float b = -mu * a;
+#endif
+    for (j = 0; j + 8 <= L; j += 8)
+        ST8(y, j, CONVERT_A8(convert_float8(LD8(x, j)) * a + b));
+    for (; j < L; ++j)
+        ST(y, j, (float)LD(x, j) * a + b);
+#else
+    for (j = 0; j < L; ++j) {
+#if SCALE_MODE == 1
+        const long si = j;          /* LayerNorm: the scale runs along the row */
+#else
+        const long si = s0 + (j / SD) % SM;
+#endif
+        float v = ((float)LD(x, j) - mu) * inv * (float)LD(scale, si);
+#if HAS_BIAS
+        v += (float)LD(bias, si);
+#endif
+        ST(y, j, v);
+    }
+#endif
+}
