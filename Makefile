@@ -208,6 +208,16 @@ $(TRAIN_STAMP): $(STAMP)
 	$(BIN)/python -m pip install -q -e '.[test,train]'
 	touch $@
 
+# The exported-model fixtures (issue 49; weights_tools/export_suite.py): small PyTorch SR,
+# vision and temporal architectures, random weights from fixed seeds, each exported with
+# torch's TorchScript exporter (opset 17) and its dynamo exporter (needs onnxscript), and
+# tests/fixtures/exported/manifest.json, which tests/test_exported_models.py reads (without
+# torch). The [train] extra; about 30 s on 2 cores. Rewrites the whole directory.
+EXPORTED_FIXTURES ?= tests/fixtures/exported
+.PHONY: export-fixtures
+export-fixtures: $(TRAIN_STAMP)
+	$(BIN)/python -m weights_tools export-suite --out $(EXPORTED_FIXTURES)
+
 train: train-data $(TRAIN_STAMP)
 	$(BIN)/python -m weights_tools seeds clss --data $(DATA)/train --out $(TRAIN_RUN) --seeds $(TRAIN_SEEDS) \
 		--jobs 2 --train "--threads 1 $(TRAIN_ARGS)" \

@@ -1,5 +1,6 @@
 """python -m weights_tools build --out DIR [...] | inspect FILE | gen --out DIR [...] |
-eval SEQ.npz [--methods a,b,c] | blender --out DIR [...] | train METHOD --data DIR --out DIR [...] | seeds METHOD [...]"""
+eval SEQ.npz [--methods a,b,c] | blender --out DIR [...] | train METHOD --data DIR --out DIR [...] | seeds METHOD [...] |
+export-suite --out DIR"""
 from __future__ import annotations
 
 import argparse
@@ -142,9 +143,10 @@ def cmd_gen(args):
                                          in zip(names, stats["frequencies"][key])))
     return 0
 def _add_train(sub):
-    """`train` and `seeds` (the recipes, weights_tools/recipes.py) and the rooms' own
-    sub-commands (weights_tools.methods.commands(): CLSS's `classifier`) need torch, the
-    [train] extra; without it each says so instead of breaking the others."""
+    """`train` and `seeds` (the recipes, weights_tools/recipes.py), `export-suite` (the
+    exported-model fixtures, weights_tools/export_suite.py) and the rooms' own sub-commands
+    (weights_tools.methods.commands(): CLSS's `classifier`) need torch, the [train] extra;
+    without it each says so instead of breaking the others."""
     import importlib
     from . import methods
     commands = methods.commands()
@@ -157,7 +159,7 @@ def _add_train(sub):
             print(f"error: {args.cmd} needs {missing} (pip install -e '.[train]')",
                   file=sys.stderr)
             return 1
-        for name in ("train", "seeds", *commands):
+        for name in ("train", "seeds", "export-suite", *commands):
             t = sub.add_parser(name, help=f"{name} (needs the [train] extra)")
             t.add_argument("rest", nargs=argparse.REMAINDER)
             t.set_defaults(fn=no_torch)
@@ -166,6 +168,8 @@ def _add_train(sub):
     add_train_parser(sub)
     from .seeds import add_parser as add_seeds
     add_seeds(sub)
+    from .export_suite import add_parser as add_export_suite
+    add_export_suite(sub)
     for module in commands.values():
         importlib.import_module(module).add_parser(sub)
 
