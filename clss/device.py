@@ -18,6 +18,7 @@ import hashlib
 import os
 import re
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -313,15 +314,46 @@ class Device:
             with self._lock:
                 prog = self._programs.get(key)
                 if prog is None:
-                    prog = cl.Program(self.context, src)
                     try:
-                        prog.build(options=options)
-                    except cl.RuntimeError as e:
-                        log = _build_log(prog, self.cl_device) or str(e)
-                        raise KernelBuildError(
-                            f"kernel source {kernel_label(stem)} failed to build on {self.info.name} "
-                            f"({self.info.driver}) with options '{options}':\n{log}{_build_hint(log)}") from None
+                        prog = self._build(src, options)
+                    except cl.RuntimeError:
+                        # A compiled-program cache (pyopencl's or the driver's, e.g. PoCL's
+                        # kcache) that another process was writing at that moment can hand
+                        # back a broken binary: build once more around both caches before
+                        # reporting anything.
+                        prog = cl.Program(self.context, src)
+                        try:
+                            self._build(src, options, fresh=True, prog=prog)
+                        except cl.RuntimeError as e:
+                            log = _build_log(prog, self.cl_device) or str(e)
+                            raise KernelBuildError(
+                                f"kernel source {kernel_label(stem)} failed to build on {self.info.name} "
+                                f"({self.info.driver}) with options '{options}':\n{log}{_build_hint(log)}"
+                            ) from None
                     self._programs[key] = prog
+        return prog
+
+    def _build(self, src: str, options: str, fresh: bool = False, prog=None) -> cl.Program:
+        """Build; fresh=True bypasses pyopencl's binary cache and the driver's (a define
+        no kernel reads changes the driver's cache key), for a retry."""
+        prog = prog or cl.Program(self.context, src)
+        if fresh:
+            prog.build(options=f"{options} -DCLSS_FRESH_BUILD={os.getpid()}{time.monotonic_ns()}",
+                       cache_dir=False)
+        else:
+            prog.build(options=options)
+        return prog
+
+    def _rebuild(self, stem, precision: str, **defines) -> cl.Program:
+        """The program of (stem, precision, defines) built again around every cache, and
+        remembered in its place: a cached binary that lacks a kernel its source declares
+        (a cache entry another process was writing) is not trusted twice."""
+        options = self.build_options(precision, **defines)
+        src = self.source(stem)
+        key = (hashlib.sha1(src.encode()).hexdigest(), options)
+        with self._lock:
+            prog = self._build(src, options, fresh=True)
+            self._programs[key] = prog
         return prog
 
     def kernel(self, stem: str | os.PathLike, name: str, precision: str = "fp32", **defines) -> cl.Kernel:
@@ -334,7 +366,12 @@ class Device:
             try:
                 k = getattr(prog, name)
             except AttributeError:
-                raise KernelBuildError(f"{kernel_label(stem)} has no kernel named {name!r}") from None
+                try:    # a broken cached binary (see program): once more around the caches
+                    prog = self._rebuild(stem, precision, **defines)
+                    k = getattr(prog, name)
+                except (AttributeError, cl.RuntimeError):
+                    raise KernelBuildError(f"{kernel_label(stem)} has no kernel named {name!r}") from None
+                key = (id(prog), name, "")
             self._kernels[key] = k
         return k
 

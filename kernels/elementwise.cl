@@ -644,10 +644,10 @@ __kernel void softmax(__global const T *in, __global T *out, int L, int inner, i
     for (int k = 0; k < L; ++k)
         s += exp(LD(in, base + (long)k * inner) - m);
 #if LOG_SOFTMAX
-    const A ls = m + log(s);
+    const A ls = log(s);   /* (x - max) - log(s): m + log(s) would round away log(s) at large x */
     for (int k = 0; k < L; ++k) {
         const long i = base + (long)k * inner;
-        ST(out, i, LD(in, i) - ls);
+        ST(out, i, (LD(in, i) - m) - ls);
     }
 #else
     for (int k = 0; k < L; ++k) {

@@ -157,3 +157,30 @@ def test_room_source_named_by_its_path(dev, tmp_path):
 def test_absurd_allocation_refused(dev):
     with pytest.raises(D.DeviceError, match="exceeds the device's max allocation"):
         dev.empty((1 << 20, 1 << 20), "fp32")
+
+
+def test_a_broken_cached_build_is_retried_around_the_caches(monkeypatch):
+    """A cached binary another process was writing (issue 52: three cold-cache processes,
+    one failed with 'failed to build' or 'has no kernel named'): clss builds once more
+    around pyopencl's and the driver's caches before reporting anything."""
+    import pyopencl as cl
+    from clss.device import Device, get_device
+    dev = Device(get_device(None).cl_device)
+    calls = []
+    real = Device._build
+
+    def flaky(self, src, options, fresh=False, prog=None):
+        calls.append(fresh)
+        if not fresh:
+            raise cl.RuntimeError("simulated: a half-written cache entry")
+        return real(self, src, options, fresh, prog)
+    monkeypatch.setattr(Device, "_build", flaky)
+    k = dev.kernel("elementwise", "unary", "fp32", UOP=0)
+    assert k is not None and calls == [False, True]
+    calls.clear()
+    # a program whose cached binary lacks a kernel the source declares: rebuilt, then found
+    monkeypatch.setattr(Device, "_build", real)
+    prog = dev.program("elementwise", "fp32", UOP=1)
+    dev._programs = {key: (cl.Program(dev.context, "__kernel void other(int x) {}").build()
+                           if p is prog else p) for key, p in dev._programs.items()}
+    assert dev.kernel("elementwise", "unary", "fp32", UOP=1) is not None
