@@ -152,6 +152,18 @@ BAD = [
     ("run {d}/symbolic.onnx --repeat 0", "--repeat"),
     ("run {d}/symbolic.onnx --output-dir {d}/a_file", "is a file"),
     ("run {d}/symbolic.onnx --json {d}/missing/r.json", "does not exist"),
+    # model info, model run (the group)
+    ("model info {d}/nothing.onnx", "no such model file"),
+    ("model info {d}/bad.onnx", "bad.onnx: not an ONNX model"),
+    ("model info {d}", "is a directory"),
+    ("model info", "the following arguments are required: model"),
+    ("model info {d}/symbolic.onnx --json {d}/symbolic.onnx", "is an input file"),
+    ("model info {d}/symbolic.onnx --json {d}/missing/i.json", "does not exist"),
+    ("model info {d}/symbolic.onnx --input-shape x=2x3", "unrecognized arguments: --input-shape"),
+    ("model run {d}/symbolic.onnx --repeat 0", "--repeat"),
+    ("model run {d}/symbolic.onnx --input x={d}/nothing.npy", "nothing.npy: no such file"),
+    ("model nosuch", "unknown subcommand 'nosuch'"),
+    ("model", "give a subcommand: info, run"),
     # bench, tune
     ("bench --quick --full", "--quick and --full"),
     ("bench --methods --host-waits", "--methods and --host-waits"),

@@ -30,6 +30,7 @@ COMMANDS = {
     "verify": (devices.cmd_verify, "diff every kernel against onnxruntime on a device (PASS/FAIL table)"),
     "info": (model.cmd_info, "ops, parameters, FLOPs and planned device memory of an ONNX model"),
     "run": (model.cmd_run, "run an ONNX model on a device (--compare-ort: diff and time vs onnxruntime)"),
+    "model": (model.cmd_model, "ONNX models: `model info` (can clss run it? from the file alone), `model run`"),
     "methods": (methods.cmd_methods, "list the upscaling methods: inputs, scales, precisions, weights"),
     "upscale": (upscale.cmd_upscale, "upscale an EXR sequence with a method (--method), per-stage times"),
     "demo": (demo.main, "render the built-in sample scene, upscale it with every method, write pictures and metrics"),
@@ -37,6 +38,11 @@ COMMANDS = {
     "bench": (_bench, "benchmark kernels/networks/frame step against onnxruntime (table, JSON, roofline)"),
     "tune": (_tune, "search work-group sizes and kernel tunables per device; store the best"),
 }
+
+
+# Command groups: `clss GROUP SUB ...` runs SUB's function under the prog "clss GROUP SUB";
+# the group's own entry in COMMANDS answers --help, a missing or unknown SUB.
+GROUPS = {"model": model.MODEL_COMMANDS}
 
 
 def _version() -> str:
@@ -76,6 +82,8 @@ def main(argv=None) -> int:
     if name not in COMMANDS:
         print(f"clss: unknown command {name!r}; try `clss --help`", file=sys.stderr)
         return 2
+    if name in GROUPS and rest and rest[0] in GROUPS[name]:
+        return run_command(f"clss {name} {rest[0]}", GROUPS[name][rest[0]][0], rest[1:])
     return run_command(f"clss {name}", COMMANDS[name][0], rest)
 
 

@@ -1,5 +1,6 @@
 """`clss info` and `clss run`: inspect and run an ONNX model on a device,
-optionally side by side with onnxruntime."""
+optionally side by side with onnxruntime; `clss model info`: check a model's ops
+against clss's op table from the file alone; `clss model` groups them."""
 from __future__ import annotations
 
 import argparse
@@ -76,6 +77,83 @@ def cmd_info(argv) -> int:
         with open(a.json, "w") as f:
             json.dump(s, f, indent=2)
     return 0
+
+
+MODEL_INFO_HELP = """\
+examples:
+  clss model info net.onnx                  # can clss run it? ops, opsets, inputs, verdict
+  clss model info net.onnx --json net.json  # the same report as JSON
+  clss model info net.onnx && clss info net.onnx --input-shape x=1x3x540x960
+
+how it differs from `clss info`:
+  clss model info reads the ONNX file and nothing else: no device, no shape resolution, no
+  kernel build, external data (.onnx.data) not loaded; symbolic dimensions need no sizes. It
+  checks each op type against clss's op table (docs/model.md, "Supported ops and opsets"):
+  supported, with the limits that apply; folded at load (its inputs are constants or
+  shapes); unsupported, with why: no clss kernel, a custom domain, an op that changed after
+  the last opset clss knows; or refused for some nodes: a value clss needs when it plans
+  (Resize scales, a Reshape shape) that only the running model computes.
+  `clss info` loads the model for a device (give symbolic sizes with --input-shape), runs
+  clss's passes and plans memory: parameters, FLOPs, kernels and peak device memory, and
+  the node-level refusals of the dry run (attribute values a kernel does not cover).
+
+exit status: 0 every op type supported, 1 something is not, 2 a bad file or flag."""
+
+
+def cmd_model_info(argv) -> int:
+    p = ArgParser(
+        prog="clss model info",
+        description="Can clss run this ONNX model? Lists its op types (count, supported or not and why, "
+                    "the limits that apply), its opsets, IR version and producer, the graph inputs and "
+                    "outputs with their declared shapes, whether it keeps external data, and a one-line "
+                    "verdict, from the file alone: nothing is built.",
+        epilog=MODEL_INFO_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("model", help="ONNX file")
+    p.add_argument("--json", metavar="FILE", help="also write the report as JSON")
+    a = p.parse_args(argv)
+    if a.json is not None:
+        check_output_file(a.json, "--json", inputs=[a.model])
+    from ..model.optable import format_report, support_report
+    r = support_report(a.model)
+    print(format_report(r))
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(r, f, indent=2)
+    return 0 if r["supported"] else 1
+
+
+def _model_run(argv) -> int:
+    return cmd_run(argv)
+
+
+# `clss model SUB`: name -> (function, one-line summary).
+MODEL_COMMANDS = {
+    "info": (cmd_model_info, "ops supported or not (and why), opsets, inputs: from the file alone, nothing built"),
+    "run": (_model_run, "run an ONNX model on a device, optionally against onnxruntime (= `clss run`)"),
+}
+
+
+def cmd_model(argv) -> int:
+    """`clss model SUB ...`: the model commands as a group."""
+    if not argv:
+        print(f"clss model: give a subcommand: {', '.join(MODEL_COMMANDS)} (see `clss model --help`)",
+              file=sys.stderr)
+        return 2
+    if argv[0] in ("-h", "--help"):
+        print("usage: clss model SUBCOMMAND [options]   (clss model SUBCOMMAND --help for each)\n\n"
+              "ONNX models with clss.Model.\n\nsubcommands:")
+        for name, (_, summary) in MODEL_COMMANDS.items():
+            print(f"  {name:6s} {summary}")
+        print("\n`clss info` (load and plan for a device: parameters, FLOPs, memory) and `clss run` stay\n"
+              "top-level commands; `clss model run` is `clss run`.\n\n"
+              "example:\n  clss model info net.onnx")
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in MODEL_COMMANDS:
+        print(f"clss model: unknown subcommand {name!r}; one of {', '.join(MODEL_COMMANDS)} "
+              "(see `clss model --help`)", file=sys.stderr)
+        return 2
+    return MODEL_COMMANDS[name][0](rest)   # (clss.cli.main dispatches the group itself)
 
 
 def _declared_symbolic(path, shapes: dict) -> dict:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import os
 import sys
-from collections import Counter
 
 from .graph import LOWERED_OPS, MAX_OPSET, MIN_OPSET
 
@@ -28,7 +27,9 @@ from .graph import LOWERED_OPS, MAX_OPSET, MIN_OPSET
 COMMON = ("Tensors are float32 or float16 (the model's `precision` decides the storage); integer and "
           "bool tensors only where a row says so, or folded at load (any node whose inputs are all "
           "constant is evaluated at load, whatever its op: Shape -> Gather -> Concat chains, Range, "
-          "casts of constants). \"Known at load\": a constant after that folding. Any rank, as long as "
+          "casts of constants). \"Known at load\": a constant after that folding, or computed from a small "
+          "graph input whose value clss reads from each run's feeds and plans for, planning again when "
+          "it changes (a value input: Resize scales, a Reshape shape, ...). Any rank, as long as "
           "the shape needs at most 4 dimensions (8 for the strided copies of Slice, Transpose, Expand, "
           "Tile and Gather) once the axes that stay together in memory are merged and size-1 ones "
           "dropped.")
@@ -110,7 +111,7 @@ OPS: dict[str, str] = {
     # --- elementwise: binary and variadic
     **{op: "broadcasting" for op in ("Add", "Sub", "Mul", "Div")},
     "Pow": "broadcasting; float base and exponent",
-    **{op: f"broadcasting, any number of inputs" for op in ("Min", "Max", "Sum")},
+    **{op: "broadcasting, any number of inputs" for op in ("Min", "Max", "Sum")},
     **{op: "float inputs, broadcasting; bool output"
        for op in ("Equal", "Greater", "GreaterOrEqual", "Less", "LessOrEqual")},
     "Where": "bool condition, broadcasting",
@@ -318,9 +319,13 @@ def support_report(path: str) -> dict:
     from .graph import NO_KERNEL, custom_domain_reason, sort_nodes
     m = _load(path)
     have = registered()
+    # Graph inputs whose values clss reads at each run and plans for (Resize scales, a
+    # Reshape shape, ...), where this clss has them; else such inputs must be constants.
+    from . import graph as _graph
+    find_value_inputs = getattr(_graph, "find_value_inputs", None)
     problems: list[str] = []
-    opsets_all = {o.domain or "": int(o.version) for o in m.opset_import}
-    opset = opsets_all.get("", opsets_all.get("ai.onnx"))
+    opsets_all = {o.domain or "ai.onnx": int(o.version) for o in m.opset_import}
+    opset = opsets_all.get("ai.onnx")
     if opset is None:
         problems.append("the model imports no default-domain (ai.onnx) opset")
     elif opset < MIN_OPSET:
@@ -349,7 +354,7 @@ def support_report(path: str) -> dict:
                                  "opsets": None if custom or n.op_type not in OPS else opsets_text(n.op_type),
                                  "refused": []})
         e["nodes"] += 1
-        why = None
+        why, kind = None, "op"
         if custom:
             why = custom_domain_reason(n.domain)
         elif opset is not None and n.op_type in _history():
@@ -375,35 +380,34 @@ def support_report(path: str) -> dict:
             continue
         if why is None and n.op_type not in have:
             why = NO_KERNEL
-        if why is None:
+        if why is None and find_value_inputs is None:   # clss plans for constants only
             h = ONNX_HANDLERS.get(n.op_type)
             if h is not None and n.op_type not in LOWERED_OPS:
                 for i in sorted(h.const_inputs):
                     if i < len(n.input) and n.input[i] and n.input[i] not in const:
-                        why = (f"input {i} ({n.input[i]!r}) must be known at load; here it is computed "
-                               "from the graph's inputs")
+                        why = (f"input {i} ({n.input[i]!r}) must be known at load; here it depends on "
+                               "the graph's inputs")
+                        kind = "node"
                         break
         if why is not None:
-            e["refused"].append({"node": name, "reason": why})
+            e["refused"].append({"node": name, "reason": why, "kind": kind})
+    value_inputs = {}
+    if find_value_inputs is not None and opset is not None:
+        value_inputs = _value_inputs(find_value_inputs, m, opset, ops)
+    rank = {"unsupported": 0, "refused": 1, "supported": 2, "folded": 3}
     for e in ops.values():
-        e["supported"] = not e["refused"]
-    order = sorted(ops, key=lambda k: (ops[k]["supported"], -ops[k]["nodes"], k))
+        kinds = {r["kind"] for r in e["refused"]}
+        e["supported"] = not kinds
+        e["status"] = ("unsupported" if "op" in kinds else "refused" if kinds
+                       else "supported" if e["op"] in have else "folded")
+    order = sorted(ops, key=lambda k: (rank[ops[k]["status"]], -ops[k]["nodes"], k))
     ops = {k: ops[k] for k in order}
-    bad = [k for k, e in ops.items() if not e["supported"]]
     ext = _external(m, os.path.dirname(os.path.abspath(path)))
     for f in ext["files"]:
         if not f["exists"]:
-            problems.append(f"external data file {f['location']!r} is missing (next to the model)")
-    if bad:
-        why = []
-        for k in bad:
-            reasons = sorted({_short(r["reason"]) for r in ops[k]["refused"]})
-            why.append(f"{k} ({'; '.join(reasons)})")
-        verdict = f"{len(bad)} of {len(ops)} op types unsupported: {', '.join(why)}"
-    else:
-        verdict = f"all {len(ops)} op types supported"
-    if problems:
-        verdict += "; " + "; ".join(problems)
+            problems.append(f"external data file {f['location']!r} is missing (it belongs next to the model)")
+    verdict = _verdict(ops, problems)
+    bad = [k for k, e in ops.items() if not e["supported"]]
     return {
         "model": os.fspath(path),
         "ir_version": int(m.ir_version),
@@ -415,12 +419,54 @@ def support_report(path: str) -> dict:
         "outputs": [_value_info(vi) for vi in g.output],
         "external_data": ext,
         "local_functions": n_functions,
+        "value_inputs": value_inputs,
         "nodes": len(g.node),
         "ops": ops,
         "problems": problems,
         "supported": not bad and not problems,
         "verdict": verdict,
     }
+
+
+def _value_inputs(find, m, opset: int, ops: dict) -> dict:
+    """{graph input: [where its value is needed]} from graph.find_value_inputs; the nodes
+    it refuses (a needed value that random values, control flow or a data tensor decide)
+    become node refusals in ``ops``."""
+    from .graph import UnsupportedModelError
+    try:
+        uses = find(m, opset)
+    except UnsupportedModelError as e:
+        known = {r["node"] for o in ops.values() for r in o["refused"]}
+        for name, op, _, why in e.nodes:
+            if name in known:
+                continue
+            entry = next((o for k, o in ops.items() if o["op"] == op and not o["domain"]), None)
+            if entry is not None:
+                entry["refused"].append({"node": name, "reason": why, "kind": "node"})
+        return {}
+    except Exception:   # an analysis that fails here is the load's to report
+        return {}
+    refused = {r["node"] for o in ops.values() for r in o["refused"]}
+    out = {t: [u.describe() for u in us if u.node not in refused] for t, us in uses.items()}
+    return {t: us for t, us in out.items() if us}
+
+
+def _verdict(ops: dict, problems: list) -> str:
+    unsupported = [k for k, e in ops.items() if e["status"] == "unsupported"]
+    refused = [(k, r) for k, e in ops.items() for r in e["refused"] if r["kind"] == "node"]
+    if unsupported:
+        why = [f"{k} ({'; '.join(sorted({_short(r['reason']) for r in ops[k]['refused']}))})" for k in unsupported]
+        text = f"{len(unsupported)} of {len(ops)} op types unsupported: {', '.join(why)}"
+    else:
+        text = f"all {len(ops)} op types supported"
+    if refused:
+        text += (f"; {len(refused)} node(s) of supported op types refused: " if unsupported
+                 else f", but {len(refused)} node(s) refused: ")
+        text += (", ".join(f"{k} {r['node']!r} ({_short(r['reason'])})" for k, r in refused[:5])
+                 + (", ..." if len(refused) > 5 else ""))
+    for p in problems:
+        text += f"; {p}"
+    return text
 
 
 def _short(reason: str) -> str:
@@ -438,14 +484,14 @@ def _short(reason: str) -> str:
 
 def _shape_text(d: dict) -> str:
     if d["shape"] is None:
-        return "shape not declared"
+        return "shape not declared (shape inference gives it at load)"
     return "[" + ", ".join(str(s) if isinstance(s, int) else repr(s) for s in d["shape"]) + "]"
 
 
 def format_report(r: dict) -> str:
     lines = [f"model: {os.path.basename(r['model'])}  (IR {r['ir_version']}"
              + (f", producer {r['producer']})" if r["producer"] else ")")]
-    others = [f"{d} {v}" for d, v in r["opsets"].items() if d not in ("", "ai.onnx")]
+    others = [f"{d} {v}" for d, v in r["opsets"].items() if d != "ai.onnx"]
     op_line = (f"opset: {r['opset']}" if r["opset"] is not None else "opset: none (no ai.onnx import)")
     op_line += f"  (clss runs {r['clss_opsets'][0]} to {r['clss_opsets'][1]})"
     if others:
@@ -459,10 +505,13 @@ def format_report(r: dict) -> str:
     for d in r["outputs"]:
         lines.append(f"  output {d['name']}: {d['type']} {_shape_text(d)}")
     if sym:
-        ex = " ".join(f"--input-shape {d['name']}="
-                      + "x".join(str(s) if isinstance(s, int) else "64" for s in (d["shape"] or [1, 3, 64, 64]))
-                      for d in sym)
+        ex = " ".join(f"--input-shape {d['name']}=" + "x".join(
+            str(s) if isinstance(s, int) else ("1" if ax == 0 else "64")
+            for ax, s in enumerate(d["shape"] or [1, 3, 64, 64])) for d in sym)
         lines.append(f"  symbolic input sizes: give them to `clss info` / `clss run` with {ex} (your sizes)")
+    for t, uses in r.get("value_inputs", {}).items():
+        lines.append(f"  value input {t}: clss reads its value at each run and plans for it "
+                     f"({'; '.join(uses[:3])}{'; ...' if len(uses) > 3 else ''})")
     ext = r["external_data"]
     if ext["tensors"]:
         files = ", ".join(f"{f['location']} ({_mib(f['bytes'])}" + (")" if f["exists"] else ", MISSING)")
@@ -473,18 +522,19 @@ def format_report(r: dict) -> str:
     if r["local_functions"]:
         lines.append(f"local functions: {r['local_functions']} (inlined, as clss does at load)")
     lines.append(f"ops: {r['nodes']} nodes of {len(r['ops'])} types (nothing built; the limits are clss's op table)")
-    have = registered()
     width = max([len(k) for k in r["ops"]] + [2])
     for k, e in r["ops"].items():
         if not e["supported"]:
-            status = "UNSUPPORTED"
+            status = e["status"].upper()
             reasons = sorted({x["reason"] for x in e["refused"]})
             text = "; ".join(reasons)
             named = [x["node"] for x in e["refused"]]
             if len(e["refused"]) < e["nodes"] or len(named) <= 3:
                 text += f"  [{', '.join(repr(x) for x in named[:5])}{', ...' if len(named) > 5 else ''}]"
-        elif e["op"] not in have:
-            status, text = "folded", "no kernel needed: its inputs are constant, evaluated at load"
+        elif e["status"] == "folded":
+            status = "folded"
+            text = ("no kernel needed: evaluated at load from the resolved shapes" if e["op"] in ("Shape", "Size")
+                    else "no kernel needed: its inputs are constants, evaluated at load")
         else:
             status, text = "supported", e["limits"] or ""
         if e["folded"] and status != "folded":
