@@ -3,7 +3,9 @@
 when every op type is supported, 1 when something is not, 2 for a bad file or flag."""
 from __future__ import annotations
 
+import glob
 import json
+import os
 
 import numpy as np
 import onnx
@@ -233,3 +235,17 @@ def test_agrees_with_the_load(tmp_path, capsys):
     with pytest.raises(UnsupportedModelError) as e:
         clss.Model(str(p))
     assert {op for _, op, _, _ in e.value.nodes} == {k for k, o in r["ops"].items() if not o["supported"]}
+
+
+_EXPORTED = sorted(glob.glob(os.path.join(os.path.dirname(__file__), "fixtures", "exported", "*.onnx")))
+
+
+@pytest.mark.skipif(not _EXPORTED, reason="no exported-model fixtures (tests/fixtures/exported)")
+def test_exported_suite_is_supported(capsys):
+    """Every PyTorch export of the exported-model suite (both exporters; the dynamo ones
+    keep external data) passes: the suite is what clss.Model runs."""
+    for p in _EXPORTED:
+        rc, cap = _run(capsys, ["model", "info", p])
+        assert rc == 0 and "verdict: all " in cap.out, (p, cap.out)
+        if os.path.exists(p + ".data"):
+            assert "not read here" in cap.out, p
