@@ -177,6 +177,7 @@ def test_inputs_clss_needs_known_at_load(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("content, expected", [(b"not a model", "not an ONNX model"),
+                                               (b"", "not an ONNX model: no IR version, opset or nodes"),
                                                (None, "no such model file")])
 def test_bad_file_is_one_line(tmp_path, capsys, content, expected):
     p = tmp_path / "bad.onnx"

@@ -258,10 +258,13 @@ def _load(path: str):
     if os.path.isdir(path):
         raise ModelError(f"{path}: is a directory, expected an ONNX file")
     try:
-        return onnx.load(path, load_external_data=False)
+        m = onnx.load(path, load_external_data=False)
     except Exception as e:
         raise ModelError(f"{path}: not an ONNX model: {str(e).splitlines()[0] if str(e) else type(e).__name__}") \
             from None
+    if not m.ir_version and not m.opset_import and not m.graph.node:   # an empty file parses as a message
+        raise ModelError(f"{path}: not an ONNX model: no IR version, opset or nodes")
+    return m
 
 
 def _dims(vi) -> list | None:
