@@ -103,9 +103,9 @@ exit status: 0 every op type supported, 1 something is not, 2 a bad file or flag
 def cmd_model_info(argv) -> int:
     p = ArgParser(
         prog="clss model info",
-        description="Can clss run this ONNX model? Lists its op types (count, supported or not and why, "
-                    "the limits that apply), its opsets, IR version and producer, the graph inputs and "
-                    "outputs with their declared shapes, whether it keeps external data, and a one-line "
+        description="Can clss run this ONNX model? Lists its op types (count, supported or not and why,\n"
+                    "the limits that apply), its opsets, IR version and producer, the graph inputs and\n"
+                    "outputs with their declared shapes, whether it keeps external data, and a one-line\n"
                     "verdict, from the file alone: nothing is built.",
         epilog=MODEL_INFO_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("model", help="ONNX file")
