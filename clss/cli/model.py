@@ -259,17 +259,25 @@ def cmd_run(argv) -> int:
     m = _load(a.model, a.device, a.precision, _declared_symbolic(a.model, shapes), "clss run")
     if m is None:
         return 2
-    from ..model import InputError
+    from ..model import InputError, ModelError
     missing = [k for k in m.input_names if k not in feeds]
     if missing and a.random_inputs:
+        # Inputs whose values decide shapes (Resize scales, a Reshape shape): random
+        # values would make up a model; they come from --input.
+        values = [k for k in missing if k in m.value_inputs]
+        if values:
+            print(f"clss run: --random-inputs: the values of {', '.join(map(repr, values))} decide shapes in this "
+                  f"model ({m.value_inputs[values[0]][0].describe()}); give them with "
+                  + " ".join(f"--input {k}=FILE.npy" for k in values), file=sys.stderr)
+            return 2
         g = np.random.default_rng(0)
         for k in missing:
             dt = m._in_dtypes[k]
             feeds[k] = (g.random(m.input_shapes[k]).astype(dt) if dt.kind == "f"
                         else np.zeros(m.input_shapes[k], dt))
     try:
-        outs = m.run(feeds)
-    except InputError as e:
+        outs = m.run(feeds)   # plans for the values of the inputs that decide shapes, if any
+    except (InputError, ModelError) as e:
         print(f"clss run: {cli_message(e)}", file=sys.stderr)
         return 2
     report = {"model": a.model, "precision": a.precision, "device": m.device.info.name, "outputs": {}}

@@ -357,6 +357,13 @@ def refuse_unknown_ops(m: onnx.ModelProto, opset: int, note: str) -> None:
     run nor rewrite, when there is any. Called where such a node shows up as
     something else (a shape inference cannot resolve, say), so that the user
     hears first what is unsupported; ``note`` tells what else went wrong."""
+    bad = unknown_ops(m, opset)
+    if bad:
+        raise UnsupportedModelError(bad, note)
+
+
+def unknown_ops(m: onnx.ModelProto, opset: int) -> list[tuple[str, str, int, str]]:
+    """(name, op_type, opset, reason) of every node whose op clss can neither run nor rewrite."""
     from ..ops import ONNX_HANDLERS, load_all
     load_all()   # the handlers register when their family is imported
     opsets = {o.domain or "": o.version for o in m.opset_import}
@@ -367,8 +374,7 @@ def refuse_unknown_ops(m: onnx.ModelProto, opset: int, note: str) -> None:
             bad.append((name, n.op_type, opsets.get(n.domain, opset), custom_domain_reason(n.domain)))
         elif n.op_type not in ONNX_HANDLERS and n.op_type not in LOWERED_OPS:
             bad.append((name, n.op_type, opset, NO_KERNEL))
-    if bad:
-        raise UnsupportedModelError(bad, note)
+    return bad
 
 
 def _collect(m: onnx.ModelProto):
@@ -541,11 +547,10 @@ def _constant_value(node: onnx.NodeProto) -> np.ndarray:
 
 # --- the whole load ---------------------------------------------------------------
 
-def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
-          storage_itemsize: int = 4) -> tuple[Graph, onnx.ModelProto, dict]:
-    """Load, check, resolve shapes and fold. Returns the static Graph, the
-    shape-resolved ModelProto (before folding, for FLOP counting and `clss info`),
-    and the resolved input shapes."""
+def prepare(model, input_shapes: dict | None = None) -> tuple[onnx.ModelProto, int, dict]:
+    """Load, sort, check, inline local functions and resolve the runtime inputs' shapes.
+    Returns the ModelProto (inputs' shapes written into it), its opset and the input
+    shapes (in the model's input order). Nothing that needs the inputs' values."""
     m = load_proto(model)
     sort_nodes(m.graph)
     opset = check(m)
@@ -555,7 +560,15 @@ def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
             m = inliner.inline_local_functions(m)
         except Exception as e:
             raise ModelError(f"could not inline the model's local functions: {e}") from None
-    in_shapes = resolve_inputs(m, input_shapes)
+    return m, opset, resolve_inputs(m, input_shapes)
+
+
+def finish(m: onnx.ModelProto, opset: int, max_alloc: int | None = None,
+           storage_itemsize: int = 4) -> tuple[Graph, onnx.ModelProto]:
+    """Shapes resolved, sizes checked, constants folded: the static Graph, and the
+    shape-resolved ModelProto before folding (FLOP counting, `clss info`). ``m`` is
+    the model as prepare() gave it, with the values of any value inputs (see
+    find_value_inputs) already made initializers (with_values); it is not kept."""
     resolved = _infer(m, opset)
     producers = {t: f"{n.op_type} node {n.name!r}" for n in m.graph.node for t in n.output}
     shapes, types = _collect(resolved)
@@ -569,10 +582,191 @@ def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
         work = _infer(work, opset)
         shapes, types = _collect(work)
         check_sizes(shapes, types, max_alloc, storage_itemsize, producers)
-    return _to_graph(work, shapes, types, opset, in_shapes), original, in_shapes
+    return _to_graph(work, shapes, types, opset), original
 
 
-def _to_graph(m, shapes, types, opset, in_shapes) -> Graph:
+def build(model, input_shapes: dict | None = None, max_alloc: int | None = None,
+          storage_itemsize: int = 4, input_values: dict | None = None) -> tuple[Graph, onnx.ModelProto, dict]:
+    """Load, check, resolve shapes and fold. Returns the static Graph, the
+    shape-resolved ModelProto (before folding, for FLOP counting and `clss info`),
+    and the resolved input shapes (the value inputs given in ``input_values``
+    included: they are constants of the Graph)."""
+    m, opset, in_shapes = prepare(model, input_shapes)
+    if input_values:
+        m = with_values(m, {k: np.asarray(v) for k, v in input_values.items()})
+    graph, original = finish(m, opset, max_alloc, storage_itemsize)
+    return graph, original, in_shapes
+
+
+# --- inputs whose values clss needs when it plans ("value inputs") --------------------
+#
+# A graph input that reaches, through any chain of nodes, an input a handler takes as
+# a host value (its const_inputs: Resize scales, Pad pads, Slice starts, ...), one the
+# load-time passes need constant, or one whose value decides a shape (ONNX shape
+# inference needs it: Reshape's shape, Expand's, ConstantOfShape's, Range's bounds) is
+# a value input: clss.Model reads its value from the feeds and plans for it
+# (with_values makes it an initializer; the graph is built, folded and planned again).
+
+# Inputs whose values decide an output's shape, by op (the handlers' const_inputs add
+# the ones a launch needs).
+_REDUCE_OPS = ("ReduceMean", "ReduceSum", "ReduceMax", "ReduceMin", "ReduceL1", "ReduceL2",
+               "ReduceLogSum", "ReduceLogSumExp", "ReduceSumSquare", "ReduceProd")
+SHAPE_VALUE_INPUTS = {
+    "Reshape": (1,), "Expand": (1,), "Tile": (1,), "ConstantOfShape": (0,), "Range": (0, 1, 2),
+    "Slice": (1, 2, 3, 4), "Pad": (1, 3), "Resize": (2, 3), "Upsample": (1,), "Split": (1,),
+    "Squeeze": (1,), "Unsqueeze": (1,), "TopK": (1,), "OneHot": (1,), "CenterCropPad": (1, 2),
+    "Col2Im": (1, 2), "AffineGrid": (1,), "DFT": (1, 2), "STFT": (1, 3), "HannWindow": (0,),
+    "HammingWindow": (0,), "BlackmanWindow": (0,), "MelWeightMatrix": (0, 1, 2, 3, 4),
+    **{op: (1,) for op in _REDUCE_OPS}}
+# Inputs the load-time passes (passes.py) need constant, for ops they lower with no
+# handler of their name.
+LOWERED_CONST_INPUTS = {"Dropout": (1, 2), "BatchNormalization": (1, 2, 3, 4), "Gemm": (1, 2)}
+# Inputs of which only the shape or type counts, not the values.
+_SHAPE_ONLY = {"Shape": None, "Size": None, "EyeLike": None, "RandomNormalLike": None,
+               "RandomUniformLike": None, "CastLike": (1,)}
+# A graph input past this many elements whose values would decide a shape is data (an
+# image): such a model is refused by name rather than planned again for every frame.
+MAX_VALUE_ELEMENTS = 4096
+
+
+def load_time_positions(node: onnx.NodeProto) -> list[int]:
+    """The input positions of ``node`` whose values clss needs when it plans."""
+    from ..ops import ONNX_HANDLERS
+    op = node.op_type
+    if node.domain not in ("", "ai.onnx"):
+        return []
+    pos = set(SHAPE_VALUE_INPUTS.get(op, ()))
+    h = ONNX_HANDLERS.get(op)
+    if h is not None:
+        pos |= set(h.const_inputs)
+    else:
+        pos |= set(LOWERED_CONST_INPUTS.get(op, ()))
+    return sorted(i for i in pos if i < len(node.input) and node.input[i])
+
+
+@dataclass
+class ValueUse:
+    """Where a value input's values are needed: input ``index`` (tensor ``tensor``) of
+    node ``node`` (op ``op``), reached through the ops ``via`` (empty: directly)."""
+    node: str
+    op: str
+    index: int
+    tensor: str
+    via: tuple = ()
+
+    def describe(self) -> str:
+        via = f" through {', '.join(self.via)}" if self.via else ""
+        return f"{self.op} node {self.node!r} input {self.index} ({self.tensor!r}){via}"
+
+
+def _node_name(n: onnx.NodeProto, k: int) -> str:
+    return n.name or f"#{k} {n.op_type}"
+
+
+def find_value_inputs(m: onnx.ModelProto, opset: int) -> dict[str, list[ValueUse]]:
+    """The runtime graph inputs whose values clss needs when it plans (see above), each
+    with where they are needed, in the model's input order. Refuses by name
+    (UnsupportedModelError) what no input's value can settle: a needed value computed
+    by a node that only runs with the model (random values, control flow), or one that
+    follows the values of a data input (more than MAX_VALUE_ELEMENTS elements)."""
+    g = m.graph
+    inits = {t.name for t in g.initializer} | {t.values.name for t in g.sparse_initializer}
+    runtime = [i.name for i in g.input if i.name not in inits]
+    deps: dict[str, frozenset] = {t: frozenset({("in", t)}) for t in runtime}
+    producer: dict[str, int] = {}
+    for k, n in enumerate(g.node):
+        op = n.op_type
+        if n.domain in ("", "ai.onnx") and op in NO_FOLD:
+            d = frozenset({("run", k)})
+        elif n.domain in ("", "ai.onnx") and op == "Constant":
+            d = frozenset()
+        else:
+            skip = _SHAPE_ONLY.get(op, ()) if n.domain in ("", "ai.onnx") else ()
+            d = frozenset().union(*(deps.get(t, frozenset()) for i, t in enumerate(n.input)
+                                    if t and skip is not None and i not in skip))
+        for t in n.output:
+            if t:
+                deps[t] = d
+                producer[t] = k
+
+    def path(t: str, goal) -> tuple:
+        """The ops between tensor t and the dependency ``goal`` (nearest first)."""
+        ops = []
+        while t in producer and len(ops) < 6:
+            k = producer[t]
+            n = g.node[k]
+            if goal == ("run", k):
+                break
+            ops.append(f"{n.op_type} {_node_name(n, k)!r}")
+            t = next((x for x in n.input if x and goal in deps.get(x, ())), None)
+            if t is None:
+                break
+        return tuple(ops)
+
+    uses: dict[str, list[ValueUse]] = {}
+    bad = []
+    for k, n in enumerate(g.node):
+        for i in load_time_positions(n):
+            t = n.input[i]
+            for dep in sorted(deps.get(t, ()), key=str):
+                use = ValueUse(_node_name(n, k), n.op_type, i, t, path(t, dep))
+                if dep[0] == "in":
+                    uses.setdefault(dep[1], []).append(use)
+                else:
+                    src = g.node[dep[1]]
+                    what = "control flow" if src.op_type in ("If", "Loop", "Scan") else "random values"
+                    bad.append((use.node, use.op, opset,
+                                f"input {i} ({t!r}) is computed when the model runs, by {src.op_type} node "
+                                f"{_node_name(src, dep[1])!r} ({what})"
+                                + (f" through {', '.join(use.via)}" if use.via else "")
+                                + "; clss needs it when it plans the model"))
+    # (a symbolic size counts as past the limit: an input whose sizes vary is data)
+    sizes = {}
+    for i in g.input:
+        if i.name in uses:
+            dims = i.type.tensor_type.shape.dim
+            sizes[i.name] = (int(np.prod([d.dim_value for d in dims], dtype=np.int64))
+                             if all(d.HasField("dim_value") for d in dims) else None)
+    for name, us in uses.items():
+        n = sizes[name]
+        if n is None or n > MAX_VALUE_ELEMENTS:
+            for u in us:
+                bad.append((u.node, u.op, opset,
+                            f"input {u.index} ({u.tensor!r}) follows the values of graph input {name!r} "
+                            + (f"({n:,} elements)" if n is not None else "(symbolic shape)")
+                            + (f" through {', '.join(u.via)}" if u.via else "")
+                            + f": a shape or setting that depends on data. clss plans for the values of "
+                            f"inputs of up to {MAX_VALUE_ELEMENTS:,} elements (Resize scales, a Reshape "
+                            "shape, ...), read at each run, not for those of data tensors"))
+    if bad:
+        raise UnsupportedModelError(unknown_ops(m, opset) + bad)
+    return {t: uses[t] for t in runtime if t in uses}
+
+
+def with_values(m: onnx.ModelProto, values: dict) -> onnx.ModelProto:
+    """A copy of ``m`` whose graph inputs named in ``values`` are initializers of those
+    values (in the input's declared element type)."""
+    w = onnx.ModelProto()
+    w.CopyFrom(m)
+    g = w.graph
+    keep = []
+    for vi in g.input:
+        if vi.name in values:
+            dt = _np_dtype(vi.type.tensor_type.elem_type)
+            g.initializer.append(numpy_helper.from_array(np.asarray(values[vi.name]).astype(dt), vi.name))
+        else:
+            keep.append(vi)
+    if len(keep) != len(g.input):
+        kept = []
+        for vi in keep:
+            kept.append(onnx.ValueInfoProto())
+            kept[-1].CopyFrom(vi)
+        del g.input[:]
+        g.input.extend(kept)
+    return w
+
+
+def _to_graph(m, shapes, types, opset) -> Graph:
     g = m.graph
     consts = {t.name: _host_const(numpy_helper.to_array(t)) for t in g.initializer}
     init_names = set(consts)
