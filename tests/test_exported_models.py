@@ -2,8 +2,9 @@
 through clss.Model against onnxruntime, fp32 and fp16.
 
 tests/fixtures/exported holds small PyTorch versions of published architectures (ESPCN,
-FSRCNN, EDSR, RCAN, Real-ESRGAN's RRDBNet, a BatchNorm U-Net, MobileNetV3 blocks, a SwinIR
-block pair, a BasicVSR propagation step, a ConvLSTM cell, InstanceNorm / GroupNorm blocks),
+FSRCNN, EDSR, RCAN, Real-ESRGAN's RRDBNet, a BatchNorm U-Net, a U-Net padding to odd sizes
+from the shapes, MobileNetV3 and MobileNetV2 blocks, ConvNeXt, a SwinIR block pair, a
+BasicVSR propagation step, a ConvLSTM cell, InstanceNorm / GroupNorm blocks),
 random weights from fixed seeds, each exported with torch's TorchScript exporter (opset 17)
 and its dynamo exporter (torch's default exporter and opset; external data kept as written).
 weights_tools/export_suite.py writes them and tests/fixtures/exported/manifest.json (`make

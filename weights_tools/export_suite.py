@@ -501,6 +501,115 @@ class NormBlocks(nn.Module):
         return self.conv3(y) + x
 
 
+class LayerNorm2d(nn.Module):
+    """ConvNeXt's channels-first LayerNorm, written out: mean, (x - u)^2 mean, sqrt (the
+    exporters keep it as ReduceMean, Sub, Pow, Add, Sqrt, Div)."""
+
+    def __init__(self, c, eps=1e-6):
+        super().__init__()
+        self.weight = nn.Parameter(torch.empty(c).uniform_(0.7, 1.3))
+        self.bias = nn.Parameter(torch.empty(c).uniform_(-0.1, 0.1))
+        self.eps = eps
+
+    def forward(self, x):
+        u = x.mean(1, keepdim=True)
+        s = (x - u).pow(2).mean(1, keepdim=True)
+        x = (x - u) / torch.sqrt(s + self.eps)
+        return self.weight[:, None, None] * x + self.bias[:, None, None]
+
+
+class ConvNeXtBlock(nn.Module):
+    """Liu et al. 2022: depthwise 7x7, permute to channels-last, LayerNorm, Linear 4x, GELU,
+    Linear, layer scale, permute back, residual."""
+
+    def __init__(self, c):
+        super().__init__()
+        self.dwconv = nn.Conv2d(c, c, 7, padding=3, groups=c)
+        self.norm = nn.LayerNorm(c, eps=1e-6)
+        self.pwconv1, self.act, self.pwconv2 = nn.Linear(c, 4 * c), nn.GELU(), nn.Linear(4 * c, c)
+        self.gamma = nn.Parameter(torch.empty(c).uniform_(0.3, 1.0))
+
+    def forward(self, x):
+        y = self.dwconv(x).permute(0, 2, 3, 1)
+        y = self.pwconv2(self.act(self.pwconv1(self.norm(y))))
+        return x + (self.gamma * y).permute(0, 3, 1, 2)
+
+
+class ConvNeXt(nn.Module):
+    """ConvNeXt, small: stem conv 2x2 stride 2 + LayerNorm2d, a block, downsampling
+    (LayerNorm2d, conv 2x2 stride 2), a block, global mean over H and W, LayerNorm, Linear.
+    Outputs the features and the logits."""
+
+    def __init__(self, dims=(16, 24), classes=10):
+        super().__init__()
+        self.stem = nn.Sequential(nn.Conv2d(3, dims[0], 2, stride=2), LayerNorm2d(dims[0]))
+        self.stage1 = ConvNeXtBlock(dims[0])
+        self.down = nn.Sequential(LayerNorm2d(dims[0]), nn.Conv2d(dims[0], dims[1], 2, stride=2))
+        self.stage2 = ConvNeXtBlock(dims[1])
+        self.norm = nn.LayerNorm(dims[1], eps=1e-6)
+        self.head = nn.Linear(dims[1], classes)
+
+    def forward(self, x):
+        f = self.stage2(self.down(self.stage1(self.stem(x))))
+        return f, self.head(self.norm(f.mean([-2, -1])))
+
+
+class MobileNetV2(nn.Module):
+    """Sandler et al. 2018, small: conv s2 + BN + ReLU6 (Clip), inverted residuals with
+    ReLU6 (expand 1x1, depthwise 3x3, linear project 1x1), residual, 1x1 head + ReLU6."""
+
+    def __init__(self):
+        super().__init__()
+
+        def block(cin, exp, cout, stride):
+            return InvertedResidual(cin, exp, cout, 3, stride, False, nn.ReLU6)
+        self.stem = nn.Sequential(nn.Conv2d(3, 16, 3, 2, 1, bias=False), nn.BatchNorm2d(16), nn.ReLU6(True))
+        self.blocks = nn.Sequential(block(16, 48, 16, 1), block(16, 48, 24, 2), block(24, 72, 24, 1))
+        self.head = nn.Sequential(nn.Conv2d(24, 32, 1, bias=False), nn.BatchNorm2d(32), nn.ReLU6(True))
+        _randomise_bn(self)
+
+    def forward(self, x):
+        return self.head(self.blocks(self.stem(x)))
+
+
+class UpPad(nn.Module):
+    """milesial/Pytorch-UNet's Up: bilinear 2x, pad to the skip's size (the pads computed
+    from the two shapes), concatenate, double conv."""
+
+    def __init__(self, cin, cskip, cout):
+        super().__init__()
+        self.up = nn.Upsample(scale_factor=2, mode="bilinear", align_corners=True)
+        self.conv = nn.Sequential(*_conv_bn_relu(cin + cskip, cout), *_conv_bn_relu(cout, cout))
+
+    def forward(self, x1, x2):
+        x1 = self.up(x1)
+        dy, dx = x2.size()[2] - x1.size()[2], x2.size()[3] - x1.size()[3]
+        x1 = F.pad(x1, [dx // 2, dx - dx // 2, dy // 2, dy - dy // 2])
+        return self.conv(torch.cat([x2, x1], 1))
+
+
+class UNetPad(nn.Module):
+    """The U-Net of milesial/Pytorch-UNet, small and for any size: the decoder pads each
+    upsized map to its skip's odd size, the pads computed from the shapes at run time
+    (exported with dynamic height and width: Shape, Sub, Div, Concat into Pad)."""
+
+    def __init__(self, c=8):
+        super().__init__()
+        self.inc = nn.Sequential(*_conv_bn_relu(3, c), *_conv_bn_relu(c, c))
+        self.down1 = nn.Sequential(nn.MaxPool2d(2), *_conv_bn_relu(c, 2 * c), *_conv_bn_relu(2 * c, 2 * c))
+        self.down2 = nn.Sequential(nn.MaxPool2d(2), *_conv_bn_relu(2 * c, 2 * c), *_conv_bn_relu(2 * c, 2 * c))
+        self.up1 = UpPad(2 * c, 2 * c, c)
+        self.up2 = UpPad(c, c, c)
+        self.outc = nn.Conv2d(c, 2, 1)
+        _randomise_bn(self)
+
+    def forward(self, x):
+        x1 = self.inc(x)
+        x2 = self.down1(x1)
+        x3 = self.down2(x2)
+        return self.outc(self.up2(self.up1(x3, x2), x1))
+
+
 # --- the suite -----------------------------------------------------------------------------
 
 @dataclass
@@ -568,6 +677,14 @@ def architectures() -> list[Arch]:
              ["h_out", "c_out"], 10, "ConvLSTM cell: conv of cat(x, h), chunk into 4 gates"),
         Arch("norms", NormBlocks, [Input("x", SR_SIZE)], ["y"], 11,
              "InstanceNorm2d (affine) + ReLU, GroupNorm(4) + SiLU, residual"),
+        Arch("convnext", ConvNeXt, [Input("x", SR_SIZE)], ["features", "logits"], 12,
+             "ConvNeXt: channels-first LayerNorm written out (mean, pow, sqrt), depthwise 7x7, "
+             "channels-last LayerNorm, GELU MLP, layer scale, mean over H and W"),
+        Arch("mobilenetv2", MobileNetV2, [Input("x", SR_SIZE)], ["y"], 13,
+             "MobileNetV2 blocks: ReLU6 (Clip), depthwise convs, linear bottleneck, BatchNorm"),
+        Arch("unet_pad", UNetPad, [Input("x", SR_SIZE)], ["y"], 14,
+             "U-Net for any size (milesial): bilinear 2x, pads to the skip's odd size computed "
+             "from the shapes, dynamic height and width", dynamic_hw=True, tags=["shape-computed"]),
     ]
 
 
