@@ -657,6 +657,50 @@ __kernel void softmax(__global const T *in, __global T *out, int L, int inner, i
 #endif
 }
 
+/* softmax over the last axis (inner == 1: attention scores, a classifier's logits), one
+ * row per work-item, eight lanes at a time: the host's fast path (elementwise.softmax_rows
+ * in clss/ops/elementwise.py; `softmax` with inner 1, whose neighbouring work-items walk
+ * rows L apart, is its reference). NDRange (outer). */
+/** @param[in]  in     [outer, L] input
+ *  @param[out] out    the same shape
+ *  @param[in]  L      length of the softmax axis (the last)
+ *  @param[in]  outer  rows
+ *  @note -DLOG_SOFTMAX=1: LogSoftmax; -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
+__kernel void softmax_rows(__global const T *in, __global T *out, int L, int outer)
+{
+    const int o = get_global_id(0);
+    if (o >= outer) return;
+    __global const T *x = in + (long)o * L;
+    __global T *y = out + (long)o * L;
+    int j = 0;
+    A8 m8 = (A8)(-INFINITY);
+    for (; j + 8 <= L; j += 8)
+        m8 = fmax(m8, FLD8(x, j));
+    A m = fmax(fmax(fmax(m8.s0, m8.s1), fmax(m8.s2, m8.s3)), fmax(fmax(m8.s4, m8.s5), fmax(m8.s6, m8.s7)));
+    for (; j < L; ++j)
+        m = fmax(m, FLD(x, j));
+    A8 s8 = (A8)(A_ZERO);
+    for (j = 0; j + 8 <= L; j += 8)
+        s8 += exp(FLD8(x, j) - m);
+    A s = ((s8.s0 + s8.s1) + (s8.s2 + s8.s3)) + ((s8.s4 + s8.s5) + (s8.s6 + s8.s7));
+    for (; j < L; ++j)
+        s += exp(FLD(x, j) - m);
+#if LOG_SOFTMAX
+    const A ls = log(s);
+    for (j = 0; j + 8 <= L; j += 8)
+        FST8(y, j, (FLD8(x, j) - m) - ls);
+    for (; j < L; ++j)
+        FST(y, j, (FLD(x, j) - m) - ls);
+#else
+    for (j = 0; j + 8 <= L; j += 8)
+        FST8(y, j, exp(FLD8(x, j) - m) / s);
+    for (; j < L; ++j)
+        FST(y, j, exp(FLD(x, j) - m) / s);
+#endif
+}
+
 #ifndef LAST
 #define LAST 0
 #endif

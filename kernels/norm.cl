@@ -17,6 +17,8 @@
  *   -DSCALE_MODE=0|1|2  0: the formula above; 1: s = j (LayerNorm); 2: s is the same for
  *                    the whole row (InstanceNorm; GroupNorm with a scale per group), folded
  *                    into one multiply-add per element
+ *   -DCLSS_CLANG_VECTORS=0|1  loads and stores through common.h's FLD8/FST8 as clang
+ *                    vector accesses (1, on PoCL) or the builtins
  *   -DSTATS=0|1      also write the row's mean and 1/sqrt(var + eps) (LayerNorm's optional
  *                    outputs Mean and InvStdDev)
  */
@@ -42,7 +44,7 @@
  *  @param[in]  rows   rows
  *  @param[in]  SR, SA, SD, SM  how a row and element index the scale (above)
  *  @param[in]  eps    epsilon
- *  @note -DHAS_BIAS=0|1; -DSTATS=0|1; -DSCALE_MODE=0|1|2
+ *  @note -DHAS_BIAS=0|1; -DSTATS=0|1; -DSCALE_MODE=0|1|2; -DCLSS_CLANG_VECTORS=0|1
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
  */
 __kernel void norm_rows(__global const T *in, __global const T *scale, __global const T *bias,
@@ -56,19 +58,19 @@ __kernel void norm_rows(__global const T *in, __global const T *scale, __global 
     int j = 0;
     float8 s8 = (float8)(0.0f);
     for (; j + 8 <= L; j += 8)
-        s8 += convert_float8(LD8(x, j));
+        s8 += convert_float8(FLD8(x, j));
     float s = s8.s0 + s8.s1 + s8.s2 + s8.s3 + s8.s4 + s8.s5 + s8.s6 + s8.s7;
     for (; j < L; ++j)
-        s += (float)LD(x, j);
+        s += (float)FLD(x, j);
     const float mu = s / (float)L;
     s8 = (float8)(0.0f);
     for (j = 0; j + 8 <= L; j += 8) {
-        const float8 d = convert_float8(LD8(x, j)) - mu;
+        const float8 d = convert_float8(FLD8(x, j)) - mu;
         s8 += d * d;
     }
     s = s8.s0 + s8.s1 + s8.s2 + s8.s3 + s8.s4 + s8.s5 + s8.s6 + s8.s7;
     for (; j < L; ++j) {
-        const float d = (float)LD(x, j) - mu;
+        const float d = (float)FLD(x, j) - mu;
         s += d * d;
     }
     const float inv = 1.0f / sqrt(s / (float)L + eps);
@@ -86,16 +88,28 @@ __kernel void norm_rows(__global const T *in, __global const T *scale, __global 
     const float b = -mu * a;
 #endif
     for (j = 0; j + 8 <= L; j += 8)
-        ST8(y, j, CONVERT_A8(convert_float8(LD8(x, j)) * a + b));
+        FST8(y, j, CONVERT_A8(convert_float8(FLD8(x, j)) * a + b));
     for (; j < L; ++j)
-        ST(y, j, (float)LD(x, j) * a + b);
+        FST(y, j, (float)FLD(x, j) * a + b);
+#elif SCALE_MODE == 1
+    /* LayerNorm: the scale and bias run along the row */
+    for (j = 0; j + 8 <= L; j += 8) {
+        float8 v = (convert_float8(FLD8(x, j)) - mu) * inv * convert_float8(FLD8(scale, j));
+#if HAS_BIAS
+        v += convert_float8(FLD8(bias, j));
+#endif
+        FST8(y, j, CONVERT_A8(v));
+    }
+    for (; j < L; ++j) {
+        float v = ((float)FLD(x, j) - mu) * inv * (float)FLD(scale, j);
+#if HAS_BIAS
+        v += (float)FLD(bias, j);
+#endif
+        FST(y, j, v);
+    }
 #else
     for (j = 0; j < L; ++j) {
-#if SCALE_MODE == 1
-        const long si = j;          /* LayerNorm: the scale runs along the row */
-#else
         const long si = s0 + (j / SD) % SM;
-#endif
         float v = ((float)LD(x, j) - mu) * inv * (float)LD(scale, si);
 #if HAS_BIAS
         v += (float)LD(bias, si);
@@ -103,4 +117,46 @@ __kernel void norm_rows(__global const T *in, __global const T *scale, __global 
         ST(y, j, v);
     }
 #endif
+}
+
+/* Normalisation over a block of axes that is not the last: a [outer, L, inner] view
+ * normalised along L for each (outer, inner) pair, as a channel LayerNorm of NCHW
+ * (NAFNet's and ConvNeXt's LayerNorm2d: mean and variance over C at each pixel) exports.
+ * One work-item per pair, NDRange (inner, outer): neighbouring work-items read
+ * neighbouring pixels. y = (x - mean) / sqrt(var + eps) * scale[k] + bias[k]. */
+/** @param[in]  in     [outer, L, inner] input
+ *  @param[in]  scale  [L] scale
+ *  @param[in]  bias   [L] bias (read with -DHAS_BIAS=1)
+ *  @param[out] out    [outer, L, inner] output
+ *  @param[in]  L      length of the normalised block
+ *  @param[in]  inner  elements after it (NDRange dimension 0)
+ *  @param[in]  outer  elements before it (NDRange dimension 1)
+ *  @param[in]  eps    epsilon
+ *  @note -DHAS_BIAS=0|1; -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
+__kernel void norm_strided(__global const T *in, __global const T *scale, __global const T *bias,
+                           __global T *out, int L, int inner, int outer, float eps)
+{
+    const int j = get_global_id(0), o = get_global_id(1);
+    if (j >= inner || o >= outer) return;
+    const long base = (long)o * L * inner + j;
+    float s = 0.0f;
+    for (int k = 0; k < L; ++k)
+        s += (float)FLD(in, base + (long)k * inner);
+    const float mu = s / (float)L;
+    s = 0.0f;
+    for (int k = 0; k < L; ++k) {
+        const float d = (float)FLD(in, base + (long)k * inner) - mu;
+        s += d * d;
+    }
+    const float inv = 1.0f / sqrt(s / (float)L + eps);
+    for (int k = 0; k < L; ++k) {
+        const long i = base + (long)k * inner;
+        float v = ((float)FLD(in, i) - mu) * inv * (float)FLD(scale, k);
+#if HAS_BIAS
+        v += (float)FLD(bias, k);
+#endif
+        FST(out, i, v);
+    }
 }

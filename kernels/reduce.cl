@@ -16,6 +16,8 @@
  *
  * Build options:
  *   -DROP=n   the reduction (ROP_* below)
+ *   -DCLSS_CLANG_VECTORS=0|1  loads through common.h's FLD/FLD8 as clang vector accesses
+ *             (1, on PoCL, where vload8/vload_half are out-of-line calls) or the builtins
  */
 #include "common.h"
 
@@ -64,6 +66,19 @@
 #endif
 #endif
 
+/* The result from the combined contributions (generic in the vector width). */
+#if ROP == ROP_MEAN
+#define FINISH(acc) ((acc) / count)
+#elif ROP == ROP_L2
+#define FINISH(acc) sqrt(acc)
+#elif ROP == ROP_LOGSUM
+#define FINISH(acc) log(acc)
+#elif ROP == ROP_LOGSUMEXP
+#define FINISH(acc) (m + log(acc))
+#else
+#define FINISH(acc) (acc)
+#endif
+
 /* One reduced row of R3 elements at p (stride r3) folded into a fresh accumulator. */
 #define ROW_FOLD(row, p, R3, r3)                                               \
     do {                                                                       \
@@ -72,7 +87,7 @@
         if ((r3) == 1 && (R3) >= 8) {                                          \
             float8 v8 = (float8)((float)INIT);                                 \
             for (; e + 8 <= (R3); e += 8) {                                    \
-                const float8 x = convert_float8(LD8(p, e));                    \
+                const float8 x = convert_float8(FLD8(p, e));                    \
                 v8 = COMBINE(v8, MAP(x));                                      \
             }                                                                  \
             row = COMBINE(row, v8.s0); row = COMBINE(row, v8.s1);              \
@@ -81,30 +96,15 @@
             row = COMBINE(row, v8.s6); row = COMBINE(row, v8.s7);              \
         }                                                                      \
         for (; e < (R3); ++e) {                                                \
-            const float x = (float)LD(p, (long)e * (r3));                      \
+            const float x = (float)FLD(p, (long)e * (r3));                      \
             row = COMBINE(row, MAP(x));                                        \
         }                                                                      \
     } while (0)
 
-/** @param[in]  in      the input
- *  @param[out] out     [K0, K1, K2, K3] the reduction (contiguous)
- *  @param[in]  K1, K2, K3  the kept (output) dimensions 1-3
- *  @param[in]  K01     K0 * K1, the extent of NDRange dimension 2
- *  @param[in]  k0..k3  input element strides of the kept dimensions
- *  @param[in]  R0..R3  the reduced dimensions (1 where unused)
- *  @param[in]  r0..r3  input element strides of the reduced dimensions
- *  @param[in]  count   reduced elements per output (Mean's divisor)
- *  @note -DROP=n: the reduction (ROP_* above)
- *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
- */
-__kernel void reduce(__global const T *in, __global T *out, int K1, int K2, int K3, int K01,
-                     int k0, int k1, int k2, int k3, int R0, int R1, int R2, int R3,
-                     int r0, int r1, int r2, int r3, float count)
+/* The reduction of one output: the elements at base + a*r0 + b*r1 + c*r2 + e*r3. */
+inline float reduce_one(__global const T *in, long base, int R0, int R1, int R2, int R3,
+                        int r0, int r1, int r2, int r3, float count)
 {
-    const int i3 = get_global_id(0), i2 = get_global_id(1), z = get_global_id(2);
-    if (i3 >= K3 || i2 >= K2 || z >= K01) return;
-    const int i0 = z / K1, i1 = z % K1;
-    const long base = (long)i0 * k0 + (long)i1 * k1 + (long)i2 * k2 + (long)i3 * k3;
 #if ROP == ROP_LOGSUMEXP
     float m = -INFINITY;
     for (int a = 0; a < R0; ++a)
@@ -112,7 +112,7 @@ __kernel void reduce(__global const T *in, __global T *out, int K1, int K2, int 
             for (int c = 0; c < R2; ++c) {
                 __global const T *p = in + base + (long)a * r0 + (long)b * r1 + (long)c * r2;
                 for (int e = 0; e < R3; ++e) {
-                    const float x = (float)LD(p, (long)e * r3);
+                    const float x = (float)FLD(p, (long)e * r3);
                     m = (x > m || isnan(x)) ? x : m;
                 }
             }
@@ -128,14 +128,84 @@ __kernel void reduce(__global const T *in, __global T *out, int K1, int K2, int 
                 ROW_FOLD(row, p, R3, r3);
                 acc = COMBINE(acc, row);
             }
-#if ROP == ROP_MEAN
-    acc = acc / count;
-#elif ROP == ROP_L2
-    acc = sqrt(acc);
-#elif ROP == ROP_LOGSUM
-    acc = log(acc);
-#elif ROP == ROP_LOGSUMEXP
-    acc = m + log(acc);
+    return FINISH(acc);
+}
+
+/** @param[in]  in      the input
+ *  @param[out] out     [K0, K1, K2, K3] the reduction (contiguous)
+ *  @param[in]  K1, K2, K3  the kept (output) dimensions 1-3
+ *  @param[in]  K01     K0 * K1, the extent of NDRange dimension 2
+ *  @param[in]  k0..k3  input element strides of the kept dimensions
+ *  @param[in]  R0..R3  the reduced dimensions (1 where unused)
+ *  @param[in]  r0..r3  input element strides of the reduced dimensions
+ *  @param[in]  count   reduced elements per output (Mean's divisor)
+ *  @note -DROP=n: the reduction (ROP_* above); -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
+__kernel void reduce(__global const T *in, __global T *out, int K1, int K2, int K3, int K01,
+                     int k0, int k1, int k2, int k3, int R0, int R1, int R2, int R3,
+                     int r0, int r1, int r2, int r3, float count)
+{
+    const int i3 = get_global_id(0), i2 = get_global_id(1), z = get_global_id(2);
+    if (i3 >= K3 || i2 >= K2 || z >= K01) return;
+    const int i0 = z / K1, i1 = z % K1;
+    const long base = (long)i0 * k0 + (long)i1 * k1 + (long)i2 * k2 + (long)i3 * k3;
+    FST(out, ((long)z * K2 + i2) * K3 + i3, reduce_one(in, base, R0, R1, R2, R3, r0, r1, r2, r3, count));
+}
+
+/* reduce with eight neighbouring outputs per work-item, for outputs that are neighbours in
+ * the input too (k3 == 1: a reduction over channels, or over any axis but the last): each
+ * reduced element is one eight-wide load for all eight outputs. The host's fast path
+ * (reduce.outputs8 in clss/ops/reduce.py; `reduce` is its reference). Same arguments;
+ * NDRange (ceil(K3 / 8), K2, K0*K1). */
+/** @param[in]  in      the input
+ *  @param[out] out     [K0, K1, K2, K3] the reduction (contiguous)
+ *  @param[in]  K1, K2, K3  the kept (output) dimensions 1-3
+ *  @param[in]  K01     K0 * K1, the extent of NDRange dimension 2
+ *  @param[in]  k0..k3  input element strides of the kept dimensions (k3 == 1)
+ *  @param[in]  R0..R3  the reduced dimensions (1 where unused)
+ *  @param[in]  r0..r3  input element strides of the reduced dimensions
+ *  @param[in]  count   reduced elements per output (Mean's divisor)
+ *  @note -DROP=n: the reduction (ROP_* above); -DCLSS_CLANG_VECTORS=0|1
+ *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
+ */
+__kernel void reduce8(__global const T *in, __global T *out, int K1, int K2, int K3, int K01,
+                      int k0, int k1, int k2, int k3, int R0, int R1, int R2, int R3,
+                      int r0, int r1, int r2, int r3, float count)
+{
+    const int i3 = get_global_id(0) * 8, i2 = get_global_id(1), z = get_global_id(2);
+    if (i3 >= K3 || i2 >= K2 || z >= K01) return;
+    const int i0 = z / K1, i1 = z % K1;
+    const long base = (long)i0 * k0 + (long)i1 * k1 + (long)i2 * k2 + (long)i3;
+    const long o = ((long)z * K2 + i2) * K3 + i3;
+    if (i3 + 8 > K3) {
+        for (int e = 0; i3 + e < K3; ++e)
+            FST(out, o + e, reduce_one(in, base + e, R0, R1, R2, R3, r0, r1, r2, r3, count));
+        return;
+    }
+#if ROP == ROP_LOGSUMEXP
+    float8 m = (float8)(-INFINITY);
+    for (int a = 0; a < R0; ++a)
+        for (int b = 0; b < R1; ++b)
+            for (int c = 0; c < R2; ++c)
+                for (int e = 0; e < R3; ++e) {
+                    const float8 x = convert_float8(FLD8(in, base + (long)a * r0 + (long)b * r1 +
+                                                             (long)c * r2 + (long)e * r3));
+                    m = ((x > m) | isnan(x)) ? x : m;
+                }
+    m = isinf(m) ? (float8)(0.0f) : m;
 #endif
-    ST(out, ((long)z * K2 + i2) * K3 + i3, acc);
+    float8 acc = (float8)((float)INIT);
+    for (int a = 0; a < R0; ++a)
+        for (int b = 0; b < R1; ++b)
+            for (int c = 0; c < R2; ++c) {
+                float8 row = (float8)((float)INIT);
+                __global const T *p = in + base + (long)a * r0 + (long)b * r1 + (long)c * r2;
+                for (int e = 0; e < R3; ++e) {
+                    const float8 x = convert_float8(FLD8(p, (long)e * r3));
+                    row = COMBINE(row, MAP(x));
+                }
+                acc = COMBINE(acc, row);
+            }
+    FST8(out, o, CONVERT_A8(FINISH(acc)));
 }

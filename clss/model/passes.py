@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .graph import FLOAT_TYPES, Graph, Node
+from .patterns import float_exponents, fuse_layer_norm
 
 ACT_OPS = {"Relu": "relu", "LeakyRelu": "leaky_relu", "Sigmoid": "sigmoid", "Tanh": "tanh"}
 
@@ -1122,6 +1123,8 @@ PASSES = [
     ("views", lower_views),
     ("batchnorm", fold_batchnorm),
     ("batchnorm_training", training_batchnorm),
+    ("float_exponents", float_exponents),
+    ("layer_norm", fuse_layer_norm),
     ("matmul", lower_matmul),
     ("conv_canonical", canonical_convs),
     ("conv_resize", conv_through_resize),

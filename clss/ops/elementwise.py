@@ -419,6 +419,10 @@ def _gather(dev, prec, x, out, base: int, src_strides, what: str):
     dev.launch(k, gs, (x.data, out.data, *dargs, np.int64(base), *_i32(*src)))
 
 
+# Softmax over the last axis: one row per work-item, eight lanes at a time (kernel
+# softmax_rows); 0 selects the reference kernel `softmax` for it too.
+SOFTMAX_ROWS = 1
+
 # Pad with 8 outputs per work-item along the last axis (kernel pad8); 0 selects
 # the reference kernel `pad` (one output per work-item).
 PAD_VEC = 1
@@ -565,6 +569,12 @@ def softmax(dev: Device, prec: str, x, axis: int = -1, out=None, log: bool = Fal
     axis, outer, length, inner = _rows(x, axis)
     out = out if out is not None else dev.empty(x.shape, prec)
     if out.size == 0:
+        return out
+    if (SOFTMAX_ROWS and inner == 1 and length >= 8
+            and selfcheck.enabled(dev, prec, "elementwise.softmax_rows")):
+        k = dev.kernel("elementwise", "softmax_rows", prec, LOG_SOFTMAX=int(log),
+                       CLSS_CLANG_VECTORS=builtin_free(dev))
+        dev.launch(k, (outer,), (x.data, out.data, *_i32(length, outer)))
         return out
     k = dev.kernel("elementwise", "softmax", prec, LOG_SOFTMAX=int(log))
     dev.launch(k, (inner, outer), (x.data, out.data, *_i32(length, inner, outer)))
@@ -838,6 +848,21 @@ def _selfcheck_bcast(dev: Device, prec: str) -> list[np.ndarray]:
 selfcheck.register(selfcheck.FastPath(
     "elementwise.pad8", "elementwise", {"PAD_VEC": 1}, {"PAD_VEC": 0}, check=_selfcheck_pad,
     tolerance=lambda prec: EXACT, what="pad: 8 x PAD_BLOCKS outputs per work-item (kernel pad8)"))
+def _selfcheck_softmax_rows(dev: Device, prec: str) -> list[np.ndarray]:
+    """Rows of 21 and 8 (a ragged tail, a single block), softmax and log-softmax."""
+    g = rng("softmax rows selfcheck")
+    outs = []
+    for shape in ((3, 5, 21), (4, 8)):
+        x = dev.to_device((g.standard_normal(shape) * 4).astype(np.float32), prec)
+        outs += [dev.to_host(softmax(dev, prec, x, -1, log=lg)) for lg in (False, True)]
+    return outs
+
+
+selfcheck.register(selfcheck.FastPath(
+    "elementwise.softmax_rows", "elementwise", {"SOFTMAX_ROWS": 1, "CLSS_CLANG_VECTORS": 1},
+    {"SOFTMAX_ROWS": 0}, check=_selfcheck_softmax_rows, tolerance=DEFAULT_TOL.__getitem__,
+    what="softmax over the last axis: one row per work-item, eight lanes at a time (kernel softmax_rows) "
+         "/ one work-item per row walking rows L apart (kernel softmax)"))
 selfcheck.register(selfcheck.FastPath(
     "elementwise.bcast8", "elementwise", {"BCAST_VEC": 1}, {"BCAST_VEC": 0}, check=_selfcheck_bcast,
     tolerance=DEFAULT_TOL.__getitem__,

@@ -9,9 +9,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import selfcheck
 from ..device import Device
-from .base import Unsupported, check_storage, onnx_op
+from ..tolerance import DEFAULT_TOL
+from .base import Unsupported, check_storage, onnx_op, rng
+from .conv import builtin_free
 from .elementwise import expand
+
+FAST = "norm.builtin_free_loads"
 
 BUILD_VARIANTS = [dict(HAS_BIAS=b, STATS=s, SCALE_MODE=m) for b in (0, 1) for s in (0, 1) for m in (0, 1, 2)]
 
@@ -21,8 +26,9 @@ def _launch(dev, prec, x, scale, bias, rows, L, sidx, eps, stats: bool, mode: in
     mean = dev.empty((rows,), prec) if stats else None
     istd = dev.empty((rows,), prec) if stats else None
     if out.size:
+        clang = builtin_free(dev) and selfcheck.enabled(dev, prec, FAST)
         k = dev.kernel("norm", "norm_rows", prec, HAS_BIAS=int(bias is not None), STATS=int(stats),
-                       SCALE_MODE=mode)
+                       SCALE_MODE=mode, CLSS_CLANG_VECTORS=int(clang))
         dummy = mean if stats else out
         i32 = np.int32
         dev.launch(k, (rows,), (x.data, scale.data, (bias if bias is not None else scale).data, out.data,
@@ -67,6 +73,26 @@ def layer_norm(dev: Device, prec: str, x, scale, bias=None, axis: int = -1, eps:
         return y
     st_shape = tuple(x.shape[:axis]) + (1,) * (rank - axis)
     return y, mean.reshape(st_shape), istd.reshape(st_shape)
+
+
+def norm_block(dev: Device, prec: str, x, scale, bias, outer: int, length: int, inner: int,
+               eps: float = 1e-5):
+    """x viewed [outer, length, inner] normalised along `length` for each (outer, inner)
+    pair, scale and bias [length]: a LayerNorm over a block of axes that is not the last
+    (a channel LayerNorm of NCHW). clss.Model's layer-norm pattern pass makes these."""
+    check_storage("x", x, prec)
+    if outer * length * inner != x.size or scale.size != length or (bias is not None and bias.size != length):
+        raise ValueError(f"norm over [{outer}, {length}, {inner}] of {tuple(x.shape)} with scale "
+                         f"{tuple(scale.shape)}")
+    if inner == 1:
+        return _launch(dev, prec, x, scale, bias, outer, length, (1, 0, 1, max(length, 1)), eps, False, 1)[0]
+    out = dev.empty(x.shape, prec)
+    if out.size:
+        clang = builtin_free(dev) and selfcheck.enabled(dev, prec, FAST)
+        k = dev.kernel("norm", "norm_strided", prec, HAS_BIAS=int(bias is not None), CLSS_CLANG_VECTORS=int(clang))
+        dev.launch(k, (inner, outer), (x.data, scale.data, (bias if bias is not None else scale).data, out.data,
+                                       np.int32(length), np.int32(inner), np.int32(outer), np.float32(eps)))
+    return out
 
 
 def instance_norm(dev: Device, prec: str, x, scale, bias, eps: float = 1e-5):
@@ -117,8 +143,12 @@ def _onnx_layer_norm(dev, prec, attrs, inputs):
         raise Unsupported("LayerNormalization stash_type other than 1 (float32)")
     x, scale = inputs[0], inputs[1]
     bias = inputs[2] if len(inputs) > 2 else None
-    return list(_unsupported(layer_norm, dev, prec, x, scale, bias, int(attrs.get("axis", -1)),
-                             float(attrs.get("epsilon", 1e-5)), stats=True))
+    # clss_stats=0: a LayerNorm whose Mean and InvStdDev nobody reads (clss.Model's layer-norm
+    # pattern, clss/model/patterns.py) writes only Y
+    stats = bool(attrs.get("clss_stats", 1))
+    y = _unsupported(layer_norm, dev, prec, x, scale, bias, int(attrs.get("axis", -1)),
+                     float(attrs.get("epsilon", 1e-5)), stats=stats)
+    return list(y) if stats else [y]
 
 
 @onnx_op("InstanceNormalization")
@@ -133,3 +163,23 @@ def _onnx_group_norm(dev, prec, attrs, inputs):
         raise Unsupported("GroupNormalization stash_type other than 1 (float32)")
     return [_unsupported(group_norm, dev, prec, inputs[0], inputs[1], inputs[2], int(attrs["num_groups"]),
                          float(attrs.get("epsilon", 1e-5)))]
+
+
+# --- fast path (clss/selfcheck.py): clang vector loads against the builtins --------------
+
+def _selfcheck(dev: Device, prec: str) -> list[np.ndarray]:
+    """Rows of 21 (a ragged tail) in each scale mode: LayerNorm, InstanceNorm, GroupNorm."""
+    g = rng("norm selfcheck")
+    up = lambda a: dev.to_device(np.asarray(a, np.float32), prec)   # noqa: E731
+    x = up(g.standard_normal((2, 4, 3, 7)) * 2 + 1)
+    s4, b4 = up(g.standard_normal(4)), up(g.standard_normal(4))
+    s7, b7 = up(g.standard_normal(7)), up(g.standard_normal(7))
+    return [dev.to_host(layer_norm(dev, prec, x, s7, b7, -1)), dev.to_host(instance_norm(dev, prec, x, s4, b4)),
+            dev.to_host(group_norm(dev, prec, x, s4, b4, 2)),
+            dev.to_host(norm_block(dev, prec, x, s4, b4, 2, 4, 21))]
+
+
+selfcheck.register(selfcheck.FastPath(
+    FAST, "norm", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0}, check=_selfcheck,
+    tolerance=DEFAULT_TOL.__getitem__, applies=lambda dev: bool(builtin_free(dev)),
+    what="normalisations: loads and stores as clang vector accesses (PoCL) / the builtins"))

@@ -11,16 +11,25 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import selfcheck
 from ..device import Device
-from .base import Unsupported, check_storage, onnx_op
+from ..tolerance import DEFAULT_TOL
+from .base import Unsupported, check_storage, onnx_op, rng
+from .conv import builtin_free
 from .elementwise import _contiguous_strides, coalesce
+
+# Reductions whose outputs are neighbours in the input (k3 == 1): eight per work-item
+# (kernel reduce8), loads through clang vectors on PoCL; 0 selects the reference kernel
+# `reduce` (one output per work-item) with the builtin loads.
+REDUCE_VEC = 1
+FAST = "reduce.outputs8"
 
 OPS = {"sum": 0, "mean": 1, "max": 2, "min": 3, "prod": 4, "l1": 5, "l2": 6, "sumsq": 7,
        "logsum": 8, "logsumexp": 9}
 ONNX_OPS = {"ReduceSum": "sum", "ReduceMean": "mean", "ReduceMax": "max", "ReduceMin": "min",
             "ReduceProd": "prod", "ReduceL1": "l1", "ReduceL2": "l2", "ReduceSumSquare": "sumsq",
             "ReduceLogSum": "logsum", "ReduceLogSumExp": "logsumexp"}
-BUILD_VARIANTS = [dict(ROP=v) for v in OPS.values()]
+BUILD_VARIANTS = [dict(ROP=v) for v in OPS.values()]   # each builds reduce and reduce8
 
 
 def _pad4(shape, strides, what):
@@ -73,9 +82,12 @@ def reduce(dev: Device, prec: str, op: str, x, axes=None, keepdims: bool = True,
         rshape, rst = [0], [1]
     K, ks = _pad4(kshape, kst, f"Reduce over axes {axes} of {tuple(x.shape)} (kept)")
     R, rs = _pad4(rshape, rst, f"Reduce over axes {axes} of {tuple(x.shape)} (reduced)")
-    k = dev.kernel("reduce", "reduce", prec, ROP=OPS[op])
+    fast = bool(REDUCE_VEC) and selfcheck.enabled(dev, prec, FAST)
+    vec8 = fast and ks[3] == 1 and K[3] >= 8 and rs[3] != 1
+    k = dev.kernel("reduce", "reduce8" if vec8 else "reduce", prec, ROP=OPS[op],
+                   CLSS_CLANG_VECTORS=builtin_free(dev) if fast else 0)
     i32 = np.int32
-    dev.launch(k, (K[3], K[2], K[0] * K[1]),
+    dev.launch(k, (-(-K[3] // 8) if vec8 else K[3], K[2], K[0] * K[1]),
                (x.data, out.data, i32(K[1]), i32(K[2]), i32(K[3]), i32(K[0] * K[1]),
                 *map(i32, ks), *map(i32, R), *map(i32, rs), np.float32(max(count, 0))))
     return out
@@ -104,3 +116,20 @@ def _onnx_reduce(op):
 
 for _op_type, _name in ONNX_OPS.items():
     onnx_op(_op_type, const_inputs=(1,))(_onnx_reduce(_name))
+
+
+# --- fast path (clss/selfcheck.py): against the one-output-per-work-item kernel ----------
+
+def _selfcheck(dev: Device, prec: str) -> list[np.ndarray]:
+    """Channel reductions over rows of 21 (a ragged tail of eight-wide blocks), a spatial
+    mean (a contiguous row), every kind of fold (sum, max, logsumexp)."""
+    x = dev.to_device(rng("reduce selfcheck").standard_normal((2, 5, 3, 21)).astype(np.float32), prec)
+    return [dev.to_host(reduce(dev, prec, op, x, axes)) for op, axes in
+            (("sum", [1]), ("max", [1, 2]), ("logsumexp", [0, 1]), ("mean", [2, 3]))]
+
+
+selfcheck.register(selfcheck.FastPath(
+    FAST, "reduce", {"CLSS_CLANG_VECTORS": 1}, {"CLSS_CLANG_VECTORS": 0}, check=_selfcheck,
+    tolerance=DEFAULT_TOL.__getitem__,
+    what="reductions: eight neighbouring outputs per work-item (kernel reduce8) and clang vector "
+         "loads / one output per work-item (kernel reduce) with the builtin loads"))
