@@ -44,3 +44,16 @@ def test_bad_arguments_are_named(dev):
 
 def test_fp16_native_variants_build(tmp_path):
     assert_fp16_native_builds(tmp_path, "norm", "norm")
+
+
+def test_group_norm_21_runs_through_the_model(dev):
+    """onnx 1.22's shape inference leaves GroupNormalization-21's output shapeless (a function
+    op): clss.Model takes its input's shape (graph.SAME_SHAPE_OPS) and infers on from there."""
+    import clss
+    from clss.verify.cases.norm import group_norm_case
+    from clss.verify.twin import run_ort
+    case = group_norm_case((1, 12, 7, 13), 4)
+    m = case.twin
+    out = clss.Model(m, device=dev).run(case.inputs)
+    ref = run_ort(m, case.inputs)[0]
+    assert compare(out["y0"], ref, Tolerance(2e-5, 2e-4)).passed

@@ -334,13 +334,41 @@ def resolve_inputs(m: onnx.ModelProto, input_shapes: dict | None) -> dict[str, t
     return out
 
 
+# Ops whose output has their first input's shape and type, where onnx's shape inference
+# leaves it unknown (GroupNormalization-21 is a function op that onnx 1.22 does not infer).
+SAME_SHAPE_OPS = frozenset({"GroupNormalization"})
+
+
 def _infer(m: onnx.ModelProto, opset: int) -> onnx.ModelProto:
     del m.graph.value_info[:]
     try:
-        return onnx.shape_inference.infer_shapes(m, check_type=True, strict_mode=True, data_prop=True)
+        out = onnx.shape_inference.infer_shapes(m, check_type=True, strict_mode=True, data_prop=True)
+        for _ in range(16):     # each round fills what the last one left unknown, then infers on
+            extra = _same_shape_outputs(out)
+            if not extra:
+                break
+            m.graph.value_info.extend(extra)
+            out = onnx.shape_inference.infer_shapes(m, check_type=True, strict_mode=True, data_prop=True)
+        del m.graph.value_info[:]
+        return out
     except Exception as e:  # InferenceError and friends
         refuse_unknown_ops(m, opset, f"(also: shape inference failed: {e})")
         raise ModelError(f"shape inference failed: {e}") from None
+
+
+def _same_shape_outputs(m: onnx.ModelProto) -> list:
+    """Value infos for the outputs of SAME_SHAPE_OPS nodes that inference left shapeless."""
+    g = m.graph
+    known = {vi.name: vi for vi in list(g.input) + list(g.value_info) + list(g.output)
+             if vi.type.tensor_type.HasField("shape")}
+    extra = []
+    for n in g.node:
+        if n.op_type in SAME_SHAPE_OPS and n.output and n.output[0] not in known and n.input[0] in known:
+            vi = onnx.ValueInfoProto()
+            vi.CopyFrom(known[n.input[0]])
+            vi.name = n.output[0]
+            extra.append(vi)
+    return extra
 
 
 # --- ops clss has no kernel for ---------------------------------------------------
@@ -362,19 +390,41 @@ def refuse_unknown_ops(m: onnx.ModelProto, opset: int, note: str) -> None:
         raise UnsupportedModelError(bad, note)
 
 
-def unknown_ops(m: onnx.ModelProto, opset: int) -> list[tuple[str, str, int, str]]:
-    """(name, op_type, opset, reason) of every node whose op clss can neither run nor rewrite."""
+def unknown_ops(m: onnx.ModelProto, opset: int, known: set | None = None) -> list[tuple[str, str, int, str]]:
+    """(name, op_type, opset, reason) of every node whose op clss can neither run nor rewrite.
+    ``known``: graph inputs whose values will be known when the model is planned (value
+    inputs): nodes computable from them and constants fold then and are not named."""
     from ..ops import ONNX_HANDLERS, load_all
     load_all()   # the handlers register when their family is imported
     opsets = {o.domain or "": o.version for o in m.opset_import}
+    folds = _folding_nodes(m, known) if known is not None else set()
     bad = []
     for k, n in enumerate(m.graph.node):
+        if k in folds:
+            continue
         name = n.name or f"#{k} {n.op_type}"
         if n.domain not in ("", "ai.onnx"):
             bad.append((name, n.op_type, opsets.get(n.domain, opset), custom_domain_reason(n.domain)))
         elif n.op_type not in ONNX_HANDLERS and n.op_type not in LOWERED_OPS:
             bad.append((name, n.op_type, opset, NO_KERNEL))
     return bad
+
+
+def _folding_nodes(m: onnx.ModelProto, known: set) -> set[int]:
+    """Indices of the nodes constant folding will compute once the graph inputs ``known``
+    have values (fold_constants' rule: Constant, Shape/Size, and default-domain nodes whose
+    inputs are all known)."""
+    g = m.graph
+    have = set(known) | {t.name for t in g.initializer} | {t.values.name for t in g.sparse_initializer}
+    out = set()
+    for k, n in enumerate(g.node):
+        if n.domain not in ("", "ai.onnx"):
+            continue
+        if (n.op_type in ("Constant", "Shape", "Size")
+                or (n.op_type not in NO_FOLD and n.input and all(not t or t in have for t in n.input))):
+            out.add(k)
+            have.update(t for t in n.output if t)
+    return out
 
 
 def _collect(m: onnx.ModelProto):
