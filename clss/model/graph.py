@@ -344,10 +344,8 @@ def _infer(m: onnx.ModelProto, opset: int) -> onnx.ModelProto:
     try:
         out = onnx.shape_inference.infer_shapes(m, check_type=True, strict_mode=True, data_prop=True)
         for _ in range(16):     # each round fills what the last one left unknown, then infers on
-            extra = _same_shape_outputs(out)
-            if not extra:
+            if not _fill_same_shape(m, out):
                 break
-            m.graph.value_info.extend(extra)
             out = onnx.shape_inference.infer_shapes(m, check_type=True, strict_mode=True, data_prop=True)
         del m.graph.value_info[:]
         return out
@@ -356,19 +354,31 @@ def _infer(m: onnx.ModelProto, opset: int) -> onnx.ModelProto:
         raise ModelError(f"shape inference failed: {e}") from None
 
 
-def _same_shape_outputs(m: onnx.ModelProto) -> list:
-    """Value infos for the outputs of SAME_SHAPE_OPS nodes that inference left shapeless."""
-    g = m.graph
+def _fill_same_shape(m: onnx.ModelProto, inferred: onnx.ModelProto) -> bool:
+    """Give the outputs of SAME_SHAPE_OPS nodes that inference left unknown (or that a graph
+    output declares with another shape, e.g. rank 0 for "unknown") their input's type, in
+    m (value infos, graph outputs). Whether anything changed."""
+    g = inferred.graph
     known = {vi.name: vi for vi in list(g.input) + list(g.value_info) + list(g.output)
              if vi.type.tensor_type.HasField("shape")}
-    extra = []
+    outputs = {o.name: o for o in m.graph.output}
+    changed = False
     for n in g.node:
-        if n.op_type in SAME_SHAPE_OPS and n.output and n.output[0] not in known and n.input[0] in known:
+        if n.op_type not in SAME_SHAPE_OPS or not n.output or n.input[0] not in known:
+            continue
+        src, y = known[n.input[0]], n.output[0]
+        have = known.get(y)
+        if have is not None and have.type.tensor_type.shape == src.type.tensor_type.shape:
+            continue
+        if y in outputs:
+            outputs[y].type.CopyFrom(src.type)
+        else:
             vi = onnx.ValueInfoProto()
-            vi.CopyFrom(known[n.input[0]])
-            vi.name = n.output[0]
-            extra.append(vi)
-    return extra
+            vi.CopyFrom(src)
+            vi.name = y
+            m.graph.value_info.append(vi)
+        changed = True
+    return changed
 
 
 # --- ops clss has no kernel for ---------------------------------------------------
