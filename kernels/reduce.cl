@@ -38,15 +38,16 @@
 
 /* MAP: what each element contributes; COMBINE: how contributions meet; INIT: the
  * identity (also the result of an empty reduction, as ONNX defines it). Max and min
- * propagate NaN, as onnxruntime does (fmax/fmin would drop it). LogSumExp subtracts the
+ * propagate NaN, as onnxruntime does (fmax/fmin would drop it); NaN is tested as v != v,
+ * which PoCL does not turn into a library call as it does isnan. LogSumExp subtracts the
  * maximum first (a pass of its own), so MAP sees m. */
 #if ROP == ROP_MAX
 #define INIT (-INFINITY)
-#define COMBINE(s, v) ((((v) > (s)) | isnan(v)) ? (v) : (s))
+#define COMBINE(s, v) ((((v) > (s)) | ((v) != (v))) ? (v) : (s))
 #define MAP(x) (x)
 #elif ROP == ROP_MIN
 #define INIT INFINITY
-#define COMBINE(s, v) ((((v) < (s)) | isnan(v)) ? (v) : (s))
+#define COMBINE(s, v) ((((v) < (s)) | ((v) != (v))) ? (v) : (s))
 #define MAP(x) (x)
 #elif ROP == ROP_PROD
 #define INIT 1.0f
@@ -191,7 +192,7 @@ __kernel void reduce8(__global const T *in, __global T *out, int K1, int K2, int
                 for (int e = 0; e < R3; ++e) {
                     const float8 x = convert_float8(FLD8(in, base + (long)a * r0 + (long)b * r1 +
                                                              (long)c * r2 + (long)e * r3));
-                    m = ((x > m) | isnan(x)) ? x : m;
+                    m = ((x > m) | (x != x)) ? x : m;
                 }
     m = isinf(m) ? (float8)(0.0f) : m;
 #endif
