@@ -157,6 +157,27 @@ def test_scale_factor_through_a_chain(prec):
     assert plans[1].output_shapes == {"y": (1, 2, 12, 18), "scales": (4,)}
 
 
+@pytest.mark.parametrize("prec", PRECS)
+def test_ops_without_kernels_fold_from_value_inputs(prec):
+    """ConstantOfShape and Range have no kernel: computed from a value input, they fold
+    when the model is planned (the load does not refuse them)."""
+    x = rnd(1, 2, 3, 5)
+    nodes = [helper.make_node("ConstantOfShape", ["shape"], ["c"],
+                              value=helper.make_tensor("v", TensorProto.FLOAT, [1], [1.5])),
+             helper.make_node("Range", ["zero", "n", "one"], ["r"]),
+             helper.make_node("Cast", ["r"], ["rf"], to=TensorProto.FLOAT),
+             helper.make_node("Mul", ["x", "c"], ["xc"]),
+             helper.make_node("Add", ["xc", "rf"], ["y"])]
+    m = make_model(nodes, {"x": x, "shape": np.array([1, 2, 1, 1], np.int64), "n": np.array(5, np.int64)},
+                   ["y"], initializers={"zero": np.array(0, np.int64), "one": np.array(1, np.int64)})
+    cm, plans = run_values(m, {"x": x, "n": np.array(5, np.int64)}, "shape",
+                           [np.array([1, 2, 1, 1], np.int64), np.array([1, 1, 3, 1], np.int64),
+                            np.array([1, 2, 1, 1], np.int64)], prec)
+    replanned(plans)
+    assert set(cm.value_inputs) == {"shape", "n"}
+    assert "Range" not in cm.execution_ops() and "ConstantOfShape" not in cm.execution_ops()
+
+
 # --- plans: kept, replaced, given at load --------------------------------------------------
 
 def _scales_model():

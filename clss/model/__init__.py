@@ -25,7 +25,7 @@ from ..device import Device, get_device, storage_dtype
 from ..errors import UserError
 from .execute import Executor
 from .graph import (FLOAT_TYPES, Graph, InputError, ModelError, UnsupportedModelError, ValueUse,
-                    find_value_inputs, finish, prepare, refuse_unknown_ops, with_values)
+                    find_value_inputs, finish, prepare, unknown_ops, with_values)
 from .graph import _np_dtype
 from .. import selfcheck
 from . import layout
@@ -96,7 +96,9 @@ class Model:
         elif self._default_values:
             self._select(self._default_values)
         else:   # the values come with the first run: what can be checked now, is
-            refuse_unknown_ops(proto, self._opset, "")
+            bad = unknown_ops(proto, self._opset, known=set(self.value_inputs))
+            if bad:
+                raise UnsupportedModelError(bad)
 
     def _load_values(self, input_values) -> dict:
         """input_values= checked (names, dtypes, shapes) and in the declared types."""
@@ -134,7 +136,8 @@ class Model:
 
     def _declared(self, name: str, a: np.ndarray) -> np.ndarray:
         """A value input's array in its declared ONNX type (the plan's key and constant)."""
-        return np.ascontiguousarray(np.asarray(a).astype(_np_dtype(self._elem_types[name]), copy=False))
+        a = np.asarray(a).astype(_np_dtype(self._elem_types[name]), copy=False)
+        return np.ascontiguousarray(a).reshape(a.shape)   # (ascontiguousarray makes 0-d arrays 1-d)
 
     # -- plans per value-input values -----------------------------------------------------
     def _select(self, values: dict, proto=None) -> Specialisation:
