@@ -194,8 +194,9 @@ class Model:
             raise ModelError(
                 f"this model's shapes depend on the values of {names}; it is planned at the first run, "
                 f"or at load with input_values={{...}} ({self._value_list()})",
-                cli=f"this model's shapes depend on the values of {names}; give them with --input "
-                    + " ".join(f"{k}=FILE.npy" for k in self.value_inputs))
+                cli=f"this model's shapes depend on the values of {names}; it is planned for them when "
+                    "they come, as `clss run` gives them: --input "
+                    + " --input ".join(f"{k}=FILE.npy" for k in self.value_inputs))
         return self._spec
 
     @property
