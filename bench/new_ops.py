@@ -1,7 +1,9 @@
 """The ops of issue 49 (reductions, normalisations, modern activations, run-time matrix
 products, Clip with tensor bounds) at the sizes a model sees at 540x960 input, each as a
 one-node (or few-node) ONNX graph through clss.Model and onnxruntime in the same process:
-medians of --repeat runs after a warm-up, fp32, both peers on the same feeds.
+medians of --repeat runs after a warm-up, fp32, both peers on the same feeds; clss writes
+into preallocated outputs (run_device(out=...), as a frame step runs its networks),
+onnxruntime into its arena.
 
     python -m bench.new_ops [--repeat 5] [--only NAME] [--json FILE]
 
@@ -110,8 +112,12 @@ def main(argv=None) -> int:
             continue
         m = clss.Model(model)
         dfeeds = m.upload(feeds)
+        # into preallocated outputs, as a frame step runs its networks (a fresh output per
+        # call is an allocation and its first-touch page faults: tens of ms at this size)
+        douts = {k: m.device.empty(s, m.precision) for k, s in m.output_shapes.items()}
+
         def run_ours():
-            m.run_device(dfeeds)
+            m.run_device(dfeeds, out=douts)
             m.device.queue.finish()
         ours = _median_ms(run_ours, a.repeat)
         s = session(model)

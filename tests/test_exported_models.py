@@ -21,7 +21,12 @@ networks (tests/test_model_networks.py):
   (accumulation order differs and compounds over ~20 layers);
 * fp16: atol 5e-3, rtol 5e-3 against onnxruntime on the model with its float
   initializers and Constant values rounded to fp16, fed fp16-rounded inputs (clss stores
-  every intermediate tensor in half; the reference does not round them).
+  every intermediate tensor in half; this reference does not round them). Where that
+  differs by more (a GridSample grid computed inside the graph, BasicVSR's flow-built one:
+  pixel coordinates stored in half move by up to 1/32 pixel at x = 32..64), the same
+  tolerance against onnxruntime on the model with every float tensor it stores rounded to
+  half too (a Cast to float16 and back after each node): what fp16 storage means. Fused
+  kernels keep their intermediates in float, so a result between the two is right.
 
 A model clss refuses fails with the nodes it names (UnsupportedModelError): these are the
 targets of issue 49, never skipped. test_fixtures_match_manifest checks the directory and
@@ -97,6 +102,28 @@ def _half_model(m: onnx.ModelProto) -> onnx.ModelProto:
     return h
 
 
+def _half_storage_model(m: onnx.ModelProto) -> onnx.ModelProto:
+    """_half_model with every float tensor a node writes rounded to fp16 as well (a Cast
+    to float16 and back after each node): the reference of fp16 storage."""
+    h = _half_model(m)
+    typed = onnx.shape_inference.infer_shapes(h)
+    floats = {v.name for v in list(typed.graph.value_info) + list(typed.graph.output)
+              if v.type.tensor_type.elem_type == onnx.TensorProto.FLOAT}
+    nodes = []
+    for n in h.graph.node:
+        casts = []
+        for k, t in enumerate(n.output):
+            if t in floats:
+                raw, half = f"{t}__f32", f"{t}__f16"
+                n.output[k] = raw
+                casts += [onnx.helper.make_node("Cast", [raw], [half], to=onnx.TensorProto.FLOAT16),
+                          onnx.helper.make_node("Cast", [half], [t], to=onnx.TensorProto.FLOAT)]
+        nodes += [n] + casts
+    del h.graph.node[:]
+    h.graph.node.extend(nodes)
+    return h
+
+
 _loaded: dict[str, onnx.ModelProto] = {}
 
 
@@ -128,19 +155,27 @@ def test_exported_model(entry, prec, any_dev):
                     pytrace=False)
     outs = cm.run(x)
     m = load(entry)
-    if prec == "fp32":
-        refs = run_ort(m, x)
-    else:
-        refs = run_ort(_half_model(m), {k: v.astype(np.float16).astype(np.float32) for k, v in x.items()})
     names = [o["name"] for o in entry["outputs"]]
     assert cm.output_names == names
+    if prec == "fp32":
+        bad = _differences(outs, run_ort(m, x), names, prec)
+    else:
+        xh = {k: v.astype(np.float16).astype(np.float32) for k, v in x.items()}
+        bad = _differences(outs, run_ort(_half_model(m), xh), names, prec)
+        if bad:   # against fp16 storage itself (the docstring)
+            stored = _differences(outs, run_ort(_half_storage_model(m), xh), names, prec)
+            bad = [] if not stored else bad + ["against the model with every float tensor stored in half:"] + stored
+    assert not bad, f"{describe(entry)} {prec} differs from onnxruntime ({TOL[prec]}):\n" + "\n".join(bad)
+
+
+def _differences(outs, refs, names, prec) -> list[str]:
     bad = []
     for name, r in zip(names, refs):
         c = compare(outs[name], r, TOL[prec])
         if not c.passed:
             bad.append(f"{name}: max abs {c.max_abs:.3g} (scale {np.abs(r).max():.3g}), err/tol "
                        f"{c.ratio:.3g} {c.detail}")
-    assert not bad, f"{describe(entry)} {prec} differs from onnxruntime ({TOL[prec]}):\n" + "\n".join(bad)
+    return bad
 
 
 def _sha256(path):
