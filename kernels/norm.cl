@@ -3,8 +3,8 @@
  *
  * The host views the input as [rows, L], each row one normalisation group (LayerNorm: the
  * axes from `axis` on; InstanceNorm: one (n, c) image; GroupNorm: one (n, group) stack of
- * channels), all contiguous. One work-item per row, NDRange (rows): it takes the mean,
- * then the variance around it (two passes: no E[x^2] - E[x]^2 cancellation), then writes
+ * channels), all contiguous. One work-item per row, NDRange (rows): it takes the mean and
+ * the variance in one pass over the values shifted by the row's first, then writes
  *   y = (x - mean) / sqrt(var + eps) * scale[s] + bias[s],
  * where s, the scale/bias element of row r's element j, is
  *   s = (r % SR) * SA + (j / SD) % SM
@@ -55,25 +55,28 @@ __kernel void norm_rows(__global const T *in, __global const T *scale, __global 
     if (r >= rows) return;
     __global const T *x = in + (long)r * L;
     __global T *y = out + (long)r * L;
+    /* mean and variance in one pass, of the values shifted by the row's first (the
+     * shifted-data variance: no E[x^2] - E[x]^2 cancellation while the row's spread is not
+     * tiny against its distance from that first value) */
+    const float K = L > 0 ? (float)FLD(x, 0) : 0.0f;
     int j = 0;
-    float8 s8 = (float8)(0.0f);
-    for (; j + 8 <= L; j += 8)
-        s8 += convert_float8(FLD8(x, j));
-    float s = s8.s0 + s8.s1 + s8.s2 + s8.s3 + s8.s4 + s8.s5 + s8.s6 + s8.s7;
-    for (; j < L; ++j)
-        s += (float)FLD(x, j);
-    const float mu = s / (float)L;
-    s8 = (float8)(0.0f);
-    for (j = 0; j + 8 <= L; j += 8) {
-        const float8 d = convert_float8(FLD8(x, j)) - mu;
-        s8 += d * d;
+    float8 s8 = (float8)(0.0f), q8 = (float8)(0.0f);
+    for (; j + 8 <= L; j += 8) {
+        const float8 d = convert_float8(FLD8(x, j)) - K;
+        s8 += d;
+        q8 += d * d;
     }
-    s = s8.s0 + s8.s1 + s8.s2 + s8.s3 + s8.s4 + s8.s5 + s8.s6 + s8.s7;
+    float s = ((s8.s0 + s8.s1) + (s8.s2 + s8.s3)) + ((s8.s4 + s8.s5) + (s8.s6 + s8.s7));
+    float q = ((q8.s0 + q8.s1) + (q8.s2 + q8.s3)) + ((q8.s4 + q8.s5) + (q8.s6 + q8.s7));
     for (; j < L; ++j) {
-        const float d = (float)FLD(x, j) - mu;
-        s += d * d;
+        const float d = (float)FLD(x, j) - K;
+        s += d;
+        q += d * d;
     }
-    const float inv = 1.0f / sqrt(s / (float)L + eps);
+    const float ds = s / (float)L;
+    const float mu = K + ds;
+    const float var = fmax(q / (float)L - ds * ds, 0.0f);
+    const float inv = 1.0f / sqrt(var + eps);
 #if STATS
     ST(mean, r, mu);
     ST(istd, r, inv);
@@ -141,16 +144,16 @@ __kernel void norm_strided(__global const T *in, __global const T *scale, __glob
     const int j = get_global_id(0), o = get_global_id(1);
     if (j >= inner || o >= outer) return;
     const long base = (long)o * L * inner + j;
-    float s = 0.0f;
-    for (int k = 0; k < L; ++k)
-        s += (float)FLD(in, base + (long)k * inner);
-    const float mu = s / (float)L;
-    s = 0.0f;
+    const float K = L > 0 ? (float)FLD(in, base) : 0.0f;   /* shifted sums, as norm_rows */
+    float s = 0.0f, q = 0.0f;
     for (int k = 0; k < L; ++k) {
-        const float d = (float)FLD(in, base + (long)k * inner) - mu;
-        s += d * d;
+        const float d = (float)FLD(in, base + (long)k * inner) - K;
+        s += d;
+        q += d * d;
     }
-    const float inv = 1.0f / sqrt(s / (float)L + eps);
+    const float ds = s / (float)L;
+    const float mu = K + ds;
+    const float inv = 1.0f / sqrt(fmax(q / (float)L - ds * ds, 0.0f) + eps);
     for (int k = 0; k < L; ++k) {
         const long i = base + (long)k * inner;
         float v = ((float)FLD(in, i) - mu) * inv * (float)FLD(scale, k);

@@ -7,8 +7,10 @@
   LayerNorm of NCHW models (NAFNet's, ConvNeXt's LayerNorm2d), whose mean and variance
   run over C at each pixel. Over the trailing axes it becomes LayerNormalization; over a
   block of axes that is not the last, clss.NormBlock (kernels/norm.cl norm_strided).
-* float_exponents: Pow by a constant integer exponent (the dynamo exporter writes
-  ``x ** 2`` with an int64 scalar) takes it as a float constant, as the kernel does.
+* float_exponents: Pow by a constant exponent of 2, 1, 0.5 or -1 as Mul(x, x), the input,
+  Sqrt or Reciprocal (pow() is a library call per element on PoCL); another integer
+  exponent (the dynamo exporter writes ``x ** 3`` with an int64 scalar) as a float
+  constant, as the kernel takes it.
 
 Each fused node keeps the nodes it replaces (``unfused``): where its kernel refuses a
 case, the dry run falls back to them.
@@ -187,14 +189,30 @@ def _block_vector(v: np.ndarray, shape, axes):
     return np.ascontiguousarray(np.broadcast_to(sel, block)).ravel()
 
 
+# Pow by these constant exponents is an op clss runs without pow() (a library call per
+# element on PoCL: 40x slower than a multiply at 540x960): x ** 2 is Mul(x, x), and so on.
+_POW_AS = {2.0: "Mul", 1.0: "Identity", 0.5: "Sqrt", -1.0: "Reciprocal"}
+
+
 def float_exponents(g: Graph) -> int:
-    """Pow(x, k) with a constant integer k: k as a float constant (the kernel's operands are
-    float; the dynamo exporter writes x ** 2 with an int64 scalar)."""
+    """Pow(x, k) with a constant k: x * x for 2, sqrt for 0.5, 1 / x for -1, x for 1; other
+    integer k as a float constant (the kernel's operands are float; the dynamo exporter
+    writes x ** 2 with an int64 scalar)."""
     changed = 0
-    for n in g.nodes:
-        if n.op == "Pow" and len(n.inputs) == 2:
-            v = g.consts.get(n.inputs[1])
-            if v is not None and v.dtype.kind in "iub":
-                n.inputs = [n.inputs[0], g.add_const(f"{n.name}.exponent", v.astype(np.float32))]
-                changed += 1
+    for k, n in enumerate(g.nodes):
+        if n.op != "Pow" or len(n.inputs) != 2:
+            continue
+        v = g.consts.get(n.inputs[1])
+        if v is None:
+            continue
+        x = n.inputs[0]
+        if v.size == 1 and float(v.ravel()[0]) in _POW_AS and tuple(g.shapes[n.outputs[0]]) == tuple(g.shapes[x]) \
+                and g.dtypes.get(x, np.dtype("f4")).kind == "f":
+            op = _POW_AS[float(v.ravel()[0])]
+            g.nodes[k] = Node(op, [x, x] if op == "Mul" else [x], list(n.outputs), {}, n.name, n.opset,
+                              sources=n.sources)
+            changed += 1
+        elif v.dtype.kind in "iub":
+            n.inputs = [x, g.add_const(f"{n.name}.exponent", v.astype(np.float32))]
+            changed += 1
     return changed
