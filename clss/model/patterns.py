@@ -96,7 +96,7 @@ def _match_layer_norm(g: Graph):
         d = only(mean)
         if d is None or d.op != "Sub" or d.inputs != [x, mean]:
             continue
-        du = [g.nodes[k] for k in uses.get(d.outputs[0], [])]
+        du = [g.nodes[k] for k in dict.fromkeys(uses.get(d.outputs[0], []))]   # Mul(d, d) reads d twice
         if len(du) != 2 or d.outputs[0] in outs:
             continue
         sq = next((n for n in du if (n.op == "Pow" and n.inputs[0] == d.outputs[0]
