@@ -19,6 +19,8 @@ import time
 import numpy as np
 from onnx import TensorProto, helper, numpy_helper
 
+from clss.cli.model import _median_ms as median_ms
+
 H, W = 540, 960
 
 
@@ -87,13 +89,8 @@ def cases():
 
 
 def _median_ms(fn, repeat):
-    fn()
-    ts = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(ts))
+    fn()    # warm-up: builds, first touches
+    return median_ms(fn, repeat)
 
 
 def main(argv=None) -> int:

@@ -28,7 +28,9 @@ networks (tests/test_model_networks.py):
   half too (a Cast to float16 and back after each node): what fp16 storage means. Fused
   kernels keep their intermediates in float, so a result between the two is right.
 
-A model clss refuses fails with the nodes it names (UnsupportedModelError): these are the
+On the default device: the suite checks clss.Model on whole graphs; every kernel is checked
+on every device by the conformance and node-case tests. A model clss refuses fails with the
+nodes it names (UnsupportedModelError): these are the
 targets of issue 49, never skipped. test_fixtures_match_manifest checks the directory and
 the manifest agree (every entry's files present with their sizes and hashes, every file
 listed)."""
@@ -141,11 +143,11 @@ def describe(entry) -> str:
 
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
 @pytest.mark.parametrize("entry", ENTRIES, ids=[e["name"] for e in ENTRIES])
-def test_exported_model(entry, prec, any_dev):
+def test_exported_model(entry, prec, dev):
     x = feeds(entry)
     path = os.path.join(FIXTURES, entry["file"])
     try:
-        cm = clss.Model(path, any_dev, precision=prec, input_shapes=input_shapes(entry))
+        cm = clss.Model(path, dev, precision=prec, input_shapes=input_shapes(entry))
     except UnsupportedModelError as e:
         ops = sorted({op for _, op, _, _ in e.nodes})
         pytest.fail(f"{describe(entry)} {prec}: clss refuses {len(e.nodes)} node(s), ops "

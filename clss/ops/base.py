@@ -60,6 +60,15 @@ def onnx_op(*op_types: str, const_inputs: Iterable[int] = ()):
     return deco
 
 
+def unsupported_on_value_error(fn, *args, **kw):
+    """fn(*args, **kw), its ValueError (an argument the kernels do not cover) raised as
+    Unsupported: what an ONNX handler reports for a node it cannot run."""
+    try:
+        return fn(*args, **kw)
+    except ValueError as e:
+        raise Unsupported(str(e)) from None
+
+
 def node_attrs(node: onnx.NodeProto) -> dict:
     return {a.name: onnx.helper.get_attribute_value(a) for a in node.attribute}
 

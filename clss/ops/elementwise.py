@@ -17,7 +17,7 @@ import numpy as np
 from .. import selfcheck
 from ..device import Device, storage_dtype
 from ..tolerance import DEFAULT_TOL, EXACT
-from .base import Unsupported, as_str, check_storage, onnx_op, rng
+from .base import Unsupported, unsupported_on_value_error, as_str, check_storage, onnx_op, rng
 from .conv import builtin_free
 
 BINARY = {"add": 0, "sub": 1, "mul": 2, "div": 3, "min": 4, "max": 5, "prelu": 6,
@@ -611,11 +611,7 @@ NODE_DEVIATIONS = {
 }
 
 
-def _unsupported(fn, *args, **kw):
-    try:
-        return fn(*args, **kw)
-    except ValueError as e:
-        raise Unsupported(str(e)) from None
+_unsupported = unsupported_on_value_error
 
 
 for _op_type, _name in (("Add", "add"), ("Sub", "sub"), ("Mul", "mul"), ("Div", "div"),

@@ -14,7 +14,7 @@ import numpy as np
 from .. import selfcheck
 from ..device import Device
 from ..tolerance import DEFAULT_TOL
-from .base import Unsupported, check_storage, onnx_op, rng
+from .base import Unsupported, unsupported_on_value_error, check_storage, onnx_op, rng
 from .conv import builtin_free
 from .elementwise import _broadcast_strides, _contiguous_strides, coalesce
 
@@ -128,11 +128,7 @@ def gemm(dev: Device, prec: str, a, b, c=None, alpha: float = 1.0, beta: float =
 
 # --- ONNX -----------------------------------------------------------------------------
 
-def _unsupported(fn, *a, **kw):
-    try:
-        return fn(*a, **kw)
-    except ValueError as e:
-        raise Unsupported(str(e)) from None
+_unsupported = unsupported_on_value_error
 
 
 @onnx_op("MatMul")

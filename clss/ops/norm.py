@@ -12,7 +12,7 @@ import numpy as np
 from .. import selfcheck
 from ..device import Device
 from ..tolerance import DEFAULT_TOL
-from .base import Unsupported, check_storage, onnx_op, rng
+from .base import Unsupported, unsupported_on_value_error, check_storage, onnx_op, rng
 from .conv import builtin_free
 from .elementwise import expand
 
@@ -130,11 +130,7 @@ def group_norm(dev: Device, prec: str, x, scale, bias, num_groups: int, eps: flo
 
 # --- ONNX -----------------------------------------------------------------------------
 
-def _unsupported(fn, *a, **kw):
-    try:
-        return fn(*a, **kw)
-    except ValueError as e:
-        raise Unsupported(str(e)) from None
+_unsupported = unsupported_on_value_error
 
 
 @onnx_op("LayerNormalization")
