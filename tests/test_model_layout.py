@@ -122,6 +122,11 @@ def _blocked(d, prec, a, blk):
 @pytest.mark.parametrize("prec", ["fp32", "fp16"])
 @pytest.mark.parametrize("blk", [8, 16])
 def test_pool_and_resize_blocked_bit_exact(any_dev, prec, blk):
+    if not layout.enabled(any_dev, prec):
+        # (pip's PoCL 3.0 on a CPU newer than its LLVM 14, an AVX-512 Zen 4 taken for a Zen 3,
+        # miscompiles these kernels and aborts in its compiler: the self-check, in a process of
+        # its own, turns the layout off there, and clss never launches them)
+        pytest.skip("the blocked layout is off on this device: its self-check failed")
     g = np.random.default_rng(11)
     a = g.standard_normal((2, 19, 9, 23)).astype(np.float32)
     a[0, 3, 1, :4] = [0.0, -0.0, np.nan, 1.0]
