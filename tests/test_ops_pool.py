@@ -130,7 +130,11 @@ for prec in ("fp32", "fp16"):
     assert np.array_equal(got, xr.max(axis=(2, 3)).ravel()), (prec, got)
     avg = dev.to_host(global_avg_pool(dev, prec, d)).ravel()
     assert np.allclose(avg, xr.mean(axis=(2, 3)).ravel(), rtol=2e-3, atol=2e-3), (prec, avg)
-print("ok")
+print("ok", flush=True)
+# past the teardown, where pip's PoCL 3.0 aborts once programs are built ("still have
+# references to IRs"), as clss.selfcheck_runner leaves
+import os
+os._exit(0)
 """
 
 
