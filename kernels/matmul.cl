@@ -30,6 +30,21 @@
 #define HAS_C 0
 #endif
 
+/* What `matmul` and `matmul_k8` begin with: this work-item's tile (rows m0.., columns
+ * n0..) of batch z, the batch's A and B, and each tile row's and column's offset (edge
+ * tiles clamp their reads to the last row or column). */
+#define TILE_PROLOGUE                                                               \
+    const int n0 = get_global_id(0) * TN, m0 = get_global_id(1) * TM, z = get_global_id(2); \
+    if (n0 >= N || m0 >= M) return;                                                \
+    const int z0 = z / B1, z1 = z % B1;                                             \
+    __global const T *pa = a + z0 * a_b0 + z1 * a_b1;                               \
+    __global const T *pb = b + z0 * b_b0 + z1 * b_b1;                               \
+    long ra[TM], cb[TN];                                                            \
+    for (int i = 0; i < TM; ++i)                                                    \
+        ra[i] = (long)min(m0 + i, M - 1) * a_m;                                     \
+    for (int j = 0; j < TN; ++j)                                                    \
+        cb[j] = (long)min(n0 + j, N - 1) * b_n;
+
 /** @param[in]  a       A
  *  @param[in]  b       B
  *  @param[in]  c       C (read with -DHAS_C=1)
@@ -48,16 +63,7 @@ __kernel void matmul(__global const T *a, __global const T *b, __global const T 
                      long b_b0, long b_b1, long b_k, long b_n, long c_m, long c_n,
                      float alpha, float beta)
 {
-    const int n0 = get_global_id(0) * TN, m0 = get_global_id(1) * TM, z = get_global_id(2);
-    if (n0 >= N || m0 >= M) return;
-    const int z0 = z / B1, z1 = z % B1;
-    __global const T *pa = a + z0 * a_b0 + z1 * a_b1;
-    __global const T *pb = b + z0 * b_b0 + z1 * b_b1;
-    long ra[TM], cb[TN];
-    for (int i = 0; i < TM; ++i)
-        ra[i] = (long)min(m0 + i, M - 1) * a_m;
-    for (int j = 0; j < TN; ++j)
-        cb[j] = (long)min(n0 + j, N - 1) * b_n;
+    TILE_PROLOGUE
     float acc[TM][TN];
     for (int i = 0; i < TM; ++i)
         for (int j = 0; j < TN; ++j)
@@ -176,16 +182,7 @@ __kernel void matmul_k8(__global const T *a, __global const T *b, __global const
                         long b_b0, long b_b1, long b_k, long b_n, long c_m, long c_n,
                         float alpha, float beta)
 {
-    const int n0 = get_global_id(0) * TN, m0 = get_global_id(1) * TM, z = get_global_id(2);
-    if (n0 >= N || m0 >= M) return;
-    const int z0 = z / B1, z1 = z % B1;
-    __global const T *pa = a + z0 * a_b0 + z1 * a_b1;
-    __global const T *pb = b + z0 * b_b0 + z1 * b_b1;
-    long ra[TM], cb[TN];
-    for (int i = 0; i < TM; ++i)
-        ra[i] = (long)min(m0 + i, M - 1) * a_m;
-    for (int j = 0; j < TN; ++j)
-        cb[j] = (long)min(n0 + j, N - 1) * b_n;
+    TILE_PROLOGUE
     float8 acc[TM][TN];
     for (int i = 0; i < TM; ++i)
         for (int j = 0; j < TN; ++j)
