@@ -270,6 +270,8 @@ def cases(level: str = "quick") -> list[Case]:
             binary_case("pow", (1, 3, 5, 7), (1, 3, 1, 7)),
             clip_tensors_case((1, 3, 5, 7), -0.5, 0.75),
             log_softmax_case((2, 5, 3, 7), 1),
+            softmax_case((3, 21), -1),          # softmax_rows: two blocks of 8 and a tail
+            log_softmax_case((3, 21), -1),
             gather_case((2, 5, 3, 7), [3, 0, -1], 1),
             tile_case((1, 3, 2, 5), (2, 1, 3, 1)),
             transpose_case((2, 3, 2, 5, 3), (2, 0, 3, 1, 4)),   # five runs: gather8

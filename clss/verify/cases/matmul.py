@@ -33,8 +33,11 @@ def gemm_case(m, k, n, trans_a=False, trans_b=False, c_shape=(), alpha=1.0, beta
 
 def cases(level: str = "quick") -> list[Case]:
     if level == "tiny":
+        # (the last two reach the fast path's kernels: 8 contiguous columns and a tail,
+        # dot products along k of two 8-wide steps and a tail)
         return [matmul_case((2, 3, 5, 7), (1, 3, 7, 6)), matmul_case((5, 7), (7,)),
-                gemm_case(5, 7, 6, True, True, (6,), 0.5, 2.0)]
+                gemm_case(5, 7, 6, True, True, (6,), 0.5, 2.0),
+                matmul_case((2, 1, 3, 5), (1, 2, 5, 11)), gemm_case(3, 19, 5, False, True, (5,), 1.0, 0.5)]
     out = [matmul_case((2, 4, 64, 16), (2, 4, 16, 64)),     # attention Q K^T: 4 heads, 64 tokens
            matmul_case((2, 4, 64, 64), (2, 4, 64, 16)),     # softmax(.) V
            matmul_case((3, 1, 17, 9), (1, 5, 9, 11)),        # batches broadcast both ways

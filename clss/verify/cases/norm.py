@@ -51,7 +51,7 @@ def group_norm_case(shape, groups, eps=1e-5):
 
 def cases(level: str = "quick") -> list[Case]:
     if level == "tiny":
-        return [layer_norm_case((2, 5, 7), -1), instance_norm_case((1, 3, 5, 7)),
+        return [layer_norm_case((2, 5, 7), -1), layer_norm_case((2, 3, 21), -1), instance_norm_case((1, 3, 5, 7)),
                 group_norm_case((1, 6, 5, 7), 3)]
     out = [layer_norm_case((2, 64, 24), -1), layer_norm_case((1, 96, 60), -1, bias=False),
            instance_norm_case((2, 8, 16, 20)), group_norm_case((2, 16, 16, 20), 4)]

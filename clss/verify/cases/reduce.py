@@ -47,6 +47,7 @@ def cases(level: str = "quick") -> list[Case]:
             reduce_case("sum", (2, 3, 5, 7), [1], keepdims=False),
             reduce_case("max", (2, 3, 5, 7), [0, 2]),
             reduce_case("mean", (2, 3, 5, 7), None, keepdims=False),
+            reduce_case("max", (2, 3, 1, 11), [1]),   # reduce8: a block of 8 outputs and a tail
         ]
     out = [reduce_case(op, (2, 5, 16, 20), [-2, -1]) for op in ops]
     out += [reduce_case("mean", (2, 17, 16, 20), [1], keepdims=False),
