@@ -2,10 +2,11 @@
 import sys
 
 from clss.cli import run_command
+from clss.exiting import leave
 
 from .cli import bench_main, tune_main
 
 argv = sys.argv[1:]
 if argv[:1] == ["tune"]:
-    sys.exit(run_command("clss tune", tune_main, argv[1:]))
-sys.exit(run_command("clss bench", bench_main, argv))
+    leave(run_command("clss tune", tune_main, argv[1:]))
+leave(run_command("clss bench", bench_main, argv))

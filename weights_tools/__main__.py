@@ -229,4 +229,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from clss.exiting import leave   # past pip's PoCL 3.0 teardown abort (clss/cli/__init__.py)
+    leave(main())
