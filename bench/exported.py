@@ -108,4 +108,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from clss.exiting import leave   # past pip's PoCL 3.0 teardown abort
+    leave(main())

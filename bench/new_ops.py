@@ -131,4 +131,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from clss.exiting import leave   # past pip's PoCL 3.0 teardown abort
+    leave(main())
