@@ -75,3 +75,21 @@ def test_separated_axes_and_a_weight_across_other_axes_do_not_fuse_wrongly():
     # a weight varying along H (not a normalised axis): the affine part stays unfused
     ops = _run(ln_model(shape, [1], weight_shape=[1, 6, 5, 1]), shape, "fp32")
     assert ops[0] == "clss.NormBlock" and "Mul" in ops and "Add" in ops
+
+
+def test_layer_norm_writes_its_statistics_only_where_read():
+    """Mean and InvStdDev unread: the kernel writes Y alone (clss_stats=0); read: all three."""
+    x = np.random.default_rng(2).standard_normal((3, 7, 20)).astype(np.float32)
+    s = np.random.default_rng(3).standard_normal(20).astype(np.float32)
+    for outs in (["y"], ["y", "mean", "istd"]):
+        node = h.make_node("LayerNormalization", ["x", "s"], outs if len(outs) == 3 else ["y", "", ""], axis=-1)
+        gr = h.make_graph([node], "ln", [h.make_tensor_value_info("x", T.FLOAT, x.shape)],
+                          [h.make_tensor_value_info(o, T.FLOAT, None) for o in outs], [nh.from_array(s, "s")])
+        m = h.make_model(gr, opset_imports=[h.make_opsetid("", 17)])
+        m.ir_version = 9
+        cm = clss.Model(m)
+        (ln,) = cm.graph.nodes
+        assert ln.attrs.get("clss_stats", 1) == (len(outs) == 3)
+        got, refs = cm.run({"x": x}), run_ort(m, {"x": x})
+        for o, r in zip(outs, refs):
+            assert compare(got[o], r, TOL["fp32"]).passed, o

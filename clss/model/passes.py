@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .graph import FLOAT_TYPES, Graph, Node
-from .patterns import float_exponents, fuse_layer_norm
+from .patterns import float_exponents, fuse_layer_norm, layer_norm_stats
 
 ACT_OPS = {"Relu": "relu", "LeakyRelu": "leaky_relu", "Sigmoid": "sigmoid", "Tanh": "tanh"}
 
@@ -1125,6 +1125,7 @@ PASSES = [
     ("batchnorm_training", training_batchnorm),
     ("float_exponents", float_exponents),
     ("layer_norm", fuse_layer_norm),
+    ("layer_norm_stats", layer_norm_stats),
     ("matmul", lower_matmul),
     ("conv_canonical", canonical_convs),
     ("conv_resize", conv_through_resize),

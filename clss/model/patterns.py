@@ -7,6 +7,7 @@
   LayerNorm of NCHW models (NAFNet's, ConvNeXt's LayerNorm2d), whose mean and variance
   run over C at each pixel. Over the trailing axes it becomes LayerNormalization; over a
   block of axes that is not the last, clss.NormBlock (kernels/norm.cl norm_strided).
+* layer_norm_stats: a LayerNormalization whose Mean and InvStdDev nobody reads writes only Y.
 * float_exponents: Pow by a constant exponent of 2, 1, 0.5 or -1 as Mul(x, x), the input,
   Sqrt or Reciprocal (pow() is a library call per element on PoCL); another integer
   exponent (the dynamo exporter writes ``x ** 3`` with an int64 scalar) as a float
@@ -187,6 +188,20 @@ def _block_vector(v: np.ndarray, shape, axes):
     block = tuple(shape[axes[0]:axes[-1] + 1])
     sel = v[tuple(0 if not axes[0] <= k <= axes[-1] else slice(None) for k in range(r))]
     return np.ascontiguousarray(np.broadcast_to(sel, block)).ravel()
+
+
+def layer_norm_stats(g: Graph) -> int:
+    """A LayerNormalization whose Mean and InvStdDev nobody reads writes only Y (clss_stats=0):
+    the exporters' LayerNorms list no statistics, or list them unread."""
+    uses = g.consumers()
+    changed = 0
+    for n in g.nodes:
+        if n.op == "LayerNormalization" and int(n.attrs.get("clss_stats", 1)):
+            if not any(t and (t in uses or t in g.outputs) for t in n.outputs[1:]):
+                n.attrs = {**n.attrs, "clss_stats": 0}
+                n.outputs = n.outputs[:1]
+                changed += 1
+    return changed
 
 
 # Pow by these constant exponents is an op clss runs without pow() (a library call per
