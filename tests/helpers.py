@@ -11,7 +11,7 @@ from hypothesis import HealthCheck
 from onnx import helper
 
 import clss
-from clss.scene import Frame, render_sequence
+from clss.demo.scene import Frame, render_sequence
 from clss.tolerance import Tolerance, compare
 from clss.verify.conformance import check
 from clss.verify.twin import make_model, run_ort

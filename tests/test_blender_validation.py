@@ -10,7 +10,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from clss import scene
+from clss.demo import scene
 from weights_tools.blender import convert, render_validation as rv
 
 BLENDER = shutil.which("blender")

@@ -17,7 +17,7 @@ import pytest
 pytest.importorskip("OpenImageIO")
 
 from clss import io as cio  # noqa: E402
-from clss import scene  # noqa: E402
+from clss.demo import scene  # noqa: E402
 from clss.cli import main  # noqa: E402
 
 

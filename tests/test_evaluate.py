@@ -63,7 +63,7 @@ def test_scored_frames():
 
 def _tiny_sequence(path, n=6, hw=(18, 26), scale=2.0, reset_at=()):
     """A DATA.md sequence from the built-in scene (different frames from the demo's)."""
-    from clss.scene import render_frame
+    from clss.demo.scene import render_frame
     frames = [render_frame(20 + i, hw, scale, spp_ref=4) for i in range(n)]
     reset = np.array([i == 0 or i in reset_at for i in range(n)])
     np.savez(path, color=np.stack([f.color for f in frames]),
@@ -71,7 +71,7 @@ def _tiny_sequence(path, n=6, hw=(18, 26), scale=2.0, reset_at=()):
              motion=np.stack([f.motion for f in frames]),
              jitter=np.array([f.jitter for f in frames], np.float32), reset=reset,
              reference=np.stack([f.reference for f in frames]), scale=np.float32(scale),
-             meta=np.array(json.dumps({"generator": "clss.scene", "test": True})))
+             meta=np.array(json.dumps({"generator": "clss.demo.scene", "test": True})))
     return str(path)
 
 

@@ -12,7 +12,7 @@ import os
 import numpy as np
 import pytest
 
-from clss import scene
+from clss.demo import scene
 from clss.errors import UserError, cli_message
 from clss.pipeline import contract
 from clss.pipeline.contract import GBUFFERS, FrameInputError, MissingInputError
@@ -277,7 +277,7 @@ def test_io_channel_names_and_per_buffer_files(tmp_path):
         cio.read_sequence(str(per), jitter="zero", gbuffers={"albedo_lr": "x.%04d.exr"})
 
 
-# ---------------------------------------------------------------- clss.scene
+# ---------------------------------------------------------------- clss.demo.scene
 
 def test_scene_frames_carry_every_gbuffer():
     h, w = 18, 32
@@ -405,7 +405,7 @@ def _known_spec():
                         light=light, objects=[floor, ball])
 
 
-# clss.scene's world has +y up and +z toward the viewer; Blender's has +z up (and +y
+# clss.demo.scene's world has +y up and +z toward the viewer; Blender's has +z up (and +y
 # away): X = x, Y = -z, Z = y, a rotation.
 TO_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
@@ -420,7 +420,7 @@ def _blender_camera(cam):
 
 def _cycles_passes(cam, prev_cam, ball_c, ball_c_prev, w, h, jitter=(0.0, 0.0)):
     """The passes Cycles writes for the known scene, computed here independently of
-    clss.scene's tracer, in Blender's conventions (sources: Blender's manual for the
+    clss.demo.scene's tracer, in Blender's conventions (sources: Blender's manual for the
     passes; Cycles' kernel, primitive_motion_vector, for the Vector pass):
       * raster coordinates in pixels from the image's bottom-left corner, +y up; the
         focal length is the one of a 60 degree vertical field of view (Blender fits the

@@ -7,7 +7,7 @@ import pytest
 oiio = pytest.importorskip("OpenImageIO")
 
 from clss import io as cio  # noqa: E402
-from clss import scene  # noqa: E402
+from clss.demo import scene  # noqa: E402
 
 
 def _exr(path, data, names, window=None, full=None):

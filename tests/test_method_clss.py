@@ -11,7 +11,7 @@ import pytest
 import clss
 from clss import Upscaler
 from clss.pipeline import FrameInputError, jitter_sequence
-from clss.scene import render_sequence
+from clss.demo.scene import render_sequence
 
 RENDER = (12, 20)
 _seq = []

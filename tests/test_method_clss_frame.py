@@ -361,7 +361,7 @@ def test_depth_slope_passes_ramps_and_keeps_silhouettes(mode):
 OCLGRIND_SCRIPT = r"""
 import numpy as np
 from clss import Upscaler
-from clss.scene import render_sequence
+from clss.demo.scene import render_sequence
 seq = render_sequence(2, (5, 7), 2.0, spp_ref=0)
 ups = []
 for prec in ("fp32", "fp16"):

@@ -213,7 +213,7 @@ def test_clss_methods_lists_every_method(capsys):
 def test_clss_eval_scores_without_torch(tmp_path, capsys):
     # `clss eval`: the scoring of weights_tools eval from the runtime's own command
     from clss.cli import main
-    from clss.scene import render_frame
+    from clss.demo.scene import render_frame
     fr = [render_frame(30 + i, (9, 14), 2.0, spp_ref=2) for i in range(4)]
     p = tmp_path / "cap.npz"
     np.savez(p, color=np.stack([f.color for f in fr]), depth=np.stack([f.depth for f in fr]),

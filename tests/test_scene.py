@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from clss import scene
+from clss.demo import scene
 
 SMALL = (54, 96)
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from clss import scene
+from clss.demo import scene
 from weights_tools import scenegen as sg
 from weights_tools.__main__ import main
 

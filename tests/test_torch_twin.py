@@ -1,7 +1,7 @@
 """The PyTorch twin (weights_tools/methods/clss/twin.py) against clss.Upscaler: what is trained is
 what runs.
 
-Both run the same frames (clss.scene, 23x37 -> 46x74, padded to 48x80 for the
+Both run the same frames (clss.demo.scene, 23x37 -> 46x74, padded to 48x80 for the
 classifier) and the same weights (seeded init, seed 3, not the default) for 8 frames
 with the state carried and a reset in the middle, in both modes, fp32.  Per frame
 (the tolerances of tests/test_method_clss_frame.py vs the oracle):

@@ -21,7 +21,7 @@ def write_tiny_sequence(path, n=6, seed=0):
     """A DATA.md sequence from the built-in scene with crude labels (for this test only:
     ghosting where the depth changes a lot between frames, geometry aliasing where the
     reference has strong edges)."""
-    from clss.scene import render_sequence
+    from clss.demo.scene import render_sequence
     seq = render_sequence(n, RENDER, 2.0, spp_ref=2, seed=seed)
     ref = np.stack([f.reference for f in seq])
     lum = ref.mean(-1)
@@ -78,7 +78,7 @@ def test_train_smoke(tiny_data, tmp_path, capsys):
 
     # they run in clss.Upscaler, agreeing with the torch twin
     from clss import Upscaler
-    from clss.scene import render_sequence
+    from clss.demo.scene import render_sequence
     from weights_tools.methods.clss.twin import TorchUpscaler
     up = Upscaler(2.0, mode="net", weights=os.path.join(out, "weights.safetensors"))
     twin = TorchUpscaler(2.0, "net", weights=trained, device="cpu")

@@ -60,9 +60,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from clss import scene
+from clss.demo import scene
 from clss.pipeline.contract import output_size
-from clss.scene import (NEAR, Box, Camera, Cylinder, Ground, Light, Sphere, _box_corners, _Rigid,
+from clss.demo.scene import (NEAR, Box, Camera, Cylinder, Ground, Light, Sphere, _box_corners, _Rigid,
                         _trace, _View, frame_gbuffers, halton_jitter, render_reference,
                         trace_points)
 

@@ -218,7 +218,7 @@ def _upscale_frames(a, ups, names, out_hw, in_dir, files, run):
     from .. import io as cio
     from .. import metrics
     from ..progress import progress
-    from ..scene import iter_sequence
+    from ..demo.scene import iter_sequence
     H, W = out_hw
     out = a.out
     scores, lines = run.scores, run.lines

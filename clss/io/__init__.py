@@ -26,6 +26,7 @@ directory and are renamed into place, so frames already written stay valid.
 
 One module per job, each importing only those before it here:
   errors.py     `InputError`
+  frame.py      `Frame`: one frame's buffers (what a sequence gives and the scene renders)
   tonemap.py    linear HDR -> display values (`tonemap`, `to_uint8`)
   images.py     one file at a time: `read_exr`, `write_exr`, `write_png`, `write_png_ldr`,
                 `write_json`, the atomic write they share
@@ -43,6 +44,7 @@ from ..filemode import current_umask, new_file_mode  # also clss.io API, as befo
 from .channels import (BUFFER_CHANNELS, CHANNEL_CANDIDATES, GBUFFER_CANDIDATES,
                        SINGLE_BUFFER_CANDIDATES, check_channels, read_frame)
 from .errors import InputError
+from .frame import Frame
 from .images import (_atomic_write, default_channel_names, read_exr, write_exr, write_json,
                      write_png, write_png_ldr)
 from .jitter import SIDECARS
@@ -50,7 +52,7 @@ from .sequence import FrameSequence, read_sequence, write_sample_sequence
 from .tonemap import to_uint8, tonemap
 
 __all__ = ["BUFFER_CHANNELS", "CHANNEL_CANDIDATES", "GBUFFER_CANDIDATES",
-           "SINGLE_BUFFER_CANDIDATES", "SIDECARS", "FrameSequence", "InputError",
+           "SINGLE_BUFFER_CANDIDATES", "SIDECARS", "Frame", "FrameSequence", "InputError",
            "check_channels", "current_umask", "default_channel_names", "new_file_mode",
            "read_exr", "read_frame", "read_sequence", "to_uint8", "tonemap", "write_exr",
            "write_json", "write_png", "write_png_ldr", "write_sample_sequence"]

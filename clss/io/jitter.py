@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from ..scene import halton_jitter
+from ..pipeline.contract import jitter_at as halton_jitter
 from .errors import InputError
 
 SIDECARS = ("jitter.json", "jitter.csv")

@@ -1,6 +1,6 @@
 """A frame sequence in and out: `read_sequence` opens one (the files from
 clss.io.discovery, the channels from clss.io.channels, the jitter from clss.io.jitter)
-as a lazy `FrameSequence` of clss.scene.Frame; `write_sample_sequence` writes frames
+as a lazy `FrameSequence` of `Frame` (clss.io.frame); `write_sample_sequence` writes frames
 in the layout it reads back."""
 from __future__ import annotations
 
@@ -9,17 +9,17 @@ import os
 import numpy as np
 
 from ..pipeline.contract import GBUFFERS, output_size
-from ..scene import Frame
 from .channels import _extract, check_channels
 from .discovery import (_describe, _detect_gbuffer_files, _detect_layout, _pattern_files,
                         _without_gbuffer_files)
 from .errors import InputError
+from .frame import Frame
 from .images import read_exr, write_exr, write_json
 from .jitter import _resets, _resolve_jitter
 
 
 def write_sample_sequence(frames, directory, half=True, gbuffers=False):
-    """Write frames (clss.scene.Frame or dicts with color, depth, motion, jitter and
+    """Write frames (clss.io.Frame or dicts with color, depth, motion, jitter and
     optionally reference) as ``frame.%04d.exr`` (R, G, B [half], Z, mv.x, mv.y [float]),
     ``reference.%04d.exr`` and ``jitter.json``, which `read_sequence(directory)` reads
     back. gbuffers=True also writes the frames' G-buffers (`Frame.gbuffers`, or a dict's
@@ -87,7 +87,7 @@ def _frame_gbuffers(f):
 
 
 class FrameSequence:
-    """Lazily read frames: len(), indexing and iteration give clss.scene.Frame with
+    """Lazily read frames: len(), indexing and iteration give clss.io.Frame with
     meta {"frame": file number, "files": {buffer: path}} plus sidecar metadata."""
 
     def __init__(self, entries, channels, jitter, resets, meta, single, scale=None):

@@ -48,7 +48,7 @@ H_COLOR, H_COUNTER, H_MIN, H_MAX, H_LOGITS = (slice(0, 3), slice(3, 4), slice(4,
                                                slice(7, 10), slice(10, 16))
 DEFAULT_CAP = {"rule": 4, "net": 32}
 # Relative view-depth jump that rejects history in rule mode.  Grazing surfaces and the
-# horizon jump by several % per pixel; on clss.scene (136x240 -> 272x480, cap 4) 0.05
+# horizon jump by several % per pixel; on clss.demo.scene (136x240 -> 272x480, cap 4) 0.05
 # rejected 8 % of pixels (33.06 dB), 0.1 6 % (33.23 dB), 0.2 4 % (33.30 dB).
 DEPTH_THRESHOLD = 0.1
 # The depth test's tolerance grows with the local depth slope: it compares dd less

@@ -33,13 +33,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..io.frame import Frame  # noqa: F401  (what the scene renders; scene.Frame as before)
 # The jitter sequence and the output size are the frame contract's: the scene renders
 # exactly the samples and the size clss.Upscaler expects. (halton_jitter and
 # jitter_sequence_length are the names scene users have always called them by.)
-from .pipeline.contract import jitter_at as halton_jitter
-from .pipeline.contract import jitter_phase_count as jitter_sequence_length  # noqa: F401
-from .pipeline.contract import output_size as contract_output_size
-from .pipeline.contract import GBUFFERS
+from ..pipeline.contract import jitter_at as halton_jitter
+from ..pipeline.contract import jitter_phase_count as jitter_sequence_length  # noqa: F401
+from ..pipeline.contract import output_size as contract_output_size
 
 NEAR = 0.1                      # reversed-Z near plane (scene units, metres)
 TAN_HALF_FOV = math.tan(math.radians(30.0))  # vertical field of view 60 degrees
@@ -67,29 +67,6 @@ class Light:
 
 DEFAULT_LIGHT = Light(SUN_DIR, SUN, AMBIENT)
 SKY_ID, GROUND_ID = -2, -1       # primitive ids of the sky and the ground plane
-
-
-@dataclass
-class Frame:
-    """One rendered frame; ``reference`` is None when no reference was rendered.
-    ``gbuffers``: the optional inputs of clss.pipeline.contract.GBUFFERS the frame
-    carries, {name: float32 array} (albedo, normal: h x w x 3; albedo_hr, normal_hr:
-    H x W x 3; depth_hr: H x W); empty when none. ``frame["albedo"]`` reads one of them
-    (None when absent), so code that indexes frames by key reaches them too."""
-    index: int
-    color: np.ndarray            # h x w x 3 float32, linear HDR
-    depth: np.ndarray            # h x w float32, reversed-Z
-    motion: np.ndarray           # h x w x 2 float32, render pixels, prev = p + motion
-    jitter: tuple                # (jx, jy) in render pixels
-    reset: bool = False
-    reference: np.ndarray | None = None   # H x W x 3 float32
-    meta: dict = field(default_factory=dict)
-    gbuffers: dict = field(default_factory=dict)
-
-    def __getitem__(self, key):
-        if key in GBUFFERS:
-            return self.gbuffers.get(key)
-        return getattr(self, key)
 
 
 # ---------------------------------------------------------------- camera
