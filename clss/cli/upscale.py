@@ -9,10 +9,10 @@ import time
 import numpy as np
 
 from ..errors import cli_message
-from .args import (ArgParser, UsageError, motion_scale, positive_float, positive_int,
-                   prepare_output_dir, resolve_motion_scale, start_output)
-from .upscaler_common import (WEIGHTS_HELP, FrameFiles, add_upscaler_args, check_weights_mode,
-                              format_stage_table, write_debug_views)
+from .args import ArgParser, UsageError, positive_int, prepare_output_dir, start_output
+from .upscaler_common import (WEIGHTS_HELP, FrameFiles, add_contract_args, add_upscaler_args,
+                              check_weights_mode, contract_of_args, format_stage_table,
+                              write_debug_views)
 
 
 # ---------------------------------------------------------------- clss upscale
@@ -73,6 +73,11 @@ def _parser() -> ArgParser:
                         "or if it is not empty (unless --overwrite)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a previous run's output in OUT (its frame.* and debug/ files)")
+    return add_upscale_options(p)
+
+
+def add_upscale_options(p: ArgParser) -> ArgParser:
+    """Every option of `clss upscale` but its input and output (`clss batch` takes the same)."""
     add_upscaler_args(p)
     p.add_argument("--method", default=None,
                    help="the method (`clss methods` lists them: bicubic, jbicubic, clss-rules, "
@@ -91,22 +96,12 @@ def _parser() -> ArgParser:
     p.add_argument("--jitter", default=None,
                    help="jitter sidecar (JSON/CSV), 'halton' or 'zero' (default: sidecar, else halton)")
     p.add_argument("--frames", "-n", type=positive_int, default=None, help="only the first N frames")
-    p.add_argument("--depth-standard", action="store_true",
-                   help="depth is standard Z (near = 0); default reversed-Z (near = 1)")
-    p.add_argument("--motion-scale", type=motion_scale, default=(1.0, 1.0), metavar="SX,SY",
-                   help="factors that turn the stored motion into render pixels pointing to the "
-                        "previous position, e.g. '-1,-1', or 'W,H' (the render width and height) "
-                        "for motion stored in UV units (default 1,1)")
-    p.add_argument("--exposure", type=positive_float, default=1.0,
-                   help="the exposure the colour was rendered with: colour is divided by it on "
-                        "the way in and multiplied by it on the way out (default 1)")
-    p.add_argument("--ldr", action="store_true", help="LDR input in [0,1] (no PQ transfer)")
+    add_contract_args(p)
     p.add_argument("--sanitize", action="store_true",
                    help="replace NaN/Inf inputs and report how many, in which frames "
                         "(default: refuse such frames and stop)")
     for ext in _method_options():
         ext.add_arguments(p)
-    p.dash_values = ("--motion-scale",)
     return p
 
 
@@ -122,38 +117,19 @@ def _method_options() -> list:
 def cmd_upscale(argv) -> int:
     p = _parser()
     a = p.parse_args(argv)
-    from .. import methods
     from ..io import read_sequence
-    from ..upscaler import Upscaler, method_name
-
-    try:
-        name = method_name(a.method, a.mode)
-    except ValueError as e:
-        p.error(f"--method: {e}" if a.method is not None else str(e))
-    spec = methods.spec(name)
-    check_weights_mode(a.weights, spec.weights() != "none needed")
-    spec.resolve_weights(a.weights, a.scale)    # a scale it ships no weights for: now
-    if a.debug_views and "debug" not in (spec.parameters() or ()):
-        have = [s.name for s in methods.specs() if "debug" in (s.parameters() or ())]
-        raise UsageError(f"--debug-views: the method {name} has no debug views "
-                         f"({', '.join(have)} have them)")
+    name, spec = check_method(p, a)
     channels = parse_channels(a.channels)
     seq = read_sequence(a.input, channels=channels, jitter=a.jitter, scale=a.scale)
     n = len(seq) if a.frames is None else min(len(seq), a.frames)
     first = seq[0]
     _check_gbuffers(name, spec, first, a.scale)     # before anything is written
+    # the input's conventions reach every method, or are refused by flag: now
+    contract = contract_of_args(a, first.color.shape[:2])
+    methods.check_contract(name, contract)
     inputs = seq.files + ([a.jitter] if a.jitter and os.path.isfile(a.jitter) else [])
     stale = prepare_output_dir(a.out, "-o", inputs, a.overwrite, OUTPUT_SET)
-    # The input's description goes to every method that reads it (one that does not,
-    # e.g. bicubic and depth, is left out); the options methods add check themselves.
-    kw = dict(depth_inverted=not a.depth_standard,
-              motion_scale=resolve_motion_scale(a.motion_scale, first.color.shape[:2]),
-              exposure=a.exposure, sanitize=a.sanitize, profile=True, weights=a.weights,
-              hdr=not a.ldr, debug=a.debug_views)
-    for ext in _method_options():
-        kw.update(ext.check(a, name, UsageError))
-    up = Upscaler(method=name, scale=a.scale, device=a.device, precision=a.precision,
-                  **methods.options(name, **kw))
+    up = build_upscaler(a, name, first)
     start_output(a.out, stale)
     print(f"clss upscale: {n} frames from {a.input}, method {name}, x{a.scale:g}, "
           f"{a.precision}, device {up.dev.info.name}", file=sys.stderr)
@@ -184,6 +160,41 @@ def cmd_upscale(argv) -> int:
     return 0
 
 
+def check_method(p, a):
+    """(name, spec) of the method the options name, once its weights and debug views are
+    known to fit (before any file is read or written)."""
+    from .. import methods
+    from ..upscaler import method_name
+    try:
+        name = method_name(a.method, a.mode)
+    except ValueError as e:
+        p.error(f"--method: {e}" if a.method is not None else str(e))
+    spec = methods.spec(name)
+    check_weights_mode(a.weights, spec.weights() != "none needed")
+    spec.resolve_weights(a.weights, a.scale)    # a scale it ships no weights for: now
+    if a.debug_views and "debug" not in (spec.parameters() or ()):
+        have = [s.name for s in methods.specs() if "debug" in (s.parameters() or ())]
+        raise UsageError(f"--debug-views: the method {name} has no debug views "
+                         f"({', '.join(have)} have them)")
+    return name, spec
+
+
+def build_upscaler(a, name, first):
+    """The Upscaler the options describe, for a sequence whose first frame is `first`
+    (`clss batch` builds one per sequence the same way)."""
+    from .. import methods
+    from ..upscaler import Upscaler
+    # The contract goes to every method; the other options to those that take them (the
+    # options methods add check themselves).
+    kw = dict(contract=contract, sanitize=a.sanitize, profile=True, weights=a.weights,
+              debug=a.debug_views)
+    for ext in _method_options():
+        kw.update(ext.check(a, name, UsageError))
+    up = Upscaler(method=name, scale=a.scale, device=a.device, precision=a.precision,
+                  **methods.options(name, **kw))
+    return up
+
+
 def _check_gbuffers(name, spec, first, scale):
     """A method's G-buffers must be in the sequence: say which and where they are read
     from before any file is written."""
@@ -200,14 +211,19 @@ def _check_gbuffers(name, spec, first, scale):
         raise UsageError(f"{cli_message(e)}; nothing was written") from None
 
 
-def _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written):
-    """Upscale and write frames 0..n-1; a refused frame ends the run with a UsageError."""
+def _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written,
+                    indices=None, keep=(), on_frame=None):
+    """Upscale and write frames 0..n-1 (or those at `indices`); a refused frame ends the
+    run with a UsageError. `clss batch` resumes with `keep`: the numbers of frames already
+    written, stepped only for the history; `on_frame(number, paths)` once a frame's files
+    are all written."""
     from ..io import write_exr, write_png
     from ..pipeline.contract import FrameInputError
     from ..progress import progress
     exts = _method_options()
     dbg_dir = os.path.join(a.out, "debug")
-    for i in progress(range(n), desc="upscale", unit="frame", total=n):
+    indices = range(n) if indices is None else indices
+    for i in progress(indices, desc="upscale", unit="frame", total=len(indices)):
         f = first if i == 0 else seq[i]
         number = f.meta.get("frame", i)
         try:
@@ -219,6 +235,8 @@ def _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written):
         except FrameInputError as e:
             where = f.meta.get("files", {}).get("color", "?")
             raise UsageError(f"frame {number} ({where}): {cli_message(e)}; {written()}") from None
+        if number in keep:
+            continue
         for ext in exts:
             ext.report(a, up, number)
         if up.last_report:
@@ -231,7 +249,10 @@ def _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written):
             write_png(stem + ".png", out)
         if a.debug_views:
             write_debug_views(dbg_dir, up, number, paths=files.pending)
+        paths = files.pending
         files.done()
+        if on_frame is not None:
+            on_frame(number, paths)
         if f.reference is not None and f.reference.shape == out.shape:
             from ..metrics import psnr, ssim
             scores.append((psnr(out, f.reference), ssim(out, f.reference)))
