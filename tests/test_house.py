@@ -5,6 +5,7 @@ toy method added the way the doc says (a folder, one line) is a method everywher
 registry, clss.Upscaler, `clss methods` and the bench."""
 from __future__ import annotations
 
+import ast
 import importlib
 import os
 import re
@@ -216,3 +217,57 @@ def test_setup_finds_every_room():
     from setuptools import find_packages
     found = set(find_packages(ROOT, include=["clss", "clss.*"]))
     assert {f"clss.methods.{r}" for r in methods.ROOMS} <= found
+
+
+# ---------------------------------------------------------------- studies/ (issue 52)
+
+STUDIES = os.path.join(ROOT, "studies")
+PACKAGES = ("clss", "bench", "weights_tools")
+
+
+def _studies():
+    """Every file of studies/ but its README, as paths relative to studies/."""
+    out = []
+    for d, _, files in os.walk(STUDIES):
+        out += [os.path.relpath(os.path.join(d, f), STUDIES) for f in files
+                if f != "README.md" and "__pycache__" not in d]
+    return sorted(out)
+
+
+def test_studies_live_outside_the_packages_and_are_indexed():
+    """Dated one-off studies sit in studies/, never inside an importable package, and
+    studies/README.md has a line for each (what it measured, its date, its result)."""
+    for pkg in PACKAGES:
+        for d, dirs, files in os.walk(os.path.join(ROOT, pkg)):
+            assert "studies" not in dirs, f"{d}/studies: studies belong in studies/"
+            dated = [f for f in files if f.endswith(".py") and re.match(r"\d{4}-\d\d-\d\d-", f)]
+            assert not dated, f"{d}: dated one-off scripts {dated} belong in studies/"
+    index = open(os.path.join(STUDIES, "README.md")).read()
+    rows = re.findall(r"^\| `([^`]+)` \| (\d{4}-\d\d-\d\d) \|", index, re.M)
+    assert sorted(r[0] for r in rows) == _studies(), "studies/README.md: one line per study"
+
+
+def _package_imports(path):
+    """(module, name or None) of each import of clss, bench or weights_tools in a script."""
+    for node in ast.walk(ast.parse(open(path).read())):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module \
+                and node.module.split(".")[0] in PACKAGES:
+            yield from ((node.module, a.name) for a in node.names)
+        elif isinstance(node, ast.Import):
+            yield from ((a.name, None) for a in node.names if a.name.split(".")[0] in PACKAGES)
+
+
+@pytest.mark.parametrize("study", [s for s in _studies() if s.endswith(".py")])
+def test_a_study_imports_what_exists(study):
+    """A study stays runnable as far as moves go: every module and name it takes from the
+    packages still exists (a moved module, like clss.scene to clss.demo.scene, is caught;
+    the torch-only ones are checked where the [train] extra is installed)."""
+    for module, name in _package_imports(os.path.join(STUDIES, study)):
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as e:
+            if e.name in ("torch", "bpy", "ray"):
+                pytest.skip(f"{module} needs {e.name}")
+            raise
+        if name is not None and not hasattr(mod, name):
+            importlib.import_module(f"{module}.{name}")     # a submodule, else it fails

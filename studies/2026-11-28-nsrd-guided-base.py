@@ -4,7 +4,7 @@ from the 5th), for the base (bilinear; guided: the 4x4 tent taps weighted by mat
 similarity, networks.BASES) and the material (filtered: the 3x3 binomial before the eps
 rule; point: albedo_hr itself). docs/methods/nsrd.md, "The material-guided base".
 
-    python weights_tools/studies/2026-11-28-nsrd-guided-base.py out/data/blender/validation/*.npz
+    python studies/2026-11-28-nsrd-guided-base.py out/data/blender/validation/*.npz
 
 numpy only, in float64; the shipped kernels' arithmetic is networks.guide_taps' (float32).
 """

@@ -2,11 +2,11 @@
 rejection"): the torch twin of the frame step run over whole sequences with one weights
 file and the rejection's threshold tau swept (-1: off).
 
-    python weights_tools/studies/2026-11-28-nsrr-depth-rejection.py WEIGHTS TAUS SEQ.npz ...
-    python weights_tools/studies/2026-11-28-nsrr-depth-rejection.py WEIGHTS TAUS --demo
+    python studies/2026-11-28-nsrr-depth-rejection.py WEIGHTS TAUS SEQ.npz ...
+    python studies/2026-11-28-nsrr-depth-rejection.py WEIGHTS TAUS --demo
 
 Per tau: PSNR dB (tone-mapped, frames 4 on) of each sequence and their mean. --demo renders
-`make demo`'s sample scene (clss.scene, 30 frames, 480x270 -> 2x) and prints the mean signed
+`make demo`'s sample scene (clss.demo.scene, 30 frames, 480x270 -> 2x) and prints the mean signed
 error per channel (tone-mapped) over the pixels that tau 0.1 calls disoccluded, frames 4 on:
 the sphere's ghost is its blue there; and the same with no history at all.
 """
@@ -45,7 +45,7 @@ def run(net, d, history=None):
 
 
 def demo_sequence():
-    from clss import scene
+    from clss.demo import scene
     fr = scene.render_sequence(30, workers=2, gbuffers=False)
     return {"color": np.stack([f.color for f in fr]), "depth": np.stack([f.depth for f in fr]),
             "motion": np.stack([f.motion for f in fr]), "reset": np.array([f.reset for f in fr]),

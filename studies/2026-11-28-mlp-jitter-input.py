@@ -2,7 +2,7 @@
 jitter input"): the 2x generalist fine-tuned on the Blender mix with and without the
 jitter input, scored through the torch twin on the validation splits.
 
-    python weights_tools/studies/2026-11-28-mlp-jitter-input.py (jit|ctrl) STEPS OUT
+    python studies/2026-11-28-mlp-jitter-input.py (jit|ctrl) STEPS OUT
 
 From the shipped x2 file of 2026-11-27 (before the jitter input), `train mlp`'s recipe
 (patches accepted by gradient, L1 in PQ, Adam at 5e-4 with a cosine decay, batch 32, one

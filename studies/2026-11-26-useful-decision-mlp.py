@@ -1,7 +1,7 @@
 """Can a per-pixel predictor with more inputs than the classifier learn the useful decision
 (issue 23, docs/training.md 2026-11-26)? Fit on val with the oracle running, then run it in
 place of net mode's decision on held-out 0-7 and the Blender sequences (torch twin).
-Run from the repository root: .venv/bin/python weights_tools/studies/2026-11-26-useful-decision-mlp.py"""
+Run from the repository root: .venv/bin/python studies/2026-11-26-useful-decision-mlp.py"""
 import sys, glob, os, json
 sys.path.insert(0, '.')
 import numpy as np, torch; torch.set_num_threads(1); torch.manual_seed(0)
