@@ -108,6 +108,78 @@ def lookup(dev, op: str, key: str, defaults: dict, explicit: dict | None = None,
     return out
 
 
+def overridden(op: str) -> dict:
+    """The candidate the tuner is trying for op (inside override()), else {}."""
+    return dict(_overrides.get(op, {}))
+
+
+# --- shipped tables: what was measured on a kind of device, for a device nobody tuned -----
+
+SHIPPED_DIR = Path(__file__).parent / "tuning_tables"
+_shipped: dict = {}
+
+
+def device_class(dev) -> str:
+    """The shipped table a device reads (clss/tuning_tables/<class>.json): nvidia, amd,
+    intel-gpu, cpu-avx512 (16 float lanes), cpu-avx2 (8), else default. A CPU's class comes
+    from the vector width its driver prefers, the register tile's unit."""
+    info = getattr(dev, "info", dev)
+    text = f"{getattr(info, 'platform', '')} {getattr(info, 'vendor', '')} {getattr(info, 'name', '')}".lower()
+    cl_device = getattr(dev, "cl_device", None)
+    if getattr(dev, "is_cpu", False):
+        try:
+            width = int(cl_device.preferred_vector_width_float)
+        except Exception:
+            width = 0
+        # PoCL reports its lanes in the device name too (pthread-skylake-avx512-...)
+        if width >= 16 or "avx512" in text:
+            return "cpu-avx512"
+        return "cpu-avx2" if width >= 8 or "avx2" in text or "znver" in text or "haswell" in text else "default"
+    if "nvidia" in text:
+        return "nvidia"
+    if "amd" in text or "advanced micro devices" in text:
+        return "amd"
+    if "intel" in text:
+        return "intel-gpu"
+    return "default"
+
+
+def shipped(dev) -> dict:
+    """The shipped table of dev's class ({} where none ships):
+    {"class": ..., "measured": "where and when", "ops": {op: {"order": [variant, ...],
+     "params": {variant: {param: value}}, "layers": {layer key: {"VARIANT": ..., params}}}}}"""
+    cls = device_class(dev)
+    if cls not in _shipped:
+        path = SHIPPED_DIR / f"{cls}.json"
+        try:
+            _shipped[cls] = json.loads(path.read_text())
+        except (OSError, ValueError):
+            _shipped[cls] = {}
+    return _shipped[cls]
+
+
+def _shipped_op(dev, op: str) -> dict:
+    return shipped(dev).get("ops", {}).get(op, {})
+
+
+def shipped_order(dev, op: str, key: str) -> list:
+    """The shipped table's variant for this layer key (if it lists one), then its order."""
+    t = _shipped_op(dev, op)
+    layer = t.get("layers", {}).get(key, {})
+    return ([layer["VARIANT"]] if "VARIANT" in layer else []) + list(t.get("order", []))
+
+
+def shipped_params(dev, op: str, key: str, variant: str) -> dict:
+    """The shipped tunables of a variant: its class-wide ones, then this layer's (when the
+    layer's entry is for this variant)."""
+    t = _shipped_op(dev, op)
+    out = dict(t.get("params", {}).get(variant, {}))
+    layer = t.get("layers", {}).get(key, {})
+    if layer.get("VARIANT") == variant:
+        out.update({k: v for k, v in layer.items() if k != "VARIANT"})
+    return out
+
+
 def local_size(dev, kernel_name: str, global_size) -> tuple | None:
     """The tuned work-group size for a kernel at a global size; else, on a CPU device,
     balanced_local_size; else None (the driver's choice). Only sizes that divide the

@@ -9,6 +9,7 @@ from .base import ONNX_HANDLERS, Unsupported, onnx_op
 
 FAMILIES = (
     "conv",
+    "conv_gemm",
     "space_to_depth",
     "resize",
     "zero_upsample",

@@ -2,9 +2,12 @@
 bias, activation and residual add."""
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .. import selfcheck, tuning as tuning_db
+from . import conv_gemm, variants
 from ..device import Device
 from ..tolerance import DEFAULT_TOL
 from .base import Unsupported, as_str, check_storage, onnx_op, rng
@@ -539,24 +542,102 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     yc = cout // 2 if gated else cout
     if out is None:
         out = dev.empty(blocked_shape(n, yc, ho, wo, vector_width(dev)) if out_blocked else (n, yc, ho, wo), prec)
+    layer = ConvLayer((n, cin, h, wd), tuple(w.shape), (sy, sx), (pt, pl, pb, pr), (dy, dx), group,
+                      int(x.shape[4]) if blocked_in else 0, bool(out_blocked), bool(gated), residual is not None)
+    call = ConvCall(x, w, b, packed, activation, alpha, residual, residual_before_act, out, ho, wo, tuning)
+    # WINO=0 / BLOCKED=0 in `tuning` (tests, ablations) leave those rows out for NCHW layers
+    nchw = not (gated or blocked_in or out_blocked)
+    exclude = [name for name, flag in (("winograd", "WINO"), ("blocked", "BLOCKED"))
+               if not (tuning or {}).get(flag, 1) and (nchw or name == "winograd")]
+    v = variants.choose(dev, prec, "conv2d", layer_key(layer, prec), VARIANTS, layer, tuning, exclude)
+    return v.run(dev, prec, layer, call)
+
+
+class ConvLayer(NamedTuple):
+    """What the variant chooser knows of a conv2d launch: x as NCHW (its logical shape when it
+    arrives blocked), w, strides (y, x), pads (top, left, bottom, right), dilations, group,
+    block_in (channels per block of a blocked input, else 0), out_blocked, gated, residual."""
+    x: tuple
+    w: tuple
+    strides: tuple
+    pads: tuple
+    dilations: tuple
+    group: int
+    block_in: int = 0
+    out_blocked: bool = False
+    gated: bool = False
+    residual: bool = False
+
+    @property
+    def nchw(self) -> bool:
+        return not (self.block_in or self.out_blocked or self.gated)
+
+    def __str__(self) -> str:
+        n, c, h, w = self.x
+        co, _, kh, kw = self.w
+        lay = ("b" if self.block_in else "") + ("B" if self.out_blocked else "") + ("G" if self.gated else "")
+        return (f"{n}x{c}x{h}x{w}->{co} k{kh}x{kw} s{self.strides[0]}{self.strides[1]} "
+                f"d{self.dilations[0]}{self.dilations[1]} g{self.group}" + (f" {lay}" if lay else "")
+                + (" +res" if self.residual else ""))
+
+
+class ConvCall(NamedTuple):
+    """The tensors and epilogue of one conv2d launch, as the variants' run functions take them."""
+    x: object
+    w: object
+    b: object
+    packed: object
+    activation: str
+    alpha: float
+    residual: object
+    residual_before_act: bool
+    out: object
+    ho: int
+    wo: int
+    tuning: object
+
+
+def layer_key(layer: ConvLayer, prec: str) -> str:
+    """The tuning key of a layer: shapes, strides, pads, dilations, group, layout, precision and
+    the hash of the family's kernel sources (a choice measured on other kernels never applies)."""
+    lay = f"in{layer.block_in}" + ("/outB" if layer.out_blocked else "") + ("/gated" if layer.gated else "") \
+        + ("/res" if layer.residual else "")
+    return tuning_db.shape_key(layer.x, layer.w, "s" + "x".join(map(str, layer.strides)),
+                               "p" + "x".join(map(str, layer.pads)), "d" + "x".join(map(str, layer.dilations)),
+                               f"g{layer.group}", lay, prec, variants.source_hash("conv", "conv_gemm"))
+
+
+def _run_thin(dev, prec, L: ConvLayer, c: ConvCall):
+    return _conv2d_thin(dev, prec, c.x, c.w, c.b, c.packed, L.pads[:2], c.activation, c.alpha, c.residual,
+                        c.residual_before_act, c.out, c.ho, c.wo)
+
+
+def _run_wino(dev, prec, L: ConvLayer, c: ConvCall):
+    cin = L.x[1]
+    xb = c.x if L.block_in else to_blocked(dev, prec, c.x, input_block(cin), -(-cin // input_block(cin)))
+    return _conv2d_wino(dev, prec, xb, c.w, c.b, c.packed, L.pads[:2], c.activation, c.alpha, c.out, c.ho, c.wo,
+                        L.out_blocked)
+
+
+def _run_blocked(dev, prec, L: ConvLayer, c: ConvCall):
+    t = blocked_tiling(dev, prec, L.x, c.w, L.strides, c.tuning, L.block_in, L.out_blocked)
+    if L.gated and t["NV"] % 2:
+        t["NV"] = 2
+    return _conv2d_blocked(dev, prec, c.x, c.w, c.b, t, c.packed, L.strides, L.pads[:2], L.dilations,
+                           c.activation, c.alpha, c.residual, c.residual_before_act, c.out, c.ho, c.wo,
+                           L.out_blocked, L.gated)
+
+
+def _run_direct(dev, prec, L: ConvLayer, c: ConvCall):
+    """The NCHW register-blocked kernel (conv2d): 8*XV pixels x CB channels per work-item."""
+    x, w, b, residual, out = c.x, c.w, c.b, c.residual, c.out
+    n, cin, h, wd = L.x
+    cout, cin_g, kh, kw = L.w
+    (sy, sx), (dy, dx), group = L.strides, L.dilations, L.group
+    pt, pl, pb, pr = L.pads
+    ho, wo = c.ho, c.wo
     cout_g = cout // group
-    if thin:
-        return _conv2d_thin(dev, prec, x, w, b, packed, (pt, pl), activation, alpha, residual,
-                            residual_before_act, out, ho, wo)
-    if wino_eligible(w, group, (sy, sx), (dy, dx), residual, gated, x.shape[4] if blocked_in else 0) \
-            and (tuning or {}).get("WINO", 1) and selfcheck.enabled(dev, prec, "conv.blocked") \
-            and selfcheck.enabled(dev, prec, "conv.winograd"):
-        xb = x if blocked_in else to_blocked(dev, prec, x, input_block(cin), -(-cin // input_block(cin)))
-        return _conv2d_wino(dev, prec, xb, w, b, packed, (pt, pl), activation, alpha, out, ho, wo, out_blocked)
-    if gated or blocked_in or out_blocked or (blocked_eligible(x, w, group) and (tuning or {}).get("BLOCKED", 1)
-                                              and selfcheck.enabled(dev, prec, "conv.blocked")):
-        t = blocked_tiling(dev, prec, (n, cin, h, wd), w, (sy, sx), tuning, x.shape[4] if blocked_in else 0,
-                           out_blocked)
-        if gated and t["NV"] % 2:
-            t["NV"] = 2
-        return _conv2d_blocked(dev, prec, x, w, b, t, packed, (sy, sx), (pt, pl), (dy, dx), activation,
-                               alpha, residual, residual_before_act, out, ho, wo, out_blocked, gated)
-    t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), tuning, group)
+    t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), c.tuning, group)
     # A pointwise conv with unit stride and no padding is a GEMM over flattened
     # pixels: one row of H*W, so only the image's last block takes the edge path.
     if kh == kw == 1 and sy == sx == 1 and pt == pl == pb == pr == 0:
@@ -567,7 +648,7 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     s2k3 = int(bool(t["S2K3"]) and sx == 2 and kw == 3 and dx == 1
                and selfcheck.enabled(dev, prec, "conv.stride2_taps"))
     k = dev.kernel("conv", "conv2d", prec, KH=kh, KW=kw, SX=sx,
-                   XV=t["XV"], CB=cb, ACT=_act(activation), **_fast_defines(dev, prec),
+                   XV=t["XV"], CB=cb, ACT=_act(c.activation), **_fast_defines(dev, prec),
                    CONV_S2K3=s2k3)
     nz = n * group * ncb
     gs, ls = _sizes((-(-wo // xb), ho, nz), ncb, t)
@@ -577,9 +658,72 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
                 np.int32(cin), np.int32(h), np.int32(wd), np.int32(cout), np.int32(ho), np.int32(wo),
                 np.int32(cin_g), np.int32(cout_g), np.int32(ncb), np.int32(group),
                 np.int32(sy), np.int32(pt), np.int32(pl), np.int32(dy), np.int32(dx),
-                np.int32(_flags(b, residual, residual_before_act)), np.float32(alpha), np.int32(nz)),
+                np.int32(_flags(b, residual, c.residual_before_act)), np.float32(c.alpha), np.int32(nz)),
                local_size=ls)
     return out
+
+
+def _gemm_runner(variant: str, local: int = 1, mma: int = 0):
+    def run(dev, prec, L: ConvLayer, c: ConvCall):
+        return conv_gemm.launch(dev, prec, L, c, _act(c.activation), _flags(c.b, c.residual, c.residual_before_act),
+                                key=layer_key(L, prec), variant=variant, local=local, mma=mma)
+    return run
+
+
+class _W(NamedTuple):
+    """A weight's shape where the eligibility rules (thin_eligible, ...) take a weight."""
+    shape: tuple
+
+
+# The conv2d variants, in the family's own order of preference (the last resort of the
+# chooser, clss/ops/variants.py: a device's tuned entry and its class's shipped table come
+# first). Thin, Winograd and channel-blocked are the CPU's register-tiled paths over the
+# blocked layout; direct is the portable NCHW kernel every device runs; the GEMM rows are
+# the GPU's tiled implicit GEMMs (kernels/conv_gemm.cl).
+VARIANTS = (
+    variants.Variant("thin", "fewer than 8 outputs from a blocked input, its channels as the vector lanes",
+                     lambda dev, prec, L: (L.block_in in (8, 16) and not L.out_blocked and not L.gated
+                                           and thin_eligible(_W(L.w), L.group, L.strides, L.dilations)),
+                     _run_thin, ("conv.thin",)),
+    variants.Variant("winograd", "Winograd F(2x2, 3x3) on the blocked layout",
+                     lambda dev, prec, L: wino_eligible(_W(L.w), L.group, L.strides, L.dilations,
+                                                        True if L.residual else None, L.gated, L.block_in),
+                     _run_wino, ("conv.blocked", "conv.winograd")),
+    variants.Variant("blocked", "output-channel vectors x pixels per work-item on the blocked layout",
+                     lambda dev, prec, L: (blocked_eligible(None, _W(L.w), L.group)
+                                           and not (L.residual and L.out_blocked)),
+                     _run_blocked, ("conv.blocked",), {k: TUNABLES["conv2d_blocked"][k] for k in ("PX", "NV")}),
+    variants.Variant("direct", "NCHW, 8*XV pixels x CB channels per work-item, no local memory",
+                     lambda dev, prec, L: L.nchw, _run_direct, (), dict(TUNABLES["conv2d"])),
+    variants.Variant("gemm", "implicit GEMM, TM x TN tiles staged in local memory, RM x RN per work-item",
+                     lambda dev, prec, L: L.nchw, _gemm_runner("gemm"), ("conv.gemm",), dict(conv_gemm.TUNABLES)),
+    variants.Variant("gemm_global", "implicit GEMM, RM x RN per work-item read from global memory",
+                     lambda dev, prec, L: L.nchw, _gemm_runner("gemm_global", local=0),
+                     ("conv.gemm_global",), {k: conv_gemm.TUNABLES[k] for k in ("RM", "RN")}),
+    variants.Variant("mma", "tensor cores: mma.sync m16n8k16 through inline PTX (NVIDIA, fp16 storage)",
+                     lambda dev, prec, L: L.nchw and prec == "fp16" and conv_gemm.has_mma(dev),
+                     _gemm_runner("mma", mma=2), ("conv.mma",),
+                     dict(conv_gemm.MMA_TUNABLES)),
+)
+
+
+def describe_choice(dev: Device, prec: str, x_shape, w_shape, strides=(1, 1), pads=(0, 0, 0, 0),
+                    dilations=(1, 1), group: int = 1, block_in: int = 0, out_blocked: bool = False) -> str:
+    """The variant conv2d runs for this NCHW layer on dev, and where the choice came from:
+    'winograd (tuned)', 'direct (shipped nvidia)', 'blocked (order)' (clss bench --layers,
+    clss verify)."""
+    layer = ConvLayer(tuple(x_shape), tuple(w_shape), _pair(strides, "strides"), _pads(pads),
+                      _pair(dilations, "dilations"), int(group), int(block_in), bool(out_blocked))
+    key = layer_key(layer, prec)
+    v = variants.choose(dev, prec, "conv2d", key, VARIANTS, layer)
+    e = tuning_db.entry(dev, "conv2d", key)
+    if e and e.get("params", {}).get("VARIANT") == v.name:
+        source = "tuned"
+    elif v.name in tuning_db.shipped_order(dev, "conv2d", key)[:1]:
+        source = f"shipped {tuning_db.device_class(dev)}"
+    else:
+        source = "order"
+    return f"{v.name} ({source})"
 
 
 def conv_transpose_output_size(size: int, k: int, stride: int, pad_total: int, dilation: int,

@@ -43,7 +43,7 @@ def twin(op: str, inputs: dict, *, activation="none", alpha=0.01, residual_befor
 
 def make_case(op="conv", n=1, cin=3, h=7, w=13, cout=5, k=(3, 3), strides=(1, 1), pads=(1, 1, 1, 1),
               dilations=(1, 1), group=1, output_padding=(0, 0), output_shape=None, bias=True,
-              activation="none", alpha=0.01, residual=None, tol=None) -> Case:
+              activation="none", alpha=0.01, residual=None, tol=None, tuning=None) -> Case:
     """One seeded conformance case. residual: None, "before" or "after" the activation.
     output_shape (ConvTranspose): the twin states the output size and the pads follow
     from it (negative where the output is larger than the natural one)."""
@@ -86,6 +86,8 @@ def make_case(op="conv", n=1, cin=3, h=7, w=13, cout=5, k=(3, 3), strides=(1, 1)
                   alpha=alpha, residual_before_act=before)
     if op == "convT":
         kwargs["output_padding"] = output_padding
+    if tuning is not None:      # a row of the conv2d variant table forced (clss/verify/cases/conv_gemm.py)
+        kwargs["tuning"] = tuning
 
     def run(dev, prec, x, w, b=None, r=None):
         return fn(dev, prec, x, w, b, residual=r, **kwargs)

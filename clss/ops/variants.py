@@ -1,0 +1,125 @@
+"""Kernel variants as table rows, and the one chooser that picks a row per (device, layer).
+
+A family with several kernels for one op (conv2d: thin, Winograd, channel-blocked, NCHW
+direct, implicit GEMM with and without local memory, tensor cores) lists them as
+`Variant` rows in the order it prefers them; the op wrapper asks `choose` for a row and
+launches it, and knows no variant by name. A row says which layers it takes
+(`eligible`), which fast path must pass its self-check on the device first
+(`fast_paths`, clss/selfcheck.py) and what `clss tune` may search in it (`tunables`).
+
+The row chosen for a layer, first that is eligible and whose fast paths pass:
+  1. the caller's `tuning={"VARIANT": name}` (tests, the tuner trying a candidate);
+  2. the tuning database's entry for (device, driver, op, layer key), written by
+     `clss tune` after it checked and timed every eligible row on this device;
+  3. the shipped table of the device's class (clss/tuning_tables/<class>.json, see
+     clss.tuning.shipped): an entry for this layer key, then the class's preference order;
+  4. the family's own order.
+So a device nobody tuned runs what was measured on its kind, and a row that fails its
+self-check on a device is never launched there, whatever any table says.
+Like MNN's ConvBufExecution and ComputeLibrary's get_convolution_method, but measured per
+device rather than fixed per GPU generation.
+"""
+from __future__ import annotations
+
+import hashlib
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Callable
+
+from .. import selfcheck, tuning
+from ..device import kernel_path
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One kernel variant of an op. eligible(dev, prec, layer) -> bool: the layers (and
+    precisions, devices) it computes; run(dev, prec, layer, args) launches it;
+    fast_paths: the self-checked fast paths (clss.selfcheck names) it needs enabled;
+    tunables: {param: candidates} that `clss tune --level full` searches within it."""
+    name: str
+    what: str
+    eligible: Callable = field(compare=False)
+    run: Callable = field(compare=False)
+    fast_paths: tuple = ()
+    tunables: dict = field(default_factory=dict, compare=False)
+
+    def enabled(self, dev, prec: str) -> bool:
+        return all(selfcheck.enabled(dev, prec, fp) for fp in self.fast_paths)
+
+
+_recorded: list | None = None     # (op, layer) of each choice, while recording()
+
+
+@contextmanager
+def recording():
+    """Collects (op, layer) for every choice made inside the block (clss tune: which
+    layers a network runs)."""
+    global _recorded
+    old, _recorded = _recorded, []
+    try:
+        yield _recorded
+    finally:
+        _recorded = old
+
+
+_SOURCE_HASH: dict = {}
+
+
+def source_hash(*stems: str) -> str:
+    """8 hex digits over the kernel sources of a family: part of every tuned layer key, so
+    a choice measured on older kernels is never applied to new ones."""
+    key = tuple(stems)
+    if key not in _SOURCE_HASH:
+        h = hashlib.sha256()
+        for s in stems:
+            h.update(kernel_path(s).read_bytes())
+        _SOURCE_HASH[key] = h.hexdigest()[:8]
+    return _SOURCE_HASH[key]
+
+
+def candidates(dev, prec: str, rows, layer, exclude=()) -> list:
+    """The rows that compute this layer on this device and precision (self-checks not run)."""
+    return [r for r in rows if r.name not in exclude and r.eligible(dev, prec, layer)]
+
+
+def order(dev, op: str, key: str, rows, explicit: dict | None = None) -> list[str]:
+    """Variant names in the order the chooser tries them (see the module's docstring)."""
+    names = []
+    forced = (explicit or {}).get("VARIANT") or tuning.overridden(op).get("VARIANT")
+    if forced:
+        names.append(forced)
+    tuned = tuning.entry(dev, op, key)
+    if tuned and tuned.get("params", {}).get("VARIANT"):
+        names.append(tuned["params"]["VARIANT"])
+    names += tuning.shipped_order(dev, op, key)
+    names += [r.name for r in rows]
+    return list(dict.fromkeys(names))
+
+
+def choose(dev, prec: str, op: str, key: str, rows, layer, explicit: dict | None = None,
+           exclude=()) -> Variant:
+    """The row to launch for `layer` (module docstring); ValueError when no row takes it."""
+    if _recorded is not None:
+        _recorded.append((op, layer))
+    by_name = {r.name: r for r in candidates(dev, prec, rows, layer, exclude)}
+    for name in order(dev, op, key, rows, explicit):
+        r = by_name.get(name)
+        if r is not None and r.enabled(dev, prec):
+            return r
+    raise ValueError(f"{op}: no kernel variant computes {layer} on {dev.info.name} in {prec} "
+                     f"(eligible: {', '.join(by_name) or 'none'}; their self-checks decide the rest)")
+
+
+def params(dev, op: str, key: str, variant: str, defaults: dict, explicit: dict | None = None) -> dict:
+    """A chosen variant's tunables: its defaults < the shipped table's < the database's
+    entry (when it is for this variant) < the tuner's candidate < the caller's."""
+    out = dict(defaults)
+    out.update({k: v for k, v in tuning.shipped_params(dev, op, key, variant).items() if k in defaults})
+    e = tuning.entry(dev, op, key)
+    if e and e.get("params", {}).get("VARIANT") == variant:
+        out.update({k: v for k, v in e["params"].items() if k in defaults})
+    ov = tuning.overridden(op)
+    if ov.get("VARIANT", variant) == variant:
+        out.update({k: v for k, v in ov.items() if k in defaults})
+    out.update({k: v for k, v in (explicit or {}).items() if k in defaults})
+    return out

@@ -1,0 +1,65 @@
+"""The implicit-GEMM conv rows (kernels/conv_gemm.cl, clss/ops/conv_gemm.py) against
+onnxruntime's Conv: each row forced through conv2d's chooser (tuning={"VARIANT": row, tiles})
+and, in fp16, the tensor-core data layout emulated (CONV_MMA=1) on any device. Shapes with
+ragged tiles in every dimension: channels, pixels and the k = Cin * KH * KW walk. A row whose
+self-check fails on a device falls back to the device's other rows, as the engine would."""
+from __future__ import annotations
+
+import numpy as np
+
+from ...ops import conv_gemm
+from ...ops.conv import ConvCall, ConvLayer, _act, _flags, conv_output_size, layer_key
+from .conv import make_case
+
+ROWS = ("gemm", "gemm_global", "mma_emulated")
+
+
+def _case(row, tiles, *, n=1, cin, h, w, cout, k=(3, 3), strides=(1, 1), pads=(1, 1, 1, 1),
+          dilations=(1, 1), group=1, bias=True, activation="none", alpha=0.01, residual=None):
+    c = make_case(n=n, cin=cin, h=h, w=w, cout=cout, k=k, strides=strides, pads=pads, dilations=dilations,
+                  group=group, bias=bias, activation=activation, alpha=alpha, residual=residual,
+                  tuning={"VARIANT": "gemm" if row == "mma_emulated" else row, **tiles})
+    if row == "mma_emulated":
+        fallback = c.run
+
+        def run(dev, prec, inputs):
+            if prec != "fp16":      # the tensor-core layout takes half storage only
+                return fallback(dev, prec, inputs)
+            a = {name: dev.to_device(v, prec) for name, v in inputs.items()}
+            ho = conv_output_size(h, k[0], strides[0], pads[0] + pads[2], dilations[0])
+            wo = conv_output_size(w, k[1], strides[1], pads[1] + pads[3], dilations[1])
+            out = dev.empty((n, cout, ho, wo), prec)
+            layer = ConvLayer((n, cin, h, w), tuple(a["w"].shape), tuple(strides), tuple(pads), tuple(dilations),
+                              group, residual=residual is not None)
+            before = residual != "after"
+            call = ConvCall(a["x"], a["w"], a.get("b"), None, activation, alpha, a.get("r"), before, out, ho, wo,
+                            tiles)
+            conv_gemm.launch(dev, prec, layer, call, _act(activation), _flags(a.get("b"), a.get("r"), before),
+                             key=layer_key(layer, prec), variant="mma", mma=1)
+            return [np.asarray(dev.to_host(out))]
+        c.run = run
+    c.variant = f"{c.variant} [{row}{''.join(f' {k}{v}' for k, v in tiles.items())}]"
+    return c
+
+
+def cases(level: str = "quick") -> list:
+    # tiny: every row with small tiles (a few work-groups: oclgrind checks the local memory
+    # and its barriers), ragged in channels, pixels and k, stride 2 with a dilation, a 1x1
+    # grouped layer, residuals before and after, a batch of 2.
+    small = {"TM": 16, "TN": 16, "TK": 8, "RM": 2, "RN": 2}
+    mma_small = {"TM": 16, "TN": 16, "TK": 16}
+    tiny = []
+    for row, tiles in (("gemm", small), ("gemm_global", small), ("mma_emulated", mma_small)):
+        tiny += [_case(row, tiles, cin=5, h=6, w=11, cout=19, activation="relu", residual="before"),
+                 _case(row, tiles, n=2, cin=6, h=9, w=13, cout=9, strides=(2, 2), dilations=(2, 2),
+                       pads=(2, 0, 1, 2), activation="leaky_relu", alpha=0.2, residual="after")]
+    tiny.append(_case("gemm", small, cin=8, h=5, w=7, cout=12, k=(1, 1), pads=(0, 0, 0, 0), group=2,
+                      activation="sigmoid", bias=False))
+    if level == "tiny":
+        return tiny
+    # quick: the default tiles, several work-groups along every axis
+    quick = tiny + [_case(row, {}, cin=24, h=17, w=45, cout=70, activation="tanh") for row in ROWS]
+    if level == "quick":
+        return quick
+    return quick + [_case(row, {}, cin=37, h=23, w=61, cout=33, k=(5, 5), pads=(2, 2, 2, 2), residual="before")
+                    for row in ROWS]
