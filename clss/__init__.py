@@ -12,8 +12,11 @@ def __getattr__(name):
     if name == "Upscaler":
         from .upscaler import Upscaler
         return Upscaler
+    if name == "Contract":
+        from .pipeline.contract import Contract
+        return Contract
     raise AttributeError(f"module 'clss' has no attribute {name!r}")
 
 
 __all__ = ["Device", "DeviceError", "KernelBuildError", "get_device", "list_devices", "PRECISIONS",
-           "Model", "Upscaler"]
+           "Model", "Upscaler", "Contract"]

@@ -71,9 +71,10 @@ def test_an_unknown_keyword_names_the_closest(method, key, close, dev):
     # one with nothing close lists what the method takes
     with pytest.raises(TypeError, match="'zzz'; it takes scale, device, precision"):
         clss.Upscaler(method="bicubic", device=dev, zzz=1)
-    # a caller feeding several methods passes each only what it takes
-    assert methods.options("bicubic", depth_inverted=False, exposure=2.0, weights=None) == \
-        {"exposure": 2.0}
+    # a caller feeding several methods passes each only what it takes; the contract's
+    # parameters go to every method (tests/test_contract.py: it honours or refuses them)
+    assert methods.options("bicubic", depth_inverted=False, exposure=2.0, weights=None,
+                           widths="fast") == {"depth_inverted": False, "exposure": 2.0}
 
 
 def test_a_scale_without_shipped_weights_is_refused(dev):

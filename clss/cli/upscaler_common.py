@@ -1,5 +1,6 @@
 """What `clss upscale` and `clss demo` share: the upscaler's options (scale, device,
-precision, weights), whole-frame output files, debug views and the stage-time table."""
+precision, weights), the input's conventions (clss.Contract's flags), whole-frame output
+files, debug views and the stage-time table."""
 from __future__ import annotations
 
 import argparse
@@ -7,7 +8,8 @@ import os
 
 import numpy as np
 
-from .args import DEVICE_HELP, UsageError, device_spec
+from .args import (DEVICE_HELP, UsageError, device_spec, motion_scale, positive_float,
+                   resolve_motion_scale)
 from .args import scale as scale_arg
 
 PRECISION_CHOICES = ("fp32", "fp16")
@@ -23,6 +25,39 @@ def add_upscaler_args(p: argparse.ArgumentParser, scale=True):
     p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
     p.add_argument("--precision", "-p", default="fp32", choices=PRECISION_CHOICES,
                    help="fp32, or fp16 (half storage of history and network tensors)")
+
+
+def add_contract_args(p: argparse.ArgumentParser):
+    """The flags of clss.Contract's parameters (Contract.FLAGS names them in messages):
+    every method takes them, or refuses a value it cannot honour by the flag's name."""
+    p.add_argument("--depth-standard", action="store_true",
+                   help="depth is standard Z (near = 0); default reversed-Z (near = 1)")
+    p.add_argument("--motion-scale", type=motion_scale, default=(1.0, 1.0), metavar="SX,SY",
+                   help="factors that turn the stored motion into render pixels pointing to the "
+                        "previous position, e.g. '-1,-1', or 'W,H' (the render width and height) "
+                        "for motion stored in UV units (default 1,1)")
+    p.add_argument("--jitter-scale", type=motion_scale, default=(1.0, 1.0), metavar="SX,SY",
+                   help="factors that turn the given jitter into render pixels, the sample's "
+                        "offset from the pixel centre (+y down): '-1,-1' for FSR2/DLSS jitter "
+                        "offsets, 'W,H' for jitter in UV units (default 1,1)")
+    p.add_argument("--exposure", type=positive_float, default=1.0,
+                   help="the exposure the colour was rendered with: colour is divided by it on "
+                        "the way in and multiplied by it on the way out (default 1)")
+    p.add_argument("--nits", type=positive_float, default=None,
+                   help="cd/m2 of linear colour 1.0, the PQ transfer's scale (default 100)")
+    p.add_argument("--ldr", action="store_true",
+                   help="LDR input in [0,1] (no PQ transfer; refused by methods that need HDR)")
+    p.dash_values = tuple(getattr(p, "dash_values", ())) + ("--motion-scale", "--jitter-scale")
+
+
+def contract_of_args(a, render_hw):
+    """The clss.Contract of add_contract_args' flags; W and H are the render size (h, w)."""
+    from ..pipeline.contract import Contract
+    return Contract(depth_inverted=not a.depth_standard,
+                    motion_scale=resolve_motion_scale(a.motion_scale, render_hw),
+                    jitter_scale=resolve_motion_scale(a.jitter_scale, render_hw),
+                    hdr=not a.ldr, exposure=a.exposure,
+                    **({} if a.nits is None else {"nits": a.nits}))
 
 
 def check_weights_mode(weights, net: bool) -> None:

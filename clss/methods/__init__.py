@@ -89,10 +89,30 @@ def specs() -> list:
 
 def create(name: str, **kwargs):
     """The upscaler of method `name` (keyword arguments as clss.Upscaler's); a keyword
-    argument the method does not take is a TypeError naming the closest one it does."""
+    argument the method does not take is a TypeError naming the closest one it does.
+    The caller's conventions, `contract=` (a clss.Contract) or its parameters as
+    keywords, go to every method, which refuses by name a value it cannot honour."""
+    from ..pipeline.contract import Contract
     s = spec(name)
     s.check_arguments(kwargs)
+    given = {k: kwargs.pop(k) for k in Contract.names() if k in kwargs}
+    contract = Contract.of(kwargs.pop("contract", None), **given)
+    check_contract(s.name, contract)
+    takes = s.parameters()
+    if takes is None or "contract" in takes:    # one that takes none honours the default only
+        kwargs["contract"] = contract
     return s.create(**kwargs)
+
+
+def check_contract(name: str, contract) -> None:
+    """A ContractError (a UserError) where method `name` cannot honour a parameter of
+    `contract` (a clss.Contract), naming the method, the parameter and the methods that
+    can: before anything is built or written."""
+    from ..pipeline.contract import CANNOT
+    changed = contract.changed()
+    others = [o.name for o in specs()
+              if not any(o.handling(p)[0] == CANNOT for p in changed)]
+    spec(name).check_contract(contract, others)
 
 
 def options(name: str, **kwargs) -> dict:

@@ -23,6 +23,8 @@ padding is "far"), motion multiplied by motion_scale (render pixels).
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -234,18 +236,142 @@ def check_jitter(jitter) -> np.ndarray:
 
 
 def check_motion_scale(motion_scale) -> np.ndarray:
-    m = np.asarray(motion_scale, np.float64).reshape(-1)
-    if m.shape != (2,) or not np.all(np.isfinite(m)):
-        _fail("motion_scale", "2 finite floats (sx, sy), e.g. (w, h) for UV motion or "
-              "(-1, -1) for the opposite sign", repr(motion_scale))
-    return m.astype(np.float32)
+    """motion_scale as float32 (sx, sy), checked as Contract checks it."""
+    return np.asarray(Contract(motion_scale=motion_scale).motion_scale, np.float32)
 
 
 def check_exposure(exposure) -> float:
-    e = float(exposure)
-    if not math.isfinite(e) or e <= 0.0:
-        _fail("exposure", "a finite number > 0", repr(exposure))
-    return e
+    """exposure as a float, checked as Contract checks it."""
+    return Contract(exposure=exposure).exposure
+
+
+# ---------------------------------------------------------------- the caller's conventions
+# What a method does with each of the Contract's parameters (MethodSpec.conventions, the
+# table of docs/input-contract.md section 6): its frame step takes the value (HONOURS); the
+# shared template or the method turns it into what the frame step takes (CONVERTS); the
+# method reads no input the parameter describes, so no value changes its output
+# (NOT_READ); or only the default can be taken (CANNOT: any other value is refused with
+# an error naming the method and the parameter, never dropped).
+HONOURS, CONVERTS, NOT_READ, CANNOT = "honours", "converts", "not read", "cannot honour"
+HANDLINGS = (HONOURS, CONVERTS, NOT_READ, CANNOT)
+
+
+class ContractError(UserError):
+    """A contract parameter with a wrong value, given twice, or with a value that a
+    method cannot honour; the message names the parameter (and the method)."""
+
+
+@dataclass(frozen=True)
+class Contract:
+    """The caller's conventions for its frames (docs/input-contract.md), one object for
+    every method: clss.Upscaler(method=NAME, contract=clss.Contract(...)), or the same
+    parameters as keywords. Validated once, here; each error names the parameter.
+
+    depth_inverted  True: reversed-Z depth (near = 1, far = 0); False: standard Z. Also
+                    the convention of the G-buffer depth_hr.
+    motion_scale    (sx, sy): the stored motion times these is render pixels pointing to
+                    the previous position, +y down ((W, H) for UV motion, (-1, -1) for
+                    current - previous).
+    jitter_scale    (sx, sy): the given jitter times these is render pixels, the sample's
+                    offset from the pixel centre, +y down ((-1, -1) for FSR2's and DLSS's
+                    jitter offsets; (W, H) for jitter in UV units).
+    hdr             True: linear HDR colour through the PQ transfer; False: LDR in [0, 1],
+                    no transfer (clamped in and out).
+    exposure        the colour was rendered with this exposure (> 0): divided on the way
+                    in, multiplied on the way out.
+    nits            cd/m2 of linear 1.0 (> 0), the PQ transfer's scale (default 100).
+    """
+    depth_inverted: bool = True
+    motion_scale: tuple = (1.0, 1.0)
+    jitter_scale: tuple = (1.0, 1.0)
+    hdr: bool = True
+    exposure: float = 1.0
+    nits: float = PQ_NITS
+
+    # The command-line flag of each parameter (clss upscale), for messages.
+    FLAGS = {"depth_inverted": "--depth-standard", "motion_scale": "--motion-scale",
+             "jitter_scale": "--jitter-scale", "hdr": "--ldr", "exposure": "--exposure",
+             "nits": "--nits"}
+    # The frame inputs each parameter describes: a method that reads none of them takes
+    # any value of it unchanged (NOT_READ).
+    DESCRIBES = {"depth_inverted": ("depth", "depth_hr"), "motion_scale": ("motion",),
+                 "jitter_scale": ("jitter",), "hdr": ("color",), "exposure": ("color",),
+                 "nits": ("color",)}
+
+    def __post_init__(self):
+        set_ = functools.partial(object.__setattr__, self)
+        for name in ("depth_inverted", "hdr"):
+            v = getattr(self, name)
+            if not isinstance(v, (bool, np.bool_)):
+                self._refuse(name, "True or False", v)
+            set_(name, bool(v))
+        set_("motion_scale", self._pair("motion_scale", "2 finite numbers (sx, sy)"))
+        set_("jitter_scale", self._pair("jitter_scale", "2 finite non-zero numbers (sx, sy)",
+                                        nonzero=True))
+        for name in ("exposure", "nits"):
+            v = getattr(self, name)
+            try:
+                f = float(v)
+            except (TypeError, ValueError):
+                f = math.nan
+            if isinstance(v, (bool, np.bool_)) or not math.isfinite(f) or f <= 0:
+                self._refuse(name, "a finite number > 0", v)
+            set_(name, f)
+
+    @classmethod
+    def _refuse(cls, name, expected, got):
+        raise ContractError(f"{name}: expected {expected}, got {got!r}",
+                            cli=f"{cls.FLAGS[name]}: expected {expected}, got {got!r}")
+
+    def _pair(self, name, expected, nonzero=False):
+        v = getattr(self, name)
+        try:
+            m = np.asarray(v, np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            m = np.full(1, np.nan)
+        if m.shape != (2,) or not np.all(np.isfinite(m)) or (nonzero and np.any(m == 0)):
+            self._refuse(name, expected, v)
+        return (float(m[0]), float(m[1]))
+
+    @classmethod
+    def names(cls) -> tuple:
+        """The parameters, in the order of the fields."""
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+    @classmethod
+    def of(cls, contract=None, **params) -> "Contract":
+        """The contract of a caller that gave `contract` (a Contract, or None) or its
+        parameters as keywords (not both: a parameter given twice is refused)."""
+        if contract is None:
+            return cls(**params)
+        if not isinstance(contract, cls):
+            raise ContractError(f"contract: expected a clss.Contract, got "
+                                f"{type(contract).__name__}")
+        if params:
+            raise ContractError(f"contract: given as contract= and as keyword(s) "
+                                f"{', '.join(params)}; give one or the other")
+        return contract
+
+    def changed(self) -> dict:
+        """{parameter: value} of those that differ from the default."""
+        base = Contract()
+        return {n: getattr(self, n) for n in self.names() if getattr(self, n) != getattr(base, n)}
+
+    def jitter(self, jitter) -> np.ndarray:
+        """The caller's jitter in the contract's units (render pixels, the sample's offset
+        from the pixel centre): times jitter_scale, then checked (check_jitter)."""
+        if self.jitter_scale == (1.0, 1.0):
+            return check_jitter(jitter)
+        try:
+            j = np.asarray(jitter, np.float64).reshape(-1)
+            scaled = j * np.asarray(self.jitter_scale) if j.shape == (2,) else jitter
+        except (TypeError, ValueError):
+            scaled = jitter
+        try:
+            return check_jitter(scaled)
+        except FrameInputError as e:
+            raise FrameInputError(f"{e} (the jitter given times jitter_scale "
+                                  f"{self.jitter_scale})") from None
 
 
 def to_reversed_z(depth: np.ndarray, depth_inverted: bool) -> np.ndarray:

@@ -29,9 +29,9 @@ from typing import Callable
 import numpy as np
 
 from ..errors import ArgumentError, UserError
-from .contract import (GBUFFERS, FrameInputError, MissingInputError, check_exposure,
-                       check_jitter, check_motion_scale, gbuffer_sources, output_size,
-                       validate_frame)
+from .contract import (CANNOT, CONVERTS, GBUFFERS, HANDLINGS, HONOURS, NOT_READ, Contract,
+                       ContractError, FrameInputError, MissingInputError, gbuffer_sources,
+                       output_size, validate_frame)
 
 # The frame contract's inputs (docs/input-contract.md) in the order `step` takes them.
 CONTRACT_INPUTS = ("color", "depth", "motion", "jitter")
@@ -83,7 +83,12 @@ class MethodSpec:
     report(args, up, number); finish(args, up)); modes: {older mode= value: method name} for the methods the older
     `clss.Upscaler(scale, mode)` picks between (CLSS's "net" / "rules"), the same on each
     of them; positional arguments after the mode go to such a method in its signature's
-    order."""
+    order.
+
+    The caller's conventions (clss.Contract, taken by every method): conventions:
+    {parameter: (handling, why)}, what the method does with each (contract.HANDLINGS:
+    honours, converts, not read, cannot honour; `handling()` fills in what it leaves
+    out), so that a value it cannot honour is refused by name (`check_contract`)."""
     name: str
     label: str
     summary: str
@@ -102,6 +107,14 @@ class MethodSpec:
     fast_paths: str = ""
     cli: str = ""
     modes: dict = field(default_factory=dict, repr=False, compare=False)
+    conventions: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self):
+        for param, (what, _why) in self.conventions.items():
+            if param not in Contract.names() or what not in HANDLINGS:
+                raise ValueError(f"{self.name}: conventions: {param!r}: {what!r} is not a "
+                                 f"contract parameter ({', '.join(Contract.names())}) with "
+                                 f"one of {', '.join(HANDLINGS)}")
 
     def check_scale(self, scale) -> float:
         try:
@@ -119,6 +132,41 @@ class MethodSpec:
             raise ValueError(f"precision: expected {' or '.join(repr(p) for p in self.precisions)} "
                              f"(method {self.name!r}), got {precision!r}")
         return precision
+
+    # -- the caller's conventions ----------------------------------------------------
+    def reads(self, name: str) -> bool:
+        """Whether the method reads frame input `name` (its own or a G-buffer)."""
+        return name in self.inputs or name in self.gbuffers or name in self.optional
+
+    def handling(self, param: str) -> tuple:
+        """(handling, why): what the method does with contract parameter `param`: not
+        read when it reads no input the parameter describes (whatever `conventions`
+        says, so that methods of one room share one table); else as `conventions` says;
+        else, for the jitter's units, converted (the template scales the jitter before
+        the frame step); else only the default is taken."""
+        described = Contract.DESCRIBES[param]
+        if not any(self.reads(n) for n in described):
+            return NOT_READ, f"reads no {' or '.join(described)}"
+        if param in self.conventions:
+            return tuple(self.conventions[param])
+        if param == "jitter_scale":
+            return CONVERTS, "the jitter is scaled before the frame step"
+        return CANNOT, "the method does not say what it would do with it"
+
+    def check_contract(self, contract: Contract, others=()) -> None:
+        """A ContractError for the first parameter of `contract` that differs from the
+        default and that the method cannot honour, naming the method, the parameter, why,
+        and `others` (the methods that can)."""
+        for param, value in contract.changed().items():
+            what, why = self.handling(param)
+            if what != CANNOT:
+                continue
+            flag = Contract.FLAGS[param]
+            alt = f"; methods that can: {', '.join(others)}" if others else ""
+            raise ContractError(
+                f"method {self.name!r} cannot honour {param}={value!r}: {why}{alt}",
+                cli=f"{flag}: the method {self.name} cannot honour it ({why}); drop {flag}"
+                    + (f" or use one of {', '.join(others)}" if others else ""))
 
     # -- what the method owns -----------------------------------------------------------
     @property
@@ -178,10 +226,12 @@ class MethodSpec:
 
     def check_arguments(self, kwargs) -> None:
         """An ArgumentError (a TypeError) for the first keyword argument the method does
-        not take, naming the closest one it does."""
+        not take, naming the closest one it does. Every method takes the contract, as
+        `contract=` or its parameters (Contract.names())."""
         names = self.parameters()
         if names is None:
             return
+        names = tuple(dict.fromkeys(names + ("contract",) + Contract.names()))
         for key in kwargs:
             if key in names:
                 continue
@@ -193,10 +243,12 @@ class MethodSpec:
 
     def options(self, kwargs: dict) -> dict:
         """Those of `kwargs` the method takes: for a caller that feeds several methods
-        the same options (eval, the command line, the demo); None values left out."""
+        the same options (eval, the command line, the demo); None values left out. The
+        contract is kept for every method (it refuses what it cannot honour)."""
         names = self.parameters()
+        every = ("contract",) + Contract.names()      # every method takes these
         return {k: v for k, v in kwargs.items()
-                if v is not None and (names is None or k in names)}
+                if v is not None and (names is None or k in names or k in every)}
 
     # -- weights ----------------------------------------------------------------------
     def weights(self) -> str:
@@ -266,6 +318,19 @@ class MethodSpec:
             return cfg, w, True
         cfg, w = nets.load(weights_file(weights, what))
         return cfg, w, True
+
+
+def conventions(**overrides) -> dict:
+    """MethodSpec.conventions of a method whose frame step takes the depth convention,
+    the motion scale, the exposure, the nits and LDR colour itself (the jitter's units
+    the template converts); `overrides` {parameter: (handling, why)} replace entries."""
+    out = {"depth_inverted": (HONOURS, "its frame step reads either convention"),
+           "motion_scale": (HONOURS, "its frame step scales the motion"),
+           "hdr": (HONOURS, "LDR: a clamp to [0, 1] instead of the PQ transfer"),
+           "exposure": (HONOURS, "divides on the way in, multiplies on the way out"),
+           "nits": (HONOURS, "the PQ transfer's scale")}
+    out.update(overrides)
+    return out
 
 
 def weights_file(weights, what: str) -> str:
@@ -339,15 +404,15 @@ class MethodUpscaler:
     REACTIVE = False
     VALUES_ON_DEVICE = False
 
-    def _init_common(self, scale, device, precision, *, depth_inverted=True,
-                     motion_scale=(1, 1), exposure=1.0, sanitize=False, profile=False):
+    def _init_common(self, scale, device, precision, *, contract=None, sanitize=False,
+                     profile=False):
         from ..device import get_device
         self.scale = self.spec.check_scale(scale)
+        # the caller's conventions, refused here too for a room's class built directly
+        self.contract = Contract.of(contract)
+        self.spec.check_contract(self.contract)
         self.dev = get_device(device)
         self.precision = self.spec.check_precision(precision)
-        self.depth_inverted = bool(depth_inverted)
-        self.motion_scale = tuple(float(v) for v in check_motion_scale(motion_scale))
-        self.exposure = check_exposure(exposure)
         self.sanitize = bool(sanitize)
         self.profile = bool(profile)
         self._pending_reset = True
@@ -360,6 +425,26 @@ class MethodUpscaler:
     @property
     def method(self) -> str:
         return self.spec.name
+
+    # The contract's parameters, as the frame steps read them (self.contract holds them).
+    depth_inverted = property(lambda self: self.contract.depth_inverted)
+    motion_scale = property(lambda self: self.contract.motion_scale)
+    jitter_scale = property(lambda self: self.contract.jitter_scale)
+    hdr = property(lambda self: self.contract.hdr)
+    exposure = property(lambda self: self.contract.exposure)
+    nits = property(lambda self: self.contract.nits)
+
+    def _jitter(self, jitter):
+        """The caller's jitter in render pixels (Contract.jitter); (0, 0) for a method
+        that reads none, whatever it was given."""
+        if "jitter" not in self.spec.inputs:
+            return np.zeros(2, np.float32)
+        return self.contract.jitter(jitter)
+
+    def _reversed_z(self, depth_hr):
+        """depth_hr (numpy or pyopencl) in reversed-Z, as every frame step reads it: the
+        contract's depth convention applies to it as to depth (1 - d for standard Z)."""
+        return depth_hr if self.depth_inverted else 1.0 - depth_hr
 
     # The frame step (`_fs`, with h, w, H, W) has the sizes; None before the first frame.
     @property
@@ -400,7 +485,7 @@ class MethodUpscaler:
         contract inputs it does not read."""
         if reset:
             self._pending_reset = True          # kept if this frame is refused
-        frame = self._host_frame(color, depth, motion, jitter, reactive, reset)
+        frame = self._host_frame(color, depth, motion, self._jitter(jitter), reactive, reset)
         hw = frame["color"].shape[:2]
         gb = self._gbuffers(gbuffers, hw, output_size(*hw, self.scale))
         self._host_frame_hook(frame, gb, gbuffers)
@@ -421,8 +506,7 @@ class MethodUpscaler:
         sequence's. A method that reads the colour alone gets placeholders for the rest."""
         reset = reset or self._pending_reset
         if "depth" not in self.spec.inputs:
-            return self._color_frame(color, jitter if "jitter" in self.spec.inputs
-                                     else (0.0, 0.0), reset)
+            return self._color_frame(color, jitter, reset)
         if isinstance(color, np.ndarray) and color.ndim == 3:
             # before validate_frame, whose shape error would not say that a reset is missing
             self._check_render_size(color.shape[:2], reset)
@@ -458,9 +542,12 @@ class MethodUpscaler:
         if not spec.gbuffers and not spec.optional:
             return {}
         from . import contract
-        return contract.validate_gbuffers(spec.name, spec.gbuffers, spec.optional,
-                                          {k: v for k, v in given.items() if v is not None},
-                                          render_size, output_size, sanitize=self.sanitize)
+        out = contract.validate_gbuffers(spec.name, spec.gbuffers, spec.optional,
+                                         {k: v for k, v in given.items() if v is not None},
+                                         render_size, output_size, sanitize=self.sanitize)
+        if "depth_hr" in out:
+            out["depth_hr"] = self._reversed_z(out["depth_hr"])
+        return out
 
     # -- the device path --------------------------------------------------------------
     def step_device(self, color, depth=None, motion=None, jitter=(0.0, 0.0), reset=False,
@@ -483,10 +570,12 @@ class MethodUpscaler:
         fs = self._frame_step(hw, reset)
         arrays = {n: self._device_input(n, given[n], input_shape(n, hw, (fs.H, fs.W)))
                   for n in names}
+        if "depth_hr" in arrays:
+            arrays["depth_hr"] = self._reversed_z(arrays["depth_hr"])
         if out is not None and (out.shape != (fs.H, fs.W, 3) or out.dtype != np.float32):
             raise FrameInputError(f"out: expected a float32 array of shape {(fs.H, fs.W, 3)}, "
                                   f"got {out.dtype} {out.shape}")
-        return self._run(fs, arrays, check_jitter(jitter), out)
+        return self._run(fs, arrays, self._jitter(jitter), out)
 
     def _device_frame(self, reset, **arrays):
         """step_device's common entry: a reset is remembered (kept if the frame is then

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
-from ...pipeline.method import MethodSpec, MethodUpscaler, input_buffers
+from ...pipeline.contract import CANNOT, PQ_NITS, PQ_PEAK_NITS, output_size
+from ...pipeline.method import MethodSpec, MethodUpscaler, conventions, input_buffers
 
 KERNEL = Path(__file__).with_name("bicubic.cl")   # the frame kernels, beside this file
 
@@ -55,16 +55,17 @@ class BicubicFrame:
 
 class BicubicUpscaler(MethodUpscaler):
     """The method "bicubic" behind clss.Upscaler: colour in, colour out; depth, motion and
-    jitter are accepted (the contract's step) and not used."""
+    jitter are accepted (the contract's step) and not used. contract: clss.Contract (the
+    exposure and nits are honoured; LDR is not)."""
 
-    def __init__(self, scale=2.0, device=None, precision="fp32", *, exposure=1.0,
+    def __init__(self, scale=2.0, device=None, precision="fp32", *, contract=None,
                  sanitize=False, profile=False):
         self.spec = SPEC
-        self._init_common(scale, device, precision, exposure=exposure, sanitize=sanitize,
+        self._init_common(scale, device, precision, contract=contract, sanitize=sanitize,
                           profile=profile)
 
     def _build_frame_step(self, h, w):
-        return BicubicFrame(self.dev, self.precision, (h, w), self.scale)
+        return BicubicFrame(self.dev, self.precision, (h, w), self.scale, nits=self.nits)
 
     def _enqueue(self, fs, arrays, jitter, out):
         return fs.run(arrays["color"], exposure=self.exposure, out=out)
@@ -74,5 +75,7 @@ SPEC = MethodSpec(
     "bicubic", "bicubic", "plain Keys bicubic of each frame, jitter-unaware, in the PQ domain",
     BicubicUpscaler, inputs=("color",), precisions=("fp32", "fp16"),
     temporal=False, kernels=(KERNEL.name,), doc="docs/methods/baselines.md",
-    twin="clss.methods.bicubic.oracle:OracleBicubic")
+    twin="clss.methods.bicubic.oracle:OracleBicubic",
+    conventions=conventions(
+        hdr=(CANNOT, "its cubic runs on PQ-encoded colour; no LDR path")))
 SPECS = {"bicubic": SPEC}

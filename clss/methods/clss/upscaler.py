@@ -33,9 +33,9 @@ import os
 import numpy as np
 
 from .networks import CLASSIFIER_CHANNELS, pad16
-from ...pipeline.contract import PQ_NITS, FrameInputError, output_size, validate_frame
+from ...pipeline.contract import FrameInputError, output_size, validate_frame
 from .contract import DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, VIS_MARGIN, ghost_classes
-from ...pipeline.method import UNTRAINED, WEIGHTS_DIR, MethodSpec, MethodUpscaler
+from ...pipeline.method import UNTRAINED, WEIGHTS_DIR, MethodSpec, MethodUpscaler, conventions
 from .frame import KERNEL as FRAME_KERNEL, STAGES, FrameStep
 from .frame_selfcheck import register_fast_paths
 
@@ -114,12 +114,11 @@ class ClssUpscaler(MethodUpscaler):
     composition networks) or "rules" (depth test, neighbourhood clamp, 1/(1+n) blend).
     weights: None (the trained weights shipped in the package), "untrained" (the
     seeded init), a directory or a .safetensors file (see `load_networks`). device: a clss Device or a spec for clss.get_device. precision:
-    "fp32" or "fp16" (half storage of the history and network tensors). depth_inverted:
-    reversed-Z input (near = 1). motion_scale: converts motion to render pixels. hdr:
-    PQ-encoded internal colour (False: LDR in [0, 1] in and out). cap: sample-counter
-    cap (default 4 for rules, 32 for net).
-    Keyword-only: exposure (colour is divided by it on entry, multiplied on exit),
-    nits (linear 1.0 in cd/m2 for PQ), depth_threshold (the depth test: the rule in rules,
+    "fp32" or "fp16" (half storage of the history and network tensors).
+    Keyword-only: contract (clss.Contract, every parameter honoured: depth_inverted,
+    motion_scale, hdr = PQ-encoded internal colour or LDR in [0, 1] in and out,
+    exposure, nits; jitter_scale converted by the template), cap (the sample-counter
+    cap, default 4 for rules, 32 for net), depth_threshold (the depth test: the rule in rules,
     the floor under the classifier in net; > 1 turns it off), depth_slope (the test's
     tolerance per unit of local relative depth step, >= 0; contract.DEPTH_SLOPE, 0 = the
     plain test, reference.md s4), vis_margin (net: the
@@ -141,9 +140,8 @@ class ClssUpscaler(MethodUpscaler):
     REACTIVE = True
     VALUES_ON_DEVICE = True
 
-    def __init__(self, scale=2.0, mode="net", weights=None, device=None, precision="fp32",
-                 depth_inverted=True, motion_scale=(1, 1), hdr=True, cap=None, *,
-                 exposure=1.0, nits=PQ_NITS, depth_threshold=DEPTH_THRESHOLD,
+    def __init__(self, scale=2.0, mode="net", weights=None, device=None, precision="fp32", *,
+                 contract=None, cap=None, depth_threshold=DEPTH_THRESHOLD,
                  depth_slope=DEPTH_SLOPE, vis_margin=VIS_MARGIN, sanitize=False,
                  classifier=None, composition=None, profile=False, debug=False,
                  classifier_backend=None, allow_untrained=False):
@@ -155,16 +153,11 @@ class ClssUpscaler(MethodUpscaler):
             # frame.cl's arithmetic is float by design (PQ, coordinates); only storage halves.
             raise ValueError("precision: the frame kernels support 'fp32' and 'fp16' "
                              "(half storage, float arithmetic); 'fp16-native' is for clss.Model")
-        self._init_common(scale, device, precision, depth_inverted=depth_inverted,
-                          motion_scale=motion_scale, exposure=exposure, sanitize=sanitize,
+        self._init_common(scale, device, precision, contract=contract, sanitize=sanitize,
                           profile=profile)
-        self.hdr = bool(hdr)
         if cap is not None and not (isinstance(cap, (int, float)) and math.isfinite(cap) and cap >= 1):
             raise ValueError(f"cap: expected a number >= 1 (samples), got {cap!r}")
         self.cap = cap
-        self.nits = float(nits)
-        if not (math.isfinite(self.nits) and self.nits > 0):
-            raise ValueError(f"nits: expected a number > 0, got {nits!r}")
         self.depth_threshold = float(depth_threshold)
         if (isinstance(depth_slope, bool) or not isinstance(depth_slope, numbers.Real)
                 or not math.isfinite(depth_slope) or depth_slope < 0):
@@ -318,6 +311,8 @@ TWIN = "clss.methods.clss.oracle:twin"
 FAST_PATHS = __name__
 # The frame step's kernels, beside frame.py (MethodSpec.kernels).
 KERNELS = (FRAME_KERNEL.name,)
+# Every contract parameter is the frame step's (docs/input-contract.md section 6).
+CONVENTIONS = conventions()
 # The older clss.Upscaler(scale, mode="net" | "rules") picks between the two modes.
 MODES = {"net": "clss", "rules": "clss-rules"}
 # In the order `clss methods` lists them: the baseline first.
@@ -325,15 +320,17 @@ SPECS = {
     "jbicubic": MethodSpec(
         "jbicubic", "jitter-aware bicubic", "each render sample placed at its jittered "
         "position, a cubic over them; no history", JitterBicubic,
-        temporal=False, doc="docs/methods/baselines.md", twin=TWIN, kernels=KERNELS, fast_paths=FAST_PATHS),
+        temporal=False, doc="docs/methods/baselines.md", twin=TWIN, kernels=KERNELS, fast_paths=FAST_PATHS,
+        conventions=CONVENTIONS),
     "clss-rules": MethodSpec(
         "clss-rules", "CLSS rules", "CLSS's frame step with rules instead of networks: depth "
         "test, variance clamp, 1/(1+n) blend (TAAU-like)",
         functools.partial(ClssUpscaler, mode="rules"), doc=DOC, twin=TWIN,
-        kernels=KERNELS, fast_paths=FAST_PATHS, modes=MODES),
+        kernels=KERNELS, fast_paths=FAST_PATHS, modes=MODES, conventions=CONVENTIONS),
     "clss": MethodSpec(
         "clss", "CLSS net", "CLSS (Guo et al. 2022): a classifier of ghosting and aliasing, "
         "auxiliary history, a per-pixel MLP blend weight",
         functools.partial(ClssUpscaler, mode="net"), doc=DOC, twin=TWIN,
-        shipped=((None, SHIPPED_NAME),), kernels=KERNELS, fast_paths=FAST_PATHS, modes=MODES),
+        shipped=((None, SHIPPED_NAME),), kernels=KERNELS, fast_paths=FAST_PATHS, modes=MODES,
+        conventions=CONVENTIONS),
 }

@@ -29,8 +29,9 @@ import functools
 
 import numpy as np
 
-from ...pipeline.contract import PQ_NITS, output_size
-from ...pipeline.method import MethodSpec, MethodUpscaler, convert_storage, summed_event_ms
+from ...pipeline.contract import CANNOT, CONVERTS, output_size
+from ...pipeline.method import (MethodSpec, MethodUpscaler, conventions, convert_storage,
+                                summed_event_ms)
 from . import transform as tf
 from . import fastpath  # noqa: F401 (registers the kernel's fast path)
 
@@ -79,16 +80,17 @@ class MlpUpscaler(MethodUpscaler):
     online: train on the device on frames given a `reference` (online.py): `step(...,
     reference=full_res)` trains on it first (train_step), then upscales with the updated
     weights; online_lr, online_batch (patches per step), online_steps (steps per training
-    frame), online_seed."""
+    frame), online_seed. contract: clss.Contract (depth_hr follows the depth convention
+    and is turned to reversed-Z; exposure and nits honoured; LDR is not)."""
 
     STAGES = STAGES     # the per-stage timings (MethodUpscaler.stage_ms)
 
-    def __init__(self, scale=2.0, device=None, precision="fp32", *, weights=None,
-                 feature=True, exposure=1.0, sanitize=False, profile=False, online=False,
+    def __init__(self, scale=2.0, device=None, precision="fp32", *, contract=None,
+                 weights=None, feature=True, sanitize=False, profile=False, online=False,
                  online_lr=None, online_batch=None, online_steps=None, online_seed=0,
                  allow_untrained=False):
         self.spec = SPECS["mlp" if feature else "mlp-nofeature"]
-        self._init_common(scale, device, precision, exposure=exposure, sanitize=sanitize,
+        self._init_common(scale, device, precision, contract=contract, sanitize=sanitize,
                           profile=profile)
         self.s = tf.check_scale(self.scale)
         self.feature = bool(feature)
@@ -99,7 +101,7 @@ class MlpUpscaler(MethodUpscaler):
             weights = self.spec.resolve_weights(weights, self.s, allow_untrained)
             self.tensors, self.trained = tf.load_weights(weights)
         self.defines = tf.kernel_defines(self.s, self.feature)
-        self.pq_scale, self.inv_pq_scale = tf.pq_scales(PQ_NITS)
+        self.pq_scale, self.inv_pq_scale = tf.pq_scales(self.nits)
         self.online = None
         self.last_loss = None
         self._pack()
@@ -115,7 +117,8 @@ class MlpUpscaler(MethodUpscaler):
                 lr=ol.DEFAULT_LR if online_lr is None else online_lr,
                 batch=ol.DEFAULT_BATCH if online_batch is None else online_batch,
                 steps=ol.DEFAULT_STEPS if online_steps is None else online_steps,
-                seed=online_seed, jitter_weight=self.tensors.get(tf.JITTER_KEY))
+                seed=online_seed, jitter_weight=self.tensors.get(tf.JITTER_KEY),
+                nits=self.nits)
 
     def _w_is_master(self):
         return self.precision == "fp32" and not tf.has_jitter(self.tensors)
@@ -162,7 +165,13 @@ class MlpUpscaler(MethodUpscaler):
         """Train on one frame with its full-resolution reference (online=True): `steps`
         forward/backward/Adam steps on the device; returns the mean L1 loss (PQ). The
         jitter matters to a network with the jitter input (its jitter weights stay as
-        they are; fc1's bias learns)."""
+        they are; fc1's bias learns). depth_hr and the jitter in the caller's contract."""
+        if depth_hr is not None:
+            depth_hr = self._reversed_z(np.asarray(depth_hr, np.float32))
+        return self._train(color, reference, depth_hr, self._jitter(jitter))
+
+    def _train(self, color, reference, depth_hr, jitter) -> float:
+        """train_step on depth_hr in reversed-Z and the jitter in render pixels."""
         if self.online is None:
             raise ValueError("train_step: this upscaler was made without online=True")
         color = np.asarray(color, np.float32)
@@ -205,9 +214,10 @@ class MlpUpscaler(MethodUpscaler):
         network first (train_step); the step then upscales with the updated weights."""
         reference = extra.get("reference")
         if self.online is not None and reference is not None:
-            self.last_loss = self.train_step(frame["color"], reference,
-                                             gbuffers.get("depth_hr") if self.feature else None,
-                                             jitter=frame["jitter"])
+            # the frame and G-buffers are in the frame step's conventions already
+            self.last_loss = self._train(frame["color"], reference,
+                                         gbuffers.get("depth_hr") if self.feature else None,
+                                         frame["jitter"])
 
     def _enqueue(self, fs, arrays, jitter, out):
         import pyopencl as cl
@@ -246,6 +256,11 @@ class MlpUpscaler(MethodUpscaler):
 
 # The room's kernels (mlp_upscale.py and mlp_train.py build them; imported when a frame runs).
 KERNELS = ("mlp_upscale.cl", "mlp_train.cl")
+# What it does with the contract's parameters ("mlp-nofeature" reads no depth_hr, so none
+# of the depth convention; neither reads motion).
+CONVENTIONS = conventions(
+    depth_inverted=(CONVERTS, "depth_hr is turned to reversed-Z (1 - d) before the feature pass"),
+    hdr=(CANNOT, "its network was trained on PQ-encoded HDR colour; no LDR path"))
 SPECS = {
     "mlp": MethodSpec(
         "mlp", "shader MLP",
@@ -255,7 +270,8 @@ SPECS = {
         gbuffers=("depth_hr",), scales=(2.0, 3.0), precisions=("fp32", "fp16"),
         temporal=False, doc="docs/methods/mlp.md", twin="clss.methods.mlp.oracle:twin",
         shipped=tuple((float(s), tf.shipped_name(True, s)) for s in tf.SCALES),
-        kernels=KERNELS, fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online"),
+        kernels=KERNELS, fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online",
+        conventions=CONVENTIONS),
     "mlp-nofeature": MethodSpec(
         "mlp-nofeature", "shader MLP, no feature pass",
         "the shader MLP with its feature inputs zeroed (the seed's ablation); needs no "
@@ -263,5 +279,6 @@ SPECS = {
         scales=(2.0, 3.0), precisions=("fp32", "fp16"), temporal=False,
         doc="docs/methods/mlp.md", twin="clss.methods.mlp.oracle:twin",
         shipped=tuple((float(s), tf.shipped_name(False, s)) for s in tf.SCALES),
-        kernels=KERNELS, fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online"),
+        kernels=KERNELS, fast_paths=fastpath.__name__, cli="clss.methods.mlp.cli_online",
+        conventions=CONVENTIONS),
 }

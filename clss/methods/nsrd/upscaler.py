@@ -14,8 +14,8 @@ needs weights= or allow_untrained=True (the seeded init).
 """
 from __future__ import annotations
 
-from ...pipeline.contract import PQ_NITS
-from ...pipeline.method import MethodSpec, MethodUpscaler
+from ...pipeline.contract import CANNOT
+from ...pipeline.method import MethodSpec, MethodUpscaler, conventions
 from . import networks as nets
 from .frame import KERNEL, STAGES, NsrdFrameStep
 
@@ -44,21 +44,19 @@ class NsrdUpscaler(MethodUpscaler):
     scale: 2, 3 or 4 (the sub-pixel output is per integer scale). weights: see
     `load_weights`. widths: the untrained init's ("default", "fast"). precision "fp32" /
     "fp16" (half storage, float accumulation). allow_untrained: run the seeded init where
-    the package has no weights for the scale."""
+    the package has no weights for the scale. contract: clss.Contract (all but LDR
+    honoured: the network was trained on PQ-encoded HDR)."""
 
     STAGES = STAGES     # the per-stage timings (MethodUpscaler.stage_ms)
 
-    def __init__(self, scale=4.0, weights=None, device=None, precision="fp32",
-                 depth_inverted=True, motion_scale=(1, 1), *, widths="default",
-                 exposure=1.0, nits=PQ_NITS, sanitize=False, profile=False,
+    def __init__(self, scale=4.0, weights=None, device=None, precision="fp32", *,
+                 contract=None, widths="default", sanitize=False, profile=False,
                  allow_untrained=False):
         self.spec = SPEC
-        self._init_common(scale, device, precision, depth_inverted=depth_inverted,
-                          motion_scale=motion_scale, exposure=exposure, sanitize=sanitize,
+        self._init_common(scale, device, precision, contract=contract, sanitize=sanitize,
                           profile=profile)
         self.cfg, self.weights, self.trained = load_weights(weights, self.scale, widths,
                                                             allow_untrained)
-        self.nits = float(nits)
         self._fs: NsrdFrameStep | None = None
 
     def _build_frame_step(self, h, w):
@@ -80,5 +78,6 @@ SPEC = MethodSpec(
     NsrdUpscaler, gbuffers=GBUFFERS, scales=(2.0, 4.0), kernels=(KERNEL.name,), doc="docs/methods/nsrd.md",
     twin="clss.methods.nsrd.oracle:twin",
     shipped=tuple((float(s), f"nsrd_x{s}.safetensors") for s in (2, 3, 4)),
-    fast_paths="clss.methods.nsrd.frame")
+    fast_paths="clss.methods.nsrd.frame", conventions=conventions(
+        hdr=(CANNOT, "its network was trained on PQ-encoded HDR colour; no LDR path")))
 SPECS = {"nsrd": SPEC}

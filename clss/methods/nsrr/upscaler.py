@@ -12,8 +12,8 @@ init.
 """
 from __future__ import annotations
 
-from ...pipeline.contract import PQ_NITS
-from ...pipeline.method import MethodSpec, MethodUpscaler
+from ...pipeline.contract import CANNOT
+from ...pipeline.method import MethodSpec, MethodUpscaler, conventions
 from . import networks as nets
 from .frame import KERNEL, RESET_FILLS, STAGES, NsrrFrameStep
 
@@ -36,25 +36,24 @@ class NsrrUpscaler(MethodUpscaler):
     (0..4; default all the network was built for). reset_fill: what stands for the
     previous frames after a reset: "zero" (empty features, as zero-upsampling marks a
     missing sample) or "duplicate" (the current frame's). precision "fp32" / "fp16".
-    allow_untrained: run the seeded init where the package has no weights.
+    allow_untrained: run the seeded init where the package has no weights. contract:
+    clss.Contract (all but LDR honoured: the networks were trained on PQ-encoded HDR).
     """
 
     STAGES = STAGES     # the per-stage timings (MethodUpscaler.stage_ms)
 
-    def __init__(self, scale=4.0, weights=None, device=None, precision="fp32",
-                 depth_inverted=True, motion_scale=(1, 1), *, widths="default", history=None,
-                 reset_fill="zero", exposure=1.0, nits=PQ_NITS, sanitize=False, profile=False,
-                 allow_untrained=False):
+    def __init__(self, scale=4.0, weights=None, device=None, precision="fp32", *,
+                 contract=None, widths="default", history=None, reset_fill="zero",
+                 sanitize=False, profile=False, allow_untrained=False):
         self.spec = SPEC
-        self._init_common(scale, device, precision, depth_inverted=depth_inverted,
-                          motion_scale=motion_scale, exposure=exposure, sanitize=sanitize,
+        self._init_common(scale, device, precision, contract=contract, sanitize=sanitize,
                           profile=profile)
         if reset_fill not in RESET_FILLS:
             raise ValueError(f"reset_fill: expected {' or '.join(map(repr, RESET_FILLS))}, "
                              f"got {reset_fill!r}")
         self.cfg, self.weights, self.trained = load_weights(weights, self.scale, widths,
                                                             allow_untrained)
-        self.history, self.reset_fill, self.nits = history, reset_fill, float(nits)
+        self.history, self.reset_fill = history, reset_fill
         self._fs: NsrrFrameStep | None = None
 
     def _build_frame_step(self, h, w):
@@ -74,5 +73,6 @@ SPEC = MethodSpec(
     NsrrUpscaler, scales=(2.0, 4.0), kernels=(KERNEL.name,), doc="docs/methods/nsrr.md",
     twin="clss.methods.nsrr.oracle:twin",
     shipped=((2.0, "nsrr_x2.safetensors"), (4.0, "nsrr_x4.safetensors")), nearest_scale=True,
-    fast_paths="clss.methods.nsrr.frame")
+    fast_paths="clss.methods.nsrr.frame", conventions=conventions(
+        hdr=(CANNOT, "its networks were trained on PQ-encoded HDR colour; no LDR path")))
 SPECS = {"nsrr": SPEC}

@@ -12,7 +12,8 @@ one; without it weights= or allow_untrained=True (the seeded init).
 """
 from __future__ import annotations
 
-from ...pipeline.method import MethodSpec, MethodUpscaler
+from ...pipeline.contract import CANNOT, CONVERTS, PQ_NITS
+from ...pipeline.method import MethodSpec, MethodUpscaler, conventions
 from . import networks as nets
 from .frame import KERNEL, STAGES, NssFrameStep
 
@@ -32,17 +33,15 @@ class NssUpscaler(MethodUpscaler):
     "fp32" / "fp16" (half storage of the network's tensors, float accumulation).
     depth_scatter: "atomic" (the reprojected depth by 32-bit atomic max) or "gather" (the
     portable path without atomics). allow_untrained: the seeded init where the package
-    has no weights."""
+    has no weights. contract: clss.Contract (all but LDR; nits becomes an exposure)."""
 
     STAGES = STAGES
 
-    def __init__(self, scale=2.0, weights=None, device=None, precision="fp32",
-                 depth_inverted=True, motion_scale=(1, 1), *, quality="mid",
-                 depth_scatter="atomic", exposure=1.0, sanitize=False, profile=False,
-                 allow_untrained=False):
+    def __init__(self, scale=2.0, weights=None, device=None, precision="fp32", *,
+                 contract=None, quality="mid", depth_scatter="atomic", sanitize=False,
+                 profile=False, allow_untrained=False):
         self.spec = SPEC
-        self._init_common(scale, device, precision, depth_inverted=depth_inverted,
-                          motion_scale=motion_scale, exposure=exposure, sanitize=sanitize,
+        self._init_common(scale, device, precision, contract=contract, sanitize=sanitize,
                           profile=profile)
         self.cfg, self.weights, self.trained = load_weights(weights, self.scale, quality,
                                                             allow_untrained)
@@ -59,9 +58,11 @@ class NssUpscaler(MethodUpscaler):
 
     def _enqueue(self, fs, arrays, jitter, out):
         a = arrays
+        # its frame step has no PQ transfer: linear 1.0 = nits cd/m2 is linear nits / 100
+        # in the 100-nit units it was trained on, an exposure of 100 / nits
         return fs.run(a["color"], a["depth"], a["motion"], jitter, self._pending_reset,
                       depth_inverted=self.depth_inverted, motion_scale=self.motion_scale,
-                      exposure=self.exposure, out=out)
+                      exposure=self.exposure * PQ_NITS / self.nits, out=out)
 
 
 SPEC = MethodSpec(
@@ -69,5 +70,9 @@ SPEC = MethodSpec(
     "luma derivative; a 14-conv U-Net predicts kernel weights and temporal parameters; "
     "jitter-aware kernel filter, Catmull-Rom history, clamp, tonemapped accumulation",
     NssUpscaler, scales=(2.0, 2.0), kernels=(KERNEL.name,), doc="docs/methods/nss.md",
-    twin="clss.methods.nss.oracle:twin", shipped=((2.0, "nss_x2.safetensors"),))
+    twin="clss.methods.nss.oracle:twin", shipped=((2.0, "nss_x2.safetensors"),),
+    conventions=conventions(
+        hdr=(CANNOT, "its network was trained on HDR colour in a tonemapped domain; no "
+                     "LDR path"),
+        nits=(CONVERTS, "an exposure of 100 / nits: its frame step has no PQ transfer")))
 SPECS = {"nss": SPEC}
