@@ -28,8 +28,8 @@ One module per job, each importing only those before it here:
   errors.py     `InputError`
   frame.py      `Frame`: one frame's buffers (what a sequence gives and the scene renders)
   tonemap.py    linear HDR -> display values (`tonemap`, `to_uint8`)
-  images.py     one file at a time: `read_exr`, `write_exr`, `write_png`, `write_png_ldr`,
-                `write_json`, the atomic write they share
+  images.py     one file at a time: `read_exr`, `read_header`, `write_exr`, `write_png`,
+                `write_png_ldr`, `write_json`, the atomic write they share
   channels.py   which channels hold which buffer (`CHANNEL_CANDIDATES`, `check_channels`,
                 `read_frame`)
   discovery.py  which files are the frames (directory layouts, globs, numbered patterns,
@@ -45,8 +45,8 @@ from .channels import (BUFFER_CHANNELS, CHANNEL_CANDIDATES, GBUFFER_CANDIDATES,
                        SINGLE_BUFFER_CANDIDATES, check_channels, read_frame)
 from .errors import InputError
 from .frame import Frame
-from .images import (_atomic_write, default_channel_names, read_exr, write_exr, write_json,
-                     write_png, write_png_ldr)
+from .images import (_atomic_write, default_channel_names, read_exr, read_header, write_exr,
+                     write_json, write_png, write_png_ldr)
 from .jitter import SIDECARS
 from .sequence import FrameSequence, read_sequence, write_sample_sequence
 from .tonemap import to_uint8, tonemap
@@ -54,6 +54,6 @@ from .tonemap import to_uint8, tonemap
 __all__ = ["BUFFER_CHANNELS", "CHANNEL_CANDIDATES", "GBUFFER_CANDIDATES",
            "SINGLE_BUFFER_CANDIDATES", "SIDECARS", "Frame", "FrameSequence", "InputError",
            "check_channels", "current_umask", "default_channel_names", "new_file_mode",
-           "read_exr", "read_frame", "read_sequence", "to_uint8", "tonemap", "write_exr",
-           "write_json", "write_png", "write_png_ldr", "write_sample_sequence"]
+           "read_exr", "read_frame", "read_header", "read_sequence", "to_uint8", "tonemap",
+           "write_exr", "write_json", "write_png", "write_png_ldr", "write_sample_sequence"]
 # `_atomic_write` is imported above for tests/test_io.py, which checks it directly.

@@ -121,6 +121,21 @@ def write_json(path, obj):
     _atomic_write(path, dump)
 
 
+def read_header(path):
+    """(width, height, channel names) of an image file from its header alone, without
+    its pixels (clss batch checks finished frames this way); InputError if unreadable."""
+    _require_oiio()
+    path = os.fspath(path)
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        raise InputError(f"{path}: cannot read ({oiio.geterror()})")
+    try:
+        spec = inp.spec()
+        return spec.full_width, spec.full_height, list(spec.channelnames)
+    finally:
+        inp.close()
+
+
 def read_exr(path):
     """(pixels h x w x c float32 over the display window, channel names)."""
     _require_oiio()
