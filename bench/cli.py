@@ -305,7 +305,18 @@ def tune_main(argv=None) -> int:
     p.add_argument("--all", action="store_true", help="also cases without tunables (work-group sizes only)")
     p.add_argument("--db", default=None, help="tuning database file (default: $CLSS_TUNING_DB, else tuning.json in $CLSS_CACHE_DIR, $XDG_CACHE_HOME/clss or ~/.cache/clss)")
     p.add_argument("--dry-run", action="store_true", help="search and report, store nothing")
+    p.add_argument("--level", choices=("fast", "full"), default=None,
+                   help="choose the conv2d kernel variant per layer of the networks the bench runs, by "
+                        "measuring every variant the device verifies (fast), and their register and "
+                        "work-group tiles too (full); without --level, the register blocks and work-group "
+                        "sizes of the bench cases (see above)")
+    p.add_argument("--budget", type=positive_float, default=None, metavar="SECONDS",
+                   help="with --level: stop searching after this long (default: 240 fast, 1200 full); "
+                        "layers left keep their defaults and are listed")
     a = p.parse_args(argv)
+    if a.level:
+        from .tune_layers import main as tune_layers_main
+        return tune_layers_main(a)
     from clss import tuning
     from clss.device import DeviceError, get_device
     from clss.progress import progress

@@ -82,7 +82,12 @@ def load(path: Path | None = None) -> dict:
         return data
 
 
+_ignore_entries = False      # ignoring_entries(): the defaults, as on an untuned device
+
+
 def entry(dev, op: str, key: str) -> dict | None:
+    if _ignore_entries:
+        return None
     return load().get("devices", {}).get(device_key(dev), {}).get(op, {}).get(key)
 
 
@@ -106,6 +111,17 @@ def lookup(dev, op: str, key: str, defaults: dict, explicit: dict | None = None,
                     if k in defaults and (allowed is None or k not in allowed or v in allowed[k])})
     out.update(explicit or {})
     return out
+
+
+@contextmanager
+def ignoring_entries():
+    """Inside the block the database is not read (clss tune: what an untuned device runs)."""
+    global _ignore_entries
+    old, _ignore_entries = _ignore_entries, True
+    try:
+        yield
+    finally:
+        _ignore_entries = old
 
 
 def overridden(op: str) -> dict:

@@ -48,15 +48,18 @@ def launch(dev: Device, prec: str, layer, call, act: int, flags: int, *, key: st
         raise ValueError("conv2d: the tensor-core variant needs fp16 storage (precision 'fp16')")
     t = variants.params(dev, "conv2d", key, variant, MMA_DEFAULTS if mma else DEFAULTS, call.tuning)
     tiles = {k: t[k] for k in ("TM", "TN", "TK")} if mma else {k: t[k] for k in ("TM", "TN", "TK", "RM", "RN")}
-    k = dev.kernel("conv_gemm", "conv2d_gemm", prec, KH=kh, KW=kw, ACT=act, CONV_LOCAL=int(local),
-                   CONV_MMA=int(mma), **tiles)
     if mma:
+        if t["TM"] % 16 or t["TN"] % 8 or t["TK"] % 16:
+            raise ValueError(f"conv2d: tensor-core tile TM={t['TM']} TN={t['TN']} TK={t['TK']} is not a "
+                             f"multiple of 16 x 8 x 16")
         ls = (32, t["TM"] // 16, 1)
     else:
         if t["TM"] % t["RM"] or t["TN"] % t["RN"]:
             raise ValueError(f"conv2d: tile TM={t['TM']} TN={t['TN']} is not a multiple of RM={t['RM']} "
                              f"RN={t['RN']}")
         ls = (t["TN"] // t["RN"], t["TM"] // t["RM"], 1)
+    k = dev.kernel("conv_gemm", "conv2d_gemm", prec, KH=kh, KW=kw, ACT=act, CONV_LOCAL=int(local),
+                   CONV_MMA=int(mma), **tiles)
     gs = (-(-ho_wo(call) // t["TN"]) * ls[0], -(-cout_g // t["TM"]) * ls[1], n * group)
     dev.launch(k, gs,
                (call.x.data, call.w.data, None if call.b is None else call.b.data,

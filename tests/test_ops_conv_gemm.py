@@ -1,0 +1,162 @@
+"""The conv2d variant table and its chooser (clss/ops/variants.py, clss/ops/conv.py VARIANTS),
+the implicit-GEMM rows (kernels/conv_gemm.cl) and the layer tuner (bench/tune_layers.py).
+The rows' conformance against onnxruntime, on every device, is tests/test_ops_conformance.py
+(clss/verify/cases/conv_gemm.py); oclgrind runs their tiny cases (tests/test_oclgrind.py)."""
+import json
+
+import numpy as np
+import pytest
+
+from clss import selfcheck, tuning
+from clss.ops import conv, conv_gemm, variants
+
+LAYER = dict(x=(1, 6, 9, 13), w=(11, 6, 3, 3), pads=(1, 1, 1, 1))
+
+
+@pytest.fixture
+def db(tmp_path, monkeypatch):
+    path = tmp_path / "tuning.json"
+    monkeypatch.setenv("CLSS_TUNING_DB", str(path))
+    return path
+
+
+def _layer(**kw):
+    d = {**LAYER, **kw}
+    return conv.ConvLayer(d["x"], d["w"], (1, 1), d["pads"], (1, 1), 1)
+
+
+def _tensors(dev, prec="fp32", seed=0):
+    g = np.random.default_rng(seed)
+    x = dev.to_device(g.standard_normal(LAYER["x"]).astype(np.float32), prec)
+    w = dev.to_device(g.standard_normal(LAYER["w"]).astype(np.float32) * 0.2, prec)
+    b = dev.to_device(g.standard_normal(LAYER["w"][0]).astype(np.float32), prec)
+    return x, w, b
+
+
+def _conv(dev, x, w, b, prec="fp32", **kw):
+    return dev.to_host(conv.conv2d(dev, prec, x, w, b, pads=LAYER["pads"], activation="relu", **kw))
+
+
+def test_every_row_is_described_and_the_direct_row_takes_any_nchw_layer(dev):
+    names = [v.name for v in conv.VARIANTS]
+    assert len(set(names)) == len(names)
+    assert {"thin", "winograd", "blocked", "direct", "gemm", "gemm_global", "mma"} <= set(names)
+    layer = _layer()
+    rows = variants.candidates(dev, "fp32", conv.VARIANTS, layer)
+    assert "direct" in [r.name for r in rows]
+    # the tensor-core row takes half storage on NVIDIA only
+    assert "mma" not in [r.name for r in rows]
+
+
+def test_a_tuned_entry_beats_the_shipped_order_and_the_caller_beats_both(dev, db):
+    layer = _layer()
+    key = conv.layer_key(layer, "fp32")
+    assert variants.choose(dev, "fp32", "conv2d", key, conv.VARIANTS, layer).name != "gemm_global"
+    tuning.store(dev, "conv2d", key, {"VARIANT": "gemm_global", "RM": 2, "RN": 2}, path=db)
+    assert variants.choose(dev, "fp32", "conv2d", key, conv.VARIANTS, layer).name == "gemm_global"
+    assert conv.describe_choice(dev, "fp32", layer.x, layer.w, pads=layer.pads) == "gemm_global (tuned)"
+    assert variants.params(dev, "conv2d", key, "gemm_global", conv_gemm.DEFAULTS)["RM"] == 2
+    # ...the tuned row's tiles apply to that row only
+    assert variants.params(dev, "conv2d", key, "gemm", conv_gemm.DEFAULTS)["RM"] == conv_gemm.DEFAULTS["RM"]
+    chosen = variants.choose(dev, "fp32", "conv2d", key, conv.VARIANTS, layer, explicit={"VARIANT": "gemm"})
+    assert chosen.name == "gemm"
+    # a stale entry (other kernel sources: another key) is never read
+    other = conv.layer_key(_layer(pads=(0, 0, 0, 0)), "fp32")
+    assert other != key and tuning.entry(dev, "conv2d", other) is None
+
+
+def test_a_row_whose_self_check_fails_is_never_launched_whatever_the_tables_say(dev, db):
+    layer = _layer()
+    key = conv.layer_key(layer, "fp32")
+    tuning.store(dev, "conv2d", key, {"VARIANT": "gemm"}, path=db)
+    with selfcheck.forcing("conv.gemm", False):
+        assert variants.choose(dev, "fp32", "conv2d", key, conv.VARIANTS, layer).name != "gemm"
+    with selfcheck.forcing("conv.gemm", True):
+        assert variants.choose(dev, "fp32", "conv2d", key, conv.VARIANTS, layer).name == "gemm"
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("row", ["gemm", "gemm_global"])
+@pytest.mark.parametrize("tiles", [{}, {"TM": 16, "TN": 32, "TK": 8, "RM": 2, "RN": 4},
+                                   {"TM": 32, "TN": 16, "TK": 32, "RM": 8, "RN": 1}],
+                         ids=["default", "16x32", "32x16"])
+def test_gemm_rows_and_their_tiles_agree_with_the_direct_kernel(dev, precision, row, tiles):
+    x, w, b = _tensors(dev, precision)
+    ref = _conv(dev, x, w, b, precision, tuning={"VARIANT": "direct"}).astype(np.float32)
+    with selfcheck.forcing(f"conv.{row}", True):
+        out = _conv(dev, x, w, b, precision, tuning={"VARIANT": row, **tiles}).astype(np.float32)
+    tol = 1e-5 if precision == "fp32" else 2e-3
+    np.testing.assert_allclose(out, ref, rtol=tol, atol=tol)
+
+
+def test_the_emulated_tensor_core_layout_matches_the_fp16_reference(dev):
+    # CONV_MMA=1: the fragments of mma.sync m16n8k16 placed as the PTX ISA places them and
+    # multiplied in scalar code; a wrong fragment map (row gid + 8 for a[2] instead of a[1],
+    # say) puts products in the wrong accumulators and this fails
+    from clss.verify.cases import conv_gemm as cases
+    from clss.verify.conformance import check
+    for case in cases.cases("tiny"):
+        if "mma_emulated" in case.variant:
+            assert check(case, dev, "fp16").passed, case.variant
+
+
+def test_bad_tiles_are_a_clear_error(dev):
+    x, w, b = _tensors(dev)
+    with selfcheck.forcing("conv.gemm", True), pytest.raises(ValueError, match="multiple of RM"):
+        _conv(dev, x, w, b, tuning={"VARIANT": "gemm", "TM": 16, "RM": 3})
+
+
+@pytest.mark.parametrize("platform,name,cpu,width,expected", [
+    ("NVIDIA CUDA", "NVIDIA H200", False, 1, "nvidia"),
+    ("AMD Accelerated Parallel Processing", "gfx1100", False, 1, "amd"),
+    ("Intel(R) OpenCL Graphics", "Intel(R) Arc(TM) A770", False, 1, "intel-gpu"),
+    ("Portable Computing Language", "pthread-skylake-avx512-AMD EPYC", True, 16, "cpu-avx512"),
+    ("Portable Computing Language", "pthread-haswell-AMD EPYC", True, 8, "cpu-avx2"),
+    ("Some Vendor", "accelerator", False, 1, "default")])
+def test_device_classes_pick_a_shipped_table(platform, name, cpu, width, expected):
+    class Info:
+        pass
+    info = Info()
+    info.platform, info.name, info.vendor = platform, name, ""
+
+    class CL:
+        preferred_vector_width_float = width
+
+    class Dev:
+        pass
+    d = Dev()
+    d.info, d.is_cpu, d.cl_device = info, cpu, CL()
+    assert tuning.device_class(d) == expected
+    table = json.loads((tuning.SHIPPED_DIR / f"{expected}.json").read_text())
+    assert table["class"] == expected and table["measured"]
+    order = table["ops"]["conv2d"]["order"]
+    assert set(order) <= {v.name for v in conv.VARIANTS} and "direct" in order
+
+
+def test_the_layer_tuner_stores_a_checked_choice_that_conv2d_then_runs(dev, db):
+    from bench import tune_layers
+    layer = _layer()
+    logs = []
+    res = tune_layers.tune_layer(dev, "fp32", layer, level="fast", runs=2, db=db, log=logs.append)
+    names = [t[0] for t in res.trials]
+    assert "direct" in names and "gemm" in names
+    assert all(t[3] == "pass" for t in res.trials), res.trials
+    stored = tuning.entry(dev, "conv2d", conv.layer_key(layer, "fp32"))
+    assert stored["params"]["VARIANT"] == res.best and stored["default"] == res.default
+    assert conv.describe_choice(dev, "fp32", layer.x, layer.w, pads=layer.pads) == f"{res.best} (tuned)"
+    assert "GFLOP/s" in tune_layers.format_layers([res], 100.0)
+
+
+def test_the_layer_tuner_rejects_a_wrong_variant(dev, db, monkeypatch):
+    from bench import tune_layers
+    real = conv_gemm.launch
+
+    def broken(*a, **kw):
+        out = real(*a, **kw)
+        out.data.get_info  # noqa: the buffer exists; corrupt it from the host
+        host = a[0].to_host(out) + 1
+        return a[0].to_device(host.astype(np.float32), a[1])
+    monkeypatch.setattr(conv_gemm, "launch", broken)
+    res = tune_layers.tune_layer(dev, "fp32", _layer(), level="fast", runs=1, db=db, log=lambda m: None)
+    assert any(t[0] == "gemm" and t[3].startswith("wrong") for t in res.trials)
+    assert res.best != "gemm"
