@@ -125,8 +125,8 @@ def cmd_upscale(argv) -> int:
     first = seq[0]
     _check_gbuffers(name, spec, first, a.scale)     # before anything is written
     # the input's conventions reach every method, or are refused by flag: now
-    contract = contract_of_args(a, first.color.shape[:2])
-    methods.check_contract(name, contract)
+    from .. import methods
+    methods.check_contract(name, contract_of_args(a, first.color.shape[:2]))
     inputs = seq.files + ([a.jitter] if a.jitter and os.path.isfile(a.jitter) else [])
     stale = prepare_output_dir(a.out, "-o", inputs, a.overwrite, OUTPUT_SET)
     up = build_upscaler(a, name, first)
@@ -186,7 +186,7 @@ def build_upscaler(a, name, first):
     from ..upscaler import Upscaler
     # The contract goes to every method; the other options to those that take them (the
     # options methods add check themselves).
-    kw = dict(contract=contract, sanitize=a.sanitize, profile=True, weights=a.weights,
+    kw = dict(contract=contract_of_args(a, first.color.shape[:2]), sanitize=a.sanitize, profile=True, weights=a.weights,
               debug=a.debug_views)
     for ext in _method_options():
         kw.update(ext.check(a, name, UsageError))
