@@ -30,7 +30,7 @@ def test_readme_links_the_contract():
 
 def test_worked_example_runs_as_written(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    writer, api = _blocks("python")
+    writer, api, _ = _blocks("python")
     scope = {}
     exec(compile(writer, "input-contract.md: example", "exec"), scope)
     assert sorted(os.listdir("shots")) == [f"frame.{n:04d}.exr" for n in range(4)] + ["jitter.json"]
@@ -59,3 +59,13 @@ def test_worked_example_runs_as_written(tmp_path, monkeypatch, capsys):
     scope = {}
     exec(compile(api, "input-contract.md: API", "exec"), scope)
     assert scope["out"].shape == (72, 128, 3)
+
+
+def test_contract_example_runs_as_written():
+    """Section 6's clss.Contract example builds every method it names with that contract."""
+    scope = {}
+    exec(compile(_blocks("python")[2], "input-contract.md: Contract", "exec"), scope)
+    import clss
+    assert scope["up"].method == "nss" and scope["up"].contract == scope["engine"]
+    assert scope["engine"] == clss.Contract(depth_inverted=False, motion_scale=(1280, 720),
+                                            jitter_scale=(-1, -1), exposure=2.0)
