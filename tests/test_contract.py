@@ -228,3 +228,13 @@ def test_the_doc_table_is_each_methods_declaration():
     for param, *cells in body:
         for name, cell in zip(methods.names(), cells):
             assert cell.startswith(methods.spec(name).handling(param)[0]), (param, name, cell)
+
+
+def test_clss_methods_json_says_what_each_method_does(capsys):
+    import json
+    from clss.cli.main import main
+    assert main(["methods", "--json"]) == 0
+    recs = {r["name"]: r["contract"] for r in json.loads(capsys.readouterr().out)["methods"]}
+    assert recs["nsrr"]["hdr"]["handling"] == CANNOT and recs["clss"]["hdr"]["handling"] == HONOURS
+    assert recs["bicubic"]["depth_inverted"]["handling"] == NOT_READ
+    assert recs["nss"]["nits"] == {"handling": CONVERTS, "why": methods.spec("nss").handling("nits")[1]}

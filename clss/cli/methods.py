@@ -10,10 +10,14 @@ from .args import ArgParser
 
 
 def _spec_record(s) -> dict:
+    from ..pipeline.contract import Contract
     return {"name": s.name, "label": s.label, "summary": s.summary, "inputs": list(s.inputs),
             "gbuffers": list(s.gbuffers), "optional": list(s.optional),
             "scales": list(s.scales), "precisions": list(s.precisions),
             "temporal": s.temporal, "weights": s.weights(), "doc": s.doc,
+            # what it does with each of clss.Contract's parameters (input-contract.md s6)
+            "contract": {p: dict(zip(("handling", "why"), s.handling(p)))
+                         for p in Contract.names()},
             "parts": {k: list(v) if isinstance(v, tuple) else v for k, v in s.parts().items()}}
 
 
