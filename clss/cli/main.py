@@ -24,6 +24,12 @@ def _tune(argv) -> int:
     return tune_main(argv)
 
 
+# `clss batch` imports Ray (the [batch] extra) only when it runs; so does its module.
+def _batch(argv) -> int:
+    from .batch import cmd_batch
+    return cmd_batch(argv)
+
+
 # name: (function, one-line summary for `clss --help`), in the order --help lists them.
 COMMANDS = {
     "devices": (devices.cmd_devices, "list OpenCL platforms and devices"),
@@ -33,6 +39,7 @@ COMMANDS = {
     "model": (model.cmd_model, "ONNX models: `model info` (can clss run it? from the file alone), `model run`"),
     "methods": (methods.cmd_methods, "list the upscaling methods: inputs, scales, precisions, weights"),
     "upscale": (upscale.cmd_upscale, "upscale an EXR sequence with a method (--method), per-stage times"),
+    "batch": (_batch, "upscale many sequences on Ray, one worker per OpenCL device; resumes a killed run"),
     "demo": (demo.main, "render the built-in sample scene, upscale it with every method, write pictures and metrics"),
     "eval": (methods.cmd_eval, "score methods on your own sequences against their references (PSNR, SSIM, tPSNR, FLIP)"),
     "bench": (_bench, "benchmark kernels/networks/frame step against onnxruntime (table, JSON, roofline)"),

@@ -123,10 +123,7 @@ def cmd_upscale(argv) -> int:
     seq = read_sequence(a.input, channels=channels, jitter=a.jitter, scale=a.scale)
     n = len(seq) if a.frames is None else min(len(seq), a.frames)
     first = seq[0]
-    _check_gbuffers(name, spec, first, a.scale)     # before anything is written
-    # the input's conventions reach every method, or are refused by flag: now
-    from .. import methods
-    methods.check_contract(name, contract_of_args(a, first.color.shape[:2]))
+    check_inputs(a, name, spec, first)      # before anything is written
     inputs = seq.files + ([a.jitter] if a.jitter and os.path.isfile(a.jitter) else [])
     stale = prepare_output_dir(a.out, "-o", inputs, a.overwrite, OUTPUT_SET)
     up = build_upscaler(a, name, first)
@@ -193,6 +190,15 @@ def build_upscaler(a, name, first):
     up = Upscaler(method=name, scale=a.scale, device=a.device, precision=a.precision,
                   **methods.options(name, **kw))
     return up
+
+
+def check_inputs(a, name, spec, first):
+    """What a sequence must give the method, checked on its first frame before anything is
+    written: its G-buffers, and the input's conventions (each flag reaches every method, or
+    is refused by name). `clss batch` checks each sequence the same way."""
+    from .. import methods
+    _check_gbuffers(name, spec, first, a.scale)
+    methods.check_contract(name, contract_of_args(a, first.color.shape[:2]))
 
 
 def _check_gbuffers(name, spec, first, scale):
