@@ -142,6 +142,19 @@ def test_output_names_tell_inputs_apart(tmp_path):
                  str(tmp_path / "o")]) == 2
 
 
+def test_help_names_the_batch_and_the_upscale_flags(capsys):
+    assert main(["batch", "--help"]) == 0
+    out = capsys.readouterr().out
+    for flag in ("--ray-address", "--overwrite", "--method", "--ldr", "--motion-scale", "--png"):
+        assert flag in out
+
+
+def test_importing_clss_and_its_batch_command_does_not_import_ray():
+    code = "import sys, clss, clss.cli.batch, clss.cli.batch_work; print('ray' in sys.modules)"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.stdout.strip() == "False", r.stderr[-2000:]
+
+
 def test_without_ray_one_line_names_the_extra(work, tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "ray", None)       # import ray -> ImportError
     assert main(["batch", str(work / "in" / "a"), "-o", str(tmp_path / "o")]) == 2

@@ -24,7 +24,7 @@ def _tune(argv) -> int:
     return tune_main(argv)
 
 
-# `clss batch` imports Ray (the [batch] extra) only when it runs; so does its module.
+# `clss batch` needs Ray (the [batch] extra), which its module imports only when it runs.
 def _batch(argv) -> int:
     from .batch import cmd_batch
     return cmd_batch(argv)
