@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
 .PHONY: setup opencl-driver test test-large demo eval eval-scales verify devices bench bench-quick oclgrind clean \
-	train-data validation-data train
+	train-data validation-data train gpu-report
 
 $(STAMP): setup.cfg setup.py pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -367,3 +367,10 @@ TRAIN_TARGETS = train-data-blender train train-mlp train-nsrr train-nsrd train-n
 .PHONY: train-smoke
 train-smoke:
 	$(MAKE) --no-print-directory $(TRAIN_TARGETS) $(SMOKE_VARS)
+
+# One folder that measures this machine's GPU (or, without one, clss's default device):
+# clss verify, clss tune --level fast, clss bench --host-waits --full in fp32 and fp16, the
+# per-layer table and the tuned table as a shipped-table candidate (bench/gpu_report.py).
+# GPU_REPORT_ARGS: e.g. --device 1 --budget-s 300; --smoke for tiny shapes.
+gpu-report: $(STAMP)
+	$(BIN)/python -m bench.gpu_report $(GPU_REPORT_ARGS)

@@ -313,7 +313,11 @@ def tune_main(argv=None) -> int:
     p.add_argument("--budget", type=positive_float, default=None, metavar="SECONDS",
                    help="with --level: stop searching after this long (default: 240 fast, 1200 full); "
                         "layers left keep their defaults and are listed")
+    p.add_argument("--tier", choices=("tiny", "1080p", "2160p"), default=None,
+                   help="with --level: the networks' shape tier (2160p: 1080p -> 2160p, the GPU report's)")
     a = p.parse_args(argv)
+    if a.tier and not a.level:
+        raise UsageError("--tier goes with --level fast|full")
     if a.level:
         from .tune_layers import main as tune_layers_main
         return tune_layers_main(a)

@@ -214,7 +214,8 @@ def main(a) -> int:
     except (DeviceError, ValueError) as e:
         print(f"clss tune: {cli_message(e)}", file=sys.stderr)
         return 2
-    cases, _ = all_cases(_level(a), ("tiny",) if a.tiny else None)
+    tiers = ("tiny",) if a.tiny else ((a.tier,) if a.tier else None)
+    cases, _ = all_cases("full" if a.tier == "2160p" else _level(a), tiers)
     cases = [c for c in _select(cases, a.filter) if c.kind == "network"]
     if not cases:
         print("clss tune: no network cases selected (--filter matches the bench's network cases, e.g. "
