@@ -51,8 +51,10 @@ class Upscaler(metaclass=_UpscalerType):
     "net" / "rules" for CLSS, whose further positional arguments follow its signature
     (clss.methods.clss.upscaler.ClssUpscaler's weights, device, precision, ...). Keyword
     arguments go to the method's upscaler (`clss methods` lists the methods; every method
-    takes device, precision, exposure, sanitize and profile); one it does not take is a
-    TypeError naming the closest one it does."""
+    takes device, precision, sanitize, profile and the caller's conventions, `contract=` a
+    clss.Contract or its parameters as keywords: depth_inverted, motion_scale,
+    jitter_scale, hdr, exposure, nits); one it does not take is a TypeError naming the
+    closest one it does, and a convention it cannot honour a ContractError naming both."""
 
     def __new__(cls, scale=2.0, mode=None, *args, method=None, **kwargs):
         name = method_name(method, mode)

@@ -9,7 +9,7 @@ refuses a keyword argument the method does not take (naming the closest one).
 
 Every method's upscaler derives from `MethodUpscaler`, a template that holds what they
 share and must not be copied into each room: the argument checks (scale, precision,
-exposure, motion scale), the host `step` (the pending reset of a camera cut, the frame
+the caller's clss.Contract and what the method cannot honour of it), the host `step` (the pending reset of a camera cut, the frame
 and G-buffer checks of the contract, the upload into the frame step's input buffers,
 the run and the read-back), the device `step_device` (the same on pyopencl arrays),
 the rule that a new render size needs a reset, and the one weights resolver (the
@@ -379,7 +379,9 @@ class MethodUpscaler:
     """The part of every method's upscaler that is the same for all (see the module doc):
     a template whose `step` and `step_device` run any room's frame step.
 
-    A room sets `spec` and calls `_init_common` in its constructor, and implements:
+    A room sets `spec` and calls `_init_common` (passing its `contract=` on) in its
+    constructor, reads the conventions as self.depth_inverted, motion_scale, hdr,
+    exposure and nits (the template converts the jitter and depth_hr), and implements:
 
     _build_frame_step(h, w): its frame step for render size h x w: an object with h, w,
       H, W, an `in_<name>` device buffer for each input the host step uploads (see
