@@ -19,18 +19,14 @@ caches (clss.cachedir), so a tuned device builds nothing on its next first frame
 from __future__ import annotations
 
 import itertools
-import statistics
 import time
 from dataclasses import dataclass, field
 
-import numpy as np
 
 from clss import tuning
-from clss.ops import conv, variants
-from clss.tolerance import DEFAULT_TOL, compare
+from clss.ops import conv, conv_probe, variants
 
 LEVELS = ("fast", "full")
-MARGIN = 0.05       # a variant replaces the default only when at least 5 % faster
 
 
 @dataclass
@@ -84,64 +80,22 @@ def collect_layers(cases, dev, precs, log=print) -> list[tuple]:
     return list(seen)
 
 
-def _tensors(dev, prec, layer):
-    g = np.random.default_rng(abs(hash(layer)) % (2 ** 32))
-    n, c, h, w = layer.x
-    co = layer.w[0]
-    x = dev.to_device(g.standard_normal(layer.x).astype(np.float32), prec)
-    if layer.block_in:
-        x = conv.to_blocked(dev, prec, x, layer.block_in, -(-c // layer.block_in))
-    wt = dev.to_device((g.standard_normal(layer.w) / np.sqrt(np.prod(layer.w[1:]))).astype(np.float32), prec)
-    b = dev.to_device(g.standard_normal(co).astype(np.float32), prec)
-    r = None
-    if layer.residual:
-        ho = conv.conv_output_size(h, layer.w[2], layer.strides[0], layer.pads[0] + layer.pads[2], layer.dilations[0])
-        wo = conv.conv_output_size(w, layer.w[3], layer.strides[1], layer.pads[1] + layer.pads[3], layer.dilations[1])
-        r = dev.to_device(g.standard_normal((n, co, ho, wo)).astype(np.float32), prec)
-    return x, wt, b, r
-
-
-def _run(dev, prec, layer, tensors, tuning_):
-    x, w, b, r = tensors
-    return conv.conv2d(dev, prec, x, w, b, strides=layer.strides, pads=layer.pads, dilations=layer.dilations,
-                       group=layer.group, activation="relu", residual=r, out_blocked=layer.out_blocked,
-                       tuning=tuning_)
-
-
-def _time(dev, prec, layer, tensors, tuning_, runs: int) -> tuple[float, np.ndarray]:
-    out = _run(dev, prec, layer, tensors, tuning_)            # warm-up: builds, packs weights
-    first = np.asarray(dev.to_host(out), np.float32)
-    walls = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        _run(dev, prec, layer, tensors, tuning_)
-        dev.queue.finish()
-        walls.append((time.perf_counter() - t0) * 1e3)
-    return statistics.median(walls), first
-
-
 def tune_layer(dev, prec, layer, *, level="fast", runs=5, max_candidates=24, store=True, db=None,
                deadline=None, log=print) -> LayerResult:
     key = conv.layer_key(layer, prec)
     rows = [r for r in variants.candidates(dev, prec, conv.VARIANTS, layer) if r.enabled(dev, prec)]
-    tensors = _tensors(dev, prec, layer)
+    tensors = conv_probe.layer_tensors(dev, prec, layer)
     # the reference: the row the device would run with no tuned entry
     with tuning.ignoring_entries():
         ref_row = variants.choose(dev, prec, "conv2d", key, conv.VARIANTS, layer).name
-        ref_ms, ref = _time(dev, prec, layer, tensors, {"VARIANT": ref_row}, runs)
+        ref_ms, ref = conv_probe.time_layer(dev, prec, layer, tensors, {"VARIANT": ref_row}, runs)
     res = LayerResult(layer, prec, key, ref_row, ref_ms, flops=conv_flops(layer))
-    tol = DEFAULT_TOL[prec]
 
     def trial(row, params):
-        try:
-            ms, out = _time(dev, prec, layer, tensors, {"VARIANT": row.name, **params}, runs)
-            cmp = compare(out, ref, tol)
-            note = "pass" if cmp.passed else f"wrong: max abs err {cmp.max_abs:.3g} ({cmp.ratio:.3g} x tolerance)"
-        except Exception as e:      # a candidate that does not build or launch is just rejected
-            ms, note = None, f"error: {type(e).__name__}: {str(e).splitlines()[0][:160]}"
-        res.trials.append((row.name, dict(params), ms if note == "pass" else None, note))
-        log(f"  {layer} [{prec}] {row.name} {params or ''}: " + (f"{ms:.3f} ms" if note == "pass" else note))
-        return ms if note == "pass" else None
+        ms, note = conv_probe.trial(dev, prec, layer, tensors, ref, row.name, params, runs)
+        res.trials.append((row.name, dict(params), ms, note))
+        log(f"  {layer} [{prec}] {row.name} {params or ''}: " + (f"{ms:.3f} ms" if ms is not None else note))
+        return ms
 
     for row in rows:
         if deadline and time.monotonic() > deadline:
@@ -157,16 +111,11 @@ def tune_layer(dev, prec, layer, *, level="fast", runs=5, max_candidates=24, sto
                 if deadline and time.monotonic() > deadline:
                     break
                 trial(row, dict(zip(names, vals)))
-    ok = [t for t in res.trials if t[2] is not None]
-    if ok:
-        best = min(ok, key=lambda t: t[2])
-        # the default row's own trial is the fair baseline (same warm caches); a rival must
-        # beat it by MARGIN, so timing noise never flips a measured choice
-        base = next((t for t in ok if t[0] == ref_row and not t[1]), None)
+    best = conv_probe.pick(res.trials, ref_row)
+    if best is not None:
+        base = next((t for t in res.trials if t[0] == ref_row and not t[1] and t[2] is not None), None)
         if base is not None:
             res.default_ms = base[2]
-            if best[2] > base[2] * (1 - MARGIN):
-                best = base
         res.best, res.best_params, res.best_ms = best[0], best[1], best[2]
         if store:
             tuning.store(dev, "conv2d", key, {"VARIANT": res.best, **res.best_params}, path=db, ms=res.best_ms,

@@ -178,11 +178,15 @@ def _shipped_op(dev, op: str) -> dict:
     return shipped(dev).get("ops", {}).get(op, {})
 
 
+def shipped_layer(dev, op: str, key: str) -> dict:
+    """The shipped table's entry for this layer key ({} where it has none)."""
+    return dict(_shipped_op(dev, op).get("layers", {}).get(key, {}))
+
+
 def shipped_order(dev, op: str, key: str) -> list:
     """The shipped table's variant for this layer key (if it lists one), then its order."""
-    t = _shipped_op(dev, op)
-    layer = t.get("layers", {}).get(key, {})
-    return ([layer["VARIANT"]] if "VARIANT" in layer else []) + list(t.get("order", []))
+    layer = shipped_layer(dev, op, key)
+    return ([layer["VARIANT"]] if "VARIANT" in layer else []) + list(_shipped_op(dev, op).get("order", []))
 
 
 def shipped_params(dev, op: str, key: str, variant: str) -> dict:

@@ -149,14 +149,71 @@ def test_the_layer_tuner_stores_a_checked_choice_that_conv2d_then_runs(dev, db):
 
 def test_the_layer_tuner_rejects_a_wrong_variant(dev, db, monkeypatch):
     from bench import tune_layers
-    real = conv_gemm.launch
-
-    def broken(*a, **kw):
-        out = real(*a, **kw)
-        out.data.get_info  # noqa: the buffer exists; corrupt it from the host
-        host = a[0].to_host(out) + 1
-        return a[0].to_device(host.astype(np.float32), a[1])
-    monkeypatch.setattr(conv_gemm, "launch", broken)
+    _gemm_off_by_one(monkeypatch)
     res = tune_layers.tune_layer(dev, "fp32", _layer(), level="fast", runs=1, db=db, log=lambda m: None)
     assert any(t[0] == "gemm" and t[3].startswith("wrong") for t in res.trials)
     assert res.best != "gemm"
+
+
+def _gemm_off_by_one(monkeypatch):
+    """conv2d_gemm's outputs, one too large: a row that compiles and runs but is wrong."""
+    real = conv_gemm.launch
+
+    def off_by_one(dev_, prec, *a, **kw):
+        out = real(dev_, prec, *a, **kw)
+        out.set((out.get() + 1).astype(out.dtype))
+        return out
+    monkeypatch.setattr(conv_gemm, "launch", off_by_one)
+
+
+def _probing(monkeypatch, rows=("gemm",)):
+    """The GPU rows' first-use probe, turned on for `rows` on this (CPU) device."""
+    import dataclasses
+    table = tuple(dataclasses.replace(v, probe=lambda d: True) if v.name in rows else v
+                  for v in conv.VARIANTS)
+    monkeypatch.setattr(conv, "VARIANTS", table)
+
+
+def test_a_probed_row_is_timed_at_first_use_and_the_choice_is_stored(dev, db, monkeypatch):
+    _probing(monkeypatch)
+    calls = []
+    real = conv_probe_module().probe
+    monkeypatch.setattr(conv_probe_module(), "probe", lambda *a: (calls.append(a[2]), real(*a)))
+    x, w, b = _tensors(dev)
+    with selfcheck.forcing("conv.gemm", True):
+        first = _conv(dev, x, w, b)
+        key = conv.layer_key(_layer(), "fp32")
+        stored = tuning.entry(dev, "conv2d", key)
+        assert stored["probed"] is True and stored["params"]["VARIANT"] in ("gemm", stored["default"])
+        assert set(stored["trials"]) == {"gemm", stored["default"]}
+        again = _conv(dev, x, w, b)         # the stored choice: no second probe
+    assert calls == [key]
+    np.testing.assert_allclose(first, again, rtol=1e-5, atol=1e-5)
+
+
+def test_the_probe_rejects_a_row_that_disagrees_on_the_layer(dev, db, monkeypatch):
+    _probing(monkeypatch)
+    _gemm_off_by_one(monkeypatch)
+    x, w, b = _tensors(dev)
+    with selfcheck.forcing("conv.gemm", True):
+        _conv(dev, x, w, b)
+    stored = tuning.entry(dev, "conv2d", conv.layer_key(_layer(), "fp32"))
+    assert stored["params"]["VARIANT"] != "gemm" and str(stored["trials"]["gemm"]).startswith("wrong")
+
+
+def test_no_probe_where_a_table_names_the_row_or_clss_probe_is_off(dev, db, monkeypatch):
+    _probing(monkeypatch)
+    calls = []
+    monkeypatch.setattr(conv_probe_module(), "probe", lambda *a: calls.append(a))
+    x, w, b = _tensors(dev)
+    monkeypatch.setenv("CLSS_PROBE", "0")
+    _conv(dev, x, w, b)
+    monkeypatch.delenv("CLSS_PROBE")
+    tuning.store(dev, "conv2d", conv.layer_key(_layer(), "fp32"), {"VARIANT": "direct"}, path=db)
+    _conv(dev, x, w, b)
+    assert calls == []
+
+
+def conv_probe_module():
+    from clss.ops import conv_probe
+    return conv_probe

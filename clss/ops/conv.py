@@ -7,7 +7,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import selfcheck, tuning as tuning_db
-from . import conv_gemm, variants
+from . import conv_gemm, conv_probe, variants
 from ..device import Device
 from ..tolerance import DEFAULT_TOL
 from .base import Unsupported, as_str, check_storage, onnx_op, rng
@@ -549,7 +549,8 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     nchw = not (gated or blocked_in or out_blocked)
     exclude = [name for name, flag in (("winograd", "WINO"), ("blocked", "BLOCKED"))
                if not (tuning or {}).get(flag, 1) and (nchw or name == "winograd")]
-    v = variants.choose(dev, prec, "conv2d", layer_key(layer, prec), VARIANTS, layer, tuning, exclude)
+    v = variants.choose(dev, prec, "conv2d", layer_key(layer, prec), VARIANTS, layer, tuning, exclude,
+                        probe=conv_probe.probe if conv_probe.enabled() else None)
     return v.run(dev, prec, layer, call)
 
 
@@ -670,6 +671,12 @@ def _gemm_runner(variant: str, local: int = 1, mma: int = 0):
     return run
 
 
+def _on_gpu(dev) -> bool:
+    """The GEMM rows are timed at a layer's first use on GPUs (conv_probe), never on a CPU,
+    where the register-tiled rows were measured faster (clss/tuning_tables/cpu-*.json)."""
+    return not dev.is_cpu
+
+
 class _W(NamedTuple):
     """A weight's shape where the eligibility rules (thin_eligible, ...) take a weight."""
     shape: tuple
@@ -696,14 +703,15 @@ VARIANTS = (
     variants.Variant("direct", "NCHW, 8*XV pixels x CB channels per work-item, no local memory",
                      lambda dev, prec, L: L.nchw, _run_direct, (), dict(TUNABLES["conv2d"])),
     variants.Variant("gemm", "implicit GEMM, TM x TN tiles staged in local memory, RM x RN per work-item",
-                     lambda dev, prec, L: L.nchw, _gemm_runner("gemm"), ("conv.gemm",), dict(conv_gemm.TUNABLES)),
+                     lambda dev, prec, L: L.nchw, _gemm_runner("gemm"), ("conv.gemm",), dict(conv_gemm.TUNABLES),
+                     probe=_on_gpu),
     variants.Variant("gemm_global", "implicit GEMM, RM x RN per work-item read from global memory",
                      lambda dev, prec, L: L.nchw, _gemm_runner("gemm_global", local=0),
-                     ("conv.gemm_global",), {k: conv_gemm.TUNABLES[k] for k in ("RM", "RN")}),
+                     ("conv.gemm_global",), {k: conv_gemm.TUNABLES[k] for k in ("RM", "RN")}, probe=_on_gpu),
     variants.Variant("mma", "tensor cores: mma.sync m16n8k16 through inline PTX (NVIDIA, fp16 storage)",
                      lambda dev, prec, L: L.nchw and prec == "fp16" and conv_gemm.has_mma(dev),
                      _gemm_runner("mma", mma=2), ("conv.mma",),
-                     dict(conv_gemm.MMA_TUNABLES)),
+                     dict(conv_gemm.MMA_TUNABLES), probe=_on_gpu),
 )
 
 

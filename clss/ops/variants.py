@@ -14,6 +14,8 @@ The row chosen for a layer, first that is eligible and whose fast paths pass:
   3. the shipped table of the device's class (clss/tuning_tables/<class>.json, see
      clss.tuning.shipped): an entry for this layer key, then the class's preference order;
   4. the family's own order.
+Rows marked `probe` (the GPU rows on GPUs) are first timed on the layer itself where none of
+1-3 names a row for it (clss/ops/conv_probe.py), and the result is stored as in 2.
 So a device nobody tuned runs what was measured on its kind, and a row that fails its
 self-check on a device is never launched there, whatever any table says.
 Like MNN's ConvBufExecution and ComputeLibrary's get_convolution_method, but measured per
@@ -42,6 +44,9 @@ class Variant:
     run: Callable = field(compare=False)
     fast_paths: tuple = ()
     tunables: dict = field(default_factory=dict, compare=False)
+    # probe(dev): timed against the default row at a layer's first use on dev, where no table
+    # names a row for the layer (clss/ops/conv_probe.py); the GPU rows, never a CPU's
+    probe: Callable = field(default=lambda dev: False, compare=False)
 
     def enabled(self, dev, prec: str) -> bool:
         return all(selfcheck.enabled(dev, prec, fp) for fp in self.fast_paths)
@@ -96,12 +101,26 @@ def order(dev, op: str, key: str, rows, explicit: dict | None = None) -> list[st
     return list(dict.fromkeys(names))
 
 
+def _named(dev, op: str, key: str, explicit) -> bool:
+    """Does the caller, the tuner, the database or the shipped table name a row for this layer?"""
+    return bool((explicit or {}).get("VARIANT") or tuning.overridden(op).get("VARIANT")
+                or tuning.entry(dev, op, key) or tuning.shipped_layer(dev, op, key))
+
+
 def choose(dev, prec: str, op: str, key: str, rows, layer, explicit: dict | None = None,
-           exclude=()) -> Variant:
-    """The row to launch for `layer` (module docstring); ValueError when no row takes it."""
+           exclude=(), probe=None) -> Variant:
+    """The row to launch for `layer` (module docstring); ValueError when no row takes it.
+    probe(dev, prec, key, layer, rows, default): measures the rows whose `probe(dev)` holds
+    against the default row and stores the winner, where nothing names a row for the layer."""
     if _recorded is not None:
         _recorded.append((op, layer))
     by_name = {r.name: r for r in candidates(dev, prec, rows, layer, exclude)}
+    if probe is not None and not _named(dev, op, key, explicit):
+        probed = [r for r in by_name.values() if r.probe(dev) and r.enabled(dev, prec)]
+        default = next((by_name[n] for n in order(dev, op, key, rows, explicit)
+                        if n in by_name and by_name[n] not in probed and by_name[n].enabled(dev, prec)), None)
+        if probed and default is not None:
+            probe(dev, prec, key, layer, probed, default.name)
     for name in order(dev, op, key, rows, explicit):
         r = by_name.get(name)
         if r is not None and r.enabled(dev, prec):
