@@ -90,17 +90,17 @@ def cmd_batch(argv) -> int:
         raise UsageError(RAY_MISSING) from None
     print(f"clss batch: {len(jobs)} sequences, {total} frames -> {a.out}, method {name}, "
           f"x{a.scale:g}, {a.precision}", file=sys.stderr)
-    results, t0 = [], time.perf_counter()
+    results, written, t0 = [], [0], time.perf_counter()
     try:
         with _session(ray, a.ray_address):
             workers = _start_workers(ray, a.device)
             try:
-                _progress(ray, workers, jobs, total, results)
+                _progress(ray, workers, jobs, total, results, written)
             finally:
                 for w in workers:
                     ray.kill(w)
     except KeyboardInterrupt:
-        print(f"\nclss batch: interrupted; {_written(results)} frames written to {a.out}; the "
+        print(f"\nclss batch: interrupted; {written[0]} frames written to {a.out}; the "
               "same command resumes", file=sys.stderr)
         return 130
     return _summary(a, jobs, results, time.perf_counter() - t0)
@@ -115,9 +115,13 @@ def _plan(a, name):
     from ..io import read_sequence
     from .batch_resume import Journal, settings_of
     from .upscaler_common import contract_of_args
-    args = dict(vars(a), method=name, mode=None)    # --mode rules = --method clss-rules
-    jobs = [dict(index=i, name=n, input=src, out=os.path.join(a.out, n), method=name,
-                 args=args, delay=float(os.environ.get(DELAY_ENV) or 0))
+    # Paths as the workers see them: their working directory is not this one.
+    args = dict(vars(a), method=name, mode=None,    # --mode rules = --method clss-rules
+                **{k: os.path.abspath(getattr(a, k)) for k in ("jitter", "weights")
+                   if getattr(a, k) and os.path.exists(getattr(a, k))})
+    jobs = [dict(index=i, name=n, input=os.path.abspath(src), given=src, method=name,
+                 out=os.path.join(os.path.abspath(a.out), n), args=args,
+                 delay=float(os.environ.get(DELAY_ENV) or 0))
             for i, (src, n) in enumerate(zip(a.inputs, output_names(a.inputs)))]
     total, checked = 0, False
     for job in jobs:
@@ -177,21 +181,22 @@ def _start_workers(ray, device) -> list:
     return workers
 
 
-def _progress(ray, workers, jobs, total, results):
-    """Run the jobs under one progress bar of frames (finished ones count when found)."""
+def _progress(ray, workers, jobs, total, results, written):
+    """Run the jobs under one progress bar of frames (finished ones count when found);
+    written[0] counts the frames written."""
     from ..progress import progress
 
     def status():
         failed = sum(r["error"] is not None for r in results)
         return f"{len(results)}/{len(jobs)} sequences" + (f", {failed} failed" if failed else "")
-    for _ in progress(_events(ray, workers, jobs, results), desc="clss batch", unit="frame",
-                      total=total, status=status):
-        pass
+    for event in progress(_events(ray, workers, jobs, results), desc="clss batch",
+                          unit="frame", total=total, status=status):
+        written[0] += event == "frame"
 
 
 def _events(ray, workers, jobs, results):
-    """Hand each idle worker the next sequence; yield once per frame written or found
-    finished; append each sequence's summary to `results` as it ends."""
+    """Hand each idle worker the next sequence; yield "frame" per frame written and
+    "skipped" per frame found finished; append each sequence's summary to `results` as it ends."""
     from ray.util.queue import Queue
     queue = Queue(actor_options={"num_cpus": 0})
     todo, idle, running = deque(jobs), list(workers), {}
@@ -202,7 +207,7 @@ def _events(ray, workers, jobs, results):
                 running[w.run.remote(job, queue)] = (w, job)
             ready, _ = ray.wait(list(running), num_returns=1, timeout=0.25)
             for event in queue.get_nowait_batch(queue.qsize()):
-                yield from range(event[2] if event[0] == "skipped" else 1)
+                yield from [event[0]] * (event[2] if event[0] == "skipped" else 1)
             for ref in ready:
                 w, job = running.pop(ref)
                 try:
@@ -227,13 +232,9 @@ def _failed(job, why):
 def _report(r, job, results):
     results.append(r)
     if r["error"] is not None:
-        print(f"\nclss batch: {job['name']} ({job['input']}) failed: {r['error']}", file=sys.stderr)
+        print(f"\nclss batch: {job['name']} ({job['given']}) failed: {r['error']}", file=sys.stderr)
         if r["trace"] and os.environ.get("CLSS_TRACEBACK"):
             print(r["trace"], file=sys.stderr)
-
-
-def _written(results) -> int:
-    return sum(r["written"] for r in results)
 
 
 def _summary(a, jobs, results, seconds) -> int:
