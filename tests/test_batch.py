@@ -185,9 +185,11 @@ def ray_session():
 
 
 def test_a_broken_sequence_is_reported_and_the_others_finish(work, tmp_path, ray_session,
-                                                             capsys):
-    ins = [str(work / "in" / n) for n in ("a", "broken", "nowhere", "b")]
-    rc = main(["batch", *ins, "-o", str(tmp_path / "out"), *METHOD, "--device", _device()])
+                                                             capsys, monkeypatch):
+    """Relative paths too: the workers' working directory is not the driver's."""
+    monkeypatch.chdir(work / "in")
+    rc = main(["batch", "a", "broken", "nowhere", "b", "-o", str(tmp_path / "out"), *METHOD,
+               "--device", _device()])
     err = capsys.readouterr().err
     assert rc == 1 and "Traceback" not in err
     failed = [ln for ln in err.splitlines() if " failed: " in ln]
