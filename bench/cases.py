@@ -90,6 +90,7 @@ class BenchCase:
     tune_op: str = ""                # tuning-database op name and key
     tune_key: str = ""
     precisions: tuple = ("fp32", "fp16", "fp16-native")
+    network: tuple | None = None     # a "network" case's (ONNX model, input shapes), for --layers
 
     @property
     def label(self) -> str:

@@ -112,6 +112,22 @@ def _bench_parser() -> ArgParser:
                         "with --full also nsrr, nsrd, nss), one row each: clss and onnxruntime time, their "
                         "ratio, and where clss's time goes (the OpenCL event ms of one timed frame step per "
                         "kernel, largest first); no peak probes")
+    p.add_argument("--tier", choices=("tiny", "1080p", "2160p"), default=None,
+                   help="only this shape tier (named by the output: 1080p is 1080x1920); with --full, the "
+                        "full level's cases at this tier alone")
+    p.add_argument("--peers", default=None, metavar="LIST",
+                   help="the runtimes clss is timed beside, alternating on the same ONNX twins and feeds: "
+                        "ort (onnxruntime, the default and the oracle), openvino (OpenVINO's CPU plugin, two "
+                        "columns: f32, and its default precision with its error; pip install -e '.[peers]'), "
+                        "or a comma list")
+    p.add_argument("--layers", metavar="NETWORK",
+                   help="per layer of one network: clss's time, GFLOP/s, share of the FMA peak, bytes moved "
+                        "and conv variant, beside each peer's time for the same ONNX nodes; NETWORK is a "
+                        "network case of `clss bench --list --full` (e.g. 'nsrr reconstruct', 'classifier') "
+                        "or an .onnx file (with --input-shape for symbolic sizes)")
+    p.add_argument("--input-shape", action="append", metavar="NAME=SHAPE",
+                   help="with --layers FILE.onnx: the shape of an input with symbolic sizes, e.g. "
+                        "x=1x3x540x960 (repeatable)")
     p.add_argument("--list", action="store_true", help="list the cases and exit")
     p.add_argument("--compare", nargs=2, metavar=("A.json", "B.json"), help="compare two runs and exit")
     return p
@@ -123,6 +139,23 @@ def bench_main(argv=None) -> int:
     level = _level(a)
     if a.methods and a.host_waits:
         raise UsageError("--methods and --host-waits exclude each other")
+    from .peers import parse_peers
+    try:
+        a.peer_names = parse_peers(a.peers)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    for flag, on in (("--host-waits", a.host_waits), ("--compare", a.compare)):
+        if on and a.peers:
+            raise UsageError(f"--peers goes with the cases or --layers, not with {flag}")
+    if a.input_shape and not a.layers:
+        raise UsageError("--input-shape goes with --layers FILE.onnx")
+    if a.layers is not None:
+        for flag, on in (("--host-waits", a.host_waits), ("--methods", a.methods), ("--compare", a.compare),
+                         ("--list", a.list), ("--filter", a.filter)):
+            if on:
+                raise UsageError(f"--layers and {flag} exclude each other")
+        from .layers import main as layers_main
+        return layers_main(a, level)
     if a.json is not None:
         check_output_file(a.json, "--json", inputs=a.compare or ())
     if a.out and not a.compare and not a.list:
@@ -150,7 +183,7 @@ def bench_main(argv=None) -> int:
         return 2
     if a.host_waits:
         return _host_waits(a, dev, precs, level)
-    cases, unavailable = all_cases(level, ("tiny",) if a.tiny else None)
+    cases, unavailable = all_cases(level, _tiers(a))
     if a.methods:
         cases = [c for c in cases if c.kind == "frame"]
     cases = _select(cases, a.filter)
@@ -169,10 +202,17 @@ def bench_main(argv=None) -> int:
     rows, peak, t0 = _run_all(a, dev, cases, precs, settings, level)
     doc = report.document(rows, dev, peak, settings,
                           level + ("-tiny" if a.tiny else "") + ("-methods" if a.methods else ""), unavailable,
-                          extra={"seconds": round(time.perf_counter() - t0, 1)})
+                          extra={"seconds": round(time.perf_counter() - t0, 1), **_peer_info(a)})
     _write_results(a, doc, rows, peak)
     bad = [r for r in rows if r.status != "ok" and not r.status.startswith("skipped")]
     return 1 if bad else 0
+
+
+def _tiers(a):
+    """The shape tiers --tiny / --tier ask for, or None for the level's."""
+    if a.tiny and a.tier and a.tier != "tiny":
+        raise UsageError(f"--tiny and --tier {a.tier} exclude each other")
+    return ("tiny",) if a.tiny else (a.tier,) if a.tier else None
 
 
 def _host_waits(a, dev, precs, level) -> int:
@@ -202,6 +242,17 @@ def _host_waits(a, dev, precs, level) -> int:
     if written:
         print("wrote " + ", ".join(str(w) for w in written))
     return 0
+
+
+def _peer_info(a) -> dict:
+    """What the document says of the peers, where --peers named any."""
+    if not a.peers:
+        return {}
+    info = {"peers": a.peer_names}
+    if "openvino" in a.peer_names:
+        from .peers import openvino_default_precision
+        info["openvino_default_precision"] = openvino_default_precision()
+    return info
 
 
 def _settings(a, level):
@@ -237,16 +288,22 @@ def _run_all(a, dev, cases, precs, settings, level):
         peak = measure(dev, quick=level == "quick", log=lambda m: print(m, file=sys.stderr),
                        **(dict(target_s=0.02, mib=8) if a.tiny else {}))
     ort = OrtRunner(settings.ort_threads, settings.ort_spinning)
+    # --peers: the peer columns; without it, onnxruntime alone, as before peers existed
+    cols = None
+    if a.peers:
+        from .peers import columns
+        cols = columns(a.peer_names, settings.ort_threads, settings.ort_spinning)
     rows = []
     work = [(c, pr) for c in cases for pr in precs if pr in c.precisions]
     bar = progress(work, desc="bench", unit="case")
     log = _logger(bar)
     for case, prec in bar:
-        row = run_case(case, dev, prec, settings, peak, ort)
+        row = run_case(case, dev, prec, settings, peak, ort, columns=cols)
         rows.append(row)
         if row.status == "ok" or row.status == "mismatch":
+            others = "".join(f", {p['label']} {p.get('ms', float('nan')):.2f} ms" for p in row.peers.values())
             log(f"{case.label} {prec}: engine {row.engine_ms:.2f} ms (event {row.engine_event_ms:.2f}), "
-                f"ort {row.ort_ms:.2f} ms, {row.speedup_vs_ort:.2f}x, check {row.check}")
+                f"ort {row.ort_ms:.2f} ms{others}, {row.speedup_vs_ort:.2f}x, check {row.check}")
         else:
             log(f"{case.label} {prec}: {row.status}")
     return rows, peak, t0

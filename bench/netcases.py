@@ -29,8 +29,7 @@ def model_case(name, model: onnx.ModelProto, input_shapes: dict, tier: str, flop
     def build(dev, prec, params):
         from clss.model import Model
         m = Model(model, device=dev, precision=prec, input_shapes=input_shapes)
-        host = {k: _rounded(np.abs(rng("bench net", name, k).standard_normal(s, dtype=np.float32)), prec)
-                for k, s in input_shapes.items()}
+        host = seeded_feeds(name, input_shapes, prec)
         d_in = m.upload(host)
         out_shapes = list(m.output_shapes.values())
         st = storage_dtype(prec)
@@ -46,7 +45,14 @@ def model_case(name, model: onnx.ModelProto, input_shapes: dict, tier: str, flop
         return Setup(run, twin, host, NET_TOL[prec], eng, ort, release=d_in.clear,
                      note=f"{len(m.graph.nodes)} steps after fusion")
     shape = ", ".join(f"{k}: {'x'.join(map(str, s))}" for k, s in input_shapes.items())
-    return BenchCase(name, "network", "network", tier, float(flops), build, quick=quick, shape=shape)
+    return BenchCase(name, "network", "network", tier, float(flops), build, quick=quick, shape=shape,
+                     network=(model, dict(input_shapes)))
+
+
+def seeded_feeds(name: str, input_shapes: dict, prec: str) -> dict:
+    """A whole network's inputs: seeded |N(0, 1)|, rounded to the storage precision."""
+    return {k: _rounded(np.abs(rng("bench net", name, k).standard_normal(s, dtype=np.float32)), prec)
+            for k, s in input_shapes.items()}
 
 
 def network_cases(method: str, tier: str, nets) -> list[BenchCase]:

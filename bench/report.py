@@ -54,11 +54,14 @@ def _cpu_model() -> str:
 def _versions() -> dict:
     out = {"python": platform.python_version()}
     from importlib import metadata
-    for pkg in ("clss", "numpy", "pyopencl", "pocl-binary-distribution", "onnx", "onnxruntime", "matplotlib"):
+    for pkg in ("clss", "numpy", "pyopencl", "pocl-binary-distribution", "onnx", "onnxruntime", "openvino",
+                "matplotlib"):
         try:
             out[pkg] = metadata.version(pkg)
         except metadata.PackageNotFoundError:
             out[pkg] = None
+    if out.get("openvino") is None:
+        out.pop("openvino")
     if out.get("clss") is None:
         import clss
         out["clss"] = clss.__version__
@@ -72,7 +75,8 @@ def document(rows, dev, peak: Peak | None, settings, level: str, unavailable=(),
         "created": datetime.datetime.now().isoformat(timespec="seconds"),
         "level": level,
         "machine": {"hostname": platform.node(), "cpu": _cpu_model(), "cores": os.cpu_count(),
-                    "os": platform.platform(), "load_avg": _loadavg()},
+                    "os": platform.platform(), "load_avg": _loadavg(), "simd": _simd(),
+                    "vector_width": _vector_width(dev)},
         "device": dev.info.__dict__ if dev is not None else None,
         "driver": dev.info.driver if dev is not None else None,
         "packages": _versions(),
@@ -85,6 +89,30 @@ def document(rows, dev, peak: Peak | None, settings, level: str, unavailable=(),
         "rows": [_clean(r.as_dict() if hasattr(r, "as_dict") else dict(r)) for r in rows],
         **(extra or {}),
     }
+
+
+def _simd() -> str:
+    """The CPU's widest x86 vector extension (the figures depend on it), or ""."""
+    try:
+        flags = next((line.split(":", 1)[1].split() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                      if line.startswith("flags")), [])
+    except OSError:
+        return ""
+    for f, name in (("amx_tile", "AVX-512 + AMX"), ("avx512f", "AVX-512"), ("avx2", "AVX2"), ("sse4_2", "SSE4.2")):
+        if f in flags:
+            return name
+    return ""
+
+
+def _vector_width(dev):
+    """The float lanes clss's conv tiles are sized to on dev (clss.ops.conv.vector_width)."""
+    if dev is None:
+        return None
+    try:
+        from clss.ops.conv import vector_width
+        return int(vector_width(dev))
+    except Exception:
+        return None
 
 
 def _loadavg():
@@ -194,18 +222,72 @@ def _f(v, fmt):
 
 
 def format_table(rows) -> str:
+    keys = peer_keys(rows)
+    if keys:
+        return "\n".join(_case_grid(rows, ("case", "tier", "prec", "clss ms", "ort ms", *peer_heads(keys),
+                                            "vs f32 peer", "check"),
+                                     lambda r: (_f(r["engine_ms"], ".2f"), _f(r["ort_ms"], ".2f"),
+                                                *peer_cells(r, keys), vs_peer_cell(r), _check(r)),
+                                     left=(0, 1, 2)))
     head = ("case", "tier", "prec", "engine ms", "min", "event ms", "ort ms", "vs ort", "GFLOP/s", "GB/s",
             "bound", "of peak", "check")
     lines = _case_grid(rows, head, lambda r: (
         _f(r["engine_ms"], ".2f"), _f(r["engine_min_ms"], ".2f"), _f(r["engine_event_ms"], ".2f"),
         _f(r["ort_ms"], ".2f"), _f(r["speedup_vs_ort"], ".2f"), _f(r["gflops"], ".1f") if r["flops"] else "-",
-        _f(r["gbs"], ".1f"), r["bound"] or "-", _f(r["peak_share"], ".0%"),
-        r["check"] if r["check"] in ("pass", "skipped") else "FAIL"), left=(0, 1, 2, 10, 12))
+        _f(r["gbs"], ".1f"), r["bound"] or "-", _f(r["peak_share"], ".0%"), _check(r)), left=(0, 1, 2, 10, 12))
     for r in rows:
         r = r if isinstance(r, dict) else r.as_dict()
         if r["check"].startswith("FAIL"):
             lines.append(f"{r['name']} [{r['precision']}]: {r['check']}")
     return "\n".join(lines)
+
+
+def _check(r) -> str:
+    return r["check"] if r["check"] in ("pass", "skipped") else "FAIL"
+
+
+# --- peer columns (bench/peers.py) ------------------------------------------------------------
+
+def _row(r) -> dict:
+    return r if isinstance(r, dict) else r.as_dict()
+
+
+def peer_keys(rows) -> list[tuple]:
+    """(key, label, fp32) of the peer columns other than onnxruntime's that any row has, in
+    first-seen order."""
+    keys = {}
+    for r in rows:
+        for k, p in (_row(r).get("peers") or {}).items():
+            keys.setdefault(k, (k, p["label"], bool(p.get("fp32"))))
+    return list(keys.values())
+
+
+def peer_heads(keys) -> list[str]:
+    """A heading per column: "<label> ms", and "<label> err" after a column not held to f32."""
+    out = []
+    for _, label, fp32 in keys:
+        out.append(f"{label} ms")
+        if not fp32:
+            out.append(f"{label.split(' (')[0]} err")
+    return out
+
+
+def peer_cells(r, keys) -> list[str]:
+    """A row's cells under peer_heads: ms (or the peer's status where it did not run), err."""
+    out = []
+    for k, _, fp32 in keys:
+        p = (r.get("peers") or {}).get(k) or {}
+        ok = p.get("status") == "ok"
+        out.append(_f(p.get("ms"), ".2f") if ok else p.get("status", "-").split(":")[0])
+        if not fp32:
+            out.append(_f(p.get("max_err"), ".1e") if ok else "-")
+    return out
+
+
+def vs_peer_cell(r) -> str:
+    """clss against the faster f32 peer: "1.25x ort"."""
+    v = r.get("vs_peer")
+    return "-" if v is None or not math.isfinite(v) else f"{v:.2f}x {r.get('vs_peer_name', '').replace('_', ' ')}".strip()
 
 
 def _grid(head, body, left) -> list[str]:
@@ -262,12 +344,20 @@ def markdown(doc: dict) -> str:
     d, m, p = doc.get("device") or {}, doc["machine"], doc.get("peak")
     out = [f"# clss bench ({doc['level']})", "",
            f"- created {doc['created']}, commit `{doc['git']['commit'][:12]}`{' (dirty)' if doc['git']['dirty'] else ''}",
-           f"- machine: {m['cpu']}, {m['cores']} cores, load average at the end {m.get('load_avg')}",
+           f"- machine: {m['cpu']}, {m['cores']} cores"
+           + (f", {m['simd']}" if m.get("simd") else "")
+           + (f", clss vector width {m['vector_width']}" if m.get("vector_width") else "")
+           + f", load average at the end {m.get('load_avg')}",
            f"- device: {d.get('platform')} / {d.get('name')}, driver {d.get('driver')}",
            "- packages: " + ", ".join(f"{k} {v}" for k, v in doc["packages"].items() if v),
            f"- onnxruntime: CPU execution provider, {doc['settings'].get('ort_threads')} intra-op threads"]
     if p:
         out.append(f"- {format_peak(Peak.from_dict(p))}")
+    if doc.get("peers"):
+        out.append(f"- peers: {', '.join(doc['peers'])}" + (
+            f"; OpenVINO {doc['packages'].get('openvino')} CPU plugin, default precision "
+            f"{doc.get('openvino_default_precision')}" if "openvino" in doc["peers"] else ""))
+    out += peers_markdown(doc["rows"])
     out += ["", "## Targets", ""] + [f"- {line}" for line in format_targets(doc["targets"]).splitlines()]
     out += ["", "## Results", "",
             "engine and onnxruntime times are medians of wall time over the runs (min in brackets); "
@@ -305,6 +395,38 @@ def markdown(doc: dict) -> str:
     if doc.get("unavailable"):
         out += ["", "## Not benchmarked", ""] + [f"- {u['what']}: {u['why']}" for u in doc["unavailable"]]
     return "\n".join(out) + "\n"
+
+
+def peers_markdown(rows) -> list[str]:
+    """The peers table (bench/peers.py): clss beside each peer column, the error of the
+    columns not held to f32 against the oracle, clss against the faster f32 peer and against
+    each column not held to f32 (peer ms / clss ms: > 1, clss is faster)."""
+    keys = peer_keys(rows)
+    if not keys:
+        return []
+    loose = [k for k in keys if not k[2]]
+    head = ["case", "tier", "prec", "clss ms", "onnxruntime ms", *peer_heads(keys), "clss vs faster f32 peer",
+            *(f"clss vs {label}" for _, label, _ in loose)]
+    out = ["", "## Beside the peers", "",
+           "Medians of wall time, each peer alternating with clss on the same ONNX twin and feeds in one "
+           "process; err: the largest difference from onnxruntime's output (the oracle) over the "
+           "reference's largest magnitude; vs: the peer's time / clss's (> 1: clss is faster).", "",
+           "| " + " | ".join(head) + " |", "|" + "---|" * 3 + "---:|" * (len(head) - 3)]
+    for r in rows:
+        r = _row(r)
+        if r["status"] not in ("ok", "mismatch"):
+            out.append(f"| {r['name']} | {r['tier']} | {r['precision']} |" + " |" * (len(head) - 4)
+                       + f" {r['status'][:80]} |")
+            continue
+        vs_loose = []
+        for k, _, _ in loose:
+            p = (r.get("peers") or {}).get(k) or {}
+            vs_loose.append(_f(p.get("ms", float("nan")) / r["engine_ms"], ".2f") + "x"
+                            if p.get("status") == "ok" and r.get("engine_ms") else "-")
+        cells = [r["name"], r["tier"], r["precision"], _f(r["engine_ms"], ".1f"), _f(r["ort_ms"], ".1f"),
+                 *peer_cells(r, keys), vs_peer_cell(r), *vs_loose]
+        out.append("| " + " | ".join(cells) + " |")
+    return out
 
 
 def slowest(rows, n=3):

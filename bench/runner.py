@@ -73,6 +73,11 @@ class Row:
     note: str = ""
     # {kernel: event ms} of the last timed run (a frame step that times its stages: {stage: ms})
     kernels: dict = field(default_factory=dict)
+    # peer columns other than onnxruntime's (bench/peers.py): {key: {label, fp32, status, ms,
+    # min_ms, max_err}}; vs_peer: the faster f32 peer's time / engine time (which: vs_peer_name)
+    peers: dict = field(default_factory=dict)
+    vs_peer: float = float("nan")
+    vs_peer_name: str = ""
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -87,9 +92,13 @@ class OrtRunner:
         self.threads = threads
         self.spinning = spinning
 
-    def session(self, model):
+    def session(self, model, profile_prefix: str | None = None):
+        """profile_prefix: with onnxruntime's per-node profiler on, its file named so."""
         import onnxruntime as ort
         so = ort.SessionOptions()
+        if profile_prefix:
+            so.enable_profiling = True
+            so.profile_file_prefix = profile_prefix
         so.intra_op_num_threads = self.threads
         so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         so.log_severity_level = 3
@@ -139,16 +148,27 @@ def check_setup(setup: Setup, host: list, refs: list) -> tuple[str, float]:
 
 
 def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: Peak | None,
-             ort: OrtRunner, params: dict | None = None) -> Row:
+             ort: OrtRunner, params: dict | None = None, columns=None) -> Row:
+    """One case, alternating the engine with each peer column (bench/peers.py; default:
+    onnxruntime alone). onnxruntime is the oracle whether or not it is timed."""
     row = Row(case.name, case.tier, case.family, case.kind, prec, case.shape, flops=case.flops)
     cap = Capture(dev)
     setup: Setup | None = None
     try:
         setup = case.build(dev, prec, dict(params or {}))
         row.bytes, row.ort_bytes = setup.bytes, setup.ort_bytes
-        sess = ort.session(setup.twin)
-        out_names = [o.name for o in sess.get_outputs()]
-
+        oracle = ort.session(setup.twin)
+        out_names = [o.name for o in oracle.get_outputs()]
+        # (key, column or None for onnxruntime, run(feeds) -> outputs)
+        peers = [("ort", None, lambda f: oracle.run(out_names, f))]
+        if columns is not None:
+            peers = [p for p in peers if any(c.key == "ort" for c in columns)]
+            for c in columns:
+                if c.key != "ort":
+                    try:
+                        peers.append((c.key, c, c.session(setup.twin)))
+                    except Exception as e:      # a peer that cannot run the twin: a status, not a lost row
+                        row.peers[c.key] = {"label": c.label, "fp32": c.fp32, "status": _status(e)}
         stages = {}
 
         def engine_once():
@@ -163,10 +183,13 @@ def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: 
             stages.update(setup.stages())
             return wall, sum(stages.values()), outs
 
-        def ort_once():
+        def peer_once(run):
             t0 = time.perf_counter()
-            res = sess.run(out_names, setup.feeds)
+            res = run(setup.feeds)
             return (time.perf_counter() - t0) * 1e3, res
+
+        def peers_once():
+            return {k: peer_once(run)[0] for k, _, run in peers}
 
         row.note = setup.note
         with cap.active():
@@ -176,7 +199,14 @@ def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: 
             _, _, outs = engine_once()
             host = [dev.to_host(o) for o in outs] if settings.check else None
             del outs
-            o_ms, refs = ort_once()
+            p_ms, got = {}, {}
+            for k, _, run in peers:
+                p_ms[k], got[k] = peer_once(run)
+            refs = got.pop("ort", None) or oracle.run(out_names, setup.feeds)
+            for k, c, _ in peers:
+                if c is not None:
+                    row.peers[k] = {"label": c.label, "fp32": c.fp32, "status": "ok",
+                                    "max_err": _peer_error(setup, got.pop(k), refs)}
             if settings.check:
                 row.check, row.max_err = check_setup(setup, host, refs)
             else:
@@ -185,35 +215,37 @@ def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: 
             first_ms = engine_once()[0]
             row.launches = len(cap.events)
             for _ in range(settings.warmup - 1):
-                if first_ms + o_ms > settings.budget_s * 1e3 / 4:
+                if first_ms + sum(p_ms.values()) > settings.budget_s * 1e3 / 4:
                     break
                 first_ms = engine_once()[0]
-                o_ms = ort_once()[0]
-            n = settings.runs or int(np.clip(settings.budget_s * 1e3 / max(first_ms + o_ms, 1e-3),
+                p_ms = peers_once()
+            n = settings.runs or int(np.clip(settings.budget_s * 1e3 / max(first_ms + sum(p_ms.values()), 1e-3),
                                              settings.min_runs, settings.max_runs))
-            e_wall, e_ev, o_wall = [], [], []
+            e_wall, e_ev, p_wall = [], [], {k: [] for k, _, _ in peers}
             for _ in range(n):
                 w, ev, outs = engine_once()
                 del outs
                 e_wall.append(w)
                 e_ev.append(ev)
-                o_wall.append(ort_once()[0])
+                for k, t in peers_once().items():
+                    p_wall[k].append(t)
             by_time = sorted(stages.items(), key=lambda kv: -kv[1]) if stages else cap.per_kernel_ms().items()
             row.kernels = {k: round(v, 4) for k, v in by_time}
         row.runs = n
         row.engine_ms, row.engine_min_ms = statistics.median(e_wall), min(e_wall)
         row.engine_event_ms, row.engine_event_min_ms = statistics.median(e_ev), min(e_ev)
-        row.ort_ms, row.ort_min_ms = statistics.median(o_wall), min(o_wall)
+        for k, ts in p_wall.items():
+            if k == "ort":
+                row.ort_ms, row.ort_min_ms = statistics.median(ts), min(ts)
+            else:
+                row.peers[k].update(ms=statistics.median(ts), min_ms=min(ts))
         row.speedup_vs_ort = row.ort_ms / row.engine_ms
+        _versus_peers(row)
         if row.check.startswith("FAIL"):
             row.status = "mismatch"
         _classify(row, peak, case.kind)
     except Exception as e:
-        last = traceback.format_exception_only(type(e), e)[-1].strip()
-        # A tensor past the device's max allocation is a limit of the device, not a bug.
-        limit = isinstance(e, DeviceError) or any(t in str(e) for t in (
-            "max allocation", "max_alloc", "INVALID_BUFFER_SIZE", "MEM_OBJECT_ALLOCATION_FAILURE"))
-        row.status = f"{'skipped' if limit else 'error'}: {last[:500]}"
+        row.status = _status(e)
     finally:
         cap.release()
         if setup is not None and setup.release:
@@ -221,6 +253,31 @@ def run_case(case: BenchCase, dev: Device, prec: str, settings: Settings, peak: 
         del setup
         gc.collect()
     return row
+
+
+def _status(e: Exception) -> str:
+    last = traceback.format_exception_only(type(e), e)[-1].strip()
+    # A tensor past the device's max allocation is a limit of the device, not a bug.
+    limit = isinstance(e, DeviceError) or any(t in str(e) for t in (
+        "max allocation", "max_alloc", "INVALID_BUFFER_SIZE", "MEM_OBJECT_ALLOCATION_FAILURE"))
+    return f"{'skipped' if limit else 'error'}: {last[:500]}"
+
+
+def _peer_error(setup: Setup, outs: list, refs: list) -> float:
+    """A peer's largest error against the oracle (relative to the reference's largest
+    magnitude, as the engine's max_err), on the outputs the engine's check reads."""
+    if setup.out_index is not None:
+        outs, refs = [outs[setup.out_index]], [refs[setup.out_index]]
+    return check_outputs([np.asarray(o) for o in outs], refs, setup.tol, False)[1]
+
+
+def _versus_peers(row: Row) -> None:
+    """vs_peer: the faster f32 peer's time / the engine's (onnxruntime or OpenVINO f32)."""
+    f32 = {"ort": row.ort_ms} if np.isfinite(row.ort_ms) else {}
+    f32.update({k: p["ms"] for k, p in row.peers.items() if p.get("fp32") and np.isfinite(p.get("ms", np.nan))})
+    if f32 and np.isfinite(row.engine_ms):
+        row.vs_peer_name = min(f32, key=f32.get)
+        row.vs_peer = f32[row.vs_peer_name] / row.engine_ms
 
 
 def time_engine(setup: Setup, dev: Device, runs: int, local_size=None) -> tuple[float, float, list]:
