@@ -217,3 +217,13 @@ def test_no_probe_where_a_table_names_the_row_or_clss_probe_is_off(dev, db, monk
 def conv_probe_module():
     from clss.ops import conv_probe
     return conv_probe
+
+
+def test_clss_verify_lists_every_conv_row_and_its_state_on_the_device(dev):
+    from clss.verify.conformance import format_variants
+    text = format_variants(dev, ["fp32"], [])
+    assert tuning.device_class(dev) in text
+    for row in conv.VARIANTS:
+        assert f"  {row.name} " in text
+    if dev.is_cpu:
+        assert "mma          fp32 does not apply here" in text

@@ -120,6 +120,9 @@ def cmd_verify(argv) -> int:
     from ..selfcheck_runner import check_all
     fast = check_all(dev, precs, [a.family] if a.family else None)
     print("\n" + format_fast_paths(fast))
+    if not a.family or a.family in ("conv", "conv_gemm"):
+        from ..verify.conformance import format_variants
+        print("\n" + format_variants(dev, precs, fast))
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"device": dev.info.__dict__, "rows": [r.as_dict() for r in rows],

@@ -96,3 +96,30 @@ def format_fast_paths(verdicts) -> str:
         src = kernel_label(fp.kernel) if fp else v.kernel
         lines.append(f"  DISABLED {v.name} [{v.precision}] ({v.options}, {src}): {v.detail}{ref}")
     return "\n".join(lines)
+
+
+def format_variants(dev, precisions, verdicts) -> str:
+    """The conv variant table on this device: each row, whether it applies here and its
+    self-checks' verdicts per precision, and the shipped table the chooser reads
+    (docs/kernels.md, the conv variant table)."""
+    from .. import tuning
+    from ..ops import conv
+    from .. import selfcheck
+    from ..selfcheck import REGISTRY
+    got = {(v.name, v.precision): v.ok for v in verdicts}
+    table = tuning.shipped(dev)
+    order = table.get("ops", {}).get("conv2d", {}).get("order", [])
+    lines = [f"conv variants: shipped table {tuning.device_class(dev)} (order: {', '.join(order) or '-'}; "
+             f"a tuned or probed entry per layer comes first: clss tune --level fast)"]
+    for row in conv.VARIANTS:
+        states = []
+        for prec in precisions:
+            paths = [REGISTRY[n] for n in row.fast_paths if n in REGISTRY]
+            if any(not fp.applies(dev) for fp in paths):
+                states.append(f"{prec} does not apply here")
+            elif all(got.get((fp.name, prec), selfcheck.enabled(dev, prec, fp.name)) for fp in paths):
+                states.append(f"{prec} passes" if paths else f"{prec} reference")
+            else:
+                states.append(f"{prec} DISABLED")
+        lines.append(f"  {row.name:12s} {'; '.join(dict.fromkeys(states))}  ({row.what})")
+    return "\n".join(lines)
