@@ -35,7 +35,8 @@ def _parser() -> ArgParser:
                "  clss batch shots/a shots/b -o out/ --ray-address auto --png",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inputs", nargs="+", metavar="IN",
-                   help="sequences: directories, globs or numbered patterns, as `clss upscale` takes")
+                   help="sequences: directories, globs or numbered patterns, as `clss upscale` "
+                        "takes them")
     p.add_argument("-o", "--out", required=True,
                    help="output directory: each sequence's frames go to OUT/<name>/")
     p.add_argument("--overwrite", action="store_true",
@@ -172,12 +173,13 @@ def _start_workers(ray, device) -> list:
     for node, (devices, problem) in zip(nodes, found):
         why.add(problem)
         for spec, desc in devices:
-            print(f"clss batch: worker on {desc}" + (f" (node {node[:8]})" if len(nodes) > 1 else ""),
-                  file=sys.stderr)
+            where = f" (node {node[:8]})" if len(nodes) > 1 else ""
+            print(f"clss batch: worker on {desc}{where}", file=sys.stderr)
             workers.append(actor.options(scheduling_strategy=On(node, soft=False)).remote(spec))
     if not workers:
         flag = f"--device {device}: " if device else ""
-        raise UsageError(f"{flag}no OpenCL device for a worker ({'; '.join(sorted(map(str, why)))})")
+        why = "; ".join(sorted(map(str, why)))
+        raise UsageError(f"{flag}no OpenCL device for a worker ({why})")
     return workers
 
 
@@ -196,8 +198,11 @@ def _progress(ray, workers, jobs, total, results, written):
 
 def _events(ray, workers, jobs, results):
     """Hand each idle worker the next sequence; yield "frame" per frame written and
-    "skipped" per frame found finished; append each sequence's summary to `results` as it ends."""
+    "skipped" per frame found finished; append each sequence's summary to `results` as it
+    ends."""
     from ray.util.queue import Queue
+
+    from .batch_work import summary
     queue = Queue(actor_options={"num_cpus": 0})
     todo, idle, running = deque(jobs), list(workers), {}
     try:
@@ -214,25 +219,21 @@ def _events(ray, workers, jobs, results):
                     r = ray.get(ref)
                     idle.append(w)
                 except ray.exceptions.RayActorError as e:   # the worker's process died
-                    r = _failed(job, f"its worker died ({str(e).strip().splitlines()[0]})")
+                    r = summary(job, error=f"its worker died ({str(e).strip().splitlines()[0]})")
                 _report(r, job, results)
             if todo and not idle and not running:
                 for job in todo:
-                    _report(_failed(job, "no worker left"), job, results)
+                    _report(summary(job, error="no worker left"), job, results)
                 todo.clear()
     finally:
         queue.shutdown(force=True)
 
 
-def _failed(job, why):
-    return dict(index=job["index"], name=job["name"], written=0, skipped=0, warmed=0,
-                error=why, trace=None, seconds=0.0, device=None)
-
-
 def _report(r, job, results):
     results.append(r)
     if r["error"] is not None:
-        print(f"\nclss batch: {job['name']} ({job['given']}) failed: {r['error']}", file=sys.stderr)
+        print(f"\nclss batch: {job['name']} ({job['given']}) failed: {r['error']}",
+              file=sys.stderr)
         if r["trace"] and os.environ.get("CLSS_TRACEBACK"):
             print(r["trace"], file=sys.stderr)
 
@@ -240,7 +241,8 @@ def _report(r, job, results):
 def _summary(a, jobs, results, seconds) -> int:
     by_index = {r["index"]: r for r in results}
     failed = [by_index[j["index"]] for j in jobs if by_index[j["index"]]["error"] is not None]
-    print(f"\n{len(jobs) - len(failed)} of {len(jobs)} sequences done in {seconds:.1f} s -> {a.out}")
+    print(f"\n{len(jobs) - len(failed)} of {len(jobs)} sequences done in {seconds:.1f} s "
+          f"-> {a.out}")
     for j in jobs:
         r = by_index[j["index"]]
         state = f"FAILED: {r['error']}" if r["error"] is not None else "done"

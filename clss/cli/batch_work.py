@@ -37,6 +37,12 @@ def node_devices(spec=None):
         return [], cli_message(e).splitlines()[0]
 
 
+def summary(job: dict, device=None, error=None) -> dict:
+    """What a worker returns for a sequence (the driver makes one where a worker died)."""
+    return dict(index=job["index"], name=job["name"], written=0, skipped=0, warmed=0,
+                error=error, trace=None, seconds=0.0, device=device)
+
+
 class SequenceWorker:
     """Upscales whole sequences, one after the other, on one device."""
 
@@ -48,8 +54,7 @@ class SequenceWorker:
         `clss batch`'s arguments), resuming from the journal there. Puts ("skipped", i,
         count) and ("frame", i) on `events` as frames are found finished or written.
         Returns a summary; a failure is its one-line "error", never an exception."""
-        out = dict(index=job["index"], name=job["name"], written=0, skipped=0, warmed=0,
-                   error=None, trace=None, seconds=0.0, device=self.device)
+        out = summary(job, self.device)
         t0 = time.perf_counter()
         from ..device import DeviceError, KernelBuildError
         from ..errors import ArgumentError
