@@ -183,8 +183,8 @@ def build_upscaler(a, name, first):
     from ..upscaler import Upscaler
     # The contract goes to every method; the other options to those that take them (the
     # options methods add check themselves).
-    kw = dict(contract=contract_of_args(a, first.color.shape[:2]), sanitize=a.sanitize, profile=True, weights=a.weights,
-              debug=a.debug_views)
+    kw = dict(contract=contract_of_args(a, first.color.shape[:2]), sanitize=a.sanitize,
+              profile=True, weights=a.weights, debug=a.debug_views)
     for ext in _method_options():
         kw.update(ext.check(a, name, UsageError))
     up = Upscaler(method=name, scale=a.scale, device=a.device, precision=a.precision,
