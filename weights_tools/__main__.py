@@ -13,7 +13,7 @@ import onnx
 from clss.methods.clss import networks
 from clss.networks import weights
 
-from . import evaluate
+from . import evaluate, jitter_mix
 
 RESOLUTIONS = (("540p", 540, 960), ("1080p", 1080, 1920), ("2160p", 2160, 3840))
 
@@ -127,14 +127,21 @@ def cmd_gen(args):
     if not 1.0 <= args.scale <= 4.0:
         print(f"error: --scale must be in [1, 4], got {args.scale}", file=sys.stderr)
         return 2
+    try:
+        jitter_mix.check_arg("--jitter-mix", args.jitter_mix)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     tmp = out + ".partial"
     shutil.rmtree(tmp, ignore_errors=True)
     os.makedirs(tmp)
     stats = scenegen.generate(tmp, args.sequences, args.frames, args.seed, args.size,
                               args.scale, args.spp, args.workers,
-                              log=(lambda m: None) if args.quiet else print)
+                              log=(lambda m: None) if args.quiet else print,
+                              mix=args.jitter_mix)
     with open(os.path.join(tmp, "READY"), "w") as fh:
-        fh.write(json.dumps({k: stats[k] for k in ("sequences", "frames", "seed")}) + "\n")
+        fh.write(json.dumps({k: stats[k] for k in ("sequences", "frames", "seed", "jitter_mix")})
+                 + "\n")
     os.replace(tmp, out)
     print(f"wrote {args.sequences} sequences of {args.frames} frames to {out} "
           f"in {stats['seconds']:.1f} s")
@@ -205,6 +212,10 @@ def parser():
     g.add_argument("--scale", type=float, default=2.0)
     g.add_argument("--spp", type=int, default=16, help="reference samples per pixel")
     g.add_argument("--workers", type=int, default=2, help="processes")
+    g.add_argument("--jitter-mix", default=jitter_mix.DEFAULT_MIX,
+                   help="each sequence's jitter pattern drawn from NAME[:WEIGHT],... (zero, "
+                   "2x2, halton8, halton16, halton, r2; 'legacy': before issue 53; one name: "
+                   f"every sequence that pattern; default {jitter_mix.DEFAULT_MIX})")
     g.add_argument("--quiet", action="store_true")
     g.set_defaults(fn=cmd_gen)
     from .blender import shards

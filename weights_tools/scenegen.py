@@ -18,8 +18,10 @@ What is randomised per sequence (`SceneSpec.random`):
     slab, sometimes;
   * the camera: static, pan, truck, dolly, orbit or a mix, at random speeds, and a cut
     (a second camera path, `reset`) in about a third of the sequences;
-  * jitter: Halton(2,3) as clss.scene (length ceil(8 scale^2)), or none at all (about
-    a fifth of the sequences, as in captures without jitter).
+  * jitter: one of the patterns engines send, drawn from --jitter-mix
+    (weights_tools/jitter_mix.py: zero, 2x2, Halton 8 / 16 / 32 phases, R2, mirrored,
+    from a random phase; meta["content"]["jitter"] records the draw). Its own random
+    stream: the same seed gives the same content whatever the mix.
 
 Per frame (DATA.md): colour (one point sample per render pixel at the jittered
 position), reversed-Z depth, motion (render pixels, prev = p + motion) and jitter from
@@ -61,6 +63,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from clss.demo import scene
+
+from . import jitter_mix
 from clss.pipeline.contract import output_size
 from clss.demo.scene import (NEAR, Box, Camera, Cylinder, Ground, Light, Sphere, _box_corners, _Rigid,
                         _trace, _View, frame_gbuffers, halton_jitter, render_reference,
@@ -302,9 +306,11 @@ class SceneSpec:
     light: dict
     objects: list = field(default_factory=list)
     ground: dict = field(default_factory=dict)     # empty: clss.scene's ground
+    # jitter_mix.draw's {"pattern", "flip", "phase"}; empty: `jittered`'s Halton or zero
+    jitter: dict = field(default_factory=dict)
 
     @staticmethod
-    def random(seed, index, frames):
+    def random(seed, index, frames, mix=jitter_mix.DEFAULT_MIX):
         rng = np.random.default_rng([seed, index, 0x5CE2E])
         cut = int(rng.integers(2, frames)) if frames > 3 and rng.random() < 0.35 else 0
         light = dict(elev=float(rng.uniform(0.3, 1.2)), azim=float(rng.uniform(0, 6.28)),
@@ -324,6 +330,9 @@ class SceneSpec:
                                   _random_camera_path(rng)],
                          light=light)
         _random_environment(np.random.default_rng([seed, index, 0x6A0D]), spec)
+        spec.jitter = jitter_mix.draw(mix,
+                                      np.random.default_rng([seed, index, 0x717]))
+        spec.jittered = spec.jitter["pattern"] != "zero"
         objs = spec.objects
         if rng.random() < 0.5:      # backdrop wall
             objs.append(dict(type="box", pos=[rng.uniform(-3, 3), 2.5, rng.uniform(-16, -9)],
@@ -561,6 +570,15 @@ class _AliasStats:
                         np.where(std > TEXTURE_TOL, ALIAS_TEXTURE, ALIAS_NONE)).astype(np.uint8)
 
 
+def frame_jitter(spec, i, scale):
+    """(jx, jy) of frame i: the spec's drawn pattern, or (a spec from before issue 53)
+    Halton(2,3) if `jittered`, else zero."""
+    if spec.jitter:
+        return tuple(float(v) for v in jitter_mix.sequence_jitter(
+            dict(spec.jitter, phase=spec.jitter["phase"] + i), 1, scale)[0])
+    return halton_jitter(i, scale) if spec.jittered else (0.0, 0.0)
+
+
 def render_frame(spec, i, render_size, scale, spp, gbuffers=True):
     """Frame i of the sequence `spec`: a dict of the DATA.md per-frame arrays; with
     `gbuffers` also the G-buffers (albedo, normal at the colour's jittered samples, from
@@ -576,7 +594,7 @@ def render_frame(spec, i, render_size, scale, spp, gbuffers=True):
     # (the frame is a reset anyway).
     seg = spec.cameras[1 if spec.cut and i >= spec.cut else 0]
     prev_cam = _camera(seg, i - 1.0, aspect)
-    jx, jy = halton_jitter(i, scale) if spec.jittered else (0.0, 0.0)
+    jx, jy = frame_jitter(spec, i, scale)
     us = np.arange(w, dtype=_F) + _F(0.5 + jx)
     vs = np.arange(h, dtype=_F) + _F(0.5 + jy)
     ground = ground_of(spec)
@@ -635,19 +653,19 @@ def write_sequence(path, data):
 
 
 def _job(args):
-    seed, index, frames, render_size, scale, spp, out_dir = args
+    seed, index, frames, render_size, scale, spp, out_dir, mix = args
     t0 = time.perf_counter()
-    spec = SceneSpec.random(seed, index, frames)
+    spec = SceneSpec.random(seed, index, frames, mix)
     data = render_sequence(spec, render_size, scale, spp)
     write_sequence(os.path.join(out_dir, f"seq_{index:04d}.npz"), data)
     return index, class_counts(data), time.perf_counter() - t0
 
 
 def generate(out_dir, sequences, frames, seed, render_size, scale=2.0, spp=16, workers=2,
-             log=print):
+             log=print, mix=jitter_mix.DEFAULT_MIX):
     """Write `sequences` .npz files into out_dir (which must exist) and stats.json
-    (class frequencies, time); returns the stats dict."""
-    jobs = [(seed, k, frames, tuple(render_size), float(scale), spp, out_dir)
+    (class frequencies, time, the jitter mix); returns the stats dict."""
+    jobs = [(seed, k, frames, tuple(render_size), float(scale), spp, out_dir, mix)
             for k in range(sequences)]
     t0 = time.perf_counter()
     totals = {"ghost": [0, 0, 0], "alias": [0, 0, 0], "ghost_no_reset": [0, 0, 0]}
@@ -669,6 +687,7 @@ def generate(out_dir, sequences, frames, seed, render_size, scale=2.0, spp=16, w
     freq = {key: [c / max(sum(v), 1) for c in v] for key, v in totals.items()}
     stats = dict(sequences=sequences, frames=frames, seed=seed, render_size=list(render_size),
                  scale=scale, spp=spp, seconds=round(elapsed, 1), workers=workers,
+                 jitter_mix=mix,
                  counts=totals, frequencies=freq,
                  class_names={"ghost": GHOST_NAMES, "alias": ALIAS_NAMES,
                               "ghost_no_reset": GHOST_NAMES})

@@ -1,6 +1,9 @@
 """The jitter of a sequence: a sidecar beside the frames (`SIDECARS`: jitter.json or
 jitter.csv, with the frames' numbers, camera cuts in `resets` and metadata), an explicit
-file or array, zero, or the Halton(2,3) sequence; every value within [-0.5, 0.5]."""
+file or array, or one of the named patterns engines send (`PATTERNS`: zero, 2x2,
+Halton(2,3) of 8, 16 or the contract's ceil(8 scale^2) phases, R2); every value within
+[-0.5, 0.5]. `as_sent` gives a pattern as an engine sends it (negated, NDC or UV units)
+with the contract's `jitter_scale` that converts it back (docs/input-contract.md)."""
 from __future__ import annotations
 
 import csv
@@ -9,10 +12,82 @@ import os
 
 import numpy as np
 
+from ..pipeline.contract import halton
 from ..pipeline.contract import jitter_at as halton_jitter
 from .errors import InputError
 
 SIDECARS = ("jitter.json", "jitter.csv")
+
+# ---- the patterns engines send (issue 53) -----------------------------------------------
+# Each is (jx, jy) in the contract's units (render pixels, the sample's offset from the
+# pixel centre, +y down) for frame `index` of a sequence at `scale`. Engines differ in
+# the pattern, its length, its sign and its units; the last two are conventions the
+# contract converts (`as_sent`), the first two change where the samples fall.
+
+_G = 1.32471795724474602596           # the plastic number: R2's generator (Roberts 2018)
+_R2 = (1.0 / _G, 1.0 / (_G * _G))
+# the 2x2 ordered grid, diagonals alternating (the four output pixel centres at 2x)
+_GRID2 = ((-0.25, -0.25), (0.25, 0.25), (0.25, -0.25), (-0.25, 0.25))
+
+
+def _halton_n(n):
+    return lambda i, scale: (halton(i % n + 1, 2) - 0.5, halton(i % n + 1, 3) - 0.5)
+
+
+def _r2(i, scale):
+    # frac(0.5 + n alpha) - 0.5, from n = 1: never repeats; within [-0.5, 0.5)
+    return tuple(float((0.5 + (i + 1) * a) % 1.0) - 0.5 for a in _R2)
+
+
+PATTERNS = {
+    "zero": (lambda i, scale: (0.0, 0.0), "no jitter: every sample at the pixel centre"),
+    "2x2": (lambda i, scale: _GRID2[i % 4], "the 2x2 ordered grid, +-0.25 px, 4 phases"),
+    "halton8": (_halton_n(8), "Halton(2,3) from index 1, 8 phases"),
+    "halton16": (_halton_n(16), "Halton(2,3) from index 1, 16 phases"),
+    "halton": (halton_jitter, "Halton(2,3) from index 1, ceil(8 scale^2) phases "
+               "(FSR2's; 32 at 2x): the default"),
+    "r2": (_r2, "the R2 sequence (plastic-number Kronecker), never repeating"),
+}
+PATTERN_ALIASES = {"none": "zero"}
+UNITS = ("pixel", "ndc", "uv")
+
+
+def pattern_name(name) -> str:
+    """The pattern's canonical name; ValueError naming the known ones."""
+    key = PATTERN_ALIASES.get(str(name).lower(), str(name).lower())
+    if key not in PATTERNS:
+        raise ValueError(f"unknown jitter pattern {name!r} (known: "
+                         f"{', '.join(list(PATTERNS) + list(PATTERN_ALIASES))})")
+    return key
+
+
+def pattern_jitter(name, frames, scale=2.0, *, flip=(1, 1), phase=0) -> np.ndarray:
+    """[frames, 2] float64 (jx, jy) of pattern `name` in the contract's units, from phase
+    `phase` (an engine's frame counter rarely starts at 0), each axis times `flip` (+-1:
+    the mirrored pattern of an engine whose y axis or sign differs)."""
+    fn = PATTERNS[pattern_name(name)][0]
+    sx, sy = (float(f) for f in flip)
+    if {abs(sx), abs(sy)} != {1.0}:
+        raise ValueError(f"flip: expected +-1 per axis, got {tuple(flip)}")
+    out = np.array([fn(int(phase) + i, scale) for i in range(int(frames))], np.float64)
+    return out.reshape(-1, 2) * (sx, sy)
+
+
+def as_sent(jitter, units="pixel", *, negate=False, render_size=None):
+    """(values, jitter_scale): `jitter` ([n, 2], the contract's render pixels) as an engine
+    sends it, and the contract's jitter_scale that turns those values back into it
+    (clss.Contract(jitter_scale=...)). units: "pixel"; "ndc" (2 units per screen, +y up,
+    the projection matrix's offset); "uv" (1 unit per screen, +y down); negate: the
+    offset FSR2 and DLSS take (the sample is at centre - offset)."""
+    if units not in UNITS:
+        raise ValueError(f"units: expected one of {', '.join(UNITS)}, got {units!r}")
+    if units != "pixel" and render_size is None:
+        raise ValueError(f"units {units!r} need render_size (h, w)")
+    h, w = render_size if render_size is not None else (1, 1)
+    scale = {"pixel": (1.0, 1.0), "ndc": (w / 2.0, -h / 2.0), "uv": (float(w), float(h))}[units]
+    scale = tuple(-s for s in scale) if negate else scale
+    values = np.asarray(jitter, np.float64).reshape(-1, 2) / scale
+    return values, scale
 
 
 def _read_jitter_file(path):
@@ -84,12 +159,13 @@ def _resolve_jitter(jitter, scale, numbers, directory):
                 raise InputError(f"{directory}: no jitter sidecar ({' or '.join(SIDECARS)}); "
                                  "pass jitter= or scale= for the Halton sequence")
             src = "halton"
-    if isinstance(src, str) and src == "halton":
-        if scale is None:
+    named = isinstance(src, str) and (src.lower() in PATTERNS or src.lower() in PATTERN_ALIASES)
+    if named:
+        name = pattern_name(src)
+        if scale is None and name == "halton":
             raise InputError("jitter='halton' needs scale=")
-        return [halton_jitter(i, scale) for i in range(len(numbers))], meta
-    if isinstance(src, str) and src == "zero":
-        return [(0.0, 0.0)] * len(numbers), meta
+        jit = pattern_jitter(name, len(numbers), 2.0 if scale is None else scale)
+        return [tuple(map(float, j)) for j in jit], dict(meta, pattern=name)
     if isinstance(src, (str, os.PathLike)):
         path = os.fspath(src)
         table, meta = _read_jitter_file(path)
