@@ -49,6 +49,9 @@ from clss.verify.twin import make_model, node_model
 # scale), whose shapes this module's kernel cases take; the method rooms (bench/methods/)
 # choose their render sizes and scales per tier.
 TIERS = {"1080p": ((540, 960), 2.0), "2160p": ((1080, 1920), 2.0),
+         # a quarter of 1080p's pixels: what a busy 2-core machine finishes with every peer
+         # in minutes (clss bench --tier 540p; in no level's tiers)
+         "540p": ((270, 480), 2.0),
          # a smoke test of the bench itself (tests, --tiny): every case, numbers meaningless
          "tiny": ((16, 32), 2.0)}
 LEVEL_TIERS = {"quick": ("1080p",), "default": ("1080p",), "full": ("1080p", "2160p")}

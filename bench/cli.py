@@ -112,9 +112,9 @@ def _bench_parser() -> ArgParser:
                         "with --full also nsrr, nsrd, nss), one row each: clss and onnxruntime time, their "
                         "ratio, and where clss's time goes (the OpenCL event ms of one timed frame step per "
                         "kernel, largest first); no peak probes")
-    p.add_argument("--tier", choices=("tiny", "1080p", "2160p"), default=None,
-                   help="only this shape tier (named by the output: 1080p is 1080x1920); with --full, the "
-                        "full level's cases at this tier alone")
+    p.add_argument("--tier", choices=("tiny", "540p", "1080p", "2160p"), default=None,
+                   help="only this shape tier (named by the output: 1080p is 1080x1920, 540p 540x960, a "
+                        "quarter of its pixels); with --full, the full level's cases at this tier alone")
     p.add_argument("--peers", default=None, metavar="LIST",
                    help="the runtimes clss is timed beside, alternating on the same ONNX twins and feeds: "
                         "ort (onnxruntime, the default and the oracle), openvino (OpenVINO's CPU plugin, two "

@@ -20,7 +20,7 @@ from ..netcases import NET_TOL, frame_bench_case, median_ms, synthetic_frame
 HOST_WAITS = ("mlp",)
 
 # (render size, scale) per tier, the tier named by the output (bench/cases.py TIERS)
-MLP_TIERS = {"1080p": (((540, 960), 2), ((360, 640), 3)),
+MLP_TIERS = {"1080p": (((540, 960), 2), ((360, 640), 3)), "540p": (((270, 480), 2), ((180, 320), 3)),
              "tiny": (((16, 32), 2), ((16, 32), 3))}
 
 

@@ -21,7 +21,7 @@ from ..netcases import (BENCH_JITTER, FULL_ONLY_NETWORKS, frame_bench_case, fram
 # The host-wait bench (bench/hostwait.py) rows this method.
 HOST_WAITS = ("nsrd",)
 FULL_ONLY = FULL_ONLY_NETWORKS
-NSRD_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
+NSRD_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)), "540p": (((270, 480), 2.0), ((135, 240), 4.0)),
               "tiny": (((16, 32), 2.0), ((16, 32), 4.0))}
 
 

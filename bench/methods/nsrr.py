@@ -21,7 +21,7 @@ HOST_WAITS = ("nsrr",)
 FULL_ONLY = FULL_ONLY_NETWORKS
 # render size and scale per tier (named by the output, bench/cases.py TIERS): the issue's
 # 1080p outputs, and a tiny smoke shape
-NSRR_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)),
+NSRR_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)), "540p": (((270, 480), 2.0), ((135, 240), 4.0)),
               "tiny": (((16, 32), 2.0), ((16, 32), 4.0))}
 
 

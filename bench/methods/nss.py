@@ -21,7 +21,7 @@ from ..netcases import (BENCH_JITTER, FULL_ONLY_NETWORKS, frame_bench_case, fram
 # package has no weights).
 HOST_WAITS = ("nss",)
 FULL_ONLY = FULL_ONLY_NETWORKS
-NSS_TIERS = {"1080p": ((540, 960),), "tiny": ((16, 32),)}
+NSS_TIERS = {"1080p": ((540, 960),), "540p": ((270, 480),), "tiny": ((16, 32),)}
 
 
 def _weights(weights):
