@@ -338,6 +338,29 @@ def _write_results(a, doc, rows, peak):
         print("wrote " + ", ".join(str(w) for w in written))
 
 
+def _tune_layers(a) -> int:
+    """clss tune --level: the device, precisions and network cases, then bench/tune_layers.py."""
+    from clss.device import DeviceError, get_device
+    from .suite import all_cases
+    from .tune_layers import main as tune_layers_main
+    if a.db is not None and not a.dry_run:
+        check_output_file(a.db, "--db")
+    try:
+        dev = get_device(a.device)
+        precs = _precisions(dev, a.precision, "quick" if a.precision is None else _level(a))
+    except (DeviceError, ValueError) as e:
+        print(f"clss tune: {cli_message(e)}", file=sys.stderr)
+        return 2
+    tiers = ("tiny",) if a.tiny else ((a.tier,) if a.tier else None)
+    cases, _ = all_cases("full" if a.tier == "2160p" else _level(a), tiers)
+    cases = [c for c in _select(cases, a.filter) if c.kind == "network"]
+    if not cases:
+        print("clss tune: no network cases selected (--filter matches the bench's network cases, e.g. "
+              "'nsrr', 'classifier'; clss bench --list shows them)", file=sys.stderr)
+        return 2
+    return tune_layers_main(a, dev, precs, cases, _logger)
+
+
 def tune_main(argv=None) -> int:
     p = ArgParser(
         prog="clss tune",
@@ -376,8 +399,7 @@ def tune_main(argv=None) -> int:
     if a.tier and not a.level:
         raise UsageError("--tier goes with --level fast|full")
     if a.level:
-        from .tune_layers import main as tune_layers_main
-        return tune_layers_main(a)
+        return _tune_layers(a)
     from clss import tuning
     from clss.device import DeviceError, get_device
     from clss.progress import progress

@@ -84,15 +84,15 @@ def tune_layer(dev, prec, layer, *, level="fast", runs=5, max_candidates=24, sto
                deadline=None, log=print) -> LayerResult:
     key = conv.layer_key(layer, prec)
     rows = [r for r in variants.candidates(dev, prec, conv.VARIANTS, layer) if r.enabled(dev, prec)]
-    tensors = conv_probe.layer_tensors(dev, prec, layer)
+    tensors = conv.layer_tensors(dev, prec, layer)
     # the reference: the row the device would run with no tuned entry
     with tuning.ignoring_entries():
         ref_row = variants.choose(dev, prec, "conv2d", key, conv.VARIANTS, layer).name
-        ref_ms, ref = conv_probe.time_layer(dev, prec, layer, tensors, {"VARIANT": ref_row}, runs)
+        ref_ms, ref = conv_probe.time_layer(conv.run_layer, dev, prec, layer, tensors, {"VARIANT": ref_row}, runs)
     res = LayerResult(layer, prec, key, ref_row, ref_ms, flops=conv_flops(layer))
 
     def trial(row, params):
-        ms, note = conv_probe.trial(dev, prec, layer, tensors, ref, row.name, params, runs)
+        ms, note = conv_probe.trial(conv.run_layer, dev, prec, layer, tensors, ref, row.name, params, runs)
         res.trials.append((row.name, dict(params), ms, note))
         log(f"  {layer} [{prec}] {row.name} {params or ''}: " + (f"{ms:.3f} ms" if ms is not None else note))
         return ms
@@ -141,46 +141,27 @@ def format_layers(results, peak_gflops: float | None = None) -> str:
     return "\n".join([fmt.format(*head), fmt.format(*("-" * w for w in widths))] + [fmt.format(*b) for b in body])
 
 
-def main(a) -> int:
-    """clss tune --level (bench/cli.py tune_main parsed the arguments)."""
+def main(a, dev, precs, cases, logger) -> int:
+    """clss tune --level: bench/cli.py tune_main parsed the arguments, chose the device, the
+    precisions and the network cases; logger(bar) -> log function."""
     import sys
     from pathlib import Path
 
-    from clss.cli.args import check_output_file
-    from clss.device import DeviceError, get_device
-    from clss.errors import cli_message
     from clss.progress import progress
 
-    from .cli import _level, _logger, _precisions, _select
     from .peak import fma_gflops
-    from .suite import all_cases
 
-    if a.db is not None and not a.dry_run:
-        check_output_file(a.db, "--db")
-    try:
-        dev = get_device(a.device)
-        precs = _precisions(dev, a.precision, "quick" if a.precision is None else _level(a))
-    except (DeviceError, ValueError) as e:
-        print(f"clss tune: {cli_message(e)}", file=sys.stderr)
-        return 2
-    tiers = ("tiny",) if a.tiny else ((a.tier,) if a.tier else None)
-    cases, _ = all_cases("full" if a.tier == "2160p" else _level(a), tiers)
-    cases = [c for c in _select(cases, a.filter) if c.kind == "network"]
-    if not cases:
-        print("clss tune: no network cases selected (--filter matches the bench's network cases, e.g. "
-              "'nsrr', 'classifier'; clss bench --list shows them)", file=sys.stderr)
-        return 2
     budget = a.budget or (240.0 if a.level == "fast" else 1200.0)
     deadline = time.monotonic() + budget
     db = Path(a.db) if a.db else tuning.db_path()
     print(f"device: {dev.info.name} (driver {dev.info.driver}, class {tuning.device_class(dev)}); "
           f"{len(cases)} network case(s) x {len(precs)} precision(s); level {a.level}, budget {budget:.0f} s; "
           f"database {db}{' (dry run)' if a.dry_run else ''}", file=sys.stderr)
-    log = _logger(None)
+    log = logger(None)
     layers = collect_layers(cases, dev, precs, log=log)
     results, left = [], []
     bar = progress(layers, desc="tune layers", unit="layer")
-    log = _logger(bar)
+    log = logger(bar)
     for layer, prec in bar:
         if time.monotonic() > deadline:
             left.append((layer, prec))

@@ -178,7 +178,7 @@ def test_a_probed_row_is_timed_at_first_use_and_the_choice_is_stored(dev, db, mo
     _probing(monkeypatch)
     calls = []
     real = conv_probe_module().probe
-    monkeypatch.setattr(conv_probe_module(), "probe", lambda *a: (calls.append(a[2]), real(*a)))
+    monkeypatch.setattr(conv_probe_module(), "probe", lambda *a, **kw: (calls.append(a[2]), real(*a, **kw)))
     x, w, b = _tensors(dev)
     with selfcheck.forcing("conv.gemm", True):
         first = _conv(dev, x, w, b)
@@ -204,7 +204,7 @@ def test_the_probe_rejects_a_row_that_disagrees_on_the_layer(dev, db, monkeypatc
 def test_no_probe_where_a_table_names_the_row_or_clss_probe_is_off(dev, db, monkeypatch):
     _probing(monkeypatch)
     calls = []
-    monkeypatch.setattr(conv_probe_module(), "probe", lambda *a: calls.append(a))
+    monkeypatch.setattr(conv_probe_module(), "probe", lambda *a, **kw: calls.append(a))
     x, w, b = _tensors(dev)
     monkeypatch.setenv("CLSS_PROBE", "0")
     _conv(dev, x, w, b)

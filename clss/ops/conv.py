@@ -2,6 +2,7 @@
 bias, activation and residual add."""
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -550,7 +551,8 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     exclude = [name for name, flag in (("winograd", "WINO"), ("blocked", "BLOCKED"))
                if not (tuning or {}).get(flag, 1) and (nchw or name == "winograd")]
     v = variants.choose(dev, prec, "conv2d", layer_key(layer, prec), VARIANTS, layer, tuning, exclude,
-                        probe=conv_probe.probe if conv_probe.enabled() else None)
+                        probe=functools.partial(conv_probe.probe, tensors=layer_tensors, run=run_layer)
+                        if conv_probe.enabled() else None)
     return v.run(dev, prec, layer, call)
 
 
@@ -715,6 +717,32 @@ VARIANTS = (
 )
 
 
+def layer_tensors(dev: Device, prec: str, layer: ConvLayer):
+    """Seeded x (blocked where the layer takes a blocked input), w, b and residual of a layer:
+    what the first-use probe and `clss tune --level` run each row on."""
+    g = np.random.default_rng(abs(hash(layer)) % (2 ** 32))
+    n, c, h, w = layer.x
+    co = layer.w[0]
+    x = dev.to_device(g.standard_normal(layer.x).astype(np.float32), prec)
+    if layer.block_in:
+        x = to_blocked(dev, prec, x, layer.block_in, -(-c // layer.block_in))
+    wt = dev.to_device((g.standard_normal(layer.w) / np.sqrt(np.prod(layer.w[1:]))).astype(np.float32), prec)
+    b = dev.to_device(g.standard_normal(co).astype(np.float32), prec)
+    r = None
+    if layer.residual:
+        ho = conv_output_size(h, layer.w[2], layer.strides[0], layer.pads[0] + layer.pads[2], layer.dilations[0])
+        wo = conv_output_size(w, layer.w[3], layer.strides[1], layer.pads[1] + layer.pads[3], layer.dilations[1])
+        r = dev.to_device(g.standard_normal((n, co, ho, wo)).astype(np.float32), prec)
+    return x, wt, b, r
+
+
+def run_layer(dev: Device, prec: str, layer: ConvLayer, tensors, tuning=None):
+    """conv2d of a layer on layer_tensors' tensors (a relu epilogue), with `tuning`."""
+    x, w, b, r = tensors
+    return conv2d(dev, prec, x, w, b, strides=layer.strides, pads=layer.pads, dilations=layer.dilations,
+                  group=layer.group, activation="relu", residual=r, out_blocked=layer.out_blocked, tuning=tuning)
+
+
 def describe_choice(dev: Device, prec: str, x_shape, w_shape, strides=(1, 1), pads=(0, 0, 0, 0),
                     dilations=(1, 1), group: int = 1, block_in: int = 0, out_blocked: bool = False) -> str:
     """The variant conv2d runs for this NCHW layer on dev, and where the choice came from:
@@ -876,6 +904,7 @@ def _register_cpu_path(name: str, option: str, check, what: str) -> None:
                                           applies=lambda dev: dev.is_cpu))
 
 
+conv_gemm.register_selfchecks(conv2d)
 _register_cpu_path("conv.thin", "THIN", _selfcheck_thin,
                    "convs with fewer than 8 outputs read a blocked input, its channels as the vector lanes "
                    "(conv2d_thin) / the input stored NCHW for the NCHW kernel (conv2d)")

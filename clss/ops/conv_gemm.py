@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import selfcheck
+from . import variants
 from ..device import Device
 from ..tolerance import DEFAULT_TOL
 from .base import rng
@@ -38,7 +39,6 @@ def launch(dev: Device, prec: str, layer, call, act: int, flags: int, *, key: st
            local: int = 1, mma: int = 0):
     """conv2d_gemm on an NCHW layer (conv.ConvLayer, conv.ConvCall); mma: 0, 1 (emulated, fp16
     storage) or 2 (PTX). Tiles: the defaults < shipped table < tuned entry < `call.tuning`."""
-    from . import variants
     n, cin, h, wd = layer.x
     cout, cin_g, kh, kw = layer.w
     group = layer.group
@@ -75,13 +75,12 @@ def ho_wo(call) -> int:
     return int(call.ho) * int(call.wo)
 
 
-def _selfcheck(variant: str):
+def _selfcheck(variant: str, conv2d):
     def check(dev: Device, prec: str) -> list[np.ndarray]:
         """The variant against the conv2d the device runs otherwise: a 3x3 layer with ragged
         tiles (37 channels, 9 x 23 pixels, 75 taps), stride 2 with a dilation and asymmetric
         pads, a grouped 1x1 layer with a residual after the activation, a batch of 2. Small:
         it runs under oclgrind too."""
-        from .conv import conv2d
         g = rng("conv gemm selfcheck")
         outs = []
         for n, cin, cout, hw, k, s, d, pads, grp, act, res in (
@@ -102,13 +101,16 @@ def _selfcheck(variant: str):
     return check
 
 
-for _name, _variant, _what, _applies in (
-        ("conv.gemm", "gemm", "implicit-GEMM conv, tiles staged in local memory (conv2d_gemm, CONV_LOCAL=1) / "
-         "the conv2d variant the device runs otherwise", lambda dev: True),
-        ("conv.gemm_global", "gemm_global", "implicit-GEMM conv, operands read from global memory "
-         "(conv2d_gemm, CONV_LOCAL=0) / the conv2d variant the device runs otherwise", lambda dev: True),
-        ("conv.mma", "mma", "implicit-GEMM conv on tensor cores, mma.sync through inline PTX (conv2d_gemm, "
-         "CONV_MMA=2; fp16 storage) / the conv2d variant the device runs otherwise", has_mma)):
-    selfcheck.register(selfcheck.FastPath(
-        _name, "conv_gemm", {"VARIANT": _variant}, {"VARIANT": "other"}, check=_selfcheck(_variant),
-        tolerance=DEFAULT_TOL.__getitem__, what=_what, applies=_applies))
+def register_selfchecks(conv2d) -> None:
+    """The rows' fast paths, each checked through conv2d's chooser (clss/ops/conv.py calls this
+    with its conv2d, which imports this module)."""
+    for name, variant, what, applies in (
+            ("conv.gemm", "gemm", "implicit-GEMM conv, tiles staged in local memory (conv2d_gemm, CONV_LOCAL=1) / "
+             "the conv2d variant the device runs otherwise", lambda dev: True),
+            ("conv.gemm_global", "gemm_global", "implicit-GEMM conv, operands read from global memory "
+             "(conv2d_gemm, CONV_LOCAL=0) / the conv2d variant the device runs otherwise", lambda dev: True),
+            ("conv.mma", "mma", "implicit-GEMM conv on tensor cores, mma.sync through inline PTX (conv2d_gemm, "
+             "CONV_MMA=2; fp16 storage) / the conv2d variant the device runs otherwise", has_mma)):
+        selfcheck.register(selfcheck.FastPath(
+            name, "conv_gemm", {"VARIANT": variant}, {"VARIANT": "other"}, check=_selfcheck(variant, conv2d),
+            tolerance=DEFAULT_TOL.__getitem__, what=what, applies=applies))

@@ -24,49 +24,24 @@ MARGIN = 0.05       # a rival replaces the default row only when at least 5 % fa
 PROBE_RUNS = 3
 
 
-def layer_tensors(dev, prec: str, layer):
-    """Seeded x (blocked where the layer takes a blocked input), w, b and residual of a layer."""
-    from .conv import conv_output_size, to_blocked
-    g = np.random.default_rng(abs(hash(layer)) % (2 ** 32))
-    n, c, h, w = layer.x
-    co = layer.w[0]
-    x = dev.to_device(g.standard_normal(layer.x).astype(np.float32), prec)
-    if layer.block_in:
-        x = to_blocked(dev, prec, x, layer.block_in, -(-c // layer.block_in))
-    wt = dev.to_device((g.standard_normal(layer.w) / np.sqrt(np.prod(layer.w[1:]))).astype(np.float32), prec)
-    b = dev.to_device(g.standard_normal(co).astype(np.float32), prec)
-    r = None
-    if layer.residual:
-        ho = conv_output_size(h, layer.w[2], layer.strides[0], layer.pads[0] + layer.pads[2], layer.dilations[0])
-        wo = conv_output_size(w, layer.w[3], layer.strides[1], layer.pads[1] + layer.pads[3], layer.dilations[1])
-        r = dev.to_device(g.standard_normal((n, co, ho, wo)).astype(np.float32), prec)
-    return x, wt, b, r
-
-
-def run_layer(dev, prec: str, layer, tensors, tuning_):
-    from .conv import conv2d
-    x, w, b, r = tensors
-    return conv2d(dev, prec, x, w, b, strides=layer.strides, pads=layer.pads, dilations=layer.dilations,
-                  group=layer.group, activation="relu", residual=r, out_blocked=layer.out_blocked, tuning=tuning_)
-
-
-def time_layer(dev, prec: str, layer, tensors, tuning_, runs: int) -> tuple[float, np.ndarray]:
-    """(median wall ms of `runs` after a warm-up that builds and packs, the first output)."""
-    out = run_layer(dev, prec, layer, tensors, tuning_)
+def time_layer(run, dev, prec: str, layer, tensors, tuning_, runs: int) -> tuple[float, np.ndarray]:
+    """(median wall ms of `runs` after a warm-up that builds and packs, the first output) of
+    run(dev, prec, layer, tensors, tuning) (clss.ops.conv.run_layer)."""
+    out = run(dev, prec, layer, tensors, tuning_)
     first = np.asarray(dev.to_host(out), np.float32)
     walls = []
     for _ in range(runs):
         t0 = time.perf_counter()
-        run_layer(dev, prec, layer, tensors, tuning_)
+        run(dev, prec, layer, tensors, tuning_)
         dev.queue.finish()
         walls.append((time.perf_counter() - t0) * 1e3)
     return statistics.median(walls), first
 
 
-def trial(dev, prec: str, layer, tensors, ref, row: str, params: dict, runs: int) -> tuple:
+def trial(run, dev, prec: str, layer, tensors, ref, row: str, params: dict, runs: int) -> tuple:
     """(ms or None, note): one row with its params, checked against ref, then timed."""
     try:
-        ms, out = time_layer(dev, prec, layer, tensors, {"VARIANT": row, **params}, runs)
+        ms, out = time_layer(run, dev, prec, layer, tensors, {"VARIANT": row, **params}, runs)
         cmp = compare(out, ref, DEFAULT_TOL[prec])
         if not cmp.passed:
             return None, f"wrong: max abs err {cmp.max_abs:.3g} ({cmp.ratio:.3g} x tolerance)"
@@ -92,14 +67,16 @@ def enabled() -> bool:
     return os.environ.get("CLSS_PROBE", "1").strip() not in ("0", "off", "no", "false")
 
 
-def probe(dev, prec: str, key: str, layer, rows, default: str) -> None:
-    """Time the probed rows against `default` on this layer and store the winner (module doc)."""
+def probe(dev, prec: str, key: str, layer, rows, default: str, *, tensors, run) -> None:
+    """Time the probed rows against `default` on this layer and store the winner (module doc).
+    tensors(dev, prec, layer) and run(dev, prec, layer, tensors, tuning): the op's own
+    (clss.ops.conv.layer_tensors, run_layer)."""
     base = getattr(dev, "base", dev)    # a model's planning device: measure on the real one
-    tensors = layer_tensors(base, prec, layer)
-    ref_ms, ref = time_layer(base, prec, layer, tensors, {"VARIANT": default}, PROBE_RUNS)
+    data = tensors(base, prec, layer)
+    ref_ms, ref = time_layer(run, base, prec, layer, data, {"VARIANT": default}, PROBE_RUNS)
     trials = [(default, {}, ref_ms, "pass")]
     for r in rows:
-        ms, note = trial(base, prec, layer, tensors, ref, r.name, {}, PROBE_RUNS)
+        ms, note = trial(run, base, prec, layer, data, ref, r.name, {}, PROBE_RUNS)
         trials.append((r.name, {}, ms, note))
     best = pick(trials, default)
     tuning.store(base, "conv2d", key, {"VARIANT": best[0]}, ms=best[2], default_ms=ref_ms, default=default,
