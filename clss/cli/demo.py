@@ -1,17 +1,25 @@
 """`clss demo`: the built-in sample scene through every method it can feed.
 
-Renders clss.scene (jittered render-resolution frames, its G-buffers and a 16-spp
+Renders clss.demo.scene (jittered render-resolution frames, its G-buffers and a 16-spp
 output-resolution reference), upscales every frame with each method (`clss methods`; by
-default every method whose inputs the scene provides) and writes to OUT (default out/demo):
+default every method whose inputs the scene provides) and writes to OUT (default out/demo)
+what a visitor looks at, a few MB:
+
+    demo.png               the last frame as a labelled grid, 1200 px wide: the whole
+                           reference with the hardest window marked (where bicubic errs
+                           most on the first frame: the thin wires), then that window
+                           zoomed in the input and each method, named with its PSNR
+    temporal_profile.png   the window's middle scanline over time, one tile per method
+                           (flicker shows as broken, noisy streaks)
+    demo.gif               the window over the frames: input, a baseline, CLSS, reference
+    metrics.json, .md      PSNR / SSIM per frame and their means, times, per-stage ms
+
+and, with --exr, the full sequences (418 MB at the defaults before they became optional):
 
     input/                 the rendered sequence as EXR (with its G-buffers) + jitter.json
                            (`clss upscale` reads it)
     METHOD/                output frames of each method, EXR (half) and PNG
-    side_by_side.png       last frame: input (nearest), each method, reference
-    side_by_side_crop.png  a 3x enlarged crop of the same
-    temporal_profile.png   one scanline over time for each method (flicker shows as noise)
     debug/                 METHOD_* debug views of the last frame (the methods that have them)
-    metrics.json           PSNR / SSIM per frame and their means, times, per-stage milliseconds
 
 Metrics compare tone-mapped display values (clss.metrics) from frame SKIP on, once the
 history has warmed up. The ms/frame column is the warm time of one `step` (frames after
@@ -44,17 +52,24 @@ def _size(text):
     return h, w
 
 
-def _crop_box(H, W):
-    """A region with the fence and wires (upper middle of the frame), 1/4 of each side."""
-    ch, cw = max(H // 4, 8), max(W // 4, 8)
-    y0, x0 = int(H * 0.30), int(W * 0.45)
-    return (min(y0, H - ch), min(y0, H - ch) + ch, min(x0, W - cw), min(x0, W - cw) + cw)
+COLS = 4            # grid columns: more methods add rows, the picture stays 1200 px wide
+GIF_FPS = 8
+
+
+def _window(H, W):
+    """The inset window's size (h, w) and its zoom: a grid tile of COLS holds the window
+    at least 2x enlarged (pixel repetition)."""
+    from ..pictures import tile_width
+    tw = tile_width(COLS)
+    w = min(W, tw // 2)
+    return min(H, max(8, round(w * H / W))), w, max(1, tw // w)
 
 
 # What a demo run writes into OUT: replaced as a whole by --overwrite (the method folders
 # are added by name; rules/ and net/ are where earlier versions wrote CLSS).
 OUTPUT_SET = ("input/*", "rules/*", "net/*", "debug/*", "side_by_side.png",
-              "side_by_side_crop.png", "temporal_profile.png", "metrics.json")
+              "side_by_side_crop.png", "demo.png", "demo.gif", "temporal_profile.png",
+              "metrics.json", "metrics.md")
 WARM_FROM = 2      # frames before this pay for builds and first allocations
 
 
@@ -111,6 +126,10 @@ def _parser():
                         "`clss methods` lists them)")
     p.add_argument("--modes", default=None, help="older spelling of --methods (rules,net)")
     p.add_argument("--workers", type=positive_int, default=2, help="processes rendering the scene")
+    p.add_argument("--exr", action="store_true",
+                   help="also write the full sequences: input/ (EXR with G-buffers, which "
+                        "`clss upscale` reads), each method's frames (half EXR and PNG) and "
+                        "debug/ (by default only the pictures, the GIF and the metrics)")
     return p
 
 
@@ -162,8 +181,8 @@ def main(argv=None) -> int:
     dev = get_device(a.device)
     ups = {}
     for m in names:
-        # the debug views of the methods that have them (jbicubic's would be rule mode's)
-        kw = registry.options(m, weights=a.weights, debug=m != "jbicubic")
+        # the debug views (--exr) of the methods that have them (jbicubic's would be rule mode's)
+        kw = registry.options(m, weights=a.weights, debug=a.exr and m != "jbicubic")
         ups[m] = Upscaler(method=m, scale=a.scale, device=dev, precision=a.precision,
                           profile=True, **kw)
     start_output(a.out, stale)
@@ -192,8 +211,9 @@ def main(argv=None) -> int:
             cio.write_json(os.path.join(in_dir, "jitter.json"),
                         dict(sidecar, frames=sidecar["frames"][:k], jitter=sidecar["jitter"][:k],
                              resets=[r for r in sidecar["resets"] if r in sidecar["frames"][:k]]))
-        print(f"\nclss demo: interrupted; {files.done_frames} frames written to {out} "
-              "(no pictures or metrics)", file=sys.stderr)
+        done = f"{files.done_frames} frames written to {out}" if a.exr else \
+            f"after {files.done_frames} frames"
+        print(f"\nclss demo: interrupted {done} (no pictures or metrics)", file=sys.stderr)
         return 130
     total_s = time.perf_counter() - t_all
     side = _write_pictures(a, ups, names, trained, (H, W), run)
@@ -205,44 +225,62 @@ def main(argv=None) -> int:
 class _Run:
     """The per-method state a demo run gathers frame by frame."""
     scores: dict            # method: {"psnr": [...], "ssim": [...]} from frame SKIP on
-    lines: dict             # method (and "reference"): the profile scanline of each frame
+    lines: dict             # method (and "reference"): the window's middle scanline, each frame
     step_s: dict            # method: seconds of each frame's step
     render_s: float = 0.0   # seconds rendering the scene
     io_s: float = 0.0       # seconds writing files
     last: dict = field(default_factory=dict)    # the last frame's pictures, by name
     sidecar: dict | None = None                 # input/jitter.json so far
+    box: tuple | None = None                    # the inset window (y0, y1, x0, x1)
+    clips: dict = field(default_factory=dict)   # name: the window of each frame (GIF)
+
+
+def _write_input(f, in_dir, files, run):
+    """input/: the frame (with its G-buffers, so that `clss upscale --method M` can rerun
+    any method on it) and the sequence's sidecar so far. write_sample_sequence writes a
+    one-frame jitter.json each time; it is gathered into the sequence's sidecar, rewritten
+    after every frame so that input/ is always a readable sequence."""
+    from .. import io as cio
+    files.add(*[q for q in cio.write_sample_sequence([f], in_dir, gbuffers=True)
+                if not q.endswith("jitter.json")])
+    with open(os.path.join(in_dir, "jitter.json")) as fh:
+        one = json.load(fh)
+    if run.sidecar is None:
+        run.sidecar = dict(one, frames=[], jitter=[], resets=[])
+    sidecar = run.sidecar
+    for k in ("frames", "jitter", "resets"):
+        sidecar[k] += one[k]
+    cio.write_json(os.path.join(in_dir, "jitter.json"), sidecar)
+
+
+def _gif_names(names):
+    """The GIF's panels: the input, a baseline, CLSS (else the first learned method) and
+    the reference, those of them this run has."""
+    base = next((m for m in ("bicubic", "jbicubic") if m in names), None)
+    best = next((m for m in ("clss", "clss-rules") if m in names),
+                next((m for m in names if m != base), None))
+    return list(dict.fromkeys(n for n in ("input", base, best, "reference") if n))
 
 
 def _upscale_frames(a, ups, names, out_hw, in_dir, files, run):
-    """Render, write the input, upscale with every method and score each frame."""
+    """Render, upscale with every method and score each frame; keep the window of the
+    pictures (found on the first frame), and with --exr write every frame."""
     from .. import io as cio
     from .. import metrics
+    from ..pictures import error_map, hardest_box
     from ..progress import progress
     from ..demo.scene import iter_sequence
     H, W = out_hw
     out = a.out
     scores, lines = run.scores, run.lines
-    row = int(H * 0.55)                          # the profile's scanline: ground and fence
+    gif = _gif_names(names)
     frames = iter_sequence(a.frames, a.size, a.scale, spp_ref=a.spp, workers=a.workers)
     t = time.perf_counter()
     for f in progress(frames, desc="demo", unit="frame", total=a.frames):
         run.render_s += time.perf_counter() - t
         t_io = time.perf_counter()
-        # One frame at a time (the references are large); write_sample_sequence writes a
-        # one-frame jitter.json each time, gathered into the sequence's sidecar, which is
-        # rewritten after every frame so that input/ is always a readable sequence.
-        # With its G-buffers, so that `clss upscale --method M` can rerun any method on it.
-        files.add(*[q for q in cio.write_sample_sequence([f], in_dir, gbuffers=True)
-                    if not q.endswith("jitter.json")])
-        with open(os.path.join(in_dir, "jitter.json")) as fh:
-            one = json.load(fh)
-        if run.sidecar is None:
-            run.sidecar = dict(one, frames=[], jitter=[], resets=[])
-        sidecar = run.sidecar
-        sidecar["frames"] += one["frames"]
-        sidecar["jitter"] += one["jitter"]
-        sidecar["resets"] += one["resets"]
-        cio.write_json(os.path.join(in_dir, "jitter.json"), sidecar)
+        if a.exr:
+            _write_input(f, in_dir, files, run)
         run.io_s += time.perf_counter() - t_io
         results = {}
         gbuffers = getattr(f, "gbuffers", None) or {}
@@ -251,20 +289,31 @@ def _upscale_frames(a, ups, names, out_hw, in_dir, files, run):
             results[m] = ups[m].step(f.color, f.depth, f.motion, f.jitter, reset=f.reset,
                                      **gbuffers)
             run.step_s[m].append(time.perf_counter() - t)
+        pics = dict(results, reference=f.reference, input=metrics.nearest(f.color, H, W))
+        if run.box is None:     # where a per-frame upscale errs most: the thin wires
+            wh, ww, _ = _window(H, W)
+            base = next((m for m in ("bicubic", "jbicubic") if m in results), "input")
+            run.box = hardest_box(error_map(metrics.display(pics[base]),
+                                            metrics.display(f.reference)), wh, ww)
+        y0, y1, x0, x1 = run.box
+        row = (y0 + y1) // 2
         t_io = time.perf_counter()
         for m, img in results.items():
-            stem = os.path.join(out, m, f"frame.{f.index:04d}")
-            files.add(stem + ".exr", stem + ".png")
-            cio.write_exr(stem + ".exr", img)
-            cio.write_png(stem + ".png", img)
+            if a.exr:
+                stem = os.path.join(out, m, f"frame.{f.index:04d}")
+                files.add(stem + ".exr", stem + ".png")
+                cio.write_exr(stem + ".exr", img)
+                cio.write_png(stem + ".png", img)
             if f.index >= min(SKIP, a.frames - 1):
                 scores[m]["psnr"].append(metrics.psnr(img, f.reference))
                 scores[m]["ssim"].append(metrics.ssim(img, f.reference))
-            lines[m].append(img[row:row + 1])
+            lines[m].append(img[row:row + 1, x0:x1])
         files.done()
         run.io_s += time.perf_counter() - t_io
-        lines["reference"].append(f.reference[row:row + 1])
-        run.last = dict(results, reference=f.reference, input=metrics.nearest(f.color, H, W))
+        lines["reference"].append(f.reference[row:row + 1, x0:x1])
+        for n in gif:
+            run.clips.setdefault(n, []).append(metrics.display(pics[n][y0:y1, x0:x1]))
+        run.last = pics
         t = time.perf_counter()
 
 
@@ -275,33 +324,49 @@ def _label(m, ups):
 
 
 def _write_pictures(a, ups, names, trained, out_hw, run) -> str:
-    """The side-by-side (whole and a crop), the temporal profile and the debug views;
-    returns the side-by-side's path."""
+    """demo.png (the labelled grid), temporal_profile.png, demo.gif and, with --exr, the
+    debug views; returns demo.png's path."""
+    from .. import io as cio
     from .. import metrics
+    from ..pictures import grid, overview, save_gif, tile_width
     from .upscaler_common import write_debug_views
+    t_io = time.perf_counter()
     H, W = out_hw
     out = a.out
-    methods = list(names)
-    order = ["input"] + methods + ["reference"]
-    labels = (["input (nearest)"] + [_label(m, ups) for m in methods]
-              + [f"reference {a.spp} spp"])
-    pics = [run.last[k] for k in order]
-    side = os.path.join(out, "side_by_side.png")
-    metrics.save_side_by_side(side, pics, labels)
-    metrics.save_side_by_side(os.path.join(out, "side_by_side_crop.png"), pics, labels,
-                              crop=_crop_box(H, W), zoom=3)
-    span = (W // 4, W // 4 + min(W // 2, 240))
-    metrics.save_temporal_profiles(os.path.join(out, "temporal_profile.png"),
-                                   [run.lines[m] for m in methods + ["reference"]], labels[1:],
-                                   row=0, span=span, repeat=max(1, 240 // a.frames))
-    for m in methods:
-        if getattr(ups[m], "debug", False):
-            write_debug_views(os.path.join(out, "debug"), ups[m], a.frames - 1, prefix=f"{m}_")
-    return side
+    box = run.box
+    _, _, z = _window(H, W)
+    psnr = {m: np.mean(run.scores[m]["psnr"]) for m in names}
+    labels = {"input": f"input {a.size[1]}x{a.size[0]} (nearest)",
+              "reference": f"reference {a.spp} spp",
+              **{m: f"{_label(m, ups)}  {psnr[m]:.2f} dB" for m in names}}
+    order = ["input"] + list(names) + ["reference"]
+    disp = {k: metrics.display(run.last[k]) for k in order}
+    tiles = [overview(disp["reference"], tile_width(COLS), box)]
+    tiles += [metrics.crop_zoom(disp[k], box, z) for k in order]
+    path = os.path.join(out, "demo.png")
+    cio.write_png_ldr(path, grid(tiles, [f"frame {a.frames - 1}, whole"] + [labels[k] for k in order],
+                                 COLS))
+    # The scanline through the window's middle over time: line along y, time along x.
+    rep = max(1, tile_width(COLS) // a.frames)
+    profiles = [np.repeat(metrics.display(metrics.temporal_profile(run.lines[k], row=0, repeat=rep)),
+                          z, 0) for k in order[1:]]
+    cio.write_png_ldr(os.path.join(out, "temporal_profile.png"),
+                      grid(profiles, [labels[k] for k in order[1:]], COLS))
+    gif = list(run.clips)
+    save_gif(os.path.join(out, "demo.gif"),
+             [grid([metrics.crop_zoom(run.clips[n][i], None, z) for n in gif],
+                   [labels[n] for n in gif], len(gif)) for i in range(a.frames)], GIF_FPS)
+    if a.exr:
+        for m in names:
+            if getattr(ups[m], "debug", False):
+                write_debug_views(os.path.join(out, "debug"), ups[m], a.frames - 1, prefix=f"{m}_")
+    run.io_s += time.perf_counter() - t_io
+    return path
 
 
 def _write_summary(a, dev, ups, names, trained, render_hw, out_hw, run, total_s, side):
-    """The metrics table, times and per-stage times on stdout, and metrics.json."""
+    """The metrics table, times and per-stage times on stdout, metrics.json and the same
+    table as metrics.md (for an issue or a README)."""
     from .. import io as cio
     from .upscaler_common import format_stage_table
     (h, w), (H, W) = render_hw, out_hw
@@ -313,7 +378,8 @@ def _write_summary(a, dev, ups, names, trained, render_hw, out_hw, run, total_s,
                min(SKIP, a.frames - 1), "net_weights": None if trained is None else
                ("trained" if trained else "untrained (seeded)"),
                "methods": {}, "stage_ms": stage, "render_s": run.render_s, "io_s": run.io_s,
-               "total_s": total_s, "warm_from_frame": min(WARM_FROM, a.frames - 1)}
+               "total_s": total_s, "warm_from_frame": min(WARM_FROM, a.frames - 1),
+               "window": list(run.box)}
     backends = {m: up.classifier_backend_name for m, up in ups.items()
                 if getattr(up, "classifier_backend_name", None)}
     if backends:        # where a method's classifier runs (CLSS net: clss.Model or a kernel)
@@ -324,12 +390,14 @@ def _write_summary(a, dev, ups, names, trained, render_hw, out_hw, run, total_s,
           "first frame: the step that built the kernels")
     lw = max(len("method"), *(len(_label(m, ups)) for m in names)) + 1
     print(f"{'method':{lw}s} {'PSNR dB':>8s} {'SSIM':>7s} {'ms/frame':>9s} {'first frame ms':>15s}")
+    md = ["| method | PSNR dB | SSIM | ms/frame | first frame ms |", "|---|---:|---:|---:|---:|"]
     for m in names:
         ps, ss = np.mean(scores[m]["psnr"]), np.mean(scores[m]["ssim"])
         st = run.step_s[m]
         warm = float(np.median(st[summary["warm_from_frame"]:])) * 1e3
         first = st[0] * 1e3
         print(f"{_label(m, ups):{lw}s} {ps:8.2f} {ss:7.4f} {warm:9.1f} {first:15.1f}")
+        md.append(f"| {_label(m, ups)} | {ps:.2f} | {ss:.4f} | {warm:.1f} | {first:.1f} |")
         summary["methods"][m] = {"psnr": scores[m]["psnr"], "ssim": scores[m]["ssim"],
                                  "psnr_mean": float(ps), "ssim_mean": float(ss),
                                  "ms_per_frame": warm, "first_frame_ms": first,
@@ -344,9 +412,16 @@ def _write_summary(a, dev, ups, names, trained, render_hw, out_hw, run, total_s,
         print(format_stage_table(st))
     if backends:
         print(f"classifier backend: {summary['classifier_backend']}")
-    print(f"\nscene rendering {run.render_s:.1f} s, file writing {run.io_s:.1f} s, total "
-          f"{total_s:.1f} s; pictures: {side}")
     cio.write_json(os.path.join(a.out, "metrics.json"), summary)
+    with open(os.path.join(a.out, "metrics.md"), "w") as fh:
+        fh.write("\n".join(
+            [f"`clss demo`: sample scene, {a.frames} frames {w}x{h} -> {W}x{H}, {a.precision}, "
+             f"{dev.info.name}; PSNR and SSIM on tone-mapped frames "
+             f"{summary['metrics_from_frame']}..{a.frames - 1} against the {a.spp}-spp "
+             "reference", ""] + md) + "\n")
+    size = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(a.out) for f in fs)
+    print(f"\nscene rendering {run.render_s:.1f} s, file writing {run.io_s:.1f} s, total "
+          f"{total_s:.1f} s; {size / 2**20:.1f} MB in {a.out}; pictures: {side}")
 
 
 if __name__ == "__main__":
