@@ -243,6 +243,7 @@ class Device:
         self._programs: dict[tuple[str, str], cl.Program] = {}
         self._kernels: dict[tuple[str, str, str], cl.Kernel] = {}
         self._lock = threading.Lock()
+        self.builds = 0     # programs built so far (the first frame's progress line counts them)
 
     def __repr__(self) -> str:
         return f"<clss.Device {self.info.platform} / {self.info.name}>"
@@ -331,6 +332,7 @@ class Device:
                                 f"({self.info.driver}) with options '{options}':\n{log}{_build_hint(log)}"
                             ) from None
                     self._programs[key] = prog
+                    self.builds += 1
         return prog
 
     def _build(self, src: str, options: str, fresh: bool = False, prog=None) -> cl.Program:

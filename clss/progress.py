@@ -47,3 +47,37 @@ def _log_lines(iterable, desc, unit, total, out, interval, status=None):
                 line += f", ETA {(total - n) / rate:.0f} s"
             print(line + ")" + (f" {status()}" if status is not None else ""), file=out,
                   flush=True)
+
+
+class Waiting:
+    """A status line on stderr while something slow and silent runs (the first frame's
+    kernel builds): `status()` every `interval` seconds, redrawn in place on a terminal,
+    one plain line every LOG_INTERVAL_S elsewhere; nothing while it ends within one
+    interval. `done(text)` stops it and prints `text` (when given) on a line of its own."""
+
+    def __init__(self, status, file=None, interval: float | None = None):
+        import threading
+        self.status, self.out = status, file or sys.stderr
+        self.tty = getattr(self.out, "isatty", lambda: False)()
+        self.interval = interval or (1.0 if self.tty else LOG_INTERVAL_S)
+        self._stop = threading.Event()
+        self._drawn = False
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        while not self._stop.wait(self.interval):
+            line = self.status()
+            print(("\r\033[K" + line) if self.tty else line, end="" if self.tty else "\n",
+                  file=self.out, flush=True)
+            self._drawn = True
+
+    def done(self, text: str | None = None) -> None:
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join()
+        if self._drawn and self.tty:
+            print("\r\033[K", end="", file=self.out, flush=True)
+        if text:
+            print(text, file=self.out, flush=True)

@@ -19,6 +19,15 @@ the program cache: device, driver, hash of the kernel source, build options.
     auto   (default) check once, then trust the cached verdict
     force  check again in this process, whatever is cached
     skip   no check: fast variants are used as they are
+    defer  a variant with no cached verdict is not used in this process (its reference
+           variant is, unchecked, as it needs no check) and is checked afterwards in one
+           background process, so the next run has its verdict
+
+`clss upscale` runs inside `deferring()`, which defers as `defer` does while
+CLSS_SELFCHECK is unset: its first frame on a cold cache waits for no self-check (they
+spawn a chain of child processes and cost a minute or more on 2 cores), only for the
+builds that frame needs. Within one process the choice, once made, stays: every frame
+of a run uses the same variants.
 
 Ops ask with ``defines(dev, prec, name)`` (or ``enabled``) and size their
 launches from the answer, since a variant may change the work per work-item.
@@ -42,7 +51,7 @@ import numpy as np
 from .cachedir import cache_dir
 from .device import kernel_label
 
-MODES = ("auto", "force", "skip")
+MODES = ("auto", "force", "skip", "defer")
 
 
 class FastPathDisabled(UserWarning):
@@ -104,6 +113,8 @@ _verdicts: dict[tuple, Verdict] = {}   # (device key, name, options) -> verdict,
 _checked_here: set = set()          # keys checked in this process (CLSS_SELFCHECK=force)
 _warned: set = set()
 _memo: dict = {}                    # (device id, prec, name, mode, extra options) -> ok
+_defer_depth = 0                    # deferring() blocks open
+_deferred: dict = {}                # (device index, prec, name) -> None: to check afterwards
 
 
 def register(fp: FastPath) -> FastPath:
@@ -182,6 +193,10 @@ def enabled(dev, prec: str, name: str) -> bool:
                 v = Verdict(**rec) if isinstance(rec, dict) else None
             except TypeError:   # a record of another clss version: check again
                 v = None
+            if v is None and _defers(m):     # the reference variant, unchecked, this process
+                _deferred[(_device_index(dev), prec, name)] = None
+                _memo[memo] = False
+                return False
             if v is None:
                 v = _check_isolated(dev, prec, fp) if fp.isolate else _run_check(dev, prec, fp)
                 _checked_here.add(key)
@@ -194,6 +209,84 @@ def enabled(dev, prec: str, name: str) -> bool:
                           f"({fp.options(False)})", FastPathDisabled, stacklevel=3)
         _memo[memo] = v.ok
         return v.ok
+
+
+@contextmanager
+def deferring():
+    """Inside the block (when CLSS_SELFCHECK is unset), a fast path with no cached verdict
+    is deferred as mode `defer` does; when the outermost block ends, the deferred ones are
+    checked in one background process (`check_deferred`)."""
+    global _defer_depth
+    _defer_depth += 1
+    try:
+        yield
+    finally:
+        _defer_depth -= 1
+        if not _defer_depth:
+            check_deferred()
+
+
+def _defers(m: str) -> bool:
+    return m == "defer" or (m == "auto" and _defer_depth > 0
+                            and not os.environ.get("CLSS_SELFCHECK", "").strip())
+
+
+def check_deferred():
+    """Start one detached, low-priority process (`python -m clss.selfcheck_runner
+    --deferred`) that checks the variants deferred so far and stores their verdicts;
+    returns it (None when nothing was deferred). It checks as mode `auto` does, each
+    variant in its own child, and holds a lock in the cache directory, so that runs
+    started together start one checker, not one each."""
+    import subprocess
+    import sys
+    todo = list(_deferred)
+    _deferred.clear()
+    if not todo:
+        return None
+    args = [f"{i}:{prec}:{name}" for i, prec, name in todo]
+    return subprocess.Popen([sys.executable, "-m", "clss.selfcheck_runner", "--deferred", *args],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True,
+                            env=dict(os.environ, CLSS_SELFCHECK="auto"))
+
+
+def deferred_main(items) -> int:
+    """The background checker (`--deferred INDEX:PREC:NAME ...`, run at the lowest
+    priority): the lock's holder checks each variant that still has no verdict; another
+    checker already running means this one leaves (the next run defers and starts one)."""
+    from .device import get_device
+    lock = cache_path().with_suffix(".lock")
+    if not _take_lock(lock):
+        return 0
+    try:
+        for item in items:
+            index, prec, name = item.split(":", 2)
+            if name in REGISTRY:
+                enabled(get_device(index), prec, name)
+    finally:
+        lock.unlink(missing_ok=True)
+    return 0
+
+
+def _take_lock(lock: Path) -> bool:
+    """Create `lock` holding this pid; a lock whose process is gone is taken over once."""
+    for _ in range(2):
+        try:
+            lock.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                os.kill(int(lock.read_text().strip() or 0), 0)
+                return False            # a live checker holds it
+            except (ValueError, OSError):
+                lock.unlink(missing_ok=True)
+                continue
+        except OSError:
+            return False
+        with os.fdopen(fd, "w") as fh:
+            fh.write(str(os.getpid()))
+        return True
+    return False
 
 
 def check_all(dev, precisions, kernels=None) -> list[Verdict]:
@@ -231,6 +324,12 @@ def forget() -> None:
 
 
 # --- internals -------------------------------------------------------------------
+
+def _device_index(dev) -> int:
+    """The device's index in clss.device.list_devices(), as a child process names it."""
+    from .device import list_devices
+    return next(i for i, (_, d) in enumerate(list_devices()) if d == dev.cl_device)
+
 
 def _device_name(dev) -> str:
     return f"{dev.info.platform} / {dev.info.name} ({dev.info.driver})"
@@ -277,8 +376,7 @@ def _check_isolated(dev, prec: str, fp: FastPath) -> Verdict:
     segfaults in pool.cl's 8-lane fp16 global max), and a crash must cost the variant,
     not the caller. The child prints its verdict as JSON on its last line."""
     import subprocess
-    from .device import list_devices
-    index = next(i for i, (_, d) in enumerate(list_devices()) if d == dev.cl_device)
+    index = _device_index(dev)
     now = datetime.datetime.now().isoformat(timespec="seconds")
     try:
         env = dict(os.environ, CLSS_SELFCHECK_FORCED=",".join(

@@ -5,6 +5,7 @@ it: `fast_paths`), so `clss verify` can check them all and a variant's check can
 a child process:
 
     python -m clss.selfcheck_runner DEVICE_INDEX PRECISION NAME
+    python -m clss.selfcheck_runner --deferred INDEX:PRECISION:NAME ...   (selfcheck.deferring)
 """
 from __future__ import annotations
 
@@ -35,7 +36,11 @@ if __name__ == "__main__":
     import os
     import sys
     load_registrations()
-    status = selfcheck._child_main(sys.argv[1:])
+    if sys.argv[1:2] == ["--deferred"]:
+        os.nice(19)         # after the run that deferred them, beside whatever runs next
+        status = selfcheck.deferred_main(sys.argv[2:])
+    else:
+        status = selfcheck._child_main(sys.argv[1:])
     # The verdict is printed: leave without the interpreter's teardown, where pip's PoCL 3.0
     # aborts ("still have references to IRs - can't release LLVM context") once programs
     # have been built, which would read as a crashed check and cost a fast path that passed.

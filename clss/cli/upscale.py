@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 
+from .. import selfcheck
 from ..errors import cli_message
 from .args import ArgParser, UsageError, positive_int, prepare_output_dir, start_output
 from .upscaler_common import (WEIGHTS_HELP, FrameFiles, add_contract_args, add_upscaler_args,
@@ -126,6 +127,37 @@ def cmd_upscale(argv) -> int:
     check_inputs(a, name, spec, first)      # before anything is written
     inputs = seq.files + ([a.jitter] if a.jitter and os.path.isfile(a.jitter) else [])
     stale = prepare_output_dir(a.out, "-o", inputs, a.overwrite, OUTPUT_SET)
+    with selfcheck.deferring():     # the first frame waits for its builds, no self-check
+        first_frame = FirstFrame(a.device)
+        try:
+            return _run(a, seq, n, first, name, stale, first_frame)
+        finally:
+            first_frame.done()
+
+
+class FirstFrame:
+    """The first frame builds the kernels its method needs (and, on a cold cache, every
+    one): a line on stderr while it does, counting the programs built, then how long it
+    took. `done` is the frame loop's on_frame hook (called after every frame)."""
+
+    def __init__(self, device):
+        from ..device import get_device
+        from ..progress import Waiting
+        self.dev, self.t0 = get_device(device), time.perf_counter()
+        self.wait = Waiting(lambda: f"clss upscale: building kernels for the first frame: "
+                                    f"{self.dev.builds} programs, {self.seconds():.0f} s")
+
+    def seconds(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def done(self, *_frame) -> None:
+        if self.wait is not None:
+            self.wait.done(f"clss upscale: first frame in {self.seconds():.1f} s "
+                           f"({self.dev.builds} kernel programs built)" if _frame else None)
+            self.wait = None
+
+
+def _run(a, seq, n, first, name, stale, first_frame) -> int:
     up = build_upscaler(a, name, first)
     start_output(a.out, stale)
     print(f"clss upscale: {n} frames from {a.input}, method {name}, x{a.scale:g}, "
@@ -139,7 +171,8 @@ def cmd_upscale(argv) -> int:
     def written():
         return f"{files.done_frames} frames written to {a.out}"
     try:
-        _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written)
+        _upscale_frames(a, seq, first, n, up, files, scores, sanitized, written,
+                        on_frame=first_frame.done)
     except KeyboardInterrupt:
         files.discard()
         print(f"\nclss upscale: interrupted; {written()}", file=sys.stderr)
