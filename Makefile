@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup opencl-driver test test-large demo eval eval-scales verify devices bench bench-quick oclgrind clean \
+.PHONY: setup opencl-driver test test-large demo eval eval-scales eval-jitter verify devices bench bench-quick oclgrind clean \
 	train-data validation-data train gpu-report
 
 $(STAMP): setup.cfg setup.py pyproject.toml
@@ -37,8 +37,11 @@ test: $(STAMP)
 test-large: $(STAMP)
 	CLSS_LARGE=1 $(BIN)/python -m pytest -q -ra -m large
 
+# The pictures, a GIF and the metrics (a few MB); DEMO_ARGS=--exr adds the full EXR
+# sequences (hundreds of MB), DEMO_ARGS="--methods clss-rules,clss -n 12" a quicker run.
+DEMO_ARGS ?=
 demo: $(STAMP)
-	$(BIN)/clss demo -o $(OUT)/demo --overwrite
+	$(BIN)/clss demo -o $(OUT)/demo --overwrite $(DEMO_ARGS)
 
 # Score bicubic, jitter-aware bicubic, rules and net on sequences (weights_tools/DATA.md):
 # by default the held-out generated sequences and the Blender validation sequences
@@ -56,6 +59,19 @@ EVAL_SEQS ?= $(wildcard $(DATA)/heldout/*.npz) \
 eval: $(STAMP)
 	@test -n "$(strip $(EVAL_SEQS))" || { echo "make eval: no sequences (make train-data validation-data, or EVAL_SEQS=\"a.npz b.npz\")"; exit 2; }
 	$(BIN)/python -m weights_tools eval $(EVAL_SEQS) --out $(OUT)/eval $(EVAL_ARGS)
+
+# The held-out scenes 0-7 (seed 1000, render 90x160) at 2x, rendered once per jitter pattern
+# (zero, the 2x2 grid, Halton 16; the same content in each), scored per pattern (issue 53:
+# README, docs/evaluation.md "Jitter patterns"). JITTER_METHODS: the methods scored.
+JITTER_PATTERNS ?= zero 2x2 halton16
+JITTER_METHODS ?= clss-rules,clss,nsrr,nss,nsrd,mlp
+eval-jitter: $(STAMP)
+	@for j in $(JITTER_PATTERNS); do \
+	  test -f $(DATA)/heldout-jitter/$$j/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/heldout-jitter/$$j \
+	    --sequences 8 --frames 12 --seed 1000 --size 90x160 --jitter-mix $$j --quiet || exit 1; \
+	  $(BIN)/python -m weights_tools eval $(DATA)/heldout-jitter/$$j/seq_*.npz --methods $(JITTER_METHODS) \
+	    --out $(OUT)/eval-jitter/$$j --flip-every 4 $(EVAL_ARGS) || exit 1; \
+	done
 
 # The held-out scenes 0-7 (seed 1000, render 90x160) at 1.5x, 2x, 3x and 4x: how each method
 # holds up across scales (README, Evaluation). About 5 minutes on 2 cores.
@@ -349,6 +365,22 @@ train-nss: $(STAMP) $(TRAIN_STAMP) train-data $(BLENDER_TRAIN)
 	$(NSS_MIX) --steps $(NSS_MIX_STEPS)
 	$(NSS_MIX) --steps $(shell expr 2 \* $(NSS_MIX_STEPS))
 
+# NSS as Arm's model gym trains it (issue 53; docs/methods/nss.md, "Trained as the model gym
+# trains it"): --mode gym, rollouts of 16 frames through the fed-back state, the gym's
+# warped exponential temporal loss weighted over the window, warm-up, flips; on a set of
+# 16-frame sequences whose jitter is the generator's mix of the patterns engines send
+# (weights_tools/jitter_mix.py: zero, 2x2, Halton 8/16/32, R2). NSS_GYM_INIT: weights to
+# fine-tune at lr 5e-4 (2026-11-29's run: NSS_GYM_INIT=clss/weights/nss_x2.safetensors, the
+# weights of 2026-11-27); empty (the default): from the seeded init at the gym's lr 2e-3.
+# Not copied into the package: check them first (make eval-jitter, clss eval).
+NSS_GYM_STEPS ?= 1000
+NSS_GYM_INIT ?=
+NSS_GYM_LR ?= $(if $(NSS_GYM_INIT),5e-4,2e-3)
+.PHONY: train-nss-gym
+train-nss-gym: $(STAMP) $(TRAIN_STAMP)
+	test -f $(DATA)/train-nss-jmix/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train-nss-jmix --sequences 48 --frames 16 --seed 0 --size 72x128 --quiet $(GEN_ARGS)
+	$(BIN)/python -m weights_tools train nss --mode gym --data $(DATA)/train-nss-jmix --out $(OUT)/train-nss-gym/x2 --steps $(NSS_GYM_STEPS) --window 16 --batch 2 --patch 16 --margin 4 --lr $(NSS_GYM_LR) --filtered 0.1 --threads 1 --resume $(if $(NSS_GYM_INIT),--init $(NSS_GYM_INIT))
+
 # Every training target end to end in minutes (issue 31: the make train* targets run from a
 # fresh clone, the [data] extra installed on the way): tiny data (GEN_ARGS, BLENDER_*), a
 # few steps a stage, NSRD's ablations included, all under $(OUT)/smoke; the package's
@@ -363,7 +395,7 @@ SMOKE_VARS = OUT=$(OUT)/smoke DATA=$(OUT)/smoke/data WEIGHTS=$(OUT)/smoke/weight
 	TRAIN_ARGS="--cls-steps $(SMOKE_STEPS) --comp-steps $(SMOKE_STEPS)" \
 	BLENDER_SEQS=1 BLENDER6_SEQS=2 BLENDER_ARGS="--size 48x80 --spp 1 --ref-spp 1 --hr-spp 1" \
 	NSRD_ABLATIONS=1 $(foreach v,$(SMOKE_STEP_VARS),$(v)=$(SMOKE_STEPS))
-TRAIN_TARGETS = train-data-blender train train-mlp train-nsrr train-nsrd train-nss
+TRAIN_TARGETS = train-data-blender train train-mlp train-nsrr train-nsrd train-nss train-nss-gym
 .PHONY: train-smoke
 train-smoke:
 	$(MAKE) --no-print-directory $(TRAIN_TARGETS) $(SMOKE_VARS)

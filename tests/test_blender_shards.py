@@ -36,7 +36,21 @@ def test_errors_speak_in_flags(tmp_path, capsys):
     assert "--frames must be at least 1" in capsys.readouterr().err
     assert wt_main(["blender", "--out", out, "--scale", "5"]) == 2
     assert "--scale must be in [1, 4]" in capsys.readouterr().err
+    assert wt_main(["blender", "--out", out, "--jitter-mix", "halton:0"]) == 2
+    assert "--jitter-mix: 'halton:0': the weight must be positive" in capsys.readouterr().err
     assert not os.path.exists(out)
+
+
+def test_shard_jitter_draws_from_the_mix(tmp_path):
+    """Each shard draws its jitter pattern from --jitter-mix on its own (family, seed)
+    stream (issue 53): the same shard the same draw, the training split every pattern."""
+    from clss.io.jitter import PATTERNS
+    jobs = shards.plan(str(tmp_path), ["train"], None, 12)
+    opts = dict(shards.DEFAULTS)
+    draws = [shards.shard_jitter(j, opts) for j in jobs]
+    assert draws == [shards.shard_jitter(j, opts) for j in jobs]
+    assert {d["pattern"] for d in draws} == set(PATTERNS)
+    assert shards.shard_jitter(jobs[0], dict(opts, jitter_mix="2x2"))["pattern"] == "2x2"
 
 
 TINY = ["--sequences", "1", "--frames", "2", "--size", "12x20", "--spp", "2", "--ref-spp", "4"]

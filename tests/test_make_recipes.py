@@ -23,7 +23,8 @@ if shutil.which("make") is None:
 from weights_tools.__main__ import parser, spelled_out  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-TARGETS = ("train-data-blender", "train", "train-mlp", "train-nsrr", "train-nsrd", "train-nss")
+TARGETS = ("train-data-blender", "train", "train-mlp", "train-nsrr", "train-nsrd", "train-nss",
+           "train-nss-gym")
 COMMAND = re.compile(r"-m weights_tools (.*?)(?=\s*(?:&&|\|\||;|$))")
 
 

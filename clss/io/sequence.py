@@ -191,7 +191,8 @@ def read_sequence(source, channels=None, jitter=None, scale=None, reference=None
       color, depth, motion (and optionally reference and G-buffers).
     channels: {buffer: "A,B,C" or (names)} overriding the channel search.
     jitter: None (sidecar jitter.json / jitter.csv beside the frames, else Halton when
-      `scale` is given), "halton" (needs scale), "zero", a path to a JSON/CSV sidecar,
+      `scale` is given), a pattern's name (clss.io.jitter.PATTERNS: "halton" needs
+      scale; "zero", "2x2", "halton8", "halton16", "r2"), a path to a JSON/CSV sidecar,
       or an (n, 2) array.
     reference: optional numbered pattern of reference images (R, G, B).
     gbuffers: optional {G-buffer name: numbered pattern} of per-buffer G-buffer files

@@ -479,11 +479,13 @@ def camera_rotation(cam_obj):
 
 
 def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4, build=None,
-                 threads=None, log=print):
+                 threads=None, log=print, jitter=None):
     """Render `frames` frames of scene `name` (SCENES) into out_dir (see the module's
     docstring). `build(scene, frames)` replaces SCENES[name] (weights_tools.blender.families
     passes its seeded families); it returns the description, or (description, cuts):
-    cuts are the frames (0-based) that start a new shot, recorded as resets."""
+    cuts are the frames (0-based) that start a new shot, recorded as resets. `jitter`: one
+    (jx, jy) per frame in render pixels (the shards' draw from a jitter mix); default
+    Halton(2,3)."""
     scene = new_scene(threads)
     built = (build or SCENES[name])(scene, frames)
     description, cuts = built if isinstance(built, tuple) else (built, ())
@@ -497,7 +499,7 @@ def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4, bui
     t_lr = t_ref = t_hr = 0.0
     for f in range(frames):
         scene.frame_set(f + 1)
-        jx, jy = halton_jitter(f, scale)
+        jx, jy = halton_jitter(f, scale) if jitter is None else (float(v) for v in jitter[f])
         # Low resolution: point samples at the jittered pixel centres.
         scene.render.resolution_x, scene.render.resolution_y = w, h
         scene.cycles.samples = spp

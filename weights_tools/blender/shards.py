@@ -29,9 +29,11 @@ import shutil
 import sys
 import time
 
+from .. import jitter_mix
 from . import families as fam
 
-DEFAULTS = dict(frames=12, size=(90, 160), scale=2.0, spp=16, ref_spp=32, hr_spp=1)
+DEFAULTS = dict(frames=12, size=(90, 160), scale=2.0, spp=16, ref_spp=32, hr_spp=1,
+                jitter_mix=jitter_mix.DEFAULT_MIX)
 
 
 class UsageError(ValueError):
@@ -71,6 +73,7 @@ def render_shard(job, opts):
     from . import render_validation as rv
     split, family, seed, path = job
     t0 = time.perf_counter()
+    drawn = shard_jitter(job, opts)
     name = os.path.splitext(os.path.basename(path))[0]
     exr = os.path.join(os.path.dirname(os.path.dirname(path)), ".exr", f"{split}_{name}")
     shutil.rmtree(exr, ignore_errors=True)
@@ -90,7 +93,8 @@ def render_shard(job, opts):
                 rec = rv.render_scene(family, exr, opts["frames"], (w, h), opts["scale"],
                                       opts["spp"], opts["ref_spp"], opts["hr_spp"],
                                       build=fam.builder(family, seed), threads=opts["threads"],
-                                      log=None)
+                                      log=None, jitter=jitter_mix.sequence_jitter(
+                                          drawn, opts["frames"], opts["scale"]).tolist())
             finally:
                 sys.stdout.flush()
                 sys.stderr.flush()
@@ -102,7 +106,8 @@ def render_shard(job, opts):
     data = convert.convert_scene(exr)
     meta = json.loads(str(data["meta"]))
     meta.update(generator="weights_tools.blender.shards", family=family, seed=seed,
-                split=split, frames=opts["frames"])
+                split=split, frames=opts["frames"], jitter=drawn,
+                jitter_mix=opts.get("jitter_mix", DEFAULTS["jitter_mix"]))
     data["meta"] = np.array(json.dumps(meta))
     os.makedirs(os.path.dirname(path), exist_ok=True)
     scenegen.write_sequence(path, data)
@@ -110,6 +115,18 @@ def render_shard(job, opts):
     render_s = sum(rec["seconds"].values())
     return {"path": path, "frames": opts["frames"], "seconds": time.perf_counter() - t0,
             "render_seconds": render_s}
+
+
+def shard_jitter(job, opts):
+    """The shard's jitter draw (jitter_mix.draw): its own stream of (family, seed), so a
+    shard renders the same whatever else is rendered beside it."""
+    import zlib
+
+    import numpy as np
+    _, family, seed, _ = job
+    key = [int(seed), zlib.crc32(family.encode()), 0x717]
+    return jitter_mix.draw(opts.get("jitter_mix", DEFAULTS["jitter_mix"]),
+                           np.random.default_rng(key))
 
 
 def _ray_results(todo, opts, address, jobs):
@@ -198,6 +215,9 @@ def add_parser(sub, _size):
                    help="samples per output pixel of the reference")
     p.add_argument("--hr-spp", type=int, default=DEFAULTS["hr_spp"],
                    help="samples of the output-resolution G-buffer render")
+    p.add_argument("--jitter-mix", default=DEFAULTS["jitter_mix"],
+                   help="each sequence's jitter pattern drawn from NAME[:WEIGHT],... as `gen "
+                   "--jitter-mix` (one name: that pattern; the shards before issue 53: halton)")
     p.add_argument("--jobs", type=int, default=2, help="tasks side by side on a local Ray")
     p.add_argument("--threads", type=int, default=None,
                    help="Cycles threads (and Ray CPUs) per task; default 1 when fanned out")
@@ -219,6 +239,11 @@ def main_args(a):
     if not 1.0 <= a.scale <= 4.0:
         print(f"error: --scale must be in [1, 4], got {a.scale}", file=sys.stderr)
         return 2
+    try:
+        jitter_mix.check_arg("--jitter-mix", a.jitter_mix)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     splits = [s for s in a.split.split(",") if s]
     families = [f for f in a.families.split(",") if f] if a.families else None
     try:
@@ -235,7 +260,7 @@ def main_args(a):
         stats = run(a.out, splits, families, a.sequences, a.jobs, a.threads,
                     a.ray_address, not a.no_ray,
                     frames=a.frames, size=a.size, scale=a.scale, spp=a.spp,
-                    ref_spp=a.ref_spp, hr_spp=a.hr_spp)
+                    ref_spp=a.ref_spp, hr_spp=a.hr_spp, jitter_mix=a.jitter_mix)
     except UsageError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

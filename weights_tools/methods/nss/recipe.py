@@ -1,13 +1,25 @@
 """NSS's recipe (`python -m weights_tools train nss --data DIR --out DIR`): recurrent
-rollouts of --window frames (the first a reset; the model gym trains on ~16) through the
-torch twin, carrying the whole state (output history, temporal parameters, luma
-derivative) as the frame step does. The loss, after the model gym's, on Karis-tonemapped
-values without the patch margin: L1 + --ssim (1 - SSIM) of the output against the
-reference, --filtered x L1 of the kernel filter's own output (the model gym's
-out_filtered: the filter learns to reconstruct on its own, not only through the history),
-and --temporal x the temporal loss between consecutive outputs (the change of the output
-against the change of the reference: flicker the reference does not have); the first
---warm frames of each window are left out of the loss (the history is still empty).
+rollouts of --window frames (the first a reset; the model gym trains on 16) through the
+torch twin, carrying the whole state (output history, the fed-back temporal parameters,
+luma derivative) as the frame step does, back-propagated through the whole window.
+Losses on Karis-tonemapped values without the patch margin; the first --warm frames of
+each window are left out of the output's loss (the history is still empty).
+
+--mode basic (the shipped weights of 2026-11-27): per frame L1 + --ssim (1 - SSIM) of the
+output against the reference, --filtered x L1 of the kernel filter's own output (the model
+gym's out_filtered: the filter learns to reconstruct on its own, not only through the
+history), and --temporal x L1 between the changes of output and reference from the
+previous frame (unwarped).
+
+--mode gym (issue 53: as Arm's model gym trains NSS; docs/methods/nss.md says what is
+the same and what is not): the temporal term is the gym's exp(4 |dref - dout|) - 1 of
+the changes from the previous frame *warped by the motion* (bilinear, zero outside), the
+spatial term L1 + --ssim (1 - SSIM) (the gym's 0.2 LPIPS: no VGG here); frame t of the
+window weighs them by w_t, rising on a half cosine from 0.001 to 0.9 over the window
+(early frames: stability, late: detail), and --filtered (0.1 in the gym) blends in the
+filter's own L1 on every frame; the learning rate warms up over the first 5 % of the
+steps; each window is flipped left-right and up-down at random (the motion's and the
+jitter's signs with it: mirrored jitter patterns come for free).
 
 Writes --out/checkpoint.pt (every minute; --resume continues), loss.png, train.json and
 weights.safetensors (the file the OpenCL step loads).
@@ -46,6 +58,10 @@ def add_arguments(t):
                    "fine-tune; their config replaces --quality)")
     t.add_argument("--max-minutes", type=float, default=0.0,
                    help="stop (and write the weights) after this many minutes")
+    t.add_argument("--mode", choices=("basic", "gym"), default="basic",
+                   help="the loss and schedule: basic (the 2026-11-27 weights) or gym (the "
+                   "model gym's warped exponential temporal loss, time-weighted, warm-up, "
+                   "flips; --filtered 0.1 is the gym's)")
 
 
 def _prepare(seqs, torch):
@@ -53,8 +69,24 @@ def _prepare(seqs, torch):
                                         "ref": "reference"})
 
 
-def make_batch(seqs, batch, window, R, rng):
-    """[window] per-frame batches: render crops R x R, output crops 2R, jitters, resets."""
+def flip_frame(f, fx, fy):
+    """One window frame's crops mirrored (fx: left-right, fy: up-down) as a mirrored
+    render would give them: pixel (i, j)'s sample at j + 0.5 + jx becomes column w-1-j's
+    at its centre - jx, so the jitter's and the motion's signs flip with the axis."""
+    import torch
+    dims = [d for d, on in ((-1, fx), (-2, fy)) if on]
+    if not dims:
+        return f
+    sign = torch.tensor([-1.0 if fx else 1.0, -1.0 if fy else 1.0])
+    out = {k: torch.flip(f[k], dims) for k in ("color", "depth", "motion", "ref")}
+    out["motion"] = out["motion"] * sign.view(2, 1, 1)
+    out["jitter"] = tuple(float(v) for v in np.asarray(f["jitter"]) * sign.numpy())
+    return out
+
+
+def make_batch(seqs, batch, window, R, rng, flips=False):
+    """[window] per-frame batches: render crops R x R, output crops 2R, jitters, resets;
+    `flips`: each window mirrored left-right and up-down at random (flip_frame)."""
     import torch
     keys = ("color", "depth", "motion")
     fr = [{k: [] for k in keys + ("ref", "jitter", "reset")} for _ in range(window)]
@@ -63,12 +95,14 @@ def make_batch(seqs, batch, window, R, rng):
         T, _, h, w = s["color"].shape
         t0 = int(rng.integers(0, T - window + 1))
         y0, x0 = int(rng.integers(0, h - R + 1)), int(rng.integers(0, w - R + 1))
+        fx, fy = (bool(v) for v in rng.integers(0, 2, 2)) if flips else (False, False)
         for j in range(window):
             t = t0 + j
-            for k in keys:
-                fr[j][k].append(s[k][t, :, y0:y0 + R, x0:x0 + R])
-            fr[j]["ref"].append(s["ref"][t, :, 2 * y0:2 * (y0 + R), 2 * x0:2 * (x0 + R)])
-            fr[j]["jitter"].append(s["jitter"][t])
+            f = flip_frame({**{k: s[k][t, :, y0:y0 + R, x0:x0 + R] for k in keys},
+                            "ref": s["ref"][t, :, 2 * y0:2 * (y0 + R), 2 * x0:2 * (x0 + R)],
+                            "jitter": s["jitter"][t]}, fx, fy)
+            for k in keys + ("ref", "jitter"):
+                fr[j][k].append(f[k])
             fr[j]["reset"].append(bool(j == 0 or s["reset"][t]))
     for f in fr:
         for k in keys + ("ref",):
@@ -95,6 +129,55 @@ def window_loss(step, fr, m, args):
         prev = (a, b)
         n += 1
     return total / max(n, 1)
+
+
+def warp_back(x, motion):
+    """x [N,C,H,W] (the previous frame at output resolution) fetched at each output
+    pixel's previous position (render motion x 2, nearest-upsampled), bilinear, zero
+    outside: the model gym's dense warp, for its temporal loss."""
+    import torch
+    import torch.nn.functional as F
+    from .twin import _sample
+    N, _, H, W = x.shape
+    mu = F.interpolate(motion, size=(H, W), mode="nearest")
+    xs = torch.arange(W, dtype=x.dtype).view(1, 1, 1, W) + 2.0 * mu[:, 0:1]
+    ys = torch.arange(H, dtype=x.dtype).view(1, 1, H, 1) + 2.0 * mu[:, 1:2]
+    return _sample(x, xs, ys)
+
+
+def gym_weights(n):
+    """w_t of frames 1..n of a window (frame 0 is the reset): the model gym's half
+    cosine from 0.001 to 0.9, the spatial term's share (1 - w_t the temporal's)."""
+    t = np.arange(1, n + 1) / max(n, 1)
+    return 0.9 + (0.001 - 0.9) * (1.0 + np.cos(np.pi * t)) * 0.5
+
+
+def gym_window_loss(step, fr, m, args):
+    """The model gym's loss over one window (see the module's docstring): per frame t >= 1
+    lerp(temporal_t, spatial_t, w_t), the mean over the window, blended with the
+    filter's L1 over every frame by --filtered. The first --warm frames (>= 1) are the
+    temporal term's reference only."""
+    import torch
+    from .twin import karis
+    st, outs, refs, filt = None, [], [], []
+    for f in fr:
+        out, st = step.step(f["color"], f["depth"], f["motion"], f["jitter"], st, f["reset"])
+        outs.append(karis(out))
+        refs.append(karis(f["ref"].clamp_min(0.0)))
+        filt.append((karis(st["filtered"]) - refs[-1])[:, :, m:-m, m:-m].abs().mean())
+    warm = max(args.warm, 1)
+    w = gym_weights(len(fr) - 1)
+    st_loss = 0.0
+    for i in range(warm, len(fr)):
+        keep = (~fr[i]["reset"]).to(outs[i].dtype).view(-1, 1, 1, 1)   # a cut: no change
+        d_out = outs[i] - warp_back(outs[i - 1], fr[i]["motion"])
+        d_ref = refs[i] - warp_back(refs[i - 1], fr[i]["motion"])
+        temporal_t = ((torch.exp(4.0 * (d_ref - d_out).abs()) - 1.0) * keep)[:, :, m:-m, m:-m].mean()
+        a, b = outs[i][:, :, m:-m, m:-m], refs[i][:, :, m:-m, m:-m]
+        spatial_t = (a - b).abs().mean() + args.ssim * (1.0 - ssim(a, b))
+        st_loss = st_loss + (1.0 - w[i - 1]) * temporal_t + w[i - 1] * spatial_t
+    st_loss = st_loss / max(len(fr) - warm, 1)
+    return (1.0 - args.filtered) * st_loss + args.filtered * torch.stack(filt).mean()
 
 
 def cmd_train(args):
@@ -125,12 +208,18 @@ def cmd_train(args):
           f"{args.patch}+2x{args.margin} render px, quality {cfg['quality']} "
           f"({nets.parameter_count(cfg)} parameters, {nets.macs_per_pixel(cfg) / 1e3:.1f} kMAC "
           f"per render pixel), {args.steps} steps of {args.batch}; loss L1 + {args.ssim:g} "
-          f"(1-SSIM) + {args.filtered:g} filtered L1 + {args.temporal:g} temporal on Karis values",
+          + (f"(1-SSIM) + {args.filtered:g} filtered L1 + {args.temporal:g} temporal on Karis "
+             "values" if args.mode == "basic" else
+             f"(1-SSIM) spatial lerped with the warped exp temporal over the window, "
+             f"{args.filtered:g} filtered L1 (mode gym)"),
           flush=True)
     m = args.margin * 2
+    gym = args.mode == "gym"
+    fn = gym_window_loss if gym else window_loss
     run.fit("nss", net.parameters(), lr=args.lr, steps=args.steps, clip=1.0,
-            loss=lambda it: (window_loss(step, make_batch(seqs, args.batch, args.window, R, rng),
-                                         m, args), {}),
+            warmup=int(0.05 * args.steps) if gym else 0,
+            loss=lambda it: (fn(step, make_batch(seqs, args.batch, args.window, R, rng,
+                                                 flips=gym), m, args), {}),
             max_seconds=args.max_minutes * 60 if args.max_minutes > 0 else None)
     path = os.path.join(args.out, "weights.safetensors")
     nets.save(path, cfg, net.numpy_weights())
