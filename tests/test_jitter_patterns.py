@@ -113,3 +113,13 @@ def test_generator_records_the_draw_and_keeps_the_content(tmp_path, capsys):
     assert main(["gen", "--out", str(tmp_path / "h"), "--jitter-mix", "halton:-1"]) == 2
     err = capsys.readouterr().err
     assert "--jitter-mix" in err and "Traceback" not in err
+
+
+def test_legacy_mix_is_the_old_generator():
+    """--jitter-mix legacy gives the sequences of before issue 53 exactly: Halton(2,3) of
+    the contract's length when the content's own draw says jittered, else zero."""
+    for index in range(12):
+        spec = sg.SceneSpec.random(1000, index, 4, "legacy")
+        assert spec.jitter == {}
+        want = [jitter_at(i, 2.0) if spec.jittered else (0.0, 0.0) for i in range(4)]
+        assert [sg.frame_jitter(spec, i, 2.0) for i in range(4)] == want

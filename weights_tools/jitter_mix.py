@@ -5,8 +5,9 @@ phase and a mirror, so that a method learns every pattern rather than one. The g
 `NAME[:WEIGHT],...` and record the draw in each sequence's metadata (`meta["jitter"]`).
 
 A single name is every sequence with that pattern, unmirrored, from phase 0 (held-out
-sets of one pattern: `gen --jitter-mix 2x2`). "legacy" is the generator's mix before
-issue 53 (Halton 32 phases, a fifth of the sequences without jitter), for old recipes.
+sets of one pattern: `gen --jitter-mix 2x2`). "legacy" is the generator's jitter before
+issue 53, exactly (Halton 32 phases, or none in about a fifth of the sequences, drawn with
+the content: the sets on disk before 2026-11-29); elsewhere it reads as LEGACY_MIX.
 """
 from __future__ import annotations
 
@@ -19,10 +20,14 @@ DEFAULT_MIX = "zero:0.2,2x2:0.15,halton8:0.15,halton16:0.2,halton:0.15,r2:0.15"
 LEGACY_MIX = "halton:0.8,zero:0.2"
 
 
+def is_legacy(text) -> bool:
+    return str(text).strip().lower() == "legacy"
+
+
 def parse_mix(text) -> list[tuple[str, float]]:
     """[(pattern, weight)] summing to 1 from "NAME[:WEIGHT],..." (weights default 1);
     ValueError naming what is wrong."""
-    text = LEGACY_MIX if str(text).strip().lower() == "legacy" else str(text)
+    text = LEGACY_MIX if is_legacy(text) else str(text)
     out = []
     for part in (p.strip() for p in text.split(",")):
         if not part:

@@ -330,9 +330,9 @@ class SceneSpec:
                                   _random_camera_path(rng)],
                          light=light)
         _random_environment(np.random.default_rng([seed, index, 0x6A0D]), spec)
-        spec.jitter = jitter_mix.draw(mix,
-                                      np.random.default_rng([seed, index, 0x717]))
-        spec.jittered = spec.jitter["pattern"] != "zero"
+        if not jitter_mix.is_legacy(mix):      # legacy: `jittered`'s draw, as before
+            spec.jitter = jitter_mix.draw(mix, np.random.default_rng([seed, index, 0x717]))
+            spec.jittered = spec.jitter["pattern"] != "zero"
         objs = spec.objects
         if rng.random() < 0.5:      # backdrop wall
             objs.append(dict(type="box", pos=[rng.uniform(-3, 3), 2.5, rng.uniform(-16, -9)],
