@@ -26,6 +26,8 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
+from .cachedir import cache_dir, locked, write_atomic
+
 PRECISIONS = ("fp32", "fp16", "fp16-native")
 
 # -D options per precision; see kernels/common.h.
@@ -37,7 +39,16 @@ class DeviceError(RuntimeError):
 
 
 class KernelBuildError(RuntimeError):
-    """A kernel source failed to build; the message carries the build log."""
+    """A kernel source failed to build; the message carries the build log, `cli` the one
+    line the command line prints (Device._build_error)."""
+
+    cli: str | None = None
+
+
+# How long a build waits for another process building the same program (then it builds
+# unlocked: a stopped process must not hang the others), and the number of lock stripes.
+_BUILD_LOCK_WAIT_S = 600.0
+_BUILD_LOCKS = 32
 
 
 def kernels_dir() -> Path:
@@ -320,31 +331,56 @@ class Device:
                     except cl.RuntimeError:
                         # A compiled-program cache (pyopencl's or the driver's, e.g. PoCL's
                         # kcache) that another process was writing at that moment can hand
-                        # back a broken binary: build once more around both caches before
-                        # reporting anything.
+                        # back a broken binary or fail the build: build once more around
+                        # both caches before reporting anything.
                         prog = cl.Program(self.context, src)
                         try:
                             self._build(src, options, fresh=True, prog=prog)
                         except cl.RuntimeError as e:
-                            log = _build_log(prog, self.cl_device) or str(e)
-                            raise KernelBuildError(
-                                f"kernel source {kernel_label(stem)} failed to build on {self.info.name} "
-                                f"({self.info.driver}) with options '{options}':\n{log}{_build_hint(log)}"
-                            ) from None
+                            raise self._build_error(stem, options, _build_log(prog, self.cl_device)
+                                                    or str(e)) from None
                     self._programs[key] = prog
                     self.builds += 1
         return prog
 
     def _build(self, src: str, options: str, fresh: bool = False, prog=None) -> cl.Program:
         """Build; fresh=True bypasses pyopencl's binary cache and the driver's (a define
-        no kernel reads changes the driver's cache key), for a retry."""
+        no kernel reads changes the driver's cache key, so the entry is this process's
+        alone), for a retry. A cached build runs behind an inter-process lock
+        (`_build_lock`): processes building the same program at once build it one after
+        the other, the first writing the driver's cache entry and the rest reading it.
+        PoCL 3.0 and 3.1 replace an entry (program.bc) by removing it and renaming a new
+        one in, so two processes writing one entry together fail when the second remove
+        finds nothing, and a reader between remove and rename finds nothing to read:
+        "Device ... failed to build the program" (issue 52; PoCL 6.0 dropped the remove)."""
         prog = prog or cl.Program(self.context, src)
         if fresh:
             prog.build(options=f"{options} -DCLSS_FRESH_BUILD={os.getpid()}{time.monotonic_ns()}",
                        cache_dir=False)
         else:
-            prog.build(options=options)
+            with locked(self._build_lock(src, options), timeout=_BUILD_LOCK_WAIT_S):
+                prog.build(options=options)
         return prog
+
+    def _build_lock(self, src: str, options: str) -> Path:
+        """The lock file a build of (src, options) on this device takes: one of
+        _BUILD_LOCKS stripes, so the cache directory holds a bounded number of them (two
+        programs sharing a stripe only build one after the other)."""
+        h = hashlib.sha1("\0".join((self.info.platform, self.info.name, self.info.driver,
+                                     options, src)).encode()).digest()
+        return cache_dir() / "locks" / f"build-{int.from_bytes(h[:4], 'big') % _BUILD_LOCKS:02d}"
+
+    def _build_error(self, stem, options: str, log: str) -> KernelBuildError:
+        """The error of a build that failed twice, the second time around every cache: the
+        whole log in the message (a Python caller's traceback); one line on the command
+        line (`cli`: the log's first error, and where the whole log was written)."""
+        where = f"kernel source {kernel_label(stem)} failed to build on {self.info.name} ({self.info.driver})"
+        lines = [ln.strip() for ln in log.splitlines() if ln.strip()]
+        first = next((ln for ln in lines if "error" in ln.lower()), lines[0] if lines else "no build log")
+        saved = _save_build_log(kernel_label(stem), f"{where} with options '{options}':\n{log}")
+        e = KernelBuildError(f"{where} with options '{options}':\n{log}{_build_hint(log)}")
+        e.cli = f"{where}: {first}{_build_hint(log)}" + (f" (the whole log: {saved})" if saved else "")
+        return e
 
     def _rebuild(self, stem, precision: str, **defines) -> cl.Program:
         """The program of (stem, precision, defines) built again around every cache, and
@@ -480,6 +516,17 @@ def _define_value(v) -> str:
     if isinstance(v, float):
         return repr(v) + "f"
     return str(v)
+
+
+def _save_build_log(label: str, text: str) -> Path | None:
+    """Write a failed build's whole log to build-logs/ in clss's cache directory; its path,
+    or None where the cache is not writable."""
+    path = cache_dir() / "build-logs" / (re.sub(r"[^\w.-]+", "_", label) + ".log")
+    try:
+        write_atomic(path, text)
+        return path
+    except OSError:
+        return None
 
 
 def _build_log(prog: cl.Program, dev: cl.Device) -> str:

@@ -48,7 +48,7 @@ from typing import Callable
 
 import numpy as np
 
-from .cachedir import cache_dir
+from .cachedir import cache_dir, read_json, update_json
 from .device import kernel_label
 
 MODES = ("auto", "force", "skip", "defer")
@@ -413,23 +413,20 @@ def _child_main(argv) -> int:
 
 
 def _load() -> dict:
-    try:
-        data = json.loads(cache_path().read_text())
-        return data if isinstance(data, dict) else {}
-    except (OSError, ValueError):
-        return {}
+    data = read_json(cache_path())
+    return data if isinstance(data, dict) else {}
 
 
 def _store(key: str, v: Verdict) -> None:
-    """Merge one verdict into the file (atomically; an unwritable cache only costs a re-check)."""
-    path = cache_path()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        data = _load()
+    """Merge one verdict into the file: read, merged and replaced whole behind the file's
+    lock (clss.cachedir.update_json), so that processes storing verdicts at once all keep
+    theirs; an unwritable cache only costs a re-check."""
+    def merge(data):
+        data = data if isinstance(data, dict) else {}
         data[key] = v.as_dict()
-        tmp = path.with_suffix(f".tmp{os.getpid()}")
-        tmp.write_text(json.dumps(data, indent=1, sort_keys=True))
-        os.replace(tmp, path)
+        return data
+    try:
+        update_json(cache_path(), merge, indent=1, sort_keys=True)
     except OSError:
         pass
 

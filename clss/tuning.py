@@ -27,7 +27,7 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 
-from .cachedir import cache_dir
+from .cachedir import cache_dir, update_json
 
 VERSION = 1
 _lock = threading.Lock()
@@ -262,17 +262,20 @@ def balanced_local_size(gs: tuple, units: int, max_items: int = 4096, max_sizes:
 
 
 def store(dev, op: str, key: str, params: dict, path: Path | None = None, **meta) -> None:
-    """Write one entry (atomically: a crash leaves the old file intact)."""
+    """Write one entry: read, merged and replaced whole behind the file's lock
+    (clss.cachedir.update_json), so a crash leaves the old file intact and two tuners
+    storing at once both keep their entries. An unreadable file is started afresh."""
     path = Path(path) if path else db_path()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data = json.loads(json.dumps(load(path)))          # a private copy
-    data["version"] = VERSION
     rec = {"params": dict(params), **meta,
            "tuned": datetime.datetime.now().isoformat(timespec="seconds")}
-    data.setdefault("devices", {}).setdefault(device_key(dev), {}).setdefault(op, {})[key] = rec
-    tmp = path.with_suffix(path.suffix + f".tmp{os.getpid()}")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=_jsonable))
-    os.replace(tmp, path)
+
+    def merge(data):
+        if not isinstance(data, dict) or not isinstance(data.get("devices"), dict):
+            data = {"devices": {}}
+        data["version"] = VERSION
+        data["devices"].setdefault(device_key(dev), {}).setdefault(op, {})[key] = rec
+        return data
+    update_json(path, merge, indent=1, sort_keys=True, default=_jsonable)
     with _lock:
         _cache.update(path=None, mtime=None, data=None)
 

@@ -58,16 +58,18 @@ def _version() -> str:
 
 
 # What a user's mistake raises (a bad flag value, file, device, model or frame, an option a
-# method does not take); each ends the command with one line and exit status 2. Anything
-# else is a bug in clss and keeps its traceback. CLSS_TRACEBACK=1 shows the traceback of
-# these too.
+# method does not take), or a device that cannot run clss (none usable, a kernel its
+# compiler refuses even around every cache: the line names the kernel, the compiler's first
+# error and the file holding the whole log); each ends the command with one line and exit
+# status 2. Anything else is a bug in clss and keeps its traceback. CLSS_TRACEBACK=1 shows
+# the traceback of these too.
 USER_ERRORS = (ValueError, OSError)
 
 
 def _user_errors():
-    from ..device import DeviceError
+    from ..device import DeviceError, KernelBuildError
     from ..errors import ArgumentError
-    return USER_ERRORS + (DeviceError, ArgumentError)
+    return USER_ERRORS + (DeviceError, KernelBuildError, ArgumentError)
 
 
 def main(argv=None) -> int:
