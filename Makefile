@@ -372,7 +372,8 @@ train-nss: $(STAMP) $(TRAIN_STAMP) train-data $(BLENDER_TRAIN)
 # trains it"): --mode gym, rollouts of 16 frames through the fed-back state, the gym's
 # warped exponential temporal loss weighted over the window, warm-up, flips; on a set of
 # 16-frame sequences whose jitter is the generator's mix of the patterns engines send
-# (weights_tools/jitter_mix.py: zero, 2x2, Halton 8/16/32, R2). NSS_GYM_INIT: weights to
+# (weights_tools/jitter_mix.py: zero, 2x2, Halton 8/16/32, R2); then scored beside clss-rules
+# on a validation set of the same mix (seed 2000: zero and 2x2 among its 8). NSS_GYM_INIT: weights to
 # fine-tune at lr 5e-4 (2026-11-29's run: NSS_GYM_INIT=clss/weights/nss_x2.safetensors, the
 # weights of 2026-11-27); empty (the default): from the seeded init at the gym's lr 2e-3.
 # Not copied into the package: check them first (make eval-jitter, clss eval).
@@ -382,7 +383,9 @@ NSS_GYM_LR ?= $(if $(NSS_GYM_INIT),5e-4,2e-3)
 .PHONY: train-nss-gym
 train-nss-gym: $(STAMP) $(TRAIN_STAMP)
 	test -f $(DATA)/train-nss-jmix/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/train-nss-jmix --sequences 48 --frames 16 --seed 0 --size 72x128 --quiet $(GEN_ARGS)
+	test -f $(DATA)/val-jmix/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/val-jmix --sequences 8 --frames 12 --seed 2000 --size 90x160 --quiet $(GEN_ARGS)
 	$(BIN)/python -m weights_tools train nss --mode gym --data $(DATA)/train-nss-jmix --out $(OUT)/train-nss-gym/x2 --steps $(NSS_GYM_STEPS) --window 16 --batch 2 --patch 16 --margin 4 --lr $(NSS_GYM_LR) --filtered 0.1 --threads 1 --resume $(if $(NSS_GYM_INIT),--init $(NSS_GYM_INIT))
+	$(BIN)/python -m weights_tools eval $(DATA)/val-jmix/seq_*.npz --methods clss-rules,nss --weights $(OUT)/train-nss-gym/x2/weights.safetensors --out $(OUT)/train-nss-gym/val --flip-every 4
 
 # Every training target end to end in minutes (issue 31: the make train* targets run from a
 # fresh clone, the [data] extra installed on the way): tiny data (GEN_ARGS, BLENDER_*), a
