@@ -465,15 +465,14 @@ __kernel void weights_to_float(__global const T *w, __global float *out, int n)
 typedef A AV __attribute__((ext_vector_type(OCV)));
 /* element-aligned vector access to the packed weights and biases */
 typedef A AVu __attribute__((ext_vector_type(OCV), aligned(sizeof(A))));
-#if OCV == 16
-#define VSTORE_AV vstore16
-#elif OCV == 8
-#define VSTORE_AV vstore8
-#elif OCV == 4
-#define VSTORE_AV vstore4
-#else
+#if OCV != 16 && OCV != 8 && OCV != 4
 #error "OCV must be 4, 8 or 16"
 #endif
+/* v stored whole into a private array (as vstoreN(v, o, p)), by a vector store, not
+ * vstore16: that passes a 16-wide vector to a builtin out of line (an ABI warning on a CPU
+ * without AVX-512), and pip's PoCL 3.0 then hands every program of this source back from
+ * its kernel cache with no kernels in it, so each run compiled conv.cl again. */
+#define VSTORE_AV(v, o, p) (*((__private AVu *)(p) + (o)) = (v))
 #ifndef GATED
 #define GATED 0
 #endif
