@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup opencl-driver test test-large demo eval eval-scales eval-jitter verify devices bench bench-quick oclgrind clean \
+.PHONY: setup opencl-driver test test-large soak stress demo eval eval-scales eval-jitter verify devices bench bench-quick oclgrind clean \
 	train-data validation-data train gpu-report
 
 $(STAMP): setup.cfg setup.py pyproject.toml
@@ -36,6 +36,22 @@ test: $(STAMP)
 
 test-large: $(STAMP)
 	CLSS_LARGE=1 $(BIN)/python -m pytest -q -ra -m large
+
+# The soak (tests/test_soak.py): every method, 300 frames at 48x80 -> 96x160 in one process,
+# device memory, live OpenCL buffers, RSS and CPU time per frame flat; prints each method's
+# figures. `make test` runs it short (20 frames at 16x24).
+soak: $(STAMP)
+	CLSS_SOAK_FRAMES=300 CLSS_SOAK_SIZE=48x80 nice -n 19 $(BIN)/python -m pytest -q -s tests/test_soak.py
+
+# The stress test (tests/test_concurrency.py): STRESS_PROCS `clss upscale` processes started
+# together on a cold cache (fresh CLSS_CACHE_DIR, XDG_CACHE_HOME, POCL_CACHE_DIR), repeated,
+# every frame bit-identical to a serial run. `make test` runs 3 x 2 of nss.
+STRESS_PROCS ?= 4
+STRESS_REPEATS ?= 5
+STRESS_METHODS ?= nss,nsrr
+stress: $(STAMP)
+	CLSS_STRESS_PROCS=$(STRESS_PROCS) CLSS_STRESS_REPEATS=$(STRESS_REPEATS) CLSS_STRESS_METHODS=$(STRESS_METHODS) \
+	  nice -n 19 $(BIN)/python -m pytest -q -s tests/test_concurrency.py -k cold_cache
 
 # The pictures, a GIF and the metrics (a few MB); DEMO_ARGS=--exr adds the full EXR
 # sequences (hundreds of MB), DEMO_ARGS="--methods clss-rules,clss -n 12" a quicker run.
