@@ -198,11 +198,13 @@ def bench_main(argv=None) -> int:
             print(f"(not benchmarked) {what}: {why}")
         return 0
     settings = _settings(a, level)
+    git_start = report.git_state()
     _announce(dev, cases, precs, settings, unavailable)
     rows, peak, t0 = _run_all(a, dev, cases, precs, settings, level)
     doc = report.document(rows, dev, peak, settings,
                           level + ("-tiny" if a.tiny else "") + ("-methods" if a.methods else ""), unavailable,
-                          extra={"seconds": round(time.perf_counter() - t0, 1), **_peer_info(a)})
+                          extra={"seconds": round(time.perf_counter() - t0, 1), "git_start": git_start,
+                                 **_peer_info(a)})
     _write_results(a, doc, rows, peak)
     bad = [r for r in rows if r.status != "ok" and not r.status.startswith("skipped")]
     return 1 if bad else 0
@@ -230,15 +232,7 @@ def _host_waits(a, dev, precs, level) -> int:
     doc = report.document([], dev, None, None, level + ("-tiny" if a.tiny else "") + "-host-waits",
                           extra={"seconds": round(time.perf_counter() - t0, 1), "host_waits": rows})
     print(hostwait.format_table(rows))
-    written = []
-    if a.out:
-        out = Path(a.out)
-        report.write_json(doc, out / "bench.json")
-        (out / "bench.md").write_text(report.markdown(doc))
-        written += [out / "bench.json", out / "bench.md"]
-    if a.json:
-        report.write_json(doc, a.json)
-        written.append(Path(a.json))
+    written = report.write_outputs(doc, report.markdown(doc), a.out, a.json)
     if written:
         print("wrote " + ", ".join(str(w) for w in written))
     return 0
@@ -320,20 +314,13 @@ def _write_results(a, doc, rows, peak):
             print("\n" + report.format_peak(peak))
         print("\ntargets (1080p output, fp32):\n" + report.format_targets(doc["targets"]))
     print(f"\n{len(rows)} rows in {doc['seconds']:.0f} s")
-    written = []
+    written = report.write_outputs(doc, report.markdown(doc), a.out, a.json)
     if a.out:
-        out = Path(a.out)
-        report.write_json(doc, out / "bench.json")
-        (out / "bench.md").write_text(report.markdown(doc))
-        written += [out / "bench.json", out / "bench.md"]
         try:
-            report.roofline(doc, out / "roofline.png")
-            written.append(out / "roofline.png")
+            report.roofline(doc, Path(a.out) / "roofline.png")
+            written.append(Path(a.out) / "roofline.png")
         except Exception as e:   # a plot must not cost the numbers
             print(f"clss bench: roofline plot failed: {e}", file=sys.stderr)
-    if a.json:
-        report.write_json(doc, a.json)
-        written.append(Path(a.json))
     if written:
         print("wrote " + ", ".join(str(w) for w in written))
 

@@ -353,25 +353,9 @@ def main(a, level: str) -> int:
             "commit": report._git("rev-parse", "HEAD")[:12],
             "FMA peak": f"{peak.gflops:.1f} GFLOP/s" if peak else "not measured (--no-peak)",
             "peers": ", ".join(c.label for c in cols)}
-    doc = {"schema": "clss-bench-layers/1", "head": head, "networks": _clean(docs)}
-    written = []
-    if a.out:
-        out = Path(a.out)
-        report.write_json(doc, out / "layers.json")
-        (out / "layers.md").write_text(markdown(docs, head))
-        written += [out / "layers.json", out / "layers.md"]
-    if a.json:
-        report.write_json(doc, a.json)
-        written.append(Path(a.json))
+    doc = {"schema": "clss-bench-layers/1", "head": head, "networks": report._clean(docs)}
+    written = report.write_outputs(doc, markdown(docs, head), a.out, a.json, "layers")
     if written:
         print("wrote " + ", ".join(str(w) for w in written))
     return 0
 
-
-def _clean(v):
-    """JSON has no NaN: missing numbers become null, at any depth."""
-    if isinstance(v, dict):
-        return {str(k): _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    return None if isinstance(v, float) and not math.isfinite(v) else v

@@ -41,6 +41,12 @@ def _git(*args) -> str:
         return ""
 
 
+def git_state() -> dict:
+    """The checkout's commit and whether tracked files differ from it (a run records it at
+    its start too, as "git_start": the tree may move under a long run)."""
+    return {"commit": _git("rev-parse", "HEAD"), "dirty": bool(_git("status", "--porcelain", "--untracked-files=no"))}
+
+
 def _cpu_model() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -80,7 +86,7 @@ def document(rows, dev, peak: Peak | None, settings, level: str, unavailable=(),
         "device": dev.info.__dict__ if dev is not None else None,
         "driver": dev.info.driver if dev is not None else None,
         "packages": _versions(),
-        "git": {"commit": _git("rev-parse", "HEAD"), "dirty": bool(_git("status", "--porcelain", "--untracked-files=no"))},
+        "git": git_state(),
         "settings": {k: v for k, v in vars(settings).items()} if settings is not None else {},
         "command": " ".join(sys.argv),
         "peak": peak.as_dict() if peak else None,
@@ -122,15 +128,34 @@ def _loadavg():
         return None
 
 
-def _clean(d: dict) -> dict:
-    """JSON has no NaN: missing numbers become null."""
-    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+def _clean(v):
+    """JSON has no NaN: missing numbers become null, at any depth."""
+    if isinstance(v, dict):
+        return {k: _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    return None if isinstance(v, float) and not math.isfinite(v) else v
 
 
 def write_json(doc: dict, path) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(doc, indent=1, default=str))
+
+
+def write_outputs(doc: dict, md: str, out, json_path, stem: str = "bench") -> list[Path]:
+    """<out>/<stem>.json and <stem>.md (out: a directory, or empty for none) and --json's
+    file; the paths written."""
+    written = []
+    if out:
+        out = Path(out)
+        write_json(doc, out / f"{stem}.json")
+        (out / f"{stem}.md").write_text(md)
+        written += [out / f"{stem}.json", out / f"{stem}.md"]
+    if json_path:
+        write_json(doc, json_path)
+        written.append(Path(json_path))
+    return written
 
 
 def load_json(path) -> dict:
@@ -343,7 +368,9 @@ def format_peak(peak: Peak) -> str:
 def markdown(doc: dict) -> str:
     d, m, p = doc.get("device") or {}, doc["machine"], doc.get("peak")
     out = [f"# clss bench ({doc['level']})", "",
-           f"- created {doc['created']}, commit `{doc['git']['commit'][:12]}`{' (dirty)' if doc['git']['dirty'] else ''}",
+           f"- created {doc['created']}, commit `{doc['git']['commit'][:12]}`{' (dirty)' if doc['git']['dirty'] else ''}"
+           + (f", at the start `{doc['git_start']['commit'][:12]}`{' (dirty)' if doc['git_start']['dirty'] else ''}"
+              if doc.get("git_start") and doc["git_start"] != doc["git"] else ""),
            f"- machine: {m['cpu']}, {m['cores']} cores"
            + (f", {m['simd']}" if m.get("simd") else "")
            + (f", clss vector width {m['vector_width']}" if m.get("vector_width") else "")
