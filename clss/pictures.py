@@ -76,6 +76,8 @@ def grid(tiles, labels, cols: int, gap: int = 6, band: int = 24, background: flo
         y, x = (i // cols) * (th + band + gap), (i % cols) * (tw + gap)
         canvas[y + band:y + band + t.shape[0], x:x + t.shape[1]] = t[..., :3]
         text = metrics.text_bitmap(str(label), band - 8)
+        if text is not None and text.shape[1] > tw - 4:     # a long name: smaller, not cut
+            text = metrics.text_bitmap(str(label), max(6, int((band - 8) * (tw - 4) / text.shape[1])))
         if text is not None:
             h, w = min(text.shape[0], band), min(text.shape[1], tw - 4)
             reg = canvas[y + (band - h) // 2:y + (band - h) // 2 + h, x + 2:x + 2 + w]

@@ -6,10 +6,10 @@ default every method whose inputs the scene provides) and writes to OUT (default
 what a visitor looks at, a few MB:
 
     demo.png               the last frame as a labelled grid, 1200 px wide: the whole
-                           reference with the hardest window marked (where bicubic errs
-                           most on the first frame: the thin wires), then that window
+                           reference with the hardest window marked (the one the scene's
+                           sub-pixel wires cross most over the frames), then that window
                            zoomed in the input and each method, named with its PSNR
-    temporal_profile.png   the window's middle scanline over time, one tile per method
+    temporal_profile.png   the window's middle column over time, one tile per method
                            (flicker shows as broken, noisy streaks)
     demo.gif               the window over the frames: input, a baseline, CLSS, reference
     metrics.json, .md      PSNR / SSIM per frame and their means, times, per-stage ms
@@ -54,6 +54,28 @@ def _size(text):
 
 COLS = 4            # grid columns: more methods add rows, the picture stays 1200 px wide
 GIF_FPS = 8
+
+
+def _wire_window(frames, out_hw, size):
+    """The window (y0, y1, x0, x1) of `size` = (h, w) output pixels that the scene's thin
+    wires (its sub-pixel cylinders) cross most over the frames, or None when none is in
+    view: the hardest region, known from the scene itself rather than found in the error
+    of a method, so the pictures and the GIF show the same wires however they moved."""
+    from ..demo.scene import NEAR, Cylinder, camera_at, scene_at
+    from ..pictures import hardest_box
+    H, W = out_hw
+    hits = np.zeros((H, W))
+    s = np.linspace(0.0, 1.0, 400)
+    for t in range(frames):
+        cam = camera_at(float(t), W / H)
+        for c in scene_at(float(t)):
+            if not isinstance(c, Cylinder) or c.r > 0.01:
+                continue
+            p = c.a[:, None] + c.ax[:, None] * (c.len * s)
+            u, v, z = cam.project(p[0], p[1], p[2], W, H)
+            ok = (z > NEAR) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+            np.add.at(hits, (v[ok].astype(int), u[ok].astype(int)), 1.0)
+    return None if not hits.any() else hardest_box(hits, *size)
 
 
 def _window(H, W):
@@ -225,10 +247,11 @@ def main(argv=None) -> int:
 class _Run:
     """The per-method state a demo run gathers frame by frame."""
     scores: dict            # method: {"psnr": [...], "ssim": [...]} from frame SKIP on
-    lines: dict             # method (and "reference"): the window's middle scanline, each frame
+    lines: dict             # method (and "reference"): the window's middle column, each frame
     step_s: dict            # method: seconds of each frame's step
     render_s: float = 0.0   # seconds rendering the scene
     io_s: float = 0.0       # seconds writing files
+    score_s: float = 0.0    # seconds computing PSNR and SSIM
     last: dict = field(default_factory=dict)    # the last frame's pictures, by name
     sidecar: dict | None = None                 # input/jitter.json so far
     box: tuple | None = None                    # the inset window (y0, y1, x0, x1)
@@ -290,13 +313,13 @@ def _upscale_frames(a, ups, names, out_hw, in_dir, files, run):
                                      **gbuffers)
             run.step_s[m].append(time.perf_counter() - t)
         pics = dict(results, reference=f.reference, input=metrics.nearest(f.color, H, W))
-        if run.box is None:     # where a per-frame upscale errs most: the thin wires
+        if run.box is None:     # the wires; else where a per-frame upscale errs most
             wh, ww, _ = _window(H, W)
             base = next((m for m in ("bicubic", "jbicubic") if m in results), "input")
-            run.box = hardest_box(error_map(metrics.display(pics[base]),
-                                            metrics.display(f.reference)), wh, ww)
+            run.box = _wire_window(a.frames, out_hw, (wh, ww)) or hardest_box(
+                error_map(metrics.display(pics[base]), metrics.display(f.reference)), wh, ww)
         y0, y1, x0, x1 = run.box
-        row = (y0 + y1) // 2
+        col = (x0 + x1) // 2            # the profile's line: across the wires
         t_io = time.perf_counter()
         for m, img in results.items():
             if a.exr:
@@ -305,12 +328,15 @@ def _upscale_frames(a, ups, names, out_hw, in_dir, files, run):
                 cio.write_exr(stem + ".exr", img)
                 cio.write_png(stem + ".png", img)
             if f.index >= min(SKIP, a.frames - 1):
+                t_score = time.perf_counter()
                 scores[m]["psnr"].append(metrics.psnr(img, f.reference))
                 scores[m]["ssim"].append(metrics.ssim(img, f.reference))
-            lines[m].append(img[row:row + 1, x0:x1])
+                run.score_s += time.perf_counter() - t_score
+                t_io += time.perf_counter() - t_score      # not file writing
+            lines[m].append(img[y0:y1, col:col + 1].copy())   # not a view: the frame goes
         files.done()
         run.io_s += time.perf_counter() - t_io
-        lines["reference"].append(f.reference[row:row + 1, x0:x1])
+        lines["reference"].append(f.reference[y0:y1, col:col + 1].copy())
         for n in gif:
             run.clips.setdefault(n, []).append(metrics.display(pics[n][y0:y1, x0:x1]))
         run.last = pics
@@ -346,9 +372,9 @@ def _write_pictures(a, ups, names, trained, out_hw, run) -> str:
     path = os.path.join(out, "demo.png")
     cio.write_png_ldr(path, grid(tiles, [f"frame {a.frames - 1}, whole"] + [labels[k] for k in order],
                                  COLS))
-    # The scanline through the window's middle over time: line along y, time along x.
+    # The column through the window's middle over time: line down, time across.
     rep = max(1, tile_width(COLS) // a.frames)
-    profiles = [np.repeat(metrics.display(metrics.temporal_profile(run.lines[k], row=0, repeat=rep)),
+    profiles = [np.repeat(metrics.display(metrics.temporal_profile(run.lines[k], col=0, repeat=rep)),
                           z, 0) for k in order[1:]]
     cio.write_png_ldr(os.path.join(out, "temporal_profile.png"),
                       grid(profiles, [labels[k] for k in order[1:]], COLS))
@@ -378,6 +404,7 @@ def _write_summary(a, dev, ups, names, trained, render_hw, out_hw, run, total_s,
                min(SKIP, a.frames - 1), "net_weights": None if trained is None else
                ("trained" if trained else "untrained (seeded)"),
                "methods": {}, "stage_ms": stage, "render_s": run.render_s, "io_s": run.io_s,
+               "score_s": run.score_s,
                "total_s": total_s, "warm_from_frame": min(WARM_FROM, a.frames - 1),
                "window": list(run.box)}
     backends = {m: up.classifier_backend_name for m, up in ups.items()
@@ -420,7 +447,8 @@ def _write_summary(a, dev, ups, names, trained, render_hw, out_hw, run, total_s,
              f"{summary['metrics_from_frame']}..{a.frames - 1} against the {a.spp}-spp "
              "reference", ""] + md) + "\n")
     size = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(a.out) for f in fs)
-    print(f"\nscene rendering {run.render_s:.1f} s, file writing {run.io_s:.1f} s, total "
+    print(f"\nscene rendering {run.render_s:.1f} s, scoring {run.score_s:.1f} s, file writing "
+          f"{run.io_s:.1f} s, total "
           f"{total_s:.1f} s; {size / 2**20:.1f} MB in {a.out}; pictures: {side}")
 
 
