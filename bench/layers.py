@@ -298,7 +298,8 @@ def markdown(docs: list, head: dict) -> str:
     out = [f"# clss bench --layers {docs[0]['network']}", ""]
     out += [f"- {k}: {v}" for k, v in head.items()]
     out += ["", "Per step of clss.Model's plan: OpenCL event ms (median of the runs), GFLOP/s and share of "
-            "the measured FMA peak, bytes read and written once, the conv variant clss chose; each peer's "
+            "the measured FMA peak (a conv's FLOPs are a direct conv's: Winograd does fewer, so its share "
+            "can pass 100 %), bytes read and written once, the conv variant clss chose; each peer's "
             "ms for the same ONNX nodes (its profiler; a peer node that fused ONNX nodes clss runs as "
             "several steps: spans N). \"fused N\": the clss step runs N ONNX nodes in one."]
     for d in docs:
@@ -335,8 +336,10 @@ def main(a, level: str) -> int:
     threads = a.ort_threads or settings.ort_threads
     cols = columns(a.peer_names, threads, a.ort_spinning)
     runs = a.runs or (2 if a.tiny else RUNS)
-    peak = None if a.no_peak else measure(dev, quick=True, log=lambda msg: print(msg, file=sys.stderr),
-                                           **(dict(target_s=0.02, mib=8) if a.tiny else {}))
+    # the FMA peak alone, at the full level's probe lengths (a short probe on a loaded
+    # machine reads low, and every share with it)
+    peak = None if a.no_peak else measure(dev, log=lambda msg: print(msg, file=sys.stderr), stream=False,
+                                           **(dict(target_s=0.02) if a.tiny else {}))
     docs = []
     for prec in precs:
         print(f"clss bench --layers {name} [{prec}]: {runs} runs each of clss and "

@@ -114,10 +114,11 @@ def stream_gbs(dev: Device, kind: str = "triad", mib: int = 128, target_s: float
 
 
 def measure(dev: Device, quick: bool = False, log=None, target_s: float | None = None,
-            mib: int | None = None) -> Peak:
+            mib: int | None = None, stream: bool = True) -> Peak:
     """The probe set: FMA chains of float, float4, float8, float16 (best over the
-    chain counts); stream copy and triad. `target_s` and `mib` shrink it for smoke
-    tests (a stream array must exceed the last-level cache to mean anything)."""
+    chain counts); stream copy and triad (stream=False: the FMA peak alone). `target_s`
+    and `mib` shrink it for smoke tests (a stream array must exceed the last-level cache
+    to mean anything)."""
     t0 = time.perf_counter()
     target = target_s or (0.1 if quick else 0.3)
     repeats = 2 if quick or target_s else 3
@@ -128,7 +129,7 @@ def measure(dev: Device, quick: bool = False, log=None, target_s: float | None =
                                  for ch in FMA_CHAINS)
         if log:
             log(f"peak: FMA {name:7s} {p.fma_gflops[name]:8.1f} GFLOP/s")
-    for kind in ("copy", "triad"):
+    for kind in ("copy", "triad") if stream else ():
         p.stream_gbs[kind] = stream_gbs(dev, kind, mib=mib or (64 if quick else 128), target_s=target * 2,
                                         repeats=repeats)
         if log:
