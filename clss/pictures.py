@@ -75,9 +75,11 @@ def grid(tiles, labels, cols: int, gap: int = 6, band: int = 24, background: flo
     for i, (t, label) in enumerate(zip(tiles, labels)):
         y, x = (i // cols) * (th + band + gap), (i % cols) * (tw + gap)
         canvas[y + band:y + band + t.shape[0], x:x + t.shape[1]] = t[..., :3]
-        text = metrics.text_bitmap(str(label), band - 8)
-        if text is not None and text.shape[1] > tw - 4:     # a long name: smaller, not cut
-            text = metrics.text_bitmap(str(label), max(6, int((band - 8) * (tw - 4) / text.shape[1])))
+        size = band - 8
+        text = metrics.text_bitmap(str(label), size)
+        while text is not None and text.shape[1] > tw - 4 and size > 6:    # smaller, not cut
+            size -= 1
+            text = metrics.text_bitmap(str(label), size)
         if text is not None:
             h, w = min(text.shape[0], band), min(text.shape[1], tw - 4)
             reg = canvas[y + (band - h) // 2:y + (band - h) // 2 + h, x + 2:x + 2 + w]
