@@ -14,6 +14,7 @@ nodes which clss runs as several steps is marked.
 """
 from __future__ import annotations
 
+import datetime
 import math
 import statistics
 import sys
@@ -353,7 +354,8 @@ def main(a, level: str) -> int:
         print(f"\n{name} [{prec}]\n" + table(d))
     head = {"device": f"{dev.info.platform} / {dev.info.name} (driver {dev.info.driver})",
             "machine": f"{report._cpu_model()}, {report._simd()}, clss vector width {report._vector_width(dev)}",
-            "commit": report._git("rev-parse", "HEAD")[:12],
+            "created": datetime.datetime.now().isoformat(timespec="seconds"),
+            "commit": report._git("rev-parse", "HEAD")[:12] + (" (dirty)" if report.git_state()["dirty"] else ""),
             "FMA peak": f"{peak.gflops:.1f} GFLOP/s" if peak else "not measured (--no-peak)",
             "peers": ", ".join(c.label for c in cols)}
     doc = {"schema": "clss-bench-layers/1", "head": head, "networks": report._clean(docs)}
