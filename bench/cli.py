@@ -154,8 +154,17 @@ def bench_main(argv=None) -> int:
                          ("--list", a.list), ("--filter", a.filter)):
             if on:
                 raise UsageError(f"--layers and {flag} exclude each other")
+        from clss.device import DeviceError, get_device
         from .layers import main as layers_main
-        return layers_main(a, level)
+        tier = (_tiers(a) or ("1080p",))[0]
+        _quiet_family_warnings()
+        try:
+            dev = get_device(a.device)
+            precs = _precisions(dev, a.precision or "fp32", level)
+        except (DeviceError, ValueError) as e:
+            print(f"clss bench: {cli_message(e)}", file=sys.stderr)
+            return 2
+        return layers_main(a, dev, precs, tier)
     if a.json is not None:
         check_output_file(a.json, "--json", inputs=a.compare or ())
     if a.out and not a.compare and not a.list:

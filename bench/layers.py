@@ -310,29 +310,18 @@ def markdown(docs: list, head: dict) -> str:
 
 # --- the command ----------------------------------------------------------------------------
 
-def main(a, level: str) -> int:
-    """clss bench --layers NETWORK (bench/cli.py parsed and checked the flags)."""
-    from clss.device import DeviceError, get_device
+def main(a, dev, precs, tier: str) -> int:
+    """clss bench --layers NETWORK at a shape tier (bench/cli.py parsed and checked the
+    flags, chose the device and the precisions)."""
     from . import report
-    from .cli import _precisions, _quiet_family_warnings
     from .peak import measure
     from .peers import columns
     from .runner import Settings
-    if a.tiny and a.tier and a.tier != "tiny":
-        raise UsageError(f"--tiny and --tier {a.tier} exclude each other")
-    tier = "tiny" if a.tiny else a.tier or "1080p"
-    _quiet_family_warnings()
     name, model, shapes = resolve(a.layers, a.input_shape, tier)
     if a.json is not None:
         check_output_file(a.json, "--json")
     if a.out:
         prepare_output_dir(a.out, "--out", overwrite=True)    # layers.json / layers.md are replaced
-    try:
-        dev = get_device(a.device)
-        precs = _precisions(dev, a.precision or "fp32", level)
-    except (DeviceError, ValueError) as e:
-        print(f"clss bench: {cli_message(e)}", file=sys.stderr)
-        return 2
     settings = Settings()
     threads = a.ort_threads or settings.ort_threads
     cols = columns(a.peer_names, threads, a.ort_spinning)
