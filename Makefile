@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 OUT ?= out
 
-.PHONY: setup opencl-driver test test-large soak stress demo eval eval-scales eval-jitter verify devices bench bench-quick oclgrind clean \
+.PHONY: setup opencl-driver test test-large test-slow test-all soak stress demo eval eval-scales eval-jitter verify devices bench bench-quick oclgrind clean \
 	train-data validation-data train gpu-report
 
 $(STAMP): setup.cfg setup.py pyproject.toml
@@ -31,11 +31,21 @@ opencl-driver:
 	fi
 	$(BIN)/clss devices
 
+# The test tiers (docs/architecture.md, "Tests"): `test` is CI's (every kernel family and
+# every method, under 20 minutes on 2 cores); `test-large` the large shapes; `test-slow`
+# the slow tier (long training smokes, the rest of oclgrind, the second compiler's full
+# sweeps); `test-all` every tier.
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -ra --durations=15
 
 test-large: $(STAMP)
 	CLSS_LARGE=1 $(BIN)/python -m pytest -q -ra -m large
+
+test-slow: $(STAMP)
+	CLSS_SLOW=1 $(BIN)/python -m pytest -q -ra -m slow --durations=15
+
+test-all: $(STAMP)
+	CLSS_LARGE=1 CLSS_SLOW=1 $(BIN)/python -m pytest -q -ra --durations=15
 
 # The soak (tests/test_soak.py): every method, 300 frames at 48x80 -> 96x160 in one process,
 # device memory, live OpenCL buffers, RSS and CPU time per frame flat; prints each method's
@@ -113,7 +123,7 @@ bench: $(STAMP)
 	$(BIN)/clss bench --out $(OUT)/bench
 
 oclgrind: $(STAMP)
-	$(BIN)/python -m pytest -q -ra tests/test_oclgrind.py
+	CLSS_SLOW=1 $(BIN)/python -m pytest -q -ra -m oclgrind
 
 # Generated training data (weights_tools/scenegen.py): the training set, a validation set
 # that `make train` picks its seed on, and a held-out set (never trained or picked on), each

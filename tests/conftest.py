@@ -7,7 +7,16 @@ its own parametrisation named after its platform and driver; oclgrind is left to
 tests/test_oclgrind.py (tiny level), and a device whose compiler cannot build a
 one-line kernel (clss.device.compiler_problem: pip's PoCL 3.0 on AMD Zen 5) is left
 out, with tests/test_device.py saying so. CLSS_DEVICE, PYOPENCL_CTX or
-CLSS_TEST_DEVICES=default narrow `any_dev` to the default device."""
+CLSS_TEST_DEVICES=default narrow `any_dev` to the default device.
+
+The tiers (docs/architecture.md, "Tests"): `make test` runs the default tier, which keeps
+every kernel family and every method covered and stays under 20 minutes on 2 cores (CI);
+tests marked `large` (large shapes) or `slow` (long training smokes, oclgrind beyond one
+small run per family and method, the full sweeps on the devices other than the default)
+are skipped unless their variable is set (CLSS_LARGE=1, CLSS_SLOW=1; `make test-all` sets
+both) or `-m` names the marker. A test marked `slow_on_other_devices` is `slow` where
+`any_dev` is not the default device: the second compiler runs the quick cases of every
+family in the default tier, the full sweep in the slow one."""
 from __future__ import annotations
 
 import os
@@ -44,9 +53,12 @@ def conformance_devices() -> list[tuple[str, str]]:
         while ident in (o[0] for o in out):
             ident += f"-{i}"
         out.append((ident, str(i)))
+        if d == default:
+            DEFAULT_SPECS.add(str(i))
     return out
 
 
+DEFAULT_SPECS: set = set()      # the default device's spec among CONFORMANCE_DEVICES
 CONFORMANCE_DEVICES = conformance_devices()
 
 
@@ -56,17 +68,29 @@ def any_dev(request):
     return get_device(request.param)
 
 
-def pytest_configure(config):
-    config.addinivalue_line("markers", "large: large shapes; run with CLSS_LARGE=1")
+# marker: (the variable that runs its tier, why a test of it is skipped otherwise)
+TIERS = {"large": ("CLSS_LARGE", "large shape"),
+         "slow": ("CLSS_SLOW", "slow tier")}
 
 
+def _on_other_device(item) -> bool:
+    spec = getattr(getattr(item, "callspec", None), "params", {}).get("any_dev")
+    return spec is not None and spec not in DEFAULT_SPECS
+
+
+@pytest.hookimpl(tryfirst=True)    # before -m selects: `-m slow` sees the marks added here
 def pytest_collection_modifyitems(config, items):
-    if os.environ.get("CLSS_LARGE") == "1":
-        return
-    skip = pytest.mark.skip(reason="large shape: set CLSS_LARGE=1 to run")
     for item in items:
-        if "large" in item.keywords:
-            item.add_marker(skip)
+        if item.get_closest_marker("slow_on_other_devices") and _on_other_device(item):
+            item.add_marker(pytest.mark.slow)
+    chosen = config.getoption("markexpr", "") or ""
+    for marker, (var, what) in TIERS.items():
+        if os.environ.get(var) == "1" or re.search(rf"\b{marker}\b", chosen):
+            continue
+        skip = pytest.mark.skip(reason=f"{what}: set {var}=1 to run (make test-all runs every tier)")
+        for item in items:
+            if marker in item.keywords:
+                item.add_marker(skip)
 
 
 # pip's PoCL 3.0 aborts in the native teardown after Python's ("still have references to

@@ -109,6 +109,9 @@ def test_node_cases_found():
     assert len(CASES) > 150, f"only {len(CASES)} node cases matched"
 
 
+# On the second compiler the node cases run through the kernels in the default tier
+# (tests/test_node_cases_kernels.py); through clss.Model there, in the slow tier (conftest).
+@pytest.mark.slow_on_other_devices
 @pytest.mark.parametrize("case_dir", CASES, ids=[os.path.basename(c) for c in CASES])
 def test_model_node_case(case_dir, any_dev):
     name = os.path.basename(case_dir)

@@ -88,6 +88,7 @@ def test_train_smoke(tiny_data, tmp_path, capsys):
         assert np.abs(a - b).max() <= 1e-3 * np.abs(b).max() + 1e-12
 
 
+@pytest.mark.slow     # a long training smoke (a study's switch, two trainings)
 @pytest.mark.parametrize("labels", ["useful", "cost"])
 def test_train_useful_ghost_labels(tiny_data, tmp_path, labels):
     """--ghost-labels useful/cost (a study, not the recipe): the classifier stage trains on
@@ -120,6 +121,7 @@ def test_useful_ghost_labels_mark_where_the_history_is_worse():
     assert torch.allclose(cost[0, 0], c / c.mean(), atol=1e-6)
 
 
+@pytest.mark.slow     # a long training smoke (three trainings)
 def test_train_resumes(tiny_data, tmp_path):
     """An interrupted run (classifier done, composition not) resumes to the same weights
     as an uninterrupted one."""
@@ -140,6 +142,7 @@ def test_train_bad_data_is_one_line(tmp_path, capsys):
     assert err.startswith("error: --data:") and "Traceback" not in err
 
 
+@pytest.mark.slow     # a long training smoke (two seeds in two processes, scored twice)
 def test_seeds_trains_scores_and_picks(tiny_data, tmp_path, capsys):
     """`seeds`: two seeds trained in two processes, each scored against rules on the
     groups, the best on --pick copied to --out; a second call trains nothing again."""
