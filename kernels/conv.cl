@@ -482,8 +482,11 @@ static AV stored_av(AV v)
 {
     ushort t[OCV];              /* half arrays need cl_khr_fp16; a half pointer does not */
 #if OCV == 16
-    vstore_half16_rte(v, 0, (__private half *)t);
-    return vload_half16(0, (__private const half *)t);
+    /* two 8-lane halves: pip's PoCL 3.0 (LLVM 14) on an AVX-512 EPYC cannot split a
+     * 16-lane float -> half conversion (see pool.cl's blocked max pool) */
+    vstore_half8_rte(v.lo, 0, (__private half *)t);
+    vstore_half8_rte(v.hi, 1, (__private half *)t);
+    return (AV)(vload_half8(0, (__private const half *)t), vload_half8(1, (__private const half *)t));
 #elif OCV == 8
     vstore_half8_rte(v, 0, (__private half *)t);
     return vload_half8(0, (__private const half *)t);
@@ -495,6 +498,36 @@ static AV stored_av(AV v)
 #define STORED_AV(v) stored_av(v)
 #else
 #define STORED_AV(v) (v)
+#endif
+
+/* The activation on a vector of OCV channels. sigmoid and tanh call exp / tanh: on a
+ * 16-lane vector, pip's PoCL 3.0 (LLVM 14) on an AVX-512 EPYC crashed in instruction
+ * selection ("Do not know how to scalarize this operator's operand!", or a segfault), which
+ * turned the whole blocked path off there; two 8-lane halves compile on every compiler and
+ * cost the same where 16 lanes are native. The cheap activations stay whole. */
+#if OCV == 16 && (ACT == ACT_SIGMOID || ACT == ACT_TANH)
+inline AV act_av(AV v, float alpha)
+{
+    AV r;
+    r.lo = APPLY_ACT(v.lo, alpha);
+    r.hi = APPLY_ACT(v.hi, alpha);
+    return r;
+}
+#define ACT_AV(v, alpha) act_av((v), (alpha))
+#else
+#define ACT_AV(v, alpha) APPLY_ACT(v, alpha)
+#endif
+#if OCV == 16
+inline AV sigmoid_av(AV v)
+{
+    AV r;
+    r.lo = SIGMOID(v.lo);
+    r.hi = SIGMOID(v.hi);
+    return r;
+}
+#define SIGMOID_AV(v) sigmoid_av(v)
+#else
+#define SIGMOID_AV(v) SIGMOID(v)
 #endif
 
 /* One pixel's vector of OCV output channels stored whole at p (the blocked layout's
@@ -563,11 +596,14 @@ __kernel void to_blocked_at(__global const TB *x, __global TB *xb, int Cx, int c
             continue;
         const __global TB *s = x + ((long)n * Cx + c0 + dc - d0) * hw + (long)iy * W + ix0;
         if (np == 16) {
-            TB16 v = vload16(0, s);
-            dst[0 * B + j] = v.s0; dst[1 * B + j] = v.s1; dst[2 * B + j] = v.s2; dst[3 * B + j] = v.s3;
-            dst[4 * B + j] = v.s4; dst[5 * B + j] = v.s5; dst[6 * B + j] = v.s6; dst[7 * B + j] = v.s7;
-            dst[8 * B + j] = v.s8; dst[9 * B + j] = v.s9; dst[10 * B + j] = v.sa; dst[11 * B + j] = v.sb;
-            dst[12 * B + j] = v.sc; dst[13 * B + j] = v.sd; dst[14 * B + j] = v.se; dst[15 * B + j] = v.sf;
+            /* two 8-wide loads, not one vload16: pip's PoCL 3.0 on an AVX-512 EPYC returned
+             * wrong lanes 8-15 from a uint16 load here (fp32; ushort16 in fp16 was right),
+             * which kept the whole blocked path off in fp32 there */
+            const TB8 a = vload8(0, s), b = vload8(0, s + 8);
+            dst[0 * B + j] = a.s0; dst[1 * B + j] = a.s1; dst[2 * B + j] = a.s2; dst[3 * B + j] = a.s3;
+            dst[4 * B + j] = a.s4; dst[5 * B + j] = a.s5; dst[6 * B + j] = a.s6; dst[7 * B + j] = a.s7;
+            dst[8 * B + j] = b.s0; dst[9 * B + j] = b.s1; dst[10 * B + j] = b.s2; dst[11 * B + j] = b.s3;
+            dst[12 * B + j] = b.s4; dst[13 * B + j] = b.s5; dst[14 * B + j] = b.s6; dst[15 * B + j] = b.s7;
         } else {
             for (int p = 0; p < np; ++p)
                 dst[p * B + j] = s[p];
@@ -755,8 +791,8 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
         const AV bf = *(__global const AVu *)(bp + co0 + 2 * v * OCV);
         const AV bg = *(__global const AVu *)(bp + co0 + (2 * v + 1) * OCV);
         for (int p = 0; p < PX; ++p)
-            acc[v][p] = STORED_AV(APPLY_ACT(acc[2 * v][p] + bf, alpha))
-                        * STORED_AV(SIGMOID(acc[2 * v + 1][p] + bg));
+            acc[v][p] = STORED_AV(ACT_AV(acc[2 * v][p] + bf, alpha))
+                        * STORED_AV(SIGMOID_AV(acc[2 * v + 1][p] + bg));
     }
 #else
 #define ENV NV
@@ -778,7 +814,7 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
 #if GATED
             const AV t = acc[v][p];
 #else
-            const AV t = APPLY_ACT(acc[v][p] + EPI_BIAS(v), alpha);
+            const AV t = ACT_AV(acc[v][p] + EPI_BIAS(v), alpha);
 #endif
             STORE_BLOCK_AV(yo + p * OCV, t);
         }
@@ -798,7 +834,7 @@ __kernel void conv2d_blocked(__global const T *x, __global const A *wp, __global
 #else
             AV t = acc[v][p] + EPI_BIAS(v);
             if (!(flags & (F_RES_BEFORE | F_RES_AFTER)))
-                t = APPLY_ACT(t, alpha);
+                t = ACT_AV(t, alpha);
 #endif
             VSTORE_AV(t, 0, u[p]);
         }
@@ -1002,7 +1038,7 @@ __kernel void conv2d_wino(__global const T *x, __global const A *u, __global con
                 ot[1][1] = r1[1] - r1[2] - r1[3];
                 for (int dy = 0; dy < 2; ++dy)
                     for (int dx = 0; dx < 2; ++dx) {
-                        const AV r = APPLY_ACT(ot[dy][dx] + b, alpha);
+                        const AV r = ACT_AV(ot[dy][dx] + b, alpha);
 #if OUT_BLOCKED
                         const int oy = oy0 + dy, ox = ox0 + 2 * t + dx;
                         if (oy >= Ho || ox >= Wo)

@@ -322,7 +322,14 @@ typedef float8 FB;
 #else
 #error "BLK must be 8 or 16"
 #endif
-#if defined(CLSS_FP16)
+#if defined(CLSS_FP16) && BLK == 16
+/* as two 8-lane halves: pip's PoCL 3.0 (LLVM 14) on an AVX-512 EPYC aborted compiling
+ * vstore_half16_rte ("Do not know how to split this operator's operand!"); the halves are the
+ * same bits on every compiler */
+#define LD_B(p, k) ((FB)(vload_half8(2 * (k), (p)), vload_half8(2 * (k) + 1, (p))))
+#define ST_B(p, k, v) (vstore_half8_rte((v).lo, 2 * (k), (p)), vstore_half8_rte((v).hi, 2 * (k) + 1, (p)))
+typedef FB AB;
+#elif defined(CLSS_FP16)
 #define LD_B(p, k) LDH_B((k), (p))
 #define ST_B(p, k, v) STH_B((v), (k), (p))
 typedef FB AB;
