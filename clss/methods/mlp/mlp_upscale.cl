@@ -383,14 +383,40 @@ inline FV fu_lshift(FV v)
 /* |x| and sign by selects: no builtin calls */
 #define FABS(x) ((x) < 0.0f ? -(x) : (x))
 
+/* exp2, log2 and sqrt on 16 lanes as two 8-lane halves: pip's PoCL 3.0 (LLVM 14) on an
+ * AVX-512 EPYC segfaulted compiling them on whole 16-lane vectors (the self-check turned
+ * the fused path off there); halves vectorise the same on every compiler */
+inline FV fu_exp2_scaled(float y, FV x)
+{
+#if VEC == 16
+    FV r;
+    r.lo = exp2(y * log2(x.lo));
+    r.hi = exp2(y * log2(x.hi));
+    return r;
+#else
+    return exp2(y * log2(x));
+#endif
+}
+inline FV fu_sqrt(FV a)
+{
+#if VEC == 16
+    FV r;
+    r.lo = sqrt(a.lo);
+    r.hi = sqrt(a.hi);
+    return r;
+#else
+    return sqrt(a);
+#endif
+}
+
 inline FV fu_ramp(FV r)
 {
     const FV a = FABS(r) + (float)EPS;
     FV mag;
     if ((float)GAMMA == 2.0f)
-        mag = sqrt(a) - (float)EPS_ROOT;
+        mag = fu_sqrt(a) - (float)EPS_ROOT;
     else
-        mag = exp2(log2(a) * (float)INV_GAMMA) - (float)EPS_ROOT;
+        mag = fu_exp2_scaled((float)INV_GAMMA, a) - (float)EPS_ROOT;
     return r > 0.0f ? mag : (r < 0.0f ? -mag : (FV)(0.0f));
 }
 
@@ -401,14 +427,14 @@ inline FV fu_ramp_inv(FV y)
     if ((float)GAMMA == 2.0f)
         mag = a * a - (float)EPS;
     else
-        mag = exp2(log2(a) * (float)GAMMA) - (float)EPS;
+        mag = fu_exp2_scaled((float)GAMMA, a) - (float)EPS;
     return y > 0.0f ? mag : (y < 0.0f ? -mag : (FV)(0.0f));
 }
 
 /* x^y for x >= 0 (0 at 0), whole vectors: exp2/log2 vectorise */
 inline FV fu_pow(FV x, float y)
 {
-    return x > 0.0f ? exp2(y * log2(x)) : (FV)(0.0f);
+    return x > 0.0f ? fu_exp2_scaled(y, x) : (FV)(0.0f);
 }
 
 inline FV fu_clamp01(FV x)
