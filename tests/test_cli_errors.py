@@ -401,9 +401,11 @@ def test_demo_ctrl_c_leaves_whole_frames(frames, tmp_path, capsys, monkeypatch):
         return real(path, *a, **k)
     monkeypatch.setattr(clss.io, "write_png", write_png)
     out = tmp_path / "demo"
+    # --exr: the full sequences, whose frames must stay whole (by default the demo writes only
+    # its pictures, after the last frame)
     rc, cap = _run(["demo", "-o", out, "-n", "3", "--size", "13x9", "--methods",
-                    "bicubic,clss-rules", "--workers", "1", "--spp", "1"], capsys)
-    assert rc == 130 and "interrupted; 1 frames written" in cap.err
+                    "bicubic,clss-rules", "--workers", "1", "--spp", "1", "--exr"], capsys)
+    assert rc == 130 and "interrupted; 1 frames written" in cap.err, cap.err
     for d in ("bicubic", "clss-rules"):
         assert sorted(os.listdir(out / d)) == ["frame.0000.exr", "frame.0000.png"]
     assert sorted(os.listdir(out / "input")) == ["albedo_hr.0000.exr", "depth_hr.0000.exr",

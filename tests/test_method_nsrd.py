@@ -157,7 +157,7 @@ def test_demo_and_upscale_cli(tmp_path, capsys):
     from clss.cli import main
     demo = tmp_path / "demo"
     assert main(["demo", "-o", str(demo), "--frames", "3", "--size", "32x18", "--scale", "2",
-                 "--methods", "nsrd", "--workers", "1"]) == 0
+                 "--methods", "nsrd", "--workers", "1", "--exr"]) == 0
     assert "nsrd" in json.loads((demo / "metrics.json").read_text())["methods"]
     out = tmp_path / "up"
     assert main(["upscale", str(demo / "input"), "--method", "nsrd", "--scale", "2",

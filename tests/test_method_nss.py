@@ -160,7 +160,7 @@ def test_upscale_cli(tmp_path, capsys):
     from clss.cli import main
     demo = tmp_path / "demo"
     assert main(["demo", "-o", str(demo), "--frames", "3", "--size", "32x18", "--scale", "2",
-                 "--methods", "bicubic", "--workers", "1"]) == 0
+                 "--methods", "bicubic", "--workers", "1", "--exr"]) == 0
     out = tmp_path / "up"
     assert main(["upscale", str(demo / "input"), "--method", "nss", "--scale", "2",
                  "--weights", "untrained", "-o", str(out)]) == 0

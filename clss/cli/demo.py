@@ -233,9 +233,9 @@ def main(argv=None) -> int:
             cio.write_json(os.path.join(in_dir, "jitter.json"),
                         dict(sidecar, frames=sidecar["frames"][:k], jitter=sidecar["jitter"][:k],
                              resets=[r for r in sidecar["resets"] if r in sidecar["frames"][:k]]))
-        done = f"{files.done_frames} frames written to {out}" if a.exr else \
-            f"after {files.done_frames} frames"
-        print(f"\nclss demo: interrupted {done} (no pictures or metrics)", file=sys.stderr)
+        done = f"; {files.done_frames} frames written to {out}" if a.exr else \
+            f" after {files.done_frames} frames"
+        print(f"\nclss demo: interrupted{done} (no pictures or metrics)", file=sys.stderr)
         return 130
     total_s = time.perf_counter() - t_all
     side = _write_pictures(a, ups, names, trained, (H, W), run)
