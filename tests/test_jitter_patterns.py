@@ -52,7 +52,8 @@ def test_as_sent_round_trips_through_the_contract(units, negate):
     j = J.pattern_jitter("r2", 6)
     values, scale = J.as_sent(j, units, negate=negate, render_size=(90, 160))
     if units == "ndc":
-        assert np.sign(values[:, 1]).tolist() == (-np.sign(j[:, 1]) * (-1 if negate else 1)).tolist()
+        up = -1 if negate else 1          # NDC's y points up: the sign flips once more
+        assert np.sign(values[:, 1]).tolist() == (-np.sign(j[:, 1]) * up).tolist()
     contract = clss.Contract(jitter_scale=scale)
     back = np.array([contract.jitter(v) for v in values])
     assert np.allclose(back, j, atol=1e-6)

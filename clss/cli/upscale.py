@@ -95,7 +95,8 @@ def add_upscale_options(p: ArgParser) -> ArgParser:
                         "(buffers: color, depth, motion, reference and the G-buffers of "
                         "docs/input-contract.md, e.g. albedo, normal)")
     p.add_argument("--jitter", default=None,
-                   help="jitter sidecar (JSON/CSV), 'halton' or 'zero' (default: sidecar, else halton)")
+                   help="jitter sidecar (JSON/CSV) or a pattern: halton, zero, 2x2, halton8, "
+                   "halton16, r2 (docs/input-contract.md; default: sidecar, else halton)")
     p.add_argument("--frames", "-n", type=positive_int, default=None, help="only the first N frames")
     add_contract_args(p)
     p.add_argument("--sanitize", action="store_true",

@@ -172,7 +172,8 @@ def gym_window_loss(step, fr, m, args):
         keep = (~fr[i]["reset"]).to(outs[i].dtype).view(-1, 1, 1, 1)   # a cut: no change
         d_out = outs[i] - warp_back(outs[i - 1], fr[i]["motion"])
         d_ref = refs[i] - warp_back(refs[i - 1], fr[i]["motion"])
-        temporal_t = ((torch.exp(4.0 * (d_ref - d_out).abs()) - 1.0) * keep)[:, :, m:-m, m:-m].mean()
+        gap = torch.exp(4.0 * (d_ref - d_out).abs()) - 1.0
+        temporal_t = (gap * keep)[:, :, m:-m, m:-m].mean()
         a, b = outs[i][:, :, m:-m, m:-m], refs[i][:, :, m:-m, m:-m]
         spatial_t = (a - b).abs().mean() + args.ssim * (1.0 - ssim(a, b))
         st_loss = st_loss + (1.0 - w[i - 1]) * temporal_t + w[i - 1] * spatial_t
