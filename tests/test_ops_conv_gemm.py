@@ -227,3 +227,30 @@ def test_clss_verify_lists_every_conv_row_and_its_state_on_the_device(dev):
         assert f"  {row.name} " in text
     if dev.is_cpu:
         assert "mma          fp32 does not apply here" in text
+
+
+def test_a_device_with_small_work_groups_gets_larger_register_tiles(dev):
+    # the default 64 x 64 tile needs 256 work-items at RM = RN = 4; a device that allows 64
+    # runs the same tile with 8 x 8 per work-item, and the same result
+    class Small:
+        max_work_group_size = 64
+
+    class Dev:
+        def __init__(self, real):
+            self._real, self.cl_device = real, Small()
+
+        def __getattr__(self, name):
+            return getattr(self._real, name)
+    launched = []
+    small = Dev(dev)
+    small.launch = lambda k, gs, args, local_size=None: launched.append(local_size) or dev.launch(
+        k, gs, args, local_size=local_size)
+    x, w, b = _tensors(dev)
+    ref = _conv(dev, x, w, b, tuning={"VARIANT": "direct"})
+    layer = _layer()
+    out = dev.empty(ref.shape, "fp32")
+    call = conv.ConvCall(x, w, b, None, "relu", 0.01, None, True, out, ref.shape[2], ref.shape[3], None)
+    conv_gemm.launch(small, "fp32", layer, call, conv._act("relu"), conv._flags(b, None, True),
+                     key=conv.layer_key(layer, "fp32"), variant="gemm")
+    assert launched[0][0] * launched[0][1] <= 64
+    np.testing.assert_allclose(dev.to_host(out), ref, rtol=1e-5, atol=1e-5)

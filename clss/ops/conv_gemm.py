@@ -57,7 +57,16 @@ def launch(dev: Device, prec: str, layer, call, act: int, flags: int, *, key: st
         if t["TM"] % t["RM"] or t["TN"] % t["RN"]:
             raise ValueError(f"conv2d: tile TM={t['TM']} TN={t['TN']} is not a multiple of RM={t['RM']} "
                              f"RN={t['RN']}")
+        # a device whose work-groups are smaller than the tile's (some take 128 or 256
+        # work-items): each work-item takes more of the tile, the tile stays
+        limit = int(dev.cl_device.max_work_group_size)
+        while (t["TN"] // t["RN"]) * (t["TM"] // t["RM"]) > limit:
+            if t["RN"] < t["TN"] and (t["RN"] <= t["RM"] or t["RM"] == t["TM"]):
+                t["RN"] *= 2
+            else:
+                t["RM"] *= 2
         ls = (t["TN"] // t["RN"], t["TM"] // t["RM"], 1)
+        tiles.update(RM=t["RM"], RN=t["RN"])
     k = dev.kernel("conv_gemm", "conv2d_gemm", prec, KH=kh, KW=kw, ACT=act, CONV_LOCAL=int(local),
                    CONV_MMA=int(mma), **tiles)
     gs = (-(-ho_wo(call) // t["TN"]) * ls[0], -(-cout_g // t["TM"]) * ls[1], n * group)
