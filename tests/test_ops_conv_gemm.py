@@ -167,8 +167,11 @@ def _gemm_off_by_one(monkeypatch):
 
 
 def _probing(monkeypatch, rows=("gemm",)):
-    """The GPU rows' first-use probe, turned on for `rows` on this (CPU) device."""
+    """The GPU rows' first-use probe, turned on for `rows` on this (CPU) device, with an empty
+    in-process memo of probed layers."""
     import dataclasses
+    from clss.ops import variants
+    monkeypatch.setattr(variants, "_probed", {})
     table = tuple(dataclasses.replace(v, probe=lambda d: True) if v.name in rows else v
                   for v in conv.VARIANTS)
     monkeypatch.setattr(conv, "VARIANTS", table)
@@ -254,3 +257,22 @@ def test_a_device_with_small_work_groups_gets_larger_register_tiles(dev):
                      key=conv.layer_key(layer, "fp32"), variant="gemm")
     assert launched[0][0] * launched[0][1] <= 64
     np.testing.assert_allclose(dev.to_host(out), ref, rtol=1e-5, atol=1e-5)
+
+
+def test_a_probe_runs_once_per_layer_even_where_the_cache_cannot_be_written(dev, db, monkeypatch):
+    from clss.ops import variants
+    _probing(monkeypatch)
+    monkeypatch.setattr(variants, "_probed", {})
+    calls = []
+
+    def failing_store(*a, **kw):
+        calls.append(1)
+        raise PermissionError("read-only cache")
+    monkeypatch.setattr(tuning, "store", failing_store)
+    x, w, b = _tensors(dev)
+    with selfcheck.forcing("conv.gemm", True), pytest.warns(UserWarning, match="probing the variants"):
+        first = _conv(dev, x, w, b)
+    with selfcheck.forcing("conv.gemm", True):
+        again = _conv(dev, x, w, b)
+    assert calls == [1]
+    np.testing.assert_allclose(first, again, rtol=1e-5, atol=1e-5)

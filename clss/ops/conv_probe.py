@@ -67,8 +67,9 @@ def enabled() -> bool:
     return os.environ.get("CLSS_PROBE", "1").strip() not in ("0", "off", "no", "false")
 
 
-def probe(dev, prec: str, key: str, layer, rows, default: str, *, tensors, run) -> None:
-    """Time the probed rows against `default` on this layer and store the winner (module doc).
+def probe(dev, prec: str, key: str, layer, rows, default: str, *, tensors, run) -> str:
+    """Time the probed rows against `default` on this layer, store the winner (module doc) and
+    return its name.
     tensors(dev, prec, layer) and run(dev, prec, layer, tensors, tuning): the op's own
     (clss.ops.conv.layer_tensors, run_layer)."""
     base = getattr(dev, "base", dev)    # a model's planning device: measure on the real one
@@ -82,3 +83,4 @@ def probe(dev, prec: str, key: str, layer, rows, default: str, *, tensors, run) 
     tuning.store(base, "conv2d", key, {"VARIANT": best[0]}, ms=best[2], default_ms=ref_ms, default=default,
                  layer=str(layer), precision=prec, probed=True,
                  trials={t[0]: (round(t[2], 4) if t[2] is not None else t[3]) for t in trials})
+    return best[0]

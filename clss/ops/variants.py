@@ -53,6 +53,7 @@ class Variant:
 
 
 _recorded: list | None = None     # (op, layer) of each choice, while recording()
+_probed: dict = {}                # (device, op, layer key) -> the row its probe chose, this process
 
 
 @contextmanager
@@ -115,13 +116,25 @@ def choose(dev, prec: str, op: str, key: str, rows, layer, explicit: dict | None
     if _recorded is not None:
         _recorded.append((op, layer))
     by_name = {r.name: r for r in candidates(dev, prec, rows, layer, exclude)}
-    if probe is not None and not _named(dev, op, key, explicit):
+    memo = (tuning.device_key(dev), op, key)
+    if probe is not None and memo not in _probed and not _named(dev, op, key, explicit):
         probed = [r for r in by_name.values() if r.probe(dev) and r.enabled(dev, prec)]
         default = next((by_name[n] for n in order(dev, op, key, rows, explicit)
                         if n in by_name and by_name[n] not in probed and by_name[n].enabled(dev, prec)), None)
         if probed and default is not None:
-            probe(dev, prec, key, layer, probed, default.name)
-    for name in order(dev, op, key, rows, explicit):
+            # once per process and layer, whatever happens: a cache that cannot be written (or
+            # a probe that fails) must not make every later call probe again
+            _probed[memo] = default.name
+            try:
+                _probed[memo] = probe(dev, prec, key, layer, probed, default.name) or default.name
+            except Exception as e:      # the probe is an optimisation: the default row runs
+                import warnings
+                warnings.warn(f"{op}: probing the variants of {layer} failed ({type(e).__name__}: {e}); "
+                              f"using {default.name}")
+    names = order(dev, op, key, rows, explicit)
+    if memo in _probed and not (explicit or {}).get("VARIANT") and not tuning.overridden(op).get("VARIANT"):
+        names.insert(0, _probed[memo])
+    for name in names:
         r = by_name.get(name)
         if r is not None and r.enabled(dev, prec):
             return r
