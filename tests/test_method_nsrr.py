@@ -83,6 +83,30 @@ def test_depth_rejection_matches_its_onnx_twin(scale, precision, dev):
     assert np.abs(_hist(ours)[12:24]).max() > 0
 
 
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("scale", [2.0, 4.0])
+def test_rules_base_matches_its_onnx_twin(scale, precision, dev):
+    """base "rules" (networks.BASES, issue 53): clss-rules' frame step inside NSRR's, its
+    PQ output the residual's base and 3 more U-Net inputs, over a reset, with the depth
+    rejection on; the twin inlines clss-rules' own frame graph. The base is the rules'
+    output: with the U-Net's output conv at zero, NSRR's output is clss-rules'."""
+    cfg = nets.make_config("default", act="leaky", reject="depth", base="rules")
+    w = nets.init_weights(cfg, seed=6)
+    w["un.9.weight"] = w["un.9.weight"] * 10
+    ours, twin = _run(dev, scale, precision, weights=(cfg, w))
+    assert {"rules_hist", "jitter"} <= {i.name for i in twin.model.graph.input}
+    assert np.abs(_hist(ours)[12:24]).max() > 0
+    w["un.9.weight"][:], w["un.9.bias"][:] = 0.0, 0.0
+    up = clss.Upscaler(method="nsrr", scale=scale, device=dev, precision=precision, weights=(cfg, w))
+    rules = clss.Upscaler(method="clss-rules", scale=scale, device=dev, precision=precision)
+    # (fp16: NSRR's output passes through half storage once more than the rules')
+    tol = 1e-5 if precision == "fp32" else 1e-2
+    for i, f in enumerate(frames(RENDER, 6, scale=scale)):
+        a = up.step(f.color, f.depth, f.motion, f.jitter, reset=i == RESET_AT)
+        b = rules.step(f.color, f.depth, f.motion, f.jitter, reset=i == RESET_AT)
+        assert (np.abs(a - b) <= tol * np.abs(b).max() + tol * np.abs(b)).all(), f"frame {i}"
+
+
 @pytest.mark.parametrize("kw", [{"reset_fill": "duplicate"}, {"history": 2}])
 def test_reset_fill_and_short_history_match_the_twin(kw, dev):
     ours, _ = _run(dev, 4.0, "fp32", n=6, **kw)

@@ -325,10 +325,12 @@ class FrameStep:
 
     # -- one frame ------------------------------------------------------------
     def run(self, color, depth, motion, reactive, jitter, reset, *, depth_inverted=True,
-            motion_scale=(1.0, 1.0), exposure=1.0, out=None):
+            motion_scale=(1.0, 1.0), exposure=1.0, out=None, read_flags=True):
         """Enqueue one frame (device arrays in image layout, float32) with no host wait:
         no finish, no host read or allocation between its launches. Returns the event of
-        the flags read-back, enqueued last; the caller waits on it and calls `verdict()`."""
+        the flags read-back, enqueued last; the caller waits on it and calls `verdict()`.
+        read_flags=False (a step inside another method's, NSRR's rules base): no read-back,
+        the last kernel's event instead."""
         q, L = self.dev.queue, self.launch
         i32, f = np.int32, np.float32
         out = self.out if out is None else out
@@ -362,6 +364,8 @@ class FrameStep:
             ev.append(("compose", L["compose"]()))
         if self.profile:
             self.events.extend(ev)
+        if not read_flags:
+            return ev[-1][1]
         # The one host read of a frame, last: later kernels only read the flags.
         return cl.enqueue_copy(q, self.flags_host, self.flags.data, is_blocking=False)
 

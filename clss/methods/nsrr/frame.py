@@ -7,9 +7,15 @@ Per frame (render h x w, output H x W, padded Hp x Wp = multiples of 4; N histor
     reproject     feat, mv, hist -> stack [12(N+1),Hp,Wp]   zero-upsampling with the jitter,
                                                             motion upsampled bilinearly,
                                                             the history warped one step
+    rules         colour, depth, motion -> base [3,Hp,Wp]   with config "base": "rules" only:
+                                                            clss-rules' frame step (the rule-
+                                                            mode kernels of clss/methods/clss,
+                                                            its own history), its PQ output
+                                                            copied into the padded base
     reconstruct   stack -> y [3,Hp,Wp]                      (clss.Model: reweighting + U-Net;
                                                             + base, the jittered colour
-                                                            bilinear, with the residual)
+                                                            bilinear or the rules' output,
+                                                            with the residual)
     finish        y -> out [H,W,3] linear
 
 The stack is double-buffered: its first 12N channels are the next frame's history, so
@@ -33,11 +39,11 @@ from ...ops.conv import builtin_free, vector_width
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from ...pipeline.method import input_buffers, summed_event_ms
 from ...tolerance import DEFAULT_TOL, EXACT
-from .networks import FEAT, build_features, build_reconstruct, reject_tau
+from .networks import FEAT, build_features, build_reconstruct, reject_tau, rules_base
 
 KERNEL = Path(__file__).with_name("nsrr.cl")   # the frame kernels, beside this file
 
-STAGES = ("prepare", "features", "reproject", "reconstruct", "finish")
+STAGES = ("prepare", "rules", "features", "reproject", "reconstruct", "finish")
 RESET_FILLS = ("zero", "duplicate")
 
 
@@ -91,6 +97,14 @@ class NsrrFrameStep:
         self.residual = bool(cfg.get("residual", False))
         self.base = e((1, 3, Hp, Wp), prec)
         self.out = e((self.H, self.W, 3), dtype=f32)
+        # "base": "rules": clss-rules' frame step on the same inputs (its history is its own,
+        # kept and reset as the rules keep it); its PQ colour (history channels 0-2) is
+        # copied into rbase, whose padding stays 0, and fed to the U-Net as its base
+        self.rules = self.rbase = None
+        if rules_base(cfg):
+            self.rules = rules_frame_step(dev, prec, (h, w), scale, self.nits, self.profile)
+            self.rbase = e((1, 3, Hp, Wp), prec)
+            dev.zero(self.rbase)
         # zeroed once: no kernel reads uninitialised memory (tests/test_oclgrind_methods.py)
         for a in (*self.stacks, *self.deps):
             dev.zero(a)
@@ -171,6 +185,9 @@ class NsrrFrameStep:
         fin.bind(1, out.data)
         fin.bind(6, f(PQ_PEAK_NITS / self.nits * exposure))
         ev = [("prepare", p())]
+        if self.rules is not None:
+            ev += self._rules(color, depth, motion, (jx, jy), reset, depth_inverted,
+                              motion_scale, exposure)
         fe = [] if self.profile else None
         self.features.run_device({"rgbd": self.rgbd}, out={"feat": self.feat}, events=fe)
         ev += [("features", e) for e in fe or ()]
@@ -179,7 +196,8 @@ class NsrrFrameStep:
         ev.append(("reproject", r()))
         re = [] if self.profile else None
         # (one launch plan per stack buffer: clss.Model keeps both and replays them)
-        feeds = {"stack": stack, "base": self.base} if self.residual else {"stack": stack}
+        base = self.base if self.rules is None else self.rbase
+        feeds = {"stack": stack, "base": base} if self.residual else {"stack": stack}
         self.reconstruct.run_device(feeds, out={"y": self.y}, events=re)
         ev += [("reconstruct", e) for e in re or ()]
         last = fin()
@@ -189,6 +207,25 @@ class NsrrFrameStep:
         self.cur = 1 - self.cur
         self.accepted = True
         return out, last
+
+    def _rules(self, color, depth, motion, jitter, reset, depth_inverted, motion_scale, exposure):
+        """Enqueue clss-rules' frame step and copy its PQ colour into rbase (no host wait,
+        no flags read: a frame the rules would refuse is not refused here). Returns the
+        profiled events."""
+        rs = self.rules
+        rs.run(color, depth, motion, None, jitter, reset, depth_inverted=depth_inverted,
+               motion_scale=motion_scale, exposure=exposure, read_flags=False)
+        rs.accept()
+        b, H, W = self.rbase.dtype.itemsize, self.H, self.W
+        copy = cl.enqueue_copy(self.dev.queue, self.rbase.data, rs.state.data,
+                               src_origin=(0, 0, 0), dst_origin=(0, 0, 0), region=(W * b, H, 3),
+                               src_pitches=(W * b, H * W * b),
+                               dst_pitches=(self.Wp * b, self.Hp * self.Wp * b))
+        if not self.profile:
+            return []
+        ev = [("rules", e) for _, e in rs.events] + [("rules", copy)]
+        rs.events.clear()
+        return ev
 
     @property
     def hist(self):
@@ -202,10 +239,23 @@ class NsrrFrameStep:
         arrays = [self.in_color, self.in_depth, self.in_motion, self.rgbd, self.mv, *self.deps, self.feat,
                   *self.stacks, self.y, self.base, self.out] + ([self.xy] if self.xy is not None else [])
         n = sum(a.nbytes for a in arrays)
+        if self.rules is not None:
+            n += self.rbase.nbytes + self.rules.device_bytes()
         for m in (self.features, self.reconstruct):
             mem = m.memory()
             n += mem.get("weights_bytes", 0) + mem.get("intermediate_peak_bytes", 0)
         return int(n)
+
+
+def rules_frame_step(dev: Device, prec: str, render_size, scale, nits, profile=False):
+    """clss-rules' own frame step (the rule-mode kernels of clss/methods/clss/frame.cl, its
+    defaults), asked of the method registry as the shared code asks for a method: no room
+    imports another (.importlinter). Its `run(..., read_flags=False)`, `accept()` and
+    `state` ([16, H, W], PQ colour in channels 0-2) are what NSRR's step uses."""
+    from .. import create
+    up = create("clss-rules", scale=scale, device=dev, precision=prec, nits=nits,
+                profile=profile)
+    return up._build_frame_step(*render_size)
 
 
 # The reprojection on runs of 8 output pixels of a row, in plane groups (nsrr.cl, VEC = 8):

@@ -16,7 +16,8 @@ output is added to `base` [1,3,H,W], the current frame's PQ colour resampled bil
 at the output pixel centres with its jitter (nsrr.cl). The network then learns a
 correction instead of the image; with the ~1000 training steps this machine affords, the
 paper's form (residual False, still supported) stayed hazy and grey well below the
-spatial baselines (docs/methods/nsrr.md).
+spatial baselines (docs/methods/nsrr.md). With config "base": "rules" (BASES) the base is
+the clss-rules output instead, and the U-Net also reads it (3 more input channels).
 
 Widths. The paper's (32-32-8 | 32-32-N | 64-32, 64-64, 128-128, 64-64, 32-3) cost 163
 kMAC per output pixel with N = 4 (`macs_per_pixel`); at 270p -> 1080p that is 0.68 TFLOP
@@ -49,6 +50,15 @@ ACTS = ("relu", "leaky")
 # the warp brings back what the moved object covered (the ghost beside make demo's sphere).
 REJECTS = ("none", "depth")
 REJECT_TAU = 0.1
+# The residual's base (config "base", issue 53): "bilinear" (files without the key: the
+# current frame's PQ colour bilinear at the output pixel centres, jitter-aware) or "rules":
+# the clss-rules method's output for this frame (its history clipped into the render
+# neighbourhood's colour box and blended by its fixed rule; PQ, from clss/methods/clss's
+# rule-mode frame step, its history kept as the rules keep it). With "rules" the base is
+# also an input of the U-Net: BASE_CHANNELS more channels of un.0, after the reweighted
+# stack, and the network corrects the rules instead of replacing them.
+BASES = ("bilinear", "rules")
+BASE_CHANNELS = 3
 LEAKY_ALPHA = 0.1
 OPSET = 18
 
@@ -62,7 +72,7 @@ WIDTHS = {
 
 
 def make_config(widths="default", n_prev=MAX_PREV, residual=True, act="relu",
-                reject="none") -> dict:
+                reject="none", base="bilinear") -> dict:
     w = preset_widths(widths, WIDTHS)
     n_prev = int(n_prev)
     if not 1 <= n_prev <= MAX_PREV:
@@ -77,7 +87,26 @@ def make_config(widths="default", n_prev=MAX_PREV, residual=True, act="relu",
         raise ValueError(f"reject: expected one of {', '.join(REJECTS)}, got {reject!r}")
     if reject != "none":        # configs without the key keep every warped sample
         w["reject"] = reject
+    if base not in BASES:
+        raise ValueError(f"base: expected one of {', '.join(BASES)}, got {base!r}")
+    if base != "bilinear":      # configs without the key: the bilinear base
+        if not residual:
+            raise ValueError(f"base {base!r}: needs the residual (the network corrects its base)")
+        w["base"] = base
     return w
+
+
+def base_of(cfg) -> str:
+    """The residual's base (BASES): "rules" or "bilinear" (files without the key)."""
+    b = cfg.get("base", "bilinear")
+    if b not in BASES:
+        raise ValueError(f"NSRR config: base expected one of {', '.join(BASES)}, got {b!r}")
+    return b
+
+
+def rules_base(cfg) -> bool:
+    """True where the base is the clss-rules output, also fed to the U-Net."""
+    return bool(cfg.get("residual", False)) and base_of(cfg) == "rules"
 
 
 def reject_tau(cfg) -> float:
@@ -99,7 +128,7 @@ def layer_shapes(cfg) -> dict:
     f1, f2 = cfg["fe"]
     r1, r2 = cfg["rw"]
     u = cfg["un"]
-    cin = FEAT * (1 + n)
+    cin = FEAT * (1 + n) + (BASE_CHANNELS if rules_base(cfg) else 0)
     s = {"fe.0": (f1, 4), "fe.1": (f2, f1), "fe.2": (FEAT_LEARNED, f2),
          "rw.0": (r1, 4 * (1 + n)), "rw.1": (r2, r1), "rw.2": (n, r2),
          "un.0": (u[0], cin), "un.1": (u[1], u[0]),
@@ -167,7 +196,9 @@ def build_reconstruct(cfg, weights, H="H", W="W") -> onnx.ModelProto:
     r = g.op("Mul", g.op("Add", r, g.const(np.float32(1.0), hint="one")), half)
     parts = [g.op("Mul", g.slice(x, 1, FEAT * k, FEAT * (k + 1)), g.slice(r, 1, k - 1, k))
              for k in range(1, n + 1)]
-    x = g.op("Concat", g.slice("stack", 1, 0, FEAT), *parts, axis=1)
+    # (with the rules' base: the base too, the network's input as well as what it corrects)
+    x = g.op("Concat", g.slice("stack", 1, 0, FEAT), *parts,
+             *(["base"] if rules_base(cfg) else []), axis=1)
     # The reconstruction U-Net.
     pool = dict(kernel_shape=[2, 2], strides=[2, 2])
     up = g.const(np.array([1, 1, 2, 2], np.float32), hint="scales")

@@ -12,7 +12,11 @@ Graph inputs (internal conventions, contract.to_internal):
         (computed from the jitter by `zu_index`, as nsrr.cl places samples)
     keep [1]: 1 = warp the history, 0 = a reset;  dup [1]: 1 = after a reset every
         valid slot is the current frame's features ("duplicate"), 0 = zeros
-Outputs: output [1,3,H,W] linear (/ exposure), hist_out [1,12N,H,W].
+    with "base": "rules" (networks.BASES): jitter [2] render pixels and rules_hist
+        [1,16,H,W], the clss-rules step's history (its oracle's, clss/methods/clss/oracle.py,
+        inlined here as the base: rules_hist_out's PQ colour, channels 0-2)
+Outputs: output [1,3,H,W] linear (/ exposure), hist_out [1,12N,H,W], and with the rules'
+base rules_hist_out [1,16,H,W].
 
 The networks (networks.py) are inlined: features on the render frame, then the stack
 [Z_i, warped history] padded to a multiple of 4 for the reconstruction.
@@ -99,7 +103,20 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
     g.nodes[-1].name = "hist_out"
     padded = g.op("Pad", stack, g.i64([0, 0, 0, 0, 0, 0, Hp - H, Wp - W]), mode="constant")
     feeds = {"stack": padded}
-    if cfg.get("residual", False):
+    rules = nets.rules_base(cfg)
+    if rules:
+        # the rules' base: clss-rules' whole frame graph (rule mode, its defaults, no
+        # reactive mask), reset where this step resets; its next history's PQ colour
+        reset = g.sub(g.const(np.float32([1.0]), np.float32, "one"), "keep")
+        react = g.const(np.zeros((1, 1, h, w), np.float32), np.float32, "no_reactive")
+        g.inline(rules_graph((h, w), scale, nits), "rules",
+                 {"color": "color", "depth": "depth", "motion": "motion", "jitter": "jitter",
+                  "reset": reset, "reactive": react, "history": "rules_hist"},
+                 {"history_out": "rules_hist_out", "output": "rules_output"})
+        base = g.slice("rules_hist_out", 1, 0, 3)
+        feeds["base"] = g.op("Pad", base, g.i64([0, 0, 0, 0, 0, 0, Hp - H, Wp - W]),
+                             mode="constant")
+    elif cfg.get("residual", False):
         # the residual base: the PQ colour bilinear at each output pixel centre, jitter-aware
         base = g.op("GridSample", pq, "base_grid", mode="bilinear", padding_mode="border",
                     align_corners=0)
@@ -112,12 +129,29 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
     inputs = ([vi("color", [1, 3, h, w]), vi("depth", [1, 1, h, w]), vi("motion", [1, 2, h, w]),
                vi("hist", [1, C * n, H, W]), vi("zu_y", [H], i64), vi("zu_x", [W], i64),
                vi("keep", [1]), vi("dup", [1])]
-              + ([vi("base_grid", [1, H, W, 2])] if cfg.get("residual", False) else [])
+              + ([vi("base_grid", [1, H, W, 2])] if cfg.get("residual", False) and not rules else [])
+              + ([vi("jitter", [2]), vi("rules_hist", [1, HISTORY_CHANNELS, H, W])] if rules else [])
               + ([vi("depth_prev", [1, 1, h, w]), vi("dtap_y0", [H], i64), vi("dtap_y1", [H], i64),
                   vi("dtap_x0", [W], i64), vi("dtap_x1", [W], i64)] if tau >= 0 else []))
-    return make_model(g.nodes, g.inits, "nsrr_frame", inputs,
-                      [vi("output", [1, 3, H, W]), vi("hist_out", [1, C * n, H, W])],
-                      __name__, OPSET)
+    outputs = [vi("output", [1, 3, H, W]), vi("hist_out", [1, C * n, H, W])]
+    if rules:
+        outputs.append(vi("rules_hist_out", [1, HISTORY_CHANNELS, H, W]))
+    return make_model(g.nodes, g.inits, "nsrr_frame", inputs, outputs, __name__, OPSET)
+
+
+# the rules' history: colour 3, counter, colour min 3, max 3, logits 6 (clss's contract)
+HISTORY_CHANNELS = 16
+
+
+def rules_graph(render_size, scale, nits=PQ_NITS) -> onnx.ModelProto:
+    """clss-rules' whole frame graph (its twin's, through the method registry: no room
+    imports another), inputs color, depth, motion, jitter, reset, reactive, history and
+    outputs output, history_out [1,16,H,W] (PQ colour in channels 0-2)."""
+    from .. import twin
+    model = twin("clss-rules", tuple(render_size), scale, nits=nits).model
+    hist = [i for i in model.graph.input if i.name == "history"][0]
+    assert hist.type.tensor_type.shape.dim[1].dim_value == HISTORY_CHANNELS
+    return model
 
 
 def _depth_keep(g, h, w, sy, sx, px, py, tau):
@@ -166,19 +200,28 @@ class OracleNsrr(TwinRunner):
         self.H, self.W = output_size(h, w, self.scale)
         self.hist = np.zeros((1, nets.FEAT * self.cfg["n_prev"], self.H, self.W), np.float32)
         self.depth_prev = np.zeros((1, 1, h, w), np.float32)
+        # the rules' history ("base": "rules"; zeros: only read after a reset)
+        self.rules_hist = (np.zeros((1, HISTORY_CHANNELS, self.H, self.W), np.float32)
+                           if nets.rules_base(self.cfg) else None)
 
     def step(self, color, depth, motion, jitter, reset=False, **unused):
         x, reset = self._frame(color, depth, motion, jitter, reset)
-        feeds = frame_feeds(self.cfg, x, self.hist, reset, self.reset_fill, self.depth_prev)
-        y, self.hist = self.session.run(["output", "hist_out"], feeds)
+        feeds = frame_feeds(self.cfg, x, self.hist, reset, self.reset_fill, self.depth_prev,
+                            self.rules_hist)
+        if self.rules_hist is None:
+            y, self.hist = self.session.run(["output", "hist_out"], feeds)
+        else:
+            y, self.hist, self.rules_hist = self.session.run(
+                ["output", "hist_out", "rules_hist_out"], feeds)
         self.depth_prev = x["depth"]
         return self._image(y)
 
 
-def frame_feeds(cfg, x, hist, reset, reset_fill="zero", depth_prev=None) -> dict:
+def frame_feeds(cfg, x, hist, reset, reset_fill="zero", depth_prev=None, rules_hist=None) -> dict:
     """The graph's feeds for one frame: `x` the contract's internal arrays (to_internal:
     color, depth, motion NCHW, jitter), `hist` the previous hist_out (zeros on a reset),
-    `depth_prev` the previous frame's x["depth"] (the depth rejection's)."""
+    `depth_prev` the previous frame's x["depth"] (the depth rejection's), `rules_hist` the
+    previous rules_hist_out (the rules' base; zeros on a reset)."""
     h, w = x["depth"].shape[2:]
     H, W = hist.shape[2:]
     jx, jy = (float(v) for v in x["jitter"])
@@ -186,7 +229,11 @@ def frame_feeds(cfg, x, hist, reset, reset_fill="zero", depth_prev=None) -> dict
              "zu_y": zu_index(h, H / h, jy, H), "zu_x": zu_index(w, W / w, jx, W),
              "keep": np.array([0.0 if reset else 1.0], np.float32),
              "dup": np.array([1.0 if reset and reset_fill == "duplicate" else 0.0], np.float32)}
-    if cfg.get("residual", False):
+    if nets.rules_base(cfg):
+        feeds["jitter"] = np.float32([jx, jy])
+        feeds["rules_hist"] = (np.zeros((1, HISTORY_CHANNELS, H, W), np.float32) if rules_hist is None
+                               else np.asarray(rules_hist, np.float32))
+    elif cfg.get("residual", False):
         feeds["base_grid"] = base_grid((h, w), (H, W), (jx, jy))
     if nets.reject_tau(cfg) >= 0:
         feeds["depth_prev"] = (np.zeros_like(x["depth"]) if depth_prev is None

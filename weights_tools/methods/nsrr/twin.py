@@ -6,6 +6,11 @@ trains it and writes the .safetensors file the OpenCL step loads.
 
 Tensors are NCHW float32 in the step's internal domain: rgbd = PQ colour + reversed-Z
 depth, motion in render pixels, the history [N, 12*n_prev, H, W].
+
+With config "base": "rules" (networks.BASES) the residual's base is the clss-rules
+method's PQ output for the frame. The rules have no learned parameters, so the twin takes
+it as data (`rules=`, [N, 3, H, W]): `rules_outputs` runs the shipped clss-rules frame step
+(OpenCL) over a sequence, and the recipe caches that beside the data.
 """
 from __future__ import annotations
 
@@ -55,8 +60,9 @@ class NsrrNet(nn.Module):
             y = self.act(c(y))
         return torch.cat([rgbd, y], 1)
 
-    def reconstruct(self, stack):
-        """stack [N, 12(n+1), Hp, Wp] (padded to 4) -> PQ colour [N, 3, Hp, Wp]."""
+    def reconstruct(self, stack, base=None):
+        """stack [N, 12(n+1), Hp, Wp] (padded to 4) -> PQ colour [N, 3, Hp, Wp]; base
+        [N, 3, Hp, Wp]: the rules' base, an input too with "base": "rules"."""
         n = self.n_prev
         rgbd = torch.cat([stack[:, FEAT * k:FEAT * k + 4] for k in range(n + 1)], 1)
         act = self.act
@@ -64,7 +70,7 @@ class NsrrNet(nn.Module):
         r = act(self.rw[1](r))
         r = (torch.tanh(self.rw[2](r)) + 1.0) * (nets.WEIGHT_SCALE / 2)
         parts = [stack[:, FEAT * k:FEAT * (k + 1)] * r[:, k - 1:k] for k in range(1, n + 1)]
-        x = torch.cat([stack[:, :FEAT]] + parts, 1)
+        x = torch.cat([stack[:, :FEAT]] + parts + ([base] if nets.rules_base(self.cfg) else []), 1)
         u = self.un
 
         def two(x, a, b):
@@ -181,21 +187,64 @@ class TorchStep:
 
     def output(self, stack, base=None):
         H, W = stack.shape[2:]
-        y = self.net.reconstruct(F.pad(stack, (0, pad4(W) - W, 0, pad4(H) - H)))[:, :, :H, :W]
+        pad = (0, pad4(W) - W, 0, pad4(H) - H)
+        fed = F.pad(base, pad) if base is not None and nets.rules_base(self.net.cfg) else None
+        y = self.net.reconstruct(F.pad(stack, pad), fed)[:, :, :H, :W]
         return y + base if base is not None else y
 
-    def base(self, rgbd, jitters):
+    def base(self, rgbd, jitters, rules=None):
         """The residual base (None without it): PQ colour bilinear at the output pixel
-        centres, each item's jitter applied, edge-clamped."""
+        centres, each item's jitter applied, edge-clamped; with "base": "rules", `rules`
+        (the clss-rules output, PQ [N,3,H,W], given as data)."""
         if not self.net.cfg.get("residual", False):
             return None
+        if nets.rules_base(self.net.cfg):
+            if rules is None:
+                raise ValueError("NSRR with base 'rules': the step needs the rules' output (rules=)")
+            return rules
         N, _, h, w = rgbd.shape
         H, W = output_size(h, w, self.scale)
         grids = [torch.from_numpy(base_grid((h, w), (H, W), j)) for j in jitters]
         return F.grid_sample(rgbd[:, :3], torch.cat(grids).to(rgbd), mode="bilinear",
                              padding_mode="border", align_corners=False)
 
-    def step(self, rgbd, motion, jitters, hist, reset, pdepth=None):
-        """pdepth: the previous frame's rgbd[:, 3:4] (the depth rejection's)."""
+    def step(self, rgbd, motion, jitters, hist, reset, pdepth=None, rules=None):
+        """pdepth: the previous frame's rgbd[:, 3:4] (the depth rejection's); rules: the
+        clss-rules output of this frame (PQ [N,3,H,W]; "base": "rules")."""
         stack = self.reproject(self.net.features(rgbd), motion, jitters, hist, reset, pdepth)
-        return self.output(stack, self.base(rgbd, jitters)), stack[:, :FEAT * self.n]
+        return self.output(stack, self.base(rgbd, jitters, rules)), stack[:, :FEAT * self.n]
+
+
+# What the rules' output depends on: clss-rules' frame step, its kernels and constants
+# (a change of any of them changes the cache key of the precomputed outputs).
+RULES_SOURCES = ("clss/methods/clss/frame.cl", "clss/methods/clss/frame.py",
+                 "clss/methods/clss/contract.py", "clss/methods/clss/upscaler.py",
+                 "clss/pipeline/contract.py", "kernels/common.h", "kernels/pq.h")
+
+
+def rules_key(scale, nits=PQ_NITS) -> str:
+    """A digest of the rules' sources (RULES_SOURCES), the scale and the PQ scale."""
+    import hashlib
+    import os
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+    h = hashlib.sha256(f"clss-rules x{float(scale):g} nits {float(nits):g}".encode())
+    for rel in RULES_SOURCES:
+        with open(os.path.join(root, rel), "rb") as fh:
+            h.update(rel.encode() + b"\0" + fh.read())
+    return h.hexdigest()[:16]
+
+
+def rules_outputs(seq, scale, nits=PQ_NITS, device=None) -> np.ndarray:
+    """The clss-rules method's PQ output of every frame of `seq` (DATA.md arrays: color,
+    depth, motion, jitter, reset) as [T, 3, H, W] float32: the shipped rule-mode frame step
+    (OpenCL, fp32) run over the sequence, reset at its resets, its history's PQ colour
+    (what NSRR's step feeds its network with "base": "rules")."""
+    import clss
+    up = clss.Upscaler(method="clss-rules", scale=float(scale), device=device, nits=nits)
+    out = []
+    resets = np.asarray(seq["reset"], bool)
+    for t in range(len(resets)):
+        up.step(seq["color"][t], seq["depth"][t], seq["motion"][t], tuple(seq["jitter"][t]),
+                reset=bool(resets[t]) or t == 0)
+        out.append(up.state["history"][0, :3])
+    return np.stack(out).astype(np.float32)
