@@ -170,6 +170,48 @@ def compiler_problem(device: cl.Device) -> str | None:
     return _probed[key]
 
 
+# What the kernel compiler vectorises to, read from the macros its front end defines for the
+# target it compiles for. A driver's preferred vector width is not that: pip's PoCL 3.0 (LLVM
+# 14) reports 16 float lanes on an AMD Zen 4 while it compiles for `znver3` (AVX2: sixteen
+# 8-lane registers), so a register tile sized for 16 lanes spilled there (docs/devices.md).
+_SIMD_SOURCE = """__kernel void clss_simd(__global int *o) {
+#if defined(__AVX512F__)
+    o[0] = 16;
+#elif defined(__AVX__)
+    o[0] = 8;
+#elif defined(__SSE2__) || defined(__ARM_NEON) || defined(__ARM_NEON__)
+    o[0] = 4;
+#else
+    o[0] = 0;
+#endif
+}"""
+_simd: dict[int, int | None] = {}
+
+
+def simd_lanes(device: cl.Device) -> int | None:
+    """The float lanes of the vector registers a CPU device's compiler targets (16 AVX-512,
+    8 AVX/AVX2, 4 SSE/NEON), from its predefined macros; None for a GPU or where the probe
+    says nothing (an unknown ISA, a failed build). Probed once per device and process."""
+    key = device.int_ptr
+    if key not in _simd:
+        lanes = None
+        if device.type & cl.device_type.CPU:
+            try:
+                ctx = cl.Context([device])
+                prog = cl.Program(ctx, _SIMD_SOURCE).build()
+                out = np.zeros(1, np.int32)
+                buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
+                queue = cl.CommandQueue(ctx)
+                prog.clss_simd(queue, (1,), None, buf)
+                cl.enqueue_copy(queue, out, buf)
+                queue.finish()
+                lanes = int(out[0]) or None
+            except (cl.Error, cl.RuntimeError):
+                lanes = None
+        _simd[key] = lanes
+    return _simd[key]
+
+
 def _build_hint(log: str) -> str:
     """What to do about a build failure whose cause is known."""
     if "unknown target CPU" in log:
@@ -268,6 +310,12 @@ class Device:
         """A CPU device: the fast paths laid out for SIMD lanes (pixel vectors, the
         channel-blocked convs) apply there (clss.selfcheck.FastPath.applies)."""
         return bool(self.cl_device.type & cl.device_type.CPU)
+
+    @property
+    def simd_lanes(self) -> int | None:
+        """The float lanes of the registers a CPU device's compiler emits (simd_lanes): the
+        unit of the CPU register tiles (clss.ops.conv.vector_width). None on a GPU."""
+        return simd_lanes(self.cl_device) if self.is_cpu else None
 
     def require(self, precision: str) -> None:
         check_precision(precision)

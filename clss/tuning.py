@@ -138,11 +138,16 @@ _shipped: dict = {}
 def device_class(dev) -> str:
     """The shipped table a device reads (clss/tuning_tables/<class>.json): nvidia, amd,
     intel-gpu, cpu-avx512 (16 float lanes), cpu-avx2 (8), else default. A CPU's class comes
-    from the vector width its driver prefers, the register tile's unit."""
+    from the lanes its compiler emits (Device.simd_lanes), else from the vector width its
+    driver prefers: the register tile's unit."""
     info = getattr(dev, "info", dev)
     text = f"{getattr(info, 'platform', '')} {getattr(info, 'vendor', '')} {getattr(info, 'name', '')}".lower()
     cl_device = getattr(dev, "cl_device", None)
     if getattr(dev, "is_cpu", False):
+        # the lanes its compiler emits (Device.simd_lanes), else what the driver prefers
+        width = getattr(dev, "simd_lanes", None)
+        if width:
+            return "cpu-avx512" if width >= 16 else "cpu-avx2" if width >= 8 else "default"
         try:
             width = int(cl_device.preferred_vector_width_float)
         except Exception:

@@ -184,3 +184,37 @@ def test_a_broken_cached_build_is_retried_around_the_caches(monkeypatch):
     dev._programs = {key: (cl.Program(dev.context, "__kernel void other(int x) {}").build()
                            if p is prog else p) for key, p in dev._programs.items()}
     assert dev.kernel("elementwise", "unary", "fp32", UOP=1) is not None
+
+
+def test_simd_lanes_are_what_the_compiler_emits(any_dev):
+    """A CPU device's lanes come from its compiler's target macros, and the register tiles
+    (conv.vector_width) and the shipped table (tuning.device_class) follow them, whatever
+    width the driver prefers (pip's PoCL 3.0 prefers 16 on a Zen 4 and emits AVX2)."""
+    from clss import tuning
+    from clss.ops import conv
+    lanes = any_dev.simd_lanes
+    if not any_dev.is_cpu:
+        assert lanes is None
+        return
+    assert lanes in (4, 8, 16, None)
+    if lanes:
+        assert conv.vector_width(any_dev) == max(8, lanes)
+        assert tuning.device_class(any_dev) == {16: "cpu-avx512", 8: "cpu-avx2", 4: "default"}[lanes]
+    assert D.simd_lanes(any_dev.cl_device) == lanes       # probed once, then remembered
+
+
+def test_a_driver_preferring_more_lanes_than_its_compiler_emits_gets_the_compilers():
+    from clss import tuning
+    from clss.ops import conv
+
+    class CL:
+        preferred_vector_width_float = 16
+
+    class Info:
+        platform, name, vendor = "Portable Computing Language", "pthread-AMD EPYC", ""
+
+    class Dev:
+        is_cpu, simd_lanes, cl_device, info = True, 8, CL(), Info()
+    assert conv.vector_width(Dev()) == 8 and tuning.device_class(Dev()) == "cpu-avx2"
+    Dev.simd_lanes = None       # no probe answer: the driver's preferred width
+    assert conv.vector_width(Dev()) == 16 and tuning.device_class(Dev()) == "cpu-avx512"

@@ -129,13 +129,18 @@ def _tunables(dev: Device, prec: str, op: str, x, w, strides, explicit, groups: 
 
 
 def vector_width(dev: Device) -> int:
-    """Output channels per accumulator vector of conv2d_blocked: the device's preferred
-    float vector width (16 on AVX-512, 8 on AVX2), at least 8 (GPUs report 1; there
-    a work-item's 8 channels are 8 registers)."""
-    try:
-        w = int(dev.cl_device.preferred_vector_width_float)
-    except Exception:
-        w = 8
+    """Output channels per accumulator vector of conv2d_blocked: on a CPU the lanes of the
+    registers its compiler emits (Device.simd_lanes: 16 on AVX-512, 8 on AVX2), else the
+    device's preferred float vector width; at least 8 (GPUs report 1; there a work-item's
+    8 channels are 8 registers). The driver's preferred width alone misled: pip's PoCL 3.0
+    reports 16 on a Zen 4 and compiles for AVX2, where 16-lane tiles spilled (NSRR's
+    features ran at 0.52x onnxruntime; with 8-lane tiles 0.84x, docs/benchmarks.md)."""
+    w = getattr(dev, "simd_lanes", None)
+    if not w:
+        try:
+            w = int(dev.cl_device.preferred_vector_width_float)
+        except Exception:
+            w = 8
     return 16 if w >= 16 else 8
 
 
@@ -304,7 +309,8 @@ def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocke
             px = 6
     # TUNING's PX/NV/BLX, where a test sets them, replace the per-layer defaults
     defaults = {"PX": px, "NV": nv, "BLX": 16, **{k: TUNING[k] for k in ("PX", "NV", "BLX") if k in TUNING}}
-    key = tuning_db.shape_key(tuple(x_shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec)
+    # the lanes are in the key: a tile measured on 16-lane vectors says nothing of 8-lane ones
+    key = tuning_db.shape_key(tuple(x_shape), tuple(w.shape), "s" + "x".join(map(str, strides)), prec, f"v{ocv}")
     t = tuning_db.lookup(dev, "conv2d_blocked", key, defaults,
                          explicit={k: v for k, v in (explicit or {}).items() if k in ("PX", "NV", "BLX")},
                          allowed=TUNABLES["conv2d_blocked"])
