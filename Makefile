@@ -229,6 +229,36 @@ eval-blender-x3: $(STAMP)
 	test -f $(DATA)/blender3/test/READY || $(BIN)/python -m weights_tools blender --out $(DATA)/blender3 --split test --sequences 2 --frames 12 --size 60x108 --scale 3 $(BLENDER_ARGS)
 	$(BIN)/python -m weights_tools eval $(DATA)/blender3/test/*.npz --methods bicubic,jbicubic,clss-rules,mlp,mlp-nofeature --out $(OUT)/eval-blender-x3 --flip-every 4 $(EVAL_ARGS)
 
+# A game-like held-out family (issue 53 part 4; families.py `game`, never rendered into
+# training or validation): GAME_SEQS sequences of GAME_FRAMES frames of an engine's
+# pre-upscale frame (PBR terrain and props, instanced foliage to 40 m, lamps, sparks, fast
+# pans, hard cuts recorded as resets), GAME_SIZE -> 2x with Halton jitter
+# ($(DATA)/blender-game), and two twins of the same frames sharing its reference and
+# output-resolution G-buffers: jitter-free ($(DATA)/blender-game-zero) and 4x from
+# GAME_SIZE4 ($(DATA)/blender-game4). Measured 2026-11-29 (docs/evaluation.md, "A game-like
+# held-out family"). A killed run resumes.
+GAME_SEQS ?= 4
+GAME_FRAMES ?= 32
+GAME_SIZE ?= 90x160
+GAME_SIZE4 ?= 45x80
+GAME_ARGS ?=
+GAME_METHODS ?= bicubic,jbicubic,clss-rules,clss,mlp,nsrr,nss,nsrd
+GAME_METHODS4 ?= bicubic,jbicubic,clss-rules,clss,nsrr,nsrd
+.PHONY: validation-data-game eval-game
+validation-data-game: $(STAMP)
+	$(BIN)/python -m weights_tools blender --out $(DATA)/blender-game --split test --families game \
+	  --sequences $(GAME_SEQS) --frames $(GAME_FRAMES) --size $(GAME_SIZE) --scale 2 --jitter-mix halton \
+	  --twin $(DATA)/blender-game-zero:zero --twin $(DATA)/blender-game4:halton:$(GAME_SIZE4) $(GAME_ARGS)
+
+# Every method on the game family: Halton-jittered and jitter-free at 2x, Halton at 4x
+# (warm-up 4 after each cut, FLIP on every 4th scored frame). The region table (disocclusion,
+# thin geometry, edges, emissive/specular, texture, flat) is studies/2026-11-29-regions.py.
+eval-game: $(STAMP)
+	test -f $(DATA)/blender-game4/test/READY || $(MAKE) validation-data-game
+	$(BIN)/python -m weights_tools eval $(DATA)/blender-game/test/*.npz --methods $(GAME_METHODS) --out $(OUT)/eval-game/halton --flip-every 4 $(EVAL_ARGS)
+	$(BIN)/python -m weights_tools eval $(DATA)/blender-game-zero/test/*.npz --methods $(GAME_METHODS) --out $(OUT)/eval-game/zero --flip-every 4 $(EVAL_ARGS)
+	$(BIN)/python -m weights_tools eval $(DATA)/blender-game4/test/*.npz --methods $(GAME_METHODS4) --out $(OUT)/eval-game/x4 --flip-every 4 $(EVAL_ARGS)
+
 # Blender validation sequences (sparingly: about 20 minutes on 2 cores; needs
 # `apt-get install blender`): renders EXRs, converts them to weights_tools/validation/
 # (float16, committed) and $(DATA)/validation (float32).

@@ -28,6 +28,30 @@ def test_plan_holds_test_families_out(tmp_path):
         shards.plan(str(tmp_path), ["tset"], None, 1)
 
 
+def test_game_family_is_held_out_and_asked_for(tmp_path):
+    """The game family (issue 53 part 4) renders into the test split only, and only when
+    named: the test split's default families (make train-data-blender) stay as they were."""
+    assert "game" in fam.HELD_OUT and "game" not in fam.TEST_FAMILIES
+    assert all("game" not in fam.SPLITS[s] for s in ("train", "validation"))
+    jobs = shards.plan(str(tmp_path), ["test"], ["game"], 2)
+    assert [(f, seed) for _, f, seed, _ in jobs] == [("game", 200000), ("game", 200001)]
+    with pytest.raises(shards.UsageError, match="--families: game belongs to the test"):
+        shards.plan(str(tmp_path), ["train"], ["game"], 1)
+
+
+def test_twin_flag(tmp_path):
+    t = shards.parse_twin("d:zero", (90, 160), 2.0)
+    assert t == {"dir": "d", "mix": "zero", "size": (90, 160), "scale": 2.0}
+    assert shards.parse_twin("d:halton:45x80", (90, 160), 2.0)["scale"] == 4.0
+    for bad, msg in (("d", "expected DIR:MIX"), ("d:nope", "unknown jitter pattern"),
+                     ("d:zero:40x80", "does not scale to the output size 180x320"),
+                     ("d:zero:30x53", "does not scale"), ("d:zero:9x", "is not HxW")):
+        with pytest.raises(shards.UsageError, match=msg):
+            shards.parse_twin(bad, (90, 160), 2.0)
+    out = str(tmp_path / "o")
+    assert wt_main(["blender", "--out", out, "--twin", "x:zero:7x7"]) == 2
+
+
 def test_errors_speak_in_flags(tmp_path, capsys):
     out = str(tmp_path / "o")
     assert wt_main(["blender", "--out", out, "--families", "trees"]) == 2
@@ -104,3 +128,33 @@ def test_render_two_tiny_frames_on_ray(tmp_path):
     _check_shard(os.path.join(out, "test", "particles_200000.npz"), 2.0)
     stats = json.load(open(os.path.join(out, "test", "stats.json")))
     assert stats["ray"] and stats["threads"] == 1 and stats["frames"] == 2
+
+
+def test_render_game_with_twins(tmp_path):
+    """make validation-data-game's command at a tiny size: the game family with a hard cut
+    recorded as a reset, its jitter-free and 4x twins beside it sharing the reference and
+    the output-resolution G-buffers (about 10 s)."""
+    pytest.importorskip("bpy", reason="bpy (Blender as a module) not installed: "
+                                      "pip install -e '.[data]'")
+    d = tmp_path / "data"
+    assert wt_main(["blender", "--out", str(d / "game"), "--split", "test", "--families",
+                    "game", "--sequences", "1", "--frames", "3", "--size", "12x20",
+                    "--spp", "2", "--ref-spp", "4", "--no-ray", "--jitter-mix", "halton",
+                    "--twin", f"{d / 'zero'}:zero", "--twin", f"{d / 'x4'}:halton:6x10"]) == 0
+    from clss.evaluate import load_sequence
+    seqs = {k: load_sequence(str(d / k / "test" / "game_200000.npz"))
+            for k in ("game", "zero", "x4")}
+    for k, seq in seqs.items():
+        assert os.path.isfile(d / k / "test" / "READY")
+        assert seq["reference"].shape == (3, 24, 40, 3)
+        assert set(seq["gbuffers"]) == {"albedo", "normal", "albedo_hr", "depth_hr", "normal_hr"}
+        assert seq["reset"][0] and seq["reset"][1:].sum() == 1          # one hard cut
+        np.testing.assert_array_equal(seq["reference"], seqs["game"]["reference"])
+        np.testing.assert_array_equal(seq["gbuffers"]["depth_hr"],
+                                      seqs["game"]["gbuffers"]["depth_hr"])
+    assert seqs["game"]["color"].shape == seqs["zero"]["color"].shape == (3, 12, 20, 3)
+    assert seqs["x4"]["color"].shape == (3, 6, 10, 3) and seqs["x4"]["scale"] == 4.0
+    assert not seqs["zero"]["jitter"].any() and seqs["game"]["jitter"].any()
+    np.testing.assert_allclose(seqs["x4"]["jitter"], seqs["game"]["jitter"])   # Halton from 1
+    meta = json.loads(str(np.load(d / "zero" / "test" / "game_200000.npz")["meta"]))
+    assert meta["jitter"]["pattern"] == "zero" and meta["twin_of"].endswith("game_200000.npz")

@@ -124,11 +124,19 @@ def gbuffers_from_passes(ch, camera_rotation, near):
             "depth": depth_from_pass(ch["Depth.Z"], near).astype(np.float32)}
 
 
-def convert_scene(src):
+def convert_scene(src, twin=None):
     """The DATA.md arrays (dict) of one rendered scene directory; with the G-buffer keys
-    when every frame's EXRs carry the passes (and frames.json the camera rotation)."""
+    when every frame's EXRs carry the passes (and frames.json the camera rotation).
+    `twin`: the sequence of one of render_scene's twins instead (its low-resolution
+    render, jitter, size and scale; the reference and output-resolution G-buffers are
+    the scene's own)."""
     with open(os.path.join(src, "frames.json")) as fh:
         rec = json.load(fh)
+    if twin is not None:
+        if twin not in rec.get("twins", {}):
+            raise KeyError(f"{src}: no twin {twin!r} (have {', '.join(rec.get('twins', {}))})")
+        rec = dict(rec, **rec["twins"][twin], twin=twin,
+                   frames=[dict(fr, **fr["twins"][twin]) for fr in rec["frames"]])
     near = rec["near"]
     color, depth, motion, ref = [], [], [], []
     gbs = {k: [] for k in ("albedo", "normal", "albedo_hr", "depth_hr", "normal_hr")}
@@ -161,6 +169,7 @@ def convert_scene(src):
                 content=rec["description"], render_size=rec["render_size"],
                 spp=rec["spp"], ref_spp=rec["ref_spp"], render_seconds=rec["seconds"],
                 label_rules_version=None,
+                **({"twin": rec["twin"]} if "twin" in rec else {}),
                 sampling="colour: spp samples of a 0.01 px box filter at the jittered "
                          "pixel centre (converged point sample); reference: ref_spp "
                          "samples, 1-pixel box filter")

@@ -479,13 +479,18 @@ def camera_rotation(cam_obj):
 
 
 def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4, build=None,
-                 threads=None, log=print, jitter=None):
+                 threads=None, log=print, jitter=None, twins=()):
     """Render `frames` frames of scene `name` (SCENES) into out_dir (see the module's
     docstring). `build(scene, frames)` replaces SCENES[name] (weights_tools.blender.families
     passes its seeded families); it returns the description, or (description, cuts):
     cuts are the frames (0-based) that start a new shot, recorded as resets. `jitter`: one
     (jx, jy) per frame in render pixels (the shards' draw from a jitter mix); default
-    Halton(2,3)."""
+    Halton(2,3). `twins`: other low-resolution inputs of the same frames, each a dict
+    {"name", "size": (w, h), "scale", "jitter": [(jx, jy)] per frame} whose output size
+    (size x scale) is this render's: each frame renders them too, as <name>_FFFF.exr
+    (point-sampled like lr, `spp` samples), recorded in frames.json under "twins"; they
+    share the reference and the output-resolution G-buffers (convert_scene(src, twin=name)
+    reads one: a jitter-free or a 4x twin costs its low-resolution render only)."""
     scene = new_scene(threads)
     built = (build or SCENES[name])(scene, frames)
     description, cuts = built if isinstance(built, tuple) else (built, ())
@@ -496,7 +501,16 @@ def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4, bui
     record = dict(scene=name, description=description, render_size=[h, w],
                   output_size=[H, W], scale=scale, near=NEAR, spp=spp, ref_spp=ref_spp,
                   blender=bpy.app.version_string, frames=[])
-    t_lr = t_ref = t_hr = 0.0
+    for tw in twins:
+        tw_w, tw_h = tw["size"]
+        if (int(math.floor(tw_h * tw["scale"] + 0.5)), int(math.floor(tw_w * tw["scale"] + 0.5))) \
+                != (H, W) or len(tw["jitter"]) < frames:
+            raise ValueError(f"twin {tw['name']}: {tw_h}x{tw_w} at {tw['scale']}x is not the "
+                             f"output size {H}x{W}, or fewer than {frames} jitter values")
+    if twins:
+        record["twins"] = {tw["name"]: dict(render_size=[tw["size"][1], tw["size"][0]],
+                                            scale=tw["scale"]) for tw in twins}
+    t_lr = t_ref = t_hr = t_tw = 0.0
     for f in range(frames):
         scene.frame_set(f + 1)
         jx, jy = halton_jitter(f, scale) if jitter is None else (float(v) for v in jitter[f])
@@ -510,6 +524,18 @@ def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4, bui
         t0 = time.time()
         bpy.ops.render.render(write_still=True)
         t_lr += time.time() - t0
+        # Twins: the same frame at another render size or jitter (a jitter-free input, 4x).
+        done_twins = {}
+        for tw in twins:
+            tw_w, tw_h = tw["size"]
+            tx, ty = (float(v) for v in tw["jitter"][f])
+            scene.render.resolution_x, scene.render.resolution_y = tw_w, tw_h
+            cam.shift_x, cam.shift_y = tx / max(tw_w, tw_h), -ty / max(tw_w, tw_h)
+            scene.render.filepath = os.path.join(out_dir, f"{tw['name']}_{f:04d}.exr")
+            t0 = time.time()
+            bpy.ops.render.render(write_still=True)
+            t_tw += time.time() - t0
+            done_twins[tw["name"]] = dict(lr=f"{tw['name']}_{f:04d}.exr", jitter=[tx, ty])
         # Reference: unshifted, box filter over the output pixel.
         scene.render.resolution_x, scene.render.resolution_y = W, H
         scene.cycles.samples = ref_spp
@@ -530,9 +556,13 @@ def render_scene(name, out_dir, frames, size, scale, spp, ref_spp, hr_spp=4, bui
                                      hr=f"hr_{f:04d}.exr", jitter=[jx, jy],
                                      reset=f == 0 or f in cuts,
                                      camera_rotation=camera_rotation(scene.camera)))
+        if twins:
+            record["frames"][-1]["twins"] = done_twins
         if log:
             log(f"[render_validation] {name} frame {f + 1}/{frames}")
     record["seconds"] = dict(lr=round(t_lr, 1), ref=round(t_ref, 1), hr=round(t_hr, 1))
+    if twins:
+        record["seconds"]["twins"] = round(t_tw, 1)
     with open(os.path.join(out_dir, "frames.json"), "w") as fh:
         json.dump(record, fh, indent=1)
     if log:

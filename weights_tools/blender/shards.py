@@ -4,8 +4,8 @@ bpy and ray; the runtime never imports either).
 
     python -m weights_tools blender --out DIR [--split train,validation,test]
         [--sequences 2] [--families a,b] [--frames 12] [--size 90x160] [--scale 2]
-        [--spp 16] [--ref-spp 32] [--hr-spp 1] [--jobs 2] [--threads 1]
-        [--ray-address ADDR] [--no-ray]
+        [--spp 16] [--ref-spp 32] [--hr-spp 1] [--jitter-mix MIX]
+        [--twin DIR:MIX[:HxW] ...] [--jobs 2] [--threads 1] [--ray-address ADDR] [--no-ray]
 
 Per split, DIR/<split>/<family>_<seed>.npz (seed = families.SEED_BASE[split] + k for the
 k-th sequence of a family), a READY file once the split is complete and stats.json
@@ -14,6 +14,13 @@ k-th sequence of a family), a READY file once the split is complete and stats.js
 (convert.convert_scene: the contract's colour, depth, motion, G-buffers, reference) and
 writes its shard atomically (scenegen.write_sequence: a temporary file, then a rename);
 a killed run started again skips the shards that exist and renders only the rest.
+
+--twin DIR:MIX[:HxW] (repeatable) also writes each sequence to DIR/<split>/<name>.npz with
+another low-resolution input of the same frames: jitter drawn from MIX (e.g. `zero`), at
+render size HxW (default --size; the scale is the output size over it, e.g. 45x80 for a 4x
+twin of 90x160 at 2x). The twins share the reference and the output-resolution G-buffers
+(render_validation.render_scene's `twins`), so a jitter-free or a 4x copy of a held-out
+set costs its low-resolution renders only (make validation-data-game).
 
 ray.init() starts a local Ray with --jobs worker slots unless --ray-address names a
 cluster (its nodes need this package with the [data] extra installed); each task asks
@@ -47,13 +54,13 @@ def plan(out, splits, family_names, sequences):
     for split in splits:
         if split not in fam.SPLITS:
             raise UsageError(f"--split: unknown split {split!r} (have {', '.join(fam.SPLITS)})")
-        names = family_names or fam.SPLITS[split]
+        names = family_names or fam.DEFAULT_FAMILIES[split]
         for f in names:
             if f not in fam.FAMILIES:
                 raise UsageError(f"--families: unknown family {f!r} (have "
                                  f"{', '.join(fam.FAMILIES)})")
             if f not in fam.SPLITS[split]:
-                where = "test" if f in fam.TEST_FAMILIES else "train and validation"
+                where = "test" if f in fam.HELD_OUT else "train and validation"
                 raise UsageError(f"--families: {f} belongs to the {where} split(s), not "
                                  f"{split} (held-out families never render into training)")
             for k in range(sequences):
@@ -63,9 +70,42 @@ def plan(out, splits, family_names, sequences):
     return jobs
 
 
+def parse_twin(text, size, scale):
+    """--twin DIR:MIX[:HxW] -> {"dir", "mix", "size": (h, w), "scale"}; the scale makes the
+    twin's output size the main one's (floor(h * scale + 0.5) as everywhere). UsageError
+    naming what is wrong."""
+    parts = text.split(":")
+    if len(parts) not in (2, 3) or not parts[0] or not parts[1]:
+        raise UsageError(f"--twin: {text!r}: expected DIR:MIX or DIR:MIX:HxW")
+    try:
+        jitter_mix.check_arg("--twin", parts[1])
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    h, w = size
+    H, W = int(h * scale + 0.5), int(w * scale + 0.5)
+    th, tw = size
+    if len(parts) == 3:
+        try:
+            th, tw = (int(v) for v in parts[2].lower().split("x"))
+        except ValueError:
+            raise UsageError(f"--twin: {text!r}: size {parts[2]!r} is not HxW") from None
+    tscale = H / th
+    if not 1.0 <= tscale <= 4.0 or (int(th * tscale + 0.5), int(tw * tscale + 0.5)) != (H, W):
+        raise UsageError(f"--twin: {text!r}: {th}x{tw} does not scale to the output size "
+                         f"{H}x{W} by one factor in [1, 4]")
+    return {"dir": parts[0], "mix": parts[1], "size": (th, tw), "scale": tscale}
+
+
+def twin_paths(job, opts):
+    """The paths of a job's twin shards (opts["twins"])."""
+    split, _, _, path = job
+    return [os.path.join(t["dir"], split, os.path.basename(path)) for t in opts.get("twins", ())]
+
+
 def render_shard(job, opts):
     """Render one sequence and write its shard (runs in a Ray worker, or here with
-    --no-ray). Returns {"path", "frames", "seconds", "render_seconds"}."""
+    --no-ray), and its twins' (opts["twins"]). Returns {"path", "frames", "seconds",
+    "render_seconds"}."""
     import numpy as np
 
     from .. import scenegen
@@ -74,6 +114,8 @@ def render_shard(job, opts):
     split, family, seed, path = job
     t0 = time.perf_counter()
     drawn = shard_jitter(job, opts)
+    twins = opts.get("twins", ())
+    twin_drawn = [shard_jitter(job, dict(opts, jitter_mix=t["mix"])) for t in twins]
     name = os.path.splitext(os.path.basename(path))[0]
     exr = os.path.join(os.path.dirname(os.path.dirname(path)), ".exr", f"{split}_{name}")
     shutil.rmtree(exr, ignore_errors=True)
@@ -94,7 +136,13 @@ def render_shard(job, opts):
                                       opts["spp"], opts["ref_spp"], opts["hr_spp"],
                                       build=fam.builder(family, seed), threads=opts["threads"],
                                       log=None, jitter=jitter_mix.sequence_jitter(
-                                          drawn, opts["frames"], opts["scale"]).tolist())
+                                          drawn, opts["frames"], opts["scale"]).tolist(),
+                                      twins=[dict(name=f"twin{k}", size=(t["size"][1],
+                                                                         t["size"][0]),
+                                                  scale=t["scale"],
+                                                  jitter=jitter_mix.sequence_jitter(
+                                                      d, opts["frames"], t["scale"]).tolist())
+                                             for k, (t, d) in enumerate(zip(twins, twin_drawn))])
             finally:
                 sys.stdout.flush()
                 sys.stderr.flush()
@@ -103,14 +151,21 @@ def render_shard(job, opts):
     finally:
         for fd in saved:
             os.close(fd)
-    data = convert.convert_scene(exr)
-    meta = json.loads(str(data["meta"]))
-    meta.update(generator="weights_tools.blender.shards", family=family, seed=seed,
-                split=split, frames=opts["frames"], jitter=drawn,
-                jitter_mix=opts.get("jitter_mix", DEFAULTS["jitter_mix"]))
-    data["meta"] = np.array(json.dumps(meta))
-    os.makedirs(os.path.dirname(path), exist_ok=True)
-    scenegen.write_sequence(path, data)
+    outs = [(path, None, drawn, opts.get("jitter_mix", DEFAULTS["jitter_mix"]))]
+    outs += [(p, f"twin{k}", d, t["mix"]) for k, (p, t, d) in
+             enumerate(zip(twin_paths(job, opts), twins, twin_drawn))]
+    # the twins first: the main shard's presence says the job is done (a resumed run)
+    for out_path, twin, jit, mix in outs[1:] + outs[:1]:
+        data = convert.convert_scene(exr, twin=twin)
+        meta = json.loads(str(data["meta"]))
+        meta.update(generator="weights_tools.blender.shards", family=family, seed=seed,
+                    split=split, frames=opts["frames"], jitter=jit, jitter_mix=mix)
+        if twin is not None:
+            meta["twin_of"] = os.path.relpath(path, os.path.dirname(os.path.dirname(
+                os.path.dirname(out_path))))
+        data["meta"] = np.array(json.dumps(meta))
+        os.makedirs(os.path.dirname(out_path), exist_ok=True)
+        scenegen.write_sequence(out_path, data)
     shutil.rmtree(exr, ignore_errors=True)
     render_s = sum(rec["seconds"].values())
     return {"path": path, "frames": opts["frames"], "seconds": time.perf_counter() - t0,
@@ -155,7 +210,8 @@ def run(out, splits, family_names=None, sequences=2, jobs=2, threads=None, ray_a
     jobs = jobs if use_ray else 1
     opts["threads"] = threads or (1 if jobs > 1 or ray_address else max(1, os.cpu_count() or 1))
     all_jobs = plan(out, splits, family_names, sequences)
-    todo = [j for j in all_jobs if not os.path.isfile(j[3])]
+    todo = [j for j in all_jobs
+            if not all(os.path.isfile(p) for p in [j[3]] + twin_paths(j, opts))]
     if len(todo) < len(all_jobs):
         print(f"{len(all_jobs) - len(todo)} of {len(all_jobs)} shards already rendered "
               f"(kept)", file=log, flush=True)
@@ -185,12 +241,16 @@ def run(out, splits, family_names=None, sequences=2, jobs=2, threads=None, ray_a
                  ray_address=ray_address,
                  render={k: list(v) if k == "size" else v for k, v in opts.items()})
     for split in splits:
-        d = os.path.join(out, split)
-        if all(os.path.isfile(j[3]) for j in all_jobs if j[0] == split):
-            with open(os.path.join(d, "stats.json"), "w") as fh:
-                json.dump(dict(stats, split=split), fh, indent=1)
-            with open(os.path.join(d, "READY"), "w") as fh:
-                fh.write(json.dumps({"shards": sum(j[0] == split for j in all_jobs)}) + "\n")
+        for k, root in enumerate([out] + [t["dir"] for t in opts.get("twins", ())]):
+            d = os.path.join(root, split)
+            paths = [j[3] if k == 0 else twin_paths(j, opts)[k - 1]
+                     for j in all_jobs if j[0] == split]
+            if all(os.path.isfile(p) for p in paths):
+                with open(os.path.join(d, "stats.json"), "w") as fh:
+                    json.dump(dict(stats, split=split, **({"twin_of": out} if k else {})),
+                              fh, indent=1)
+                with open(os.path.join(d, "READY"), "w") as fh:
+                    fh.write(json.dumps({"shards": len(paths)}) + "\n")
     shutil.rmtree(os.path.join(out, ".exr"), ignore_errors=True)
     return stats
 
@@ -204,7 +264,8 @@ def add_parser(sub, _size):
     p.add_argument("--split", default="train,validation,test",
                    help=f"comma-separated splits of {','.join(fam.SPLITS)}")
     p.add_argument("--families", default=None,
-                   help=f"comma-separated families (default: the split's; {','.join(fam.FAMILIES)})")
+                   help=f"comma-separated families (default: the split's, the test split's "
+                   f"{','.join(fam.TEST_FAMILIES)}; {','.join(fam.FAMILIES)})")
     p.add_argument("--sequences", type=int, default=2, help="sequences per family and split")
     p.add_argument("--frames", type=int, default=DEFAULTS["frames"])
     p.add_argument("--size", type=_size, default=DEFAULTS["size"], help="render size HxW")
@@ -218,6 +279,11 @@ def add_parser(sub, _size):
     p.add_argument("--jitter-mix", default=DEFAULTS["jitter_mix"],
                    help="each sequence's jitter pattern drawn from NAME[:WEIGHT],... as `gen "
                    "--jitter-mix` (one name: that pattern; the shards before issue 53: halton)")
+    p.add_argument("--twin", action="append", default=[], metavar="DIR:MIX[:HxW]",
+                   help="also write each sequence to DIR/<split>/ with its own low-resolution "
+                   "input: jitter from MIX (e.g. zero), render size HxW (default --size; "
+                   "e.g. 45x80 for a 4x twin of 90x160 at 2x), the same reference and "
+                   "output-resolution G-buffers; repeatable")
     p.add_argument("--jobs", type=int, default=2, help="tasks side by side on a local Ray")
     p.add_argument("--threads", type=int, default=None,
                    help="Cycles threads (and Ray CPUs) per task; default 1 when fanned out")
@@ -248,6 +314,7 @@ def main_args(a):
     families = [f for f in a.families.split(",") if f] if a.families else None
     try:
         plan(a.out, splits, families, a.sequences)   # a flag's mistake first, bpy or not
+        twins = [parse_twin(t, a.size, a.scale) for t in a.twin]
     except UsageError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -260,7 +327,8 @@ def main_args(a):
         stats = run(a.out, splits, families, a.sequences, a.jobs, a.threads,
                     a.ray_address, not a.no_ray,
                     frames=a.frames, size=a.size, scale=a.scale, spp=a.spp,
-                    ref_spp=a.ref_spp, hr_spp=a.hr_spp, jitter_mix=a.jitter_mix)
+                    ref_spp=a.ref_spp, hr_spp=a.hr_spp, jitter_mix=a.jitter_mix,
+                    **({"twins": twins} if twins else {}))
     except UsageError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
