@@ -77,3 +77,39 @@ def test_train_nsrr_names_a_mix_sequence_too_small_for_the_patch(tmp_path, capsy
     err = capsys.readouterr().err
     assert rc != 0 and "Traceback" not in err
     assert "does not fit the 10x24 frames of b" in err, err
+
+
+def test_train_nsrr_rules_base_from_init(tmp_path, capsys, dev):
+    """--base rules on a fine-tune (issue 53): the rules' output is computed once per
+    sequence and cached beside the data (a second run reads it), the base's U-Net input
+    channels and the output conv start at zero, so at 0 steps the OpenCL step's output is
+    clss-rules'; one step then moves the new channels."""
+    from weights_tools.__main__ import main
+    seq, out = train_smoke(tmp_path, capsys, "nsrr",
+                           ["--batch", "2", "--patch", "16", "--margin", "2", "--candidates", "8",
+                            "--widths", "fast", "--reject", "depth"], 6)
+    first = os.path.join(out, "weights.safetensors")
+    args = ["train", "nsrr", "--data", os.path.dirname(seq), "--batch", "2", "--patch", "16",
+            "--margin", "2", "--candidates", "8", "--init", first, "--base", "rules"]
+    out0, out1 = str(tmp_path / "r0"), str(tmp_path / "r1")
+    assert main(args + ["--out", out0, "--steps", "0"]) == 0
+    assert "0 sequences from the cache, 1 computed" in capsys.readouterr().out
+    cache = os.listdir(os.path.join(os.path.dirname(seq), "rules-cache"))
+    assert len(cache) == 1 and cache[0].startswith("a.")
+    assert main(args + ["--out", out1, "--steps", "1"]) == 0
+    assert "1 sequences from the cache, 0 computed" in capsys.readouterr().out
+    (c0, w0), (c, w), (c1, w1) = (nets.load(first), nets.load(os.path.join(out0, "weights.safetensors")),
+                                  nets.load(os.path.join(out1, "weights.safetensors")))
+    assert c == {**c0, "base": "rules"} and c1 == c
+    k = w0["un.0.weight"].shape[1]
+    assert w["un.0.weight"].shape[1] == k + 3 and not w["un.0.weight"][:, k:].any()
+    assert np.array_equal(w["un.0.weight"][:, :k], w0["un.0.weight"])
+    assert not w["un.9.weight"].any() and not w["un.9.bias"].any()
+    assert w1["un.0.weight"][:, k:].any() or w1["un.9.weight"].any()
+    z = np.load(seq)
+    up = clss.Upscaler(method="nsrr", scale=2, device=dev, weights=os.path.join(out0, "weights.safetensors"))
+    rules = clss.Upscaler(method="clss-rules", scale=2, device=dev)
+    for t in range(3):
+        f = (z["color"][t], z["depth"][t], z["motion"][t], tuple(z["jitter"][t]))
+        a, b = up.step(*f), rules.step(*f)
+        assert np.abs(a - b).max() <= 1e-5 * np.abs(b).max(), t

@@ -18,6 +18,14 @@ after a reset, where the history holds fewer frames (the step fills the rest per
 window, the reconstruction only at t, the loss on the patch without its margin (the
 margin feeds the warps what lies just outside).
 
+--base rules (networks.BASES, issue 53): the residual's base is the clss-rules output,
+also an input of the U-Net. The rules have no learned parameters: their output is computed
+once per sequence by the shipped clss-rules frame step (OpenCL, twin.rules_outputs) and
+cached beside the data (DIR/rules-cache/<sequence>.<key>.npy; the key digests the rules'
+sources, the scale and the sequence's content, so a change of the rules or the data
+computes it again). From --init weights without it, the base's new U-Net input channels
+and the output conv start at zero: the network starts exactly as the rules.
+
 Writes --out/checkpoint.pt (every minute; --resume continues), loss.png, train.json and
 weights.safetensors (the file the OpenCL step loads).
 """
@@ -28,7 +36,7 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, check_patch_fits, fmt_s, load_init, load_sequences, per_sequence, ssim
+from weights_tools.trainloop import Run, TrainError, check_patch_fits, fmt_s, load_init, load_sequences, parse_mix, per_sequence, ssim
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
@@ -61,6 +69,10 @@ def add_arguments(t):
                    help="history rejection (networks.REJECTS): depth empties the warped "
                         "history where the depth says disocclusion (default none, or the "
                         "--init file's)")
+    t.add_argument("--base", choices=("bilinear", "rules"), default=None,
+                   help="the residual's base (networks.BASES): rules = the clss-rules output, "
+                        "also a U-Net input, precomputed per sequence and cached beside the "
+                        "data (default bilinear, or the --init file's)")
     t.add_argument("--p-short", type=float, default=0.2,
                    help="fraction of windows with fewer previous frames than available")
     t.add_argument("--l1", type=float, default=1.0,
@@ -163,6 +175,43 @@ def _prepare(seqs, torch):
     return per_sequence(seqs, one)
 
 
+def _digest(seq) -> str:
+    import hashlib
+    h = hashlib.sha256()
+    for k in ("color", "depth", "motion", "jitter", "reset"):
+        a = np.ascontiguousarray(seq[k])
+        h.update(f"{k} {a.dtype} {a.shape}".encode() + a.tobytes())
+    return h.hexdigest()[:16]
+
+
+def rules_cached(seqs, data, torch, log=print):
+    """[T,3,H,W] torch tensors of the clss-rules output (PQ) of every sequence (a mix's
+    repeats share one), from DIR/rules-cache/ beside the sequence's file, computed with
+    twin.rules_outputs and written there where missing (module doc)."""
+    from .twin import rules_key, rules_outputs
+    dirs = [d for d, _ in parse_mix(data)]
+    made = [0, 0]
+
+    def one(s):
+        home = next((d for d in dirs if os.path.exists(os.path.join(d, s["name"]))), dirs[0])
+        stem = os.path.splitext(s["name"])[0]
+        path = os.path.join(home, "rules-cache",
+                            f"{stem}.{rules_key(s['scale'])}{_digest(s)}.npy")
+        if os.path.exists(path):
+            made[0] += 1
+            return torch.from_numpy(np.load(path))
+        out = rules_outputs(s, s["scale"])
+        os.makedirs(os.path.dirname(path), exist_ok=True)
+        tmp = path + ".tmp.npy"
+        np.save(tmp, out)
+        os.replace(tmp, path)
+        made[1] += 1
+        return torch.from_numpy(out)
+    out = per_sequence(seqs, one)
+    log(f"rules' base: {made[0]} sequences from the cache, {made[1]} computed", flush=True)
+    return out
+
+
 def choose_patches(seqs, n, keep, pr, margin, rng):
     """Candidates (seq, t, y0, x0) in render pixels, scored by motion and detail; the
     best `keep` fraction."""
@@ -191,7 +240,7 @@ def make_batch(seqs, picks, batch, pr, margin, n_prev, p_short, rng, torch):
     0), jitters, resets [n_prev+1, B] (True at each item's first valid frame), ref [B,3,..]."""
     items = [picks[int(rng.integers(len(picks)))] for _ in range(batch)]
     R = pr + 2 * margin
-    rgbd, mot, jit, rst, ref = [], [], [], [], []
+    rgbd, mot, jit, rst, ref, rules = [], [], [], [], [], []
     for j in range(n_prev + 1):
         rgbd.append([]), mot.append([]), jit.append([]), rst.append([])
     for (i, t, y0, x0) in items:
@@ -208,19 +257,23 @@ def make_batch(seqs, picks, batch, pr, margin, n_prev, p_short, rng, torch):
             jit[j].append(s["jitter"][f])
             rst[j].append(f == t - k)
         ref.append(s["ref"][t, :, sc * y0:sc * (y0 + pr), sc * x0:sc * (x0 + pr)])
+        if "rules" in s:        # the rules' output at t over the whole crop (margin included)
+            rules.append(s["rules"][t, :, sc * ys:sc * (ys + R), sc * xs:sc * (xs + R)])
     return ([torch.stack(r) for r in rgbd], [torch.stack(m) for m in mot], jit,
-            [torch.tensor(r) for r in rst], torch.stack(ref))
+            [torch.tensor(r) for r in rst], torch.stack(ref),
+            torch.stack(rules) if rules else None)
 
 
-def forward(step, rgbd, mot, jit, rst):
+def forward(step, rgbd, mot, jit, rst, rules=None):
     """The window through the step: features and warps of every frame, the output of the
-    last (PQ, [B,3,H,W] of the whole crop)."""
+    last (PQ, [B,3,H,W] of the whole crop); rules: the rules' output at the last frame
+    ("base": "rules")."""
     hist, pdepth = None, None
     for j in range(len(rgbd) - 1):
         stack = step.reproject(step.net.features(rgbd[j]), mot[j], jit[j], hist, rst[j], pdepth)
         hist, pdepth = stack[:, :step.net.n_prev * 12], rgbd[j][:, 3:4]
     stack = step.reproject(step.net.features(rgbd[-1]), mot[-1], jit[-1], hist, rst[-1], pdepth)
-    return step.output(stack, step.base(rgbd[-1], jit[-1]))
+    return step.output(stack, step.base(rgbd[-1], jit[-1], rules))
 
 
 def cmd_train(args):
@@ -228,7 +281,8 @@ def cmd_train(args):
     from clss.methods.nsrr import networks as nets
     from .twin import NsrrNet, TorchStep
     run = Run(args, ("nsrr",))
-    seqs = _prepare(load_sequences(args.data, 1, REQUIRED), torch)
+    raw = load_sequences(args.data, 1, REQUIRED)
+    seqs = _prepare(raw, torch)
     sc = seqs[0]["scale"]
     if args.patch % sc:
         raise TrainError(f"--patch {args.patch} is not a multiple of the scale {sc}")
@@ -242,10 +296,15 @@ def cmd_train(args):
         w0 = nets.init_weights(cfg, args.seed)
         if args.last_init == "zero" and cfg["residual"]:
             w0["un.9.weight"][:] = 0.0
+    if args.base is not None and args.base != nets.base_of(cfg):
+        cfg, w0 = rebase(nets, cfg, w0, args.base)
     if args.reject is not None:        # a network fine-tuned to a rejection carries it
         cfg = {k: v for k, v in cfg.items() if k != "reject"}
         if args.reject != "none":
             cfg["reject"] = args.reject
+    if nets.rules_base(cfg):
+        for s, r in zip(seqs, rules_cached(raw, args.data, torch)):
+            s["rules"] = r
     net = NsrrNet(cfg, w0)
     probe = AliveProbe(net)
     step = TorchStep(net, sc, reset_fill=args.reset_fill)
@@ -255,15 +314,15 @@ def cmd_train(args):
     picks = choose_patches(seqs, args.candidates, args.keep, pr, args.margin,
                            np.random.default_rng(args.seed))
     print(f"nsrr x{sc}: {len(seqs)} sequences, {len(picks)} patches of {args.patch} px kept, "
-          f"widths {cfg['name']}, reject {cfg.get('reject', 'none')}, {args.steps} steps of {args.batch}, loss 1-SSIM"
+          f"widths {cfg['name']}, reject {cfg.get('reject', 'none')}, base {nets.base_of(cfg)}, {args.steps} steps of {args.batch}, loss 1-SSIM"
           + (f" + {args.l1:g} L1" if args.l1 else "") + f", YCbCr (chroma x{args.chroma:g})"
           + (f" + {args.perceptual_weight} random-feature perceptual" if perc else ""), flush=True)
     m = args.margin * sc
 
     def loss(it):
-        rgbd, mot, jit, rst, ref = make_batch(seqs, picks, args.batch, pr, args.margin,
-                                              cfg["n_prev"], args.p_short, rng, torch)
-        y = forward(step, rgbd, mot, jit, rst)[:, :, m:m + args.patch, m:m + args.patch]
+        rgbd, mot, jit, rst, ref, rules = make_batch(seqs, picks, args.batch, pr, args.margin,
+                                                     cfg["n_prev"], args.p_short, rng, torch)
+        y = forward(step, rgbd, mot, jit, rst, rules)[:, :, m:m + args.patch, m:m + args.patch]
         ya, yb = ycbcr(y.clamp(0, 1), args.chroma), ycbcr(ref, args.chroma)
         value = 1.0 - ssim(ya, yb)
         if args.l1:
@@ -275,7 +334,7 @@ def cmd_train(args):
         if cfg["residual"]:
             # the PQ PSNR gain of the output over the residual base on this batch
             with torch.no_grad():
-                base = step.base(rgbd[-1], jit[-1])[:, :, m:m + args.patch, m:m + args.patch]
+                base = step.base(rgbd[-1], jit[-1], rules)[:, :, m:m + args.patch, m:m + args.patch]
                 mse = lambda a: float(((a.clamp(0, 1) - ref) ** 2).mean())  # noqa: E731
                 parts["vs_base_db"] = 10 * float(np.log10(mse(base) / max(mse(y.detach()), 1e-12)))
         return value, parts
@@ -294,6 +353,29 @@ def cmd_train(args):
     run.write_log()
     print(f"wrote {path} ({fmt_s(run.log['seconds'])})")
     return 0
+
+
+def rebase(nets, cfg, w, base):
+    """(cfg, weights) with the residual's base changed to `base`: to "rules", un.0 gains
+    the base's BASE_CHANNELS input channels (after the stack's) with zero weights and the
+    output conv un.9 is zeroed, so the network starts exactly at its new base (the other
+    layers keep their weights); back to "bilinear", those channels are dropped."""
+    if not cfg.get("residual", False):
+        raise TrainError(f"--base {base}: the network has no residual (--no-residual or the "
+                         "--init file's config)")
+    cfg = {k: v for k, v in cfg.items() if k != "base"}
+    w = {k: np.array(v, np.float32, copy=True) for k, v in w.items()}
+    k = nets.BASE_CHANNELS
+    if base == "rules":
+        cfg["base"] = base
+        u0 = w["un.0.weight"]
+        w["un.0.weight"] = np.concatenate([u0, np.zeros((u0.shape[0], k) + u0.shape[2:], np.float32)], 1)
+        w["un.9.weight"][:] = 0.0
+        w["un.9.bias"][:] = 0.0
+    else:
+        w["un.0.weight"] = w["un.0.weight"][:, :-k]
+    nets.check_weights(cfg, w)
+    return cfg, w
 
 
 RECIPE = Recipe(add_arguments, cmd_train, __doc__)
