@@ -29,6 +29,11 @@ both tables.
 
     .venv/bin/python studies/2026-11-29-regions.py SEQ.npz ... [--methods a,b,...]
         [--json FILE] [--warmup 4] [--flip-every 4] [--out DIR]
+    .venv/bin/python studies/2026-11-29-regions.py --merge A.json B.json ... [--json FILE]
+
+--merge pools the JSON of runs on disjoint sequences (the squared errors and pixel counts
+per region are summed; the eval's records are put together and averaged), so the
+sequences of a set can be scored in separate processes.
 """
 from __future__ import annotations
 
@@ -121,15 +126,59 @@ class Recorder:
         return out
 
 
+def report(methods, sse, count, records, json_path, meta):
+    """Print the eval's mean table and the region table; write the JSON."""
+    result = {"sequences": records}
+    if len(records) > 1:
+        result["mean"] = ev.mean_over_sequences(records)
+        print(f"\nmean over {len(records)} sequences")
+        print(ev.format_table(result["mean"]))
+    table = {m: {r: (10 * np.log10(count[r] / sse[m][r]) if sse[m][r] > 0 else None)
+                 for r in REGIONS} for m in methods}
+    share = {r: count[r] / count["all"] for r in REGIONS}
+    w = max(len(m) for m in methods) + 2
+    print("\nregion PSNR dB (minus clss-rules')" if "clss-rules" in methods else "\nregion PSNR dB")
+    print("region".ljust(14) + "".join(f"{m:>{w + 8}s}" for m in methods) + "   share")
+    for r in REGIONS:
+        cells = []
+        for m in methods:
+            v = table[m][r]
+            base = table.get("clss-rules", {}).get(r)
+            cells.append(f"{v:.2f}" + (f" ({v - base:+.2f})" if base is not None and
+                                        m != "clss-rules" else "") if v is not None else "-")
+        print(r.ljust(14) + "".join(f"{c:>{w + 8}s}" for c in cells) + f"   {share[r]:.3f}")
+    if json_path:
+        with open(json_path, "w") as f:
+            json.dump(dict(meta, regions=table, share=share, sse=sse, count=count,
+                           methods=methods, thresholds={"rel_depth": REL, "hdr": HDR,
+                                                        "texture_std": TEXTURE_STD},
+                           eval=result), f, indent=1, default=ev._jsonable)
+
+
+def merge(paths, json_path):
+    runs = [json.load(open(p)) for p in paths]
+    methods = runs[0]["methods"]
+    sse = {m: {r: sum(x["sse"][m][r] for x in runs) for r in REGIONS} for m in methods}
+    count = {r: sum(x["count"][r] for x in runs) for r in REGIONS}
+    records = [rec for x in runs for rec in x["eval"]["sequences"]]
+    report(methods, sse, count, records, json_path,
+           {"sequences": [s for x in runs for s in x["sequences"]], "warmup": runs[0]["warmup"],
+            "merged": list(paths)})
+    return 0
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("seqs", nargs="+")
+    p.add_argument("--merge", action="store_true", help="SEQS are JSON files of this study")
     p.add_argument("--methods", default="bicubic,jbicubic,clss-rules,clss,mlp,nsrr,nss,nsrd")
     p.add_argument("--warmup", type=int, default=4)
     p.add_argument("--flip-every", type=int, default=4)
     p.add_argument("--out", default=None, help="the eval's pictures (default: none)")
     p.add_argument("--json", default=None)
     a = p.parse_args(argv)
+    if a.merge:
+        return merge(a.seqs, a.json)
     methods = ev.canonical_methods(a.methods.split(","))
     dev = get_device(None)
     sse = {m: {r: 0.0 for r in REGIONS} for m in methods}
@@ -151,31 +200,7 @@ def main(argv=None):
         records.append(rec)
         print(f"\n{seq['name']}: {len(scored)} scored frames")
         print(ev.format_table(rec["methods"]), flush=True)
-    result = {"sequences": records}
-    if len(records) > 1:
-        result["mean"] = ev.mean_over_sequences(records)
-        print(f"\nmean over {len(records)} sequences")
-        print(ev.format_table(result["mean"]))
-    table = {m: {r: (10 * np.log10(count[r] / sse[m][r]) if sse[m][r] > 0 else None)
-                 for r in REGIONS} for m in methods}
-    share = {r: count[r] / count["all"] for r in REGIONS}
-    w = max(len(m) for m in methods) + 2
-    print("\nregion PSNR dB (minus clss-rules')" if "clss-rules" in methods else "\nregion PSNR dB")
-    print("region".ljust(14) + "".join(f"{m:>{w + 8}s}" for m in methods) + "   share")
-    for r in REGIONS:
-        cells = []
-        for m in methods:
-            v = table[m][r]
-            base = table.get("clss-rules", {}).get(r)
-            cells.append(f"{v:.2f}" + (f" ({v - base:+.2f})" if base is not None and
-                                        m != "clss-rules" else "") if v is not None else "-")
-        print(r.ljust(14) + "".join(f"{c:>{w + 8}s}" for c in cells) + f"   {share[r]:.3f}")
-    if a.json:
-        with open(a.json, "w") as f:
-            json.dump({"regions": table, "share": share, "sequences": a.seqs,
-                       "warmup": a.warmup, "thresholds": {"rel_depth": REL, "hdr": HDR,
-                                                          "texture_std": TEXTURE_STD},
-                       "eval": result}, f, indent=1, default=ev._jsonable)
+    report(methods, sse, count, records, a.json, {"sequences": a.seqs, "warmup": a.warmup})
     return 0
 
 
