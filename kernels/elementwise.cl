@@ -13,6 +13,9 @@
  *                 for binary_bcast8 and pad8 only: measured on PoCL 3.0, fp16
  *                 binary_flat and unary ran 3-4x slower with it.
  *   -DLAST=1      argmax: the last index of a tied maximum (select_last_index)
+ *   -DRUN=n       copy_rows: runs of 8 elements per work-item (1 is the reference;
+ *                 the host sets 8 on CPU devices, whose per-work-item cost made a
+ *                 12-channel 1080p concat move 6 GB/s at one run)
  *
  * Data movement (copy_rows, gather, pad, where) moves raw bits (TB) and is
  * bit-exact; arithmetic loads as A and stores with round-to-nearest-even.
@@ -457,19 +460,26 @@ __kernel void clip_buf(__global const T *in, __global T *out, int n, __global co
  *  @param[in]  dst_off     first destination element
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
  */
+#ifndef RUN
+#define RUN 1
+#endif
 __kernel void copy_rows(__global const TB *src, __global TB *dst, int len, int rows,
                         int src_stride, int src_off, int dst_stride, int dst_off)
 {
-    const int i = get_global_id(0) * 8, r = get_global_id(1);
-    if (i >= len || r >= rows) return;
+    const int i0 = get_global_id(0) * 8 * RUN, r = get_global_id(1);
+    if (i0 >= len || r >= rows) return;
     __global const TB *s = src + (long)r * src_stride + src_off;
     __global TB *d = dst + (long)r * dst_stride + dst_off;
-    if (i + 8 <= len) {
-        vstore8(vload8(0, s + i), 0, d + i);
-        return;
+    for (int k = 0; k < RUN; ++k) {
+        const int i = i0 + 8 * k;
+        if (i + 8 <= len) {
+            vstore8(vload8(0, s + i), 0, d + i);
+        } else {
+            for (int j = i; j < len; ++j)
+                d[j] = s[j];
+            break;
+        }
     }
-    for (int j = i; j < len; ++j)
-        d[j] = s[j];
 }
 
 /* out[i0, i1, i2, i3] = src[base + i0*s0 + i1*s1 + i2*s2 + i3*s3]: slice with any

@@ -251,11 +251,15 @@ def clip(dev, prec, x, lo: float | None = None, hi: float | None = None, out=Non
 
 # --- data movement --------------------------------------------------------------------
 
+_COPY_RUN_CPU = 8
+
+
 def _copy_rows(dev, prec, src, dst, length, rows, src_stride, src_off, dst_stride, dst_off):
     if length <= 0 or rows <= 0:
         return
-    k = dev.kernel("elementwise", "copy_rows", prec)
-    dev.launch(k, (-(-length // _VEC), rows),
+    run = _COPY_RUN_CPU if dev.is_cpu else 1     # runs of 8 per work-item (elementwise.cl -DRUN)
+    k = dev.kernel("elementwise", "copy_rows", prec, RUN=run)
+    dev.launch(k, (-(-length // (_VEC * run)), rows),
                (src.data, dst.data, *_i32(length, rows, src_stride, src_off, dst_stride, dst_off)))
 
 
