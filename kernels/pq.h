@@ -23,10 +23,13 @@
 #define PQ_C3 18.6875f
 #endif
 
-#define PQ_ENCODE(T, NAME, POW)                                                       \
+#define PQ_ENCODE(T, NAME, POW) PQ_ENCODE_C(T, NAME, POW, clamp)
+
+/* the same with the kernel's own clamp (pq_clamp8: builtin clamp is a library call on PoCL) */
+#define PQ_ENCODE_C(T, NAME, POW, CLAMP)                                              \
     T NAME(T x, float pq_scale)                                                       \
     {                                                                                 \
-        const T y = clamp(x * pq_scale, 0.0f, 1.0f);                                  \
+        const T y = CLAMP(x * pq_scale, 0.0f, 1.0f);                                  \
         const T ym = POW(y, (float)PQ_M1);                                            \
         return POW((PQ_C1 + PQ_C2 * ym) / (1.0f + PQ_C3 * ym), (float)PQ_M2);         \
     }
@@ -72,5 +75,77 @@ static inline float8 pq_max8(float8 x, float z)
 }
 
 static PQ_DECODE(float8, pq_decode8, powp8, pq_max8, pq_clamp8)
+
+/* x^y for x >= 0 (0 at 0) on float8 in plain arithmetic, for the fast paths that take it
+ * (bicubic.fused8, frame.pq_poly): the float8 exp2 and log2 are library calls on PoCL too,
+ * and a call spills every live vector register. log2 x = the exponent of x plus an odd
+ * series in s = (m - 1) / (m + 1) of its mantissa m in [sqrt(1/2), sqrt(2)) (|s| < 0.172,
+ * terms to s^9: truncation below 1e-9; subnormal x scaled by 2^23 first); exp2 t = 2^n
+ * (the exponent bits) times a degree-7 Taylor polynomial of f = t - n in [-1/2, 1/2]
+ * (truncation below 1e-8 relative), n = t rounded to nearest by the 1.5 * 2^23 shift, t
+ * clamped to [-126, 127]. Against float64 (a million arguments each): log2 within
+ * 2.3e-7 relative, exp2 within 9.2e-8 relative (the library's float exp2: 2.2e-7), and
+ * the PQ decode and encode as close to float64 pow as with the library's exp2 and log2
+ * (0.53 and 0.13 of the fp32 tolerance; studies in docs/benchmarks.md, issue 51). */
+#if defined(__clang__)
+#define PQ_CVT(x, T) __builtin_convertvector((x), T)
+#else
+#define PQ_CVT(x, T) convert_##T(x)
+#endif
+
+/* pq_log2qN, pq_exp2qN, powqN (and pq_clampN, pq_maxN as pq_clamp8, pq_max8 above) on
+ * floatN, N = 8 or 16: the decode of two channels as one float16 halves the length of
+ * its chains of dependent operations on AVX-512 */
+#define PQ_POWQ_FNS(N)                                                                    \
+static inline float##N pq_log2q##N(float##N x)                                            \
+{                                                                                         \
+    const int##N sub = x < 1.17549435e-38f;                                               \
+    x = sub ? x * 8388608.0f : x;                                                         \
+    const int##N b = as_int##N(x);                                                        \
+    float##N m = as_float##N((b & 0x007fffff) | 0x3f800000);                             \
+    const int##N big = m > 1.41421356f;                                                   \
+    m = big ? m * 0.5f : m;                                                               \
+    /* comparisons are -1 where true */                                                   \
+    const int##N e = ((b >> 23) & 0xff) - 127 - big + (sub & -23);                        \
+    const float##N s = (m - 1.0f) / (m + 1.0f), s2 = s * s;                               \
+    const float##N p = 2.885390043258667f + s2 * (0.9617967009544373f                     \
+                       + s2 * (0.5770780444145203f + s2 * (0.41219857335090637f            \
+                       + s2 * 0.32059890031814575f)));                                    \
+    return PQ_CVT(e, float##N) + s * p;                                                   \
+}                                                                                         \
+                                                                                          \
+static inline float##N pq_exp2q##N(float##N t)                                            \
+{                                                                                         \
+    t = t < -126.0f ? (float##N)(-126.0f) : (t > 127.0f ? (float##N)(127.0f) : t);        \
+    const float##N r = (t + 12582912.0f) - 12582912.0f;                                   \
+    const float##N f = t - r;                                                             \
+    const int##N n = PQ_CVT(r, int##N);                                                   \
+    const float##N p = 1.0f + f * (0.6931471824645996f + f * (0.24022650718688965f         \
+                       + f * (0.05550410971045494f + f * (0.009618128649890423f            \
+                       + f * (0.0013333557872101665f + f * (0.0001540352968731895f         \
+                       + f * 1.5252733646775596e-05f))))));                               \
+    return p * as_float##N((n + 127) << 23);                                              \
+}                                                                                         \
+                                                                                          \
+static inline float##N powq##N(float##N x, float y)                                       \
+{                                                                                         \
+    return x > 0.0f ? pq_exp2q##N(y * pq_log2q##N(x)) : (float##N)(0.0f);                 \
+}
+
+PQ_POWQ_FNS(8)
+PQ_POWQ_FNS(16)
+
+static inline float16 pq_clamp16(float16 x, float lo, float hi)
+{
+    return x > lo ? (x < hi ? x : (float16)(hi)) : (float16)(lo);
+}
+
+static inline float16 pq_max16(float16 x, float z)
+{
+    return x > z ? x : (float16)(z);
+}
+
+static PQ_DECODE(float16, pq_decode16q, powq16, pq_max16, pq_clamp16)
+static PQ_DECODE(float8, pq_decode8q, powq8, pq_max8, pq_clamp8)
 
 #endif

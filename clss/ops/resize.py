@@ -123,6 +123,17 @@ def _axis_tables(dev: Device, prec: str, defines: dict, mode: str, sizes, scales
     return tabs
 
 
+def cubic_tables(dev: Device, prec: str, in_hw, out_hw, cubic_a: float = -0.75):
+    """(coord, idx, wt): the axis tables `resize` uses for a cubic, half_pixel resize of
+    in_hw to out_hw (no antialias, clamped edges), for a fused kernel of a method's room
+    that resamples as resize_x8 does (clss/methods/bicubic/bicubic.cl)."""
+    (ho, wo), (sy, sx) = output_size(tuple(in_hw), tuple(out_hw))
+    defines = dict(MODE=MODES.index("cubic"), COORD=_COORD_DEFINE["half_pixel"], CPT=CHANNELS_PER_ITEM,
+                   ANTIALIAS=0, EXCLUDE=0)
+    return _axis_tables(dev, prec, defines, "cubic", (ho, wo, *in_hw), (sy, sx), (_f32(0), _f32(0)),
+                        np.asarray((0, 0, 1, 1), np.float32), cubic_a)
+
+
 def resize(dev: Device, prec: str, x, out_hw=None, scales=None, mode: str = "linear",
            coord: str = "half_pixel", nearest_mode="round_prefer_floor", cubic_a: float = -0.75,
            exclude_outside: bool = False, out=None, *, antialias: bool = False, roi=None,
