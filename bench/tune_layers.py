@@ -8,13 +8,15 @@ of the networks the bench runs, on this device, by measurement.
    first checked against the row the device runs now (within the precision's tolerance:
    a wrong row is rejected however fast), then timed (median of `runs` after a warm-up).
    At level full, the two fastest rows also search their tunables (register and work-group
-   tiles), up to `max_candidates` each.
+   tiles), up to `max_candidates` each, where their untuned time is within FULL_WITHIN of
+   the fastest row's: on a CPU the GPU's GEMM rows run 10-50x slower than the register
+   tiles, and searching their tiles spent a whole budget on one layer.
 3. The fastest correct choice is stored in the tuning database under the device, driver,
    layer key and kernel-source hash (clss.ops.conv.layer_key), where conv2d's chooser
    reads it on every later run; a layer whose default won is stored too, so that the report
    and the shipped tables show it was measured.
-A time budget bounds the whole search: layers left when it runs out keep their defaults and
-are listed. Program binaries of every variant tried stay in the driver's and pyopencl's
+A time budget bounds the whole search, shared out over the layers left (a layer may use twice
+its share, never the rest): layers left when it runs out keep their defaults and are listed. Program binaries of every variant tried stay in the driver's and pyopencl's
 caches (clss.cachedir), so a tuned device builds nothing on its next first frame."""
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from clss import tuning
 from clss.ops import conv, conv_probe, variants
 
 LEVELS = ("fast", "full")
+FULL_WITHIN = 1.5   # level full searches the tiles of rows at most this much slower than the best
 
 
 @dataclass
@@ -103,7 +106,9 @@ def tune_layer(dev, prec, layer, *, level="fast", runs=5, max_candidates=24, sto
         trial(row, {})
     if level == "full":
         by_speed = sorted((t for t in res.trials if t[2] is not None), key=lambda t: t[2])[:2]
-        for name, _, _, _ in by_speed:
+        for name, _, ms, _ in by_speed:
+            if ms > by_speed[0][2] * FULL_WITHIN:
+                continue
             row = next(r for r in rows if r.name == name)
             space = row.tunables
             names = sorted(space)
@@ -162,14 +167,16 @@ def main(a, dev, precs, cases, logger) -> int:
     results, left = [], []
     bar = progress(layers, desc="tune layers", unit="layer")
     log = logger(bar)
-    for layer, prec in bar:
-        if time.monotonic() > deadline:
+    for i, (layer, prec) in enumerate(bar):
+        now = time.monotonic()
+        if now > deadline:
             left.append((layer, prec))
             continue
+        share = 2 * (deadline - now) / (len(layers) - i)
         try:
             results.append(tune_layer(dev, prec, layer, level=a.level, runs=a.runs,
                                       max_candidates=a.max_candidates, store=not a.dry_run, db=db,
-                                      deadline=deadline, log=log))
+                                      deadline=min(deadline, now + share), log=log))
         except Exception as e:      # one layer that cannot run: report it, tune the rest
             log(f"{layer} [{prec}]: {type(e).__name__}: {str(e).splitlines()[0][:200]}")
     try:
