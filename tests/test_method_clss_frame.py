@@ -386,10 +386,11 @@ print("frame kernels ok")
 
 
 @pytest.mark.oclgrind
-# 8 pixels per work-item (CPUs; its tails are the harder indexing) in the default tier,
+# 8 pixels per work-item (CPUs; its tails are the harder indexing) in the default tier, with
+# the builtins (the reference) and inline (the fast path frame.inline_math, which PoCL runs);
 # 1 (GPUs) in the slow one
-@pytest.mark.parametrize("vec", ["8", pytest.param("1", marks=pytest.mark.slow)])
-def test_frame_kernels_clean_under_oclgrind(vec, tmp_path):
+@pytest.mark.parametrize("vec, inline", [("8", "0"), ("8", "1"), pytest.param("1", "0", marks=pytest.mark.slow)])
+def test_frame_kernels_clean_under_oclgrind(vec, inline, tmp_path):
     """prepare, depth_diff, resolve and compose on tiny frames under oclgrind's
     out-of-bounds, uninitialised-read and data-race checks (the classifier runs on
     onnxruntime here: its kernels have their own oclgrind tests)."""
@@ -401,6 +402,7 @@ def test_frame_kernels_clean_under_oclgrind(vec, tmp_path):
         pytest.skip("oclgrind not installed (apt-get install oclgrind)")
     env = oclgrind_env(tmp_path)
     env["CLSS_FRAME_VEC"] = vec
+    env["CLSS_FRAME_INLINE_MATH"] = inline
     env["PYTHONPATH"] = os.pathsep.join([os.getcwd(), env.get("PYTHONPATH", "")])
     p = subprocess.run([sys.executable, "-W", "ignore", "-c", OCLGRIND_SCRIPT], env=env,
                        capture_output=True, text=True, timeout=900)

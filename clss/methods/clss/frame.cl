@@ -197,10 +197,112 @@ typedef int iv;
 #define GATHER(LDX, p, i) LDX(p, i)
 #endif
 
+/* -DCLSS_INLINE_MATH=1 (fast paths frame.inline_math.rule and .net; PoCL, whose compiler is
+ * clang): the builtins these kernels call as plain operators and clang's vector conversions,
+ * which compile inline. Pip's PoCL 3.0 calls fmin, fmax, fabs, clamp, floor, select, min,
+ * max, any, vload2/3 and the vector convert, load and store builtins out of line
+ * (inline_math.h says why), and a call spills every live vector register: depth_diff made
+ * about 100 calls per pixel. clamp is fmin(fmax(x, lo), hi) as OpenCL defines it, select
+ * is the vector ?: (the sign bit of each lane), isfinite is x - x == 0: the same results
+ * for the values these kernels see. sqrt and the atomics stay the builtins (oclgrind runs
+ * neither llvm's sqrt nor atomicrmw). The PQ transfer takes pq.h's powq8 and the
+ * composition's sigmoid pq_exp2q8 (VEC = 8), which round differently from the library's
+ * exp2, log2 and exp; everything else is bit-exact. =0: the builtins. */
+#ifndef CLSS_INLINE_MATH
+#define CLSS_INLINE_MATH 0
+#endif
+#if CLSS_INLINE_MATH
+/* fmin and fmax as a comparison and a select (the lane of b where b < a, else a's: fmin's
+ * result for every pair but a NaN, and a zero of the other sign); floor by the conversion
+ * to int and back (|x| < 2^31, as every floor here: coordinates; -0 gives +0); fabs by
+ * the sign bit. Not llvm's minnum, maxnum and floor intrinsics: oclgrind cannot run
+ * those, and it checks this variant too (tests/test_method_clss_frame.py). */
+#define OVL static inline __attribute__((overloadable))
+OVL float fmin_q(float a, float b) { return b < a ? b : a; }
+OVL float fmax_q(float a, float b) { return b > a ? b : a; }
+OVL float floor_q(float x) { const float t = (float)(int)x; return t > x ? t - 1.0f : t; }
+OVL float fabs_q(float x) { return as_float(as_uint(x) & 0x7fffffffu); }
+#if VEC > 1
+OVL fv fmin_q(fv a, fv b) { return b < a ? b : a; }
+OVL fv fmax_q(fv a, fv b) { return b > a ? b : a; }
+OVL fv fmin_q(fv a, float b) { return fmin_q(a, (fv)(b)); }
+OVL fv fmax_q(fv a, float b) { return fmax_q(a, (fv)(b)); }
+OVL fv floor_q(fv x)
+{
+    const fv t = __builtin_convertvector(__builtin_convertvector(x, iv), fv);
+    return t > x ? t - 1.0f : t;
+}
+OVL fv fabs_q(fv x) { return __builtin_astype(__builtin_astype(x, iv) & 0x7fffffff, fv); }
+#endif
+#define FMIN fmin_q
+#define FMAX fmax_q
+#define FABS fabs_q
+#define FLOOR floor_q
+#define CLAMP(v, lo, hi) FMIN(FMAX((v), (lo)), (hi))
+#define SELECT(a, b, c) ((c) ? (b) : (a))
+#define IMIN(a, b) ((a) < (b) ? (a) : (b))
+#define IMAX(a, b) ((a) > (b) ? (a) : (b))
+#define SQRT sqrt
+#define ISFINITE(x) ((x) - (x) == 0.0f)
+#define VLOAD3(i, p) ((float3)((p)[3 * (i)], (p)[3 * (i) + 1], (p)[3 * (i) + 2]))
+#define VLOAD2(i, p) ((float2)((p)[2 * (i)], (p)[2 * (i) + 1]))
+#if VEC > 1
+typedef float FrameVecP __attribute__((ext_vector_type(VEC), aligned(4)));
+#undef VLD
+#undef VST
+#define VLD(p) ((fv)(*(__private const FrameVecP *)(p)))
+#define VST(v, p) (*(__private FrameVecP *)(p) = (v))
+#undef CONVERT_IV
+#undef CONVERT_FV
+#define CONVERT_IV(x) __builtin_convertvector((x), iv)
+#define CONVERT_FV(x) __builtin_convertvector((x), fv)
+#undef ANY
+#if VEC == 8
+#define ANY(m) any8(m)
+static inline int any8(int8 m)
+{
+    const int4 a = m.lo | m.hi;
+    const int2 b = a.lo | a.hi;
+    return (b.x | b.y) < 0;
+}
+#else
+#define ANY(m) any4(m)
+static inline int any4(int4 m)
+{
+    const int2 b = m.lo | m.hi;
+    return (b.x | b.y) < 0;
+}
+#endif
+#endif
+#else
+#define FMIN fmin
+#define FMAX fmax
+#define FABS fabs
+#define FLOOR floor
+#define CLAMP clamp
+#define SELECT select
+#define IMIN min
+#define IMAX max
+#define SQRT sqrt
+#define ISFINITE isfinite
+#define VLOAD3 vload3
+#define VLOAD2 vload2
+#endif
+/* any lane of a float3 / float2 not finite */
+#define NONFINITE3(c) (!(ISFINITE((c).x) && ISFINITE((c).y) && ISFINITE((c).z)))
+#define NONFINITE2(c) (!(ISFINITE((c).x) && ISFINITE((c).y)))
+
 /* x^y for x >= 0 as exp2(y log2 x): 4-5x faster than pow on PoCL's CPU device, about
  * 1e-5 relative here (the transfer function is the hot spot at output resolution);
  * 0 stays 0 (log2 0 = -inf). */
 #define POWP(x, y) exp2((y) * log2(x))
+#if CLSS_INLINE_MATH && VEC == 8
+#define POWQ powq8
+#define EXPV(x) pq_exp2q8((x) * 1.44269504088896341f)
+#else
+#define POWQ POWP
+#define EXPV exp
+#endif
 
 /* The transfer on VEC pixels: pq.h's PQ (inv_pq_scale = 10000 / nits), or a clamp. */
 #if HDR
@@ -209,7 +311,7 @@ inline PQ_DECODE(fv, decode, POWP, fmax, clamp)
 #else
 inline fv encode(fv x, float pq_scale)
 {
-    return clamp(x, 0.0f, 1.0f);
+    return CLAMP(x, 0.0f, 1.0f);
 }
 
 inline fv decode(fv e, float inv_pq_scale)
@@ -260,25 +362,25 @@ inline float ld_depth(__global const float *depth, int i, int inverted)
 {
     float d = depth[i];
 #if SANITIZE
-    if (!isfinite(d)) return 0.0f;
+    if (!ISFINITE(d)) return 0.0f;
 #endif
     return inverted ? d : 1.0f - d;
 }
 
 inline float2 ld_motion(__global const float *motion, int i, float2 ms)
 {
-    float2 m = vload2(i, motion);
+    float2 m = VLOAD2(i, motion);
 #if SANITIZE
-    m = select(m, (float2)(0.0f), isfinite(m) == (int2)(0));
+    m = SELECT(m, (float2)(0.0f), ISFINITE(m) == (int2)(0));
 #endif
     return (ms.x == 1.0f && ms.y == 1.0f) ? m : m * ms;
 }
 
 inline float3 ld_color(__global const float *color, int i, float inv_exposure)
 {
-    float3 c = vload3(i, color);
+    float3 c = VLOAD3(i, color);
 #if SANITIZE
-    c = select(c, (float3)(0.0f), isfinite(c) == (int3)(0));
+    c = SELECT(c, (float3)(0.0f), ISFINITE(c) == (int3)(0));
 #endif
     return inv_exposure == 1.0f ? c : c * inv_exposure;
 }
@@ -297,12 +399,12 @@ typedef struct {
 
 inline int edge(float t, int n)
 {
-    return (int)fmin(fmax(t, 0.0f), (float)(n - 1));
+    return (int)FMIN(FMAX(t, 0.0f), (float)(n - 1));
 }
 
 inline iv edge_v(fv t, int n)
 {
-    return CONVERT_IV(fmin(fmax(t, 0.0f), (float)(n - 1)));
+    return CONVERT_IV(FMIN(FMAX(t, 0.0f), (float)(n - 1)));
 }
 
 /* Keys cubic weights (a = -0.75) for the taps at -1, 0, 1, 2 around u, in onnxruntime's
@@ -310,7 +412,7 @@ inline iv edge_v(fv t, int n)
 inline Taps4 cubic_taps(fv u, int n, int stride)
 {
     Taps4 t;
-    const fv f = floor(u), x = fabs(u - f);
+    const fv f = FLOOR(u), x = FABS(u - f);
     const float a = -0.75f;
     t.c0 = edge_v(f - 1.0f, n) * stride;
     t.c1 = edge_v(f, n) * stride;
@@ -327,7 +429,7 @@ inline Taps4 cubic_taps(fv u, int n, int stride)
 inline Taps2 linear_taps(fv u, int n, int stride)
 {
     Taps2 t;
-    const fv f = floor(u);
+    const fv f = FLOOR(u);
     t.c0 = edge_v(f, n) * stride;
     t.c1 = edge_v(f + 1.0f, n) * stride;
     t.w0 = (f + 1.0f) - u;
@@ -364,11 +466,99 @@ inline fv cubic_T(__global const T *p, Taps4 x, Taps4 y)
 LINEAR_SAMPLER(linear_T, T, FLD)
 LINEAR_SAMPLER(linear_f, float, LDF)
 
+/* Windows (CLSS_INLINE_MATH at VEC = 8, clang): where a work-item's 8 lanes read taps that
+ * lie in one run of a row, each tap's 8 values are one vector load (the history at P +
+ * motion: lane e at b + e + k for tap k, wherever the motion is smooth) or lanes of one
+ * loaded window spread by a shuffle (the render-res planes at 2x: lane e at b + o_e + k,
+ * o = (0, 0, 1, 1, 2, 2, 3, 3) or (0, 1, 1, 2, 2, 3, 3, 4) by the jitter's fraction), instead
+ * of 8 scalar loads; checked per work-item on the taps themselves (every lane's tap index
+ * is the run's, none clamped, the rows one for all lanes), so the same elements are read
+ * and summed in the same order: bit-exact. Elsewhere (the edges, a motion edge within the
+ * 8 pixels, other scales) the gathers. */
+#if CLSS_INLINE_MATH && VEC == 8 && defined(__clang__)
+#define WIN8 1
+#define SHUF8(v, a, b, c, d, e, f, g, h) __builtin_shufflevector((v), (v), a, b, c, d, e, f, g, h)
+#define PAT_A(v, k) SHUF8(v, 0 + k, 0 + k, 1 + k, 1 + k, 2 + k, 2 + k, 3 + k, 3 + k)
+#define PAT_B(v, k) SHUF8(v, 0 + k, 1 + k, 1 + k, 2 + k, 2 + k, 3 + k, 3 + k, 4 + k)
+#define PAT_OFFS_A ((iv)(0, 0, 1, 1, 2, 2, 3, 3))
+#define PAT_OFFS_B ((iv)(0, 1, 1, 2, 2, 3, 3, 4))
+
+/* 1: the 8 lanes' taps are b + LANES + k (k = 0..NT-1), rows one for all lanes */
+inline int run_taps4(Taps4 x, Taps4 y)
+{
+    const iv s = x.c0.s0 + LANES;
+    return !ANY((x.c0 != s) | (x.c1 != s + 1) | (x.c2 != s + 2) | (x.c3 != s + 3) |
+                (y.c0 != y.c0.s0) | (y.c1 != y.c1.s0) | (y.c2 != y.c2.s0) | (y.c3 != y.c3.s0));
+}
+
+inline int run_taps2(Taps2 x, Taps2 y)
+{
+    const iv s = x.c0.s0 + LANES;
+    return !ANY((x.c0 != s) | (x.c1 != s + 1) | (y.c0 != y.c0.s0) | (y.c1 != y.c1.s0));
+}
+
+/* the render-res pattern of x (cubic taps at 2x): 1 (A), 2 (B) or 0 (gathers), for a
+ * window of 8 from x.c0.s0 inside the row of n */
+inline int pat_taps4(Taps4 x, int n)
+{
+    const int b = x.c0.s0;
+    if (b + 8 > n || ANY((x.c1 != x.c0 + 1) | (x.c2 != x.c0 + 2) | (x.c3 != x.c0 + 3)))
+        return 0;
+    const iv o = x.c0 - b;
+    return !ANY(o != PAT_OFFS_A) ? 1 : (!ANY(o != PAT_OFFS_B) ? 2 : 0);
+}
+
+/* cubic_T with the history's runs: lane e of tap k at row + b + e + k */
+inline fv cubic_T_run(__global const T *p, Taps4 x, Taps4 y)
+{
+    const int b = x.c0.s0;
+#define ROWR(r) (x.w0 * FLD8(p, (r) + b) + x.w1 * FLD8(p, (r) + b + 1) + \
+                 x.w2 * FLD8(p, (r) + b + 2) + x.w3 * FLD8(p, (r) + b + 3))
+    return y.w0 * ROWR(y.c0.s0) + y.w1 * ROWR(y.c1.s0) + y.w2 * ROWR(y.c2.s0) + y.w3 * ROWR(y.c3.s0);
+#undef ROWR
+}
+
+inline fv linear_T_run(__global const T *p, Taps2 x, Taps2 y)
+{
+    const int b = x.c0.s0;
+    return y.w0 * (x.w0 * FLD8(p, y.c0.s0 + b) + x.w1 * FLD8(p, y.c0.s0 + b + 1)) +
+           y.w1 * (x.w0 * FLD8(p, y.c1.s0 + b) + x.w1 * FLD8(p, y.c1.s0 + b + 1));
+}
+
+/* cubic_T and linear over the render-res windows: pat 1 (A) or 2 (B) from pat_taps4; the
+ * linear taps are the cubic's c1 and c2 (the same floor of the same coordinate) */
+#define CUBIC_ROW_P(P, v, x) (x.w0 * P(v, 0) + x.w1 * P(v, 1) + x.w2 * P(v, 2) + x.w3 * P(v, 3))
+inline fv cubic_T_pat(__global const T *p, Taps4 x, Taps4 y, int pat)
+{
+    const int b = x.c0.s0;
+    const fv r0 = FLD8(p, y.c0.s0 + b), r1 = FLD8(p, y.c1.s0 + b), r2 = FLD8(p, y.c2.s0 + b),
+             r3 = FLD8(p, y.c3.s0 + b);
+    if (pat == 1)
+        return y.w0 * CUBIC_ROW_P(PAT_A, r0, x) + y.w1 * CUBIC_ROW_P(PAT_A, r1, x) +
+               y.w2 * CUBIC_ROW_P(PAT_A, r2, x) + y.w3 * CUBIC_ROW_P(PAT_A, r3, x);
+    return y.w0 * CUBIC_ROW_P(PAT_B, r0, x) + y.w1 * CUBIC_ROW_P(PAT_B, r1, x) +
+           y.w2 * CUBIC_ROW_P(PAT_B, r2, x) + y.w3 * CUBIC_ROW_P(PAT_B, r3, x);
+}
+
+/* b: the cubic's x.c0.s0 (the window's start); x, y: the linear taps */
+inline fv linear_f_pat(__global const float *p, int b, Taps2 x, Taps2 y, int pat)
+{
+    const fv r0 = XLD8(p + y.c0.s0 + b), r1 = XLD8(p + y.c1.s0 + b);
+    if (pat == 1)
+        return y.w0 * (x.w0 * PAT_A(r0, 1) + x.w1 * PAT_A(r0, 2)) +
+               y.w1 * (x.w0 * PAT_A(r1, 1) + x.w1 * PAT_A(r1, 2));
+    return y.w0 * (x.w0 * PAT_B(r0, 1) + x.w1 * PAT_B(r0, 2)) +
+           y.w1 * (x.w0 * PAT_B(r1, 1) + x.w1 * PAT_B(r1, 2));
+}
+#else
+#define WIN8 0
+#endif
+
 /* The 4 bilinear taps of p + motion for the depth reconstruction (reference.md s3):
  * tap k = (a, b) in order (0,0) (1,0) (0,1) (1,1). */
 #define SCATTER_TAPS(j, i, m)                                             \
     const float ux = (float)(j) + (m).x, uy = (float)(i) + (m).y;         \
-    const float x0 = floor(ux), y0 = floor(uy);                           \
+    const float x0 = FLOOR(ux), y0 = FLOOR(uy);                           \
     const float fx = ux - x0, fy = uy - y0;                               \
     const float wxs[2] = {1.0f - fx, fx}, wys[2] = {1.0f - fy, fy};
 
@@ -417,12 +607,12 @@ __kernel void prepare(__global const float *color, __global const float *depth,
 {
     const int j0 = get_global_id(0) * VEC, i = get_global_id(1);
     if (j0 >= w || i >= h) return;
-    const int hw = w * h, n = min(VEC, w - j0);
+    const int hw = w * h, n = IMIN(VEC, w - j0);
     const float2 ms = (float2)(msx, msy);
     /* the colour of the VEC pixels, gathered for the vector transfer function */
     float cr[VEC], cg[VEC], cb[VEC];
     for (int l = 0; l < VEC; ++l) {
-        const int j = min(j0 + l, w - 1), p = i * w + j;
+        const int j = IMIN(j0 + l, w - 1), p = i * w + j;
         const float3 c = ld_color(color, p, inv_exposure);
         cr[l] = c.x;
         cg[l] = c.y;
@@ -431,17 +621,17 @@ __kernel void prepare(__global const float *color, __global const float *depth,
 
         /* input checks on this pixel's own values */
         uint bad = 0;
-        const float3 c_raw = vload3(p, color);
+        const float3 c_raw = VLOAD3(p, color);
         const float d_raw = depth[p];
-        const float2 m_raw = vload2(p, motion);
-        if (any(isfinite(c_raw) == (int3)(0))) bad |= F_COLOR_NONFINITE;
-        if (!isfinite(d_raw)) bad |= F_DEPTH_NONFINITE;
+        const float2 m_raw = VLOAD2(p, motion);
+        if (NONFINITE3(c_raw)) bad |= F_COLOR_NONFINITE;
+        if (!ISFINITE(d_raw)) bad |= F_DEPTH_NONFINITE;
         else if (!(d_raw >= 0.0f && d_raw <= 1.0f)) bad |= F_DEPTH_RANGE;
-        if (any(isfinite(m_raw) == (int2)(0))) bad |= F_MOTION_NONFINITE;
+        if (NONFINITE2(m_raw)) bad |= F_MOTION_NONFINITE;
         float r = 0.0f;
         if (has_reactive) {
             r = reactive[p];
-            if (!isfinite(r)) {
+            if (!ISFINITE(r)) {
                 bad |= F_REACTIVE_NONFINITE;
 #if SANITIZE
                 r = 0.0f;
@@ -453,12 +643,10 @@ __kernel void prepare(__global const float *color, __global const float *depth,
         if (bad) {
             atomic_or(flags, bad);
             /* element counts, for the report of what SANITIZE replaced */
-            const int3 fc = isfinite(c_raw);
-            const int2 fm = isfinite(m_raw);
             if (bad & F_COLOR_NONFINITE)
-                atomic_add(flags + 1, (uint)((fc.x == 0) + (fc.y == 0) + (fc.z == 0)));
+                atomic_add(flags + 1, (uint)(!ISFINITE(c_raw.x) + !ISFINITE(c_raw.y) + !ISFINITE(c_raw.z)));
             if (bad & F_DEPTH_NONFINITE) atomic_inc(flags + 2);
-            if (bad & F_MOTION_NONFINITE) atomic_add(flags + 3, (uint)((fm.x == 0) + (fm.y == 0)));
+            if (bad & F_MOTION_NONFINITE) atomic_add(flags + 3, (uint)(!ISFINITE(m_raw.x) + !ISFINITE(m_raw.y)));
             if (bad & F_REACTIVE_NONFINITE) atomic_inc(flags + 4);
         }
 
@@ -553,7 +741,7 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
             const float rk = on ? as_float(recon[edge(yk, h) * w + edge(xk, w)]) : 0.0f;
             rs = rs + rk * wk;
         }
-    const float dd = clamp((rs - d) / fmax(rs, 1e-6f), -1.0f, 1.0f);
+    const float dd = CLAMP((rs - d) / FMAX(rs, 1e-6f), -1.0f, 1.0f);
     lr[L_DD * hw + p] = dd;
     /* the depth test's difference (reference.md s4): dd less depth_slope x the local
      * relative depth step, the smaller one-sided step in x plus that in y (edge pixels
@@ -562,10 +750,10 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
      * Only the dilated depth plane is read, which no work-item of this kernel writes. */
     {
         __global const float *D = lr + L_DEPTH * hw;
-        const float l = D[i * w + max(j - 1, 0)], r = D[i * w + min(j + 1, w - 1)];
-        const float u = D[max(i - 1, 0) * w + j], b = D[min(i + 1, h - 1) * w + j];
-        const float sx = fmin(fabs(r - d), fabs(d - l)), sy = fmin(fabs(b - d), fabs(d - u));
-        lr[L_DDT * hw + p] = dd - depth_slope * ((sx + sy) / fmax(d, 1e-6f));
+        const float l = D[i * w + IMAX(j - 1, 0)], r = D[i * w + IMIN(j + 1, w - 1)];
+        const float u = D[IMAX(i - 1, 0) * w + j], b = D[IMIN(i + 1, h - 1) * w + j];
+        const float sx = FMIN(FABS(r - d), FABS(d - l)), sy = FMIN(FABS(b - d), FABS(d - u));
+        lr[L_DDT * hw + p] = dd - depth_slope * ((sx + sy) / FMAX(d, 1e-6f));
     }
     /* auto-reactive (contract.AUTO_REACTIVE_*): where the dilated motion of the 3x3
      * neighbourhood diverges, surfaces move apart and a warped history mixes them, so the
@@ -587,16 +775,16 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
                 const int jj = j + dx;
                 if (jj < 0 || jj >= w) continue;
                 const int pn = ii * w + jj;
-                div = fmax(div, fabs(lr[L_MX * hw + pn] - m.x) + fabs(lr[L_MY * hw + pn] - m.y));
+                div = FMAX(div, FABS(lr[L_MX * hw + pn] - m.x) + FABS(lr[L_MY * hw + pn] - m.y));
 #if NET
                 const float dn = lr[L_RAW_DEPTH * hw + pn];
-                dmin = fmin(dmin, dn);
-                dmax = fmax(dmax, dn);
+                dmin = FMIN(dmin, dn);
+                dmax = FMAX(dmax, dn);
 #endif
             }
         }
-        lr[L_REACTIVE * hw + p] = fmax(lr[L_REACTIVE * hw + p],
-                                       clamp((div - AR_LO) * AR_SLOPE, 0.0f, AR_MAX));
+        lr[L_REACTIVE * hw + p] = FMAX(lr[L_REACTIVE * hw + p],
+                                       CLAMP((div - AR_LO) * AR_SLOPE, 0.0f, AR_MAX));
     }
 
     /* the clamp box: min and max of the encoded colour over the 3x3 window, narrowed to
@@ -618,8 +806,8 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
                 const int jj = j + dx;
                 if (jj < 0 || jj >= w) continue;
                 const float n = FLD(x, ii * w + jj);
-                lo = fmin(lo, n);
-                hi = fmax(hi, n);
+                lo = FMIN(lo, n);
+                hi = FMAX(hi, n);
                 const float d = n - xc;
                 s1 = s1 + d;
                 s2 = s2 + d * d;
@@ -627,12 +815,12 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
             }
         }
         const float md = s1 / cnt;
-        const float sd = CLIP_GAMMA * sqrt(fmax(s2 / cnt - md * md, 0.0f));
+        const float sd = CLIP_GAMMA * SQRT(FMAX(s2 / cnt - md * md, 0.0f));
         const float mu = xc + md;
-        lr[(L_NMIN + c) * hw + p] = fmax(lo, mu - sd);
-        lr[(L_NMAX + c) * hw + p] = fmin(hi, mu + sd);
+        lr[(L_NMIN + c) * hw + p] = FMAX(lo, mu - sd);
+        lr[(L_NMAX + c) * hw + p] = FMIN(hi, mu + sd);
 #if NET
-        spread = fmax(spread, hi - lo);
+        spread = FMAX(spread, hi - lo);
 #endif
     }
 #if NET
@@ -644,25 +832,25 @@ __kernel void depth_diff(__global const uint *recon, __global const T *X, __glob
      * but says nothing: 0. */
     float tdd = 0.0f, cc = 0.0f;
     if (!reset) {
-        const float qx = floor(((float)j + m_own.x) + 0.5f);
-        const float qy = floor(((float)i + m_own.y) + 0.5f);
+        const float qx = FLOOR(((float)j + m_own.x) + 0.5f);
+        const float qy = FLOOR(((float)i + m_own.y) + 0.5f);
         if (qx >= 0.0f && qx <= (float)(w - 1) && qy >= 0.0f && qy <= (float)(h - 1)) {
             const int q = (int)qy * w + (int)qx;
             const float pd = prev[3 * hw + q];
-            tdd = clamp((pd - d_own) / fmax(pd, 1e-6f), -1.0f, 1.0f);
+            tdd = CLAMP((pd - d_own) / FMAX(pd, 1e-6f), -1.0f, 1.0f);
             for (int c = 0; c < 3; ++c)
-                cc = fmax(cc, fabs(FLD(X + c * hw, p) - prev[c * hw + q]));
+                cc = FMAX(cc, FABS(FLD(X + c * hw, p) - prev[c * hw + q]));
         } else {
             tdd = cc = 1.0f;
         }
     }
-    const float edge = (dmax - dmin) / fmax(dmax, 1e-6f);
+    const float edge = (dmax - dmin) / FMAX(dmax, 1e-6f);
     /* each compressed as v / (|v| + knee): the label-relevant sizes become O(1) and the
      * outliers (off screen, a full-range edge) stay below 1 */
-    lr[L_MEASURE * hw + p] = tdd / (fabs(tdd) + KNEE_TDD);
-    lr[(L_MEASURE + 1) * hw + p] = cc / (fabs(cc) + KNEE_CC);
-    lr[(L_MEASURE + 2) * hw + p] = edge / (fabs(edge) + KNEE_EDGE);
-    lr[(L_MEASURE + 3) * hw + p] = spread / (fabs(spread) + KNEE_SPREAD);
+    lr[L_MEASURE * hw + p] = tdd / (FABS(tdd) + KNEE_TDD);
+    lr[(L_MEASURE + 1) * hw + p] = cc / (FABS(cc) + KNEE_CC);
+    lr[(L_MEASURE + 2) * hw + p] = edge / (FABS(edge) + KNEE_EDGE);
+    lr[(L_MEASURE + 3) * hw + p] = spread / (FABS(spread) + KNEE_SPREAD);
     /* the next frame's state: the colour as stored (half in fp16 storage, which float
      * holds exactly) and the pixel's own depth. Written on a reset too, and on a frame
      * that is then refused: the host only swaps the state in when it accepts the frame. */
@@ -692,22 +880,32 @@ inline Gathered gather(int I, iv J, __global const T *X, __global const float *l
 {
     Gathered g;
     const int hw = w * h, HW = W * H;
-    const fv u = grid_round_trip(clamp(GATHER(LDF, bx, J) - jx, 0.0f, (float)(w - 1)), w);
-    const fv v = grid_round_trip(FV(clamp(by[I] - jy, 0.0f, (float)(h - 1))), h);
+    const fv u = grid_round_trip(CLAMP(GATHER(LDF, bx, J) - jx, 0.0f, (float)(w - 1)), w);
+    const fv v = grid_round_trip(FV(CLAMP(by[I] - jy, 0.0f, (float)(h - 1))), h);
     const Taps4 cx = cubic_taps(u, w, 1), cy = cubic_taps(v, h, w);
-    for (int c = 0; c < 3; ++c)
-        g.up[c] = clamp(cubic_T(X + c * hw, cx, cy), 0.0f, 1.0f);
     const Taps2 lx = linear_taps(u, w, 1), ly = linear_taps(v, h, w);
-    g.depth = linear_f(lr + L_DEPTH * hw, lx, ly);
-    g.mvx = linear_f(lr + L_MX * hw, lx, ly) * sx;
-    g.mvy = linear_f(lr + L_MY * hw, lx, ly) * sy;
-    g.dd = linear_f(lr + L_DD * hw, lx, ly);
-    g.ddt = linear_f(lr + L_DDT * hw, lx, ly);
-    g.react = linear_f(lr + L_REACTIVE * hw, lx, ly);
+#if WIN8
+    const int pat = pat_taps4(cx, w), xb = cx.c0.s0;
+#define CUBIC_X(p) (pat ? cubic_T_pat((p), cx, cy, pat) : cubic_T((p), cx, cy))
+#define LINEAR_LR(p) (pat ? linear_f_pat((p), xb, lx, ly, pat) : linear_f((p), lx, ly))
+#else
+#define CUBIC_X(p) cubic_T((p), cx, cy)
+#define LINEAR_LR(p) linear_f((p), lx, ly)
+#endif
+    for (int c = 0; c < 3; ++c)
+        g.up[c] = CLAMP(CUBIC_X(X + c * hw), 0.0f, 1.0f);
+    g.depth = LINEAR_LR(lr + L_DEPTH * hw);
+    g.mvx = LINEAR_LR(lr + L_MX * hw) * sx;
+    g.mvy = LINEAR_LR(lr + L_MY * hw) * sy;
+    g.dd = LINEAR_LR(lr + L_DD * hw);
+    g.ddt = LINEAR_LR(lr + L_DDT * hw);
+    g.react = LINEAR_LR(lr + L_REACTIVE * hw);
     for (int c = 0; c < 3; ++c) {
-        g.bmin[c] = linear_f(lr + (L_NMIN + c) * hw, lx, ly);
-        g.bmax[c] = linear_f(lr + (L_NMAX + c) * hw, lx, ly);
+        g.bmin[c] = LINEAR_LR(lr + (L_NMIN + c) * hw);
+        g.bmax[c] = LINEAR_LR(lr + (L_NMAX + c) * hw);
     }
+#undef CUBIC_X
+#undef LINEAR_LR
 #if NET
     /* s4b: the measurements of the render pixel that holds the output pixel's centre,
      * ((2 I + 1) h) / (2 H) in integers (no jitter, no interpolation: bilinear halved the
@@ -731,20 +929,29 @@ inline Gathered gather(int I, iv J, __global const T *X, __global const float *l
         g.lg[c] = FV(0.0f);
     if (ANY(g.valid)) {
         /* every lane reads at clamped, in-bounds positions; invalid ones are dropped */
-        const fv uc = grid_round_trip(clamp(su, 0.0f, (float)(W - 1)), W);
-        const fv vc = grid_round_trip(clamp(sv, 0.0f, (float)(H - 1)), H);
+        const fv uc = grid_round_trip(CLAMP(su, 0.0f, (float)(W - 1)), W);
+        const fv vc = grid_round_trip(CLAMP(sv, 0.0f, (float)(H - 1)), H);
         const Taps4 hx = cubic_taps(uc, W, 1), hy = cubic_taps(vc, H, W);
-        for (int c = 0; c < 3; ++c)
-            g.col[c] = select(g.col[c], clamp(cubic_T(hist + c * HW, hx, hy), 0.0f, 1.0f),
-                              g.valid);
         const Taps2 gx = linear_taps(uc, W, 1), gy = linear_taps(vc, H, W);
-        g.cnt = select(g.cnt, linear_T(hist + 3 * HW, gx, gy), g.valid);
+#if WIN8
+        const int run4 = run_taps4(hx, hy), run2 = run_taps2(gx, gy);
+#define CUBIC_H(p) (run4 ? cubic_T_run((p), hx, hy) : cubic_T((p), hx, hy))
+#define LINEAR_H(p) (run2 ? linear_T_run((p), gx, gy) : linear_T((p), gx, gy))
+#else
+#define CUBIC_H(p) cubic_T((p), hx, hy)
+#define LINEAR_H(p) linear_T((p), gx, gy)
+#endif
+        for (int c = 0; c < 3; ++c)
+            g.col[c] = SELECT(g.col[c], CLAMP(CUBIC_H(hist + c * HW), 0.0f, 1.0f), g.valid);
+        g.cnt = SELECT(g.cnt, LINEAR_H(hist + 3 * HW), g.valid);
         for (int c = 0; c < 3; ++c) {
-            g.mn[c] = select(g.mn[c], linear_T(hist + (4 + c) * HW, gx, gy), g.valid);
-            g.mx[c] = select(g.mx[c], linear_T(hist + (7 + c) * HW, gx, gy), g.valid);
+            g.mn[c] = SELECT(g.mn[c], LINEAR_H(hist + (4 + c) * HW), g.valid);
+            g.mx[c] = SELECT(g.mx[c], LINEAR_H(hist + (7 + c) * HW), g.valid);
         }
         for (int c = 0; c < 6; ++c)
-            g.lg[c] = select(g.lg[c], linear_T(hist + (10 + c) * HW, gx, gy), g.valid);
+            g.lg[c] = SELECT(g.lg[c], LINEAR_H(hist + (10 + c) * HW), g.valid);
+#undef CUBIC_H
+#undef LINEAR_H
     }
     return g;
 }
@@ -759,11 +966,11 @@ inline void clip_history(const Gathered *g, fv hc[3])
     fv t = FV(1.0f);
     for (int c = 0; c < 3; ++c) {
         const fv d = g->col[c] - g->up[c];
-        const fv lim = select((g->bmin[c] - CLIP_EPS) - g->up[c],
+        const fv lim = SELECT((g->bmin[c] - CLIP_EPS) - g->up[c],
                               (g->bmax[c] + CLIP_EPS) - g->up[c], d > 0.0f);
         const iv nz = d != 0.0f;
-        const fv tc = select(FV(1.0f), lim / select(FV(1.0f), d, nz), nz);
-        t = fmin(t, fmax(tc, 0.0f));
+        const fv tc = SELECT(FV(1.0f), lim / SELECT(FV(1.0f), d, nz), nz);
+        t = FMIN(t, FMAX(tc, 0.0f));
     }
     for (int c = 0; c < 3; ++c)
         hc[c] = g->up[c] + t * (g->col[c] - g->up[c]);
@@ -820,13 +1027,13 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
 {
     const int J0 = get_global_id(0) * VEC, I = get_global_id(1);
     if (J0 >= W || I >= H) return;
-    const int HW = W * H, q = I * W + J0, n = min(VEC, W - J0);
+    const int HW = W * H, q = I * W + J0, n = IMIN(VEC, W - J0);
     KEEP_HISTORY_IF_REFUSED
-    const Gathered g = gather(I, min(J0 + LANES, (iv)(W - 1)), X, lr, bx, by, jx, jy, w, h, W, H,
+    const Gathered g = gather(I, IMIN(J0 + LANES, (iv)(W - 1)), X, lr, bx, by, jx, jy, w, h, W, H,
                               sx, sy, reset, hist);
     const iv ghost = (g.ddt > depth_threshold) | (g.valid == (iv)(0));
-    const fv cnt = select(fmin(g.cnt + 1.0f, cap), FV(0.0f), ghost);
-    const fv wgt = fmax(1.0f / (1.0f + cnt), g.react);
+    const fv cnt = SELECT(FMIN(g.cnt + 1.0f, cap), FV(0.0f), ghost);
+    const fv wgt = FMAX(1.0f / (1.0f + cnt), g.react);
     fv hc[3];
     clip_history(&g, hc);
     fv o[3];
@@ -834,8 +1041,8 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
         const fv u = g.up[c];
         o[c] = wgt * u + (1.0f - wgt) * hc[c];
         st_plane(hist_out, c * HW + q, o[c], n);
-        st_plane(hist_out, (4 + c) * HW + q, select(fmin(g.mn[c], u), u, ghost), n);
-        st_plane(hist_out, (7 + c) * HW + q, select(fmax(g.mx[c], u), u, ghost), n);
+        st_plane(hist_out, (4 + c) * HW + q, SELECT(FMIN(g.mn[c], u), u, ghost), n);
+        st_plane(hist_out, (7 + c) * HW + q, SELECT(FMAX(g.mx[c], u), u, ghost), n);
     }
     st_plane(hist_out, 3 * HW + q, cnt, n);
     /* rule mode carries no logits: zero bits (0.0 in half and in float). Stored as bits,
@@ -848,7 +1055,7 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
            decode(o[2], inv_pq_scale) * exposure, n);
     if (debug) {
         st_plane_f(dbg, q, wgt, n);
-        st_plane_f(dbg, HW + q, select(FV(0.0f), FV(1.0f), ghost), n);
+        st_plane_f(dbg, HW + q, SELECT(FV(0.0f), FV(1.0f), ghost), n);
         st_plane_f(dbg, 2 * HW + q, g.dd, n);
     }
 }
@@ -886,7 +1093,7 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     if (J0 >= W16 || I16 >= H16) return;
     /* a refused frame only reaches compose's flag check; its inputs are never used */
     if (flags[0] & F_REFUSE) return;
-    const Gathered g = gather(min(I16, H - 1), min(J0 + LANES, (iv)(W - 1)), X, lr, bx, by, jx, jy,
+    const Gathered g = gather(IMIN(I16, H - 1), IMIN(J0 + LANES, (iv)(W - 1)), X, lr, bx, by, jx, jy,
                               w, h, W, H, sx, sy, reset, hist);
     const int P = W16 * H16, r = I16 * W16 + J0;
     /* CLASSIFIER_INPUTS order (weights_tools.networks) */
@@ -906,7 +1113,7 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
     for (int k = 0; k < MEASURES; ++k)
         STV(cls_in, (23 + k) * P + r, g.meas[k]);
     STV(aux, r, g.cnt);
-    STV(aux, P + r, select(FV(0.0f), FV(1.0f), g.valid));
+    STV(aux, P + r, SELECT(FV(0.0f), FV(1.0f), g.valid));
     STV(aux, 2 * P + r, g.react);
     fv hc[3];
     clip_history(&g, hc);
@@ -952,15 +1159,15 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
 {
     const int J0 = get_global_id(0) * VEC, I = get_global_id(1);
     if (J0 >= W || I >= H) return;
-    const int HW = W * H, q = I * W + J0, n = min(VEC, W - J0);
+    const int HW = W * H, q = I * W + J0, n = IMIN(VEC, W - J0);
     KEEP_HISTORY_IF_REFUSED
     /* rows are padded to W16, a multiple of 16 and of VEC: whole vectors stay in bounds */
     const int P = W16 * H16, r = I * W16 + J0;
     const int w2_ = W16 / 2, h2_ = H16 / 2, P2 = w2_ * h2_;
 
     /* Resize linear half_pixel x2: source x = (J + 0.5) / 2 - 0.5, clamped */
-    const fv lxs = clamp((CONVERT_FV(J0 + LANES) + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(w2_ - 1));
-    const fv lys = FV(clamp(((float)I + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(h2_ - 1)));
+    const fv lxs = CLAMP((CONVERT_FV(J0 + LANES) + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(w2_ - 1));
+    const fv lys = FV(CLAMP(((float)I + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(h2_ - 1)));
     const Taps2 lx = linear_taps(lxs, w2_, 1), ly = linear_taps(lys, h2_, w2_);
     fv lg[6];
     for (int c = 0; c < 6; ++c)
@@ -970,10 +1177,10 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
      * least vis_margin (lead in this order, as the oracle and the torch twin; margin 0
      * is the argmax, first index on ties), or the rule's depth test (on aux plane 6, the
      * test's difference, s4): the floor under the classifier (reference.md s7) */
-    const fv lead = lg[0] - fmax(lg[1], lg[2]);
+    const fv lead = lg[0] - FMAX(lg[1], lg[2]);
     const iv ghost = (lead >= vis_margin) | (LDV(aux, 6 * P + r) > depth_threshold)
                      | (LDV(aux, P + r) < 0.5f);
-    const fv cnt = select(fmin(LDV(aux, r) + 1.0f, cap), FV(0.0f), ghost);
+    const fv cnt = SELECT(FMIN(LDV(aux, r) + 1.0f, cap), FV(0.0f), ghost);
 
     /* the composition MLP on COMPOSITION_INPUTS, in their order */
     fv x[COMP_IN];
@@ -981,8 +1188,8 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
         const fv u = LDV(cls_in, c * P + r);
         x[c] = u;
         x[3 + c] = LDV(aux, (3 + c) * P + r);       /* the clipped history */
-        x[10 + c] = select(fmin(LDV(cls_in, (10 + c) * P + r), u), u, ghost);
-        x[13 + c] = select(fmax(LDV(cls_in, (13 + c) * P + r), u), u, ghost);
+        x[10 + c] = SELECT(FMIN(LDV(cls_in, (10 + c) * P + r), u), u, ghost);
+        x[13 + c] = SELECT(FMAX(LDV(cls_in, (13 + c) * P + r), u), u, ghost);
     }
     x[6] = LDV(cls_in, 6 * P + r);
     x[7] = LDV(cls_in, 7 * P + r);
@@ -1009,10 +1216,10 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
         }
 #pragma unroll
         for (int u = 0; u < MLP_KB; ++u)
-            z = FV(w2[k + u]) * select(FV(0.0f), a[u], a[u] > 0.0f) + z;
+            z = FV(w2[k + u]) * SELECT(FV(0.0f), a[u], a[u] > 0.0f) + z;
     }
     /* a ghost (visibility ghosting, off screen, reset) drops its history: w = 1 */
-    const fv wgt = fmax(select(1.0f / (1.0f + exp(-z)), FV(1.0f), ghost), LDV(aux, 2 * P + r));
+    const fv wgt = FMAX(SELECT(1.0f / (1.0f + EXPV(-z)), FV(1.0f), ghost), LDV(aux, 2 * P + r));
 
     fv o[3];
     for (int c = 0; c < 3; ++c) {
@@ -1028,7 +1235,7 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
            decode(o[2], inv_pq_scale) * exposure, n);
     if (debug) {
         st_plane_f(dbg, q, wgt, n);
-        st_plane_f(dbg, HW + q, select(FV(0.0f), FV(1.0f), ghost), n);
+        st_plane_f(dbg, HW + q, SELECT(FV(0.0f), FV(1.0f), ghost), n);
         st_plane_f(dbg, 2 * HW + q, LDV(cls_in, 16 * P + r), n);
     }
 }

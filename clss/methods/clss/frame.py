@@ -78,6 +78,22 @@ def pixels_per_item(dev: Device, prec: str = "fp32", mode: str = "rule") -> int:
     return selfcheck.defines(dev, prec, f"frame.pixel_vectors.{mode}")["VEC"]
 
 
+def inline_math(dev: Device, prec: str = "fp32", mode: str = "rule") -> int:
+    """CLSS_INLINE_MATH of frame.cl: the builtins as clang's elementwise builtins and plain
+    operators, and the PQ transfer on pq.h's powq8, on PoCL (whose compiler is clang and whose
+    builtins are calls) once the fast path frame.inline_math.<mode> checked itself.
+    $CLSS_FRAME_INLINE_MATH (0 or 1) overrides it, unchecked."""
+    from ...ops.conv import builtin_free
+    env = os.environ.get("CLSS_FRAME_INLINE_MATH", "").strip()
+    if env:         # 0 or 1, unchecked (the oclgrind test runs the fast path with it)
+        if env not in ("0", "1"):
+            raise ValueError(f"CLSS_FRAME_INLINE_MATH: expected 0 or 1, got {env!r}")
+        return int(env)
+    if not builtin_free(dev):
+        return 0
+    return selfcheck.defines(dev, prec, f"frame.inline_math.{mode}")["CLSS_INLINE_MATH"]
+
+
 def composition_weights(model: onnx.ModelProto):
     """(w1 [hidden, 22], b1 [hidden], w2 [hidden], b2 [1]) float32 of a composition
     network Conv1x1 -> Relu -> Conv1x1 -> Sigmoid (weights_tools.build_composition),
@@ -193,7 +209,8 @@ class FrameStep:
         net = mode == "net"
         self.vec = pixels_per_item(dev, prec, mode)
         defines = dict(HDR=int(self.hdr), NET=int(net), SANITIZE=int(self.sanitize), VEC=self.vec,
-                       CLSS_CLANG_VECTORS=load_defines(dev, prec, f"frame.{mode}")["CLSS_CLANG_VECTORS"])
+                       CLSS_CLANG_VECTORS=load_defines(dev, prec, f"frame.{mode}")["CLSS_CLANG_VECTORS"],
+                       CLSS_INLINE_MATH=inline_math(dev, prec, mode))
         defines.update(CLIP_EPS=float(RULE_CLIP_EPS), CLIP_GAMMA=float(CLIP_GAMMA),
                        **WIDTH_DEFINES)
         if net:

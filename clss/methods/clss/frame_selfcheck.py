@@ -46,3 +46,11 @@ def register_fast_paths(Upscaler) -> None:
             {"CLSS_CLANG_VECTORS": 0, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode, Upscaler),
             tolerance=DEFAULT_TOL.__getitem__,
             what=f"half loads/stores as clang vector conversions ({_mode} mode)", applies=builtin_free))
+        # the builtins inline (bit-exact) and the PQ transfer on powq8, the sigmoid on
+        # pq_exp2q8 (rounded otherwise than the library's exp2, log2 and exp): tolerance
+        selfcheck.register(selfcheck.FastPath(
+            f"frame.inline_math.{_mode}", KERNEL, {"CLSS_INLINE_MATH": 1, "NET": int(_mode == "net")},
+            {"CLSS_INLINE_MATH": 0, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode, Upscaler),
+            tolerance=DEFAULT_TOL.__getitem__,
+            what=f"fmin, fmax, clamp, floor, select, ... as clang builtins and operators, the PQ transfer "
+                 f"on powq8 ({_mode} mode)", applies=builtin_free))
