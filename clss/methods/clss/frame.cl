@@ -469,7 +469,8 @@ LINEAR_SAMPLER(linear_f, float, LDF)
 /* Windows (CLSS_INLINE_MATH at VEC = 8, clang): where a work-item's 8 lanes read taps that
  * lie in one run of a row, each tap's 8 values are one vector load (the history at P +
  * motion: lane e at b + e + k for tap k, wherever the motion is smooth) or lanes of one
- * loaded window spread by a shuffle (the render-res planes at 2x: lane e at b + o_e + k,
+ * loaded window spread by a shuffle (the render-res planes at 2x, and compose's logits
+ * from half resolution: lane e at b + o_e + k,
  * o = (0, 0, 1, 1, 2, 2, 3, 3) or (0, 1, 1, 2, 2, 3, 3, 4) by the jitter's fraction), instead
  * of 8 scalar loads; checked per work-item on the taps themselves (every lane's tap index
  * is the run's, none clamped, the rows one for all lanes), so the same elements are read
@@ -538,6 +539,27 @@ inline fv cubic_T_pat(__global const T *p, Taps4 x, Taps4 y, int pat)
                y.w2 * CUBIC_ROW_P(PAT_A, r2, x) + y.w3 * CUBIC_ROW_P(PAT_A, r3, x);
     return y.w0 * CUBIC_ROW_P(PAT_B, r0, x) + y.w1 * CUBIC_ROW_P(PAT_B, r1, x) +
            y.w2 * CUBIC_ROW_P(PAT_B, r2, x) + y.w3 * CUBIC_ROW_P(PAT_B, r3, x);
+}
+
+/* the pattern of linear taps (compose's logits, 2x from half resolution): as pat_taps4 */
+inline int pat_taps2(Taps2 x, int n)
+{
+    const int b = x.c0.s0;
+    if (b + 8 > n || ANY(x.c1 != x.c0 + 1))
+        return 0;
+    const iv o = x.c0 - b;
+    return !ANY(o != PAT_OFFS_A) ? 1 : (!ANY(o != PAT_OFFS_B) ? 2 : 0);
+}
+
+inline fv linear_T_pat(__global const T *p, Taps2 x, Taps2 y, int pat)
+{
+    const int b = x.c0.s0;
+    const fv r0 = FLD8(p, y.c0.s0 + b), r1 = FLD8(p, y.c1.s0 + b);
+    if (pat == 1)
+        return y.w0 * (x.w0 * PAT_A(r0, 0) + x.w1 * PAT_A(r0, 1)) +
+               y.w1 * (x.w0 * PAT_A(r1, 0) + x.w1 * PAT_A(r1, 1));
+    return y.w0 * (x.w0 * PAT_B(r0, 0) + x.w1 * PAT_B(r0, 1)) +
+           y.w1 * (x.w0 * PAT_B(r1, 0) + x.w1 * PAT_B(r1, 1));
 }
 
 /* b: the cubic's x.c0.s0 (the window's start); x, y: the linear taps */
@@ -1170,8 +1192,14 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
     const fv lys = FV(CLAMP(((float)I + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(h2_ - 1)));
     const Taps2 lx = linear_taps(lxs, w2_, 1), ly = linear_taps(lys, h2_, w2_);
     fv lg[6];
+#if WIN8
+    const int lpat = pat_taps2(lx, w2_);
+    for (int c = 0; c < 6; ++c)
+        lg[c] = lpat ? linear_T_pat(logits + c * P2, lx, ly, lpat) : linear_T(logits + c * P2, lx, ly);
+#else
     for (int c = 0; c < 6; ++c)
         lg[c] = linear_T(logits + c * P2, lx, ly);
+#endif
 
     /* visibility ghosting = the visibility logit leads the larger of logits 1-2 by at
      * least vis_margin (lead in this order, as the oracle and the torch twin; margin 0
