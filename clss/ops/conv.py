@@ -134,7 +134,7 @@ def vector_width(dev: Device) -> int:
     device's preferred float vector width; at least 8 (GPUs report 1; there a work-item's
     8 channels are 8 registers). The driver's preferred width alone misled: pip's PoCL 3.0
     reports 16 on a Zen 4 and compiles for AVX2, where 16-lane tiles spilled (NSRR's
-    features ran at 0.52x onnxruntime; with 8-lane tiles 0.84x, docs/benchmarks.md)."""
+    features ran at 0.52x onnxruntime, with 8-lane tiles at 0.81x: docs/benchmarks.md)."""
     w = getattr(dev, "simd_lanes", None)
     if not w:
         try:
