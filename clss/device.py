@@ -158,9 +158,11 @@ def compiler_problem(device: cl.Device) -> str | None:
     if key not in _probed:
         problem = None
         try:
-            prog = cl.Program(cl.Context([device]), _PROBE_SOURCE)
+            ctx = cl.Context([device])
+            prog = cl.Program(ctx, _PROBE_SOURCE)
             try:
-                prog.build()
+                with first_build_lock("probe", ctx):
+                    prog.build()
             except cl.RuntimeError as e:
                 log = (_build_log(prog, device) or str(e)).strip()
                 problem = next((ln.strip() for ln in log.splitlines() if ln.strip()), "build failed")
@@ -168,6 +170,26 @@ def compiler_problem(device: cl.Device) -> str | None:
             problem = f"no context ({e})"
         _probed[key] = problem if problem is None else problem + _build_hint(problem)
     return _probed[key]
+
+
+_first_builds: set = set()
+
+
+def first_build_lock(name: str, context=None):
+    """The inter-process lock around the first build, in this process, of a program clss
+    does not build through Device.kernel (the device probes, pyopencl's fill and
+    ElementwiseKernel programs): they go through the same driver cache, whose entries
+    PoCL 3.0/3.1 replace racily (Device._build), and on a cold cache two processes
+    building one of them at once failed ("failed to build the program", the concurrency
+    stress test). Later uses in the process (and context: pyopencl builds per context)
+    take no lock; the lock file is named by `name` alone, the same in every process."""
+    import contextlib
+    seen = (name, getattr(context, "int_ptr", None))
+    if seen in _first_builds:
+        return contextlib.nullcontext()
+    _first_builds.add(seen)
+    return locked(cache_dir() / "locks" / f"build-first-{re.sub(r'[^A-Za-z0-9_.-]', '_', name)[:80]}",
+                  timeout=_BUILD_LOCK_WAIT_S)
 
 
 # What the kernel compiler vectorises to, read from the macros its front end defines for the
@@ -198,7 +220,8 @@ def simd_lanes(device: cl.Device) -> int | None:
         if device.type & cl.device_type.CPU:
             try:
                 ctx = cl.Context([device])
-                prog = cl.Program(ctx, _SIMD_SOURCE).build()
+                with first_build_lock("simd", ctx):
+                    prog = cl.Program(ctx, _SIMD_SOURCE).build()
                 out = np.zeros(1, np.int32)
                 buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
                 queue = cl.CommandQueue(ctx)
@@ -493,7 +516,8 @@ class Device:
     def fill(self, a: cla.Array, value) -> None:
         """Enqueue a <- value everywhere (pyopencl's fill kernel)."""
         if a.size:
-            a.fill(value, queue=self.queue)
+            with first_build_lock(f"fill-{a.dtype.str}", self.context):
+                a.fill(value, queue=self.queue)
 
     def zero(self, a: cla.Array):
         """Enqueue a <- 0 with pyopencl's fill kernel, half arrays through their bits (no
@@ -503,7 +527,8 @@ class Device:
         if not a.size:
             return None
         v = a.view(np.uint16) if a.dtype == np.float16 else a
-        v.fill(0, queue=self.queue)
+        with first_build_lock(f"fill-{v.dtype.str}", self.context):
+            v.fill(0, queue=self.queue)
         return v.events[-1] if v.events else None
 
     def empty(self, shape, precision: str = "fp32", dtype=None) -> cla.Array:

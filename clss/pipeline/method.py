@@ -722,6 +722,8 @@ def convert_storage(a, dtype, out=None):
     z = cla.empty(a.queue, a.shape, dtype) if out is None else out
     if z.dtype != dtype or z.shape != a.shape:
         raise ValueError(f"convert_storage: out is {z.dtype} {z.shape}, expected {dtype} {a.shape}")
-    k(z.view(np.uint16) if dtype == np.float16 else z,
-      a if a.dtype == np.float32 else a.view(np.uint16))
+    from ..device import first_build_lock
+    with first_build_lock(f"convert-{key[1]}{key[2]}", a.context):     # built at its first call
+        k(z.view(np.uint16) if dtype == np.float16 else z,
+          a if a.dtype == np.float32 else a.view(np.uint16))
     return z
