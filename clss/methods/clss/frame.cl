@@ -212,28 +212,9 @@ typedef int iv;
 #define CLSS_INLINE_MATH 0
 #endif
 #if CLSS_INLINE_MATH
-/* fmin and fmax as a comparison and a select (the lane of b where b < a, else a's: fmin's
- * result for every pair but a NaN, and a zero of the other sign); floor by the conversion
- * to int and back (|x| < 2^31, as every floor here: coordinates; -0 gives +0); fabs by
- * the sign bit. Not llvm's minnum, maxnum and floor intrinsics: oclgrind cannot run
- * those, and it checks this variant too (tests/test_method_clss_frame.py). */
-#define OVL static inline __attribute__((overloadable))
-OVL float fmin_q(float a, float b) { return b < a ? b : a; }
-OVL float fmax_q(float a, float b) { return b > a ? b : a; }
-OVL float floor_q(float x) { const float t = (float)(int)x; return t > x ? t - 1.0f : t; }
-OVL float fabs_q(float x) { return as_float(as_uint(x) & 0x7fffffffu); }
-#if VEC > 1
-OVL fv fmin_q(fv a, fv b) { return b < a ? b : a; }
-OVL fv fmax_q(fv a, fv b) { return b > a ? b : a; }
-OVL fv fmin_q(fv a, float b) { return fmin_q(a, (fv)(b)); }
-OVL fv fmax_q(fv a, float b) { return fmax_q(a, (fv)(b)); }
-OVL fv floor_q(fv x)
-{
-    const fv t = __builtin_convertvector(__builtin_convertvector(x, iv), fv);
-    return t > x ? t - 1.0f : t;
-}
-OVL fv fabs_q(fv x) { return __builtin_astype(__builtin_astype(x, iv) & 0x7fffffff, fv); }
-#endif
+/* fmin_q, fmax_q, floor_q and fabs_q on float and its vectors: kernels/inline_math.h,
+ * which tests/test_method_clss_frame.py checks under oclgrind in this variant too */
+#include "inline_math.h"
 #define FMIN fmin_q
 #define FMAX fmax_q
 #define FABS fabs_q
