@@ -91,12 +91,16 @@ def test_which_tensors_stay_blocked():
 
 
 def test_edges_stay_nchw():
-    # a 5-channel input makes the first conv an NCHW one (< 8 input channels): its output
-    # r1, and so the concat it joins, the resize and the conv before it stay NCHW
-    g = _graph(_unet(cin=5))
+    # a first conv with 5 outputs writes NCHW (a vector of output channels would be mostly
+    # empty): its output r1, and so the concat it joins, the resize and the conv before it
+    # stay NCHW; the conv after it reads r1's 5 channels in place and writes blocked
+    g = _graph(_unet(c1=5))
     got = layout.blocked_tensors(g, 16)
     assert "r1" not in got and "cat" not in got and "u3" not in got and "r3" not in got
     assert "r2" in got and "p2" in got
+    # a 5-channel input no longer stops the chain: the first conv reads it NCHW in place
+    # (conv.FEW_IN) and writes blocked
+    assert "r1" in layout.blocked_tensors(_graph(_unet(cin=5)), 16)
     # a concat input whose channels are not whole blocks: no blocked concat
     g = _graph(_unet(c1=24))
     got = layout.blocked_tensors(g, 16)

@@ -144,12 +144,22 @@ def vector_width(dev: Device) -> int:
     return 16 if w >= 16 else 8
 
 
+# NCHW inputs of at most FEW_IN channels (a network's first layer: RGB-D, NSS's 12 input
+# channels, an SR model's RGB) are read in place by conv2d_blocked as blocks of one channel
+# (-DICV=1): the layout transform cost as much as the conv on so few channels (NSS's
+# 12 -> 32 stride-2 layer at 540x960: 4.0 ms of to_blocked beside 10.6 of conv), and the
+# blocked tile with a blocked output beat the NCHW kernel on 3-12 channels by 1.3-1.7x
+# (docs/benchmarks.md, "First layers").
+FEW_IN = 12
+
+
 def blocked_eligible(x, w, group: int) -> bool:
     """Layers conv2d_blocked covers: dense (one group) spatial convolutions with enough
-    channels that a vector of output channels is mostly real work. 1x1 layers and thin
-    ones (< 8 in or out) keep the NCHW kernel."""
+    output channels that a vector of them is mostly real work. 1x1 layers and thin ones
+    (< 8 out) keep the NCHW kernel. Inputs of 8 or more channels are read blocked; fewer
+    only come as NCHW (FEW_IN), read in place."""
     cout, cin_g, kh, kw = w.shape
-    return group == 1 and kh * kw > 1 and cin_g >= 8 and cout >= 8
+    return group == 1 and kh * kw > 1 and cout >= 8
 
 
 def thin_eligible(w, group: int, strides=(1, 1), dilations=(1, 1)) -> bool:
@@ -314,8 +324,9 @@ def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocke
     t = tuning_db.lookup(dev, "conv2d_blocked", key, defaults,
                          explicit={k: v for k, v in (explicit or {}).items() if k in ("PX", "NV", "BLX")},
                          allowed=TUNABLES["conv2d_blocked"])
-    # the input's blocks: as it arrives (clss/model/layout.py), or as to_blocked makes them
-    icv = int(blocked_in) or input_block(cin)
+    # the input's blocks: as it arrives (clss/model/layout.py), as to_blocked makes them, or
+    # one channel (an NCHW input of at most FEW_IN channels, read in place)
+    icv = int(blocked_in) or (1 if cin <= FEW_IN else input_block(cin))
     t.update(OCV=ocv, ICV=icv, CB=-(-cin // icv))
     return t
 
@@ -448,7 +459,12 @@ def _conv2d_blocked(dev, prec, x, w, b, t, packed, strides, pads, dilations, act
         pw = pack_blocked(getattr(dev, "base", dev), prec, w, b, t)
         if packed is not None:
             packed[prec] = pw
-    xb = x if x.ndim == 5 else to_blocked(dev, prec, x, t["ICV"], t["CB"])
+    if x.ndim == 5:
+        xb = x
+    elif t["ICV"] == 1:         # NCHW is the blocked layout with blocks of one channel
+        xb = x.reshape(x.shape + (1,))
+    else:
+        xb = to_blocked(dev, prec, x, t["ICV"], t["CB"])
     ocb = t["OCV"] * t["NV"]
     ncb = -(-cout // ocb)
     k = dev.kernel("conv", "conv2d_blocked", prec, KH=kh, KW=kw, SX=sx, OCV=t["OCV"], NV=t["NV"],
@@ -842,8 +858,8 @@ def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
 def _selfcheck_blocked(dev: Device, prec: str) -> list[np.ndarray]:
     """conv2d_blocked against the NCHW kernel: 17 input channels (two blocks of 9),
     9 and 20 outputs (partial vectors), residuals before and after the activation,
-    stride 2 with a dilation, edge and inside work-items. Small: it runs under
-    oclgrind too."""
+    stride 2 with a dilation, edge and inside work-items; and 3 input channels read NCHW in
+    place (FEW_IN) by a 5x5 stride-2 conv. Small: it runs under oclgrind too."""
     g = rng("conv blocked selfcheck")
     xw = dev.to_device(g.standard_normal((1, 17, 4, 31)).astype(np.float32), prec)
     w9 = dev.to_device(g.standard_normal((9, 17, 3, 3)).astype(np.float32) * 0.2, prec)
@@ -855,6 +871,10 @@ def _selfcheck_blocked(dev: Device, prec: str) -> list[np.ndarray]:
                    activation="relu"),
             conv2d(dev, prec, xw, w20, None, strides=(2, 2), pads=(2, 1, 2, 1), dilations=(2, 1),
                    activation="sigmoid")]
+    x3 = dev.to_device(g.standard_normal((1, 3, 7, 29)).astype(np.float32), prec)
+    w3 = dev.to_device(g.standard_normal((10, 3, 5, 5)).astype(np.float32) * 0.2, prec)
+    outs.append(conv2d(dev, prec, x3, w3, None, strides=(2, 2), pads=(2, 2, 2, 1),
+                       activation="relu"))
     return [dev.to_host(o) for o in outs]
 
 
