@@ -28,6 +28,9 @@
  *   -DNET=0|1       resolve: rule mode (0) or classifier input (1)
  *   -DSANITIZE=0|1  replace non-finite inputs instead of refusing the frame
  *   -DHIDDEN=n      compose: hidden width of the composition MLP
+ *   -DRULES_BASE=0|1 compose (net): the paper's blend (0: the MLP's weight, the classifier's
+ *                   visibility decision) or the rules' base (1: clss-rules' decision and
+ *                   weight 1/(1+n), which the MLP corrects as sigmoid(z - ln n); s9)
  *   -DCLIP_EPS=x    resolve: contract.RULE_CLIP_EPS, see the history clip (s9)
  *   -DCLIP_GAMMA=x  depth_diff: contract.CLIP_GAMMA, the clamp box's std multiple (s9)
  *   -DKNEE_TDD=x -DKNEE_CC=x -DKNEE_EDGE=x -DKNEE_SPREAD=x  depth_diff (net):
@@ -67,6 +70,9 @@
 #endif
 #ifndef HIDDEN
 #define HIDDEN 32
+#endif
+#ifndef RULES_BASE
+#define RULES_BASE 0
 #endif
 /* hidden units of the composition MLP per pass over its inputs (compose) */
 #define MLP_KB (HIDDEN % 4 == 0 ? 4 : 1)
@@ -1143,13 +1149,15 @@ __kernel void resolve(__global const T *X, __global const float *lr, __global co
  *  @param[in]  depth_threshold relative depth jump that rejects history whatever the
  *                       classifier says (contract.DEPTH_THRESHOLD; > 1 turns the floor off)
  *  @param[in]  vis_margin  the visibility logit's lead over the larger of the other two
- *                       that rejects history (contract.VIS_MARGIN; 0: the paper's argmax)
+ *                       that rejects history (contract.VIS_MARGIN; 0: the paper's argmax;
+ *                       unread with -DRULES_BASE=1, where the rules' depth test decides)
  *  @param[in]  cap      sample counter cap
  *  @param[in]  inv_pq_scale 10000 / nits
  *  @param[in]  exposure the output is multiplied back by it
  *  @param[in]  debug    1: write the debug planes to dbg
  *  @param[out] dbg      [3, H, W] float blend weight, ghost, depth difference (debug = 1)
  *  @note -DNET=1 only; -DHIDDEN=n: the MLP's hidden width; -DHDR=0|1; -DVEC=8|4|1
+ *  @note -DRULES_BASE=0|1: the paper's blend or the rules' base (config "base", reference.md s9)
  *  @note -DCLSS_FP16=1: half storage of X, the history, cls_in, aux and logits (T); -DCLSS_CLANG_VECTORS=0|1: builtin-free half loads
  */
 __kernel void compose(__global const T *cls_in, __global const T *aux,
@@ -1186,9 +1194,14 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
      * least vis_margin (lead in this order, as the oracle and the torch twin; margin 0
      * is the argmax, first index on ties), or the rule's depth test (on aux plane 6, the
      * test's difference, s4): the floor under the classifier (reference.md s7) */
+#if RULES_BASE
+    /* the rules' base (reference.md s9): clss-rules' decision, the depth test alone */
+    const iv ghost = (LDV(aux, 6 * P + r) > depth_threshold) | (LDV(aux, P + r) < 0.5f);
+#else
     const fv lead = lg[0] - FMAX(lg[1], lg[2]);
     const iv ghost = (lead >= vis_margin) | (LDV(aux, 6 * P + r) > depth_threshold)
                      | (LDV(aux, P + r) < 0.5f);
+#endif
     const fv cnt = SELECT(FMIN(LDV(aux, r) + 1.0f, cap), FV(0.0f), ghost);
 
     /* the composition MLP on COMPOSITION_INPUTS, in their order */
@@ -1227,8 +1240,15 @@ __kernel void compose(__global const T *cls_in, __global const T *aux,
         for (int u = 0; u < MLP_KB; ++u)
             z = FV(w2[k + u]) * SELECT(FV(0.0f), a[u], a[u] > 0.0f) + z;
     }
-    /* a ghost (visibility ghosting, off screen, reset) drops its history: w = 1 */
-    const fv wgt = FMAX(SELECT(1.0f / (1.0f + EXPV(-z)), FV(1.0f), ghost), LDV(aux, 2 * P + r));
+    /* a ghost (visibility ghosting, off screen, reset) drops its history: w = 1. The
+     * rules' base: the rules' 1/(1+n) corrected in the logit domain, 1/(1 + n exp(-z)),
+     * which is the rules' weight where z = 0 (n >= 1 off the ghosts) */
+#if RULES_BASE
+    const fv w0 = 1.0f / (1.0f + cnt * EXPV(-z));
+#else
+    const fv w0 = 1.0f / (1.0f + EXPV(-z));
+#endif
+    const fv wgt = FMAX(SELECT(w0, FV(1.0f), ghost), LDV(aux, 2 * P + r));
 
     fv o[3];
     for (int c = 0; c < 3; ++c) {

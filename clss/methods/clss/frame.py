@@ -35,7 +35,7 @@ from onnx import numpy_helper
 
 from ... import selfcheck
 from ...device import Device
-from .networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
+from .networks import BASES, CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS, pad16
 from ...ops.conv import load_defines
 from ...pipeline.method import input_buffers, summed_event_ms
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
@@ -192,7 +192,7 @@ class FrameStep:
     def __init__(self, dev: Device, prec: str, mode: str, render_size, scale, *, hdr=True,
                  nits=PQ_NITS, cap=None, depth_threshold=DEPTH_THRESHOLD,
                  depth_slope=DEPTH_SLOPE, vis_margin=VIS_MARGIN, sanitize=False,
-                 classifier: onnx.ModelProto | None = None,
+                 base="paper", classifier: onnx.ModelProto | None = None,
                  composition: onnx.ModelProto | None = None, classifier_backend=None,
                  profile=False):
         self.dev, self.prec, self.mode = dev, prec, mode
@@ -200,7 +200,12 @@ class FrameStep:
         self.H, self.W = output_size(self.h, self.w, scale)
         self.H16, self.W16 = pad16(self.H), pad16(self.W)
         self.hdr, self.nits = bool(hdr), float(nits)
-        self.cap = float(DEFAULT_CAP[mode] if cap is None else cap)
+        if base not in BASES:
+            raise ValueError(f"base: expected one of {', '.join(BASES)}, got {base!r}")
+        # the rules' base (net): the rules' decision, cap and weight, which the MLP corrects
+        self.base = base
+        rules_base = mode == "net" and base == "rules"
+        self.cap = float(DEFAULT_CAP["rule" if rules_base else mode] if cap is None else cap)
         self.depth_threshold = float(depth_threshold)
         self.depth_slope = float(depth_slope)
         self.vis_margin = float(vis_margin)
@@ -214,7 +219,7 @@ class FrameStep:
         defines.update(CLIP_EPS=float(RULE_CLIP_EPS), CLIP_GAMMA=float(CLIP_GAMMA),
                        **WIDTH_DEFINES)
         if net:
-            defines.update(L_CHANNELS=LR_NET_CHANNELS,
+            defines.update(L_CHANNELS=LR_NET_CHANNELS, RULES_BASE=int(rules_base),
                            **dict(zip(("KNEE_TDD", "KNEE_CC", "KNEE_EDGE", "KNEE_SPREAD"),
                                       (float(k) for k in MEASURE_KNEES))))
         defines.update(AR_LO=float(AUTO_REACTIVE_LO), AR_SLOPE=float(AUTO_REACTIVE_SLOPE),

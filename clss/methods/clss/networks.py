@@ -78,6 +78,55 @@ LOGITS = ("ghost_visibility", "ghost_shading", "ghost_none",
 DEFAULT_WIDTHS = (16, 32, 64, 128)
 DEFAULT_MLP_HIDDEN = 32
 
+# The blend's base (config "base", issue 53; docs/methods/clss.md, "The rules' base"),
+# stored as JSON under the weights file's metadata entry CONFIG_KEY:
+#   "paper" (files without the key): the paper's form. The classifier's visibility decision
+#     (at vis_margin) or the depth test drops the history; the composition MLP's sigmoid
+#     is the blend weight.
+#   "rules": clss-rules refined. The rules decide what history to drop (the depth test
+#     alone), the counter has the rules' cap (4), and the MLP corrects the rules' weight
+#     1/(1+n) in the logit domain: w = sigmoid(z - ln n) = 1/(1 + n exp(-z)), n >= 1 off
+#     the ghosts. With the MLP's last layer at zero (z = 0) the frame step is clss-rules'.
+#     The classifier's logits stay MLP inputs (and in the history).
+CONFIG_KEY = "clss_config"
+BASES = ("paper", "rules")
+
+
+def base_of(cfg) -> str:
+    """The blend's base (BASES) of a config dict (None or {}: "paper")."""
+    b = (cfg or {}).get("base", "paper")
+    if b not in BASES:
+        raise ValueError(f"CLSS config: base expected one of {', '.join(BASES)}, got {b!r}")
+    return b
+
+
+def read_config(path) -> dict:
+    """The config stored with a weights file (.safetensors; CONFIG_KEY), {} where it has
+    none (the files before the key: the paper's form)."""
+    import json
+
+    from safetensors import safe_open
+    with safe_open(str(path), "np") as f:
+        meta = f.metadata() or {}
+    if CONFIG_KEY not in meta:
+        return {}
+    cfg = json.loads(meta[CONFIG_KEY])
+    base_of(cfg)
+    return cfg
+
+
+def save_networks(tensors: dict, path, cfg=None) -> None:
+    """The networks' tensors with their config (CONFIG_KEY) where it is not the paper's
+    (a config of {} or base "paper" writes the file as clss.networks.save_weights does)."""
+    from ...networks import save_weights
+    from ...networks.weights import save_with_config
+    cfg = {k: v for k, v in (cfg or {}).items() if not (k == "base" and v == "paper")}
+    if cfg:
+        base_of(cfg)
+        save_with_config(path, CONFIG_KEY, cfg, tensors)
+    else:
+        save_weights(tensors, path)
+
 
 def channel_slices(inputs):
     """{name: slice} into the channel axis for CLASSIFIER_INPUTS / COMPOSITION_INPUTS."""

@@ -25,7 +25,7 @@ import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
-from .networks import CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
+from .networks import BASES, CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS
 from .networks import pad16 as _pad16
 from ...model.graph import fill_output_shapes
 from ...pipeline.twin import GraphBuilder as _Graph
@@ -130,7 +130,7 @@ def check_vis_margin(vis_margin) -> float:
 def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier=None,
                       composition=None, cap=None, *, depth_threshold=DEPTH_THRESHOLD,
                       depth_slope=DEPTH_SLOPE, vis_margin=VIS_MARGIN, hdr=True, nits=PQ_NITS,
-                      debug=False) -> onnx.ModelProto:
+                      debug=False, base="paper") -> onnx.ModelProto:
     """One CLSS frame step as an ONNX model (see reference.md for every formula).
 
     mode "rule": no networks, ghost = off-screen or reset or the depth test's difference
@@ -139,15 +139,20 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     into the current 3x3 neighbourhood's box.  mode "net": `classifier` and `composition` (onnx.ModelProto from
     networks.py) are inlined; ghost = the visibility logit leads the larger of the
     other two by >= `vis_margin` (0: the argmax) or the depth test, or off-screen or
-    reset.  `render_size` = (h, w).  `cap`: counter cap
-    (default 4 for rule, 32 for net).  `hdr=False`: LDR in/out, no PQ (values clamped
+    reset.  `base` "rules" (net, networks.BASES; reference.md s9): the rule's decision and
+    cap, and the composition's sigmoid s corrects the rule weight 1/(1+n) as
+    s / (s + n (1 - s)) = 1/(1 + n exp(-z)).  `render_size` = (h, w).  `cap`: counter cap
+    (default 4 for rule and the rules' base, 32 for net).  `hdr=False`: LDR in/out, no PQ (values clamped
     to [0,1]).  `debug=True` adds the DEBUG_OUTPUTS(_NET) graph outputs.
     """
     if mode not in MODES:
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
     h, w = int(render_size[0]), int(render_size[1])
     H, W = output_size(h, w, scale)
-    cap = float(DEFAULT_CAP[mode] if cap is None else cap)
+    if base not in BASES:
+        raise ValueError(f"base: expected one of {', '.join(BASES)}, got {base!r}")
+    rules_base = mode == "net" and base == "rules"
+    cap = float(DEFAULT_CAP["rule" if rules_base else mode] if cap is None else cap)
     if not cap >= 0:
         raise ValueError(f"cap: expected a number >= 0, got {cap}")
     vis_margin = check_vis_margin(vis_margin)
@@ -186,10 +191,10 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
     hr = _stage4_upsample(g, (h, w), (H, W), X, d_dil, m_dil, dd, ddt, meas, dbg)
     warped = _stage5_warp(g, (H, W), hr, dbg)
     ghost, logits = _stage6_classify(g, mode, (H, W), classifier, depth_threshold, vis_margin,
-                                     hr, warped, dbg)
+                                     hr, warped, dbg, rules_base)
     cnt, c_min, c_max = _stage7_aux(g, cap, ghost, hr.up, warped, dbg)
     wgt, new_logits = _stage8_blend_weight(g, mode, (H, W), composition, hr, warped,
-                                           (cnt, c_min, c_max), logits, ghost, dbg)
+                                           (cnt, c_min, c_max), logits, ghost, dbg, rules_base)
     _stage9_blend(g, hdr, nits, wgt, hr.up, warped.blend_hist, (cnt, c_min, c_max), new_logits)
 
     outputs = [helper.make_tensor_value_info("output", f32, [1, 3, H, W]),
@@ -201,7 +206,8 @@ def build_frame_graph(mode="rule", render_size=(540, 960), scale=2.0, classifier
             g.op("Identity", t, name=name)
             outputs.append(helper.make_tensor_value_info(name, f32, None))
     model = make_model(g.nodes, g.inits, f"clss_frame_{mode}", inputs, outputs, __name__, opset,
-                       doc_string=f"CLSS frame step, mode={mode}, render {h}x{w} -> {H}x{W}, "
+                       doc_string=f"CLSS frame step, mode={mode}{', base rules' if rules_base else ''}, "
+                                  f"render {h}x{w} -> {H}x{W}, "
                                   f"cap={cap:g}, hdr={hdr}, nits={nits:g}")
     if debug:
         fill_output_shapes(model)
@@ -495,9 +501,9 @@ def _stage5_warp(g, HW, hr: _Upsampled, dbg) -> _Warped:
 
 
 def _stage6_classify(g, mode, HW, classifier, depth_threshold, vis_margin, hr: _Upsampled,
-                     warped: _Warped, dbg):
+                     warped: _Warped, dbg, rules_base=False):
     """Stage 6: which pixels reject their history (ghost); the classifier's logits in
-    mode "net" (None in mode "rule")."""
+    mode "net" (None in mode "rule"). The rules' base: the rule's decision."""
     H, W = HW
     logits = None
     if mode == "net":
@@ -522,10 +528,13 @@ def _stage6_classify(g, mode, HW, classifier, depth_threshold, vis_margin, hr: _
         # visibility leads the larger of the other two by vis_margin (0: the argmax,
         # first index on ties), lead in the kernel's and the torch twin's order; the
         # rule's depth test is a floor under the classifier (reference.md section 7)
-        lead = g.sub(g.chan(logits, slice(0, 1)),
-                     g.op("Max", g.chan(logits, slice(1, 2)), g.chan(logits, slice(2, 3))))
-        reject = g.op("Or", g.op("GreaterOrEqual", lead, g.const(vis_margin)),
-                      g.op("Greater", hr.depth_test, g.const(float(depth_threshold))))
+        if rules_base:
+            reject = g.op("Greater", hr.depth_test, g.const(float(depth_threshold)))
+        else:
+            lead = g.sub(g.chan(logits, slice(0, 1)),
+                         g.op("Max", g.chan(logits, slice(1, 2)), g.chan(logits, slice(2, 3))))
+            reject = g.op("Or", g.op("GreaterOrEqual", lead, g.const(vis_margin)),
+                          g.op("Greater", hr.depth_test, g.const(float(depth_threshold))))
     else:
         reject = g.op("Greater", hr.depth_test, g.const(float(depth_threshold)))
     ghost = g.op("Or", reject, g.op("Not", warped.valid))
@@ -545,7 +554,7 @@ def _stage7_aux(g, cap, ghost, up, warped: _Warped, dbg):
 
 
 def _stage8_blend_weight(g, mode, HW, composition, hr: _Upsampled, warped: _Warped, aux,
-                         logits, ghost, dbg):
+                         logits, ghost, dbg, rules_base=False):
     """Stage 8: the current frame's blend weight, and the logits the history keeps. A
     ghost (the classifier's visibility ghosting, off screen, reset) drops its history:
     w = 1 (as the paper does; the rule weight 1/(1+0) is 1 there already)."""
@@ -559,6 +568,11 @@ def _stage8_blend_weight(g, mode, HW, composition, hr: _Upsampled, warped: _Warp
         _check_static_hw("composition", dims, (H, W))
         wgt = g._name("comp_w")
         g.inline(composition, "composition", {ci: comp_in}, {co: wgt})
+        if rules_base:
+            # the rules' 1/(1+n) corrected in the logit domain: with s = sigmoid(z),
+            # s / (s + n (1 - s)) = 1/(1 + n exp(-z)); s = 0.5 (z = 0) gives the rule's
+            # weight exactly (0.5 n, 0.5 (1 + n) and their quotient round as 1/(1+n))
+            wgt = g.op("Div", wgt, g.add(wgt, g.mul(cnt, g.sub(g.const(1.0), wgt))))
         wgt = g.where(ghost, g.const(1.0), wgt)
         new_logits = logits
     else:
@@ -603,7 +617,7 @@ class OracleUpscaler:
 
     def __init__(self, render_size, scale=2.0, mode="rule", classifier=None, composition=None,
                  *, cap=None, depth_threshold=DEPTH_THRESHOLD, depth_slope=DEPTH_SLOPE,
-                 vis_margin=VIS_MARGIN,
+                 vis_margin=VIS_MARGIN, base="paper",
                  depth_inverted=True,
                  motion_scale=(1.0, 1.0), exposure=1.0, hdr=True, nits=PQ_NITS,
                  sanitize=False, debug=False, session_options=None, providers=None):
@@ -626,7 +640,7 @@ class OracleUpscaler:
         self.model = build_frame_graph(mode, self.render_size, self.scale, classifier,
                                        composition, cap, depth_threshold=depth_threshold,
                                        depth_slope=depth_slope, vis_margin=vis_margin,
-                                       hdr=hdr, nits=nits, debug=debug)
+                                       hdr=hdr, nits=nits, debug=debug, base=base)
         self.session = ort.InferenceSession(self.model.SerializeToString(),
                                             sess_options=session_options,
                                             providers=providers or ["CPUExecutionProvider"])

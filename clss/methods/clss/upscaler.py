@@ -32,7 +32,7 @@ import os
 
 import numpy as np
 
-from .networks import CLASSIFIER_CHANNELS, pad16
+from .networks import CLASSIFIER_CHANNELS, base_of, pad16
 from ...pipeline.contract import FrameInputError, output_size, validate_frame
 from .contract import DEPTH_SLOPE, DEPTH_THRESHOLD, HISTORY_CHANNELS, VIS_MARGIN, ghost_classes
 from ...pipeline.method import UNTRAINED, WEIGHTS_DIR, MethodSpec, MethodUpscaler, conventions
@@ -46,8 +46,10 @@ SHIPPED_NAME = "clss_trained.safetensors"
 SHIPPED_WEIGHTS = os.path.join(WEIGHTS_DIR, SHIPPED_NAME)
 
 
-def load_networks(weights=None, allow_untrained=False):
-    """(classifier, composition, trained) from `weights`:
+def load_networks(weights=None, allow_untrained=False, with_config=False):
+    """(classifier, composition, trained) from `weights`, and with `with_config` also the
+    config stored with them (networks.read_config: {"base": "rules"}; {} for files
+    without one, the paper's form):
 
     None: the shipped trained weights (SHIPPED_WEIGHTS); if the package has none, the
       untrained init with allow_untrained, else an error (MethodSpec.resolve_weights);
@@ -56,12 +58,12 @@ def load_networks(weights=None, allow_untrained=False):
       architectures), then weights.safetensors (or the only *.safetensors) applied;
     a .safetensors file: applied to the default architectures (every tensor must fit).
     """
-    from .networks import build_classifier, build_composition
+    from .networks import build_classifier, build_composition, read_config
     from ...networks import apply_weights, load_weights
     # None: the one shipped file, which serves every scale
     weights = SPECS["clss"].resolve_weights(weights, 1.0, allow_untrained)
     if isinstance(weights, str) and weights == UNTRAINED:
-        return build_classifier(), build_composition(), False
+        return (build_classifier(), build_composition(), False) + (({},) if with_config else ())
     path = os.fspath(weights)
     if os.path.isdir(path):
         def net(name, build):
@@ -77,11 +79,13 @@ def load_networks(weights=None, allow_untrained=False):
         if st is None and not os.path.isfile(os.path.join(path, "classifier.onnx")):
             raise ValueError(f"weights: {path} holds neither classifier.onnx nor a .safetensors "
                              "file (write one with `python -m weights_tools build --out DIR`)")
+        cfg = {}
         if st is not None:
             t = load_weights(st)
             apply_weights(cls, t)
             apply_weights(comp, t)
-        return cls, comp, True
+            cfg = read_config(st)
+        return (cls, comp, True) + ((cfg,) if with_config else ())
     if os.path.isfile(path) and path.endswith(".safetensors"):
         t = load_weights(path)
         cls, comp = build_classifier(), build_composition()
@@ -89,7 +93,7 @@ def load_networks(weights=None, allow_untrained=False):
         if n == 0:
             raise ValueError(f"weights: {path} has no tensor named like the networks' "
                              "(cls.* / comp.*; see clss/networks/weights.py)")
-        return cls, comp, True
+        return (cls, comp, True) + ((read_config(path),) if with_config else ())
     raise ValueError(f"weights: expected a directory or a .safetensors file, got {path!r}"
                      + ("" if os.path.exists(path) else " (does not exist)"))
 
@@ -129,7 +133,9 @@ class ClssUpscaler(MethodUpscaler):
     debug (keep blend weight, ghost and depth difference for `debug_views`),
     classifier_backend (None: clss.Model, else onnxruntime with a warning;
     "clss" or "onnxruntime" to force one), allow_untrained (net: the seeded init where
-    the package has no trained weights).
+    the package has no trained weights), base (net: the blend's base, networks.BASES;
+    None: the config stored with the weights, "paper" for files without one; "rules":
+    clss-rules' decision and cap, its weight 1/(1+n) corrected by the MLP, reference.md s9).
 
     The host step and step_device are MethodUpscaler's; the frame step reads a reactive
     mask and checks the values itself (its prepare kernel's flags, on both paths), so a
@@ -144,7 +150,7 @@ class ClssUpscaler(MethodUpscaler):
                  contract=None, cap=None, depth_threshold=DEPTH_THRESHOLD,
                  depth_slope=DEPTH_SLOPE, vis_margin=VIS_MARGIN, sanitize=False,
                  classifier=None, composition=None, profile=False, debug=False,
-                 classifier_backend=None, allow_untrained=False):
+                 classifier_backend=None, allow_untrained=False, base=None):
         if mode not in MODE_NAMES:
             raise ValueError(f"mode: expected 'net' or 'rules', got {mode!r}")
         self.mode = MODE_NAMES[mode]
@@ -174,17 +180,22 @@ class ClssUpscaler(MethodUpscaler):
         self.classifier_backend = classifier_backend
         self.trained = None
         self.classifier_model = self.composition_model = None
+        self.base = None
         if self.mode == "net":
             if (classifier is None) != (composition is None):
                 raise ValueError("give both classifier and composition, or neither")
+            cfg = {}
             if classifier is not None:
                 if weights is not None:
                     raise ValueError("give weights or classifier/composition, not both")
                 self.classifier_model, self.composition_model = classifier, composition
                 self.trained = True
             else:
-                self.classifier_model, self.composition_model, self.trained = \
-                    load_networks(weights, allow_untrained)
+                self.classifier_model, self.composition_model, self.trained, cfg = \
+                    load_networks(weights, allow_untrained, with_config=True)
+            self.base = base_of({"base": base} if base is not None else cfg)
+        elif base is not None:
+            raise ValueError("base: only mode 'net' has networks to base")
         self._fs: FrameStep | None = None
 
     # -- sizes and state ----------------------------------------------------------
@@ -216,7 +227,7 @@ class ClssUpscaler(MethodUpscaler):
         fs = FrameStep(self.dev, self.precision, self.mode, (h, w), self.scale,
                        hdr=self.hdr, nits=self.nits, cap=self.cap,
                        depth_threshold=self.depth_threshold, depth_slope=self.depth_slope,
-                       vis_margin=self.vis_margin,
+                       vis_margin=self.vis_margin, base=self.base or "paper",
                        sanitize=self.sanitize,
                        classifier=self.classifier_model, composition=self.composition_model,
                        classifier_backend=self.classifier_backend, profile=self.profile)

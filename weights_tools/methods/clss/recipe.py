@@ -50,6 +50,13 @@ leaves open (ours, marked *):
   generator seeded by (seed, stage, step), so a resumed run draws the same batches as an
   uninterrupted one.
 * Network widths: clss.networks defaults (16, 32, 64, 128; MLP 32).
+* *The rules' base (--base rules; issue 53, clss.methods.clss.networks.BASES): the frame
+  step keeps clss-rules' decision (the depth test) and cap (4), and the composition MLP
+  corrects the rules' weight 1/(1+n) in the logit domain, w = 1/(1 + n exp(-z)).  From an
+  --init of the paper's form the MLP's last layer starts at zero (z = 0: exactly
+  clss-rules), its first layer as trained; an --init that already has the rules' base goes
+  on from its weights.  Meant with --cls-steps 0 (the classifier kept: its logits are MLP
+  inputs).  The written file carries {"base": "rules"} (networks.CONFIG_KEY).
 
 The loop (weights_tools/trainloop.py): progress lines every few seconds, loss.png
 (matplotlib) refreshed as it goes, a checkpoint (checkpoint.pt, torch's weights_only
@@ -73,7 +80,8 @@ from . import twin
 from weights_tools.trainloop import Run, TrainError
 from weights_tools.trainloop import add_arguments as add_run_arguments
 from weights_tools.trainloop import load_sequences as _load_sequences
-from clss.networks import load_weights, save_weights
+from clss.networks import load_weights
+from clss.methods.clss.networks import BASES, base_of, read_config, save_networks
 from clss.methods.clss.contract import VIS_MARGIN
 
 CLASS_WEIGHT_RATIO = 100.0
@@ -311,7 +319,7 @@ def run_window(step, batch, stage, wg=None, wa=None, weight_loss=1.0, detach=Fal
 
 # ---- the run -----------------------------------------------------------------------------
 
-def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
+def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu", base="paper"):
     """PSNR (PQ domain, frames after `warmup` following a reset) of rules and net (the
     trained `tensors`) on up to `max_sequences` held-out sequences: a sanity check, the
     evaluation command is the real measure."""
@@ -322,7 +330,8 @@ def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
         row = {"sequence": os.path.basename(p)}
         for mode in ("rules", "net"):
             up = twin.TorchUpscaler(float(z["scale"]), mode, tensors if mode == "net"
-                                           else None, device=device)
+                                           else None, device=device,
+                                    base=base if mode == "net" else None)
             se, n, since = 0.0, 0, 0
             for t in range(len(z["depth"])):
                 since = 0 if z["reset"][t] else since + 1
@@ -339,7 +348,7 @@ def psnr_table(data_dir, tensors, max_sequences=4, warmup=2, device="cpu"):
     return rows
 
 
-def export_checkpoint(out_dir):
+def export_checkpoint(out_dir, base="paper"):
     """weights.safetensors from --out/checkpoint.pt as it stands (an unfinished run's
     networks: e.g. the classifier done and the composition part-trained)."""
     ckpt_path = os.path.join(out_dir, "checkpoint.pt")
@@ -358,7 +367,7 @@ def export_checkpoint(out_dir):
     cls.load_state_dict(sd_cls)
     comp.load_state_dict(sd_comp)
     out_path = os.path.join(out_dir, "weights.safetensors")
-    save_weights(twin.tensors_from_networks(cls, comp), out_path)
+    save_networks(twin.tensors_from_networks(cls, comp), out_path, {"base": base})
     print(f"wrote {out_path} from the checkpoint (written at {STAGES[ck['stage']]} step "
           f"{ck['step']})")
     return 0
@@ -384,6 +393,11 @@ def train(args):
 
     init = load_weights(args.init) if args.init else None
     cls, comp = twin.networks_from_tensors(init, seed=args.seed)
+    if args.base == "rules" and (init is None or base_of(read_config(args.init)) != "rules"):
+        # the rules' base: the correction starts at zero, the frame step at clss-rules
+        with torch.no_grad():
+            comp.mlp[2].weight.zero_()
+            comp.mlp[2].bias.zero_()
     if init is None:
         # the classifier's output conv starts at zero: its first logits are its biases'
         # (near uniform), not noise that Adam removes most cheaply by silencing the
@@ -410,7 +424,8 @@ def train(args):
                               None if train_cls else comp,
                               blend="rule" if train_cls else "net",
                               clip=not train_cls or args.ghost_labels != "generator",
-                              cap=args.cap, vis_margin=args.vis_margin).to(device)
+                              cap=args.cap, vis_margin=args.vis_margin,
+                              base=args.base).to(device)
 
         def loss(it, stage=stage, step=step):
             g = run.step_rng(stage, it)
@@ -424,10 +439,10 @@ def train(args):
 
     tensors = twin.tensors_from_networks(cls, comp)
     out_path = os.path.join(args.out, "weights.safetensors")
-    save_weights(tensors, out_path)
+    save_networks(tensors, out_path, {"base": args.base})
     print(f"wrote {out_path}", flush=True)
     if args.heldout:
-        rows = psnr_table(args.heldout, tensors, device=device)
+        rows = psnr_table(args.heldout, tensors, device=device, base=args.base)
         run.log["heldout_psnr_pq"] = rows
         print("held-out PSNR (PQ domain, dB)   rules     net")
         for r in rows:
@@ -494,13 +509,18 @@ def add_arguments(t):
     t.add_argument("--init", default=None, help="start from these weights (.safetensors)")
     t.add_argument("--heldout", default=None,
                    help="directory of held-out sequences: print rules/net PSNR at the end")
+    t.add_argument("--base", choices=BASES, default="paper",
+                   help="the blend's base (clss.methods.clss.networks.BASES): paper (the "
+                        "MLP's weight, the classifier's decision) or rules (clss-rules' "
+                        "decision and cap, the MLP correcting its 1/(1+n); from a paper-form "
+                        "--init the correction starts at zero, i.e. at clss-rules)")
     t.add_argument("--export", action="store_true",
                    help="only write --out/weights.safetensors from its checkpoint, no training")
 
 
 def cmd_train(args):
     if args.export:
-        return export_checkpoint(args.out)
+        return export_checkpoint(args.out, args.base)
     for name in ("cls_steps", "comp_steps"):
         if getattr(args, name) < 0:
             raise TrainError(f"--{name.replace('_', '-')}: expected >= 0")

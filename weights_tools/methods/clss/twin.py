@@ -37,11 +37,11 @@ from clss.methods.clss.contract import (AUTO_REACTIVE_LO, AUTO_REACTIVE_MAX, AUT
                                         SCATTER_WEIGHT_THRESHOLD)
 
 from clss.methods.clss.networks import pad16 as _pad16
-from clss.methods.clss.networks import (CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS,
+from clss.methods.clss.networks import (BASES, CLASSIFIER_CHANNELS, COMPOSITION_CHANNELS,
                                         DEFAULT_MLP_HIDDEN, DEFAULT_WIDTHS, LOGITS,
                                         build_classifier, build_composition)
 from clss.networks import WeightsError, model_weights
-from clss.methods.clss.networks import torch_to_onnx_name
+from clss.methods.clss.networks import base_of, torch_to_onnx_name
 
 from weights_tools.trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
@@ -221,10 +221,14 @@ class Composition(nn.Module):
         self.mlp = nn.Sequential(nn.Conv2d(in_channels, int(hidden), 1), nn.ReLU(),
                                  nn.Conv2d(int(hidden), 1, 1))
 
-    def forward(self, x):
+    def logit(self, x):
+        """The MLP's output before the sigmoid, z (the rules' base corrects with it)."""
         if self.basis is not None:
             x = self.basis(x)
-        return torch.sigmoid(self.mlp(x))
+        return self.mlp(x)
+
+    def forward(self, x):
+        return torch.sigmoid(self.logit(x))
 
 
 def use_basis(classifier, composition):
@@ -342,6 +346,11 @@ class FrameStep(nn.Module):
     depth_hr, counter (warped), measure_hr, clamp_min / clamp_max (None without clip);
     it replaces the history decision (visibility_oracle.py beside this file).
 
+    base (net; clss.methods.clss.networks.BASES): "paper", or "rules": the rule's decision
+    (the depth test alone) and cap (4), and the composition corrects the rule weight in the
+    logit domain, w = sigmoid(z - ln n) (= 1/(1 + n exp(-z)), the kernel's form), so
+    that a composition whose last layer is zero makes the rule mode's step (reference.md s9).
+
     Training extras (net mode): blend="rule" makes the paper's rule-based composition
     (w = 1/(1+counter), no clamp) instead of the composition network; `rule_color`
     [B,3,H,W] (PQ) is a second colour history made by that rule blend, which then feeds
@@ -352,8 +361,11 @@ class FrameStep(nn.Module):
     def __init__(self, mode, render_size, scale=2.0, classifier=None, composition=None,
                  cap=None, *, depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
                  blend="net", clip=True, vis_margin=VIS_MARGIN, reject_hook=None,
-                 depth_slope=DEPTH_SLOPE):
+                 depth_slope=DEPTH_SLOPE, base="paper"):
         super().__init__()
+        if base not in BASES:
+            raise ValueError(f"base: expected one of {', '.join(BASES)}, got {base!r}")
+        self.rules_base = mode == "net" and base == "rules"
         self.reject_hook = reject_hook
         if mode not in MODES:
             raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
@@ -365,7 +377,7 @@ class FrameStep(nn.Module):
         self.clip = bool(clip)
         self.h, self.w = int(render_size[0]), int(render_size[1])
         self.H, self.W = output_size(self.h, self.w, scale)
-        self.cap = float(DEFAULT_CAP[mode] if cap is None else cap)
+        self.cap = float(DEFAULT_CAP["rule" if self.rules_base else mode] if cap is None else cap)
         self.depth_threshold = float(depth_threshold)
         self.depth_slope = float(depth_slope)
         self.vis_margin = float(vis_margin)
@@ -576,6 +588,8 @@ class FrameStep(nn.Module):
             # rule's depth test as a floor (reference.md section 7)
             lead = logits[:, 0:1] - torch.maximum(logits[:, 1:2], logits[:, 2:3])
             reject = (lead >= self.vis_margin) | (p["dd_test_hr"] > self.depth_threshold)
+            if self.rules_base:     # the rules' base: the rule's decision
+                reject = p["dd_test_hr"] > self.depth_threshold
         else:
             reject = p["dd_test_hr"] > self.depth_threshold
         # s9's history as the blend uses it: clipped into the clamp box (both modes)
@@ -610,7 +624,14 @@ class FrameStep(nn.Module):
             if self.blend == "net":
                 comp_in = torch.cat([up, blend_hist, p["depth_hr"], motion_hr, inv_cnt, c_min,
                                      c_max, logits], 1)
-                w0 = self.composition(comp_in.contiguous(memory_format=torch.channels_last))
+                comp_in = comp_in.contiguous(memory_format=torch.channels_last)
+                if self.rules_base:
+                    # the rules' 1/(1+n) corrected in the logit domain; n >= 1 off the
+                    # ghosts (the clamp keeps the ghosts' gradient finite)
+                    z = self.composition.logit(comp_in)
+                    w0 = torch.sigmoid(z - torch.log(torch.clamp(cnt, min=1.0)))
+                else:
+                    w0 = self.composition(comp_in)
                 # a ghost drops its history (reference.md s9)
                 w0 = torch.where(ghost, torch.ones((), device=up.device), w0)
             else:
@@ -635,12 +656,14 @@ class TorchUpscaler:
     `reset=True` start afresh).  For parity tests and evaluation; batch 1.
 
     weights: None (the seeded untrained init), a dict of tensors, or a .safetensors path.
+    base: the blend's base (FrameStep; None: the config stored with a weights file,
+    "paper" for a file without one and for a dict).
     """
 
     def __init__(self, scale=2.0, mode="net", weights=None, cap=None, *, device=None,
                  depth_threshold=DEPTH_THRESHOLD, hdr=True, nits=PQ_NITS,
                  depth_inverted=True, motion_scale=(1.0, 1.0), exposure=1.0, clip=True,
-                 vis_margin=VIS_MARGIN, reject_hook=None, depth_slope=DEPTH_SLOPE):
+                 vis_margin=VIS_MARGIN, reject_hook=None, depth_slope=DEPTH_SLOPE, base=None):
         self.scale, self.mode = float(scale), {"rules": "rule"}.get(mode, mode)
         self.device = pick_device(device)
         self.kw = dict(cap=cap, depth_threshold=depth_threshold, hdr=hdr, nits=nits, clip=clip,
@@ -649,9 +672,13 @@ class TorchUpscaler:
                              exposure=exposure)
         self.nets = (None, None)
         if self.mode == "net":
+            cfg = {}
             if isinstance(weights, (str, bytes)) or hasattr(weights, "__fspath__"):
+                from clss.methods.clss.networks import read_config
                 from clss.networks import load_weights
+                cfg = read_config(weights)
                 weights = load_weights(weights)
+            self.kw["base"] = base_of({"base": base} if base is not None else cfg)
             self.nets = tuple(n.to(self.device).eval() for n in networks_from_tensors(weights))
         self.step_fn = None
         self.history = self.prev = None
