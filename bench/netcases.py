@@ -40,9 +40,19 @@ def model_case(name, model: onnx.ModelProto, input_shapes: dict, tier: str, flop
         ort = sum(float(v.nbytes) for v in host.values()) + weights + sum(_nbytes(s, np.float32) for s in out_shapes)
         twin = fixed_inputs(model, input_shapes)
 
+        # the outputs go into buffers allocated once, as a frame step hands its networks
+        # (clss/methods/*/frame.py): fresh ones per run charged a small network the pages'
+        # first touch (NSRR's 4x feature extractor: 17.9 ms a run against 11.7 ms of its
+        # steps' wall time in `clss bench --layers`, which writes into fixed buffers too)
+        outs = m.run_device(d_in)
+
         def run():
-            return list(m.run_device(d_in).values())
-        return Setup(run, twin, host, NET_TOL[prec], eng, ort, release=d_in.clear,
+            return list(m.run_device(d_in, out=outs).values())
+
+        def release():
+            d_in.clear()
+            outs.clear()
+        return Setup(run, twin, host, NET_TOL[prec], eng, ort, release=release,
                      note=f"{len(m.graph.nodes)} steps after fusion")
     shape = ", ".join(f"{k}: {'x'.join(map(str, s))}" for k, s in input_shapes.items())
     return BenchCase(name, "network", "network", tier, float(flops), build, quick=quick, shape=shape,
