@@ -165,6 +165,17 @@ typedef float Fv8u __attribute__((ext_vector_type(8), aligned(4)));
 #define PST8(a, v) vstore8((v), 0, (a))
 #endif
 
+/* 8 elements' bits (TB8) of a buffer, for data movement: clang vector accesses where the
+ * host asks for them (PoCL, as above), else vload8/vstore8. */
+#if defined(__clang__) && CLSS_CLANG_VECTORS
+typedef TB TBv8 __attribute__((ext_vector_type(8), aligned(sizeof(TB))));
+#define TB_LD8(p) ((TB8)(*(__global const TBv8 *)(p)))
+#define TB_ST8(p, v) (*(__global TBv8 *)(p) = (TBv8)(v))
+#else
+#define TB_LD8(p) vload8(0, (p))
+#define TB_ST8(p, v) vstore8((TB8)(v), 0, (p))
+#endif
+
 /* Weights (conv, mlp): in fp16 storage mode the host hands them over as float,
  * rounded to half (conv.cl's weights_to_float once per call, mlp's packing once
  * per network), so hot loops broadcast them with one load instead of a load, a

@@ -599,7 +599,7 @@ __kernel void to_blocked_at(__global const TB *x, __global TB *xb, int Cx, int c
             /* two 8-wide loads, not one vload16: pip's PoCL 3.0 on an AVX-512 EPYC returned
              * wrong lanes 8-15 from a uint16 load here (fp32; ushort16 in fp16 was right),
              * which kept the whole blocked path off in fp32 there */
-            const TB8 a = vload8(0, s), b = vload8(0, s + 8);
+            const TB8 a = TB_LD8(s), b = TB_LD8(s + 8);
             dst[0 * B + j] = a.s0; dst[1 * B + j] = a.s1; dst[2 * B + j] = a.s2; dst[3 * B + j] = a.s3;
             dst[4 * B + j] = a.s4; dst[5 * B + j] = a.s5; dst[6 * B + j] = a.s6; dst[7 * B + j] = a.s7;
             dst[8 * B + j] = b.s0; dst[9 * B + j] = b.s1; dst[10 * B + j] = b.s2; dst[11 * B + j] = b.s3;

@@ -384,8 +384,8 @@ __kernel void resize_x8(__global const T *in, __global T *out,
     for (int c = 0; c < nc; ++c) {
         __global const TB *r = sb + c * plane;
         if (nx == 8) {
-            vstore8((TB8)(r[ix[0]], r[ix[1]], r[ix[2]], r[ix[3]], r[ix[4]], r[ix[5]], r[ix[6]], r[ix[7]]),
-                    0, ob + c * oplane);
+            TB_ST8(ob + c * oplane,
+                   (TB8)(r[ix[0]], r[ix[1]], r[ix[2]], r[ix[3]], r[ix[4]], r[ix[5]], r[ix[6]], r[ix[7]]));
         } else {
             for (int e = 0; e < nx; ++e)
                 ob[c * oplane + e] = r[ix[e]];

@@ -65,10 +65,10 @@ __kernel void space_to_depth(__global const TB *in, __global TB *out,
      * .even/.odd: PoCL 3.0-rc2 on AVX-512 returns garbage in lanes 4-7 of
      * uint16.even/.odd (ushort16 is right), a miscompile this form avoids. */
     if (B == 2 && x0 + 8 <= W) {
-        const TB8 v0 = vload8(0, row), v1 = vload8(1, row);
+        const TB8 v0 = TB_LD8(row), v1 = TB_LD8(row + 8);
         const int bx_even = S2D_VEC == 2;   /* 0 but in the deliberately wrong variant */
-        vstore8((TB8)(v0.even, v1.even), 0, o + s2d_channel(c, by, bx_even, C, 2) * plane);
-        vstore8((TB8)(v0.odd, v1.odd), 0, o + s2d_channel(c, by, 1 - bx_even, C, 2) * plane);
+        TB_ST8(o + s2d_channel(c, by, bx_even, C, 2) * plane, (TB8)(v0.even, v1.even));
+        TB_ST8(o + s2d_channel(c, by, 1 - bx_even, C, 2) * plane, (TB8)(v0.odd, v1.odd));
         return;
     }
 #endif
@@ -110,10 +110,10 @@ __kernel void depth_to_space(__global const TB *in, __global TB *out,
 #if S2D_VEC
     if (B == 2 && x0 + 8 <= W) {
         const int bx_even = S2D_VEC == 2;   /* 0 but in the deliberately wrong variant */
-        const TB8 a = vload8(0, src + s2d_channel(c, by, bx_even, C, 2) * plane);
-        const TB8 b = vload8(0, src + s2d_channel(c, by, 1 - bx_even, C, 2) * plane);
-        vstore8((TB8)(a.s0, b.s0, a.s1, b.s1, a.s2, b.s2, a.s3, b.s3), 0, o);
-        vstore8((TB8)(a.s4, b.s4, a.s5, b.s5, a.s6, b.s6, a.s7, b.s7), 1, o);
+        const TB8 a = TB_LD8(src + s2d_channel(c, by, bx_even, C, 2) * plane);
+        const TB8 b = TB_LD8(src + s2d_channel(c, by, 1 - bx_even, C, 2) * plane);
+        TB_ST8(o, (TB8)(a.s0, b.s0, a.s1, b.s1, a.s2, b.s2, a.s3, b.s3));
+        TB_ST8(o + 8, (TB8)(a.s4, b.s4, a.s5, b.s5, a.s6, b.s6, a.s7, b.s7));
         return;
     }
 #endif

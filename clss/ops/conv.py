@@ -376,7 +376,7 @@ def _to_blocked_at(dev, prec, x, xb, c0: int, count: int, d0: int, total: int):
     past `total` are zeroed (kernels/conv.cl to_blocked_at)."""
     n, cbd, h, w, block = xb.shape
     nblk = (d0 + count - 1) // block - d0 // block + 1     # the blocks [d0, d0 + count) touches
-    dev.launch(dev.kernel("conv", "to_blocked_at", prec), (-(-w // 16), h, n * nblk),
+    dev.launch(dev.kernel("conv", "to_blocked_at", prec, CLSS_CLANG_VECTORS=builtin_free(dev)), (-(-w // 16), h, n * nblk),
                (x.data, xb.data, *(np.int32(v) for v in (x.shape[1], c0, count, h, w, cbd, block, d0, total,
                                                            nblk))))
 

@@ -258,7 +258,7 @@ def _copy_rows(dev, prec, src, dst, length, rows, src_stride, src_off, dst_strid
     if length <= 0 or rows <= 0:
         return
     run = _COPY_RUN_CPU if dev.is_cpu else 1     # runs of 8 per work-item (elementwise.cl -DRUN)
-    k = dev.kernel("elementwise", "copy_rows", prec, RUN=run)
+    k = dev.kernel("elementwise", "copy_rows", prec, RUN=run, CLSS_CLANG_VECTORS=builtin_free(dev))
     dev.launch(k, (-(-length // (_VEC * run)), rows),
                (src.data, dst.data, *_i32(length, rows, src_stride, src_off, dst_stride, dst_off)))
 

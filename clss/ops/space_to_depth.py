@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import selfcheck
+from .conv import builtin_free
 from ..device import Device
 from ..tolerance import EXACT
 from .base import Unsupported, as_str, check_storage, onnx_op, rng
@@ -26,6 +27,7 @@ def space_to_depth(dev: Device, prec: str, x, block: int, mode: str = "DCR", out
     h, w = hh // block, ww // block
     out = out if out is not None else dev.empty((n, c * block * block, h, w), prec)
     k = dev.kernel("space_to_depth", "space_to_depth", prec, CRD=_mode(mode),
+                   CLSS_CLANG_VECTORS=builtin_free(dev),
                    **selfcheck.defines(dev, prec, "space_to_depth.b2_vector_loads"))
     dev.launch(k, (-(-w // 8), h, n * c * block),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(block),
@@ -42,6 +44,7 @@ def depth_to_space(dev: Device, prec: str, x, block: int, mode: str = "DCR", out
     c = cbb // (block * block)
     out = out if out is not None else dev.empty((n, c, h * block, w * block), prec)
     k = dev.kernel("space_to_depth", "depth_to_space", prec, CRD=_mode(mode),
+                   CLSS_CLANG_VECTORS=builtin_free(dev),
                    **selfcheck.defines(dev, prec, "space_to_depth.b2_vector_loads"))
     dev.launch(k, (-(-w // 8), h, n * c * block),
                (x.data, out.data, np.int32(c), np.int32(h), np.int32(w), np.int32(block),
