@@ -86,6 +86,8 @@ class NsrdFrameStep:
         # on PoCL (common.h: its vstore8/vload8 are out-of-line calls there)
         defs = {**selfcheck.defines(dev, prec, INLINE_MATH), **selfcheck.defines(dev, prec, ENCODE8),
                 "CLSS_CLANG_VECTORS": builtin_free(dev)}
+        if self.encode8 and nets.guided(cfg):
+            defs.update(selfcheck.defines(dev, prec, GUIDED8))
         defs.update(guide_defines())
         k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **defs)
              for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prepare8", "nsrd_warp_state8",
@@ -272,10 +274,46 @@ selfcheck.register(selfcheck.FastPath(
     what="floor, clamp, min, max and isfinite in the frame kernels as plain arithmetic / the builtins",
     applies=_pocl))
 
+# The guided base on float8 lanes in nsrd_finish8 (-DNSRD_GUIDED8=1), its weights' exp on
+# pq.h's plain-arithmetic exp2: lane by lane, the scalar guided_base made 16 out-of-line
+# exp calls an output pixel (280 of the 325 ms of the shipped x2 weights' output stage at
+# 1080p on pip's PoCL 3.0). Checked against the lane-by-lane form on the two frames of
+# _guided_check, within the frame step's tolerance (the exp differs in its last bits).
+GUIDED8 = "nsrd.guided8"
+
+
+def _guided_check(dev: Device, prec: str) -> list[np.ndarray]:
+    """_two_frames_check's frames through the guided base (the shipped weights' form) with
+    the learned re-modulation, at 2x and 3x."""
+    from ...ops.base import rng
+    g = rng("nsrd guided8 selfcheck")
+    outs = []
+    for scale in (2, 3):
+        cfg = nets.make_config(scale, remod="learned", base="guided")
+        fs = NsrdFrameStep(dev, prec, (7, 13), cfg, nets.init_weights(cfg, 1))
+        h, w, H, W = 7, 13, 7 * scale, 13 * scale
+        for t, jitter in enumerate(((0.25, -0.25), (-0.25, 0.25))):
+            arrays = [g.uniform(0, 4, (h, w, 3)), g.uniform(0.1, 0.9, (h, w)), g.uniform(-1.5, 1.5, (h, w, 2)),
+                      g.uniform(0, 1, (h, w, 3)), g.uniform(-1, 1, (h, w, 3)), g.uniform(0, 1, (H, W, 3))]
+            arrays[3][2, 3, 0] = np.nan
+            ins = [dev.to_device(a.astype(np.float32)) for a in arrays]
+            out, ev = fs.run(*ins, jitter, t == 0)
+            ev.wait()
+            outs += [dev.to_host(out), dev.to_host(fs.state), dev.to_host(fs.hist)]
+    return outs
+
+
 selfcheck.register(selfcheck.FastPath(
     ENCODE8, KERNEL, {"NSRD_ENCODE8": 1}, {"NSRD_ENCODE8": 0}, check=_two_frames_check,
     tolerance=DEFAULT_TOL.__getitem__,
     what="the lighting's PQ encode, the re-modulation's sigmoid and the other frame kernels on float8, "
          "8 pixels a work-item (nsrd_encode, nsrd_alpha, nsrd_prepare8, nsrd_warp_state8, nsrd_prev8, "
          "nsrd_finish8) / per pixel",
+    applies=_pocl))
+
+selfcheck.register(selfcheck.FastPath(
+    GUIDED8, KERNEL, {"NSRD_GUIDED8": 1}, {"NSRD_GUIDED8": 0}, check=_guided_check,
+    tolerance=DEFAULT_TOL.__getitem__,
+    what="the guided base on float8 lanes in nsrd_finish8, its weights' exp on pq.h's plain-arithmetic "
+         "exp2 / lane by lane with the library's exp",
     applies=_pocl))
