@@ -6,6 +6,8 @@ whole-frame ONNX graph (clss/methods/nsrd/oracle.py), at 540p -> 1080p (2x) and
 (render and output resolution) and normal (`synthetic_gbuffers`, which the host-wait bench
 feeds it too). The suite finds the room by its name (bench/methods/__init__.py).
 
+The networks and the frame steps run the shipped weights' configuration (guided base, learned re-modulation, warped state), as a user gets them (before 2026-11-29 afternoon: the untrained default configuration, whose output stage is lighter: docs/benchmarks.md).
+
     python -m bench.methods.nsrd [fp32|fp16] [1080p|tiny]
 """
 from __future__ import annotations
@@ -44,7 +46,7 @@ def _device_inputs(dev, h, w, scale):
     return (color, depth, motion), gb, d, dg
 
 
-def nsrd_frame_case(render_size, scale: float, tier: str, weights="untrained") -> BenchCase:
+def nsrd_frame_case(render_size, scale: float, tier: str, weights=None) -> BenchCase:
     from clss.methods.nsrd import networks as nets
     from clss.methods.nsrd.oracle import build_graph, frame_feeds, zero_state
     from clss.methods.nsrd.upscaler import load_weights
@@ -84,7 +86,7 @@ def nsrd_frame_case(render_size, scale: float, tier: str, weights="untrained") -
     return frame_bench_case("nsrd", scale, tier, flops, build, (h, w), (H, W))
 
 
-def networks(tier: str, weights="untrained") -> list:
+def networks(tier: str, weights=None) -> list:
     """(net, variant, model) of the network, built as each frame step of the tier builds it
     (clss/methods/nsrd/frame.py): at the render size padded to even; one network per
     scale (its prev input and output are 3 s^2 channels)."""

@@ -4,6 +4,8 @@ as a bench case, clss.Upscaler(method="nsrr")'s device path against onnxruntime 
 step's whole-frame ONNX graph (clss/methods/nsrr/oracle.py), at 540p -> 1080p (2x) and
 270p -> 1080p (4x). The suite finds it by the room's name (bench/methods/__init__.py).
 
+The networks and the frame steps run the shipped weights' configuration (depth rejection; at 4x the rules' base), as a user gets them (before 2026-11-29 afternoon: the untrained default configuration, whose output stage is lighter: docs/benchmarks.md).
+
     python -m bench.methods.nsrr [fp32|fp16]
 """
 from __future__ import annotations
@@ -25,7 +27,7 @@ NSRR_TIERS = {"1080p": (((540, 960), 2.0), ((270, 480), 4.0)), "540p": (((270, 4
               "tiny": (((16, 32), 2.0), ((16, 32), 4.0))}
 
 
-def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -> BenchCase:
+def nsrr_frame_case(render_size, scale: float, tier: str, weights=None) -> BenchCase:
     from clss.methods.nsrr import networks as nets
     from clss.methods.nsrr.oracle import build_graph, frame_feeds
     from clss.methods.nsrr.upscaler import load_weights
@@ -57,7 +59,7 @@ def nsrr_frame_case(render_size, scale: float, tier: str, weights="untrained") -
     return frame_bench_case("nsrr", scale, tier, flops, build, (h, w), (H, W))
 
 
-def networks(tier: str, weights="untrained") -> list:
+def networks(tier: str, weights=None) -> list:
     """(net, variant, model) of the two networks, built as each frame step of the tier
     builds them (clss/methods/nsrr/frame.py): features at the render size, reconstruct at
     the output size padded to a multiple of 4."""
