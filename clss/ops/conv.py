@@ -304,6 +304,10 @@ def blocked_tiling(dev: Device, prec: str, x_shape, w, strides, explicit, blocke
     docs/benchmarks.md)."""
     cout, cin = w.shape[0], w.shape[1]
     ocv = vector_width(dev)
+    if ocv == 16 and cout <= 8 and not out_blocked:
+        # at most 8 outputs stored NCHW (no blocked consumer fixes the lanes): 8-lane
+        # vectors, not 16 with half the lanes multiplying zero weights
+        ocv = 8
     nvec = -(-cout // ocv)
     nv = 2 if nvec >= 2 and nvec % 2 == 0 else 1
     px = (14 if nv == 1 else 6) if out_blocked else 8
@@ -858,8 +862,9 @@ def _selfcheck_run(dev: Device, prec: str) -> list[np.ndarray]:
 def _selfcheck_blocked(dev: Device, prec: str) -> list[np.ndarray]:
     """conv2d_blocked against the NCHW kernel: 17 input channels (two blocks of 9),
     9 and 20 outputs (partial vectors), residuals before and after the activation,
-    stride 2 with a dilation, edge and inside work-items; and 3 input channels read NCHW in
-    place (FEW_IN) by a 5x5 stride-2 conv. Small: it runs under oclgrind too."""
+    stride 2 with a dilation, edge and inside work-items; 8 outputs stored NCHW; and 3 input
+    channels read NCHW in place (FEW_IN) by a 5x5 stride-2 conv. Small: it runs under
+    oclgrind too."""
     g = rng("conv blocked selfcheck")
     xw = dev.to_device(g.standard_normal((1, 17, 4, 31)).astype(np.float32), prec)
     w9 = dev.to_device(g.standard_normal((9, 17, 3, 3)).astype(np.float32) * 0.2, prec)
@@ -871,6 +876,9 @@ def _selfcheck_blocked(dev: Device, prec: str) -> list[np.ndarray]:
                    activation="relu"),
             conv2d(dev, prec, xw, w20, None, strides=(2, 2), pads=(2, 1, 2, 1), dilations=(2, 1),
                    activation="sigmoid")]
+    # 8 outputs stored NCHW: 8-lane vectors on a 16-lane device too (blocked_tiling)
+    w8 = dev.to_device(g.standard_normal((8, 17, 3, 3)).astype(np.float32) * 0.2, prec)
+    outs.append(conv2d(dev, prec, xw, w8, None, pads=(1, 1, 1, 1), activation="relu"))
     x3 = dev.to_device(g.standard_normal((1, 3, 7, 29)).astype(np.float32), prec)
     w3 = dev.to_device(g.standard_normal((10, 3, 5, 5)).astype(np.float32) * 0.2, prec)
     outs.append(conv2d(dev, prec, x3, w3, None, strides=(2, 2), pads=(2, 2, 2, 1),
