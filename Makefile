@@ -304,6 +304,27 @@ train: train-data $(TRAIN_STAMP)
 	mkdir -p $(WEIGHTS)
 	cp $(TRAIN_RUN)/weights.safetensors $(WEIGHTS)/clss_trained.safetensors
 
+# CLSS's rules' base (issue 53 part 2; docs/methods/clss.md, "The rules' base"): net mode with
+# clss-rules' decision and cap, the composition MLP correcting the rules' 1/(1+n) as
+# 1/(1 + n exp(-z)). Fine-tuned from the paper-form weights (CLSS_RULES_INIT: what make train
+# writes; the package's clss_trained.safetensors of 984fdba is that file) with the MLP's last
+# layer at zero (exactly clss-rules), the classifier kept, the logits' first-layer weights held
+# at zero, CLSS_RULES_STEPS composition steps at lr 1e-3 on the image loss alone, on the
+# generator's jitter mix (NSRR_RULES_DATA, 48 16-frame sequences) mixed 1:1 with one 8-frame
+# Blender sequence per training family (rendered here: 429 s beside other jobs), every window
+# kept (the Blender shards carry no labels to pick windows by); 6-7 minutes on one torch thread.
+# Not copied into the package: below clss-rules on the held-out Blender and game families.
+CLSS_RULES_STEPS ?= 600
+CLSS_RULES_INIT ?= $(TRAIN_RUN)/weights.safetensors
+CLSS_RULES_BLENDER = $(DATA)/blender-clss/train
+.PHONY: train-clss-rules
+train-clss-rules: $(STAMP) $(TRAIN_STAMP) $(DATA_STAMP)
+	$(nsrr_rules_stage)
+	test -f $(CLSS_RULES_BLENDER)/READY || $(BIN)/python -m weights_tools blender --out $(DATA)/blender-clss --split train --sequences 1 --frames 8 --jobs 2 --threads 1 $(BLENDER_ARGS)
+	$(BIN)/python -m weights_tools train clss --data $(NSRR_RULES_DATA),$(CLSS_RULES_BLENDER):0.5 --keep 1.0 --comp-no-logits \
+		--out $(OUT)/train-clss/rules --init $(CLSS_RULES_INIT) --base rules --cls-steps 0 --comp-steps $(CLSS_RULES_STEPS) \
+		--lr 1e-3 --weight-loss 0 --threads 1 --resume
+
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info .pytest_cache .hypothesis
 

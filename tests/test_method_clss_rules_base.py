@@ -3,8 +3,8 @@ docs/methods/clss.md "The rules' base"): net mode with clss-rules' decision and 
 composition MLP correcting the rules' weight 1/(1+n) as 1/(1 + n exp(-z)).
 
 * With the MLP's last layer at zero (z = 0) the OpenCL net step is the OpenCL rule step:
-  output within 1e-6 relative, history colour and range within 1e-6, the counters equal
-  (measured: identical to the bit on pip's PoCL).
+  output within 1e-6 relative, history colour and range within 1e-6, the counters equal;
+  the ONNX twin's net graph equals its rule graph to the bit.
 * With a non-zero correction the OpenCL step matches its ONNX twin (the oracle graph with
   base="rules") and its torch twin at the frame tests' tolerances (helpers.compare_frame).
 * The config travels with the weights file (metadata entry networks.CONFIG_KEY); files
@@ -145,3 +145,37 @@ def test_config_travels_with_the_weights(tmp_path):
         Upscaler(2.0, mode="net", weights=str(plain), base="bilinear")
     with pytest.raises(ValueError, match="base"):
         Upscaler(2.0, mode="rules", base="rules")
+
+
+def test_train_rules_base_smoke(tmp_path):
+    """`train clss --base rules` from a paper-form --init: the correction starts at zero,
+    the written file carries the config, the logits' first-layer weights stay at zero with
+    --comp-no-logits, the result runs in clss.Upscaler."""
+    pytest.importorskip("torch")
+    from test_train_smoke import write_tiny_sequence
+    from clss.networks import load_weights, save_weights
+    from weights_tools.__main__ import main
+    data = tmp_path / "data"
+    data.mkdir()
+    write_tiny_sequence(str(data / "a.npz"), seed=0)
+    init = tmp_path / "paper.safetensors"
+    save_weights(_tensors(), str(init))
+    out = tmp_path / "run"
+    args = ["train", "clss", "--data", str(data), "--out", str(out), "--init", str(init),
+            "--base", "rules", "--cls-steps", "0", "--comp-steps", "2", "--batch", "2",
+            "--patch", "16", "--frames", "4", "--candidates", "12", "--keep", "1",
+            "--weight-loss", "0", "--comp-no-logits", "--threads", "1"]
+    assert main(args) == 0
+    w = out / "weights.safetensors"
+    assert read_config(w) == {"base": "rules"}
+    t, t0 = load_weights(str(w)), load_weights(str(init))
+    assert np.abs(t["comp.fc2.weight"]).max() < 0.01       # from zero, 2 steps of 1e-3
+    assert not np.array_equal(t["comp.fc2.weight"], t0["comp.fc2.weight"])
+    assert (t["comp.fc1.weight"][:, 16:22] == 0).all()
+    for k in t:         # the classifier kept (to the basis fold's rounding)
+        if k.startswith("cls."):
+            np.testing.assert_allclose(t[k], t0[k], rtol=1e-4, atol=1e-5, err_msg=k)
+    up = Upscaler(2.0, mode="net", weights=str(w))
+    assert up.base == "rules"
+    f = frames()[0]
+    assert np.isfinite(up.step(f.color, f.depth, f.motion, f.jitter)).all()

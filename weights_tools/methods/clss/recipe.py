@@ -406,6 +406,17 @@ def train(args):
             cls.dec[-1].weight.zero_()
     if args.basis:
         twin.use_basis(cls, comp)
+    if args.comp_no_logits:
+        # the composition ignores the classifier's logits: their first-layer columns held
+        # at zero (the basis maps each logit to itself, so the raw columns stay zero too)
+        from clss.methods.clss.networks import COMPOSITION_INPUTS, channel_slices
+        lg = channel_slices(COMPOSITION_INPUTS)["logits"]
+        w = comp.mlp[0].weight
+        with torch.no_grad():
+            w[:, lg].zero_()
+        mask = torch.ones_like(w)
+        mask[:, lg] = 0.0
+        w.register_hook(lambda g: g * mask)
     cls, comp = cls.to(device).to(memory_format=torch.channels_last), comp.to(device)
     run.track(cls=cls, comp=comp)
     run.log.update(patches=len(items), patch_output_px=osize, class_weights=cw)
@@ -514,6 +525,9 @@ def add_arguments(t):
                         "MLP's weight, the classifier's decision) or rules (clss-rules' "
                         "decision and cap, the MLP correcting its 1/(1+n); from a paper-form "
                         "--init the correction starts at zero, i.e. at clss-rules)")
+    t.add_argument("--comp-no-logits", action="store_true",
+                   help="the composition stage holds the first-layer weights of the "
+                        "classifier's logits at zero (the MLP then ignores them)")
     t.add_argument("--export", action="store_true",
                    help="only write --out/weights.safetensors from its checkpoint, no training")
 
