@@ -229,27 +229,35 @@ class NsrdFrameStep:
 INLINE_MATH = "nsrd.inline_math"
 
 
-def _two_frames_check(dev: Device, prec: str) -> list[np.ndarray]:
-    """The frame kernels' fast paths' check: two frames (the second warping the first's
-    state) at 2x with the learned re-modulation and 3x with the blur, a NaN and an infinity
-    in the inputs; the output, the state and the history of each."""
+def _frames_check(dev: Device, prec: str, configs, name: str) -> list[np.ndarray]:
+    """Two frames (the second warping the first's state) through each config, a NaN in the
+    colour and the material and an infinity in the output-resolution material; the output,
+    the state and the history of each. name seeds the inputs."""
     from ...ops.base import rng
-    g = rng("nsrd inline math selfcheck")
+    g = rng(name)
     outs = []
-    for scale, remod in ((2, "learned"), (3, "blur")):
-        cfg = nets.make_config(scale, remod=remod)
+    for cfg in configs:
+        scale = int(cfg["scale"])
         fs = NsrdFrameStep(dev, prec, (7, 13), cfg, nets.init_weights(cfg, 1))
         h, w, H, W = 7, 13, 7 * scale, 13 * scale
         for t, jitter in enumerate(((0.25, -0.25), (-0.25, 0.25))):
             arrays = [g.uniform(0, 4, (h, w, 3)), g.uniform(0.1, 0.9, (h, w)), g.uniform(-1.5, 1.5, (h, w, 2)),
                       g.uniform(0, 1, (h, w, 3)), g.uniform(-1, 1, (h, w, 3)), g.uniform(0, 1, (H, W, 3))]
             arrays[0][0, 0, 0] = np.nan
+            arrays[3][2, 3, 0] = np.nan
             arrays[5][1, 2, 1] = np.inf
             ins = [dev.to_device(a.astype(np.float32)) for a in arrays]
             out, ev = fs.run(*ins, jitter, t == 0)
             ev.wait()
             outs += [dev.to_host(out), dev.to_host(fs.state), dev.to_host(fs.hist)]
     return outs
+
+
+def _two_frames_check(dev: Device, prec: str) -> list[np.ndarray]:
+    """The frame kernels' fast paths' check: _frames_check at 2x with the learned
+    re-modulation and 3x with the blur."""
+    return _frames_check(dev, prec, [nets.make_config(2, remod="learned"), nets.make_config(3, remod="blur")],
+                         "nsrd inline math selfcheck")
 
 
 # The lighting's PQ encode on float8 in a kernel of its own (nsrd_encode, -DNSRD_ENCODE8=1),
@@ -283,24 +291,10 @@ GUIDED8 = "nsrd.guided8"
 
 
 def _guided_check(dev: Device, prec: str) -> list[np.ndarray]:
-    """_two_frames_check's frames through the guided base (the shipped weights' form) with
-    the learned re-modulation, at 2x and 3x."""
-    from ...ops.base import rng
-    g = rng("nsrd guided8 selfcheck")
-    outs = []
-    for scale in (2, 3):
-        cfg = nets.make_config(scale, remod="learned", base="guided")
-        fs = NsrdFrameStep(dev, prec, (7, 13), cfg, nets.init_weights(cfg, 1))
-        h, w, H, W = 7, 13, 7 * scale, 13 * scale
-        for t, jitter in enumerate(((0.25, -0.25), (-0.25, 0.25))):
-            arrays = [g.uniform(0, 4, (h, w, 3)), g.uniform(0.1, 0.9, (h, w)), g.uniform(-1.5, 1.5, (h, w, 2)),
-                      g.uniform(0, 1, (h, w, 3)), g.uniform(-1, 1, (h, w, 3)), g.uniform(0, 1, (H, W, 3))]
-            arrays[3][2, 3, 0] = np.nan
-            ins = [dev.to_device(a.astype(np.float32)) for a in arrays]
-            out, ev = fs.run(*ins, jitter, t == 0)
-            ev.wait()
-            outs += [dev.to_host(out), dev.to_host(fs.state), dev.to_host(fs.hist)]
-    return outs
+    """_frames_check through the guided base (the shipped weights' form) with the learned
+    re-modulation, at 2x and 3x."""
+    return _frames_check(dev, prec, [nets.make_config(s, remod="learned", base="guided") for s in (2, 3)],
+                         "nsrd guided8 selfcheck")
 
 
 selfcheck.register(selfcheck.FastPath(
