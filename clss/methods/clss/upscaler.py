@@ -122,8 +122,9 @@ class ClssUpscaler(MethodUpscaler):
     Keyword-only: contract (clss.Contract, every parameter honoured: depth_inverted,
     motion_scale, hdr = PQ-encoded internal colour or LDR in [0, 1] in and out,
     exposure, nits; jitter_scale converted by the template), cap (the sample-counter
-    cap, default 4 for rules, 32 for net), depth_threshold (the depth test: the rule in rules,
-    the floor under the classifier in net; > 1 turns it off), depth_slope (the test's
+    cap, default 4 for rules and for net with the rules' base, 32 for net),
+    depth_threshold (the depth test: the rule in rules, the floor under the classifier in
+    net; > 1 turns it off), depth_slope (the test's
     tolerance per unit of local relative depth step, >= 0; contract.DEPTH_SLOPE, 0 = the
     plain test, reference.md s4), vis_margin (net: the
     classifier rejects the history where its visibility logit leads the larger of the
