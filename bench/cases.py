@@ -293,7 +293,7 @@ def layer_case(L: dict, tier: str, name: str, quick: bool = False) -> BenchCase:
         # As a network runs a layer: its weights packed once (conv2d's packed cache) and its
         # output written into one buffer (fresh ones paid their pages' first touch each run,
         # and the blocked rows repacked their weights every call)
-        packed, out = {}, []
+        packed, out = {}, dev.empty(o_shape, prec)
 
         def engine(d):
             # params is read on every run: the tuner changes it between candidates.
@@ -303,12 +303,10 @@ def layer_case(L: dict, tier: str, name: str, quick: bool = False) -> BenchCase:
             kw = dict(strides=L["strides"], pads=L["pads"], dilations=L["dilations"], group=L["group"],
                       activation=L["act"], alpha=L["alpha"], residual=d.get("r"),
                       **({"tuning": tuning} if tuning else {}))
-            if not out:
-                out.append(dev.empty(o_shape, prec))
             if T:
                 return conv.conv_transpose2d(dev, prec, d["x"], d["w"], d.get("b"),
-                                             output_padding=L["output_padding"], out=out[0], **kw)
-            return conv.conv2d(dev, prec, d["x"], d["w"], d.get("b"), packed=packed, out=out[0], **kw)
+                                             output_padding=L["output_padding"], out=out, **kw)
+            return conv.conv2d(dev, prec, d["x"], d["w"], d.get("b"), packed=packed, out=out, **kw)
         # Long dot products: the reference's summation order differs (fp32: 9*C terms).
         tol = {"fp32": Tolerance(1e-5, 1e-4), "fp16": Tolerance(2e-3, 2e-3)}.get(prec)
 

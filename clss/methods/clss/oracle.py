@@ -525,18 +525,15 @@ def _stage6_classify(g, mode, HW, classifier, depth_threshold, vis_margin, hr: _
         if (H16, W16) != (H, W):
             logits = g.op("Slice", full, g.i64([0, 0]), g.i64([H, W]), g.i64([2, 3]))
         dbg["dbg_logits"] = logits
+    # the rule's decision: its depth test (the rules' base and rule mode decide by it alone)
+    reject = g.op("Greater", hr.depth_test, g.const(float(depth_threshold)))
+    if mode == "net" and not rules_base:
         # visibility leads the larger of the other two by vis_margin (0: the argmax,
         # first index on ties), lead in the kernel's and the torch twin's order; the
         # rule's depth test is a floor under the classifier (reference.md section 7)
-        if rules_base:
-            reject = g.op("Greater", hr.depth_test, g.const(float(depth_threshold)))
-        else:
-            lead = g.sub(g.chan(logits, slice(0, 1)),
-                         g.op("Max", g.chan(logits, slice(1, 2)), g.chan(logits, slice(2, 3))))
-            reject = g.op("Or", g.op("GreaterOrEqual", lead, g.const(vis_margin)),
-                          g.op("Greater", hr.depth_test, g.const(float(depth_threshold))))
-    else:
-        reject = g.op("Greater", hr.depth_test, g.const(float(depth_threshold)))
+        lead = g.sub(g.chan(logits, slice(0, 1)),
+                     g.op("Max", g.chan(logits, slice(1, 2)), g.chan(logits, slice(2, 3))))
+        reject = g.op("Or", g.op("GreaterOrEqual", lead, g.const(vis_margin)), reject)
     ghost = g.op("Or", reject, g.op("Not", warped.valid))
     dbg["dbg_ghost"] = g.op("Cast", ghost, to=TensorProto.FLOAT)
     return ghost, logits

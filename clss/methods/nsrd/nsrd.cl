@@ -168,6 +168,12 @@ static float8 fin8(float8 v, float fill)
     return (v - v) == (float8)(0.0f) ? v : (float8)(fill);     /* as clss_isfinite */
 }
 
+/* material on float8 lanes, as the scalar material() */
+static float8 material8(float8 a, int demod, float eps)
+{
+    return demod ? (a >= eps ? a : (float8)(1.0f)) : (float8)(1.0f);
+}
+
 static PQ_ENCODE(float8, pq_encode8, powp8)
 
 /** nsrd_prepare for 8 pixels of a row (NSRD_ENCODE8; nsrd_encode wrote the lighting): the
@@ -331,7 +337,7 @@ __kernel void nsrd_encode(__global const float *color, __global const float *alb
         const float8 alb = (float8)(as[c], as[3 + c], as[6 + c], as[9 + c], as[12 + c], as[15 + c],
                                     as[18 + c], as[21 + c]);
         const float8 a = fin8(alb, 0.0f);
-        const float8 m = demod ? (a >= eps ? a : (float8)(1.0f)) : (float8)(1.0f);
+        const float8 m = material8(a, demod, eps);
         float L[8];
         PST8(L, pq_encode8(fin8(col, 0.0f) * inv_exposure / m, pq_scale));
         for (int k = 0; k < n; ++k) {
@@ -594,11 +600,6 @@ __kernel void nsrd_finish(__global const T *y, __global const float *state,
 #define NSRD_GUIDED8 0
 #endif
 #if NSRD_GUIDED8
-static float8 material8(float8 a, int demod, float eps)
-{
-    return demod ? (a >= eps ? a : (float8)(1.0f)) : (float8)(1.0f);
-}
-
 static void guided_base8(__global const float *state, __global const float *albedo,
                          __global const float *albedo_hr, int h, int w, int8 Qi,
                          float8 bu, float bv, int demod, float eps, float8 *out)
@@ -684,7 +685,7 @@ __kernel void nsrd_finish8(__global const T *y, __global const float *state,
         const float8 bu8 = (CLSS_CVT8(Xc, float8) + 0.5f) / fs - 0.5f - jx;
         float8 g8[3];
         guided_base8(state, albedo, albedo_hr, h, w, (int8)(Y * W) + Xc,
-                     bu8 > 0.0f ? (bu8 < (float)(w - 1) ? bu8 : (float8)((float)(w - 1))) : (float8)(0.0f),
+                     pq_clamp8(bu8, 0.0f, (float)(w - 1)),
                      bv, demod, eps, g8);
         for (int c = 0; c < 3; ++c)
             PST8(gb[c], g8[c]);
@@ -721,10 +722,10 @@ __kernel void nsrd_finish8(__global const T *y, __global const float *state,
                                    LD(y, yi.s4), LD(y, yi.s5), LD(y, yi.s6), LD(y, yi.s7));
         float8 l = yv + base;
         l = l > 0.0f ? (l < 1.0f ? l : (float8)(1.0f)) : (float8)(0.0f);
-        float8 m = demod ? (a >= eps ? a : (float8)(1.0f)) : (float8)(1.0f);
+        float8 m = material8(a, demod, eps);
         if (learned) {
             const float8 pa = AHR8(r1, lxc);
-            const float8 mp = demod ? (pa >= eps ? pa : (float8)(1.0f)) : (float8)(1.0f);
+            const float8 mp = material8(pa, demod, eps);
             m = alpha * mp + (1.0f - alpha) * m;
         }
 #undef AHR8
