@@ -349,10 +349,10 @@ def _tune_layers(a) -> int:
         return 2
     tiers = ("tiny",) if a.tiny else ((a.tier,) if a.tier else None)
     cases, _ = all_cases("full" if a.tier == "2160p" else _level(a), tiers)
-    cases = [c for c in _select(cases, a.filter) if c.kind == "network"]
+    cases = [c for c in _select(cases, a.filter) if c.kind in ("network", "frame")]
     if not cases:
-        print("clss tune: no network cases selected (--filter matches the bench's network cases, e.g. "
-              "'nsrr', 'classifier'; clss bench --list shows them)", file=sys.stderr)
+        print("clss tune: no network or frame cases selected (--filter matches the bench's network and "
+              "frame cases, e.g. 'nsrr', 'classifier'; clss bench --list shows them)", file=sys.stderr)
         return 2
     return tune_layers_main(a, dev, precs, cases, _logger)
 
@@ -384,8 +384,9 @@ def tune_main(argv=None) -> int:
     p.add_argument("--level", choices=("fast", "full"), default=None,
                    help="choose the conv2d kernel variant per layer of the networks the bench runs, by "
                         "measuring every variant the device verifies (fast), and their register and "
-                        "work-group tiles too (full); without --level, the register blocks and work-group "
-                        "sizes of the bench cases (see above)")
+                        "work-group tiles too (full); then whether each fused frame-step fast path is "
+                        "used, by timing the frame steps with and without it; without --level, the "
+                        "register blocks and work-group sizes of the bench cases (see above)")
     p.add_argument("--budget", type=positive_float, default=None, metavar="SECONDS",
                    help="with --level: stop searching after this long (default: 240 fast, 1200 full); "
                         "layers left keep their defaults and are listed")

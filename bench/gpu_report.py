@@ -5,9 +5,11 @@ shipped tables (clss/tuning_tables/):
   devices.txt      clss devices
   verify.txt       clss verify --precision all on the device (every case and fast path)
   tune.txt         clss tune --level fast: the conv2d variant per layer of the networks at
-                   1080p -> 2160p, with each layer's ms, GFLOP/s and share of the FMA peak
+                   1080p -> 2160p, with each layer's ms, GFLOP/s and share of the FMA peak,
+                   then whether each fused frame-step fast path is used (timed with and without)
   tuning.json      the tuning database that tune wrote (the device's measured choices)
-  shipped-<class>.json  the same choices as a shipped table for the device's class
+  shipped-<class>.json  the same choices (layers and fast paths) as a shipped table for the
+                   device's class
   hostwaits/       clss bench --host-waits --full in fp32 and fp16 (every method, 1080p ->
                    2160p included), run with the tuned database: bench.json and bench.md
   report.md, report.json  the commit measured, the device, each step's status and time
@@ -47,7 +49,8 @@ def steps(out: Path, device: str | None, budget: float, smoke: bool) -> list[tup
                          *(["--level", "tiny", "--family", "conv_gemm"] if smoke else [])), {}),
         ("tune", _clss("tune", "--level", "fast", *dev, "--precision", "fp32,fp16", "--budget", f"{tune_budget:.0f}",
                        "--db", str(out / "tuning.json"),
-                       *(["--tiny", "--filter", "classifier"] if smoke else ["--tier", "2160p"])), env),
+                       *(["--tiny", "--filter", "classifier,frame step bicubic"] if smoke
+                         else ["--tier", "2160p"])), env),
         ("hostwaits", _clss("bench", "--host-waits", *(tiny or ["--full"]), *dev, "--precision", "fp32,fp16",
                             "--out", str(out / "hostwaits")), env),
     ]
@@ -69,13 +72,17 @@ def shipped_candidate(db: Path, out: Path) -> Path | None:
     if not db.is_file():
         return None
     dev = get_device(os.environ.get("CLSS_REPORT_DEVICE") or None)
-    entries = json.loads(db.read_text()).get("devices", {}).get(tuning.device_key(dev), {}).get("conv2d", {})
-    layers = {k: e["params"] for k, e in entries.items() if "VARIANT" in e.get("params", {})}
+    measured = json.loads(db.read_text()).get("devices", {}).get(tuning.device_key(dev), {})
+    layers = {k: e["params"] for k, e in measured.get("conv2d", {}).items() if "VARIANT" in e.get("params", {})}
+    paths = {k: e["params"]["use"] for k, e in measured.get(tuning.FAST_PATH_OP, {}).items()
+             if isinstance(e.get("params", {}).get("use"), bool)}
     table = json.loads(json.dumps(tuning.shipped(dev))) or {"class": tuning.device_class(dev), "ops": {}}
     table["measured"] = (f"{dev.info.name} ({dev.info.platform}, driver {dev.info.driver}), "
                          f"{datetime.date.today().isoformat()}, clss tune --level fast at commit {_git('rev-parse', '--short', 'HEAD')}")
     table.setdefault("ops", {}).setdefault("conv2d", {}).setdefault("order", ["direct"])
     table["ops"]["conv2d"]["layers"] = layers
+    if paths:       # the fused frame-step fast paths measured here (bench/tune_fastpaths.py)
+        table["fast_paths"] = {**table.get("fast_paths", {}), **paths}
     path = out / f"shipped-{tuning.device_class(dev)}.json"
     path.write_text(json.dumps(table, indent=1, sort_keys=True))
     return path

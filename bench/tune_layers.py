@@ -28,7 +28,10 @@ from dataclasses import dataclass, field
 from clss import tuning
 from clss.ops import conv, conv_probe, variants
 
+from .tune_fastpaths import format_paths, tune_paths
+
 LEVELS = ("fast", "full")
+PATHS_SHARE = 0.25  # of the budget, kept for the frame steps' fast paths (bench/tune_fastpaths.py)
 FULL_WITHIN = 1.5   # level full searches the tiles of rows at most this much slower than the best
 
 
@@ -157,11 +160,15 @@ def main(a, dev, precs, cases, logger) -> int:
     from .peak import fma_gflops
 
     budget = a.budget or (240.0 if a.level == "fast" else 1200.0)
-    deadline = time.monotonic() + budget
+    frames = [c for c in cases if c.kind == "frame"]
+    cases = [c for c in cases if c.kind == "network"]
+    end = time.monotonic() + budget
+    # the layers' search stops early enough to leave the frame steps' fast paths their share
+    deadline = end - (PATHS_SHARE * budget if frames else 0.0)
     db = Path(a.db) if a.db else tuning.db_path()
     print(f"device: {dev.info.name} (driver {dev.info.driver}, class {tuning.device_class(dev)}); "
-          f"{len(cases)} network case(s) x {len(precs)} precision(s); level {a.level}, budget {budget:.0f} s; "
-          f"database {db}{' (dry run)' if a.dry_run else ''}", file=sys.stderr)
+          f"{len(cases)} network and {len(frames)} frame case(s) x {len(precs)} precision(s); level {a.level}, "
+          f"budget {budget:.0f} s; database {db}{' (dry run)' if a.dry_run else ''}", file=sys.stderr)
     log = logger(None)
     layers = collect_layers(cases, dev, precs, log=log)
     results, left = [], []
@@ -189,4 +196,11 @@ def main(a, dev, precs, cases, logger) -> int:
         for layer, prec in left:
             print(f"  {layer} [{prec}]")
     print(f"\n{sum(bool(r.best) for r in results)} layer choices {'would be ' if a.dry_run else ''}stored in {db}")
+    if frames:
+        paths = tune_paths(frames, dev, precs, runs=a.runs, store=not a.dry_run, db=db, deadline=end,
+                           log=logger(None))
+        print("\nfused frame-step fast paths (the frame cases' wall ms without and with each):")
+        print(format_paths(paths))
+        print(f"\n{sum(r.use is not None for r in paths)} fast-path choices "
+              f"{'would be ' if a.dry_run else ''}stored in {db}")
     return 0

@@ -80,6 +80,19 @@ class FastPath:
     # device (a CPU layout that a GPU runs slower, a PoCL-only load form): where it does
     # not apply, enabled() is False without a check and the reference variant runs.
     applies: Callable = field(default=lambda dev: True, compare=False)
+    # A speed choice (fused stages, a CPU load form) that a device's measurement overrides:
+    # clss tune times the frame steps that use it with and without it and stores the
+    # faster (clss.tuning.fast_path_choice); `applies` answers where nothing was measured.
+    measured: bool = False
+
+    def applies_on(self, dev) -> bool:
+        """Whether the op uses the fast variant on dev at all (before any self-check)."""
+        if self.measured:
+            from .tuning import fast_path_choice
+            use = fast_path_choice(dev, self.name)
+            if use is not None:
+                return use
+        return bool(self.applies(dev))
 
     @property
     def family(self) -> str:
@@ -170,6 +183,8 @@ def defines(dev, prec: str, name: str) -> dict:
 def enabled(dev, prec: str, name: str) -> bool:
     """Whether the fast variant `name` may be used on dev in prec (checking it first if
     no verdict is known)."""
+    if _asked is not None:
+        _asked.add(name)
     forced = _forced()
     if name in forced:
         return forced[name]
@@ -181,9 +196,21 @@ def enabled(dev, prec: str, name: str) -> bool:
     if ok is not None:       # ops ask at every launch: no source hashing after the first
         return ok
     fp = REGISTRY[name]
-    if not fp.applies(dev) or m == "skip":     # skip: used unchecked where it applies
-        _memo[memo] = fp.applies(dev)
+    if m == "skip" or not fp.applies_on(dev):     # skip: used unchecked where it applies
+        _memo[memo] = fp.applies_on(dev)
         return _memo[memo]
+    v = verdict(dev, prec, name, _mode=m)
+    _memo[memo] = bool(v and v.ok)
+    return _memo[memo]
+
+
+def verdict(dev, prec: str, name: str, *, _mode: str | None = None) -> Verdict | None:
+    """The self-check verdict of fast path `name` on dev in prec, whether or not it applies
+    there (a tuner asks before it measures a variant the device does not use yet): cached,
+    else checked now; None when deferred (mode defer, or inside `deferring()`)."""
+    dev = getattr(dev, "base", dev)
+    m = _mode or mode()
+    fp = REGISTRY[name]
     key = _key(dev, prec, fp)
     with _lock:
         v = _verdicts.get(key)
@@ -195,8 +222,7 @@ def enabled(dev, prec: str, name: str) -> bool:
                 v = None
             if v is None and _defers(m):     # the reference variant, unchecked, this process
                 _deferred[(_device_index(dev), prec, name)] = None
-                _memo[memo] = False
-                return False
+                return None
             if v is None:
                 v = _check_isolated(dev, prec, fp) if fp.isolate else _run_check(dev, prec, fp)
                 _checked_here.add(key)
@@ -206,9 +232,51 @@ def enabled(dev, prec: str, name: str) -> bool:
             _warned.add(key)
             warnings.warn(f"fast path {fp.name} ({fp.options(True)}) of {kernel_label(fp.kernel)} disabled "
                           f"on {v.device} [{prec}]: {v.detail}; using the reference variant "
-                          f"({fp.options(False)})", FastPathDisabled, stacklevel=3)
-        _memo[memo] = v.ok
-        return v.ok
+                          f"({fp.options(False)})", FastPathDisabled, stacklevel=4)
+        return v
+
+
+def remembered(dev, name: str, family: str, prec: str, digest: str, options: str, compute) -> Verdict:
+    """A check that is not a build variant (precision="auto"'s fp16 check of a method) kept
+    like the fast paths' verdicts: the stored one for (device, name, digest, options), else
+    compute() -> (ok, detail), stored; a check that raises is a failed verdict."""
+    dev = getattr(dev, "base", dev)
+    key = (_device_name(dev), name, digest, options)
+    with _lock:
+        v = _verdicts.get(key)
+        if v is None:
+            rec = _load().get(_disk_key(key))
+            try:
+                v = Verdict(**rec) if isinstance(rec, dict) else None
+            except TypeError:   # a record of another clss version: check again
+                v = None
+        if v is None:
+            now = datetime.datetime.now().isoformat(timespec="seconds")
+            try:
+                ok, detail = compute()
+            except Exception as e:
+                ok, detail = False, f"fails: {type(e).__name__}: {str(e).splitlines()[0][:200]}"
+            v = Verdict(name, family, prec, _device_name(dev), bool(ok), detail, options, now)
+            _store(_disk_key(key), v)
+        _verdicts[key] = v
+        return v
+
+
+_asked: set | None = None           # names asked by enabled() inside asking()
+
+
+@contextmanager
+def asking():
+    """Inside the block, the names of the fast paths ops ask about (enabled(), defines()) are
+    collected into the set it yields: what a frame step uses, for clss tune's fast-path step."""
+    global _asked
+    old, _asked = _asked, set()
+    try:
+        yield _asked
+    finally:
+        asked, _asked = _asked, old
+        if old is not None:
+            old |= asked
 
 
 @contextmanager
@@ -297,7 +365,7 @@ def check_all(dev, precisions, kernels=None) -> list[Verdict]:
     dev = getattr(dev, "base", dev)
     out = []
     for name in sorted(REGISTRY):
-        if (kernels is not None and REGISTRY[name].family not in kernels) or not REGISTRY[name].applies(dev):
+        if (kernels is not None and REGISTRY[name].family not in kernels) or not REGISTRY[name].applies_on(dev):
             continue
         for prec in precisions:
             if prec == "fp16-native" and not dev.has_fp16:

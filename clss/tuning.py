@@ -205,6 +205,21 @@ def shipped_params(dev, op: str, key: str, variant: str) -> dict:
     return out
 
 
+FAST_PATH_OP = "fast_path"
+
+
+def fast_path_choice(dev, name: str) -> bool | None:
+    """Whether fast path `name` (clss.selfcheck) is used on dev as measured there: the tuning
+    database's entry (clss tune --level's fast-path step: op "fast_path", key the name,
+    params {"use": bool}), else the device class's shipped table ("fast_paths": {name: bool}),
+    else None: not measured on this device or its class."""
+    e = entry(dev, FAST_PATH_OP, name)
+    if e and isinstance(e.get("params", {}).get("use"), bool):
+        return e["params"]["use"]
+    use = shipped(dev).get("fast_paths", {}).get(name)
+    return use if isinstance(use, bool) else None
+
+
 def local_size(dev, kernel_name: str, global_size) -> tuple | None:
     """The tuned work-group size for a kernel at a global size; else, on a CPU device,
     balanced_local_size; else None (the driver's choice). Only sizes that divide the

@@ -183,7 +183,7 @@ def _pick_methods(p, a):
 
 def main(argv=None) -> int:
     from .args import prepare_output_dir, start_output
-    from .upscaler_common import FrameFiles, check_weights_mode
+    from .upscaler_common import FrameFiles, check_weights_mode, precision_label
     from .. import methods as registry
     p = _parser()
     a = p.parse_args(argv)
@@ -207,6 +207,7 @@ def main(argv=None) -> int:
         kw = registry.options(m, weights=a.weights, debug=a.exr and m != "jbicubic")
         ups[m] = Upscaler(method=m, scale=a.scale, device=dev, precision=a.precision,
                           profile=True, **kw)
+    a.precision = precision_label(a.precision, [u.precision for u in ups.values()])
     start_output(a.out, stale)
     # whether the methods with weights run trained ones (None: no such method in the run)
     with_weights = [getattr(up, "trained", None) for up in ups.values()]

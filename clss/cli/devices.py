@@ -123,6 +123,9 @@ def cmd_verify(argv) -> int:
     if not a.family or a.family in ("conv", "conv_gemm"):
         from ..verify.conformance import format_variants
         print("\n" + format_variants(dev, precs, fast))
+    if not a.family:
+        from ..verify.conformance import format_device_choices
+        print("\n" + format_device_choices(dev))
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"device": dev.info.__dict__, "rows": [r.as_dict() for r in rows],

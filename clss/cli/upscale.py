@@ -13,7 +13,7 @@ from ..errors import cli_message
 from .args import ArgParser, UsageError, positive_int, prepare_output_dir, start_output
 from .upscaler_common import (WEIGHTS_HELP, FrameFiles, add_contract_args, add_upscaler_args,
                               check_weights_mode, contract_of_args, format_stage_table,
-                              write_debug_views)
+                              precision_label, write_debug_views)
 
 
 # ---------------------------------------------------------------- clss upscale
@@ -162,7 +162,7 @@ def _run(a, seq, n, first, name, stale, first_frame) -> int:
     up = build_upscaler(a, name, first)
     start_output(a.out, stale)
     print(f"clss upscale: {n} frames from {a.input}, method {name}, x{a.scale:g}, "
-          f"{a.precision}, device {up.dev.info.name}", file=sys.stderr)
+          f"{precision_label(a.precision, [up.precision])}, device {up.dev.info.name}", file=sys.stderr)
     if getattr(up, "trained", None) is False:
         print("clss upscale: note: the networks are untrained (seeded init)", file=sys.stderr)
     scores, sanitized = [], []

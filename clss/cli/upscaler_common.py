@@ -12,7 +12,10 @@ from .args import (DEVICE_HELP, UsageError, device_spec, motion_scale, positive_
                    resolve_motion_scale)
 from .args import scale as scale_arg
 
-PRECISION_CHOICES = ("fp32", "fp16")
+PRECISION_CHOICES = ("auto", "fp32", "fp16")
+PRECISION_HELP = ("auto (default): fp32 on a CPU; on a GPU fp16 storage (half tensors and history, float "
+                  "arithmetic) where the method's fp16 frame step verifies against fp32 on that device (a "
+                  "check run once and cached, listed by clss verify), else fp32; fp32; or fp16")
 WEIGHTS_HELP = ("network weights for --mode net: a directory from `python -m weights_tools build` "
                 "or a .safetensors file (default: the trained weights shipped in the package); "
                 "'untrained' for the seeded, untrained networks")
@@ -23,8 +26,13 @@ def add_upscaler_args(p: argparse.ArgumentParser, scale=True):
         p.add_argument("--scale", "-s", type=scale_arg, default=2.0,
                        help="output / render size (default 2; 1.5, 3, 4 ... work)")
     p.add_argument("--device", "-d", default=None, type=device_spec, help=DEVICE_HELP)
-    p.add_argument("--precision", "-p", default="fp32", choices=PRECISION_CHOICES,
-                   help="fp32, or fp16 (half storage of history and network tensors)")
+    p.add_argument("--precision", "-p", default="auto", choices=PRECISION_CHOICES, help=PRECISION_HELP)
+
+
+def precision_label(asked: str, resolved) -> str:
+    """What the run prints: the precisions the upscalers resolved to, "(auto)" when chosen."""
+    got = ",".join(dict.fromkeys(resolved))
+    return f"{got} (auto)" if asked == "auto" else got
 
 
 def add_contract_args(p: argparse.ArgumentParser):

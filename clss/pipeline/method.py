@@ -29,6 +29,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import ArgumentError, UserError
+from .precision import AUTO, resolve as resolve_precision
 from .contract import (CANNOT, CONVERTS, GBUFFERS, HANDLINGS, HONOURS, NOT_READ, Contract,
                        ContractError, FrameInputError, MissingInputError, gbuffer_sources,
                        output_size, validate_frame)
@@ -128,8 +129,9 @@ class MethodSpec:
         return s
 
     def check_precision(self, precision) -> str:
-        if precision not in self.precisions:
-            raise ValueError(f"precision: expected {' or '.join(repr(p) for p in self.precisions)} "
+        """precision itself, or "auto" (pipeline/precision.py resolves it on the device)."""
+        if precision not in self.precisions and precision != AUTO:
+            raise ValueError(f"precision: expected {' or '.join(repr(p) for p in (AUTO,) + self.precisions)} "
                              f"(method {self.name!r}), got {precision!r}")
         return precision
 
@@ -414,7 +416,8 @@ class MethodUpscaler:
         self.contract = Contract.of(contract)
         self.spec.check_contract(self.contract)
         self.dev = get_device(device)
-        self.precision = self.spec.check_precision(precision)
+        # "auto": fp32 on a CPU, fp16 storage on a GPU where the method's fp16 step verifies
+        self.precision = resolve_precision(self.spec, self.dev, self.spec.check_precision(precision))
         self.sanitize = bool(sanitize)
         self.profile = bool(profile)
         self._pending_reset = True

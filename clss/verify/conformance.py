@@ -98,6 +98,38 @@ def format_fast_paths(verdicts) -> str:
     return "\n".join(lines)
 
 
+def format_device_choices(dev) -> str:
+    """What this device runs where a choice is per device: each measured fast path (used or
+    not, and whether the tuning database, the shipped table or the default said so), and
+    what precision="auto" resolves to for each method (on a GPU: checked here, once)."""
+    from .. import methods, selfcheck, tuning
+    from ..pipeline import precision
+    lines = [f"fused frame-step fast paths (measured per device: clss tune --level fast; class "
+             f"{tuning.device_class(dev)}):"]
+    for name, fp in sorted(selfcheck.REGISTRY.items()):
+        if not fp.measured:
+            continue
+        tuned = tuning.entry(dev, tuning.FAST_PATH_OP, name)
+        shipped = tuning.shipped(dev).get("fast_paths", {}).get(name)
+        src = ("tuned here" if tuned and isinstance(tuned.get("params", {}).get("use"), bool)
+               else "shipped table" if isinstance(shipped, bool) else
+               "default: measured on CPUs" if dev.is_cpu else "default: not measured on this class")
+        lines.append(f"  {name:28s} {'used' if fp.applies_on(dev) else 'not used'} ({src})")
+    if dev.is_cpu:
+        lines.append('precision="auto" (every method\'s default): fp32 on a CPU')
+        return "\n".join(lines)
+    lines.append('precision="auto" (every method\'s default): fp16 storage where the method\'s fp16 '
+                 'frame step verifies against fp32 here (clss/pipeline/precision.py)')
+    for name in methods.names():
+        spec = methods.spec(name)
+        if "fp16" not in spec.precisions:
+            lines.append(f"  {name:14s} fp32 (no fp16)")
+            continue
+        v = precision.verdict(spec, dev)
+        lines.append(f"  {name:14s} {'fp16' if v.ok else 'fp32'} ({v.detail})")
+    return "\n".join(lines)
+
+
 def format_variants(dev, precisions, verdicts) -> str:
     """The conv variant table on this device: each row, whether it applies here and its
     self-checks' verdicts per precision, and the shipped table the chooser reads
@@ -115,7 +147,7 @@ def format_variants(dev, precisions, verdicts) -> str:
         states = []
         for prec in precisions:
             paths = [REGISTRY[n] for n in row.fast_paths if n in REGISTRY]
-            if any(not fp.applies(dev) for fp in paths):
+            if any(not fp.applies_on(dev) for fp in paths):
                 states.append(f"{prec} does not apply here")
             elif all(got.get((fp.name, prec), selfcheck.enabled(dev, prec, fp.name)) for fp in paths):
                 states.append(f"{prec} passes" if paths else f"{prec} reference")

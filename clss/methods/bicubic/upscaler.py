@@ -120,7 +120,7 @@ selfcheck.register(selfcheck.FastPath(
     tolerance=_tolerance,
     what="the PQ encode on float8, then the cubic resize and the PQ decode in one pass, 8 pixels "
          "a work-item (bicubic_encode8, bicubic_resize_decode8) / encode, resize, decode per pixel",
-    applies=lambda dev: dev.is_cpu))
+    applies=lambda dev: dev.is_cpu, measured=True))
 selfcheck.register(selfcheck.FastPath(
     "bicubic.builtin_free_loads", KERNEL, {"BICUBIC_FUSED": 1, "CLSS_CLANG_VECTORS": 1},
     {"BICUBIC_FUSED": 1, "CLSS_CLANG_VECTORS": 0}, check=_selfcheck_frames,
@@ -133,7 +133,7 @@ class BicubicUpscaler(MethodUpscaler):
     jitter are accepted (the contract's step) and not used. contract: clss.Contract (the
     exposure and nits are honoured; LDR is not)."""
 
-    def __init__(self, scale=2.0, device=None, precision="fp32", *, contract=None,
+    def __init__(self, scale=2.0, device=None, precision="auto", *, contract=None,
                  sanitize=False, profile=False):
         self.spec = SPEC
         self._init_common(scale, device, precision, contract=contract, sanitize=sanitize,

@@ -40,7 +40,7 @@ def register_fast_paths(Upscaler) -> None:
             f"frame.pixel_vectors.{_mode}", KERNEL, {"VEC": 8, "NET": int(_mode == "net")},
             {"VEC": 1, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode, Upscaler),
             tolerance=DEFAULT_TOL.__getitem__, what=f"8 output pixels per work-item as vectors ({_mode} mode)",
-            applies=lambda dev: dev.is_cpu))
+            applies=lambda dev: dev.is_cpu, measured=True))
         selfcheck.register(selfcheck.FastPath(
             f"frame.{_mode}.builtin_free_loads", KERNEL, {"CLSS_CLANG_VECTORS": 1, "NET": int(_mode == "net")},
             {"CLSS_CLANG_VECTORS": 0, "NET": int(_mode == "net")}, check=_selfcheck_run(_mode, Upscaler),

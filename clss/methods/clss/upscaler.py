@@ -147,7 +147,7 @@ class ClssUpscaler(MethodUpscaler):
     REACTIVE = True
     VALUES_ON_DEVICE = True
 
-    def __init__(self, scale=2.0, mode="net", weights=None, device=None, precision="fp32", *,
+    def __init__(self, scale=2.0, mode="net", weights=None, device=None, precision="auto", *,
                  contract=None, cap=None, depth_threshold=DEPTH_THRESHOLD,
                  depth_slope=DEPTH_SLOPE, vis_margin=VIS_MARGIN, sanitize=False,
                  classifier=None, composition=None, profile=False, debug=False,
@@ -291,7 +291,7 @@ class JitterBicubic(ClssUpscaler):
     sample placed where its jitter put it, a cubic over them, in the PQ domain). It is
     how a spatial upscaler that knows the jitter but keeps no history does."""
 
-    def __init__(self, scale=2.0, device=None, precision="fp32", **kwargs):
+    def __init__(self, scale=2.0, device=None, precision="auto", **kwargs):
         super().__init__(scale, "rules", None, device, precision, **kwargs)
         self.spec = SPECS["jbicubic"]
 

@@ -41,7 +41,7 @@ def _tolerance(prec):
 selfcheck.register(selfcheck.FastPath(
     FAST, KERNEL, {"VEC": 8}, {"VEC": 1}, check=_selfcheck_run, tolerance=_tolerance,
     what="8 render pixels per work-item as vectors, the PQ encode hoisted",
-    applies=lambda dev: dev.is_cpu))
+    applies=lambda dev: dev.is_cpu, measured=True))
 
 
 def _fused_check_run(dev: Device, prec: str) -> list:
@@ -79,4 +79,4 @@ selfcheck.register(selfcheck.FastPath(
     check=_fused_check_run, tolerance=_fused_tolerance,
     what=f"the frame step as one GEMM kernel with the fold fused, {FUSED_VEC} render "
          "pixels per vector",
-    applies=lambda dev: dev.is_cpu))
+    applies=lambda dev: dev.is_cpu, measured=True))

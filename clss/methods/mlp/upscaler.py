@@ -85,7 +85,7 @@ class MlpUpscaler(MethodUpscaler):
 
     STAGES = STAGES     # the per-stage timings (MethodUpscaler.stage_ms)
 
-    def __init__(self, scale=2.0, device=None, precision="fp32", *, contract=None,
+    def __init__(self, scale=2.0, device=None, precision="auto", *, contract=None,
                  weights=None, feature=True, sanitize=False, profile=False, online=False,
                  online_lr=None, online_batch=None, online_steps=None, online_seed=0,
                  allow_untrained=False):

@@ -49,7 +49,7 @@ class NsrdUpscaler(MethodUpscaler):
 
     STAGES = STAGES     # the per-stage timings (MethodUpscaler.stage_ms)
 
-    def __init__(self, scale=4.0, weights=None, device=None, precision="fp32", *,
+    def __init__(self, scale=4.0, weights=None, device=None, precision="auto", *,
                  contract=None, widths="default", sanitize=False, profile=False,
                  allow_untrained=False):
         self.spec = SPEC

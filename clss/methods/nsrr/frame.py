@@ -307,4 +307,4 @@ selfcheck.register(selfcheck.FastPath(
     what="runs of 8 output pixels of a row per work-item, the planes in groups (a few store "
          "streams each), the warp's sample positions computed once (nsrr_warp_coords), the taps "
          "as window loads where a run's taps are contiguous",
-    applies=lambda dev: dev.is_cpu))
+    applies=lambda dev: dev.is_cpu, measured=True))

@@ -37,7 +37,7 @@ class NssUpscaler(MethodUpscaler):
 
     STAGES = STAGES
 
-    def __init__(self, scale=2.0, weights=None, device=None, precision="fp32", *,
+    def __init__(self, scale=2.0, weights=None, device=None, precision="auto", *,
                  contract=None, quality="mid", depth_scatter="atomic", sanitize=False,
                  profile=False, allow_untrained=False):
         self.spec = SPEC
