@@ -317,10 +317,11 @@ train: train-data $(TRAIN_STAMP)
 CLSS_RULES_STEPS ?= 600
 CLSS_RULES_INIT ?= $(TRAIN_RUN)/weights.safetensors
 CLSS_RULES_BLENDER = $(DATA)/blender-clss/train
+clss_rules_blender_stage = test -f $(CLSS_RULES_BLENDER)/READY || $(BIN)/python -m weights_tools blender --out $(DATA)/blender-clss --split train --sequences 1 --frames 8 --jobs 2 --threads 1 $(BLENDER_ARGS)
 .PHONY: train-clss-rules
 train-clss-rules: $(STAMP) $(TRAIN_STAMP) $(DATA_STAMP)
 	$(nsrr_rules_stage)
-	test -f $(CLSS_RULES_BLENDER)/READY || $(BIN)/python -m weights_tools blender --out $(DATA)/blender-clss --split train --sequences 1 --frames 8 --jobs 2 --threads 1 $(BLENDER_ARGS)
+	$(clss_rules_blender_stage)
 	$(BIN)/python -m weights_tools train clss --data $(NSRR_RULES_DATA),$(CLSS_RULES_BLENDER):0.5 --keep 1.0 --comp-no-logits \
 		--out $(OUT)/train-clss/rules --init $(CLSS_RULES_INIT) --base rules --cls-steps 0 --comp-steps $(CLSS_RULES_STEPS) \
 		--lr 1e-3 --weight-loss 0 --threads 1 --resume
@@ -491,6 +492,25 @@ train-nss-gym: $(STAMP) $(TRAIN_STAMP)
 	test -f $(DATA)/val-jmix/READY || $(BIN)/python -m weights_tools gen --out $(DATA)/val-jmix --sequences 8 --frames 12 --seed 2000 --size 90x160 --quiet $(GEN_ARGS)
 	$(BIN)/python -m weights_tools train nss --mode gym --data $(DATA)/train-nss-jmix --out $(OUT)/train-nss-gym/x2 --steps $(NSS_GYM_STEPS) --window 16 --batch 2 --patch 16 --margin 4 --lr $(NSS_GYM_LR) --filtered 0.1 --threads 1 --resume $(if $(NSS_GYM_INIT),--init $(NSS_GYM_INIT))
 	$(BIN)/python -m weights_tools eval $(DATA)/val-jmix/seq_*.npz --methods clss-rules,nss --weights $(OUT)/train-nss-gym/x2/weights.safetensors --out $(OUT)/train-nss-gym/val --flip-every 4
+
+# NSS's rules' base (issue 53 part 2; docs/methods/nss.md, "The rules' base"): clss-rules' frame
+# step beside NSS's, its output 3 more network inputs and the base that the network's new mix
+# head moves towards NSS's own accumulation (exactly clss-rules with the head at zero).
+# Fine-tuned from the package's paper-form weights (NSS_RULES_INIT; e0's new channels and the
+# mix head start at zero) on train-clss-rules' mix: the generator's jitter mix (48 16-frame
+# sequences) 1:1 with one 8-frame Blender sequence per training family, rollouts of 8 frames
+# (the Blender shards have 8), NSS_RULES_STEPS steps at lr 3e-4 on one torch thread; the
+# rules' outputs cached beside the data (weights_tools/rules_base.py). Not copied into the
+# package: check them first (clss eval on the held-out sets).
+NSS_RULES_STEPS ?= 1500
+NSS_RULES_INIT ?= $(WEIGHTS)/nss_x2.safetensors
+.PHONY: train-nss-rules
+train-nss-rules: $(STAMP) $(TRAIN_STAMP) $(DATA_STAMP)
+	$(nsrr_rules_stage)
+	$(clss_rules_blender_stage)
+	$(BIN)/python -m weights_tools train nss --data $(NSRR_RULES_DATA),$(CLSS_RULES_BLENDER):0.5 --base rules \
+		--init $(NSS_RULES_INIT) --out $(OUT)/train-nss/x2-rules --steps $(NSS_RULES_STEPS) --window 8 --batch 2 \
+		--lr 3e-4 --threads 1 --resume
 
 # Every training target end to end in minutes (issue 31: the make train* targets run from a
 # fresh clone, the [data] extra installed on the way): tiny data (GEN_ARGS, BLENDER_*), a

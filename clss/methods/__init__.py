@@ -130,3 +130,32 @@ def twin(name: str, render_size, scale, **kwargs):
     module, attr = s.twin.split(":")
     return getattr(importlib.import_module(module), attr)(
         method=s.name, render_size=render_size, scale=scale, **kwargs)
+
+
+# ---- the rules' base (issue 53 part 2): a method that refines clss-rules (NSRR's and NSS's
+# "base": "rules") runs clss-rules' own frame step and twin, asked of this registry as the
+# shared code asks for a method (no room imports another: .importlinter) -----------------
+
+# clss-rules' history: colour 3, counter, colour min 3, max 3, logits 6 (clss's contract)
+RULES_HISTORY_CHANNELS = 16
+
+
+def rules_frame_step(dev, prec: str, render_size, scale, nits, profile=False):
+    """clss-rules' own frame step (the rule-mode kernels of clss/methods/clss/frame.cl, its
+    defaults) at `render_size`. Its `run(..., read_flags=False)`, `accept()`, `state`
+    ([16, H, W], PQ colour in channels 0-2) and `out` ([H, W, 3] linear x exposure) are
+    what a refining method's step uses."""
+    up = create("clss-rules", scale=scale, device=dev, precision=prec, nits=nits,
+                profile=profile)
+    return up._build_frame_step(*render_size)
+
+
+def rules_graph(render_size, scale, nits=None):
+    """clss-rules' whole frame graph (its twin's), inputs color, depth, motion, jitter,
+    reset, reactive, history and outputs output [1,3,H,W] (linear / exposure), history_out
+    [1,16,H,W] (PQ colour in channels 0-2): a refining method's twin inlines it."""
+    kw = {} if nits is None else {"nits": nits}
+    model = twin("clss-rules", tuple(render_size), scale, **kw).model
+    hist = [i for i in model.graph.input if i.name == "history"][0]
+    assert hist.type.tensor_type.shape.dim[1].dim_value == RULES_HISTORY_CHANNELS
+    return model

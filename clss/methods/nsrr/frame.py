@@ -39,6 +39,7 @@ from ...ops.conv import builtin_free, vector_width
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from ...pipeline.method import input_buffers, summed_event_ms
 from ...tolerance import DEFAULT_TOL, EXACT
+from .. import rules_frame_step
 from .networks import FEAT, build_features, build_reconstruct, reject_tau, rules_base
 
 KERNEL = Path(__file__).with_name("nsrr.cl")   # the frame kernels, beside this file
@@ -245,17 +246,6 @@ class NsrrFrameStep:
             mem = m.memory()
             n += mem.get("weights_bytes", 0) + mem.get("intermediate_peak_bytes", 0)
         return int(n)
-
-
-def rules_frame_step(dev: Device, prec: str, render_size, scale, nits, profile=False):
-    """clss-rules' own frame step (the rule-mode kernels of clss/methods/clss/frame.cl, its
-    defaults), asked of the method registry as the shared code asks for a method: no room
-    imports another (.importlinter). Its `run(..., read_flags=False)`, `accept()` and
-    `state` ([16, H, W], PQ colour in channels 0-2) are what NSRR's step uses."""
-    from .. import create
-    up = create("clss-rules", scale=scale, device=dev, precision=prec, nits=nits,
-                profile=profile)
-    return up._build_frame_step(*render_size)
 
 
 # The reprojection on runs of 8 output pixels of a row, in plane groups (nsrr.cl, VEC = 8):

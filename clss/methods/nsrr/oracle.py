@@ -30,6 +30,7 @@ from onnx import TensorProto
 from ...ops.zero_upsample import placement
 from ...pipeline.contract import PQ_NITS, output_size
 from ...pipeline.twin import GraphBuilder, TwinRunner, base_grid, make_model, pq_decode, pq_encode, value_info  # noqa: F401 (base_grid: also this module's API)
+from .. import RULES_HISTORY_CHANNELS as HISTORY_CHANNELS, rules_graph
 from . import networks as nets
 from .frame import pad4
 from .upscaler import load_weights
@@ -137,21 +138,6 @@ def build_graph(render_size, scale, cfg, weights, history=None, nits=PQ_NITS) ->
     if rules:
         outputs.append(vi("rules_hist_out", [1, HISTORY_CHANNELS, H, W]))
     return make_model(g.nodes, g.inits, "nsrr_frame", inputs, outputs, __name__, OPSET)
-
-
-# the rules' history: colour 3, counter, colour min 3, max 3, logits 6 (clss's contract)
-HISTORY_CHANNELS = 16
-
-
-def rules_graph(render_size, scale, nits=PQ_NITS) -> onnx.ModelProto:
-    """clss-rules' whole frame graph (its twin's, through the method registry: no room
-    imports another), inputs color, depth, motion, jitter, reset, reactive, history and
-    outputs output, history_out [1,16,H,W] (PQ colour in channels 0-2)."""
-    from .. import twin
-    model = twin("clss-rules", tuple(render_size), scale, nits=nits).model
-    hist = [i for i in model.graph.input if i.name == "history"][0]
-    assert hist.type.tensor_type.shape.dim[1].dim_value == HISTORY_CHANNELS
-    return model
 
 
 def _depth_keep(g, h, w, sy, sx, px, py, tau):

@@ -13,6 +13,15 @@ Per frame (render h x w, padded hp x wp = multiples of 8; output H x W = 2h x 2w
     post      kernel-prediction filter, Catmull-Rom history, clamp, accumulate -> out
               [H,W,3] and the next history                                    (nss.cl)
 
+With config "base": "rules" (networks.BASES) also:
+
+    rules     clss-rules' frame step on the same inputs (the rule-mode kernels of
+              clss/methods/clss, asked of the method registry; its own history, reset
+              where this step resets) -> its output [H,W,3]; nss_rules_in adds it to x
+              (3 channels) before the network
+    mix       after post: out = rules + clamp(mix, 0, 1) (out - rules); the next history
+              is that output                                                   (nss.cl)
+
 Everything carried between frames stays on the device: the output history (double-
 buffered: post reads the old one around each pixel), the derivative state (double-
 buffered) and the temporal parameters (the network's tp output: pre reads last frame's
@@ -26,14 +35,16 @@ import numpy as np
 import pyopencl as cl
 
 from ...device import Device
+from ...pipeline.contract import PQ_NITS
 from ...pipeline.method import input_buffers, summed_event_ms
+from .. import rules_frame_step
 from . import networks as nets
 
 KERNEL = Path(__file__).with_name("nss.cl")   # the frame kernels, beside this file
 SCATTER = "scatter"                            # kernels/scatter.cl (scatter_depth, fill_u32)
 DEPTH_PATHS = ("atomic", "gather")
 
-STAGES = ("inputs", "depth", "pre", "network", "post")
+STAGES = ("inputs", "rules", "depth", "pre", "network", "post")
 
 
 def kernel_defines(cfg) -> dict:
@@ -74,18 +85,25 @@ class NssFrameStep:
         self.hists = [e((3, H, W), dtype=f32) for _ in range(2)]
         self.derivs = [e((2, h, w), dtype=f32) for _ in range(2)]
         self.cur_i = 0                  # hists[cur_i], derivs[cur_i] were written last
-        self.x = e((1, nets.IN, hp, wp), prec)
+        self.x = e((1, nets.in_channels(cfg), hp, wp), prec)
         self.kpn = e((1, K * K, hp // 4, wp // 4), prec)
         self.tp = e((1, nets.TEMPORAL, hp, wp), prec)
         self.out = e((H, W, 3), dtype=f32)
+        # the rules' base: clss-rules' step at the nits of the units NSS runs in (linear 1.0
+        # = PQ_NITS; the caller's nits reach both as NSS's exposure), its output in rules.out
+        self.rules = self.mix = None
+        if nets.rules_base(cfg):
+            self.rules = rules_frame_step(dev, prec, (h, w), 2.0, PQ_NITS, self.profile)
+            self.mix = e((1, 1, hp, wp), prec)
         # zeroed once: no kernel reads uninitialised memory (a reset multiplies by 0)
         for a in (*self.hists, *self.derivs, self.tp):
             dev.zero(a)
         from ...model import Model
         self.network = Model(nets.build_network(cfg, weights, hp, wp), device=dev, precision=prec)
         defs = kernel_defines(cfg)
+        names = ("nss_inputs", "nss_depth_gather", "nss_pre", "nss_post")
         k = {n: dev.kernel(KERNEL, n, prec, **defs)
-             for n in ("nss_inputs", "nss_depth_gather", "nss_pre", "nss_post")}
+             for n in names + (("nss_rules_in", "nss_rules_mix") if self.rules is not None else ())}
         i32, f = np.int32, np.float32
         L = self.L = {
             "inputs": dev.prepare(k["nss_inputs"], (w, h), [
@@ -100,6 +118,13 @@ class NssFrameStep:
                 self.hists[1].data, self.out.data, i32(w), i32(h), i32(wp), i32(hp), f(0),
                 f(0), f(1), f(1)]),
         }
+        if self.rules is not None:
+            L["rules_in"] = dev.prepare(k["nss_rules_in"], (wp, hp), [
+                self.rules.out.data, self.x.data, i32(w), i32(h), i32(wp), i32(hp),
+                i32(nets.IN), f(1)])
+            L["mix"] = dev.prepare(k["nss_rules_mix"], (W, H), [
+                self.rules.out.data, self.mix.data, self.out.data, self.hists[1].data, i32(w),
+                i32(h), i32(wp), f(1)])
         if depth_scatter == "atomic":
             # scatter.cl reads float32 planes whatever the network's precision
             opts = {"DEPTH_MAX": 1}
@@ -146,19 +171,49 @@ class NssFrameStep:
                        (14, f(exposure))):
             post.bind(idx, v)
         ev = [("inputs", inp())]
+        if self.rules is not None:
+            ev += self._rules(color, depth, motion, jitter, reset, depth_inverted, motion_scale,
+                              exposure)
         if "clear" in L:
             ev.append(("depth", L["clear"]()))
         ev.append(("depth", L["depth"]()))
         ev.append(("pre", pre()))
+        outs = {"kpn": self.kpn, "tp": self.tp}
+        if self.rules is not None:
+            ri = L["rules_in"]
+            ri.bind(7, f(1.0 / exposure))
+            ev.append(("pre", ri()))
+            outs["mix"] = self.mix
         ne = [] if self.profile else None
-        self.network.run_device({"x": self.x}, out={"kpn": self.kpn, "tp": self.tp}, events=ne)
+        self.network.run_device({"x": self.x}, out=outs, events=ne)
         ev += [("network", e) for e in ne or ()]
         last = post()
         ev.append(("post", last))
+        if self.rules is not None:
+            mx = L["mix"]
+            for idx, v in ((2, out.data), (3, self.hists[new].data), (7, f(1.0 / exposure))):
+                mx.bind(idx, v)
+            last = mx()
+            ev.append(("post", last))
         if self.profile:
             self.events.extend(ev)
         self.cur_i = new
         return out, last
+
+    def _rules(self, color, depth, motion, jitter, reset, depth_inverted, motion_scale, exposure):
+        """Enqueue clss-rules' frame step (no host wait, no flags read: a frame the rules
+        would refuse is not refused here); its output is rules.out. Returns the profiled
+        events."""
+        rs = self.rules
+        rs.run(color, depth, motion, None, (float(jitter[0]), float(jitter[1])), reset,
+               depth_inverted=depth_inverted, motion_scale=motion_scale, exposure=exposure,
+               read_flags=False)
+        rs.accept()
+        if not self.profile:
+            return []
+        ev = [("rules", e) for _, e in rs.events]
+        rs.events.clear()
+        return ev
 
     def stage_ms(self) -> dict:
         return summed_event_ms(self.events, STAGES)
@@ -167,6 +222,8 @@ class NssFrameStep:
         arrays = [self.in_color, self.in_depth, self.in_motion, self.col, self.dz, self.mv,
                   self.recon, *self.hists, *self.derivs, self.x, self.kpn, self.tp, self.out]
         n = sum(a.nbytes for a in arrays)
+        if self.rules is not None:
+            n += self.mix.nbytes + self.rules.device_bytes()
         mem = self.network.memory()
         n += mem.get("weights_bytes", 0) + mem.get("intermediate_peak_bytes", 0)
         return int(n)

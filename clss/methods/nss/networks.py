@@ -20,6 +20,13 @@ Layers (weight names = the torch twin's state_dict keys, weights_tools/methods/n
     e4 32->64 s2, e5 64->64, e6 64->32                               (1/8)
     d0 up, 32->16; [d0, b] 48->32 = d1 (1/4) -> kpn 32->K*K (sigmoid)
     d2 up, 32->16; [d2, a] 48->16 = d3, d4 16->16 (1/2) -> up, tp 16->4 (sigmoid)
+
+With config "base": "rules" (BASES; issue 53, docs/methods/nss.md "The rules' base") the
+network also reads the clss-rules output (RULES_IN more channels of x: the rules' result
+of this frame averaged over each render pixel's 2 x 2 output pixels, Karis tonemapped) and
+has one more head beside tp, mix 16->1 (linear, at render resolution): the step's output
+is the rules' output moved towards NSS's own by clamp(mix, 0, 1). Its weights start at
+zero, so the untrained head gives exactly clss-rules.
 """
 from __future__ import annotations
 
@@ -59,43 +66,101 @@ D_MIN, D_MAX, D_ALPHA = 0.05, 0.3, 0.1
 LUMA = (0.2126, 0.7152, 0.0722)
 
 QUALITY = {"low": 4, "mid": 4, "high": 6}
+# The step's base (config "base", issue 53 part 2): "paper" (files without the key: NSS as
+# the model gym builds it, its own accumulation is the output) or "rules": clss-rules'
+# frame step runs beside NSS's (its own history, clipped into the render neighbourhood's
+# colour box and blended by its 1/(1+n) rule; clss/methods/clss's rule-mode kernels asked
+# of the method registry), its output is RULES_IN more channels of the network's input and
+# the base of the output: out = rules + clamp(mix, 0, 1) (nss - rules), per output pixel,
+# linear; mix = 0 (the head's weights at zero) is clss-rules exactly. NSS's history is the
+# output, so its accumulation refines the rules' result too.
+BASES = ("paper", "rules")
+RULES_IN = 3
 
 
-def make_config(scale=2.0, quality="mid") -> dict:
+def make_config(scale=2.0, quality="mid", base="paper") -> dict:
     s = float(scale)
     if s != 2.0:
         raise ValueError(f"scale: NSS runs at 2x (its kernel-prediction taps and jitter "
                          f"offsets are per output pixel of a 2x grid), got {scale!r}")
     if quality not in QUALITY:
         raise ValueError(f"quality: expected one of {', '.join(QUALITY)}, got {quality!r}")
-    return {"scale": 2, "quality": quality, "kpn": QUALITY[quality], "name": quality}
+    if base not in BASES:
+        raise ValueError(f"base: expected one of {', '.join(BASES)}, got {base!r}")
+    cfg = {"scale": 2, "quality": quality, "kpn": QUALITY[quality], "name": quality}
+    if base != "paper":         # configs without the key: the paper's form
+        cfg["base"] = base
+    return cfg
+
+
+def rules_base(cfg) -> bool:
+    """True where the step refines clss-rules' output (config "base": "rules")."""
+    b = cfg.get("base", "paper")
+    if b not in BASES:
+        raise ValueError(f"NSS config: base expected one of {', '.join(BASES)}, got {b!r}")
+    return b == "rules"
+
+
+def in_channels(cfg) -> int:
+    """The network's input channels: IN, and RULES_IN more with the rules' base."""
+    return IN + (RULES_IN if rules_base(cfg) else 0)
 
 
 def layer_shapes(cfg) -> dict:
     """name -> (cout, cin, k) of every conv."""
     K = int(cfg["kpn"])
-    return {"e0": (32, IN, 3), "e1": (32, 32, 3), "e2": (32, 32, 3), "e3": (32, 32, 3),
-            "e4": (64, 32, 3), "e5": (64, 64, 3), "e6": (32, 64, 3),
-            "d0": (16, 32, 3), "d1": (32, 48, 3), "kpn": (K * K, 32, 3),
-            "d2": (16, 32, 3), "d3": (16, 48, 3), "d4": (16, 16, 3), "tp": (TEMPORAL, 16, 3)}
+    out = {"e0": (32, in_channels(cfg), 3), "e1": (32, 32, 3), "e2": (32, 32, 3), "e3": (32, 32, 3),
+           "e4": (64, 32, 3), "e5": (64, 64, 3), "e6": (32, 64, 3),
+           "d0": (16, 32, 3), "d1": (32, 48, 3), "kpn": (K * K, 32, 3),
+           "d2": (16, 32, 3), "d3": (16, 48, 3), "d4": (16, 16, 3), "tp": (TEMPORAL, 16, 3)}
+    if rules_base(cfg):
+        out["mix"] = (1, 16, 3)
+    return out
 
 
 STRIDE2 = ("e0", "e2", "e4")
 # each layer's output resolution divisor (for the MACs)
 LEVEL = {"e0": 2, "e1": 2, "e2": 4, "e3": 4, "e4": 8, "e5": 8, "e6": 8, "d0": 4, "d1": 4,
-         "kpn": 4, "d2": 2, "d3": 2, "d4": 2, "tp": 1}
+         "kpn": 4, "d2": 2, "d3": 2, "d4": 2, "tp": 1, "mix": 1}
 
 
 def init_weights(cfg, seed=0) -> dict:
     """Seeded He-normal init, zero biases; the heads start small (sigmoid 0.5 everywhere:
-    an even kernel, alpha in the middle of its range)."""
+    an even kernel, alpha in the middle of its range); the rules' base's mix head at zero
+    (the step is clss-rules')."""
     g = np.random.default_rng(seed)
     out = {}
     for name, (co, ci, k) in layer_shapes(cfg).items():
+        if name == "mix":
+            continue
         std = np.sqrt(2.0 / (ci * k * k)) * (0.1 if name in ("kpn", "tp") else 1.0)
         out[f"{name}.weight"] = g.normal(0, std, (co, ci, k, k)).astype(np.float32)
         out[f"{name}.bias"] = np.zeros(co, np.float32)
+    if rules_base(cfg):
+        out.update(zero_mix(cfg))
     return out
+
+
+def zero_mix(cfg) -> dict:
+    """The mix head's tensors at zero: clamp(mix, 0, 1) = 0, the output is the rules'."""
+    co, ci, k = layer_shapes(cfg)["mix"]
+    return {"mix.weight": np.zeros((co, ci, k, k), np.float32), "mix.bias": np.zeros(co, np.float32)}
+
+
+def with_rules_base(cfg, weights) -> tuple[dict, dict]:
+    """(cfg, weights) of paper-form NSS weights given the rules' base: e0 reads RULES_IN
+    more channels (their weights zero), the mix head at zero. The step is then exactly
+    clss-rules, and the network as trained (a fine-tune's start)."""
+    if rules_base(cfg):
+        return dict(cfg), dict(weights)
+    new = {**cfg, "base": "rules"}
+    w = dict(weights)
+    e0 = np.asarray(w["e0.weight"], np.float32)
+    w["e0.weight"] = np.concatenate(
+        [e0, np.zeros((e0.shape[0], RULES_IN) + e0.shape[2:], np.float32)], axis=1)
+    w.update(zero_mix(new))
+    check_weights(new, w)
+    return new, w
 
 
 FILE = ConfiguredWeights("nss", "nss_config", layer_shapes,
@@ -128,12 +193,16 @@ def build_network(cfg, weights, hp="h", wp="w") -> onnx.ModelProto:
     x = c(g.op("Concat", c(_up(g, x), "d0", "hidden"), b, axis=1), "d1", "hidden")
     c(x, "kpn", "Sigmoid", name="kpn")
     x = c(g.op("Concat", c(_up(g, x), "d2", "hidden"), a, axis=1), "d3", "hidden")
-    x = c(x, "d4", "hidden")
-    c(_up(g, x), "tp", "Sigmoid", name="tp")
+    x = _up(g, c(x, "d4", "hidden"))
+    c(x, "tp", "Sigmoid", name="tp")
+    rules = rules_base(cfg)
+    if rules:
+        c(x, "mix", name="mix")         # linear: the step clamps it to [0, 1]
     q = (lambda v: v // KPN_LEVEL) if isinstance(hp, int) else (lambda v: f"{v}/4")
-    return g.model("nss_network", [value_info("x", [1, IN, hp, wp])],
+    return g.model("nss_network", [value_info("x", [1, in_channels(cfg), hp, wp])],
                    [value_info("kpn", [1, K * K, q(hp), q(wp)]),
-                    value_info("tp", [1, TEMPORAL, hp, wp])], __name__)
+                    value_info("tp", [1, TEMPORAL, hp, wp])]
+                   + ([value_info("mix", [1, 1, hp, wp])] if rules else []), __name__)
 
 
 def pad8(n: int) -> int:

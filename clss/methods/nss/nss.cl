@@ -232,6 +232,20 @@ __kernel void nss_pre(__global const float *col, __global const float *dz,
     }
 }
 
+/* A render-resolution plane p [hp,wp] (row pitch wp) at output pixel (X, Y)'s centre:
+ * bilinear, edge-clamped to the render region (the temporal parameters, the mix). */
+static float at_output(__global const T *p, int X, int Y, int w, int h, int wp)
+{
+    const float a = clamp(((float)X + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(w - 1));
+    const float b = clamp(((float)Y + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(h - 1));
+    const int a0 = (int)floor(a), b0 = (int)floor(b);
+    const int a1 = min(a0 + 1, w - 1), b1 = min(b0 + 1, h - 1);
+    const float fa = a - (float)a0, fb = b - (float)b0;
+    const float top = LD(p, (long)b0 * wp + a0) * (1.0f - fa) + LD(p, (long)b0 * wp + a1) * fa;
+    const float bot = LD(p, (long)b1 * wp + a0) * (1.0f - fa) + LD(p, (long)b1 * wp + a1) * fa;
+    return top * (1.0f - fb) + bot * fb;
+}
+
 /* Catmull-Rom weights of the taps at -1, 0, 1, 2 around fraction f. */
 static float4 catmull_rom(float f)
 {
@@ -287,20 +301,11 @@ __kernel void nss_post(__global const float *col, __global const float *mv,
             }
         }
     }
-    /* the temporal parameters at this output pixel (bilinear, edge-clamped to the render region) */
-    const float a = clamp(((float)X + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(w - 1));
-    const float b = clamp(((float)Y + 0.5f) / 2.0f - 0.5f, 0.0f, (float)(h - 1));
-    const int a0 = (int)floor(a), b0 = (int)floor(b);
-    const int a1 = min(a0 + 1, w - 1), b1 = min(b0 + 1, h - 1);
-    const float fa = a - (float)a0, fb = b - (float)b0;
+    /* the temporal parameters at this output pixel */
     const long np_ = (long)hp * wp;
     float pr[3];
-    for (int c = 0; c < 3; ++c) {
-        const long o = c * np_;
-        const float top = LD(tp, o + (long)b0 * wp + a0) * (1.0f - fa) + LD(tp, o + (long)b0 * wp + a1) * fa;
-        const float bot = LD(tp, o + (long)b1 * wp + a0) * (1.0f - fa) + LD(tp, o + (long)b1 * wp + a1) * fa;
-        pr[c] = top * (1.0f - fb) + bot * fb;
-    }
+    for (int c = 0; c < 3; ++c)
+        pr[c] = at_output(tp + c * np_, X, Y, w, h, wp);
     const float ta = pr[0] * pr[0], tb = (1.0f - pr[0]) * (1.0f - pr[0]);
     const float theta = ta / fmax(ta + tb, 1e-6f);
     const float alpha = ALPHA_LO + (ALPHA_HI - ALPHA_LO) * pr[1];
@@ -350,5 +355,56 @@ __kernel void nss_post(__global const float *col, __global const float *mv,
         const float lin = acc[c] * inv;
         hist_new[c * P + Q] = lin;
         out[3 * Q + c] = lin * exposure;
+    }
+}
+
+/* ---- the rules' base (networks.BASES "rules"; frame.py runs clss-rules' frame step
+ * beside these and hands over its output) ---------------------------------------------- */
+
+/** The network's channels IN..IN+2: the rules' output (linear x exposure) / exposure,
+ *  averaged over the 2 x 2 output pixels of each render pixel, Karis tonemapped; the
+ *  padding repeats the edge (as nss_pre's).
+ *  @param[in]  rules  [H,W,3] float32 clss-rules' output of this frame
+ *  @param[out] x      [IN+3,hp,wp] T (channels IN..IN+2 written)
+ *  NDRange: (wp, hp). */
+__kernel void nss_rules_in(__global const float *rules, __global T *x, int w, int h, int wp,
+                           int hp, int in_ch, float inv_exposure)
+{
+    const int gx = get_global_id(0), gy = get_global_id(1);
+    if (gx >= wp || gy >= hp) return;
+    const int px = min(gx, w - 1), py = min(gy, h - 1), W = 2 * w;
+    const long np_ = (long)hp * wp, q = (long)gy * wp + gx;
+    const long r0 = ((long)(2 * py) * W + 2 * px) * 3, r1 = r0 + (long)W * 3;
+    float c3[3];
+    for (int c = 0; c < 3; ++c)
+        c3[c] = ((rules[r0 + c] + rules[r0 + 3 + c]) + (rules[r1 + c] + rules[r1 + 3 + c]))
+                * 0.25f * inv_exposure;
+    karis(c3);
+    for (int c = 0; c < 3; ++c)
+        ST(x, (in_ch + c) * np_ + q, c3[c]);
+}
+
+/** The output: the rules' moved towards NSS's by clamp(mix, 0, 1) at the pixel (bilinear,
+ *  as the temporal parameters); mix = 0 leaves the rules' output bit for bit. The next
+ *  history is the output / exposure.
+ *  @param[in]     rules     [H,W,3] float32 clss-rules' output (linear x exposure)
+ *  @param[in]     mix       [hp,wp] T the network's mix head (linear)
+ *  @param[in,out] out       [H,W,3] float32 nss_post's output in, the step's out
+ *  @param[out]    hist_new  [3,H,W] float32
+ *  NDRange: (W, H). */
+__kernel void nss_rules_mix(__global const float *rules, __global const T *mix,
+                            __global float *out, __global float *hist_new, int w, int h, int wp,
+                            float inv_exposure)
+{
+    const int X = get_global_id(0), Y = get_global_id(1);
+    const int W = 2 * w, H = 2 * h;
+    if (X >= W || Y >= H) return;
+    const float m = clamp(at_output(mix, X, Y, w, h, wp), 0.0f, 1.0f);
+    const long P = (long)H * W, Q = (long)Y * W + X;
+    for (int c = 0; c < 3; ++c) {
+        const float r = rules[3 * Q + c];
+        const float o = r + m * (out[3 * Q + c] - r);
+        out[3 * Q + c] = o;
+        hist_new[c * P + Q] = o * inv_exposure;
     }
 }

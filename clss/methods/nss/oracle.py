@@ -10,8 +10,12 @@ Graph inputs (internal conventions, contract.to_internal):
     keep [1]: 0 on a reset
     taps [K*K*H*W] int64, tent [1,1,K*K,H,W], kq [H*W] int64, centre [H*W] int64,
     valid [1,1,H,W]: the jitter-aware tap layout (networks.post_taps, `frame_feeds`)
+    with "base": "rules" (networks.BASES): jitter [2] render pixels and rules_hist
+        [1,16,H,W], the clss-rules step's history (its own twin, clss/methods/clss/oracle.py,
+        inlined through the method registry: its output is the base and 3 channels of x)
 Outputs: output [1,3,H,W] linear (/ exposure), hist_out, deriv_out, tp_out, x (the
-network's input), recon (the reconstructed previous depth, float).
+network's input), recon (the reconstructed previous depth, float); with the rules' base
+rules_hist_out [1,16,H,W] and mix_out (the network's mix head).
 
 The depth reprojection is ScatterElements with reduction max over indices computed in
 the graph from the motion (a tap that receives nothing goes to a spare last element).
@@ -21,7 +25,9 @@ from __future__ import annotations
 import numpy as np
 import onnx
 
+from ...pipeline.contract import PQ_NITS
 from ...pipeline.twin import GraphBuilder, TwinRunner, base_grid, make_model, value_info
+from .. import RULES_HISTORY_CHANNELS, rules_graph
 from . import networks as nets
 from .upscaler import load_weights
 
@@ -104,8 +110,10 @@ def _depth(g, depth, motion, h, w, name="recon"):
 
 
 def _pre(g, col, depth, motion, recon, hist, tp, deriv, keep, h, w, *, x="x",
-         deriv_out="deriv_out"):
-    """nss_pre: the network's input `x` [1,12,hp,wp] and the next derivative state."""
+         deriv_out="deriv_out", rules=None):
+    """nss_pre: the network's input `x` [1,12,hp,wp] and the next derivative state; with
+    `rules` (the rules' output [1,3,H,W], linear / exposure) nss_rules_in's 3 channels
+    more (the 2 x 2 mean, Karis tonemapped)."""
     H, W, hp, wp = 2 * h, 2 * w, nets.pad8(h), nets.pad8(w)
     c = lambda v: g.const(np.float32(v))  # noqa: E731
     one, zero = c(1.0), c(0.0)
@@ -138,7 +146,10 @@ def _pre(g, col, depth, motion, recon, hist, tp, deriv, keep, h, w, *, x="x",
     rate = g.mul(c(nets.D_ALPHA), g.sub(one, g.mul(c(0.9), g.op("Min", g.div(dp, c(nets.D_MAX)), one))))
     der = g.mul(g.add(dp, g.mul(rate, g.sub(g.mul(tt, g.op("Sqrt", tt)), dp))), g.sub(one, dis))
     g.concat([der, lum_], name=deriv_out)
-    xc = g.concat([hc, cc, dis, fb, der])
+    parts = [hc, cc, dis, fb, der]
+    if rules is not None:
+        parts.append(_karis(g, g.op("AveragePool", rules, kernel_shape=[2, 2], strides=[2, 2])))
+    xc = g.concat(parts)
     g.op("Pad", xc, g.i64([0, 0, 0, 0, 0, 0, hp - h, wp - w]), mode="edge", name=x)
     return x, deriv_out
 
@@ -208,6 +219,16 @@ def _post(g, col, motion, kpn, tp, hist, keep, K, h, w, *, out="output"):
     return out
 
 
+def _mix(g, nss, rules, mix, h, w, *, out="output"):
+    """nss_rules_mix: rules + clamp(mix, 0, 1) (nss - rules), the mix [1,1,hp,wp] at the
+    output pixels as the temporal parameters are read."""
+    H, W = 2 * h, 2 * w
+    m = _sample(g, g.slice(g.slice(mix, 2, 0, h), 3, 0, w),
+                g.const(base_grid((h, w), (H, W), (0.0, 0.0))), "border")
+    g.op("Add", rules, g.mul(g.clip(m, 0.0, 1.0), g.sub(nss, rules)), name=out)
+    return out
+
+
 def _tap_inputs(K, h, w):
     vi = value_info
     H, W = 2 * h, 2 * w
@@ -223,10 +244,25 @@ def build_graph(render_size, cfg, weights) -> onnx.ModelProto:
     g = GraphBuilder(OPSET)
     col = g.clip("color", 0.0, nets.COLOR_MAX)
     recon = _depth(g, "depth", "motion", h, w)
-    x, _ = _pre(g, col, "depth", "motion", recon, "hist", "tp", "deriv", "keep", h, w)
+    rules = nets.rules_base(cfg)
+    if rules:
+        # the rules' base: clss-rules' whole frame graph (rule mode, its defaults, no
+        # reactive mask), reset where this step resets, at the units NSS runs in
+        reset = g.sub(g.const(np.float32([1.0])), "keep")
+        react = g.const(np.zeros((1, 1, h, w), np.float32))
+        g.inline(rules_graph((h, w), 2.0, PQ_NITS), "rules",
+                 {"color": "color", "depth": "depth", "motion": "motion", "jitter": "jitter",
+                  "reset": reset, "reactive": react, "history": "rules_hist"},
+                 {"history_out": "rules_hist_out", "output": "rules_output"})
+    x, _ = _pre(g, col, "depth", "motion", recon, "hist", "tp", "deriv", "keep", h, w,
+                rules="rules_output" if rules else None)
     g.inline(nets.build_network(cfg, weights, hp, wp), "net", {"x": x},
-             {"kpn": "kpn", "tp": "tp_out"})
-    _post(g, col, "motion", "kpn", "tp_out", "hist", "keep", K, h, w)
+             {"kpn": "kpn", "tp": "tp_out", **({"mix": "mix_out"} if rules else {})})
+    if rules:
+        _post(g, col, "motion", "kpn", "tp_out", "hist", "keep", K, h, w, out="nss_output")
+        _mix(g, "nss_output", "rules_output", "mix_out", h, w)
+    else:
+        _post(g, col, "motion", "kpn", "tp_out", "hist", "keep", K, h, w)
     g.op("Identity", "output", name="hist_out")
     vi = value_info
     inputs = [vi("color", [1, 3, h, w]), vi("depth", [1, 1, h, w]), vi("motion", [1, 2, h, w]),
@@ -234,7 +270,11 @@ def build_graph(render_size, cfg, weights) -> onnx.ModelProto:
               vi("tp", [1, nets.TEMPORAL, hp, wp]), vi("keep", [1]), *_tap_inputs(K, h, w)]
     outputs = [vi("output", [1, 3, H, W]), vi("hist_out", [1, 3, H, W]),
                vi("deriv_out", [1, 2, h, w]), vi("tp_out", [1, nets.TEMPORAL, hp, wp]),
-               vi("x", [1, nets.IN, hp, wp]), vi("recon", [1, 1, h, w])]
+               vi("x", [1, nets.in_channels(cfg), hp, wp]), vi("recon", [1, 1, h, w])]
+    if rules:
+        inputs += [vi("jitter", [2]), vi("rules_hist", [1, RULES_HISTORY_CHANNELS, H, W])]
+        outputs += [vi("rules_hist_out", [1, RULES_HISTORY_CHANNELS, H, W]),
+                    vi("mix_out", [1, 1, hp, wp])]
     return make_model(g.nodes, g.inits, "nss_frame", inputs, outputs, __name__, OPSET)
 
 
@@ -332,18 +372,23 @@ def tap_feeds(cfg, render_size, jitter) -> dict:
 
 def zero_state(cfg, render_size) -> dict:
     h, w = render_size
-    return {"hist": np.zeros((1, 3, 2 * h, 2 * w), np.float32),
-            "deriv": np.zeros((1, 2, h, w), np.float32),
-            "tp": np.zeros((1, nets.TEMPORAL, nets.pad8(h), nets.pad8(w)), np.float32)}
+    st = {"hist": np.zeros((1, 3, 2 * h, 2 * w), np.float32),
+          "deriv": np.zeros((1, 2, h, w), np.float32),
+          "tp": np.zeros((1, nets.TEMPORAL, nets.pad8(h), nets.pad8(w)), np.float32)}
+    if nets.rules_base(cfg):
+        st["rules_hist"] = np.zeros((1, RULES_HISTORY_CHANNELS, 2 * h, 2 * w), np.float32)
+    return st
 
 
 def frame_feeds(cfg, x, st, reset) -> dict:
     """The graph's feeds for one frame: `x` the contract's internal arrays (to_internal),
-    `st` the previous outputs {hist, deriv, tp}."""
+    `st` the previous outputs {hist, deriv, tp} (and rules_hist with the rules' base)."""
     h, w = x["depth"].shape[2:]
     feeds = {"color": x["color"], "depth": x["depth"], "motion": x["motion"],
              "keep": np.array([0.0 if reset else 1.0], np.float32)}
     feeds.update(tap_feeds(cfg, (h, w), x["jitter"]))
+    if nets.rules_base(cfg):
+        feeds["jitter"] = np.asarray(x["jitter"], np.float32).reshape(2)
     feeds.update(st)
     return feeds
 
@@ -364,9 +409,12 @@ class OracleNss(TwinRunner):
 
     def step(self, color, depth, motion, jitter, reset=False, **unused):
         x, reset = self._frame(color, depth, motion, jitter, reset)
-        outs = dict(zip(self.OUTPUTS, self.session.run(list(self.OUTPUTS),
-                                                       frame_feeds(self.cfg, x, self.st, reset))))
+        names = self.OUTPUTS + (("rules_hist_out", "mix_out") if nets.rules_base(self.cfg) else ())
+        outs = dict(zip(names, self.session.run(list(names),
+                                                frame_feeds(self.cfg, x, self.st, reset))))
         self.st = {"hist": outs["hist_out"], "deriv": outs["deriv_out"], "tp": outs["tp_out"]}
+        if "rules_hist_out" in outs:
+            self.st["rules_hist"] = outs["rules_hist_out"]
         self.last = outs
         return self._image(outs["output"])
 

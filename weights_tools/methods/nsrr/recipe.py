@@ -20,7 +20,7 @@ margin feeds the warps what lies just outside).
 
 --base rules (networks.BASES, issue 53): the residual's base is the clss-rules output,
 also an input of the U-Net. The rules have no learned parameters: their output is computed
-once per sequence by the shipped clss-rules frame step (OpenCL, twin.rules_outputs) and
+once per sequence by the shipped clss-rules frame step (OpenCL, weights_tools/rules_base.py) and
 cached beside the data (DIR/rules-cache/<sequence>.<key>.npy; the key digests the rules'
 sources, the scale and the sequence's content, so a change of the rules or the data
 computes it again). From --init weights without it, the base's new U-Net input channels
@@ -36,7 +36,8 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, check_patch_fits, fmt_s, load_init, load_sequences, parse_mix, per_sequence, ssim
+from weights_tools.rules_base import rules_cached
+from weights_tools.trainloop import Run, TrainError, check_patch_fits, fmt_s, load_init, load_sequences, per_sequence, ssim
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
@@ -173,43 +174,6 @@ def _prepare(seqs, torch):
                 "jitter": np.asarray(s["jitter"], np.float32), "last": last,
                 "ref": pq_encode(r), "scale": s["scale"], "name": s["name"]}
     return per_sequence(seqs, one)
-
-
-def _digest(seq) -> str:
-    import hashlib
-    h = hashlib.sha256()
-    for k in ("color", "depth", "motion", "jitter", "reset"):
-        a = np.ascontiguousarray(seq[k])
-        h.update(f"{k} {a.dtype} {a.shape}".encode() + a.tobytes())
-    return h.hexdigest()[:16]
-
-
-def rules_cached(seqs, data, torch, log=print):
-    """[T,3,H,W] torch tensors of the clss-rules output (PQ) of every sequence (a mix's
-    repeats share one), from DIR/rules-cache/ beside the sequence's file, computed with
-    twin.rules_outputs and written there where missing (module doc)."""
-    from .twin import rules_key, rules_outputs
-    dirs = [d for d, _ in parse_mix(data)]
-    made = [0, 0]
-
-    def one(s):
-        home = next((d for d in dirs if os.path.exists(os.path.join(d, s["name"]))), dirs[0])
-        stem = os.path.splitext(s["name"])[0]
-        path = os.path.join(home, "rules-cache",
-                            f"{stem}.{rules_key(s['scale'])}{_digest(s)}.npy")
-        if os.path.exists(path):
-            made[0] += 1
-            return torch.from_numpy(np.load(path))
-        out = rules_outputs(s, s["scale"])
-        os.makedirs(os.path.dirname(path), exist_ok=True)
-        tmp = path + ".tmp.npy"
-        np.save(tmp, out)
-        os.replace(tmp, path)
-        made[1] += 1
-        return torch.from_numpy(out)
-    out = per_sequence(seqs, one)
-    log(f"rules' base: {made[0]} sequences from the cache, {made[1]} computed", flush=True)
-    return out
 
 
 def choose_patches(seqs, n, keep, pr, margin, rng):

@@ -9,8 +9,9 @@ depth, motion in render pixels, the history [N, 12*n_prev, H, W].
 
 With config "base": "rules" (networks.BASES) the residual's base is the clss-rules
 method's PQ output for the frame. The rules have no learned parameters, so the twin takes
-it as data (`rules=`, [N, 3, H, W]): `rules_outputs` runs the shipped clss-rules frame step
-(OpenCL) over a sequence, and the recipe caches that beside the data.
+it as data (`rules=`, [N, 3, H, W]): `rules_outputs` (weights_tools/rules_base.py) runs the
+shipped clss-rules frame step (OpenCL) over a sequence, and the recipe caches that beside
+the data.
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from clss.methods.nsrr.oracle import depth_taps, zu_index
 from clss.pipeline.twin import base_grid
 from clss.pipeline.contract import PQ_NITS, output_size
 
+from weights_tools.rules_base import rules_outputs  # noqa: F401 (also this module's API)
 from weights_tools.trainloop import pq_decode, pq_encode  # noqa: F401 (also this module's API)
 
 FEAT = nets.FEAT
@@ -213,38 +215,3 @@ class TorchStep:
         clss-rules output of this frame (PQ [N,3,H,W]; "base": "rules")."""
         stack = self.reproject(self.net.features(rgbd), motion, jitters, hist, reset, pdepth)
         return self.output(stack, self.base(rgbd, jitters, rules)), stack[:, :FEAT * self.n]
-
-
-# What the rules' output depends on: clss-rules' frame step, its kernels and constants
-# (a change of any of them changes the cache key of the precomputed outputs).
-RULES_SOURCES = ("clss/methods/clss/frame.cl", "clss/methods/clss/frame.py",
-                 "clss/methods/clss/contract.py", "clss/methods/clss/upscaler.py",
-                 "clss/pipeline/contract.py", "kernels/common.h", "kernels/pq.h")
-
-
-def rules_key(scale, nits=PQ_NITS) -> str:
-    """A digest of the rules' sources (RULES_SOURCES), the scale and the PQ scale."""
-    import hashlib
-    import os
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
-    h = hashlib.sha256(f"clss-rules x{float(scale):g} nits {float(nits):g}".encode())
-    for rel in RULES_SOURCES:
-        with open(os.path.join(root, rel), "rb") as fh:
-            h.update(rel.encode() + b"\0" + fh.read())
-    return h.hexdigest()[:16]
-
-
-def rules_outputs(seq, scale, nits=PQ_NITS, device=None) -> np.ndarray:
-    """The clss-rules method's PQ output of every frame of `seq` (DATA.md arrays: color,
-    depth, motion, jitter, reset) as [T, 3, H, W] float32: the shipped rule-mode frame step
-    (OpenCL, fp32) run over the sequence, reset at its resets, its history's PQ colour
-    (what NSRR's step feeds its network with "base": "rules")."""
-    import clss
-    up = clss.Upscaler(method="clss-rules", scale=float(scale), device=device, nits=nits)
-    out = []
-    resets = np.asarray(seq["reset"], bool)
-    for t in range(len(resets)):
-        up.step(seq["color"][t], seq["depth"][t], seq["motion"][t], tuple(seq["jitter"][t]),
-                reset=bool(resets[t]) or t == 0)
-        out.append(up.state["history"][0, :3])
-    return np.stack(out).astype(np.float32)

@@ -21,6 +21,14 @@ filter's own L1 on every frame; the learning rate warms up over the first 5 % of
 steps; each window is flipped left-right and up-down at random (the motion's and the
 jitter's signs with it: mirrored jitter patterns come for free).
 
+--base rules (networks.BASES, issue 53 part 2): the step refines clss-rules: the rules'
+output is 3 more network inputs and the base of the output, which the network's mix head
+moves towards NSS's own accumulation. The rules' output is data (weights_tools/rules_base.py:
+computed once per sequence by the OpenCL clss-rules step, cached beside the data). From
+--init weights without it (the paper's form) e0's new input channels and the mix head
+start at zero (networks.with_rules_base): the step starts exactly as clss-rules, the
+network as trained.
+
 Writes --out/checkpoint.pt (every minute; --resume continues), loss.png, train.json and
 weights.safetensors (the file the OpenCL step loads).
 """
@@ -31,7 +39,8 @@ import os
 import numpy as np
 
 from weights_tools.methods import Recipe
-from weights_tools.trainloop import Run, TrainError, check_patch_fits, nchw_sequences, fmt_s, load_init, load_sequences, ssim, temporal
+from weights_tools.rules_base import rules_cached
+from weights_tools.trainloop import Run, TrainError, check_patch_fits, nchw_sequences, fmt_s, load_init, load_sequences, pq_decode, ssim, temporal
 from weights_tools.trainloop import add_arguments as add_run_arguments
 
 REQUIRED = ("color", "depth", "motion", "jitter", "reset", "reference", "scale")
@@ -62,6 +71,9 @@ def add_arguments(t):
                    help="the loss and schedule: basic (the 2026-11-27 weights) or gym (the "
                    "model gym's warped exponential temporal loss, time-weighted, warm-up, "
                    "flips; --filtered 0.1 is the gym's)")
+    t.add_argument("--base", choices=("paper", "rules"), default=None,
+                   help="the step's base (networks.BASES): rules = clss-rules' output, which "
+                   "the network's mix head moves towards NSS's (default: --init's, else paper)")
 
 
 def _prepare(seqs, torch):
@@ -78,7 +90,7 @@ def flip_frame(f, fx, fy):
     if not dims:
         return f
     sign = torch.tensor([-1.0 if fx else 1.0, -1.0 if fy else 1.0])
-    out = {k: torch.flip(f[k], dims) for k in ("color", "depth", "motion", "ref")}
+    out = {k: torch.flip(f[k], dims) for k in ("color", "depth", "motion", "ref", "rules") if k in f}
     out["motion"] = out["motion"] * sign.view(2, 1, 1)
     out["jitter"] = tuple(float(v) for v in np.asarray(f["jitter"]) * sign.numpy())
     return out
@@ -89,7 +101,8 @@ def make_batch(seqs, batch, window, R, rng, flips=False):
     `flips`: each window mirrored left-right and up-down at random (flip_frame)."""
     import torch
     keys = ("color", "depth", "motion")
-    fr = [{k: [] for k in keys + ("ref", "jitter", "reset")} for _ in range(window)]
+    hr = ("ref", "rules") if "rules" in seqs[0] else ("ref",)    # output resolution
+    fr = [{k: [] for k in keys + hr + ("jitter", "reset")} for _ in range(window)]
     for _ in range(batch):
         s = seqs[int(rng.integers(len(seqs)))]
         T, _, h, w = s["color"].shape
@@ -99,13 +112,13 @@ def make_batch(seqs, batch, window, R, rng, flips=False):
         for j in range(window):
             t = t0 + j
             f = flip_frame({**{k: s[k][t, :, y0:y0 + R, x0:x0 + R] for k in keys},
-                            "ref": s["ref"][t, :, 2 * y0:2 * (y0 + R), 2 * x0:2 * (x0 + R)],
+                            **{k: s[k][t, :, 2 * y0:2 * (y0 + R), 2 * x0:2 * (x0 + R)] for k in hr},
                             "jitter": s["jitter"][t]}, fx, fy)
-            for k in keys + ("ref", "jitter"):
+            for k in keys + hr + ("jitter",):
                 fr[j][k].append(f[k])
             fr[j]["reset"].append(bool(j == 0 or s["reset"][t]))
     for f in fr:
-        for k in keys + ("ref",):
+        for k in keys + hr:
             f[k] = torch.stack(f[k])
         f["reset"] = torch.tensor(f["reset"])
     return fr
@@ -115,7 +128,8 @@ def window_loss(step, fr, m, args):
     from .twin import karis
     st, total, prev, n = None, 0.0, None, 0
     for i, f in enumerate(fr):
-        out, st = step.step(f["color"], f["depth"], f["motion"], f["jitter"], st, f["reset"])
+        out, st = step.step(f["color"], f["depth"], f["motion"], f["jitter"], st, f["reset"],
+                            rules=f.get("rules"))
         a = karis(out)[:, :, m:-m, m:-m]
         b = karis(f["ref"].clamp_min(0.0))[:, :, m:-m, m:-m]
         if i < args.warm:
@@ -161,7 +175,8 @@ def gym_window_loss(step, fr, m, args):
     from .twin import karis
     st, outs, refs, filt = None, [], [], []
     for f in fr:
-        out, st = step.step(f["color"], f["depth"], f["motion"], f["jitter"], st, f["reset"])
+        out, st = step.step(f["color"], f["depth"], f["motion"], f["jitter"], st, f["reset"],
+                            rules=f.get("rules"))
         outs.append(karis(out))
         refs.append(karis(f["ref"].clamp_min(0.0)))
         filt.append((karis(st["filtered"]) - refs[-1])[:, :, m:-m, m:-m].abs().mean())
@@ -181,12 +196,21 @@ def gym_window_loss(step, fr, m, args):
     return (1.0 - args.filtered) * st_loss + args.filtered * torch.stack(filt).mean()
 
 
+def per_sequence_rules(raw, data, torch):
+    """The clss-rules output of each sequence as [T,3,H,W] linear (the rules' base's input),
+    one tensor per distinct sequence (a mix repeats them)."""
+    pq = rules_cached(raw, data, torch)
+    done = {}
+    return [done[id(r)] if id(r) in done else done.setdefault(id(r), pq_decode(r)) for r in pq]
+
+
 def cmd_train(args):
     import torch
     from clss.methods.nss import networks as nets
     from .twin import NssNet, TorchStep
     run = Run(args, ("nss",))
-    seqs = _prepare(load_sequences(args.data, args.window, REQUIRED), torch)
+    raw = load_sequences(args.data, args.window, REQUIRED)
+    seqs = _prepare(raw, torch)
     if seqs[0]["scale"] != 2:
         raise TrainError(f"--data: NSS trains at 2x, the sequences are at {seqs[0]['scale']}x")
     R = args.patch + 2 * args.margin
@@ -198,15 +222,23 @@ def cmd_train(args):
         raise TrainError(f"--warm {args.warm}: expected 0 <= warm < --window {args.window}")
     if args.init:
         cfg, w0 = load_init(args.init, nets, "NSS weights")
+        if args.base == "paper" and nets.rules_base(cfg):
+            raise TrainError("--base paper: --init has the rules' base (its e0 reads the rules)")
     else:
         cfg = nets.make_config(2, args.quality)
         w0 = nets.init_weights(cfg, args.seed)
+    if args.base == "rules":
+        cfg, w0 = nets.with_rules_base(cfg, w0)
+    if nets.rules_base(cfg):
+        # the rules' output, linear (the cache holds its PQ colour), beside the reference
+        for s, r in zip(seqs, per_sequence_rules(raw, args.data, torch)):
+            s["rules"] = r
     net = NssNet(cfg, w0)
     step = TorchStep(net)
     run.track(net=net)
     rng = run.batch_rng("nss")
     print(f"nss x2: {len(seqs)} sequences, rollouts of {args.window} frames, patches "
-          f"{args.patch}+2x{args.margin} render px, quality {cfg['quality']} "
+          f"{args.patch}+2x{args.margin} render px, quality {cfg['quality']}, base {cfg.get('base', 'paper')} "
           f"({nets.parameter_count(cfg)} parameters, {nets.macs_per_pixel(cfg) / 1e3:.1f} kMAC "
           f"per render pixel), {args.steps} steps of {args.batch}; loss L1 + {args.ssim:g} "
           + (f"(1-SSIM) + {args.filtered:g} filtered L1 + {args.temporal:g} temporal on Karis "

@@ -8,6 +8,11 @@ Tensors are NCHW float32: colour linear (/ exposure), depth reversed-Z, motion i
 pixels (previous = p + motion). The state between frames is a dict: "hist" [N,3,H,W]
 (the previous output, linear), "deriv" [N,2,h,w], "tp" [N,4,hp,wp]; None = a fresh
 sequence. The jitter-aware tap layout is the ONNX twin's (oracle.tap_feeds).
+
+With config "base": "rules" (networks.BASES) the step takes the clss-rules output of the
+frame as data (`rules=`, [N,3,H,W] linear / exposure: the rules have no learned
+parameters; the recipe precomputes them with the OpenCL clss-rules step,
+weights_tools/rules_base.py) and returns rules + clamp(mix, 0, 1) (nss - rules).
 """
 from __future__ import annotations
 
@@ -53,8 +58,9 @@ class NssNet(nn.Module):
         y = c("d1", torch.cat([c("d0", up(y)), b], 1))
         kpn = torch.sigmoid(self.convs["kpn"](y))
         y = c("d3", torch.cat([c("d2", up(y)), a], 1))
-        y = c("d4", y)
-        return kpn, torch.sigmoid(self.convs["tp"](up(y)))
+        y = up(c("d4", y))
+        mix = self.convs["mix"](y) if "mix" in self.convs else None
+        return kpn, torch.sigmoid(self.convs["tp"](y)), mix
 
 
 def _sample(x, xs, ys, padding="zeros"):
@@ -106,8 +112,9 @@ class TorchStep:
         return {k: torch.from_numpy(np.stack([f[k] for f in feeds])).to(device)
                 for k in feeds[0]}
 
-    def step(self, color, depth, motion, jitters, st, reset):
-        """reset: bool tensor [N]. st: the state dict or None."""
+    def step(self, color, depth, motion, jitters, st, reset, rules=None):
+        """reset: bool tensor [N]. st: the state dict or None. rules: the clss-rules output
+        of this frame ([N,3,H,W] linear / exposure; "base": "rules" only)."""
         N, _, h, w = color.shape
         H, W, hp, wp = 2 * h, 2 * w, nets.pad8(h), nets.pad8(w)
         K = int(self.cfg["kpn"])
@@ -137,9 +144,15 @@ class TorchStep:
         tt = (((luma - lp).abs() - nets.D_MIN) / (nets.D_MAX - nets.D_MIN)).clamp(0.0, 1.0)
         rate = nets.D_ALPHA * (1.0 - 0.9 * torch.clamp(dp / nets.D_MAX, max=1.0))
         der = (dp + rate * (tt * torch.sqrt(tt) - dp)) * (1.0 - dis)
-        x = torch.cat([hc, cc, dis, fb, der], 1)
+        parts = [hc, cc, dis, fb, der]
+        rb = nets.rules_base(self.cfg)
+        if rb:
+            if rules is None:
+                raise ValueError("NSS with base 'rules': the step needs the rules' output (rules=)")
+            parts.append(karis(F.avg_pool2d(rules, 2)))
+        x = torch.cat(parts, 1)
         x = F.pad(x, (0, wp - w, 0, hp - h), mode="replicate")
-        kpn, tp = self.net(x)
+        kpn, tp, mix = self.net(x)
         # the kernel-prediction filter
         t = self.taps((h, w), jitters, dev)
         cflat = col.reshape(N, 3, h * w)
@@ -186,5 +199,9 @@ class TorchStep:
         ak = alpha * t["valid"].view(N, 1, H, W) * keep
         acc = (rt + (ct - rt) * ak).clamp(0.0, nets.TM_MAX)
         out = acc / (1.0 - acc.amax(1, keepdim=True))
+        if rb:
+            m = F.grid_sample(mix[:, :, :h, :w], g, mode="bilinear", padding_mode="border",
+                              align_corners=False)
+            out = rules + m.clamp(0.0, 1.0) * (out - rules)
         # "filtered": the kernel filter's output (the model gym's out_filtered, a loss term)
         return out, {"hist": out, "deriv": torch.cat([der, luma], 1), "tp": tp, "filtered": m1}
