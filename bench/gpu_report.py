@@ -74,15 +74,16 @@ def shipped_candidate(db: Path, out: Path) -> Path | None:
     dev = get_device(os.environ.get("CLSS_REPORT_DEVICE") or None)
     measured = json.loads(db.read_text()).get("devices", {}).get(tuning.device_key(dev), {})
     layers = {k: e["params"] for k, e in measured.get("conv2d", {}).items() if "VARIANT" in e.get("params", {})}
-    paths = {k: e["params"]["use"] for k, e in measured.get(tuning.FAST_PATH_OP, {}).items()
-             if isinstance(e.get("params", {}).get("use"), bool)}
+    choices = {op: {k: e["params"]["use"] for k, e in measured.get(op, {}).items()
+                    if isinstance(e.get("params", {}).get("use"), bool)} for op in tuning.MEASURED_OPS}
     table = json.loads(json.dumps(tuning.shipped(dev))) or {"class": tuning.device_class(dev), "ops": {}}
     table["measured"] = (f"{dev.info.name} ({dev.info.platform}, driver {dev.info.driver}), "
                          f"{datetime.date.today().isoformat()}, clss tune --level fast at commit {_git('rev-parse', '--short', 'HEAD')}")
     table.setdefault("ops", {}).setdefault("conv2d", {}).setdefault("order", ["direct"])
     table["ops"]["conv2d"]["layers"] = layers
-    if paths:       # the fused frame-step fast paths measured here (bench/tune_fastpaths.py)
-        table["fast_paths"] = {**table.get("fast_paths", {}), **paths}
+    for op, got in choices.items():     # the frame-step choices measured here (bench/tune_fastpaths.py)
+        if got:
+            table[op] = {**table.get(op, {}), **got}
     path = out / f"shipped-{tuning.device_class(dev)}.json"
     path.write_text(json.dumps(table, indent=1, sort_keys=True))
     return path

@@ -30,7 +30,7 @@ SIZES = (((270, 480), 2.0), ((540, 960), 2.0))
 TARGET = 1.15       # wall <= 1.15x event at 540p -> 1080p
 
 
-def _upscaler(dev, method, scale, prec, profile):
+def make_upscaler(dev, method, scale, prec, profile):
     from clss import Upscaler, methods
     # timing only: a method whose package has no weights for this scale (nss, until it
     # ships some) runs its seeded init, which enqueues the same kernels
@@ -63,7 +63,7 @@ def measure(dev, method: str, render_size, scale: float, prec: str = "fp32", war
 
     # Both upscalers warmed, then their frames alternate, so that a machine whose load
     # drifts (a shared CI host) weighs on the wall and the event time alike.
-    ups = [_upscaler(dev, method, scale, prec, p) for p in (False, True)]
+    ups = [make_upscaler(dev, method, scale, prec, p) for p in (False, True)]
     walls, events, stages = [], [], {}
     for i in range(warm + frames):
         q.finish()

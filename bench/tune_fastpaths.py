@@ -16,11 +16,19 @@ only a measurement says which.
    its cases' times is at least conv_probe.MARGIN lower with it.
 4. The verdict is stored in the tuning database (op "fast_path", key the path's name), where
    FastPath.applies_on reads it; `make gpu-report` copies it into the shipped-table candidate.
+
+When both fp32 and fp16 are tuned, each method's frame step is then timed in both at the
+tier's size (`tune_precisions`, step_device on frames already on the device) and op "fp16"
+stores whether fp16 was at least MARGIN faster: precision="auto" (clss/pipeline/precision.py)
+picks fp16 on a GPU only where it verifies and was not measured slower.
 """
 from __future__ import annotations
 
+import statistics
 import time
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from clss import selfcheck, tuning
 from clss.ops.conv_probe import MARGIN
@@ -131,4 +139,86 @@ def format_paths(results) -> str:
                      + (f" ({r.note})" if r.note else "")))
     widths = [max(len(x[i]) for x in [head] + body) for i in range(len(head))]
     fmt = "  ".join(f"{{:{'<' if i in (0, 6) else '>'}{w}}}" for i, w in enumerate(widths))
+    return "\n".join([fmt.format(*head), fmt.format(*("-" * w for w in widths))] + [fmt.format(*b) for b in body])
+
+
+@dataclass
+class PrecisionResult:
+    method: str
+    shape: str
+    fp32_ms: float = float("nan")
+    fp16_ms: float = float("nan")
+    use: bool | None = None
+    note: str = ""
+
+
+def time_method(dev, method: str, render, scale: float, prec: str, runs: int = 5) -> float:
+    """Median wall ms of the method's warm frame step (step_device on frames already on the
+    device: no transfer is timed), on precision.sequence's synthetic frames."""
+    from clss import methods
+    from clss.pipeline import precision
+    from clss.pipeline.contract import output_size
+    from .hostwait import make_upscaler
+    spec = methods.spec(method)
+    color, depth, motion, jitter, gb = precision.sequence(spec, scale, frames=2, render=render)[1]
+    d = [dev.to_device(a, "fp32") for a in (color, depth, motion)]
+    gbd = {k: dev.to_device(v, "fp32") for k, v in gb.items()}
+    out = dev.empty(output_size(*render, scale) + (3,), dtype=np.float32)
+    up = make_upscaler(dev, method, scale, prec, False)
+    walls = []
+    for i in range(2 + runs):
+        dev.queue.finish()
+        t0 = time.perf_counter()
+        up.step_device(*d, jitter, reset=i == 0, out=out, **gbd)
+        dev.queue.finish()
+        walls.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(walls[2:])
+
+
+def tune_precisions(dev, render, scale: float, *, runs=5, store=True, db=None, deadline=None,
+                    log=print, names=None) -> list[PrecisionResult]:
+    """Each method's frame step in fp32 and fp16 (fp16 first checked against fp32 by
+    precision.verdict); op "fp16" stores whether fp16 was at least MARGIN faster."""
+    from clss import methods
+    from clss.pipeline import precision
+    from clss.pipeline.contract import output_size
+    H, W = output_size(*render, scale)
+    out = []
+    for name in names or methods.names():
+        spec = methods.spec(name)
+        if "fp16" not in spec.precisions or not spec.scales[0] <= scale <= spec.scales[1]:
+            continue
+        res = PrecisionResult(name, f"{render[0]}x{render[1]}->{H}x{W}")
+        out.append(res)
+        if deadline and time.monotonic() > deadline:
+            res.note = "budget ran out"
+            continue
+        v = precision.verdict(spec, dev)
+        if not v.ok:
+            res.use, res.note = False, f"fp16 does not verify: {v.detail}"
+        else:
+            try:
+                res.fp32_ms = time_method(dev, name, render, scale, "fp32", runs)
+                res.fp16_ms = time_method(dev, name, render, scale, "fp16", runs)
+                res.use = res.fp16_ms <= res.fp32_ms * (1 - MARGIN)
+            except Exception as e:      # a method that cannot run at this size: fp16 not chosen
+                res.use, res.note = False, f"{type(e).__name__}: {str(e).splitlines()[0][:160]}"
+        log(f"  fp16 {name} {res.shape}: fp32 {res.fp32_ms:.3f} ms, fp16 {res.fp16_ms:.3f} ms"
+            + (f" ({res.note})" if res.note else ""))
+        if store and res.use is not None:
+            tuning.store(dev, tuning.FP16_OP, name, {"use": res.use}, path=db,
+                         ms=round(res.fp16_ms, 4) if res.fp16_ms == res.fp16_ms else None,
+                         default_ms=round(res.fp32_ms, 4) if res.fp32_ms == res.fp32_ms else None,
+                         shape=res.shape, note=res.note)
+    return out
+
+
+def format_precisions(results) -> str:
+    head = ("method", "shape", "fp32 ms", "fp16 ms", "fp16 with auto")
+    body = [(r.method, r.shape, f"{r.fp32_ms:.3f}" if r.fp32_ms == r.fp32_ms else "-",
+             f"{r.fp16_ms:.3f}" if r.fp16_ms == r.fp16_ms else "-",
+             ("yes" if r.use else "no" if r.use is not None else "not measured")
+             + (f" ({r.note})" if r.note else "")) for r in results]
+    widths = [max(len(x[i]) for x in [head] + body) for i in range(len(head))]
+    fmt = "  ".join(f"{{:{'<' if i in (0, 1, 4) else '>'}{w}}}" for i, w in enumerate(widths))
     return "\n".join([fmt.format(*head), fmt.format(*("-" * w for w in widths))] + [fmt.format(*b) for b in body])

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from clss import tuning
 from clss.ops import conv, conv_probe, variants
 
-from .tune_fastpaths import format_paths, tune_paths
+from .tune_fastpaths import format_paths, format_precisions, tune_paths, tune_precisions
 
 LEVELS = ("fast", "full")
 PATHS_SHARE = 0.25  # of the budget, kept for the frame steps' fast paths (bench/tune_fastpaths.py)
@@ -203,4 +203,12 @@ def main(a, dev, precs, cases, logger) -> int:
         print(format_paths(paths))
         print(f"\n{sum(r.use is not None for r in paths)} fast-path choices "
               f"{'would be ' if a.dry_run else ''}stored in {db}")
+    if frames and {"fp32", "fp16"} <= set(precs):
+        from .cases import TIERS
+        render, scale = TIERS["tiny" if a.tiny else a.tier or "1080p"]
+        got = tune_precisions(dev, render, scale, runs=a.runs, store=not a.dry_run, db=db, deadline=end,
+                              log=logger(None))
+        print("\nfp16 storage against fp32, each method's frame step (precision=\"auto\" picks fp16 on a "
+              "GPU where it verifies and is not slower):")
+        print(format_precisions(got))
     return 0

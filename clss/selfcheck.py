@@ -82,14 +82,14 @@ class FastPath:
     applies: Callable = field(default=lambda dev: True, compare=False)
     # A speed choice (fused stages, a CPU load form) that a device's measurement overrides:
     # clss tune times the frame steps that use it with and without it and stores the
-    # faster (clss.tuning.fast_path_choice); `applies` answers where nothing was measured.
+    # faster (clss.tuning.measured_choice); `applies` answers where nothing was measured.
     measured: bool = False
 
     def applies_on(self, dev) -> bool:
         """Whether the op uses the fast variant on dev at all (before any self-check)."""
         if self.measured:
-            from .tuning import fast_path_choice
-            use = fast_path_choice(dev, self.name)
+            from .tuning import FAST_PATH_OP, measured_choice
+            use = measured_choice(dev, FAST_PATH_OP, self.name)
             if use is not None:
                 return use
         return bool(self.applies(dev))

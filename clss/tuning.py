@@ -205,18 +205,23 @@ def shipped_params(dev, op: str, key: str, variant: str) -> dict:
     return out
 
 
+# Choices measured per device as yes / no (clss tune --level's frame-step phase,
+# bench/tune_fastpaths.py): whether a fused frame-step fast path is used (op "fast_path", key
+# the path's name), and whether precision="auto" may pick fp16 for a method (op "fp16", key the
+# method's name; it must also verify, clss/pipeline/precision.py).
 FAST_PATH_OP = "fast_path"
+FP16_OP = "fp16"
+MEASURED_OPS = (FAST_PATH_OP, FP16_OP)
 
 
-def fast_path_choice(dev, name: str) -> bool | None:
-    """Whether fast path `name` (clss.selfcheck) is used on dev as measured there: the tuning
-    database's entry (clss tune --level's fast-path step: op "fast_path", key the name,
-    params {"use": bool}), else the device class's shipped table ("fast_paths": {name: bool}),
-    else None: not measured on this device or its class."""
-    e = entry(dev, FAST_PATH_OP, name)
+def measured_choice(dev, op: str, name: str) -> bool | None:
+    """Yes / no for `name` under a MEASURED_OPS op on dev: the tuning database's entry (params
+    {"use": bool}), else the device class's shipped table ({op: {name: bool}}), else None:
+    not measured on this device or its class."""
+    e = entry(dev, op, name)
     if e and isinstance(e.get("params", {}).get("use"), bool):
         return e["params"]["use"]
-    use = shipped(dev).get("fast_paths", {}).get(name)
+    use = shipped(dev).get(op, {}).get(name)
     return use if isinstance(use, bool) else None
 
 

@@ -58,7 +58,7 @@ def test_a_stored_choice_beats_the_default_on_either_kind_of_device(dev, db):
 def test_the_shipped_table_answers_for_a_device_nobody_measured(db, monkeypatch):
     _bicubic_frame()
     fp = selfcheck.REGISTRY[FUSED]
-    monkeypatch.setattr(tuning, "shipped", lambda dev: {"fast_paths": {FUSED: True}})
+    monkeypatch.setattr(tuning, "shipped", lambda dev: {tuning.FAST_PATH_OP: {FUSED: True}})
     assert fp.applies_on(_Gpu())
     tuning.store(_Gpu(), tuning.FAST_PATH_OP, FUSED, {"use": False})   # the device's own first
     assert not fp.applies_on(_Gpu())
@@ -90,7 +90,7 @@ def test_a_path_whose_self_check_fails_is_stored_unused_without_timing(dev, db, 
     (res,) = [r for r in tune_paths(cases, dev, ["fp32"], runs=1, db=db) if r.name == FUSED]
     assert res.use is False and not res.cases and "self-check" in res.note
     tuning.load()   # re-read
-    assert tuning.fast_path_choice(dev, FUSED) is False
+    assert tuning.measured_choice(dev, tuning.FAST_PATH_OP, FUSED) is False
 
 
 def test_the_gpu_reports_shipped_candidate_carries_the_fast_path_choices(dev, db, tmp_path):
@@ -98,4 +98,4 @@ def test_the_gpu_reports_shipped_candidate_carries_the_fast_path_choices(dev, db
     tuning.store(dev, tuning.FAST_PATH_OP, FUSED, {"use": False}, path=db)
     path = shipped_candidate(db, tmp_path)
     table = json.loads(path.read_text())
-    assert table["fast_paths"][FUSED] is False and "conv2d" in table["ops"]
+    assert table[tuning.FAST_PATH_OP][FUSED] is False and "conv2d" in table["ops"]

@@ -24,6 +24,9 @@ def cache(tmp_path, monkeypatch):
 class _Gpu:
     is_cpu = False
 
+    class info:
+        name, driver, platform, vendor = "Some GPU", "1.0", "NVIDIA CUDA", "NVIDIA Corporation"
+
 
 def test_auto_is_the_default_and_runs_fp32_on_a_cpu(dev):
     for name in ("bicubic", "clss-rules", "nss"):
@@ -34,7 +37,8 @@ def test_auto_is_the_default_and_runs_fp32_on_a_cpu(dev):
         clss.Upscaler(method="bicubic", device=dev, precision="fp8")
 
 
-def test_a_gpu_gets_fp16_only_where_it_verified(monkeypatch):
+def test_a_gpu_gets_fp16_only_where_it_verified(monkeypatch, tmp_path):
+    monkeypatch.setenv("CLSS_TUNING_DB", str(tmp_path / "tuning.json"))
     spec = methods.spec("bicubic")
     verdicts = {True: selfcheck.Verdict("precision.bicubic", "bicubic", "fp16", "gpu", True),
                 False: selfcheck.Verdict("precision.bicubic", "bicubic", "fp16", "gpu", False, "differs")}
@@ -101,14 +105,35 @@ def test_clss_verify_lists_what_auto_and_the_measured_fast_paths_choose(dev, mon
     text = format_device_choices(dev)
     assert "bicubic.fused8" in text and "default: measured on CPUs" in text and "fp32 on a CPU" in text
 
-    class Gpu:
-        is_cpu = False
-
-        class info:
-            name, driver, platform, vendor = "Some GPU", "1.0", "NVIDIA CUDA", "NVIDIA Corporation"
     monkeypatch.setattr(P, "verdict", lambda spec, d: selfcheck.Verdict(
         f"precision.{spec.name}", spec.name, "fp16", "gpu", spec.name != "nss", "checked"))
-    text = format_device_choices(Gpu())
+    text = format_device_choices(_Gpu())
     assert "not used (default: not measured on this class)" in text
     lines = {ln.split()[0]: ln.split()[1] for ln in text.splitlines() if ln.startswith("  ")}
     assert lines["bicubic"] == "fp16" and lines["nss"] == "fp32"
+
+
+def test_a_gpu_measured_slower_in_fp16_keeps_fp32_without_a_check(monkeypatch, tmp_path):
+    from clss import tuning
+    monkeypatch.setenv("CLSS_TUNING_DB", str(tmp_path / "tuning.json"))
+
+    spec = methods.spec("bicubic")
+    ok = selfcheck.Verdict("precision.bicubic", "bicubic", "fp16", "gpu", True)
+    monkeypatch.setattr(P, "verdict", lambda s, d: ok)
+    assert P.resolve(spec, _Gpu(), "auto") == "fp16"
+    tuning.store(_Gpu(), tuning.FP16_OP, "bicubic", {"use": False})
+    monkeypatch.setattr(P, "verdict", lambda s, d: 1 / 0)      # not asked
+    assert P.resolve(spec, _Gpu(), "auto") == "fp32"
+
+
+def test_the_tuner_times_each_method_in_both_precisions_and_stores_the_choice(dev, cache, monkeypatch):
+    import json
+    from bench.tune_fastpaths import format_precisions, tune_precisions
+    from clss import tuning
+    db = cache / "tuning.json"
+    monkeypatch.setenv("CLSS_TUNING_DB", str(db))
+    (r,) = tune_precisions(dev, (16, 32), 2.0, runs=2, db=db, names=["bicubic"])
+    assert r.fp32_ms > 0 and r.fp16_ms > 0 and r.use == (r.fp16_ms <= 0.95 * r.fp32_ms)
+    stored = json.loads(db.read_text())["devices"][tuning.device_key(dev)][tuning.FP16_OP]["bicubic"]
+    assert stored["params"] == {"use": r.use}
+    assert "bicubic" in format_precisions([r])

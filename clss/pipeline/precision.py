@@ -5,7 +5,9 @@
 - Any other device (a GPU) runs fp16 storage: half tensors and history, float arithmetic
   (the `fp16` precision). It halves the bytes every stage moves, the bound of most stages
   on a GPU. But it does so only where the method's fp16 frame step *verifies on that
-  device*; elsewhere it runs fp32.
+  device*, and not where `clss tune --level` measured its fp16 frame step slower than its
+  fp32 one there (or the device class's shipped table says so: clss.tuning.FP16_OP; on an
+  H200 the MLP upscaler's fp16 step was slower); elsewhere it runs fp32.
 
 The check (`check`): the method runs FRAMES frames of a seeded synthetic sequence (a moving
 HDR texture with a hard edge, jittered, with every G-buffer) in fp32 and in fp16. It
@@ -34,6 +36,9 @@ def resolve(spec, dev, precision: str) -> str:
     if precision != AUTO:
         return precision
     if getattr(dev, "is_cpu", True) or "fp16" not in spec.precisions:
+        return "fp32"
+    from ..tuning import FP16_OP, measured_choice
+    if measured_choice(dev, FP16_OP, spec.name) is False:     # measured slower here: no check
         return "fp32"
     v = verdict(spec, dev)
     return "fp16" if v is not None and v.ok else "fp32"

@@ -110,7 +110,7 @@ def format_device_choices(dev) -> str:
         if not fp.measured:
             continue
         tuned = tuning.entry(dev, tuning.FAST_PATH_OP, name)
-        shipped = tuning.shipped(dev).get("fast_paths", {}).get(name)
+        shipped = tuning.shipped(dev).get(tuning.FAST_PATH_OP, {}).get(name)
         src = ("tuned here" if tuned and isinstance(tuned.get("params", {}).get("use"), bool)
                else "shipped table" if isinstance(shipped, bool) else
                "default: measured on CPUs" if dev.is_cpu else "default: not measured on this class")
@@ -119,14 +119,17 @@ def format_device_choices(dev) -> str:
         lines.append('precision="auto" (every method\'s default): fp32 on a CPU')
         return "\n".join(lines)
     lines.append('precision="auto" (every method\'s default): fp16 storage where the method\'s fp16 '
-                 'frame step verifies against fp32 here (clss/pipeline/precision.py)')
+                 'frame step verifies against fp32 here and was not measured slower (clss/pipeline/precision.py)')
     for name in methods.names():
         spec = methods.spec(name)
         if "fp16" not in spec.precisions:
             lines.append(f"  {name:14s} fp32 (no fp16)")
             continue
+        if tuning.measured_choice(dev, tuning.FP16_OP, name) is False:
+            lines.append(f"  {name:14s} fp32 (its fp16 frame step measured slower here: clss tune --level)")
+            continue
         v = precision.verdict(spec, dev)
-        lines.append(f"  {name:14s} {'fp16' if v.ok else 'fp32'} ({v.detail})")
+        lines.append(f"  {name:14s} {precision.resolve(spec, dev, 'auto')} ({v.detail})")
     return "\n".join(lines)
 
 
