@@ -26,7 +26,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from .cachedir import cache_dir, locked, write_atomic
+from .cachedir import cache_dir, locked, read_json, update_json, write_atomic
 
 PRECISIONS = ("fp32", "fp16", "fp16-native")
 
@@ -213,26 +213,50 @@ _simd: dict[int, int | None] = {}
 def simd_lanes(device: cl.Device) -> int | None:
     """The float lanes of the vector registers a CPU device's compiler targets (16 AVX-512,
     8 AVX/AVX2, 4 SSE/NEON), from its predefined macros; None for a GPU or where the probe
-    says nothing (an unknown ISA, a failed build). Probed once per device and process."""
+    says nothing (an unknown ISA, a failed build). Probed once per device, driver and PoCL
+    target (kept in lanes.json in clss's cache directory: the probe's build took 0.5 s of
+    every process's first frame on PoCL)."""
     key = device.int_ptr
     if key not in _simd:
         lanes = None
         if device.type & cl.device_type.CPU:
-            try:
-                ctx = cl.Context([device])
-                with first_build_lock("simd", ctx):
-                    prog = cl.Program(ctx, _SIMD_SOURCE).build()
-                out = np.zeros(1, np.int32)
-                buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
-                queue = cl.CommandQueue(ctx)
-                prog.clss_simd(queue, (1,), None, buf)
-                cl.enqueue_copy(queue, out, buf)
-                queue.finish()
-                lanes = int(out[0]) or None
-            except (cl.Error, cl.RuntimeError):
-                lanes = None
+            lanes = _probe_lanes(device)
         _simd[key] = lanes
     return _simd[key]
+
+
+def _probe_lanes(device: cl.Device) -> int | None:
+    """simd_lanes' answer from lanes.json, else probed and stored there."""
+    disk = " | ".join((device.platform.name.strip(), device.name.strip(), device.driver_version.strip(),
+                       os.environ.get("POCL_CPU_TARGET", ""), os.environ.get("POCL_DEVICES", "")))
+    path = cache_dir() / "lanes.json"
+    known = read_json(path)
+    if isinstance(known, dict) and disk in known and (known[disk] is None or isinstance(known[disk], int)):
+        return known[disk]
+    lanes = None
+    try:
+        ctx = cl.Context([device])
+        with first_build_lock("simd", ctx):
+            prog = cl.Program(ctx, _SIMD_SOURCE).build()
+        out = np.zeros(1, np.int32)
+        buf = cl.Buffer(ctx, cl.mem_flags.WRITE_ONLY, out.nbytes)
+        queue = cl.CommandQueue(ctx)
+        prog.clss_simd(queue, (1,), None, buf)
+        cl.enqueue_copy(queue, out, buf)
+        queue.finish()
+        lanes = int(out[0]) or None
+    except (cl.Error, cl.RuntimeError):
+        return None                 # a failed probe is not kept: the next process probes again
+
+    def add(data):
+        data = data if isinstance(data, dict) else {}
+        data[disk] = lanes
+        return data
+    try:
+        update_json(path, add, indent=1, sort_keys=True)
+    except OSError:                 # an unwritable cache costs a probe per process
+        pass
+    return lanes
 
 
 def _build_hint(log: str) -> str:

@@ -203,6 +203,19 @@ def test_simd_lanes_are_what_the_compiler_emits(any_dev):
     assert D.simd_lanes(any_dev.cl_device) == lanes       # probed once, then remembered
 
 
+def test_simd_lanes_are_kept_on_disk_for_the_next_process(any_dev, tmp_path, monkeypatch):
+    import json
+    if not any_dev.is_cpu:
+        return
+    monkeypatch.setenv("CLSS_CACHE_DIR", str(tmp_path))
+    lanes = D._probe_lanes(any_dev.cl_device)
+    (key, kept), = json.loads((tmp_path / "lanes.json").read_text()).items()
+    assert kept == lanes and any_dev.cl_device.name.strip() in key
+    # the next process reads it: a changed file is what it answers, no probe
+    (tmp_path / "lanes.json").write_text(json.dumps({key: 4}))
+    assert D._probe_lanes(any_dev.cl_device) == 4
+
+
 def test_a_driver_preferring_more_lanes_than_its_compiler_emits_gets_the_compilers():
     from clss import tuning
     from clss.ops import conv
