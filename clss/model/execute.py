@@ -547,6 +547,8 @@ class Executor:
         roots = [root.get(t) for t in g.outputs]
         self.output_allocs = {t: allocs[r] for t, r in zip(g.outputs, roots)
                               if r is not None and roots.count(r) == 1}
+        if CONCAT_IN_PLACE:
+            concat_in_place(g, self.steps, allocs, root, last, self._align())
         self.plan = Plan(allocs, assign_slots(list(allocs.values())), unplanned)
         check_plan(list(allocs.values()))
         self._materialise(outmap, last)
@@ -560,6 +562,10 @@ class Executor:
             arr = None
             if not a.fresh and a.slot is not None:
                 arr = cla.Array(self.base.queue, a.shape, a.dtype, data=buffers[a.slot])
+            elif a.parent is not None:      # a concat input in place: a sub-buffer of the concat's
+                parent = self.plan.allocs[a.parent]
+                arr = cla.Array(self.base.queue, a.shape, a.dtype,
+                                data=buffers[parent.slot].get_sub_region(a.offset, max(a.nbytes, 1)))
             planned[key] = (a.shape, a.dtype, arr)
         self.pdev.planned = planned
         self._buffers = buffers
@@ -576,6 +582,13 @@ class Executor:
             for s in step.sources:
                 if s[0] == "const":
                     self.const_array(s[1])
+
+    def _align(self) -> int:
+        """The byte alignment of a sub-buffer's origin on this device."""
+        try:
+            return max(1, int(self.base.cl_device.mem_base_addr_align) // 8)
+        except Exception:
+            return 4096
 
     # -- a run ----------------------------------------------------------------------
     def run(self, env: dict, out: dict | None = None, record: list | None = None,
@@ -623,6 +636,67 @@ class Executor:
                 a = self.const_array(t)
                 res[t] = a if tuple(a.shape) == tuple(g.shapes[t]) else a.reshape(tuple(g.shapes[t]))
         return res
+
+
+# A channel concat's inputs written in place by their producers (below); False: every
+# concat copies its inputs (the A/B of tests/test_model_concat_in_place.py).
+CONCAT_IN_PLACE = True
+
+
+def concat_in_place(g: Graph, steps: list, allocs: dict, root: dict, last: dict, align: int) -> int:
+    """Give the inputs of each Concat whose inputs are contiguous byte ranges of its output
+    (every dimension before the axis is 1: a batch-1 channel concat) the concat's own bytes:
+    an input's allocation becomes a sub-buffer of the concat's (Alloc.parent, offset), its
+    producer writes it there, and the concat copies it no more (attrs "_in_place"). On a GPU
+    that is a launch and a pass over the tensor saved per input; on any device the memory.
+
+    An input qualifies when: its producer allocated it (not a view, a constant, a graph
+    input or output, or another concat's output placed in turn: OpenCL has no sub-buffer
+    of a sub-buffer), the allocation holds this tensor alone and exactly its bytes, the
+    concat is its last reader, it appears once, and its offset meets the device's sub-buffer
+    alignment (mem_base_addr_align). The concat's allocation then lives from the first such
+    producer on. Returns the number of inputs placed."""
+    placed_total, parents, children = 0, set(), set()
+    for node in g.nodes:
+        node.attrs.pop("_in_place", None)
+    owners: dict = {}
+    for t, r in root.items():
+        if r is not None:
+            owners[r] = owners.get(r, 0) + 1
+    for i, node in enumerate(g.nodes):
+        if node.op != "Concat" or steps[i] is None or not node.outputs or not node.outputs[0]:
+            continue
+        out = node.outputs[0]
+        r = root.get(out)
+        shape = g.shapes.get(out)
+        if r is None or shape is None or allocs[r].fresh or r in children or out in g.blocked:
+            continue
+        axis = int(node.attrs.get("axis", 0)) % len(shape)
+        if int(np.prod(shape[:axis], dtype=np.int64)) != 1:
+            continue
+        item = allocs[r].dtype.itemsize
+        ins = [t for t in node.inputs if t]
+        offset, placed = 0, []
+        for k, t in enumerate(ins):
+            nbytes = int(np.prod(g.shapes[t], dtype=np.int64)) * item if t in g.shapes else -1
+            rt = root.get(t)
+            if (rt is not None and rt[0] != i and ins.count(t) == 1 and t not in g.outputs
+                    and t not in g.blocked and last.get(t) == i and owners.get(rt) == 1
+                    and rt not in parents and rt not in children and not allocs[rt].fresh
+                    and allocs[rt].nbytes == nbytes and allocs[rt].dtype == allocs[r].dtype
+                    and offset % align == 0):
+                placed.append((k, rt, offset))
+            offset += max(nbytes, 0)
+        if not placed or offset != allocs[r].nbytes:
+            continue
+        for k, rt, off in placed:
+            allocs[rt].parent, allocs[rt].offset = r, off
+            allocs[r].start = min(allocs[r].start, allocs[rt].start)
+            children.add(rt)
+        parents.add(r)
+        node.attrs["_in_place"] = [k for k, _, _ in placed]
+        placed_total += len(placed)
+    return placed_total
 
 
 def _use_counts(nodes: list[Node], outputs) -> dict[str, int]:

@@ -6,7 +6,9 @@ allocation lives from its node to the last node reading any tensor stored in
 it (views included); scratch lives for its node only. Allocations whose
 lifetimes do not overlap share one buffer ("slot"); a slot is as large as its
 largest tenant. Graph outputs are not pooled: each run gets fresh arrays (or
-the caller's), so results stay valid after the next run.
+the caller's), so results stay valid after the next run. An input of a channel
+concat may live inside the concat's own allocation, at its offset (Alloc.parent):
+its producer writes it in place and the concat copies nothing for it.
 """
 from __future__ import annotations
 
@@ -26,6 +28,10 @@ class Alloc:
     end: int                 # last node index that reads it (inclusive)
     fresh: bool = False      # backs a graph output: allocated per run, not pooled
     slot: int | None = None
+    # A concat input written in place: (the concat output's allocation key, byte offset);
+    # it has no slot of its own but a sub-buffer of its parent's (execute.concat_in_place)
+    parent: tuple | None = None
+    offset: int = 0
 
 
 @dataclass
@@ -59,7 +65,8 @@ def assign_slots(allocs: list[Alloc]) -> list[int]:
     the largest free one, else open a new slot. Returns slot sizes."""
     slots: list[int] = []
     busy_until: list[int] = []     # per slot, the last step its current tenant is live
-    for a in sorted((a for a in allocs if not a.fresh), key=lambda a: (a.start, a.node, a.call)):
+    for a in sorted((a for a in allocs if not a.fresh and a.parent is None),
+                    key=lambda a: (a.start, a.node, a.call)):
         free = [s for s in range(len(slots)) if busy_until[s] < a.start]
         fits = [s for s in free if slots[s] >= a.nbytes]
         if fits:

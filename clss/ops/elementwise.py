@@ -271,8 +271,10 @@ def copy(dev: Device, prec: str, x, out=None):
     return out
 
 
-def concat(dev: Device, prec: str, xs, axis: int = 1, out=None):
-    """Concatenate along `axis` (any, negative counts from the end). Bit-exact."""
+def concat(dev: Device, prec: str, xs, axis: int = 1, out=None, in_place=()):
+    """Concatenate along `axis` (any, negative counts from the end). Bit-exact.
+    in_place: indices of inputs already stored where they go in `out` (a clss.Model whose
+    memory plan gave their producers `out`'s bytes: clss/model/execute.py), not copied."""
     xs = list(xs)
     if not xs:
         raise ValueError("concat needs at least one input")
@@ -290,9 +292,10 @@ def concat(dev: Device, prec: str, xs, axis: int = 1, out=None):
     outer = int(np.prod(shape[:axis], dtype=np.int64))
     inner = int(np.prod(shape[axis + 1:], dtype=np.int64))
     off = 0
-    for x in xs:
+    for i, x in enumerate(xs):
         n = x.shape[axis] * inner
-        _copy_rows(dev, prec, x, out, n, outer, n, 0, total * inner, off)
+        if i not in in_place:
+            _copy_rows(dev, prec, x, out, n, outer, n, 0, total * inner, off)
         off += n
     return out
 
@@ -717,7 +720,8 @@ def _onnx_argmax(dev, prec, attrs, inputs):
 
 @onnx_op("Concat")
 def _onnx_concat(dev, prec, attrs, inputs):
-    return [_unsupported(concat, dev, prec, [i for i in inputs if i is not None], int(attrs["axis"]))]
+    return [_unsupported(concat, dev, prec, [i for i in inputs if i is not None], int(attrs["axis"]),
+                         in_place=tuple(attrs.get("_in_place", ())))]
 
 
 @onnx_op("Split", const_inputs=(1,))
