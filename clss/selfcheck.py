@@ -236,10 +236,19 @@ def verdict(dev, prec: str, name: str, *, _mode: str | None = None) -> Verdict |
         return v
 
 
-def remembered(dev, name: str, family: str, prec: str, digest: str, options: str, compute) -> Verdict:
+# Checks that are not build variants, by the prefix of their names ("precision"): what the
+# background checker (deferred_main) calls for a deferred one, handler(dev, prec, name).
+# clss.selfcheck_runner, above every room, registers them.
+DEFERRED_CHECKS: dict = {}
+
+
+def remembered(dev, name: str, family: str, prec: str, digest: str, options: str, compute,
+               defer: bool = False) -> Verdict | None:
     """A check that is not a build variant (precision="auto"'s fp16 check of a method) kept
     like the fast paths' verdicts: the stored one for (device, name, digest, options), else
-    compute() -> (ok, detail), stored; a check that raises is a failed verdict."""
+    compute() -> (ok, detail), stored; a check that raises is a failed verdict. defer=True:
+    None where a fast path's check would be deferred (the background checker then runs it
+    through DEFERRED_CHECKS by its name's prefix)."""
     dev = getattr(dev, "base", dev)
     key = (_device_name(dev), name, digest, options)
     with _lock:
@@ -250,6 +259,9 @@ def remembered(dev, name: str, family: str, prec: str, digest: str, options: str
                 v = Verdict(**rec) if isinstance(rec, dict) else None
             except TypeError:   # a record of another clss version: check again
                 v = None
+        if v is None and defer and _defers(mode()):
+            _deferred[(_device_index(dev), prec, name)] = None
+            return None
         if v is None:
             now = datetime.datetime.now().isoformat(timespec="seconds")
             try:
@@ -331,6 +343,8 @@ def deferred_main(items) -> int:
             index, prec, name = item.split(":", 2)
             if name in REGISTRY:
                 enabled(get_device(index), prec, name)
+            elif name.partition(".")[0] in DEFERRED_CHECKS:
+                DEFERRED_CHECKS[name.partition(".")[0]](get_device(index), prec, name)
     finally:
         lock.unlink(missing_ok=True)
     return 0

@@ -24,6 +24,10 @@ def load_registrations() -> None:
         load_all()
     for module in dict.fromkeys(s.fast_paths for s in methods.specs() if s.fast_paths):
         importlib.import_module(module)
+    # precision="auto"'s fp16 check of a method, when a run deferred it (pipeline/precision.py)
+    from .pipeline import precision
+    selfcheck.DEFERRED_CHECKS[precision.PREFIX] = (
+        lambda dev, prec, name: precision.check_deferred(dev, prec, name, methods.spec))
 
 
 def check_all(dev, precisions, kernels=None) -> list:

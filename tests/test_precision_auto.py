@@ -137,3 +137,24 @@ def test_the_tuner_times_each_method_in_both_precisions_and_stores_the_choice(de
     stored = json.loads(db.read_text())["devices"][tuning.device_key(dev)][tuning.FP16_OP]["bicubic"]
     assert stored["params"] == {"use": r.use}
     assert "bicubic" in format_precisions([r])
+
+
+def test_a_run_that_defers_self_checks_keeps_fp32_and_the_background_checks_fp16(dev, cache, monkeypatch):
+    """Inside selfcheck.deferring() (clss upscale on a cold cache) the fp16 check is not run:
+    the run keeps fp32 and the background checker (selfcheck_runner --deferred) checks it."""
+    from clss.selfcheck_runner import load_registrations
+    monkeypatch.delenv("CLSS_SELFCHECK", raising=False)
+    load_registrations()
+    spec = methods.spec("bicubic")
+    spawned = []
+    monkeypatch.setattr(selfcheck, "check_deferred", lambda: spawned.append(list(selfcheck._deferred)))
+    with selfcheck.deferring():
+        assert P.verdict(spec, dev) is None
+    (items,) = spawned
+    assert any(name == "precision.bicubic" for _, _, name in items)
+    assert selfcheck.deferred_main([f"{i}:{p}:{n}" for i, p, n in items if n == "precision.bicubic"]) == 0
+    selfcheck.forget()
+    P._memo.clear()
+    calls = []
+    monkeypatch.setattr(P, "check", lambda s, d: calls.append(1) or (False, "not asked"))
+    assert P.verdict(spec, dev).ok and not calls          # the background's verdict, from disk

@@ -119,15 +119,28 @@ _memo: dict = {}
 def verdict(spec, dev):
     """The cached or fresh check of spec's fp16 frame step on dev, as a selfcheck.Verdict
     named "precision.<method>", kept in selfcheck.json under the hash of the kernel sources
-    (the method's room and the shared kernels/)."""
+    (the method's room and the shared kernels/). None where it is deferred: inside
+    selfcheck.deferring() (clss upscale's first frame on a cold cache waits for no check) the
+    run keeps fp32 and the background checker checks it for the next run."""
     from .. import selfcheck
     base = getattr(dev, "base", dev)
     memo = (id(base), spec.name)
     if memo not in _memo:
-        _memo[memo] = selfcheck.remembered(base, f"precision.{spec.name}", spec.name, "fp16",
-                                           _sources_digest(spec), "precision=auto",
-                                           lambda: check(spec, base))
+        v = selfcheck.remembered(base, f"{PREFIX}.{spec.name}", spec.name, "fp16", _sources_digest(spec),
+                                 "precision=auto", lambda: check(spec, base), defer=True)
+        if v is None:       # deferred: fp32 in this process
+            return None
+        _memo[memo] = v
     return _memo[memo]
+
+
+PREFIX = "precision"
+
+
+def check_deferred(dev, prec: str, name: str, spec_of) -> None:
+    """The background checker's call for a deferred "precision.<method>" (spec_of: the method
+    registry's spec(), which this floor does not import: clss.selfcheck_runner passes it)."""
+    verdict(spec_of(name.partition(".")[2]), dev)
 
 
 def _sources_digest(spec) -> str:
