@@ -127,7 +127,7 @@ def test_train_rules_base_smoke_from_paper_weights(tmp_path, capsys, dev):
     init = str(tmp_path / "paper.safetensors")
     nets.save(init, cfg0, w0)
     flags = ["--batch", "1", "--patch", "8", "--margin", "4", "--window", "3", "--threads", "1",
-             "--base", "rules", "--init", init]
+             "--base", "rules", "--init", init, "--mix-l1", "0.01"]
     seq, out = train_smoke(tmp_path, capsys, "nss", flags, 4)
     assert os.listdir(os.path.join(os.path.dirname(seq), "rules-cache"))
     cfg, w = nets.load(os.path.join(out, "weights.safetensors"))

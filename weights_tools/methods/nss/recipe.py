@@ -71,6 +71,9 @@ def add_arguments(t):
                    help="the loss and schedule: basic (the 2026-11-27 weights) or gym (the "
                    "model gym's warped exponential temporal loss, time-weighted, warm-up, "
                    "flips; --filtered 0.1 is the gym's)")
+    t.add_argument("--mix-l1", type=float, default=0.0,
+                   help="the rules' base, --mode basic: weight of the mean clamped mix (a prior towards "
+                   "clss-rules: NSS's output must buy its share)")
     t.add_argument("--base", choices=("paper", "rules"), default=None,
                    help="the step's base (networks.BASES): rules = clss-rules' output, which "
                    "the network's mix head moves towards NSS's (default: --init's, else paper)")
@@ -138,6 +141,8 @@ def window_loss(step, fr, m, args):
         fl = karis(st["filtered"])[:, :, m:-m, m:-m]
         total = (total + (a - b).abs().mean() + args.ssim * (1.0 - ssim(a, b))
                  + args.filtered * (fl - b).abs().mean())
+        if "mix" in st and args.mix_l1:
+            total = total + args.mix_l1 * st["mix"][:, :, m:-m, m:-m].mean()
         if prev is not None:
             total = total + args.temporal * temporal(a, prev[0], b, prev[1])
         prev = (a, b)

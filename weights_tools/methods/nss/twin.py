@@ -202,6 +202,10 @@ class TorchStep:
         if rb:
             m = F.grid_sample(mix[:, :, :h, :w], g, mode="bilinear", padding_mode="border",
                               align_corners=False)
-            out = rules + m.clamp(0.0, 1.0) * (out - rules)
+            m = m.clamp(0.0, 1.0)
+            out = rules + m * (out - rules)
         # "filtered": the kernel filter's output (the model gym's out_filtered, a loss term)
-        return out, {"hist": out, "deriv": torch.cat([der, luma], 1), "tp": tp, "filtered": m1}
+        st = {"hist": out, "deriv": torch.cat([der, luma], 1), "tp": tp, "filtered": m1}
+        if rb:
+            st["mix"] = m           # [N,1,H,W] the clamped mix (the recipe's --mix-l1)
+        return out, st
