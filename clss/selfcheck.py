@@ -84,6 +84,9 @@ class FastPath:
     # clss tune times the frame steps that use it with and without it and stores the
     # faster (clss.tuning.measured_choice); `applies` answers where nothing was measured.
     measured: bool = False
+    # Further kernel sources the fast variant runs (stems or paths, as ``kernel``): their text
+    # is part of the verdict's key too, so that a change to any of them checks it again.
+    sources: tuple = ()
 
     def applies_on(self, dev) -> bool:
         """Whether the op uses the fast variant on dev at all (before any self-check)."""
@@ -419,7 +422,7 @@ def _device_name(dev) -> str:
 
 def _key(dev, prec: str, fp: FastPath) -> tuple:
     """(device, driver, source hash, build options of the fast variant): as the program cache."""
-    src = dev.source(fp.kernel)
+    src = "".join(dev.source(k) for k in (fp.kernel,) + tuple(fp.sources))
     opts = dev.build_options(prec, **fp.fast)
     return (_device_name(dev), fp.name, hashlib.sha1(src.encode()).hexdigest()[:16], opts)
 

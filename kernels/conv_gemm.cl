@@ -28,9 +28,10 @@
  * (strided, not blocked), so the lanes of a warp read consecutive X columns from local
  * memory (no bank conflicts) and store consecutive pixels (coalesced).
  *
- * Epilogue as conv2d's (kernels/conv.cl): v = acc + bias; + residual before the
- * activation; act; + residual after it. */
+ * Epilogue as conv2d's (kernels/conv.cl), in conv_epilogue.h: v = acc + bias; + residual
+ * before the activation; act; + residual after it. */
 #include "common.h"
+#include "conv_epilogue.h"   /* store_out: bias, residual, activation */
 
 #ifndef KH
 #define KH 3
@@ -61,9 +62,6 @@
 #endif
 
 #define KK (KH * KW)
-#define F_BIAS 1
-#define F_RES_BEFORE 2
-#define F_RES_AFTER 4
 
 #if CONV_MMA
 #if !defined(CLSS_FP16) || defined(CLSS_FP16_NATIVE)
@@ -97,18 +95,6 @@ inline A x_col(__global const T *xg, int k, int p, int K, int P, int H, int W, i
     if (iy < 0 || iy >= H || ix < 0 || ix >= W)
         return A_ZERO;
     return LD(xg, ((long)ci * H + iy) * W + ix);
-}
-
-/* The fused epilogue of one output value at element o of y. */
-inline void store_out(__global T *y, __global const T *res, long o, A v, A b, int flags, float alpha)
-{
-    v += b;
-    if (flags & F_RES_BEFORE)
-        v += LD(res, o);
-    v = APPLY_ACT(v, alpha);
-    if (flags & F_RES_AFTER)
-        v += LD(res, o);
-    ST(y, o, v);
 }
 
 #if CONV_MMA

@@ -1,14 +1,16 @@
 """The conv2d variant table and its chooser (clss/ops/variants.py, clss/ops/conv.py VARIANTS),
 the implicit-GEMM rows (kernels/conv_gemm.cl) and the layer tuner (bench/tune_layers.py).
 The rows' conformance against onnxruntime, on every device, is tests/test_ops_conformance.py
-(clss/verify/cases/conv_gemm.py); oclgrind runs their tiny cases (tests/test_oclgrind.py)."""
+(clss/verify/cases/conv_gemm.py); oclgrind runs their tiny cases (tests/test_oclgrind.py). The
+winograd_gemm row (clss/ops/conv_winograd_gemm.py) runs its products through the same GEMMs."""
 import json
 
 import numpy as np
 import pytest
 
 from clss import selfcheck, tuning
-from clss.ops import conv, conv_gemm, variants
+from clss.ops import conv, conv_gemm, conv_winograd_gemm, variants
+from clss.tolerance import DEFAULT_TOL, compare
 
 LAYER = dict(x=(1, 6, 9, 13), w=(11, 6, 3, 3), pads=(1, 1, 1, 1))
 
@@ -276,3 +278,62 @@ def test_a_probe_runs_once_per_layer_even_where_the_cache_cannot_be_written(dev,
         again = _conv(dev, x, w, b)
     assert calls == [1]
     np.testing.assert_allclose(first, again, rtol=1e-5, atol=1e-5)
+
+
+# winograd_gemm's layers: (batch, in, out, (h, w), pads, activation, residual). Whole tiles; prime
+# sizes and channel counts (partial tiles, ragged GEMM tiles); asymmetric pads and a batch;
+# pads of 2 on a tiny image (tiles mostly padding)
+WINOGRAD_LAYERS = [(1, 16, 16, (8, 8), (1, 1, 1, 1), "relu", None),
+                   (1, 19, 23, (13, 17), (1, 1, 1, 1), "tanh", "before"),
+                   (2, 17, 31, (7, 11), (0, 2, 2, 0), "leaky_relu", "after"),
+                   (1, 16, 20, (5, 3), (2, 2, 2, 2), "sigmoid", "after")]
+
+
+@pytest.mark.parametrize("precision", ["fp32", "fp16"])
+@pytest.mark.parametrize("gemm", ["gemm", "gemm_global", "mma_emulated"])
+def test_the_winograd_gemm_row_agrees_with_the_direct_row(any_dev, precision, gemm):
+    if gemm == "mma_emulated" and precision != "fp16":
+        pytest.skip("the tensor-core layout takes half storage")
+    from clss.verify.cases.conv_gemm import WINOGRAD_MMA_TOL
+    tol = WINOGRAD_MMA_TOL[precision] if gemm == "mma_emulated" else DEFAULT_TOL[precision]
+    g = np.random.default_rng(3)
+    for n, cin, cout, (h, w), pads, act, res in WINOGRAD_LAYERS:
+        x = any_dev.to_device(g.standard_normal((n, cin, h, w)).astype(np.float32), precision)
+        wt = any_dev.to_device((g.standard_normal((cout, cin, 3, 3)) / np.sqrt(9 * cin)).astype(np.float32),
+                               precision)
+        b = any_dev.to_device(g.standard_normal(cout).astype(np.float32), precision)
+        ho, wo = h + pads[0] + pads[2] - 2, w + pads[1] + pads[3] - 2
+        r = any_dev.to_device(g.standard_normal((n, cout, ho, wo)).astype(np.float32), precision) if res else None
+        kw = dict(pads=pads, activation=act, alpha=0.2, residual=r, residual_before_act=res == "before")
+        ref = any_dev.to_host(conv.conv2d(any_dev, precision, x, wt, b, tuning={"VARIANT": "direct"}, **kw))
+        with selfcheck.forcing("conv.winograd_gemm", True), selfcheck.forcing("conv.gemm", True), \
+                selfcheck.forcing("conv.gemm_global", True):
+            out = any_dev.to_host(conv.conv2d(any_dev, precision, x, wt, b, tuning={
+                "VARIANT": "winograd_gemm", "GEMM": gemm}, **kw))
+        c = compare(np.asarray(out, np.float32), np.asarray(ref, np.float32), tol)
+        assert c.passed, ((n, cin, cout, h, w, pads), c.detail)
+
+
+def test_winograd_gemm_takes_dense_3x3_unit_stride_layers_of_16_channels_and_a_cpu_only_when_forced(dev, db):
+    layer = conv.ConvLayer((1, 16, 9, 9), (16, 16, 3, 3), (1, 1), (1, 1, 1, 1), (1, 1), 1)
+    assert conv_winograd_gemm.eligible(layer) and conv_winograd_gemm.eligible(layer._replace(pads=(0, 2, 2, 0)))
+    for other in (layer._replace(strides=(2, 2)), layer._replace(dilations=(2, 2)), layer._replace(w=(15, 16, 3, 3)),
+                  layer._replace(x=(1, 15, 9, 9), w=(16, 15, 3, 3)), layer._replace(x=(1, 32, 9, 9), group=2),
+                  layer._replace(w=(16, 16, 5, 5)), layer._replace(block_in=16)):
+        assert not conv_winograd_gemm.eligible(other), other
+    row = next(v for v in conv.VARIANTS if v.name == "winograd_gemm")
+    assert row.probe(dev) == (not dev.is_cpu)
+    key = conv.layer_key(layer, "fp32")
+    if dev.is_cpu:      # CPUs never probe: their tables were measured, and it is not in them
+        assert variants.choose(dev, "fp32", "conv2d", key, conv.VARIANTS, layer).name != "winograd_gemm"
+    # the GEMM of its step 2 is a tuning parameter like its tiles: the tuned entry's, the caller's
+    assert conv_winograd_gemm._gemm(dev, "fp32", key, None) == (1, 0)
+    tuning.store(dev, "conv2d", key, {"VARIANT": "winograd_gemm", "GEMM": "gemm_global", "TM": 32}, path=db)
+    with selfcheck.forcing("conv.gemm_global", True):
+        assert conv_winograd_gemm._gemm(dev, "fp32", key, None) == (0, 0)
+        assert variants.params(dev, "conv2d", key, "winograd_gemm", conv_gemm.DEFAULTS)["TM"] == 32
+        assert conv_winograd_gemm._gemm(dev, "fp16", key, {"GEMM": "mma_emulated"}) == (1, 1)
+    with selfcheck.forcing("conv.gemm_global", False):    # its self-check failed: the row's own GEMM
+        assert conv_winograd_gemm._gemm(dev, "fp32", key, None) == (1, 0)
+    with pytest.raises(ValueError, match="fp16 storage"):
+        conv_winograd_gemm._gemm(dev, "fp32", key, {"GEMM": "mma"})

@@ -8,7 +8,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import selfcheck, tuning as tuning_db
-from . import conv_gemm, conv_probe, variants
+from . import conv_gemm, conv_probe, conv_winograd_gemm, variants
 from ..device import Device
 from ..tolerance import DEFAULT_TOL
 from .base import Unsupported, as_str, check_storage, onnx_op, rng
@@ -170,16 +170,18 @@ def thin_eligible(w, group: int, strides=(1, 1), dilations=(1, 1)) -> bool:
     return group == 1 and cout < 8 and cin_g >= 8 and tuple(strides) == (1, 1) and tuple(dilations) == (1, 1)
 
 
-def _host_packed(dev: Device, prec: str, w, b, packed, key, nout: int, pack) -> "BlockedWeights":
+def _host_packed(dev: Device, prec: str, w, b, packed, key, nout: int, pack, store: str | None = None
+                 ) -> "BlockedWeights":
     """A layer's weights packed once, on the host, for a kernel that reads them in its own
     order: pack(w as float64 numpy) -> the packed array; the bias zero-padded to nout. Kept in
-    `packed` (the model node's) per precision, under `key`, in the kernels' arithmetic type."""
+    `packed` (the model node's) per precision, under `key`, in the kernels' arithmetic type
+    (or the storage of precision `store`: a kernel that loads them as a tensor)."""
     pw = None if packed is None else packed.get(prec)
     if pw is None or pw.key != key:
         bpad = np.zeros(nout, np.float32)
         if b is not None:
             bpad[:w.shape[0]] = dev.to_host(b)
-        apre = "fp16" if prec == "fp16-native" else "fp32"
+        apre = store or ("fp16" if prec == "fp16-native" else "fp32")
         wp = np.ascontiguousarray(pack(dev.to_host(w).astype(np.float64)), np.float32)
         pw = BlockedWeights(dev.to_device(wp, apre), dev.to_device(bpad, apre), key)
         if packed is not None:
@@ -633,7 +635,8 @@ def layer_key(layer: ConvLayer, prec: str) -> str:
         + ("/res" if layer.residual else "")
     return tuning_db.shape_key(layer.x, layer.w, "s" + "x".join(map(str, layer.strides)),
                                "p" + "x".join(map(str, layer.pads)), "d" + "x".join(map(str, layer.dilations)),
-                               f"g{layer.group}", lay, prec, variants.source_hash("conv", "conv_gemm"))
+                               f"g{layer.group}", lay, prec,
+                               variants.source_hash("conv", "conv_gemm", "conv_winograd_gemm"))
 
 
 def _run_thin(dev, prec, L: ConvLayer, c: ConvCall):
@@ -714,7 +717,8 @@ class _W(NamedTuple):
 # chooser, clss/ops/variants.py: a device's tuned entry and its class's shipped table come
 # first). Thin, Winograd and channel-blocked are the CPU's register-tiled paths over the
 # blocked layout; direct is the portable NCHW kernel every device runs; the GEMM rows are
-# the GPU's tiled implicit GEMMs (kernels/conv_gemm.cl).
+# the GPU's tiled implicit GEMMs (kernels/conv_gemm.cl), and winograd_gemm the GPU's Winograd
+# around them (clss/ops/conv_winograd_gemm.py).
 VARIANTS = (
     variants.Variant("thin", "fewer than 8 outputs from a blocked input, its channels as the vector lanes",
                      lambda dev, prec, L: (L.block_in in (8, 16) and not L.out_blocked and not L.gated
@@ -740,6 +744,10 @@ VARIANTS = (
                      lambda dev, prec, L: L.nchw and prec == "fp16" and conv_gemm.has_mma(dev),
                      _gemm_runner("mma", mma=2), ("conv.mma",),
                      dict(conv_gemm.MMA_TUNABLES), probe=_on_gpu),
+    variants.Variant("winograd_gemm", "Winograd F(2x2, 3x3) on NCHW: input and output transforms around one "
+                     "grouped 1x1 GEMM (any of the rows above), >= 16 channels in and out",
+                     lambda dev, prec, L: conv_winograd_gemm.eligible(L), conv_winograd_gemm.run,
+                     ("conv.gemm", "conv.winograd_gemm"), dict(conv_winograd_gemm.TUNABLES), probe=_on_gpu),
 )
 
 
@@ -939,6 +947,7 @@ def _register_cpu_path(name: str, option: str, check, what: str) -> None:
 
 
 conv_gemm.register_selfchecks(conv2d)
+conv_winograd_gemm.register_selfcheck(conv2d)
 _register_cpu_path("conv.thin", "THIN", _selfcheck_thin,
                    "convs with fewer than 8 outputs read a blocked input, its channels as the vector lanes "
                    "(conv2d_thin) / the input stored NCHW for the NCHW kernel (conv2d)")

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from .. import selfcheck, tuning
-from ..device import kernel_path
+from ..device import Device
 
 
 @dataclass(frozen=True)
@@ -72,13 +72,13 @@ _SOURCE_HASH: dict = {}
 
 
 def source_hash(*stems: str) -> str:
-    """8 hex digits over the kernel sources of a family: part of every tuned layer key, so
-    a choice measured on older kernels is never applied to new ones."""
+    """8 hex digits over the kernel sources of a family, their headers inlined: part of every
+    tuned layer key, so a choice measured on older kernels is never applied to new ones."""
     key = tuple(stems)
     if key not in _SOURCE_HASH:
         h = hashlib.sha256()
         for s in stems:
-            h.update(kernel_path(s).read_bytes())
+            h.update(Device.source(s).encode())
         _SOURCE_HASH[key] = h.hexdigest()[:8]
     return _SOURCE_HASH[key]
 

@@ -2,23 +2,40 @@
 onnxruntime's Conv: each row forced through conv2d's chooser (tuning={"VARIANT": row, tiles})
 and, in fp16, the tensor-core data layout emulated (CONV_MMA=1) on any device. Shapes with
 ragged tiles in every dimension: channels, pixels and the k = Cin * KH * KW walk. A row whose
-self-check fails on a device falls back to the device's other rows, as the engine would."""
+self-check fails on a device falls back to the device's other rows, as the engine would.
+The winograd_gemm row (clss/ops/conv_winograd_gemm.py) runs here too, on each GEMM of its step 2."""
 from __future__ import annotations
 
 import numpy as np
 
 from ...ops import conv_gemm
 from ...ops.conv import ConvCall, ConvLayer, _act, _flags, conv_output_size, layer_key
+from ...tolerance import Tolerance
 from .conv import make_case
 
 ROWS = ("gemm", "gemm_global", "mma_emulated")
+# winograd_gemm's cases, by the GEMM of its step 2 (the tuning parameter GEMM)
+WINOGRAD = {"winograd_gemm": "gemm", "winograd_gemm_global": "gemm_global", "winograd_mma_emulated": "mma_emulated"}
+# Winograd on the tensor cores' fp16 operands: V = B^T d B and U = G g G^T rounded to half lose
+# about a bit in the transforms' sums (1.7x the fp16 tolerance against the direct row on the
+# self-check's layer), so the probe and the tuner reject that GEMM where it misses the tolerance;
+# this case checks its data layout, where a wrong fragment map errs by O(1).
+WINOGRAD_MMA_TOL = {"fp16": Tolerance(atol=5e-3, rtol=5e-3)}
 
 
 def _case(row, tiles, *, n=1, cin, h, w, cout, k=(3, 3), strides=(1, 1), pads=(1, 1, 1, 1),
           dilations=(1, 1), group=1, bias=True, activation="none", alpha=0.01, residual=None):
-    c = make_case(n=n, cin=cin, h=h, w=w, cout=cout, k=k, strides=strides, pads=pads, dilations=dilations,
-                  group=group, bias=bias, activation=activation, alpha=alpha, residual=residual,
-                  tuning={"VARIANT": "gemm" if row == "mma_emulated" else row, **tiles})
+    shape = dict(n=n, cin=cin, h=h, w=w, cout=cout, k=k, strides=strides, pads=pads, dilations=dilations,
+                 group=group, bias=bias, activation=activation, alpha=alpha, residual=residual)
+    if row in WINOGRAD:
+        c = make_case(**shape, tuning={"VARIANT": "winograd_gemm", "GEMM": WINOGRAD[row], **tiles},
+                      tol=WINOGRAD_MMA_TOL if row == "winograd_mma_emulated" else None)
+    else:
+        c = make_case(**shape, tuning={"VARIANT": "gemm" if row == "mma_emulated" else row, **tiles})
+    if row == "winograd_mma_emulated":
+        half, scalar = c.run, make_case(**shape, tuning={"VARIANT": "winograd_gemm", **tiles}).run
+        # the tensor-core layout takes half storage only: fp32 runs the scalar GEMM
+        c.run = lambda dev, prec, inputs: (half if prec == "fp16" else scalar)(dev, prec, inputs)
     if row == "mma_emulated":
         fallback = c.run
 
@@ -55,11 +72,23 @@ def cases(level: str = "quick") -> list:
                        pads=(2, 0, 1, 2), activation="leaky_relu", alpha=0.2, residual="after")]
     tiny.append(_case("gemm", small, cin=8, h=5, w=7, cout=12, k=(1, 1), pads=(0, 0, 0, 0), group=2,
                       activation="sigmoid", bias=False))
+    # winograd_gemm on each GEMM: odd sizes (partial tiles in both directions), ragged GEMM tiles,
+    # pads 0 to 2 and asymmetric, a batch of 2, residuals before and after, no bias
+    tiny += [_case("winograd_gemm", small, cin=16, h=5, w=7, cout=17, activation="relu", residual="before"),
+             _case("winograd_gemm_global", small, n=2, cin=17, h=6, w=5, cout=16, pads=(0, 2, 1, 0),
+                   activation="leaky_relu", alpha=0.2, residual="after"),
+             _case("winograd_mma_emulated", mma_small, cin=16, h=5, w=9, cout=16, pads=(2, 0, 0, 2),
+                   activation="sigmoid", bias=False)]
     if level == "tiny":
         return tiny
-    # quick: the default tiles, several work-groups along every axis
+    # quick: the default tiles, several work-groups along every axis (Winograd: prime sizes and
+    # channel counts)
     quick = tiny + [_case(row, {}, cin=24, h=17, w=45, cout=70, activation="tanh") for row in ROWS]
+    quick += [_case(row, {}, cin=19, h=23, w=41, cout=29, activation="tanh", residual="before")
+              for row in ("winograd_gemm", "winograd_gemm_global")]
     if level == "quick":
         return quick
     return quick + [_case(row, {}, cin=37, h=23, w=61, cout=33, k=(5, 5), pads=(2, 2, 2, 2), residual="before")
-                    for row in ROWS]
+                    for row in ROWS] + [
+        _case(row, {}, cin=32, h=31, w=67, cout=48, activation="relu", residual="after")
+        for row in ("winograd_gemm", "winograd_gemm_global", "winograd_mma_emulated")]
