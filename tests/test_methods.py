@@ -57,7 +57,7 @@ def test_upscaler_dispatch_and_mode_alias(dev):
         clss.Upscaler(2.0, "fancy", device=dev)
     with pytest.raises(ValueError, match=r"scale: expected a number in \[1, 16\]"):
         clss.Upscaler(method="bicubic", scale=0.5, device=dev)
-    with pytest.raises(ValueError, match="precision: expected 'fp32' or 'fp16'"):
+    with pytest.raises(ValueError, match="precision: expected 'auto' or 'fp32' or 'fp16'"):
         clss.Upscaler(method="jbicubic", precision="fp64", device=dev)
 
 
