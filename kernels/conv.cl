@@ -38,6 +38,7 @@
  * (so no load leaves the weight tensor) and are not stored.
  */
 #include "common.h"
+#include "d2s_index.h"      /* -DD2S: a DepthToSpace fused into conv2d's store */
 
 #ifndef KH
 #define KH 3
@@ -172,8 +173,9 @@ inline void st_out8(__global T *p, long o, int os, int n, A8 v)
         }                                                                      \
     }
 
-/* Store the block: CB channels (nco valid) x XB positions (nx valid) spaced os. */
-#define STORE_BLOCK(OUT_OFF, OS, NX)                                           \
+/* Store the block: CB channels (nco valid) x XB positions (nx valid) spaced os, the first
+ * of channel co and vector v at element INDEX (an expression of co and v). */
+#define STORE_AT(INDEX, OS, NX)                                                \
     for (int j = 0; j < CB; ++j) {                                             \
         if (j >= nco)                                                          \
             break;                                                             \
@@ -183,13 +185,15 @@ inline void st_out8(__global T *p, long o, int os, int n, A8 v)
             const int n_ = IMIN(8, (NX) - 8 * v);                              \
             if (n_ <= 0)                                                       \
                 break;                                                         \
-            const long o = (OUT_OFF) + ((long)co * Ho + oy) * Wo + (long)(8 * v) * (OS); \
+            const long o = (INDEX);                                            \
             A8 r = (A8)A_ZERO;                                                 \
             if (flags & (F_RES_BEFORE | F_RES_AFTER))                          \
                 r = ld_out8(res, o, (OS), n_);                                 \
             st_out8(y, o, (OS), n_, epilogue(acc[j][v], b, r, flags, alpha));  \
         }                                                                      \
     }
+#define STORE_BLOCK(OUT_OFF, OS, NX)                                           \
+    STORE_AT((OUT_OFF) + ((long)co * Ho + oy) * Wo + (long)(8 * v) * (OS), OS, NX)
 
 /* x: [N, Cin, H, W]; w: [Cout, Cin/groups, KH, KW]; y, res: [N, Cout, Ho, Wo].
  * NDRange: (ceil(Wo / XB), Ho, N * groups * ncb) with ncb = ceil((Cout/groups) / CB). */
@@ -218,6 +222,7 @@ inline void st_out8(__global T *p, long o, int os, int n, A8 v)
  *  @param[in]  nz      the extent of NDRange dimension 2 that is real work
  *  @note -DKH, -DKW: kernel size, -DSX: x stride; -DXV=1|2, -DCB=1..8: the register block (tunable); -DACT: the fused activation
  *  @note -DCONV_S2K3=0|1, -DCONV_DEINTERLEAVE=0|1, -DCLSS_CLANG_VECTORS=0|1: fast paths and their references
+ *  @note -DD2S=r, -DD2S_CRD=0|1: a DepthToSpace fused into the store (d2s_index.h); y and res are then the shuffled [N, Cout/r^2, Ho r, Wo r]
  *  @note -DCLSS_FP16 / -DCLSS_FP16_NATIVE: the storage precision (common.h); T and TB follow it
  */
 __kernel void conv2d(__global const T *x, __global const TW *w, __global const T *bias,
@@ -307,7 +312,12 @@ __kernel void conv2d(__global const T *x, __global const TW *w, __global const T
         CONV_LOOP(LOAD_GUARDED)
     }
 #endif
+#if D2S
+    /* a DepthToSpace fused (d2s_index.h): the residual is the shuffled output's too */
+    STORE_AT(d2s_at(n, co, oy, ox0 + 8 * v, Cout, Ho, Wo), D2S, Wo - ox0)
+#else
     STORE_BLOCK((long)n * Cout * Ho * Wo + ox0, 1, Wo - ox0)
+#endif
 }
 
 /* ConvTranspose as a gather over output phases: along x, the outputs

@@ -32,6 +32,14 @@
  * before the activation; act; + residual after it. */
 #include "common.h"
 #include "conv_epilogue.h"   /* store_out: bias, residual, activation */
+#include "d2s_index.h"       /* -DD2S: a DepthToSpace fused into the store */
+
+/* Where output channel co (of the group) of pixel p lands: NCHW, or shuffled (d2s_index.h) */
+#if D2S
+#define Y_AT(co, p) d2s_at(n, g * Cout_g + (co), (p) / Wo, (p) % Wo, Cout, Ho, Wo)
+#else
+#define Y_AT(co, p) (yoff + (long)(co) * P + (p))
+#endif
 
 #ifndef KH
 #define KH 3
@@ -244,7 +252,7 @@ __kernel void conv2d_gemm(__global const T *x, __global const T *w, __global con
         for (int j = 0; j < NT; ++j) {
             const int p = p0 + j * 8 + 2 * t + (e & 1);
             if (p < P)
-                store_out(y, res, yoff + (long)co * P + p, acc[j][e], b, flags, alpha);
+                store_out(y, res, Y_AT(co, p), acc[j][e], b, flags, alpha);
         }
     }
 #else
@@ -304,7 +312,7 @@ __kernel void conv2d_gemm(__global const T *x, __global const T *w, __global con
         for (int j = 0; j < RN; ++j) {
             const int p = p0 + tx + j * WX;
             if (p < P)
-                store_out(y, res, yoff + (long)co * P + p, acc[i][j], b, flags, alpha);
+                store_out(y, res, Y_AT(co, p), acc[i][j], b, flags, alpha);
         }
     }
 #endif

@@ -29,7 +29,8 @@ from .graph import (FLOAT_TYPES, Graph, InputError, ModelError, UnsupportedModel
 from .graph import _np_dtype
 from .. import selfcheck
 from . import layout
-from .passes import fuse_gated_conv, fuse_lstm_cell, lstm_cell_graph, run_passes
+from .passes import (fuse_conv_depth_to_space, fuse_gated_conv, fuse_lstm_cell, lstm_cell_graph,
+                     run_passes)
 
 __all__ = ["Model", "ModelError", "InputError", "UnsupportedModelError"]
 
@@ -184,6 +185,10 @@ class Model:
                              thin=selfcheck.enabled(self.device, self.precision, "conv.thin"))
             if n:
                 pass_log.append(f"blocked_layout: {n}")
+        if fuse:        # after the layout: only the convs that stay NCHW store a shuffle
+            n = fuse_conv_depth_to_space(graph)
+            if n:
+                pass_log.append(f"conv_depth_to_space: {n}")
         ex = Executor(graph, self.device, self.precision)
         ex.trace()
         return Specialisation(dict(values), graph, onnx_model, pass_log, ex, output_shapes, out_dtypes)

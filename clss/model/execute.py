@@ -75,7 +75,8 @@ def _family(name: str):
 
 @internal_op("clss.Conv")
 def _conv(dev, prec, attrs, inputs):
-    """Conv with its fused epilogue: act(conv(x, w) + b + residual)."""
+    """Conv with its fused epilogue: act(conv(x, w) + b + residual), a DepthToSpace stored
+    shuffled (attrs "d2s", passes.fuse_conv_depth_to_space)."""
     conv = _family("conv")
     x, w, b, r = (list(inputs) + [None] * 4)[:4]
     kw = dict(strides=attrs["strides"], pads=attrs["pads"], dilations=attrs["dilations"],
@@ -83,7 +84,8 @@ def _conv(dev, prec, attrs, inputs):
     if attrs.get("transpose"):
         return [conv.conv_transpose2d(dev, prec, x, w, b, output_padding=attrs["output_padding"], **kw)]
     return [conv.conv2d(dev, prec, x, w, b, packed=attrs.setdefault("_packed", {}),
-                        out_blocked=bool(attrs.get("blocked_out")), gated=bool(attrs.get("gated")), **kw)]
+                        out_blocked=bool(attrs.get("blocked_out")), gated=bool(attrs.get("gated")),
+                        depth_to_space=attrs.get("d2s"), **kw)]
 
 
 @internal_op("clss.ConcatBlocked")

@@ -818,28 +818,55 @@ def _fuse_pairs(g: Graph, fuse) -> int:
     return changed
 
 
+def _conv_epilogue(g: Graph, n: Node, nxt: Node):
+    """clss.Conv n and its one consumer nxt as one clss.Conv, where nxt is an activation
+    (Relu, LeakyRelu, Sigmoid, Tanh) or an Add of a residual of the output's shape; else None."""
+    if n.op != "clss.Conv":
+        return None
+    y = n.outputs[0]
+    attrs, inputs = dict(n.attrs), list(n.inputs)
+    if nxt.op in ACT_OPS and n.attrs["activation"] == "none":
+        attrs["activation"] = ACT_OPS[nxt.op]
+        attrs["alpha"] = float(nxt.attrs.get("alpha", 0.01))
+    elif (nxt.op == "Add" and not n.inputs[3] and n.attrs["activation"] == "none"
+          and len(nxt.inputs) == 2 and nxt.inputs[0] != nxt.inputs[1]):
+        other = nxt.inputs[1] if nxt.inputs[0] == y else nxt.inputs[0]
+        if tuple(g.shapes[other]) != tuple(g.shapes[y]) or g.dtypes[other].kind != "f":
+            return None
+        inputs[3] = other
+    else:
+        return None
+    return Node("clss.Conv", inputs, list(nxt.outputs), attrs, n.name, n.opset,
+                sources=n.sources + nxt.sources, unfused=[n, nxt])
+
+
 def fuse_conv_epilogues(g: Graph) -> int:
     """clss.Conv followed by Add (a residual of the output's shape) and/or an
     activation (Relu, LeakyRelu, Sigmoid, Tanh) -> one clss.Conv."""
+    return _activations_before_views(g) + _fuse_pairs(g, lambda n, nxt: _conv_epilogue(g, n, nxt))
+
+
+def fuse_conv_depth_to_space(g: Graph) -> int:
+    """clss.Conv followed by DepthToSpace (a pixel shuffle, once pixel_shuffle has named it)
+    -> one clss.Conv that stores the shuffled output (attrs "d2s": [r, mode]; conv2d's
+    depth_to_space, kernels/d2s_index.h), then an Add of a residual of the shuffled shape or
+    an activation after it fused in as well. Run after the blocked layout (clss/model/layout.py):
+    only convs whose input and output stay NCHW, the GPU's configuration. Where the row the
+    device chooses for the layer stores no shuffle, the dry run runs the node's unfused parts."""
     def fuse(n, nxt):
-        if n.op != "clss.Conv":
+        if (n.op != "clss.Conv" or nxt.op != "DepthToSpace" or n.inputs[3] or n.attrs.get("transpose")
+                or n.attrs.get("d2s") or n.attrs.get("gated") or n.inputs[0] in g.blocked
+                or n.outputs[0] in g.blocked or len(g.shapes.get(n.outputs[0], ())) != 4):
             return None
-        y = n.outputs[0]
-        attrs, inputs = dict(n.attrs), list(n.inputs)
-        if nxt.op in ACT_OPS and n.attrs["activation"] == "none":
-            attrs["activation"] = ACT_OPS[nxt.op]
-            attrs["alpha"] = float(nxt.attrs.get("alpha", 0.01))
-        elif (nxt.op == "Add" and not n.inputs[3] and n.attrs["activation"] == "none"
-              and len(nxt.inputs) == 2 and nxt.inputs[0] != nxt.inputs[1]):
-            other = nxt.inputs[1] if nxt.inputs[0] == y else nxt.inputs[0]
-            if tuple(g.shapes[other]) != tuple(g.shapes[y]) or g.dtypes[other].kind != "f":
-                return None
-            inputs[3] = other
-        else:
-            return None
-        return Node("clss.Conv", inputs, list(nxt.outputs), attrs, n.name, n.opset,
+        mode = nxt.attrs.get("mode", "DCR")
+        mode = mode.decode() if isinstance(mode, bytes) else str(mode)
+        attrs = dict(n.attrs, d2s=[int(nxt.attrs["blocksize"]), mode.upper()])
+        return Node("clss.Conv", list(n.inputs), list(nxt.outputs), attrs, n.name, n.opset,
                     sources=n.sources + nxt.sources, unfused=[n, nxt])
-    return _activations_before_views(g) + _fuse_pairs(g, fuse)
+    changed = _fuse_pairs(g, fuse)
+    if changed:
+        changed += _fuse_pairs(g, lambda n, nxt: _conv_epilogue(g, n, nxt) if n.attrs.get("d2s") else None)
+    return changed
 
 
 _RELU_BINARY = {"Add": "add", "Sub": "sub", "Mul": "mul", "Div": "div"}

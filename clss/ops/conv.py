@@ -517,11 +517,17 @@ def conv_output_size(size: int, k: int, stride: int, pad_total: int, dilation: i
 def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 0, 0),
            dilations=(1, 1), group: int = 1, activation: str = "none", alpha: float = 0.01,
            residual=None, residual_before_act: bool = True, out=None, tuning=None, packed=None,
-           out_blocked: bool = False, gated: bool = False):
+           out_blocked: bool = False, gated: bool = False, depth_to_space=None):
     """ONNX Conv on NCHW: x [N,Cin,H,W], w [Cout,Cin/group,kh,kw], b [Cout] or None;
     pads [top,left,bottom,right]. Fused epilogue: y = act(conv + b + residual)
     (residual_before_act, the ResNet pattern Conv -> Add -> Relu), or
     y = act(conv + b) + residual. residual has the output's shape.
+
+    depth_to_space=(r, "CRD" | "DCR"): ONNX DepthToSpace of the result fused into the store
+    (a pixel shuffle is CRD): y and residual are [N, Cout / r^2, Ho r, Wo r], the activation
+    and residual applied at the shuffled positions. Only the rows in D2S_ROWS store so; with
+    another row chosen a ValueError says so (a clss.Model then runs the conv and the
+    DepthToSpace apart: the fused node's unfused parts).
 
     The channel-blocked layout (a graph's blocked chains, clss/model/layout.py): x may be
     [N, ceil(Cin / V), H, W, V] with V = vector_width(dev), channels past Cin ignored;
@@ -563,17 +569,20 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     wo = conv_output_size(wd, kw, sx, pl + pr, dx)
     if ho < 1 or wo < 1:
         raise ValueError(f"conv2d: output would be {ho}x{wo} for input {h}x{wd}")
-    _check_common(x, w, b, residual, prec, (n, cout // 2 if gated else cout, ho, wo), cout)
+    d2s = _d2s(depth_to_space, cout, blocked_in or out_blocked or gated)
+    r2 = d2s[0] if d2s else 1
+    out_nchw = (n, cout // 2 if gated else cout // (r2 * r2), ho * r2, wo * r2)
+    _check_common(x, w, b, residual, prec, out_nchw, cout)
     if gated and (residual is not None or group != 1 or not blocked_eligible(None, w, group)
                   or cout % (2 * vector_width(dev)) or not selfcheck.enabled(dev, prec, "conv.blocked")):
         raise ValueError("conv2d: a gated conv needs a dense spatial conv without residual whose outputs are "
                          "whole vector pairs, on the conv.blocked path")
-    yc = cout // 2 if gated else cout
     if out is None:
-        out = dev.empty(blocked_shape(n, yc, ho, wo, vector_width(dev)) if out_blocked else (n, yc, ho, wo), prec)
+        out = dev.empty(blocked_shape(n, out_nchw[1], ho, wo, vector_width(dev)) if out_blocked else out_nchw,
+                        prec)
     layer = ConvLayer((n, cin, h, wd), tuple(w.shape), (sy, sx), (pt, pl, pb, pr), (dy, dx), group,
                       int(x.shape[4]) if blocked_in else 0, bool(out_blocked), bool(gated), residual is not None)
-    call = ConvCall(x, w, b, packed, activation, alpha, residual, residual_before_act, out, ho, wo, tuning)
+    call = ConvCall(x, w, b, packed, activation, alpha, residual, residual_before_act, out, ho, wo, tuning, d2s)
     # WINO=0 / BLOCKED=0 in `tuning` (tests, ablations) leave those rows out for NCHW layers
     nchw = not (gated or blocked_in or out_blocked)
     exclude = [name for name, flag in (("winograd", "WINO"), ("blocked", "BLOCKED"))
@@ -581,7 +590,28 @@ def conv2d(dev: Device, prec: str, x, w, b=None, *, strides=(1, 1), pads=(0, 0, 
     v = variants.choose(dev, prec, "conv2d", layer_key(layer, prec), VARIANTS, layer, tuning, exclude,
                         probe=functools.partial(conv_probe.probe, tensors=layer_tensors, run=run_layer)
                         if conv_probe.enabled() else None)
+    if d2s and v.name not in D2S_ROWS:
+        raise ValueError(f"conv2d: row {v.name!r} stores no DepthToSpace (the rows that do: "
+                         f"{', '.join(sorted(D2S_ROWS))})")
     return v.run(dev, prec, layer, call)
+
+
+# The rows whose kernels store a fused DepthToSpace (kernels/d2s_index.h)
+D2S_ROWS = frozenset({"direct", "gemm", "gemm_global", "mma"})
+
+
+def _d2s(depth_to_space, cout: int, blocked: bool) -> tuple | None:
+    """(r, crd) of a fused DepthToSpace, checked, or None."""
+    if depth_to_space is None:
+        return None
+    r, mode = depth_to_space
+    r, mode = int(r), str(mode).upper()
+    if r < 1 or mode not in ("CRD", "DCR") or cout % (r * r):
+        raise ValueError(f"conv2d: depth_to_space {depth_to_space!r}: a blocksize >= 1 dividing the "
+                         f"{cout} output channels by its square, mode CRD or DCR")
+    if blocked:
+        raise ValueError("conv2d: a fused DepthToSpace stores NCHW (no blocked or gated conv)")
+    return (r, mode == "CRD") if r > 1 else None
 
 
 class ConvLayer(NamedTuple):
@@ -626,6 +656,7 @@ class ConvCall(NamedTuple):
     ho: int
     wo: int
     tuning: object
+    d2s: tuple | None = None        # (r, crd): a DepthToSpace fused into the store (D2S_ROWS)
 
 
 def layer_key(layer: ConvLayer, prec: str) -> str:
@@ -671,8 +702,9 @@ def _run_direct(dev, prec, L: ConvLayer, c: ConvCall):
     cout_g = cout // group
     t = _tunables(dev, prec, "conv2d", x, w, (sy, sx), c.tuning, group)
     # A pointwise conv with unit stride and no padding is a GEMM over flattened
-    # pixels: one row of H*W, so only the image's last block takes the edge path.
-    if kh == kw == 1 and sy == sx == 1 and pt == pl == pb == pr == 0:
+    # pixels: one row of H*W, so only the image's last block takes the edge path
+    # (not with a DepthToSpace: its store needs each pixel's row).
+    if kh == kw == 1 and sy == sx == 1 and pt == pl == pb == pr == 0 and not c.d2s:
         h, wd, ho, wo = 1, h * wd, 1, ho * wo
     cb = _channel_block(cout_g, t["CB"])
     xb = 8 * t["XV"]
@@ -681,7 +713,7 @@ def _run_direct(dev, prec, L: ConvLayer, c: ConvCall):
                and selfcheck.enabled(dev, prec, "conv.stride2_taps"))
     k = dev.kernel("conv", "conv2d", prec, KH=kh, KW=kw, SX=sx,
                    XV=t["XV"], CB=cb, ACT=_act(c.activation), **_fast_defines(dev, prec),
-                   CONV_S2K3=s2k3)
+                   CONV_S2K3=s2k3, **conv_gemm.d2s_defines(c.d2s))
     nz = n * group * ncb
     gs, ls = _sizes((-(-wo // xb), ho, nz), ncb, t)
     dev.launch(k, gs,

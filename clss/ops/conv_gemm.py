@@ -68,7 +68,7 @@ def launch(dev: Device, prec: str, layer, call, act: int, flags: int, *, key: st
         ls = (t["TN"] // t["RN"], t["TM"] // t["RM"], 1)
         tiles.update(RM=t["RM"], RN=t["RN"])
     k = dev.kernel("conv_gemm", "conv2d_gemm", prec, KH=kh, KW=kw, ACT=act, CONV_LOCAL=int(local),
-                   CONV_MMA=int(mma), **tiles)
+                   CONV_MMA=int(mma), **tiles, **d2s_defines(getattr(call, "d2s", None)))
     gs = (-(-ho_wo(call) // t["TN"]) * ls[0], -(-cout_g // t["TM"]) * ls[1], n * group)
     dev.launch(k, gs,
                (call.x.data, call.w.data, None if call.b is None else call.b.data,
@@ -78,6 +78,12 @@ def launch(dev: Device, prec: str, layer, call, act: int, flags: int, *, key: st
                 np.float32(call.alpha)),
                local_size=ls)
     return call.out
+
+
+def d2s_defines(d2s) -> dict:
+    """-DD2S, -DD2S_CRD of a DepthToSpace fused into a conv's store (kernels/d2s_index.h), from
+    ConvCall.d2s = (r, crd); none without one, so the program is the same as before."""
+    return {} if not d2s else {"D2S": int(d2s[0]), "D2S_CRD": int(d2s[1])}
 
 
 def ho_wo(call) -> int:

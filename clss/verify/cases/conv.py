@@ -16,13 +16,18 @@ _ACT_NODES = {"relu": ("Relu", {}), "sigmoid": ("Sigmoid", {}), "tanh": ("Tanh",
 
 
 def twin(op: str, inputs: dict, *, activation="none", alpha=0.01, residual_before_act=True,
-         consts=(), **attrs):
-    """ONNX twin of a fused conv: Conv/ConvTranspose -> [Add(r)] -> act -> [Add(r)].
-    inputs: x, w, optional b, optional r (residual). `consts`: the inputs that are
-    initializers, not graph inputs (a network's weights, as the bench runs them)."""
+         consts=(), depth_to_space=None, **attrs):
+    """ONNX twin of a fused conv: Conv/ConvTranspose -> [DepthToSpace] -> [Add(r)] -> act ->
+    [Add(r)]. inputs: x, w, optional b, optional r (residual). `consts`: the inputs that are
+    initializers, not graph inputs (a network's weights, as the bench runs them);
+    depth_to_space: (blocksize, mode) of a fused shuffle."""
     names = ["x", "w"] + (["b"] if inputs.get("b") is not None else [])
     nodes = [helper.make_node(op, names, ["c"], **attrs)]
     cur = "c"
+    if depth_to_space:
+        nodes.append(helper.make_node("DepthToSpace", [cur], ["ds"], blocksize=int(depth_to_space[0]),
+                                      mode=depth_to_space[1]))
+        cur = "ds"
     res = inputs.get("r") is not None
     if res and residual_before_act:
         nodes.append(helper.make_node("Add", [cur, "r"], ["s"]))
@@ -43,8 +48,11 @@ def twin(op: str, inputs: dict, *, activation="none", alpha=0.01, residual_befor
 
 def make_case(op="conv", n=1, cin=3, h=7, w=13, cout=5, k=(3, 3), strides=(1, 1), pads=(1, 1, 1, 1),
               dilations=(1, 1), group=1, output_padding=(0, 0), output_shape=None, bias=True,
-              activation="none", alpha=0.01, residual=None, tol=None, tuning=None) -> Case:
-    """One seeded conformance case. residual: None, "before" or "after" the activation.
+              activation="none", alpha=0.01, residual=None, tol=None, tuning=None,
+              depth_to_space=None) -> Case:
+    """One seeded conformance case. residual: None, "before" or "after" the activation;
+    depth_to_space: (r, mode) of a DepthToSpace fused into the store (then a row that stores
+    it is forced through `tuning`), the residual and the activation in the shuffled space.
     output_shape (ConvTranspose): the twin states the output size and the pads follow
     from it (negative where the output is larger than the natural one)."""
     if output_shape is not None:
@@ -69,8 +77,9 @@ def make_case(op="conv", n=1, cin=3, h=7, w=13, cout=5, k=(3, 3), strides=(1, 1)
     inputs = {"x": x, "w": wt}
     if bias:
         inputs["b"] = g.standard_normal(cout).astype(np.float32)
+    r2 = int(depth_to_space[0]) if depth_to_space else 1
     if residual:
-        inputs["r"] = g.standard_normal((n, cout, ho, wo)).astype(np.float32)
+        inputs["r"] = g.standard_normal((n, cout // (r2 * r2), ho * r2, wo * r2)).astype(np.float32)
     attrs = dict(strides=list(strides), pads=list(pads), dilations=list(dilations), group=group)
     fn = conv2d
     if op == "convT":
@@ -81,9 +90,11 @@ def make_case(op="conv", n=1, cin=3, h=7, w=13, cout=5, k=(3, 3), strides=(1, 1)
         fn = conv_transpose2d
     before = residual != "after"
     model = twin("Conv" if op == "conv" else "ConvTranspose", inputs, activation=activation,
-                 alpha=alpha, residual_before_act=before, **attrs)
+                 alpha=alpha, residual_before_act=before, depth_to_space=depth_to_space, **attrs)
     kwargs = dict(strides=strides, pads=pads, dilations=dilations, group=group, activation=activation,
                   alpha=alpha, residual_before_act=before)
+    if depth_to_space:
+        kwargs["depth_to_space"] = depth_to_space
     if op == "convT":
         kwargs["output_padding"] = output_padding
     if tuning is not None:      # a row of the conv2d variant table forced (clss/verify/cases/conv_gemm.py)
@@ -96,7 +107,9 @@ def make_case(op="conv", n=1, cin=3, h=7, w=13, cout=5, k=(3, 3), strides=(1, 1)
             f" d{dilations[0]}{dilations[1]} g{group}"
             + (f" op{output_padding[0]}{output_padding[1]}" if op == "convT" else "")
             + ("" if bias else " nobias") + (f" {activation}" if activation != "none" else "")
-            + (f" res-{residual}" if residual else ""))
+            + (f" res-{residual}" if residual else "")
+            + (f" d2s{depth_to_space[0]}{depth_to_space[1]}" if depth_to_space else "")
+            + (f" [{tuning['VARIANT']}]" if tuning and "VARIANT" in tuning and depth_to_space else ""))
     return Case("Conv" if op == "conv" else "ConvTranspose", desc, inputs, model, host_call(run),
                 tol=tol or {})
 
@@ -127,6 +140,16 @@ def cases(level: str = "quick") -> list[Case]:
         C(cin=10, h=4, w=23, cout=9, activation="relu", residual="before"),
         C(n=2, cin=9, h=5, w=19, cout=11, strides=(2, 2), pads=(0, 1, 2, 1), dilations=(2, 1),
           bias=False, activation="leaky_relu", alpha=0.2, residual="after"),
+        # a DepthToSpace fused into the store (kernels/d2s_index.h): both modes, the rows that
+        # store it, a residual in the shuffled space, a partial vector of 8 pixels
+        C(cin=3, h=5, w=11, cout=12, activation="relu", residual="after", depth_to_space=(2, "CRD"),
+          tuning={"VARIANT": "direct"}),
+        C(n=2, cin=4, h=3, w=7, cout=18, k=(1, 1), pads=(0, 0, 0, 0), residual="before",
+          activation="sigmoid", depth_to_space=(3, "DCR"), tuning={"VARIANT": "direct"}),
+        C(cin=5, h=4, w=9, cout=8, activation="tanh", residual="before", depth_to_space=(2, "DCR"),
+          tuning={"VARIANT": "gemm"}),
+        C(cin=3, h=6, w=5, cout=12, k=(1, 1), pads=(0, 0, 0, 0), depth_to_space=(2, "CRD"),
+          tuning={"VARIANT": "gemm_global"}),
     ]
     if level == "tiny":
         return tiny
