@@ -137,3 +137,23 @@ def test_train_rules_base_smoke_from_paper_weights(tmp_path, capsys, dev):
     up = clss.Upscaler(method="nss", scale=2, device=dev, weights=os.path.join(out, "weights.safetensors"))
     y = up.step(z["color"][0], z["depth"][0], z["motion"][0], tuple(z["jitter"][0]))
     assert np.isfinite(y).all()
+
+
+def test_train_only_mix_holds_the_rest(tmp_path, capsys):
+    """--only-mix trains the mix head alone: every other tensor is --init's."""
+    pytest.importorskip("torch")
+    import os
+    from helpers import tiny_sequence_npz
+    from weights_tools.__main__ import main
+    cfg, w = nets.with_rules_base(nets.make_config(2.0, "mid"), nets.init_weights(nets.make_config(2.0, "mid"), 1))
+    init = str(tmp_path / "rules.safetensors")
+    nets.save(init, cfg, w)
+    (tmp_path / "data").mkdir()
+    tiny_sequence_npz(str(tmp_path / "data" / "a.npz"), 4)
+    out = str(tmp_path / "run")
+    assert main(["train", "nss", "--data", str(tmp_path / "data"), "--out", out, "--init", init,
+                 "--only-mix", "--steps", "2", "--batch", "1", "--patch", "8", "--margin", "4",
+                 "--window", "3", "--threads", "1"]) == 0
+    _, w2 = nets.load(os.path.join(out, "weights.safetensors"))
+    assert w2["mix.weight"].any()
+    assert all(np.array_equal(w2[k], w[k]) for k in w if not k.startswith("mix."))

@@ -74,6 +74,9 @@ def add_arguments(t):
     t.add_argument("--mix-l1", type=float, default=0.0,
                    help="the rules' base, --mode basic: weight of the mean clamped mix (a prior towards "
                    "clss-rules: NSS's output must buy its share)")
+    t.add_argument("--only-mix", action="store_true",
+                   help="the rules' base: train the mix head alone (the rest of the network "
+                   "held as --init has it)")
     t.add_argument("--base", choices=("paper", "rules"), default=None,
                    help="the step's base (networks.BASES): rules = clss-rules' output, which "
                    "the network's mix head moves towards NSS's (default: --init's, else paper)")
@@ -254,7 +257,16 @@ def cmd_train(args):
     m = args.margin * 2
     gym = args.mode == "gym"
     fn = gym_window_loss if gym else window_loss
-    run.fit("nss", net.parameters(), lr=args.lr, steps=args.steps, clip=1.0,
+    params = net.parameters()
+    if args.only_mix:
+        if not nets.rules_base(cfg):
+            raise TrainError("--only-mix: the paper's form has no mix head (--base rules)")
+        for p in net.parameters():
+            p.requires_grad_(False)
+        params = list(net.convs["mix"].parameters())
+        for p in params:
+            p.requires_grad_(True)
+    run.fit("nss", params, lr=args.lr, steps=args.steps, clip=1.0,
             warmup=int(0.05 * args.steps) if gym else 0,
             loss=lambda it: (fn(step, make_batch(seqs, args.batch, args.window, R, rng,
                                                  flips=gym), m, args), {}),
