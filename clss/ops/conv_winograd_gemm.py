@@ -107,7 +107,8 @@ def register_selfcheck(conv2d) -> None:
     def check(dev: Device, prec: str) -> list[np.ndarray]:
         """16 and 17 input channels, 19, 16 and 24 outputs (ragged GEMM tiles); odd and prime
         sizes (partial tiles in both directions), pads 0 to 2 and asymmetric, a batch of 2,
-        residuals before and after the activation, no bias. Small: it runs under oclgrind too."""
+        residuals before and after the activation, no bias (tests/test_oclgrind.py runs the verify
+        cases' tiny shapes instead)."""
         g = rng("conv winograd_gemm selfcheck")
         row = "winograd_gemm" if selfcheck.enabled(dev, prec, NAME) else "direct"
         outs = []

@@ -59,33 +59,40 @@ def _case(row, tiles, *, n=1, cin, h, w, cout, k=(3, 3), strides=(1, 1), pads=(1
     return c
 
 
+# small tiles: a few work-groups, so that oclgrind checks the local memory and its barriers
+SMALL = {"TM": 16, "TN": 16, "TK": 8, "RM": 2, "RN": 2}
+MMA_SMALL = {"TM": 16, "TN": 16, "TK": 16}
+
+
+def winograd_tiny() -> list:
+    """winograd_gemm on each GEMM at small tiles: odd sizes (partial tiles in both directions),
+    ragged GEMM tiles, pads 0 to 2 and asymmetric, a batch of 2, residuals before and after, no
+    bias. In the quick level, not the tiny one: oclgrind runs them on their own
+    (tests/test_oclgrind.py), as it reports a process's reused buffers as uninitialised."""
+    return [_case("winograd_gemm", SMALL, cin=16, h=5, w=7, cout=17, activation="relu", residual="before"),
+            _case("winograd_gemm_global", SMALL, n=2, cin=17, h=6, w=5, cout=16, pads=(0, 2, 1, 0),
+                  activation="leaky_relu", alpha=0.2, residual="after"),
+            _case("winograd_mma_emulated", MMA_SMALL, cin=16, h=5, w=9, cout=16, pads=(2, 0, 0, 2),
+                  activation="sigmoid", bias=False)]
+
+
 def cases(level: str = "quick") -> list:
-    # tiny: every row with small tiles (a few work-groups: oclgrind checks the local memory
-    # and its barriers), ragged in channels, pixels and k, stride 2 with a dilation, a 1x1
-    # grouped layer, residuals before and after, a batch of 2.
-    small = {"TM": 16, "TN": 16, "TK": 8, "RM": 2, "RN": 2}
-    mma_small = {"TM": 16, "TN": 16, "TK": 16}
+    # tiny: every row with small tiles, ragged in channels, pixels and k, stride 2 with a
+    # dilation, a 1x1 grouped layer, residuals before and after, a batch of 2.
     tiny = []
-    for row, tiles in (("gemm", small), ("gemm_global", small), ("mma_emulated", mma_small)):
+    for row, tiles in (("gemm", SMALL), ("gemm_global", SMALL), ("mma_emulated", MMA_SMALL)):
         tiny += [_case(row, tiles, cin=5, h=6, w=11, cout=19, activation="relu", residual="before"),
                  _case(row, tiles, n=2, cin=6, h=9, w=13, cout=9, strides=(2, 2), dilations=(2, 2),
                        pads=(2, 0, 1, 2), activation="leaky_relu", alpha=0.2, residual="after")]
-    tiny.append(_case("gemm", small, cin=8, h=5, w=7, cout=12, k=(1, 1), pads=(0, 0, 0, 0), group=2,
+    tiny.append(_case("gemm", SMALL, cin=8, h=5, w=7, cout=12, k=(1, 1), pads=(0, 0, 0, 0), group=2,
                       activation="sigmoid", bias=False))
-    # winograd_gemm on each GEMM: odd sizes (partial tiles in both directions), ragged GEMM tiles,
-    # pads 0 to 2 and asymmetric, a batch of 2, residuals before and after, no bias
-    tiny += [_case("winograd_gemm", small, cin=16, h=5, w=7, cout=17, activation="relu", residual="before"),
-             _case("winograd_gemm_global", small, n=2, cin=17, h=6, w=5, cout=16, pads=(0, 2, 1, 0),
-                   activation="leaky_relu", alpha=0.2, residual="after"),
-             _case("winograd_mma_emulated", mma_small, cin=16, h=5, w=9, cout=16, pads=(2, 0, 0, 2),
-                   activation="sigmoid", bias=False)]
     if level == "tiny":
         return tiny
-    # quick: the default tiles, several work-groups along every axis (Winograd: prime sizes and
-    # channel counts)
+    # quick: the default tiles, several work-groups along every axis; Winograd's small tiles, and
+    # its default ones on prime sizes and channel counts
     quick = tiny + [_case(row, {}, cin=24, h=17, w=45, cout=70, activation="tanh") for row in ROWS]
-    quick += [_case(row, {}, cin=19, h=23, w=41, cout=29, activation="tanh", residual="before")
-              for row in ("winograd_gemm", "winograd_gemm_global")]
+    quick += winograd_tiny() + [_case(row, {}, cin=19, h=23, w=41, cout=29, activation="tanh", residual="before")
+                                for row in ("winograd_gemm", "winograd_gemm_global")]
     if level == "quick":
         return quick
     return quick + [_case(row, {}, cin=37, h=23, w=61, cout=33, k=(5, 5), pads=(2, 2, 2, 2), residual="before")
