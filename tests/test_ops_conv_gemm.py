@@ -333,7 +333,9 @@ def test_winograd_gemm_takes_dense_3x3_unit_stride_layers_of_16_channels_and_a_c
         assert conv_winograd_gemm._gemm(dev, "fp32", key, None) == (0, 0)
         assert variants.params(dev, "conv2d", key, "winograd_gemm", conv_gemm.DEFAULTS)["TM"] == 32
         assert conv_winograd_gemm._gemm(dev, "fp16", key, {"GEMM": "mma_emulated"}) == (1, 1)
-    with selfcheck.forcing("conv.gemm_global", False):    # its self-check failed: the row's own GEMM
+    with selfcheck.forcing("conv.gemm_global", False):    # its self-check failed: the row's own GEMM,
         assert conv_winograd_gemm._gemm(dev, "fp32", key, None) == (1, 0)
+        with pytest.raises(ValueError, match="not used on this device"):    # or the caller's error
+            conv_winograd_gemm._gemm(dev, "fp32", key, {"GEMM": "gemm_global"})
     with pytest.raises(ValueError, match="fp16 storage"):
         conv_winograd_gemm._gemm(dev, "fp32", key, {"GEMM": "mma"})

@@ -58,7 +58,8 @@ def _transform(g: np.ndarray) -> np.ndarray:
 
 def _gemm(dev: Device, prec: str, key: str, tuning) -> tuple[int, int]:
     """(local, mma) of step 2: the GEMM parameter (default < shipped < tuned < the caller's).
-    One whose self-check fails here falls back to the local-memory GEMM (the row's own)."""
+    One whose self-check fails here (or that does not apply) is an error where the caller (the
+    tuner's candidate) names it, and a table's choice falls back to the row's own GEMM."""
     name = variants.params(dev, "conv2d", key, "winograd_gemm", {"GEMM": "gemm"}, tuning)["GEMM"]
     if name not in GEMMS:
         raise ValueError(f"conv2d: winograd_gemm's GEMM must be one of {', '.join(GEMMS)}, got {name!r}")
@@ -66,6 +67,8 @@ def _gemm(dev: Device, prec: str, key: str, tuning) -> tuple[int, int]:
     if mma and prec != "fp16":
         raise ValueError("conv2d: winograd_gemm on the tensor-core GEMM needs fp16 storage (precision 'fp16')")
     if fast is not None and not selfcheck.enabled(dev, prec, fast):
+        if (tuning or {}).get("GEMM"):
+            raise ValueError(f"conv2d: winograd_gemm's GEMM {name!r} is not used on this device (fast path {fast})")
         return GEMMS["gemm"][:2]
     return local, mma
 
