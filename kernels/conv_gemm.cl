@@ -1,5 +1,5 @@
 /* conv2d_gemm: Conv as an implicit GEMM, the GPU rows of the conv family's variant table
- * (clss/ops/conv_variants.py). One source, three inner products chosen by -D:
+ * (clss/ops/conv.py VARIANTS, clss/ops/variants.py). One source, three inner products chosen by -D:
  *
  *   Y[co, p] = sum_k W[co, k] * X[k, p]     per image n and group g, where
  *   co: an output channel of the group, p = oy * Wo + ox an output pixel,
@@ -90,19 +90,27 @@
 #define NWI (WX * WY)
 #endif
 
-/* X[k, p] of image/group base xg: the input under tap k of output pixel p, 0 in the padding
- * and past K or P (never reading outside the input). */
-inline A x_col(__global const T *xg, int k, int p, int K, int P, int H, int W, int Wo,
-               int sy, int sx, int pt, int pl, int dy, int dx)
+/* The element of the image/group base under tap k of output pixel p (the im2col matrix
+ * X[k, p]), or -1 in the padding and past K or P: written once for both readers below. */
+inline long x_at(int k, int p, int K, int P, int H, int W, int Wo,
+                 int sy, int sx, int pt, int pl, int dy, int dx)
 {
     if (k >= K || p >= P)
-        return A_ZERO;
+        return -1;
     const int ci = k / KK, r = k - ci * KK, ky = r / KW, kx = r - ky * KW;
     const int oy = p / Wo, ox = p - oy * Wo;
     const int iy = oy * sy - pt + ky * dy, ix = ox * sx - pl + kx * dx;
     if (iy < 0 || iy >= H || ix < 0 || ix >= W)
-        return A_ZERO;
-    return LD(xg, ((long)ci * H + iy) * W + ix);
+        return -1;
+    return ((long)ci * H + iy) * W + ix;
+}
+
+/* X[k, p] of image/group base xg, 0 in the padding (never reading outside the input). */
+inline A x_col(__global const T *xg, int k, int p, int K, int P, int H, int W, int Wo,
+               int sy, int sx, int pt, int pl, int dy, int dx)
+{
+    const long i = x_at(k, p, K, P, H, W, Wo, sy, sx, pt, pl, dy, dx);
+    return i < 0 ? A_ZERO : LD(xg, i);
 }
 
 #if CONV_MMA
@@ -110,14 +118,8 @@ inline A x_col(__global const T *xg, int k, int p, int K, int P, int H, int W, i
 inline ushort x_bits(__global const ushort *xg, int k, int p, int K, int P, int H, int W, int Wo,
                      int sy, int sx, int pt, int pl, int dy, int dx)
 {
-    if (k >= K || p >= P)
-        return 0;
-    const int ci = k / KK, r = k - ci * KK, ky = r / KW, kx = r - ky * KW;
-    const int oy = p / Wo, ox = p - oy * Wo;
-    const int iy = oy * sy - pt + ky * dy, ix = ox * sx - pl + kx * dx;
-    if (iy < 0 || iy >= H || ix < 0 || ix >= W)
-        return 0;
-    return xg[((long)ci * H + iy) * W + ix];
+    const long i = x_at(k, p, K, P, H, W, Wo, sy, sx, pt, pl, dy, dx);
+    return i < 0 ? (ushort)0 : xg[i];
 }
 
 #if CONV_MMA == 2
