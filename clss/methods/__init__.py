@@ -140,6 +140,16 @@ def twin(name: str, render_size, scale, **kwargs):
 RULES_HISTORY_CHANNELS = 16
 
 
+def config_base(cfg, bases, default: str, method: str) -> str:
+    """The base a method's weights config names ("base": one of `bases`), `default` where the
+    config has no key (files of the paper's form); a ValueError naming the method otherwise.
+    CLSS, NSRR and NSS read their "base" through it (the rules' base and the paper's)."""
+    b = (cfg or {}).get("base", default)
+    if b not in bases:
+        raise ValueError(f"{method} config: base expected one of {', '.join(bases)}, got {b!r}")
+    return b
+
+
 def rules_frame_step(dev, prec: str, render_size, scale, nits, profile=False):
     """clss-rules' own frame step (the rule-mode kernels of clss/methods/clss/frame.cl, its
     defaults) at `render_size`. Its `run(..., read_flags=False)`, `accept()`, `state`

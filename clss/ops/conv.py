@@ -3,6 +3,7 @@ bias, activation and residual add."""
 from __future__ import annotations
 
 import functools
+import sys
 from typing import NamedTuple
 
 import numpy as np
@@ -734,6 +735,11 @@ def _gemm_runner(variant: str, local: int = 1, mma: int = 0):
     return run
 
 
+def _run_winograd_gemm(dev, prec, L: ConvLayer, c: ConvCall):
+    """winograd_gemm's run (clss/ops/conv_winograd_gemm.py), handed this module's helpers."""
+    return conv_winograd_gemm.run(dev, prec, L, c, sys.modules[__name__])
+
+
 def _on_gpu(dev) -> bool:
     """The GEMM rows are timed at a layer's first use on GPUs (conv_probe), never on a CPU,
     where the register-tiled rows were measured faster (clss/tuning_tables/cpu-*.json)."""
@@ -778,7 +784,7 @@ VARIANTS = (
                      dict(conv_gemm.MMA_TUNABLES), probe=_on_gpu),
     variants.Variant("winograd_gemm", "Winograd F(2x2, 3x3) on NCHW: input and output transforms around one "
                      "grouped 1x1 GEMM (any of the rows above), >= 16 channels in and out",
-                     lambda dev, prec, L: conv_winograd_gemm.eligible(L), conv_winograd_gemm.run,
+                     lambda dev, prec, L: conv_winograd_gemm.eligible(L), _run_winograd_gemm,
                      ("conv.gemm", "conv.winograd_gemm"), dict(conv_winograd_gemm.TUNABLES), probe=_on_gpu),
 )
 

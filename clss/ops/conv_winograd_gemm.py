@@ -73,9 +73,10 @@ def _gemm(dev: Device, prec: str, key: str, tuning) -> tuple[int, int]:
     return local, mma
 
 
-def run(dev: Device, prec: str, L, c):
-    """The row's run function (conv.VARIANTS): layer L (conv.ConvLayer), call c (conv.ConvCall)."""
-    from . import conv      # conv.py imports this module for its table: its helpers at call time
+def run(dev: Device, prec: str, L, c, conv):
+    """The row's run function (conv.VARIANTS): layer L (conv.ConvLayer), call c (conv.ConvCall);
+    conv: the clss.ops.conv module, which hands itself in (it imports this module for its
+    table, so importing it back here would close a cycle)."""
     n, cin, h, w = L.x
     cout = L.w[0]
     th, tw = -(-c.ho // 2), -(-c.wo // 2)

@@ -94,10 +94,8 @@ BASES = ("paper", "rules")
 
 def base_of(cfg) -> str:
     """The blend's base (BASES) of a config dict (None or {}: "paper")."""
-    b = (cfg or {}).get("base", "paper")
-    if b not in BASES:
-        raise ValueError(f"CLSS config: base expected one of {', '.join(BASES)}, got {b!r}")
-    return b
+    from .. import config_base
+    return config_base(cfg, BASES, "paper", "CLSS")
 
 
 def read_config(path) -> dict:

@@ -98,10 +98,8 @@ def make_config(widths="default", n_prev=MAX_PREV, residual=True, act="relu",
 
 def base_of(cfg) -> str:
     """The residual's base (BASES): "rules" or "bilinear" (files without the key)."""
-    b = cfg.get("base", "bilinear")
-    if b not in BASES:
-        raise ValueError(f"NSRR config: base expected one of {', '.join(BASES)}, got {b!r}")
-    return b
+    from .. import config_base
+    return config_base(cfg, BASES, "bilinear", "NSRR")
 
 
 def rules_base(cfg) -> bool:

@@ -95,10 +95,8 @@ def make_config(scale=2.0, quality="mid", base="paper") -> dict:
 
 def rules_base(cfg) -> bool:
     """True where the step refines clss-rules' output (config "base": "rules")."""
-    b = cfg.get("base", "paper")
-    if b not in BASES:
-        raise ValueError(f"NSS config: base expected one of {', '.join(BASES)}, got {b!r}")
-    return b == "rules"
+    from .. import config_base
+    return config_base(cfg, BASES, "paper", "NSS") == "rules"
 
 
 def in_channels(cfg) -> int:
