@@ -41,7 +41,10 @@ def rules_outputs(seq, scale, nits=PQ_NITS, device=None) -> np.ndarray:
     (OpenCL, fp32) run over the sequence, reset at its resets, its history's PQ colour
     (what NSRR's step feeds its network with "base": "rules")."""
     import clss
-    up = clss.Upscaler(method="clss-rules", scale=float(scale), device=device, nits=nits)
+    # fp32 whatever the device (the default "auto" would pick fp16 on a GPU; the cache key
+    # holds no precision)
+    up = clss.Upscaler(method="clss-rules", scale=float(scale), device=device, nits=nits,
+                       precision="fp32")
     out = []
     resets = np.asarray(seq["reset"], bool)
     for t in range(len(resets)):

@@ -42,8 +42,9 @@ def main(argv=None):
     feature = not a.no_feature
     name = "mlp" if feature else "mlp-nofeature"
     dev = get_device(None)
-    up = clss.Upscaler(method=name, scale=s, device=dev, online=True, online_steps=a.steps,
-                       online_batch=a.batch, online_lr=a.lr,
+    # fp32, as the learning was measured (the default "auto" would store fp16 on a GPU)
+    up = clss.Upscaler(method=name, scale=s, device=dev, precision="fp32", online=True,
+                       online_steps=a.steps, online_batch=a.batch, online_lr=a.lr,
                        weights=None if a.start == "shipped" else a.start)
     quiet = open(os.devnull, "w")
 
