@@ -48,15 +48,21 @@ NSRR_FAST_REJECT = (', weights=(lambda n: (lambda c: (c, n.init_weights(c, 1)))(
 # nss_rules_mix; the seeded init (its mix head at zero still reads and writes every buffer)
 NSS_RULES = (', weights=(lambda n: (lambda c: (c, n.init_weights(c, 1)))(n.make_config(2, '
              'base="rules")))(__import__("clss.methods.nss.networks", fromlist=["n"]))')
+# NSRD's rules' base (networks.OUT_BASES): clss-rules' frame step inside, nsrd_rules_in and
+# nsrd_rules_mix; the seeded init with the shipped form's guided base (its mix head at zero
+# still reads and writes every buffer)
+NSRD_RULES = (', weights=(lambda n: (lambda c: (c, n.init_weights(c, 1)))(n.make_config(2, base="guided", '
+              'remod="learned", out_base="rules")))(__import__("clss.methods.nsrd.networks", fromlist=["n"]))')
 # One case per method in the default tier (each method's frame kernels in their shipped
 # configuration: NSRD's guided base and float8 kernels, NSS's atomic depth scatter); the
-# other storage precision, NSRD's untrained x3, NSS's gather path and its rules' base in the slow tier
+# other storage precision, NSRD's untrained x3, NSS's gather path and the rules' bases in the slow tier
 # (these runs were CI's longest: 2.5 minutes of its 20 with all six).
 SLOW = pytest.mark.slow
 CASES = [("nsrr", 2, "fp32", NSRR_FAST_REJECT), ("nsrd", 2, "fp32", ""),
          pytest.param("nsrd", 2, "fp16", "", marks=SLOW), pytest.param("nsrd", 3, "fp16", U, marks=SLOW),
          ("nss", 2, "fp32", U), pytest.param("nss", 2, "fp16", U + ', depth_scatter="gather"', marks=SLOW),
-         pytest.param("nss", 2, "fp32", NSS_RULES, marks=SLOW)]
+         pytest.param("nss", 2, "fp32", NSS_RULES, marks=SLOW),
+         pytest.param("nsrd", 2, "fp32", NSRD_RULES, marks=SLOW)]
 
 
 def _run(case, tmp):

@@ -1,6 +1,6 @@
 """The rules' base on the training side (issue 53 part 2): the methods that refine clss-rules
-("base": "rules": NSRR's residual, NSS's mix) train their torch twins on the clss-rules
-output as data. The rules have no learned parameters, so their output is computed once per
+("base": "rules": NSRR's residual, NSS's mix; NSRD's "out_base": "rules") train their
+torch twins on the clss-rules output as data. The rules have no learned parameters, so their output is computed once per
 sequence by the shipped clss-rules frame step (OpenCL, `rules_outputs`) and cached beside
 the data (`rules_cached`: DIR/rules-cache/<sequence>.<key>.npy; the key digests the rules'
 sources, the scale and the sequence's content, so a change of the rules or the data

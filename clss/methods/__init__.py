@@ -140,13 +140,14 @@ def twin(name: str, render_size, scale, **kwargs):
 RULES_HISTORY_CHANNELS = 16
 
 
-def config_base(cfg, bases, default: str, method: str) -> str:
-    """The base a method's weights config names ("base": one of `bases`), `default` where the
-    config has no key (files of the paper's form); a ValueError naming the method otherwise.
-    CLSS, NSRR and NSS read their "base" through it (the rules' base and the paper's)."""
-    b = (cfg or {}).get("base", default)
+def config_base(cfg, bases, default: str, method: str, key: str = "base") -> str:
+    """The base a method's weights config names (`key`, "base": one of `bases`), `default`
+    where the config has no key (files of the paper's form); a ValueError naming the method
+    otherwise. CLSS, NSRR and NSS read their "base" through it (the rules' base and the
+    paper's), NSRD its "out_base" (its "base" is the lighting's upsampling)."""
+    b = (cfg or {}).get(key, default)
     if b not in bases:
-        raise ValueError(f"{method} config: base expected one of {', '.join(bases)}, got {b!r}")
+        raise ValueError(f"{method} config: {key} expected one of {', '.join(bases)}, got {b!r}")
     return b
 
 
@@ -158,6 +159,23 @@ def rules_frame_step(dev, prec: str, render_size, scale, nits, profile=False):
     up = create("clss-rules", scale=scale, device=dev, precision=prec, nits=nits,
                 profile=profile)
     return up._build_frame_step(*render_size)
+
+
+def run_rules_step(rs, color, depth, motion, jitter, reset, *, depth_inverted, motion_scale,
+                   exposure, profile) -> list:
+    """Enqueue a rules_frame_step's frame (no host wait, no flags read: a frame the rules
+    would refuse is not refused by the refining method) and accept it; its output is
+    rs.out, its PQ colour rs.state. Returns its profiled events as ("rules", event) pairs
+    (none without profile)."""
+    rs.run(color, depth, motion, None, (float(jitter[0]), float(jitter[1])), reset,
+           depth_inverted=depth_inverted, motion_scale=motion_scale, exposure=exposure,
+           read_flags=False)
+    rs.accept()
+    if not profile:
+        return []
+    ev = [("rules", e) for _, e in rs.events]
+    rs.events.clear()
+    return ev
 
 
 def rules_graph(render_size, scale, nits=None):

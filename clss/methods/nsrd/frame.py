@@ -10,6 +10,14 @@ Per frame (render h x w, padded hp x wp = even; output H x W = h s x w s):
               times the output-resolution material, then (nsrd_decode, 8 pixels a
               work-item: float8 PQ decode) the decoded lighting -> out [H,W,3]
 
+With config "out_base": "rules" (networks.OUT_BASES) also:
+
+    rules     clss-rules' frame step on the same inputs (the rule-mode kernels of
+              clss/methods/clss, asked of the method registry; its own history, reset
+              where this step resets); nsrd_rules_in unshuffles its PQ colour into prev's
+              second 3s^2 channels before the network
+    mix       after finish: out = rules + clamp(mix, 0, 1) (out - rules)       (nsrd.cl)
+
 Everything carried between frames stays on the device: the render-resolution state
 (double-buffered), the previous output's lighting (read by `prev` before `finish`
 overwrites it: the queue is in order) and the ConvLSTM's h and c (double-buffered; zeroed
@@ -28,11 +36,12 @@ from ...ops.conv import builtin_free
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS
 from ...pipeline.method import input_buffers, summed_event_ms
 from ...tolerance import DEFAULT_TOL, EXACT
+from .. import rules_frame_step, run_rules_step
 from . import networks as nets
 
 KERNEL = Path(__file__).with_name("nsrd.cl")   # the frame kernels, beside this file
 
-STAGES = ("prepare", "prev", "network", "finish")
+STAGES = ("prepare", "rules", "prev", "network", "finish")
 
 
 def guide_defines() -> dict:
@@ -64,7 +73,7 @@ class NsrdFrameStep:
         self.mv = e((2, h, w), dtype=f32)
         self.cur = e((1, nets.CUR, hp, wp), prec)
         self.warp = e((1, nets.WARP, hp, wp), prec)
-        self.prev = e((1, 3 * s * s, hp, wp), prec)
+        self.prev = e((1, nets.prev_channels(cfg), hp, wp), prec)
         # the ConvLSTM state: the network reads hc[0] and writes hc[1], copied back on the
         # device after it (fixed buffers keep the network's recorded launch plan; feeding
         # alternating buffers re-recorded it every frame, ~30 ms of host time)
@@ -75,6 +84,12 @@ class NsrdFrameStep:
                     else self.hc[0])
         self.y = e((1, nets.out_channels(cfg), hp, wp), prec)
         self.out = e((H, W, 3), dtype=f32)
+        # the rules' base: clss-rules' step at this step's nits (the caller's exposure
+        # reaches both), its PQ colour in rules.state, its output in rules.out
+        self.rules = self.mix = None
+        if nets.rules_base(cfg):
+            self.rules = rules_frame_step(dev, prec, (h, w), float(s), self.nits, self.profile)
+            self.mix = e((1, s * s, hp, wp), prec)
         # zeroed once: the padding of prev is never written, and no kernel reads
         # uninitialised memory (tests/test_oclgrind_methods.py)
         for a in (*self.states, self.hist, self.prev, *self.hc[0], *self.hc[1]):
@@ -91,7 +106,8 @@ class NsrdFrameStep:
         defs.update(guide_defines())
         k = {n: dev.kernel(KERNEL, n, prec, NSRD_SCALE=s, **defs)
              for n in ("nsrd_encode", "nsrd_alpha", "nsrd_prepare", "nsrd_prepare8", "nsrd_warp_state8",
-                       "nsrd_prev", "nsrd_prev8", "nsrd_finish", "nsrd_finish8", "nsrd_decode")}
+                       "nsrd_prev", "nsrd_prev8", "nsrd_finish", "nsrd_finish8", "nsrd_decode")
+             + (("nsrd_rules_in", "nsrd_rules_mix") if self.rules is not None else ())}
         self.learned = bool(nets.learned_remod(cfg))
         na = s * s * hp * wp
         self.alpha = e((na if self.learned else 1,), dtype=f32)      # nsrd_alpha's output
@@ -130,6 +146,13 @@ class NsrdFrameStep:
             "decode": dev.prepare(k["nsrd_decode"], (-(-H * W // 8),), [
                 self.hist.data, self.out.data, i32(H * W), f(PQ_PEAK_NITS / self.nits)]),
         }
+        if self.rules is not None:
+            self.L["rules_in"] = dev.prepare(k["nsrd_rules_in"], (W, H), [
+                self.rules.state.data, self.prev.data, i32(H), i32(W), i32(hp), i32(wp), i32(s),
+                i32(3 * s * s)])
+            self.L["mix"] = dev.prepare(k["nsrd_rules_mix"], (W, H), [
+                self.rules.out.data, self.mix.data, self.out.data, i32(H), i32(W), i32(hp),
+                i32(wp), i32(s)])
         # only the launches this frame step runs: the float8 path's, or the per-pixel one's
         # (whose PQ decode the float8 finish folds in)
         for name in (("decode",) if self.encode8 else ("encode", "alpha", "warp_state")):
@@ -178,6 +201,9 @@ class NsrdFrameStep:
             dec.bind(3, f(PQ_PEAK_NITS / self.nits * exposure))
         (h_in, c_in), (h_out, c_out) = self.hc
         ev = []
+        if self.rules is not None:
+            ev += self._rules(color, depth, motion, jitter, reset, depth_inverted, motion_scale,
+                              exposure)
         if reset:
             for a in (h_in, c_in):
                 ev.append(("prepare", self.dev.zero(a)))
@@ -189,10 +215,15 @@ class NsrdFrameStep:
             ws.bind(9, keep)
             ev.append(("prepare", ws()))
         ev.append(("prev", L["prev"]()))
+        outs = {"y": self.y, "h_out": h_out, "c_out": c_out}
+        if self.rules is not None:
+            ri = L["rules_in"]
+            ri.bind(0, self.rules.state.data)     # its history is double-buffered
+            ev.append(("prev", ri()))
+            outs["mix"] = self.mix
         ne = [] if self.profile else None
         self.network.run_device({"cur": self.cur, "warp": self.warp, "prev": self.prev,
-                                 "h": self.hcw[0], "c": self.hcw[1]},
-                                out={"y": self.y, "h_out": h_out, "c_out": c_out}, events=ne)
+                                 "h": self.hcw[0], "c": self.hcw[1]}, out=outs, events=ne)
         ev += [("network", e) for e in ne or ()]
         q = self.dev.queue
         ev += [("network", cl.enqueue_copy(q, dst.data, src.data, byte_count=src.nbytes))
@@ -204,10 +235,22 @@ class NsrdFrameStep:
         if not self.encode8:
             last = dec()
             ev.append(("finish", last))
+        if self.rules is not None:
+            mx = L["mix"]
+            mx.bind(2, out.data)
+            last = mx()
+            ev.append(("finish", last))
         if self.profile:
             self.events.extend(ev)
         self.cur_i = 1 - self.cur_i
         return out, last
+
+    def _rules(self, color, depth, motion, jitter, reset, depth_inverted, motion_scale, exposure):
+        """clss-rules' frame step on this frame (clss.methods.run_rules_step); the profiled
+        events."""
+        return run_rules_step(self.rules, color, depth, motion, jitter, reset,
+                              depth_inverted=depth_inverted, motion_scale=motion_scale,
+                              exposure=exposure, profile=self.profile)
 
     def stage_ms(self) -> dict:
         return summed_event_ms(self.events, STAGES)
@@ -217,6 +260,8 @@ class NsrdFrameStep:
                   self.in_albedo_hr, *self.states, self.hist, self.mv, self.cur, self.warp,
                   self.prev, *self.hc[0], *self.hc[1], self.y, self.out, self.alpha]
         n = sum(a.nbytes for a in arrays)
+        if self.rules is not None:
+            n += self.mix.nbytes + self.rules.device_bytes()
         mem = self.network.memory()
         n += mem.get("weights_bytes", 0) + mem.get("intermediate_peak_bytes", 0)
         return int(n)

@@ -26,6 +26,13 @@ Layers (weight names = the torch twin's state_dict keys, weights_tools/methods/n
     out          3x3 conv to 3 s^2
     RCAB rK: x + conv(LeakyReLU(conv(x))) * sigmoid(conv1x1(ReLU(conv1x1(GAP(.)))))
 
+With config "out_base": "rules" (OUT_BASES; issue 53 part 2, docs/methods/nsrd.md "The
+rules' base") prev has 3s^2 more channels, the clss-rules output of this frame (its
+history's PQ colour, pixel-unshuffled like the previous output), which pf reads beside the
+previous output, and one more head beside out, mix (hid -> s^2, 3x3, linear, sub-pixel: one
+value per output pixel): the step's output is the rules' moved towards NSRD's own by
+clamp(mix, 0, 1). Its weights start at zero, so the untrained head gives exactly clss-rules.
+
 Widths are far below the paper's (64 channels, 4+ RCAB groups): the training here runs on
 one CPU thread for about half an hour (docs/methods/nsrd.md).
 """
@@ -85,6 +92,17 @@ BASES = ("bilinear", "guided")
 GUIDE_SIGMA = 0.3
 GUIDE_FLOOR = 1e-4
 GUIDE_TAPS = 4           # per axis: floor(u) - 1 .. floor(u) + 2
+# The step's output base (config "out_base", issue 53 part 2; "base" above already names the
+# lighting's upsampling base): "paper" (files without the key: NSRD as the paper builds it,
+# its re-modulated output is the output) or "rules": clss-rules' frame step runs beside
+# NSRD's (its own history, clipped into the render neighbourhood's colour box and blended by
+# its 1/(1+n) rule; clss/methods/clss's rule-mode kernels asked of the method registry), its
+# PQ colour is 3s^2 more channels of prev (pixel-unshuffled as the previous output is: both
+# are output-resolution images, and pf reads them together) and its output the base of the
+# step's: out = rules + clamp(mix, 0, 1) (nsrd - rules), per output pixel, linear; mix = 0
+# (the head's weights at zero) is clss-rules exactly. NSRD's own recurrence (its state, the
+# previous output's lighting, the ConvLSTM) is the paper's, untouched by the mix.
+OUT_BASES = ("paper", "rules")
 # The occlusion-aware mask (the contract has one kind of motion vector, not the paper's
 # two): the previous frame's depth (reversed-Z, render res, kept on the device), warped
 # bilinearly by the current motion, against the current depth:
@@ -104,7 +122,7 @@ WIDTHS = {
 
 
 def make_config(scale, widths="default", demod=True, mask=True, remod="blur",
-                warp_state=False, base="bilinear") -> dict:
+                warp_state=False, base="bilinear", out_base="paper") -> dict:
     s = float(scale)
     if not s.is_integer() or not 2 <= s <= 4:
         raise ValueError(f"scale: NSRD runs at the integer scales 2, 3 and 4 (sub-pixel "
@@ -120,7 +138,24 @@ def make_config(scale, widths="default", demod=True, mask=True, remod="blur",
              warp_state=bool(warp_state))
     if base != "bilinear":      # files from before the key stay byte-identical
         w["base"] = base
+    if out_base not in OUT_BASES:
+        raise ValueError(f"out_base: expected one of {', '.join(OUT_BASES)}, got {out_base!r}")
+    if out_base != "paper":     # configs without the key: the paper's form
+        w["out_base"] = out_base
     return w
+
+
+def rules_base(cfg) -> bool:
+    """True where the step refines clss-rules' output (config "out_base": "rules")."""
+    from .. import config_base
+    return config_base(cfg, OUT_BASES, "paper", "NSRD", key="out_base") == "rules"
+
+
+def prev_channels(cfg) -> int:
+    """The network's prev input: the previous output's lighting (3 s^2), and with the
+    rules' base the rules' PQ colour (3 s^2 more), both pixel-unshuffled."""
+    s2 = 3 * int(cfg["scale"]) ** 2
+    return s2 * (2 if rules_base(cfg) else 1)
 
 
 def guided(cfg) -> bool:
@@ -167,22 +202,27 @@ def learned_remod(cfg) -> bool:
 
 def layer_shapes(cfg) -> dict:
     """name -> (cout, cin, k) of every conv."""
-    F, hid, D, s2 = cfg["feat"], cfg["hid"], cfg["down"], 3 * cfg["scale"] ** 2
-    sh = {"ga.f": (F, CUR + WARP, 3), "ga.g": (F, CUR + WARP, 3), "pf": (F, s2, 3),
+    F, hid, D = cfg["feat"], cfg["hid"], cfg["down"]
+    sh = {"ga.f": (F, CUR + WARP, 3), "ga.g": (F, CUR + WARP, 3), "pf": (F, prev_channels(cfg), 3),
           "cf": (F, CUR, 3), "lstm": (4 * hid, 3 * F + hid, 3), "dn": (D, hid, 3)}
     for name, c in (("r1", D), ("r0", hid)):
         sh.update({f"{name}.0": (c, c, 3), f"{name}.1": (c, c, 3),
                    f"{name}.a0": (max(c // 4, 2), c, 1), f"{name}.a1": (c, max(c // 4, 2), 1)})
     sh.update({"up": (4 * hid, D, 3), "out": (out_channels(cfg), hid, 3)})
+    if rules_base(cfg):
+        sh["mix"] = (int(cfg["scale"]) ** 2, hid, 3)
     return sh
 
 
 def init_weights(cfg, seed=0) -> dict:
     """Seeded He-normal init. The last conv starts small (the output is the bilinear
-    lighting at first); the ConvLSTM's forget gate bias starts at 1 (it keeps its state)."""
+    lighting at first); the ConvLSTM's forget gate bias starts at 1 (it keeps its state);
+    the rules' base's mix head at zero (the step is clss-rules')."""
     g = np.random.default_rng(seed)
     out = {}
     for name, (co, ci, k) in layer_shapes(cfg).items():
+        if name == "mix":
+            continue
         std = np.sqrt(2.0 / (ci * k * k))
         if name == "out":
             std *= 0.1
@@ -190,7 +230,30 @@ def init_weights(cfg, seed=0) -> dict:
         out[f"{name}.bias"] = np.zeros(co, np.float32)
     hid = cfg["hid"]
     out["lstm.bias"][hid:2 * hid] = 1.0
+    if rules_base(cfg):
+        out.update(zero_mix(cfg))
     return out
+
+
+def zero_mix(cfg) -> dict:
+    """The mix head's tensors at zero: clamp(mix, 0, 1) = 0, the output is the rules'."""
+    co, ci, k = layer_shapes(cfg)["mix"]
+    return {"mix.weight": np.zeros((co, ci, k, k), np.float32), "mix.bias": np.zeros(co, np.float32)}
+
+
+def with_rules_base(cfg, weights) -> tuple[dict, dict]:
+    """(cfg, weights) of paper-form NSRD weights given the rules' base: pf reads 3 s^2 more
+    channels (their weights zero), the mix head at zero. The step is then exactly
+    clss-rules, and the network as trained (a fine-tune's start)."""
+    if rules_base(cfg):
+        return dict(cfg), dict(weights)
+    new = {**cfg, "out_base": "rules"}
+    w = dict(weights)
+    pf = np.asarray(w["pf.weight"], np.float32)
+    w["pf.weight"] = np.concatenate([pf, np.zeros_like(pf)], axis=1)
+    w.update(zero_mix(new))
+    check_weights(new, w)
+    return new, w
 
 
 # The weights file: tensors, and the config under "nsrd_config" (clss.networks).
@@ -207,7 +270,7 @@ def _rcab(g, x, name):
 
 
 def build_network(cfg, weights, hp="h", wp="w") -> onnx.ModelProto:
-    hid, s2, so = cfg["hid"], 3 * cfg["scale"] ** 2, out_channels(cfg)
+    hid, s2, so = cfg["hid"], prev_channels(cfg), out_channels(cfg)
     g = NetworkBuilder(weights, OPSET, hidden=("LeakyRelu", ALPHA))
     x = g.op("Concat", "cur", "warp", axis=1)
     gated = g.op("Mul", g.conv(x, "ga.f", "hidden"), g.conv(x, "ga.g", "Sigmoid"))
@@ -225,13 +288,17 @@ def build_network(cfg, weights, hp="h", wp="w") -> onnx.ModelProto:
     u = g.op("DepthToSpace", g.conv(d, "up"), blocksize=2, mode="CRD")
     u = _rcab(g, g.op("Add", u, h), "r0")
     g.conv(u, "out", name="y")
+    rules = rules_base(cfg)
+    if rules:
+        g.conv(u, "mix", name="mix")    # linear: the step clamps it to [0, 1]
     vi = value_info
+    mix = [vi("mix", [1, int(cfg["scale"]) ** 2, hp, wp])] if rules else []
     return g.model("nsrd_network",
                    [vi("cur", [1, CUR, hp, wp]), vi("warp", [1, WARP, hp, wp]),
                     vi("prev", [1, s2, hp, wp]), vi("h", [1, hid, hp, wp]),
                     vi("c", [1, hid, hp, wp])],
                    [vi("y", [1, so, hp, wp]), vi("h_out", [1, hid, hp, wp]),
-                    vi("c_out", [1, hid, hp, wp])], __name__)
+                    vi("c_out", [1, hid, hp, wp])] + mix, __name__)
 
 
 def macs_per_pixel(cfg) -> float:

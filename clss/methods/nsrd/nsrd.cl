@@ -19,6 +19,9 @@
  *                 networks.MATERIAL_FILTER) into out
  *   nsrd_decode   output resolution, 8 pixels a work-item: out *= the PQ-decoded lighting
  *                 (float8: scalar exp2/log2 are library calls on PoCL)
+ *   nsrd_rules_in, nsrd_rules_mix   the rules' base only (networks.OUT_BASES): clss-rules'
+ *                 PQ colour unshuffled into prev beside the previous output; the output
+ *                 moved from the rules' towards NSRD's by the clamped mix
  *
  * The state (float32, render resolution): channels 0-2 the lighting L_i (PQ), 3 the mask
  * M_i (frame i-1 valid at frame i), 4-6 A_i = L_{i-1} warped to frame i, 7 depth. One
@@ -769,5 +772,47 @@ __kernel void nsrd_decode(__global const float *hist, __global float *out, int P
         PST8(d, pq_decode8(l, inv_pq_scale));
         for (int k = 0; k < n; ++k)
             out[3 * (long)(Q0 + k) + c] *= d[k];
+    }
+}
+
+/** The rules' base (networks.OUT_BASES "rules"): clss-rules' PQ colour of this frame (its
+ *  history's channels 0-2), pixel-unshuffled into prev's channels off.. as nsrd_prev
+ *  unshuffles the previous output (torch order: off + c s^2 + (Y % s) s + X % s).
+ *  @param[in]  rules  [16,H,W] T clss-rules' history (PQ colour in channels 0-2)
+ *  @param[out] prev   [6s^2,hp,wp] T; the padding is left as it is (zeroed once)
+ *  NDRange: (W, H). */
+__kernel void nsrd_rules_in(__global const T *rules, __global T *prev, int H, int W, int hp,
+                            int wp, int s_, int off)
+{
+    const int s = SCALE_OR(s_);
+    const int X = get_global_id(0), Y = get_global_id(1);
+    if (X >= W || Y >= H) return;
+    const long P = (long)H * W, Q = (long)Y * W + X, np_ = (long)hp * wp;
+    const long o = (long)(Y / s) * wp + X / s;
+    const int sub = (Y % s) * s + X % s;
+    for (int c = 0; c < 3; ++c)
+        ST(prev, (off + c * s * s + sub) * np_ + o, LD(rules, c * P + Q));
+}
+
+/** The output: the rules' moved towards NSRD's by clamp(mix, 0, 1), the mix sub-pixel (its
+ *  s^2 channels shuffled as the lighting's are); mix = 0 leaves the rules' output bit for
+ *  bit. NSRD's own history is not touched.
+ *  @param[in]     rules  [H,W,3] float32 clss-rules' output (linear x exposure)
+ *  @param[in]     mix    [s^2,hp,wp] T the network's mix head (linear)
+ *  @param[in,out] out    [H,W,3] float32 NSRD's output in, the step's out
+ *  NDRange: (W, H). */
+__kernel void nsrd_rules_mix(__global const float *rules, __global const T *mix,
+                             __global float *out, int H, int W, int hp, int wp, int s_)
+{
+    const int s = SCALE_OR(s_);
+    const int X = get_global_id(0), Y = get_global_id(1);
+    if (X >= W || Y >= H) return;
+    const long Q = (long)Y * W + X, np_ = (long)hp * wp;
+    const long o = (long)(Y / s) * wp + X / s;
+    const int sub = (Y % s) * s + X % s;
+    const float m = clss_clampf((float)LD(mix, sub * np_ + o), 0.0f, 1.0f);
+    for (int c = 0; c < 3; ++c) {
+        const float r = rules[3 * Q + c];
+        out[3 * Q + c] = r + m * (out[3 * Q + c] - r);
     }
 }

@@ -12,7 +12,11 @@ Graph inputs (internal conventions, contract.to_internal; G-buffers NCHW):
                                     lies in the render frame (networks.base_grid)
     guide_idx [16HW], guide_w [1,1,16,H,W]: the guided base's taps (networks.guide_taps;
                                     only with the config's base "guided")
-Outputs: output [1,3,H,W] linear (/ exposure), state_out, hist_out, h_out, c_out.
+    with "out_base": "rules" (networks.OUT_BASES): jitter [2] render pixels and rules_hist
+        [1,16,H,W], the clss-rules step's history (its own twin, clss/methods/clss/oracle.py,
+        inlined: clss.methods.rules_graph)
+Outputs: output [1,3,H,W] linear (/ exposure), state_out, hist_out, h_out, c_out; with the
+rules' base rules_hist_out [1,16,H,W] and mix_out (the network's mix head [1,s^2,hp,wp]).
 On a reset the runner feeds zero h and c (the OpenCL step zeroes its buffers).
 """
 from __future__ import annotations
@@ -21,6 +25,7 @@ import numpy as np
 import onnx
 
 from ...pipeline.contract import PQ_NITS, validate_gbuffers
+from .. import RULES_HISTORY_CHANNELS, rules_graph
 from ...pipeline.twin import GraphBuilder, TwinRunner, make_model, pq_decode, pq_encode, value_info
 from . import networks as nets
 from .upscaler import GBUFFERS, load_weights
@@ -101,8 +106,21 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
     prev = g.op("GridSample", "hist", _warp_grid(g, mhr, H, W, float(s)), mode="bilinear",
                 padding_mode="zeros", align_corners=0)
     prev = g.mul(prev, keep)
-    prev = g.reshape(g.op("Transpose", g.reshape(prev, [1, 3, h, s, w, s]),
-                          perm=[0, 1, 3, 5, 2, 4]), [1, 3 * s * s, h, w])
+    def unshuffle(x):
+        return g.reshape(g.op("Transpose", g.reshape(x, [1, 3, h, s, w, s]),
+                              perm=[0, 1, 3, 5, 2, 4]), [1, 3 * s * s, h, w])
+    prev = unshuffle(prev)
+    rules = nets.rules_base(cfg)
+    if rules:
+        # the rules' base: clss-rules' whole frame graph (rule mode, its defaults, no
+        # reactive mask), reset where this step resets; its PQ colour after prev
+        g.inline(rules_graph((h, w), float(s), nits), "rules",
+                 {"color": "color", "depth": "depth", "motion": "motion", "jitter": "jitter",
+                  "reset": g.sub(g.const(np.float32([1.0])), keep),
+                  "reactive": g.const(np.zeros((1, 1, h, w), np.float32)),
+                  "history": "rules_hist"},
+                 {"history_out": "rules_hist_out", "output": "rules_output"})
+        prev = g.concat([prev, unshuffle(g.chan("rules_hist_out", slice(0, 3)))])
     pads = g.i64([0, 0, 0, 0, 0, 0, hp - h, wp - w])
     feeds = {k: g.op("Pad", v, pads, mode="constant")
              for k, v in (("cur", cur), ("warp", warp), ("prev", prev))}
@@ -116,7 +134,7 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
     else:
         feeds.update(h="h", c="c")
     g.inline(nets.build_network(cfg, weights, hp, wp), "net", feeds,
-             {"y": "y", "h_out": "h_out", "c_out": "c_out"})
+             {"y": "y", "h_out": "h_out", "c_out": "c_out", **({"mix": "mix_out"} if rules else {})})
     yc = g.slice(g.slice("y", 2, 0, h), 3, 0, w)
     y = g.op("DepthToSpace", g.slice(yc, 1, 0, 3 * s * s), blocksize=s, mode="CRD")
     if nets.guided(cfg):
@@ -137,9 +155,13 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
                                      blocksize=s, mode="CRD"))
         mat = g.add(g.mul(alpha, _material(g, "albedo_hr", True)),
                     g.mul(g.sub(g.const(np.float32(1.0)), alpha), mat))
-    g.mul(lin, mat)
-    g.nodes[-1].output[0] = "output"
-    g.nodes[-1].name = "output"
+    out = g.mul(lin, mat)
+    if rules:
+        # rules + clamp(mix, 0, 1) (nsrd - rules), the mix sub-pixel
+        m = g.clip(g.op("DepthToSpace", g.slice(g.slice("mix_out", 2, 0, h), 3, 0, w),
+                        blocksize=s, mode="CRD"), 0.0, 1.0)
+        out = g.add("rules_output", g.mul(m, g.sub(out, "rules_output")))
+    g.op("Identity", out, name="output")
     vi = value_info
     inputs = [vi("color", [1, 3, h, w]), vi("depth", [1, 1, h, w]), vi("motion", [1, 2, h, w]),
               vi("albedo", [1, 3, h, w]), vi("normal", [1, 3, h, w]),
@@ -152,6 +174,10 @@ def build_graph(render_size, cfg, weights, nits=PQ_NITS) -> onnx.ModelProto:
     outputs = [vi("output", [1, 3, H, W]), vi("state_out", [1, nets.STATE, h, w]),
                vi("hist_out", [1, 3, H, W]), vi("h_out", [1, hid, hp, wp]),
                vi("c_out", [1, hid, hp, wp])]
+    if rules:
+        inputs += [vi("jitter", [2]), vi("rules_hist", [1, RULES_HISTORY_CHANNELS, H, W])]
+        outputs += [vi("rules_hist_out", [1, RULES_HISTORY_CHANNELS, H, W]),
+                    vi("mix_out", [1, s * s, hp, wp])]
     return make_model(g.nodes, g.inits, "nsrd_frame", inputs, outputs, __name__, OPSET)
 
 
@@ -173,6 +199,8 @@ def frame_feeds(cfg, x, gb, st, reset) -> dict:
         feeds.update(guide_idx=idx.reshape(-1), guide_w=wgt[None, None])
     else:
         feeds["base_grid"] = nets.base_grid((h, w), (h * s, w * s), x["jitter"])
+    if nets.rules_base(cfg):
+        feeds["jitter"] = np.asarray(x["jitter"], np.float32).reshape(2)
     feeds.update(st)
     if reset:
         feeds["h"] = np.zeros_like(st["h"])
@@ -184,9 +212,12 @@ def zero_state(cfg, render_size) -> dict:
     h, w = render_size
     s, hid = int(cfg["scale"]), cfg["hid"]
     hp, wp = nets.pad2(h), nets.pad2(w)
-    return {"state": np.zeros((1, nets.STATE, h, w), np.float32),
-            "hist": np.zeros((1, 3, h * s, w * s), np.float32),
-            "h": np.zeros((1, hid, hp, wp), np.float32), "c": np.zeros((1, hid, hp, wp), np.float32)}
+    st = {"state": np.zeros((1, nets.STATE, h, w), np.float32),
+          "hist": np.zeros((1, 3, h * s, w * s), np.float32),
+          "h": np.zeros((1, hid, hp, wp), np.float32), "c": np.zeros((1, hid, hp, wp), np.float32)}
+    if nets.rules_base(cfg):
+        st["rules_hist"] = np.zeros((1, RULES_HISTORY_CHANNELS, h * s, w * s), np.float32)
+    return st
 
 
 class OracleNsrd(TwinRunner):
@@ -207,10 +238,15 @@ class OracleNsrd(TwinRunner):
     def step(self, color, depth, motion, jitter, reset=False, **gbuffers):
         x, reset = self._frame(color, depth, motion, jitter, reset)
         gb = validate_gbuffers("nsrd", GBUFFERS, (), gbuffers, self.render_size, (self.H, self.W))
-        outs = self.session.run(["output", "state_out", "hist_out", "h_out", "c_out"],
-                                frame_feeds(self.cfg, x, gb, self.st, reset))
-        self.st = dict(zip(("state", "hist", "h", "c"), outs[1:]))
-        return self._image(outs[0])
+        names = ["output", "state_out", "hist_out", "h_out", "c_out"]
+        if nets.rules_base(self.cfg):
+            names += ["rules_hist_out", "mix_out"]
+        outs = dict(zip(names, self.session.run(names, frame_feeds(self.cfg, x, gb, self.st, reset))))
+        self.st = {k: outs[f"{k}_out"] for k in ("state", "hist", "h", "c")}
+        if "rules_hist_out" in outs:
+            self.st["rules_hist"] = outs["rules_hist_out"]
+        self.last = outs
+        return self._image(outs["output"])
 
 
 def twin(method, render_size, scale=4.0, **kwargs):

@@ -37,7 +37,7 @@ import pyopencl as cl
 from ...device import Device
 from ...pipeline.contract import PQ_NITS
 from ...pipeline.method import input_buffers, summed_event_ms
-from .. import rules_frame_step
+from .. import rules_frame_step, run_rules_step
 from . import networks as nets
 
 KERNEL = Path(__file__).with_name("nss.cl")   # the frame kernels, beside this file
@@ -201,19 +201,11 @@ class NssFrameStep:
         return out, last
 
     def _rules(self, color, depth, motion, jitter, reset, depth_inverted, motion_scale, exposure):
-        """Enqueue clss-rules' frame step (no host wait, no flags read: a frame the rules
-        would refuse is not refused here); its output is rules.out. Returns the profiled
+        """clss-rules' frame step on this frame (clss.methods.run_rules_step); the profiled
         events."""
-        rs = self.rules
-        rs.run(color, depth, motion, None, (float(jitter[0]), float(jitter[1])), reset,
-               depth_inverted=depth_inverted, motion_scale=motion_scale, exposure=exposure,
-               read_flags=False)
-        rs.accept()
-        if not self.profile:
-            return []
-        ev = [("rules", e) for _, e in rs.events]
-        rs.events.clear()
-        return ev
+        return run_rules_step(self.rules, color, depth, motion, jitter, reset,
+                              depth_inverted=depth_inverted, motion_scale=motion_scale,
+                              exposure=exposure, profile=self.profile)
 
     def stage_ms(self) -> dict:
         return summed_event_ms(self.events, STAGES)

@@ -9,6 +9,12 @@ pixels (previous = p + motion), G-buffers as the contract's. The state between f
 a dict: "state" [N,8,h,w] (render-res history: lighting PQ, mask, warped lighting of the
 frame before, depth), "hist" [N,3,H,W] (the previous output's lighting, PQ), "h", "c"
 [N,hid,hp,wp] (ConvLSTM); None = a fresh sequence.
+
+With config "out_base": "rules" (networks.OUT_BASES) the step takes the clss-rules output
+of the frame as data (`rules=`, [N,3,H,W] PQ colour, clss-rules' history channels 0-2 at
+this step's nits: the rules have no learned parameters; the recipe precomputes them with
+the OpenCL clss-rules step, weights_tools/rules_base.py), feeds it to the network beside the
+previous output and returns rules + clamp(mix, 0, 1) (nsrd - rules), linear.
 """
 from __future__ import annotations
 
@@ -66,7 +72,8 @@ class NsrdNet(nn.Module):
         h = torch.sigmoid(o) * torch.tanh(c)
         d = self.rcab(F.leaky_relu(self.c("dn", h), nets.ALPHA), "r1")
         u = self.rcab(F.pixel_shuffle(self.c("up", d), 2) + h, "r0")
-        return self.c("out", u), h, c
+        mix = self.c("mix", u) if nets.rules_base(self.cfg) else None
+        return self.c("out", u), h, c, mix
 
 
 def _tname(k):
@@ -179,13 +186,21 @@ class TorchStep:
         return lhr, pq_decode(lhr, self.nits) * m
 
     def step(self, color, depth, motion, albedo, normal, albedo_hr, jitters, st, reset,
-             lo=0.0):
-        """reset: bool tensor [N]. st: the state dict or None."""
+             lo=0.0, rules=None):
+        """reset: bool tensor [N]. st: the state dict or None. rules: the clss-rules PQ
+        colour of this frame ([N,3,H,W]; "out_base": "rules" only). With the rules' base
+        the returned state also holds "mix" [N,1,H,W], the clamped mix (the recipe's
+        --mix-l1)."""
         N, _, h, w = color.shape
         st = st or {}
         keep = (~reset).to(color.dtype).view(N, 1, 1, 1)
         cur, wp, state = self.prepare(color, depth, motion, albedo, normal, st.get("state"), keep)
         prev = self.prev(st.get("hist"), motion, keep)
+        rb = nets.rules_base(self.cfg)
+        if rb:
+            if rules is None:
+                raise ValueError("NSRD with out_base 'rules': the step needs the rules' output (rules=)")
+            prev = torch.cat([prev, F.pixel_unshuffle(rules, self.s)], 1)
         hp, wpd = nets.pad2(h), nets.pad2(w)
         pad = (0, wpd - w, 0, hp - h)
         hid = self.cfg["hid"]
@@ -197,6 +212,12 @@ class TorchStep:
             hs, cs = (F.pad(warp(v[:, :, :h, :w], motion) * keep, pad) for v in (hs, st["c"]))
         else:
             hs, cs = hs * keep, st["c"] * keep
-        y, hs, cs = self.net(F.pad(cur, pad), F.pad(wp, pad), F.pad(prev, pad), hs, cs)
+        y, hs, cs, mix = self.net(F.pad(cur, pad), F.pad(wp, pad), F.pad(prev, pad), hs, cs)
         lhr, out = self.finish(y[:, :, :h, :w], state[:, 0:3], jitters, albedo_hr, lo, albedo)
-        return out, {"state": state, "hist": lhr, "h": hs, "c": cs}
+        nst = {"state": state, "hist": lhr, "h": hs, "c": cs}
+        if rb:
+            m = F.pixel_shuffle(mix[:, :, :h, :w], self.s).clamp(0.0, 1.0)
+            r = pq_decode(rules, self.nits)
+            out = r + m * (out - r)
+            nst["mix"] = m
+        return out, nst
