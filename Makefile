@@ -212,7 +212,7 @@ $(BLENDER6_TRAIN): $(BLENDER_TRAIN)
 # Every method on the held-out Blender families (the test split of train-data-blender):
 # README's "held-out Blender families" column. A method that needs a G-buffer a sequence
 # lacks skips that sequence, saying so.
-BLENDER_METHODS ?= bicubic,jbicubic,clss-rules,clss,mlp,mlp-nofeature,nsrr,nsrd
+BLENDER_METHODS ?= bicubic,jbicubic,clss-rules,clss,mlp,mlp-nofeature,nsrr,nsrd,nss
 .PHONY: eval-blender
 eval-blender: $(STAMP)
 	@test -f $(DATA)/blender/test/READY || { echo "make eval-blender: no held-out Blender set in $(DATA)/blender/test (make train-data-blender)"; exit 2; }
