@@ -28,12 +28,15 @@ and mean PSNR / SSIM / tPSNR / FLIP are written too (JSON `eval`), so one pass g
 both tables.
 
     .venv/bin/python studies/2026-11-29-regions.py SEQ.npz ... [--methods a,b,...]
-        [--json FILE] [--warmup 4] [--flip-every 4] [--out DIR]
+        [--json FILE] [--warmup 4] [--flip-every 4] [--out DIR] [--weights PATH]
     .venv/bin/python studies/2026-11-29-regions.py --merge A.json B.json ... [--json FILE]
 
 --merge pools the JSON of runs on disjoint sequences (the squared errors and pixel counts
 per region are summed; the eval's records are put together and averaged), so the
-sequences of a set can be scored in separate processes.
+sequences of a set can be scored in separate processes. --weights scores other weights than
+the package's: clss.evaluate's --weights, for the one method with weights among --methods
+(a candidate beside the rules: --methods clss-rules,nss --weights out/train-nss/.../
+weights.safetensors).
 """
 from __future__ import annotations
 
@@ -176,10 +179,13 @@ def main(argv=None):
     p.add_argument("--flip-every", type=int, default=4)
     p.add_argument("--out", default=None, help="the eval's pictures (default: none)")
     p.add_argument("--json", default=None)
+    p.add_argument("--weights", default=None, help="the weights of the one method with weights "
+                   "among --methods (default: the package's)")
     a = p.parse_args(argv)
     if a.merge:
         return merge(a.seqs, a.json)
     methods = ev.canonical_methods(a.methods.split(","))
+    net_kwargs, _ = ev.method_kwargs(a.weights, methods)
     dev = get_device(None)
     sse = {m: {r: 0.0 for r in REGIONS} for m in methods}
     count = {r: 0 for r in REGIONS}
@@ -193,14 +199,16 @@ def main(argv=None):
         for ms in seq["_masks"].values():
             for r, m in ms.items():
                 count[r] += int(m.sum()) * 3
-        run = {m: Recorder(ev.make_method(m, seq, dev), sse[m]) for m in these}
+        run = {m: Recorder(ev.make_method(m, seq, dev, net_kwargs=net_kwargs), sse[m])
+               for m in these}
         rec = ev.evaluate_sequence(seq, these, dev, warmup=a.warmup, out_dir=a.out,
                                    flip_every=a.flip_every, run=run)
         rec["name"] = seq["name"]
         records.append(rec)
         print(f"\n{seq['name']}: {len(scored)} scored frames")
         print(ev.format_table(rec["methods"]), flush=True)
-    report(methods, sse, count, records, a.json, {"sequences": a.seqs, "warmup": a.warmup})
+    report(methods, sse, count, records, a.json, {"sequences": a.seqs, "warmup": a.warmup,
+                                                  "weights": a.weights})
     return 0
 
 
