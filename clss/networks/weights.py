@@ -209,6 +209,31 @@ def preset_widths(widths, presets: dict) -> dict:
     return w
 
 
+def zero_head(name: str, shapes: dict) -> dict:
+    """Layer `name`'s tensors at zero (`shapes`: a network's {name: (out, in, k)})."""
+    co, ci, k = shapes[name]
+    return {f"{name}.weight": np.zeros((co, ci, k, k), np.float32),
+            f"{name}.bias": np.zeros(co, np.float32)}
+
+
+def with_rules_base(cfg: dict, weights: dict, *, key: str, layer: str, layer_shapes,
+                    check) -> tuple[dict, dict]:
+    """(cfg, weights) of paper-form weights given the rules' base (issue 53; NSS's and
+    NSRD's): config `key` set to "rules", `layer` widened to the input channels the new
+    config's `layer_shapes` give it (the new channels' weights zero) and the "mix" head at
+    zero, so the step is exactly clss-rules and the network as trained: a fine-tune's start.
+    `check(cfg, weights)` validates the result."""
+    new = {**cfg, key: "rules"}
+    w = dict(weights)
+    w0 = np.asarray(w[f"{layer}.weight"], np.float32)
+    pad = layer_shapes(new)[layer][1] - w0.shape[1]
+    w[f"{layer}.weight"] = np.concatenate(
+        [w0, np.zeros((w0.shape[0], pad) + w0.shape[2:], np.float32)], axis=1)
+    w.update(zero_head("mix", layer_shapes(new)))
+    check(new, w)
+    return new, w
+
+
 @dataclass(frozen=True)
 class ConfiguredWeights:
     """The weights file of a method whose networks a config describes (a room's

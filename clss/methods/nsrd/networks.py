@@ -42,7 +42,8 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from ...networks.weights import ConfiguredWeights, preset_widths
+from ...networks.weights import ConfiguredWeights, preset_widths, zero_head
+from ...networks.weights import with_rules_base as _with_rules_base
 from ...pipeline.twin import NetworkBuilder, base_grid, value_info  # noqa: F401 (base_grid: also this module's API)
 
 OPSET = 18
@@ -237,8 +238,7 @@ def init_weights(cfg, seed=0) -> dict:
 
 def zero_mix(cfg) -> dict:
     """The mix head's tensors at zero: clamp(mix, 0, 1) = 0, the output is the rules'."""
-    co, ci, k = layer_shapes(cfg)["mix"]
-    return {"mix.weight": np.zeros((co, ci, k, k), np.float32), "mix.bias": np.zeros(co, np.float32)}
+    return zero_head("mix", layer_shapes(cfg))
 
 
 def with_rules_base(cfg, weights) -> tuple[dict, dict]:
@@ -247,13 +247,8 @@ def with_rules_base(cfg, weights) -> tuple[dict, dict]:
     clss-rules, and the network as trained (a fine-tune's start)."""
     if rules_base(cfg):
         return dict(cfg), dict(weights)
-    new = {**cfg, "out_base": "rules"}
-    w = dict(weights)
-    pf = np.asarray(w["pf.weight"], np.float32)
-    w["pf.weight"] = np.concatenate([pf, np.zeros_like(pf)], axis=1)
-    w.update(zero_mix(new))
-    check_weights(new, w)
-    return new, w
+    return _with_rules_base(cfg, weights, key="out_base", layer="pf", layer_shapes=layer_shapes,
+                            check=check_weights)
 
 
 # The weights file: tensors, and the config under "nsrd_config" (clss.networks).

@@ -33,7 +33,8 @@ from __future__ import annotations
 import numpy as np
 import onnx
 
-from ...networks.weights import ConfiguredWeights
+from ...networks.weights import ConfiguredWeights, zero_head
+from ...networks.weights import with_rules_base as _with_rules_base
 from ...pipeline.twin import NetworkBuilder, value_info
 
 OPSET = 18
@@ -141,8 +142,7 @@ def init_weights(cfg, seed=0) -> dict:
 
 def zero_mix(cfg) -> dict:
     """The mix head's tensors at zero: clamp(mix, 0, 1) = 0, the output is the rules'."""
-    co, ci, k = layer_shapes(cfg)["mix"]
-    return {"mix.weight": np.zeros((co, ci, k, k), np.float32), "mix.bias": np.zeros(co, np.float32)}
+    return zero_head("mix", layer_shapes(cfg))
 
 
 def with_rules_base(cfg, weights) -> tuple[dict, dict]:
@@ -151,14 +151,8 @@ def with_rules_base(cfg, weights) -> tuple[dict, dict]:
     clss-rules, and the network as trained (a fine-tune's start)."""
     if rules_base(cfg):
         return dict(cfg), dict(weights)
-    new = {**cfg, "base": "rules"}
-    w = dict(weights)
-    e0 = np.asarray(w["e0.weight"], np.float32)
-    w["e0.weight"] = np.concatenate(
-        [e0, np.zeros((e0.shape[0], RULES_IN) + e0.shape[2:], np.float32)], axis=1)
-    w.update(zero_mix(new))
-    check_weights(new, w)
-    return new, w
+    return _with_rules_base(cfg, weights, key="base", layer="e0", layer_shapes=layer_shapes,
+                            check=check_weights)
 
 
 FILE = ConfiguredWeights("nss", "nss_config", layer_shapes,
