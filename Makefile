@@ -437,6 +437,13 @@ NSRD4_GUIDED_STEPS ?= 900
 # torch thread; Blender validation 28.83 -> 28.99 dB, where 1200 more steps on the narrow
 # split had given nothing: docs/training.md)
 NSRD_WIDE_STEPS ?= 1200
+# then x2's rules' base (issue 53 part 2, docs/methods/nsrd.md "The rules' base"): clss-rules'
+# output as input and the base a mix head moves towards NSRD's own, fine-tuned from x2-wide
+# on the generator's jitter mix with the 30 Blender shards at 0.75 (NSS's and NSRR's rules'
+# data), NSRD_RULES_STEPS at lr 3e-4 with the small prior towards the rules (28 minutes on one
+# torch thread beside other jobs, 2026-11-29): the package's x2 since then (held-out Blender
+# families 28.10 -> 29.13 dB, game family 23.94 -> 25.45, generated held-out 27.25 -> 28.97).
+NSRD_RULES_STEPS ?= 2000
 NSRD_TRAIN = $(BIN)/python -m weights_tools train nsrd --patch 32 --threads 1
 .PHONY: train-nsrd
 train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN) $(BLENDER4_TRAIN) $(BLENDER6_TRAIN) $(TRAIN4)
@@ -451,7 +458,10 @@ train-nsrd: train-data $(TRAIN_STAMP) $(BLENDER_TRAIN) $(BLENDER4_TRAIN) $(BLEND
 	$(NSRD_TRAIN) --data $(call mix6,$(DATA)/train) --out $(OUT)/train-nsrd/x2-wide --steps $(NSRD_WIDE_STEPS) --lr 2.5e-4 --remod learned --warp-state --base guided --init $(OUT)/train-nsrd/x2-guided/weights.safetensors
 	mkdir -p $(WEIGHTS)
 	cp $(OUT)/train-nsrd/x4-guided/weights.safetensors $(WEIGHTS)/nsrd_x4.safetensors
-	cp $(OUT)/train-nsrd/x2-wide/weights.safetensors $(WEIGHTS)/nsrd_x2.safetensors
+	$(nsrr_rules_stage)
+	$(blender_nss_stage)
+	$(NSRD_TRAIN) --data $(NSRR_RULES_DATA),$(BLENDER_NSS):0.75 --out $(OUT)/train-nsrd/x2-rules-blender --steps $(NSRD_RULES_STEPS) --lr 3e-4 --base rules --mix-l1 0.0002 --resume --init $(OUT)/train-nsrd/x2-wide/weights.safetensors
+	cp $(OUT)/train-nsrd/x2-rules-blender/weights.safetensors $(WEIGHTS)/nsrd_x2.safetensors
 	if [ "$(NSRD_ABLATIONS)" = 1 ]; then \
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod --steps $(NSRD_STEPS) --no-demod && \
 	  $(NSRD_TRAIN) --data $(DATA)/train4 --out $(OUT)/train-nsrd/x4-no-demod-ws --steps $(NSRD_FT_STEPS) --lr 1e-3 --no-demod --warp-state --init $(OUT)/train-nsrd/x4-no-demod/weights.safetensors && \
