@@ -39,7 +39,7 @@ from ...ops.conv import builtin_free, vector_width
 from ...pipeline.contract import PQ_NITS, PQ_PEAK_NITS, output_size
 from ...pipeline.method import input_buffers, summed_event_ms
 from ...tolerance import DEFAULT_TOL, EXACT
-from .. import rules_frame_step
+from .. import rules_frame_step, run_rules_step
 from .networks import FEAT, build_features, build_reconstruct, reject_tau, rules_base
 
 KERNEL = Path(__file__).with_name("nsrr.cl")   # the frame kernels, beside this file
@@ -210,23 +210,18 @@ class NsrrFrameStep:
         return out, last
 
     def _rules(self, color, depth, motion, jitter, reset, depth_inverted, motion_scale, exposure):
-        """Enqueue clss-rules' frame step and copy its PQ colour into rbase (no host wait,
-        no flags read: a frame the rules would refuse is not refused here). Returns the
-        profiled events."""
+        """clss-rules' frame step on this frame (clss.methods.run_rules_step), then its PQ
+        colour copied into rbase; the profiled events."""
         rs = self.rules
-        rs.run(color, depth, motion, None, jitter, reset, depth_inverted=depth_inverted,
-               motion_scale=motion_scale, exposure=exposure, read_flags=False)
-        rs.accept()
+        ev = run_rules_step(rs, color, depth, motion, jitter, reset,
+                            depth_inverted=depth_inverted, motion_scale=motion_scale,
+                            exposure=exposure, profile=self.profile)
         b, H, W = self.rbase.dtype.itemsize, self.H, self.W
         copy = cl.enqueue_copy(self.dev.queue, self.rbase.data, rs.state.data,
                                src_origin=(0, 0, 0), dst_origin=(0, 0, 0), region=(W * b, H, 3),
                                src_pitches=(W * b, H * W * b),
                                dst_pitches=(self.Wp * b, self.Hp * self.Wp * b))
-        if not self.profile:
-            return []
-        ev = [("rules", e) for _, e in rs.events] + [("rules", copy)]
-        rs.events.clear()
-        return ev
+        return ev + [("rules", copy)] if self.profile else []
 
     @property
     def hist(self):
